@@ -1,0 +1,1 @@
+"""loggrasp field package."""

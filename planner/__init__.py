@@ -1,0 +1,1 @@
+"""loggrasp planner package."""

@@ -1,0 +1,1 @@
+"""loggrasp reconstruct package."""
