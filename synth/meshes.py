@@ -86,8 +86,8 @@ def frustum(length_m: float, d0_m: float, d1_m: float, sides: int = 24, uv_m: fl
     m = sides + 1
     faces: list[tuple[int, ...]] = []
     for k in range(sides):
-        faces.append((k, m + k, m + k + 1))
-        faces.append((k, m + k + 1, k + 1))
+        faces.append((k, m + k + 1, m + k))  # counter-clockwise seen from outside
+        faces.append((k, k + 1, m + k + 1))
     # caps: centre vertices
     for end, d, base, flip in ((-0.5, d0_m, 0, True), (0.5, d1_m, m, False)):
         c = len(verts)
@@ -127,3 +127,22 @@ def convex_hull_mesh(points_m: np.ndarray, uv_m: float | None = 0.5) -> str:
     normals = verts - centre
     normals /= np.linalg.norm(normals, axis=1, keepdims=True) + 1e-12
     return _write_cached(_obj(verts, faces, uvs, normals), "hull")
+
+
+def grid_mesh(heights_m: np.ndarray, extent_m: float, z_offset_m: float = 0.0, uv_m: float = 0.5) -> str:
+    """OBJ of a square height grid (``[iy, ix]``, centred on the origin) with smooth normals and
+    metric UVs (one texture repeat per ``uv_m``). Vertex z is ``height - z_offset_m``."""
+    h = np.asarray(heights_m, dtype=float)
+    n = h.shape[0]
+    xs = np.linspace(-extent_m / 2, extent_m / 2, n)
+    X, Y = np.meshgrid(xs, xs)
+    verts = np.stack([X.ravel(), Y.ravel(), (h - z_offset_m).ravel()], axis=1)
+    step = extent_m / (n - 1)
+    gy, gx = np.gradient(h, step)
+    normals = np.stack([-gx.ravel(), -gy.ravel(), np.ones(n * n)], axis=1)
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    uvs = verts[:, :2] / uv_m
+    idx = np.arange(n * n).reshape(n, n)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, 1:].ravel(), idx[1:, :-1].ravel()
+    faces = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])  # counter-clockwise from above
+    return _write_cached(_obj(verts, [tuple(f) for f in faces], uvs, normals), "grid")

@@ -100,7 +100,11 @@ class World:
             numHeightfieldRows=n, numHeightfieldColumns=n,
         )
         zc = (float(data.min()) + float(data.max())) / 2
-        body = c.createMultiBody(0, shape, -1, [0.0, 0.0, zc], [0, 0, 0, 1])
+        # TinyRenderer shades heightfields badly: render an OBJ of the same grid instead
+        from synth.meshes import grid_mesh
+
+        vis = c.createVisualShape(p.GEOM_MESH, fileName=grid_mesh(self.height_grid, t.extent_m, zc))
+        body = c.createMultiBody(0, shape, vis, [0.0, 0.0, zc], [0, 0, 0, 1])
         c.changeDynamics(body, -1, lateralFriction=self.physics.terrain_friction)
         c.changeVisualShape(body, -1, rgbaColor=[*t.colour, 1.0])
         return body
@@ -239,14 +243,18 @@ class World:
                 "move the logs apart or lift them onto the terrain"
             )
         half = self.pile.terrain.extent_m / 2
-        for i, log in enumerate(self.settled_pile().logs):
-            for end in log.endpoints_m():
+        for i, (log, pose) in enumerate(zip(self.pile.logs, self.log_poses())):
+            axis = rotate(tuple(pose[3:]), (1.0, 0.0, 0.0))
+            for end in (pose[:3] - axis * log.length_m / 2, pose[:3] + axis * log.length_m / 2):
                 if abs(end[0]) > half or abs(end[1]) > half:
-                    raise PileValidationError(f"log {i} has left the {self.pile.terrain.extent_m} m terrain patch")
-            ground = float(self.pile.terrain.height_at(log.centre_m[0], log.centre_m[1]))
-            if log.centre_m[2] < ground - tolerance_m:
+                    raise PileValidationError(
+                        f"log {i} reaches ({end[0]:.2f}, {end[1]:.2f}) m, outside the "
+                        f"{self.pile.terrain.extent_m} m terrain patch"
+                    )
+            ground = float(self.pile.terrain.height_at(pose[0], pose[1]))
+            if pose[2] < ground - tolerance_m:
                 raise PileValidationError(
-                    f"log {i}'s axis is {ground - log.centre_m[2]:.2f} m below the terrain surface"
+                    f"log {i}'s axis is {ground - pose[2]:.2f} m below the terrain surface"
                 )
 
     def close(self) -> None:

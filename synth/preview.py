@@ -1,0 +1,60 @@
+"""Pictures a person can look at: a render with log outlines and indices, depth beside it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from synth.pile import atomic_write_bytes
+from synth.render import OrthoObservation
+from synth.world import OBSTACLE_BASE
+
+_PALETTE = [(255, 99, 71), (50, 205, 50), (30, 144, 255), (255, 215, 0), (238, 130, 238), (0, 206, 209),
+            (255, 140, 0), (173, 255, 47), (219, 112, 147), (135, 206, 250), (244, 164, 96), (152, 251, 152)]
+
+
+def log_colour_bgr(i: int) -> tuple[int, int, int]:
+    r, g, b = _PALETTE[i % len(_PALETTE)]
+    return (b, g, r)
+
+
+def preview_image(obs: OrthoObservation, scale: int = 4, render: int = 0) -> np.ndarray:
+    """BGR uint8 picture: intensity render with coloured log outlines + indices, and the height map."""
+    import cv2
+
+    n = obs.depth.shape[0]
+    size = n * scale
+    grey = (np.clip(obs.intensity[render], 0, 1) * 255).astype(np.uint8)
+    img = cv2.cvtColor(cv2.resize(grey, (size, size), interpolation=cv2.INTER_NEAREST), cv2.COLOR_GRAY2BGR)
+    inst = cv2.resize(obs.instance.astype(np.int32), (size, size), interpolation=cv2.INTER_NEAREST)
+    for i in range(obs.n_logs):
+        mask = (inst == i + 1).astype(np.uint8)
+        if not mask.any():
+            continue
+        contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+        cv2.drawContours(img, contours, -1, log_colour_bgr(i), 2)
+        m = cv2.moments(mask)
+        cx, cy = int(m["m10"] / m["m00"]), int(m["m01"] / m["m00"])
+        cv2.putText(img, str(i), (cx - 6, cy + 6), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (0, 0, 0), 3)
+        cv2.putText(img, str(i), (cx - 6, cy + 6), cv2.FONT_HERSHEY_SIMPLEX, 0.7, log_colour_bgr(i), 2)
+    obstacles = (inst >= OBSTACLE_BASE).astype(np.uint8)
+    contours, _ = cv2.findContours(obstacles, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    cv2.drawContours(img, contours, -1, (0, 0, 255), 1)
+    h = obs.height()
+    hn = ((h - h.min()) / max(float(h.max() - h.min()), 1e-6) * 255).astype(np.uint8)
+    depth_img = cv2.applyColorMap(cv2.resize(hn, (size, size), interpolation=cv2.INTER_NEAREST), cv2.COLORMAP_VIRIDIS)
+    cv2.putText(img, "intensity + logs", (6, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (255, 255, 255), 1)
+    cv2.putText(depth_img, f"height {h.min():.2f}..{h.max():.2f} m", (6, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.55,
+                (255, 255, 255), 1)
+    return np.concatenate([img, np.full((size, 4, 3), 255, np.uint8), depth_img], axis=1)
+
+
+def write_png(path: str | Path, bgr: np.ndarray) -> Path:
+    import cv2
+
+    ok, data = cv2.imencode(".png", bgr)
+    if not ok:
+        raise OSError(f"could not encode {path}")
+    atomic_write_bytes(Path(path), data.tobytes())
+    return Path(path)
