@@ -8,7 +8,10 @@ DIRECT client, so worlds never share state and a world rebuilt from the same spe
 
 from __future__ import annotations
 
+import contextlib
 import math
+import os
+import sys
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -47,6 +50,25 @@ class PhysicsConfig:
             raise ValueError("log_density_kg_m3 must be > 0")
 
 
+@contextlib.contextmanager
+def _quiet_stdout():
+    """Silence C-level writes to stdout (file descriptor 1) for the duration."""
+    try:
+        sys.stdout.flush()
+        saved = os.dup(1)
+    except (OSError, ValueError):  # no real stdout (e.g. captured): nothing to silence
+        yield
+        return
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 1)
+        yield
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
+        os.close(devnull)
+
+
 class World:
     """One pile in its own pybullet DIRECT client. Use as a context manager; ``close`` is idempotent."""
 
@@ -57,7 +79,8 @@ class World:
         self.pile = pile
         self.physics = physics or PhysicsConfig()
         self.p = p
-        self.client = BulletClient(connection_mode=p.DIRECT)
+        with _quiet_stdout():  # pybullet's C code prints "argv[0]=" on every connect
+            self.client = BulletClient(connection_mode=p.DIRECT)
         self._closed = False
         try:
             self._build()

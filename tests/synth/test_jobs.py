@@ -1,0 +1,57 @@
+import json
+
+import pytest
+
+from synth.errors import OutputError
+from synth.jobs import PileJob, parse_range, pile_dir_name, run_pile_job
+from synth.pile import read_pile
+from synth.render import OrthoObservation
+
+
+def test_job_writes_complete_piles_and_resumes(tmp_path):
+    job = PileJob(count=2, logs=(2, 3), obstacles=(0, 1), seed=5, n_renders=1)
+    stats = run_pile_job(tmp_path, job, workers=1)
+    assert stats["generated"] == 2
+    for k in range(2):
+        d = tmp_path / pile_dir_name(k)
+        pile = read_pile(d)
+        obs = OrthoObservation.load(d)
+        assert obs.n_logs == pile.n_logs and (d / "preview.png").stat().st_size > 1000
+    first = (tmp_path / pile_dir_name(0) / "pile.json").read_bytes()
+    # a killed job leaves a temp folder: it is cleaned up, finished piles are kept as they are
+    (tmp_path / ".pile_00002.tmp-999").mkdir()
+    stats = run_pile_job(tmp_path, PileJob(count=3, logs=(2, 3), obstacles=(0, 1), seed=5, n_renders=1), workers=1)
+    assert stats == {"generated": 1, "skipped": 2, "attempts": stats["attempts"]}
+    assert (tmp_path / pile_dir_name(0) / "pile.json").read_bytes() == first
+    assert not list(tmp_path.glob(".pile_*"))
+
+
+def test_pile_params_depend_only_on_seed_and_index():
+    a = PileJob(count=10, logs=(2, 7), seed=1)
+    assert [a.pile_params(k) for k in range(5)] == [PileJob(count=3, logs=(2, 7), seed=1).pile_params(k) for k in range(5)]
+    assert all(2 <= a.pile_params(k)[1] <= 7 for k in range(10))
+
+
+def test_resume_with_other_parameters_is_refused(tmp_path):
+    (tmp_path / "job.json").write_text(json.dumps({"format": "loggrasp.piles", "logs": [9, 9]}))
+    with pytest.raises(OutputError, match="other parameters"):
+        run_pile_job(tmp_path, PileJob(count=1), workers=1)
+
+
+def test_unwritable_output(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    with pytest.raises(OutputError, match="cannot write"):
+        run_pile_job(blocker / "sub", PileJob(count=1), workers=1)
+
+
+@pytest.mark.parametrize("text", ["a-b", "5-2", "-3", "1-2-3"])
+def test_bad_ranges(text):
+    with pytest.raises(ValueError):
+        parse_range(text, "--logs")
+
+
+@pytest.mark.parametrize("kwargs", [{"count": 0}, {"count": 1, "logs": (0, 2)}, {"count": 1, "obstacles": (3, 99)}])
+def test_bad_jobs(kwargs):
+    with pytest.raises(ValueError):
+        PileJob(**kwargs)
