@@ -1,0 +1,128 @@
+"""`make bench`: measure loggrasp's speed targets and write docs/benchmarks.md.
+
+Each section is a function returning Markdown; sections whose code is not there yet are skipped
+with a note. Run: .venv/bin/python bench/run.py --out docs/benchmarks.md [--only NAME]
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import importlib
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "bench"))
+
+
+def machine() -> str:
+    cpu = "?"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{platform.system()} {platform.machine()}, {os.cpu_count()} cores ({cpu}), Python {platform.python_version()}"
+
+
+def bench_piles(repeats: int = 5) -> str:
+    from synth.generate import GenerationConfig, generate_pile
+
+    rows = ["| logs | obstacles | piles | settle wall s (median) | p90 | sim s (median) | attempts (mean) |",
+            "|---|---|---|---|---|---|---|"]
+    for n_logs in (4, 7):
+        for n_obst in (0, 3):
+            walls, sims, attempts = [], [], []
+            for seed in range(repeats):
+                t0 = time.perf_counter()
+                _, rep = generate_pile(1000 + seed, GenerationConfig(n_logs=n_logs, n_obstacles=n_obst))
+                walls.append(time.perf_counter() - t0)
+                sims.append(rep.settle_time_s)
+                attempts.append(rep.attempts)
+            walls.sort()
+            rows.append(f"| {n_logs} | {n_obst} | {repeats} | {statistics.median(walls):.2f} | "
+                        f"{walls[int(0.9 * (len(walls) - 1))]:.2f} | {statistics.median(sims):.2f} | "
+                        f"{statistics.mean(attempts):.1f} |")
+    return ("### Settled piles (generate + drop + settle + validate, one process)\n"
+            "Target: a 4-log pile settled in under 2 s.\n\n" + "\n".join(rows))
+
+
+def bench_render(repeats: int = 20) -> str:
+    from synth.generate import GenerationConfig, generate_pile
+    from synth.render import OrthoRenderConfig, render_ortho
+    from synth.world import World
+
+    pile, _ = generate_pile(3, GenerationConfig(n_logs=7, n_obstacles=3))
+    rows = ["| size px | one render s (median) | 3 renders + depth + instance s (median) |", "|---|---|---|"]
+    with World(pile) as world:
+        for size in (128, 256):
+            one, three = [], []
+            for _ in range(repeats):
+                t0 = time.perf_counter()
+                render_ortho(world, OrthoRenderConfig(size_px=size, n_renders=1))
+                one.append(time.perf_counter() - t0)
+                t0 = time.perf_counter()
+                render_ortho(world, OrthoRenderConfig(size_px=size, n_renders=3))
+                three.append(time.perf_counter() - t0)
+            rows.append(f"| {size} | {statistics.median(one):.4f} | {statistics.median(three):.4f} |")
+    return ("### Orthographic render (TinyRenderer, 7 logs + 3 obstacles)\n"
+            "Target: under 0.1 s at 128 px.\n\n" + "\n".join(rows))
+
+
+SECTIONS = {
+    "piles": bench_piles,
+    "render": bench_render,
+}
+OPTIONAL = {  # module in bench/ -> function returning Markdown; skipped if the module is absent
+    "stereo": ("bench_stereo", "markdown"),
+    "trials": ("bench_trials", "markdown"),
+    "link": ("bench_link", "markdown"),
+}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--out", default="docs/benchmarks.md")
+    ap.add_argument("--only", nargs="*", default=None)
+    args = ap.parse_args()
+    parts = []
+    names = args.only or [*SECTIONS, *OPTIONAL]
+    for name in names:
+        t0 = time.perf_counter()
+        if name in SECTIONS:
+            md = SECTIONS[name]()
+        else:
+            mod_name, fn = OPTIONAL[name]
+            try:
+                mod = importlib.import_module(mod_name)
+                md = getattr(mod, fn)()
+            except (ImportError, AttributeError) as exc:
+                md = f"### {name}\n_not measured: {exc}_"
+        print(md, "\n", flush=True)
+        parts.append(md + f"\n\n_section time {time.perf_counter() - t0:.0f} s_")
+    rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
+    head = (f"# loggrasp benchmarks\n\nMachine: {machine()}  \nDate: {dt.datetime.now(dt.timezone.utc):%Y-%m-%d %H:%M} UTC, "
+            f"commit {rev}  \nCommand: `make bench` (= `.venv/bin/python bench/run.py --out {args.out}`"
+            f"{' --only ' + ' '.join(args.only) if args.only else ''})\n\n")
+    out = ROOT / args.out
+    if args.only and out.exists():
+        # keep other sections: append a dated block for the partial run
+        text = out.read_text() + "\n\n---\n\n" + head + "\n\n".join(parts) + "\n"
+    else:
+        text = head + "\n\n".join(parts) + "\n"
+    from synth.pile import atomic_write_bytes
+
+    atomic_write_bytes(out, text.encode())
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()
