@@ -1,0 +1,37 @@
+"""Error hierarchy of the reconstruction. Every error says what was wrong and what to do.
+
+``ReconstructError`` is the root of every error raised by :mod:`reconstruct`; add subclasses
+for new stages next to the GNSS ones below.
+"""
+
+from __future__ import annotations
+
+
+class ReconstructError(Exception):
+    """Root of every error raised by :mod:`reconstruct`."""
+
+
+# --- GNSS surveys of log ends (reconstruct.gnss) ---------------------------------------------
+
+
+class GnssError(ReconstructError):
+    """A GNSS survey of log end points could not be used."""
+
+
+class GnssFileError(GnssError):
+    """A survey, raw receiver log or time-window file is missing or unreadable."""
+
+
+class GnssFormatError(GnssError, ValueError):
+    """A survey file is malformed: a bad row, an unknown column or CRS, a log whose end is
+    missing or duplicated, coordinates that make no sense for Sweden (e.g. swapped lat/lon)."""
+
+
+class GnssQualityError(GnssError):
+    """Points are not good enough: not RTK-fixed (and float not allowed), or no epochs in a
+    time window. Re-measure them, or accept float solutions explicitly."""
+
+
+class GnssOutlierError(GnssError):
+    """A point lies implausibly far from the other points or from the scanned area (a wrong
+    log id, a point measured elsewhere, a typo in a coordinate)."""
