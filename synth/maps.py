@@ -1,0 +1,126 @@
+"""The paper's five grasp target maps ``G = (C, S, W, U, B)`` on the orthographic pixel grid.
+
+Channels (index order is fixed, see :data:`MAP_CHANNELS`):
+
+* ``C = cos 2φ`` and ``S = sin 2φ`` — φ is the grasp angle **in the pile frame**
+  (:attr:`synth.grasp.Grasp.phi_rad`: closing axis counter-clockwise from pile +x, π-periodic),
+  *not* the image-space angle. Decode with ``φ = atan2(S, C) / 2`` (:func:`decode_at`); convert
+  to image space with :func:`synth.frames.phi_to_image` if ever needed.
+* ``W`` — grasp opening width in metres (0.30–1.55 m where ``U = 1``). :func:`normalise_width`
+  maps it to [0, 1] if a network prefers that; the stored maps are always metres.
+* ``U`` — 1 where a pixel centre lies inside the grasp rectangle of a successful grasp
+  (:meth:`synth.grasp.Grasp.rectangle`: ``width_m`` along the closing axis, 20 cm across it,
+  centred on (x, y)), else 0.
+* ``B`` — balance ``cos β`` of the grasp (β: grapple tilt from the world z axis after the lift).
+
+Outside every rectangle C, S, W and B are 0 (the paper's convention: only pixels with ``U = 1``
+carry grasp parameters; a loss should mask C/S/W/B by U).
+
+**Overlapping rectangles** (a pixel covered by several accepted grasps): ``U`` is the union. For
+C, S, W and B the grasp whose *centre line* (the closing-axis segment through (x, y), the
+rectangle's long mid-line) is nearest to the pixel centre wins, i.e. the smallest ``|v|``, the
+distance across the rectangle; ties go to the grasp listed first. Each pixel therefore carries
+the parameters of exactly one real grasp — never an average of two grasps, which the paper warns
+is not necessarily a valid grasp. Algorithm 1 already removes candidates overlapping an accepted
+grasp by more than 0.04 m², so overlaps are thin slivers.
+
+Rasterisation is a vectorised point-in-rectangle test at pixel centres (the grid of
+:class:`synth.frames.OrthoGrid`), exact up to float rounding.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+import numpy as np
+
+from synth.frames import OrthoGrid, wrap_phi
+from synth.grasp import MAX_WIDTH_M, MIN_WIDTH_M, RECT_WIDTH_M, Grasp
+
+#: Channel order of a (5, H, W) map stack.
+MAP_CHANNELS = ("C", "S", "W", "U", "B")
+C, S, W, U, B = range(5)
+
+_EPS = 1e-9  # pixel centres exactly on a rectangle edge count as inside [m]
+
+
+def normalise_width(width_m):
+    """Width [m] -> [0, 1] over the grapple's range 0.30–1.55 m."""
+    return (np.asarray(width_m, dtype=np.float64) - MIN_WIDTH_M) / (MAX_WIDTH_M - MIN_WIDTH_M)
+
+
+def denormalise_width(w01):
+    """Inverse of :func:`normalise_width`: [0, 1] -> metres."""
+    return MIN_WIDTH_M + np.asarray(w01, dtype=np.float64) * (MAX_WIDTH_M - MIN_WIDTH_M)
+
+
+def _local_coords(grid: OrthoGrid, grasp: Grasp) -> tuple[np.ndarray, np.ndarray]:
+    """Every pixel centre in the grasp's frame: u along the closing axis, v across it [m]."""
+    X, Y = grid.pixel_centres()
+    dx, dy = X - grasp.x_m, Y - grasp.y_m
+    ca, sa = math.cos(grasp.phi_rad), math.sin(grasp.phi_rad)
+    return dx * ca + dy * sa, -dx * sa + dy * ca
+
+
+def rectangle_mask(grid: OrthoGrid, grasp: Grasp, rect_width_m: float = RECT_WIDTH_M) -> np.ndarray:
+    """(H, W) bool: pixel centres inside the grasp rectangle (``width_m`` x ``rect_width_m``)."""
+    u, v = _local_coords(grid, grasp)
+    return (np.abs(u) <= grasp.width_m / 2 + _EPS) & (np.abs(v) <= rect_width_m / 2 + _EPS)
+
+
+def encode_grasps(grid: OrthoGrid, grasps: Sequence[Grasp], balances: Sequence[float],
+                  rect_width_m: float = RECT_WIDTH_M) -> np.ndarray:
+    """The target maps ``(5, H, W)`` float32, channels C, S, W, U, B, of successful ``grasps``
+    with balances ``balances`` (cos β, one per grasp). No grasps -> all zeros (a negative).
+
+    Raises ``ValueError`` for a balance that is not a finite number in [-1, 1] or a length
+    mismatch; widths are already checked by :class:`~synth.grasp.Grasp`.
+    """
+    grasps = list(grasps)
+    balances = [float(b) for b in balances]
+    if len(grasps) != len(balances):
+        raise ValueError(f"need one balance per grasp, got {len(grasps)} grasps and {len(balances)} balances")
+    for g in grasps:
+        if not isinstance(g, Grasp):
+            raise ValueError(f"encode_grasps takes synth.grasp.Grasp objects, got {type(g).__name__}")
+    for b in balances:
+        if not (math.isfinite(b) and -1.0 <= b <= 1.0):
+            raise ValueError(f"balance must be cos(beta), a finite number in [-1, 1], got {b}")
+    n = grid.size_px
+    out = np.zeros((5, n, n), dtype=np.float32)
+    if not grasps:
+        return out
+    best = np.full((n, n), np.inf)  # |v| of the winning grasp per pixel
+    for g, b in zip(grasps, balances):
+        u, v = _local_coords(grid, g)
+        av = np.abs(v)
+        inside = (np.abs(u) <= g.width_m / 2 + _EPS) & (av <= rect_width_m / 2 + _EPS)
+        win = inside & (av < best)  # strict: ties keep the grasp listed first
+        best[win] = av[win]
+        out[C][win] = math.cos(2 * g.phi_rad)
+        out[S][win] = math.sin(2 * g.phi_rad)
+        out[W][win] = g.width_m
+        out[B][win] = b
+        out[U][inside] = 1.0
+    return out
+
+
+def decode_at(maps: np.ndarray, row: int, col: int) -> tuple[float, float, float, float]:
+    """``(phi_rad, width_m, u, b)`` at pixel (row, col) of a (5, H, W) map stack (targets or a
+    network's output): ``phi = atan2(S, C) / 2`` wrapped to [-π/2, π/2) in the pile frame."""
+    maps = np.asarray(maps)
+    if maps.ndim != 3 or maps.shape[0] != 5:
+        raise ValueError(f"maps must have shape (5, H, W), got {maps.shape}")
+    c, s, w, u, b = (float(maps[k, row, col]) for k in range(5))
+    phi = float(wrap_phi(math.atan2(s, c) / 2.0))
+    return phi, w, u, b
+
+
+def decode_maps(maps: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Whole-image version of :func:`decode_at`: (phi, width, u, b) arrays of shape (H, W)."""
+    maps = np.asarray(maps)
+    if maps.ndim != 3 or maps.shape[0] != 5:
+        raise ValueError(f"maps must have shape (5, H, W), got {maps.shape}")
+    phi = wrap_phi(np.arctan2(maps[S], maps[C]) / 2.0)
+    return phi, maps[W], maps[U], maps[B]
