@@ -1,0 +1,65 @@
+"""The paper's training loss: BCE on U plus masked MSE on C, S, W and B.
+
+    L = BCE(U, U_hat) + lambda_C MMSE(U, C, C_hat) + lambda_S MMSE(U, S, S_hat)
+        + lambda_W MMSE(U, W, W_hat) + lambda_B MMSE(U, B, B_hat)
+    MMSE(U, Y, Y_hat) = 1/N^2 sum_jk u_jk (y_jk - y_hat_jk)^2
+
+The MMSE is weighted by the *ground-truth* U and divided by all N^2 pixels (not by the number of
+grasp pixels), exactly as the paper's equation; it is averaged over the batch. Predictions outside
+the ground-truth grasp zone therefore never change the C, S, W, B terms. ``U_hat`` is a logit
+(see :mod:`planner.model`); the BCE is the mean over all pixels.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class LossWeights:
+    lambda_b: float = 120.0  # balance MMSE weight [-]
+    lambda_s: float = 30.0  # sin 2phi MMSE weight [-]
+    lambda_c: float = 30.0  # cos 2phi MMSE weight [-]
+    lambda_w: float = 60.0  # width MMSE weight [1/m^2]
+    u_pos_weight: float = 1.0  # BCE weight of positive U pixels (1 = the paper's plain BCE) [-]
+
+    def __post_init__(self) -> None:
+        for k, v in vars(self).items():
+            if not v >= 0:
+                raise ValueError(f"loss weight {k} must be >= 0, got {v}")
+
+
+def mmse(u, y, y_hat):
+    """Masked MSE per the paper: mean over the batch of (1/N^2) sum u (y - y_hat)^2.
+
+    ``u``, ``y``, ``y_hat``: (N, H, W) tensors."""
+    return (u * (y - y_hat) ** 2).mean(dim=(-2, -1)).mean()
+
+
+def grasp_loss(pred, target, weights: LossWeights = LossWeights()):
+    """Total loss and its parts.
+
+    ``pred``: (N, 5, H, W) model output (C, S, W, U-logit, B); ``target``: (N, 5, H, W) ground-truth
+    maps (C, S, W, U in {0, 1}, B). Returns ``(total, {"bce", "c", "s", "w", "b"})`` (parts as
+    detached floats, unweighted)."""
+    import torch.nn.functional as F
+
+    if pred.shape != target.shape or pred.ndim != 4 or pred.shape[1] != 5:
+        raise ValueError(f"pred and target must both be (N, 5, H, W), got {tuple(pred.shape)} and {tuple(target.shape)}")
+    pred = pred.float()
+    target = target.float()
+    u = target[:, 3]
+    pos_weight = None
+    if weights.u_pos_weight != 1.0:
+        import torch
+
+        pos_weight = torch.tensor(weights.u_pos_weight, device=pred.device)
+    bce = F.binary_cross_entropy_with_logits(pred[:, 3], u, pos_weight=pos_weight)
+    lc = mmse(u, target[:, 0], pred[:, 0])
+    ls = mmse(u, target[:, 1], pred[:, 1])
+    lw = mmse(u, target[:, 2], pred[:, 2])
+    lb = mmse(u, target[:, 4], pred[:, 4])
+    total = bce + weights.lambda_c * lc + weights.lambda_s * ls + weights.lambda_w * lw + weights.lambda_b * lb
+    parts = {"bce": float(bce.detach()), "c": float(lc.detach()), "s": float(ls.detach()),
+             "w": float(lw.detach()), "b": float(lb.detach())}
+    return total, parts

@@ -1,0 +1,122 @@
+"""The grasp-map network: a U-Net (Ronneberger et al. 2015) from (I, D, M_T) to (C, S, W, U, B).
+
+Inputs (``in_channels`` = 3, see :mod:`planner.data` for the normalisation): intensity in [0, 1],
+relative height [m] (see :func:`planner.data.normalise_depth`) and the target mask M_T in {0, 1}.
+``in_channels = 2`` is the paper's no-depth ablation (I, M_T).
+
+Outputs, in this order (``OUTPUT_NAMES``), all (N, 5, H, W):
+
+* ``C`` = cos 2phi and ``S`` = sin 2phi: ``tanh`` -> (-1, 1); phi is the pile-frame grasp angle
+  (:mod:`synth.frames`);
+* ``W`` opening width [m]: ``sigmoid`` scaled to (``min_width_m``, ``max_width_m``) = (0.30, 1.55);
+* ``U`` graspability as a *logit* (train with BCE-with-logits; ``sigmoid`` gives u in (0, 1));
+* ``B`` balance = cos(beta): ``sigmoid`` -> (0, 1) (the grapple never tips past 90 degrees).
+
+Architecture: ``depth`` down-sampling levels of two 3x3 conv + BatchNorm + ReLU, max-pool down,
+transposed-conv up, skip concatenation, a 1x1 head. Channels double per level from
+``base_channels``. Parameter counts at 3 in / 5 out: base 16 ~1.9 M, base 23 ~4.0 M (default,
+the paper's "4.1M parameter UNet"), base 24 ~4.4 M. Image sides must be divisible by 2**depth.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+OUTPUT_NAMES = ("C", "S", "W", "U", "B")
+INPUT_NAMES = {3: ("I", "D", "M_T"), 2: ("I", "M_T")}
+
+
+@dataclass(frozen=True)
+class UNetConfig:
+    base_channels: int = 23  # channels of the first level [-]; doubles per level
+    depth: int = 4  # number of down-sampling levels [-]
+    in_channels: int = 3  # 3 = (I, D, M_T); 2 = (I, M_T) no-depth ablation [-]
+    out_channels: int = 5  # (C, S, W, U-logit, B) [-]
+    size_px: int = 128  # input image side the network was built/trained for [px]
+    min_width_m: float = 0.30  # W output range low end [m]
+    max_width_m: float = 1.55  # W output range high end [m]
+
+    def __post_init__(self) -> None:
+        if not 2 <= self.base_channels <= 256:
+            raise ValueError(f"base_channels must be in [2, 256], got {self.base_channels}")
+        if not 1 <= self.depth <= 6:
+            raise ValueError(f"depth must be in [1, 6], got {self.depth}")
+        if self.in_channels not in INPUT_NAMES:
+            raise ValueError(f"in_channels must be 3 (I, D, M_T) or 2 (I, M_T), got {self.in_channels}")
+        if self.out_channels != len(OUTPUT_NAMES):
+            raise ValueError(f"out_channels must be {len(OUTPUT_NAMES)} (C, S, W, U, B), got {self.out_channels}")
+        if self.size_px < 16 or self.size_px % (2 ** self.depth):
+            raise ValueError(
+                f"size_px={self.size_px} must be >= 16 and divisible by 2**depth={2 ** self.depth}; "
+                "choose another image size or depth"
+            )
+        if not 0 < self.min_width_m < self.max_width_m:
+            raise ValueError("need 0 < min_width_m < max_width_m")
+
+    @property
+    def uses_depth(self) -> bool:
+        return self.in_channels == 3
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @staticmethod
+    def from_dict(d: dict) -> "UNetConfig":
+        known = set(UNetConfig.__dataclass_fields__)
+        unknown = set(d) - known
+        if unknown:
+            raise ValueError(f"unknown UNetConfig fields {sorted(unknown)}")
+        return UNetConfig(**d)
+
+    @staticmethod
+    def tiny(**kw) -> "UNetConfig":
+        """A very small network for tests (a few thousand parameters)."""
+        base = dict(base_channels=4, depth=2, size_px=32)
+        base.update(kw)
+        return UNetConfig(**base)
+
+
+def build_unet(config: UNetConfig):
+    """Build the network (imports torch)."""
+    import torch
+    from torch import nn
+
+    def block(cin: int, cout: int) -> nn.Sequential:
+        return nn.Sequential(
+            nn.Conv2d(cin, cout, 3, padding=1, bias=False), nn.BatchNorm2d(cout), nn.ReLU(inplace=True),
+            nn.Conv2d(cout, cout, 3, padding=1, bias=False), nn.BatchNorm2d(cout), nn.ReLU(inplace=True),
+        )
+
+    class UNet(nn.Module):
+        def __init__(self, cfg: UNetConfig) -> None:
+            super().__init__()
+            self.config = cfg
+            ch = [cfg.base_channels * 2 ** i for i in range(cfg.depth + 1)]
+            self.down = nn.ModuleList([block(cfg.in_channels, ch[0])] + [block(ch[i - 1], ch[i]) for i in range(1, cfg.depth + 1)])
+            self.pool = nn.MaxPool2d(2)
+            self.up = nn.ModuleList([nn.ConvTranspose2d(ch[i], ch[i - 1], 2, stride=2) for i in range(cfg.depth, 0, -1)])
+            self.dec = nn.ModuleList([block(2 * ch[i - 1], ch[i - 1]) for i in range(cfg.depth, 0, -1)])
+            self.head = nn.Conv2d(ch[0], cfg.out_channels, 1)
+            self.w_lo = cfg.min_width_m
+            self.w_span = cfg.max_width_m - cfg.min_width_m
+
+        def forward(self, x: torch.Tensor) -> torch.Tensor:
+            skips = []
+            for i, blk in enumerate(self.down):
+                x = blk(x if i == 0 else self.pool(x))
+                skips.append(x)
+            skips.pop()
+            for up, dec in zip(self.up, self.dec):
+                x = dec(torch.cat([up(x), skips.pop()], dim=1))
+            raw = self.head(x).float()
+            c_s = torch.tanh(raw[:, 0:2])
+            w = self.w_lo + self.w_span * torch.sigmoid(raw[:, 2:3])
+            u_logit = raw[:, 3:4]
+            b = torch.sigmoid(raw[:, 4:5])
+            return torch.cat([c_s, w, u_logit, b], dim=1)
+
+    return UNet(config)
+
+
+def count_parameters(model) -> int:
+    return sum(p.numel() for p in model.parameters())
