@@ -1,0 +1,586 @@
+"""The crane link seam: one base class, backends chosen by name (the python-can pattern).
+
+:class:`CraneLink` is what the laptop talks to; :func:`open_link` picks a backend from a URL::
+
+    can://virtual/<channel>?bitrate=500000&fd=1     python-can virtual bus (in-process)
+    can://socketcan/can0                            any python-can interface / channel
+    can://remote/127.0.0.1:PORT/<channel>           python-can-remote (``python -m can_remote``)
+    can://                                          python-can's own config: can.rc, CAN_* env, ~/can.conf
+    zenoh://<crane>?config=PATH                     Zenoh session from a JSON5 config file
+    zenoh://127.0.0.1:7447/<crane>                  Zenoh, connect to that TCP endpoint
+    twin://?delay_ms=50                             in-process controller twin behind a virtual bus
+
+Backends are registered in :data:`BACKENDS` as ``"module:Class"`` and imported only when
+chosen, so ``import field.link`` loads neither python-can nor zenoh. Link options common to all
+backends may be given as URL query parameters: ``record=PATH`` (CAN: BLF recording),
+``heartbeat_ms``, ``heartbeat_timeout_ms``, ``max_pile_age_s``, ``connect_timeout_s``.
+
+Frames delivered by a backend go through :meth:`CraneLink._deliver`: E2E check, rolling counter
+check, decode, then into an inbox that ``send_grasp`` / ``wait_outcome`` / ``status`` wait on.
+"""
+
+from __future__ import annotations
+
+import abc
+import importlib
+import secrets
+import threading
+import time
+from dataclasses import dataclass, field, replace
+from typing import Any, Callable
+from urllib.parse import parse_qsl, unquote, urlsplit
+
+from field.errors import CommandRejected, LinkClosed, LinkError, LinkTimeout, ProtocolError
+from field.link.messages import Ack, ControllerState, ControllerStatus, GraspCommand, Outcome, RejectReason
+from field.link.safety import CommandGuard, SafetyConfig
+
+#: link backends, name -> "module:Class" (imported only when chosen)
+BACKENDS: dict[str, str] = {
+    "can": "field.link.can_backend:CanLink",
+    "zenoh": "field.link.zenoh_backend:ZenohLink",
+    "twin": "field.link.twin_backend:TwinLink",
+}
+#: controller-side transports, name -> "module:Class"
+CONTROLLER_TRANSPORTS: dict[str, str] = {
+    "can": "field.link.can_backend:CanControllerTransport",
+    "zenoh": "field.link.zenoh_backend:ZenohControllerTransport",
+}
+
+
+def load_entry(registry: dict[str, str], name: str, what: str) -> Any:
+    """Import ``registry[name]`` ("module:Class") and return the object."""
+    if name not in registry:
+        raise LinkError(f"unknown {what} {name!r}; choose one of {sorted(registry)}")
+    module_name, _, attr = registry[name].partition(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise LinkError(f"{what} {name!r} needs a library that is not installed ({exc}); install it") from exc
+    return getattr(module, attr)
+
+
+# --- configuration ------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class LinkConfig:
+    """Options every backend understands (URL query parameters of the same names)."""
+
+    heartbeat_period_s: float = 0.05  # laptop heartbeat period [s] (CAN)
+    heartbeat_timeout_s: float = 1.0  # controller counts as lost after this long without a heartbeat [s]
+    status_timeout_s: float = 0.3  # status query answer deadline [s]
+    connect_timeout_s: float = 3.0  # wait this long for the controller's first sign of life at open [s]
+    require_controller: bool = True  # open fails when no controller answers within connect_timeout_s
+    record_path: str | None = None  # record the session's traffic here (CAN: BLF)
+    safety: SafetyConfig = field(default_factory=SafetyConfig)
+
+    def __post_init__(self) -> None:
+        for name in ("heartbeat_period_s", "heartbeat_timeout_s", "status_timeout_s", "connect_timeout_s"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and v > 0):
+                raise ValueError(f"LinkConfig.{name} must be > 0 s, got {v!r}")
+        if self.heartbeat_timeout_s <= self.heartbeat_period_s:
+            raise ValueError(
+                f"heartbeat_timeout_s ({self.heartbeat_timeout_s}) must exceed heartbeat_period_s "
+                f"({self.heartbeat_period_s}); use several periods"
+            )
+
+
+@dataclass(frozen=True)
+class LinkURL:
+    """A parsed link URL: ``scheme://netloc/path?query``."""
+
+    scheme: str
+    netloc: str
+    path: str  # without the leading "/", unquoted
+    query: dict[str, str]
+
+    @classmethod
+    def parse(cls, url: str) -> "LinkURL":
+        if not isinstance(url, str) or "://" not in url:
+            raise ValueError(
+                f"link URL must look like 'can://virtual/ch0', 'zenoh://127.0.0.1:7447/crane1' or "
+                f"'twin://', got {url!r}"
+            )
+        parts = urlsplit(url)
+        return cls(parts.scheme.lower(), unquote(parts.netloc), unquote(parts.path.lstrip("/")), dict(parse_qsl(parts.query)))
+
+    def pop_link_config(self, base: LinkConfig | None = None) -> tuple[LinkConfig, dict[str, str]]:
+        """Split the query into a :class:`LinkConfig` and the backend's own parameters."""
+        cfg = base or LinkConfig()
+        q = dict(self.query)
+        kw: dict[str, Any] = {}
+        safety: dict[str, Any] = {}
+        try:
+            if "heartbeat_ms" in q:
+                kw["heartbeat_period_s"] = float(q.pop("heartbeat_ms")) / 1000.0
+            if "heartbeat_timeout_ms" in q:
+                kw["heartbeat_timeout_s"] = float(q.pop("heartbeat_timeout_ms")) / 1000.0
+            if "status_timeout_ms" in q:
+                kw["status_timeout_s"] = float(q.pop("status_timeout_ms")) / 1000.0
+            if "connect_timeout_s" in q:
+                kw["connect_timeout_s"] = float(q.pop("connect_timeout_s"))
+            if "record" in q:
+                kw["record_path"] = q.pop("record")
+            if "max_pile_age_s" in q:
+                safety["max_pile_age_s"] = float(q.pop("max_pile_age_s"))
+        except ValueError as exc:
+            raise ValueError(f"bad number in link URL query {self.query}: {exc}") from exc
+        if safety:
+            kw["safety"] = replace(cfg.safety, **safety)
+        return replace(cfg, **kw), q
+
+
+# --- resource tracking (the leak fixture reads it) ------------------------------------------
+
+_RESOURCES: dict[int, tuple[str, Callable[[], None]]] = {}
+_RES_LOCK = threading.Lock()
+
+
+def track_resource(obj: object, description: str, closer: Callable[[], None]) -> None:
+    """Register an open bus / Zenoh session; :func:`untrack_resource` when closed."""
+    with _RES_LOCK:
+        _RESOURCES[id(obj)] = (description, closer)
+
+
+def untrack_resource(obj: object) -> None:
+    with _RES_LOCK:
+        _RESOURCES.pop(id(obj), None)
+
+
+def open_resources() -> list[str]:
+    """Descriptions of buses / sessions opened by :mod:`field.link` and not closed yet."""
+    with _RES_LOCK:
+        return [d for d, _ in _RESOURCES.values()]
+
+
+def close_leaked_resources() -> list[str]:
+    """Close everything still open (test teardown); returns what was closed."""
+    with _RES_LOCK:
+        items = list(_RESOURCES.items())
+        _RESOURCES.clear()
+    for _, (_, closer) in items:
+        try:
+            closer()
+        except Exception:  # best effort during teardown
+            pass
+    return [d for _, (d, _) in items]
+
+
+# --- the link --------------------------------------------------------------------------------
+
+
+@dataclass
+class LinkStats:
+    """Counters of what the link saw (diagnostics, and what fault tests assert on)."""
+
+    frames_sent: int = 0
+    frames_received: int = 0
+    crc_errors: int = 0
+    malformed: int = 0
+    duplicates_dropped: int = 0  # repeated rolling counter
+    sequence_errors: int = 0  # counter jumped (lost / reordered frames)
+    bus_errors: int = 0
+
+
+class CraneLink(abc.ABC):
+    """Laptop side of the crane link. Use as a context manager; ``close()`` is safe twice.
+
+    Backends implement :meth:`_transmit` (send one protected frame) and :meth:`_close_transport`,
+    and feed every crane -> laptop frame to :meth:`_deliver`.
+    """
+
+    backend_name = "abstract"
+
+    def __init__(self, config: LinkConfig | None = None, *, clock: Callable[[], float] = time.time):
+        from field.link.codec import CounterMonitor, Encoder
+
+        self.config = config or LinkConfig()
+        self.guard = CommandGuard(self.config.safety, clock)
+        self.stats = LinkStats()
+        self._encoder = Encoder(first_counter=secrets.randbits(8))
+        self._counters = CounterMonitor(max_delta=8)  # laptop side: drop duplicates, count jumps
+        self._cond = threading.Condition()
+        self._acks: dict[int, Ack] = {}
+        self._outcomes: dict[int, Outcome] = {}
+        self._status_replies: dict[int, ControllerStatus] = {}
+        self._latest_status: ControllerStatus | None = None
+        self._last_heartbeat_mono: float | None = None
+        self._last_crane_state: ControllerState | None = None
+        self._request_id = secrets.randbits(31) + 1
+        self._failure: BaseException | None = None
+        self._closed = False
+        self._close_lock = threading.Lock()
+
+    # ---- public API ----------------------------------------------------------------------
+
+    def new_command_id(self) -> int:
+        """A fresh command id never used on this link."""
+        return self.guard.new_command_id()
+
+    def send_grasp(self, cmd: GraspCommand, timeout_s: float = 1.0) -> Ack:
+        """Send one grasp command and wait for its acknowledgement.
+
+        Returns the accepting :class:`Ack`. Raises :class:`CommandRejected` (reason code; local
+        checks: duplicate id, stale pile data), :class:`ProtocolError` (a value out of wire
+        range; nothing sent), :class:`LinkTimeout` (no ack within ``timeout_s``; ``.status`` is
+        the controller status learned afterwards, ``None`` if unreachable). Never re-sends.
+        """
+        if not isinstance(cmd, GraspCommand):
+            raise ValueError(f"send_grasp takes a GraspCommand, got {type(cmd).__name__}")
+        _check_timeout(timeout_s)
+        self._check_usable()
+        self.guard.reserve(cmd)  # burns the id: never sent twice
+        kind, data = self._encoder.encode(cmd)
+        if not self.controller_alive():
+            status = self._status_or_none()
+            if status is None:
+                raise LinkTimeout(
+                    f"command {cmd.command_id} NOT sent: no sign of life from the controller for "
+                    f"{self.config.heartbeat_timeout_s:.2f} s and no status answer; check the crane "
+                    f"and the link, then send a new command",
+                    command_id=cmd.command_id,
+                    status=None,
+                )
+        self._send(kind, data)
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while cmd.command_id not in self._acks:
+                self._raise_if_failed()
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    break
+                self._cond.wait(min(left, 0.05))
+            ack = self._acks.get(cmd.command_id)
+        if ack is None:
+            status = self._status_or_none()
+            raise LinkTimeout(
+                f"no acknowledgement for command {cmd.command_id} within {timeout_s:.3f} s; "
+                f"{describe_fate(cmd.command_id, status)}. It will not be re-sent.",
+                command_id=cmd.command_id,
+                status=status,
+            )
+        if not ack.accepted:
+            raise CommandRejected(
+                f"controller rejected command {cmd.command_id}: {ack.reason.name} "
+                f"({REASON_HELP.get(ack.reason, '')})",
+                reason=ack.reason,
+                command_id=cmd.command_id,
+            )
+        return ack
+
+    def wait_outcome(self, command_id: int, timeout_s: float = 30.0) -> Outcome:
+        """Wait for the outcome of an accepted command.
+
+        If the outcome frame is lost, the outcome is recovered from a status query (the status
+        carries the last finished command). Raises :class:`LinkTimeout` (``.status`` attached)
+        when neither arrives within ``timeout_s`` or the controller vanished.
+        """
+        _check_timeout(timeout_s)
+        self._check_usable()
+        deadline = time.monotonic() + timeout_s
+        next_probe = time.monotonic() + max(self.config.heartbeat_timeout_s, 0.2)
+        while True:
+            with self._cond:
+                self._raise_if_failed()
+                out = self._outcomes.get(command_id)
+                if out is None:
+                    st = self._latest_status
+                    if st is not None and st.last_outcome is not None and st.last_outcome.command_id == command_id:
+                        out = st.last_outcome
+                if out is not None:
+                    return out
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    break
+                self._cond.wait(min(left, 0.05))
+            now = time.monotonic()
+            if now >= next_probe and not self.controller_alive():
+                # the controller went quiet: ask it directly before giving up
+                next_probe = now + max(self.config.heartbeat_timeout_s, 0.2)
+                status = self._status_or_none()
+                if status is None:
+                    raise LinkTimeout(
+                        f"controller vanished while command {command_id} was running (no heartbeat "
+                        f"for {self.config.heartbeat_timeout_s:.2f} s, no status answer); its final "
+                        f"state is UNKNOWN - check the crane on site",
+                        command_id=command_id,
+                        status=None,
+                    )
+                if status.last_outcome is not None and status.last_outcome.command_id == command_id:
+                    return status.last_outcome
+                if status.current_command_id != command_id:
+                    raise LinkTimeout(
+                        f"controller restarted or moved on: it is not running command {command_id} "
+                        f"and reports no outcome for it; {describe_fate(command_id, status)}",
+                        command_id=command_id,
+                        status=status,
+                    )
+        status = self._status_or_none()
+        if status is not None and status.last_outcome is not None and status.last_outcome.command_id == command_id:
+            return status.last_outcome
+        raise LinkTimeout(
+            f"no outcome for command {command_id} within {timeout_s:.3f} s; "
+            f"{describe_fate(command_id, status)}",
+            command_id=command_id,
+            status=status,
+        )
+
+    def status(self, timeout_s: float | None = None) -> ControllerStatus:
+        """Query the controller's status. Raises :class:`LinkTimeout` when it does not answer."""
+        from field.link.codec import StatusRequest
+
+        timeout_s = self.config.status_timeout_s if timeout_s is None else timeout_s
+        _check_timeout(timeout_s)
+        self._check_usable()
+        with self._cond:
+            self._request_id = (self._request_id % 0xFFFFFFFF) + 1
+            rid = self._request_id
+        kind, data = self._encoder.encode(StatusRequest(rid))
+        self._send(kind, data)
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while rid not in self._status_replies:
+                self._raise_if_failed()
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise LinkTimeout(
+                        f"controller did not answer a status query within {timeout_s:.3f} s; it is "
+                        f"unreachable - check the crane and the link",
+                        status=None,
+                    )
+                self._cond.wait(min(left, 0.05))
+            return self._status_replies.pop(rid)
+
+    def abort(self, timeout_s: float = 1.0) -> ControllerStatus:
+        """Emergency stop: send the e-stop frame and confirm the controller is in ESTOP.
+
+        Re-sends the e-stop until confirmed (e-stops are idempotent). Raises
+        :class:`LinkTimeout` when not confirmed within ``timeout_s`` — then USE THE PHYSICAL
+        E-STOP. Works on a link that has failed, but not after ``close()``.
+        """
+        from field.link.codec import EStopRequest
+
+        if self._closed:
+            raise LinkClosed("link is closed; use the physical e-stop or open a new link")
+        deadline = time.monotonic() + timeout_s
+        last: ControllerStatus | None = None
+        while True:
+            kind, data = self._encoder.encode(EStopRequest(source=1))
+            try:
+                self._transmit(kind, data)
+                self.stats.frames_sent += 1
+            except Exception:
+                pass  # keep trying until the deadline
+            left = deadline - time.monotonic()
+            if left <= 0:
+                break
+            try:
+                last = self.status(timeout_s=min(self.config.status_timeout_s, max(left, 0.01)))
+            except LinkError:
+                last = None
+            if last is not None and last.state is ControllerState.ESTOP:
+                return last
+            if time.monotonic() >= deadline:
+                break
+        raise LinkTimeout(
+            f"e-stop NOT confirmed within {timeout_s:.2f} s (last status: {last}); USE THE PHYSICAL "
+            f"E-STOP on the crane",
+            status=last,
+        )
+
+    def controller_alive(self) -> bool:
+        """True while the controller's heartbeat is fresh."""
+        t = self._last_heartbeat_mono
+        return t is not None and time.monotonic() - t < self.config.heartbeat_timeout_s
+
+    def wait_for_controller(self, timeout_s: float) -> bool:
+        """Wait until the controller shows a sign of life; returns whether it did."""
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while not self.controller_alive():
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return False
+                self._cond.wait(min(left, 0.05))
+        return True
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def close(self) -> None:
+        """Stop heartbeats, close the bus / session. Safe to call twice."""
+        with self._close_lock:
+            if self._closed:
+                return
+            self._closed = True
+        try:
+            self._close_transport()
+        finally:
+            with self._cond:
+                self._cond.notify_all()
+
+    def __enter__(self) -> "CraneLink":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"<{type(self).__name__} {'closed' if self._closed else 'open'}>"
+
+    # ---- backend hooks -------------------------------------------------------------------
+
+    @abc.abstractmethod
+    def _transmit(self, kind: str, data: bytes) -> None:
+        """Send one protected laptop -> crane frame; raise on transport errors."""
+
+    @abc.abstractmethod
+    def _close_transport(self) -> None:
+        """Release the bus / session (called once)."""
+
+    def _deliver(self, kind: str, data: bytes) -> None:
+        """Feed one crane -> laptop frame (any thread): check, decode, store, notify."""
+        from field.link.codec import CounterCheck, CraneHeartbeat, decode
+
+        self.stats.frames_received += 1
+        try:
+            d = decode(kind, data)
+        except ProtocolError as exc:
+            if exc.reason is RejectReason.CRC:
+                self.stats.crc_errors += 1
+            else:
+                self.stats.malformed += 1
+            return
+        check = self._counters.check(d.kind, d.counter)
+        if check is CounterCheck.REPEATED:
+            self.stats.duplicates_dropped += 1
+            return
+        if check is CounterCheck.WRONG_SEQUENCE:
+            self.stats.sequence_errors += 1
+        msg = d.message
+        with self._cond:
+            if isinstance(msg, CraneHeartbeat):
+                self._last_heartbeat_mono = time.monotonic()
+                self._last_crane_state = msg.state
+            elif isinstance(msg, Ack):
+                self._acks.setdefault(msg.command_id, msg)  # first answer wins
+                self._prune(self._acks)
+            elif isinstance(msg, Outcome):
+                self._outcomes.setdefault(msg.command_id, msg)
+                self._prune(self._outcomes)
+            elif isinstance(msg, ControllerStatus):
+                self._last_heartbeat_mono = time.monotonic()  # a status is a sign of life too
+                self._latest_status = msg
+                if msg.request_id:
+                    self._status_replies[msg.request_id] = msg
+                    self._prune(self._status_replies)
+            self._cond.notify_all()
+
+    def _mark_alive(self) -> None:
+        """Backends with their own liveness signal (Zenoh liveliness) call this."""
+        with self._cond:
+            self._last_heartbeat_mono = time.monotonic()
+            self._cond.notify_all()
+
+    def _mark_lost(self) -> None:
+        with self._cond:
+            self._last_heartbeat_mono = None
+            self._cond.notify_all()
+
+    def _fail(self, exc: BaseException) -> None:
+        """Backends report an unrecoverable transport error here; waiters raise LinkError."""
+        self.stats.bus_errors += 1
+        with self._cond:
+            if self._failure is None:
+                self._failure = exc
+            self._cond.notify_all()
+
+    # ---- helpers -------------------------------------------------------------------------
+
+    def _send(self, kind: str, data: bytes) -> None:
+        try:
+            self._transmit(kind, data)
+        except LinkError:
+            raise
+        except Exception as exc:
+            self.stats.bus_errors += 1
+            raise LinkError(
+                f"could not send {kind} on the {self.backend_name} link: {exc}; check the bus / "
+                f"session and the crane's connection"
+            ) from exc
+        self.stats.frames_sent += 1
+
+    def _status_or_none(self) -> ControllerStatus | None:
+        try:
+            return self.status()
+        except LinkError:
+            return None
+
+    def _check_usable(self) -> None:
+        if self._closed:
+            raise LinkClosed(f"the {self.backend_name} link is closed; open a new one with open_link()")
+        self._raise_if_failed()
+
+    def _raise_if_failed(self) -> None:
+        if self._failure is not None:
+            raise LinkError(
+                f"the {self.backend_name} link failed: {self._failure}; close it and open a new one"
+            ) from self._failure
+
+    @staticmethod
+    def _prune(d: dict, keep: int = 4096) -> None:
+        while len(d) > keep:
+            d.pop(next(iter(d)))
+
+
+REASON_HELP: dict[RejectReason, str] = {
+    RejectReason.CRC: "the frame was corrupted on the way; check the bus, send a new command",
+    RejectReason.COUNTER: "frames were lost or reordered; send a new command",
+    RejectReason.STALE: "the pile data is too old for the controller; rescan and plan again",
+    RejectReason.DUPLICATE_ID: "this id was already used; use a new command id",
+    RejectReason.OUT_OF_REACH: "the grasp point is outside the crane's reach; plan another grasp",
+    RejectReason.WIDTH_RANGE: "the opening width is outside 0.30-1.55 m",
+    RejectReason.HEADING_RANGE: "the heading is outside the rotator's range (fold it into [0, 180) deg)",
+    RejectReason.BUSY: "a grasp is executing; wait for its outcome",
+    RejectReason.ESTOP: "the crane is in emergency stop; reset it on the crane",
+    RejectReason.MALFORMED: "the controller could not make sense of the frame; check versions",
+    RejectReason.FAULT: "the controller is in FAULT; reset it on the crane",
+}
+
+
+def describe_fate(command_id: int, status: ControllerStatus | None) -> str:
+    """One sentence on what happened to ``command_id`` given a status (for error messages)."""
+    if status is None:
+        return "the controller did not answer a status query either: its state is UNKNOWN - check the crane on site"
+    if status.current_command_id == command_id:
+        return f"the controller IS executing it (state {status.state.name})"
+    if status.last_outcome is not None and status.last_outcome.command_id == command_id:
+        return f"it finished: {status.last_outcome.outcome_class.name}"
+    return f"the controller is NOT executing it (state {status.state.name}): it was lost or refused"
+
+
+def _check_timeout(timeout_s: float) -> None:
+    if not (isinstance(timeout_s, (int, float)) and timeout_s > 0):
+        raise ValueError(f"timeout_s must be > 0 s, got {timeout_s!r}")
+
+
+def open_link(url_or_config: str | LinkURL, config: LinkConfig | None = None, **backend_kwargs: Any) -> CraneLink:
+    """Open a crane link chosen by URL (see the module docstring for the forms).
+
+    ``config`` gives the common options (URL query parameters override them);
+    ``backend_kwargs`` go to the backend (e.g. ``bus=`` an already open python-can bus,
+    ``zenoh_config=`` a JSON5 path). Raises :class:`LinkError` when the backend cannot open or
+    (``config.require_controller``) no controller answers within ``connect_timeout_s``.
+    """
+    url = url_or_config if isinstance(url_or_config, LinkURL) else LinkURL.parse(url_or_config)
+    cls = load_entry(BACKENDS, url.scheme, "link backend")
+    return cls.from_url(url, config, **backend_kwargs)
+
+
+def open_controller_transport(url_or_config: str | LinkURL, **kwargs: Any) -> Any:
+    """The crane-side transport for a link URL (used by :func:`field.controller.run_controller`)."""
+    url = url_or_config if isinstance(url_or_config, LinkURL) else LinkURL.parse(url_or_config)
+    cls = load_entry(CONTROLLER_TRANSPORTS, url.scheme, "controller transport")
+    return cls.from_url(url, **kwargs)
