@@ -1,0 +1,445 @@
+"""The chosen grasp in GNSS coordinates, for the operator: numbers, GeoJSON and a map picture.
+
+Coordinates (see :mod:`synth.geodesy` for the frames):
+
+* **SWEREF 99 TM** (``EPSG:3006``) easting/northing [m], rounded to the millimetre (float64):
+  what the crane computer and Swedish maps use.
+* **Heights** are ellipsoidal (GRS80) [m], NOT heights above sea level (RH 2000 needs a geoid
+  grid that is not installed; :func:`synth.geodesy.ellipsoidal_to_rh2000` fails loudly).
+* **Latitude/longitude** are SWEREF 99. SWEREF 99 and WGS 84 agree to about 0.5–1 m (plate drift
+  since 1999.5, not modelled by PROJ); the WGS 84 GeoJSON below therefore carries SWEREF 99
+  values — right for a web map, not for centimetre work: use the EPSG:3006 numbers for that.
+* **Headings** of the grapple's closing axis (claw tip to claw tip) are degrees clockwise from
+  north in ``[0, 180)`` (a grasp and its 180° turn are the same grasp): ``heading_grid_deg`` from
+  SWEREF 99 TM grid north, ``heading_true_deg`` from true north (they differ by the meridian
+  convergence, ≈4.5° at 64°N 20°E).
+
+GeoJSON variants (format ``loggrasp.geojson`` 1.0, in the ``loggrasp`` foreign member):
+
+* ``crs="EPSG:4326"`` (default): RFC 7946 GeoJSON, positions ``[lon, lat, h]`` in degrees
+  (9 decimals ≈ 0.1 mm) — for web maps, phones, geojson.io.
+* ``crs="EPSG:3006"``: positions ``[easting, northing, h]`` in metres with the (pre-RFC, 2008)
+  ``"crs": {"type": "name", "properties": {"name": "urn:ogc:def:crs:EPSG::3006"}}`` member that
+  QGIS/GDAL read — for QGIS users over Lantmäteriet maps. Not RFC 7946 (which allows only WGS 84).
+
+Features (``properties.kind``): ``log`` (LineString butt -> top; index, length_m, diameter_m,
+top_diameter_m, target), ``stump`` and ``rock`` (Polygon footprints), ``grasp_rectangle``
+(Polygon: ``width_m`` along the closing axis x ``RECT_WIDTH_M`` across; heading/width
+properties) and ``grasp_point`` (Point with all :class:`GraspGeo` numbers).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from field.errors import FieldError
+from synth import geodesy
+from synth.grasp import RECT_WIDTH_M, Grasp
+from synth.pile import PileSpec, atomic_write_bytes
+
+GEOJSON_FORMAT = "loggrasp.geojson"
+GEOJSON_VERSION = "1.0"
+CRS_WGS84 = geodesy.EPSG_WGS84
+CRS_TM = geodesy.EPSG_SWEREF99_TM
+_TM_CRS_MEMBER = {"type": "name", "properties": {"name": "urn:ogc:def:crs:EPSG::3006"}}
+
+
+class GeoExportError(FieldError, ValueError):
+    """Earth coordinates of a pile or grasp could not be produced or failed validation (no
+    georeference, coordinates outside Sweden, a malformed or newer-version GeoJSON file)."""
+
+
+@dataclass(frozen=True)
+class GraspGeo:
+    """A grasp on Earth (see the module docstring for the conventions)."""
+
+    easting_m: float  # SWEREF 99 TM [m], mm resolution
+    northing_m: float  # SWEREF 99 TM [m], mm resolution
+    h_ell_m: float  # ellipsoidal height (GRS80) of the grasp point [m], mm resolution
+    lat_deg: float  # SWEREF 99 latitude [deg] (≈ WGS 84 to ~1 m)
+    lon_deg: float  # SWEREF 99 longitude [deg]
+    heading_grid_deg: float  # closing axis, clockwise from grid north [deg], [0, 180)
+    heading_true_deg: float  # closing axis, clockwise from true north [deg], [0, 180)
+    width_m: float  # opening width [m] (ground metres, not grid metres)
+    convergence_deg: float  # meridian convergence at the point: true -> grid north [deg]
+    crs: str = CRS_TM
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    def summary(self) -> str:
+        """Two lines an operator can read out over the radio."""
+        e = f"{self.easting_m:,.3f}".replace(",", " ")
+        n = f"{self.northing_m:,.3f}".replace(",", " ")
+        return (
+            f"Grasp at E {e} m, N {n} m (SWEREF 99 TM), h {self.h_ell_m:.3f} m (ellipsoidal)\n"
+            f"Closing axis {self.heading_grid_deg:.1f}° from grid north "
+            f"({self.heading_true_deg:.1f}° from true north), opening {self.width_m:.2f} m"
+        )
+
+
+def _georef(pile_or_georef: Any) -> Any:
+    g = getattr(pile_or_georef, "georef", pile_or_georef)
+    if g is None or not hasattr(g, "T_site_pile"):
+        raise GeoExportError(
+            "the pile has no georeference (PileSpec.georef is None); survey the log ends with RTK "
+            "GNSS (reconstruct.gnss) or give the site origin before asking for GNSS coordinates"
+        )
+    return g
+
+
+def grasp_to_gnss(grasp: Grasp, georef: Any, z_m: float) -> GraspGeo:
+    """The grasp ``(x, y, phi, width)`` at pile-frame height ``z_m`` [m] in GNSS coordinates.
+
+    ``georef``: a :class:`~synth.pile.Georeference` (or a pile carrying one)."""
+    g = _georef(georef)
+    if not math.isfinite(z_m):
+        raise ValueError(f"z_m must be finite, got {z_m}")
+    p = np.array([grasp.x_m, grasp.y_m, z_m], dtype=np.float64)
+    try:
+        e, n, h = geodesy.pile_to_sweref_tm(g, p)
+        lat, lon, _ = geodesy.pile_to_geodetic(g, p)
+        grid, true = geodesy.pile_angle_to_bearings(g, grasp.phi_rad, p)
+        gamma = float(geodesy.meridian_convergence_deg(lat, lon))
+    except geodesy.GeodesyError as exc:
+        raise GeoExportError(f"cannot place the grasp on Earth: {exc}") from exc
+    return GraspGeo(
+        easting_m=round(float(e), 3), northing_m=round(float(n), 3), h_ell_m=round(float(h), 3),
+        lat_deg=float(lat), lon_deg=float(lon),
+        heading_grid_deg=grid % 180.0, heading_true_deg=true % 180.0,
+        width_m=float(grasp.width_m), convergence_deg=gamma,
+    )
+
+
+def gnss_to_grasp(geo: GraspGeo, georef: Any) -> tuple[Grasp, float]:
+    """Inverse of :func:`grasp_to_gnss`: ``(Grasp in the pile frame, z_m)`` from the TM numbers
+    and the grid heading."""
+    g = _georef(georef)
+    try:
+        p = geodesy.sweref_tm_to_pile(g, geo.easting_m, geo.northing_m, geo.h_ell_m)
+        phi = geodesy.grid_bearing_to_pile_angle(g, geo.heading_grid_deg, p)
+    except geodesy.GeodesyError as exc:
+        raise GeoExportError(f"cannot map the GNSS grasp into the pile frame: {exc}") from exc
+    return Grasp(float(p[0]), float(p[1]), phi, geo.width_m), float(p[2])
+
+
+# -- geometry of a pile in the pile frame ----------------------------------------------------
+def _log_outline(log) -> np.ndarray:
+    """Plan-view outline (4, 3) of a (tapered) log in the pile frame."""
+    butt, top = log.endpoints_m()
+    a = top - butt
+    side = np.array([-a[1], a[0], 0.0])
+    ns = np.linalg.norm(side)
+    side = side / ns if ns > 1e-9 else np.array([0.0, 1.0, 0.0])
+    rb, rt = log.diameter_m / 2, log.top_d_m / 2
+    return np.array([butt - side * rb, top - side * rt, top + side * rt, butt + side * rb])
+
+
+def _stump_outline(pile: PileSpec, s, n: int = 24) -> np.ndarray:
+    t = np.linspace(0, 2 * math.pi, n, endpoint=False)
+    x = s.position_m[0] + s.bottom_radius_m * np.cos(t)
+    y = s.position_m[1] + s.bottom_radius_m * np.sin(t)
+    z = np.full(n, float(pile.terrain.height_at(s.position_m[0], s.position_m[1])))
+    return np.stack([x, y, z], axis=1)
+
+
+def _rock_outline(r) -> np.ndarray:
+    from scipy.spatial import ConvexHull
+
+    from synth.pile import quat_to_matrix
+
+    v = np.asarray(r.vertices_m, float) @ quat_to_matrix(r.orientation).T + np.asarray(r.position_m)
+    hull = ConvexHull(v[:, :2])
+    return v[hull.vertices]
+
+
+def _grasp_z(pile: PileSpec, grasp: Grasp, z_m: float | None) -> float:
+    return float(pile.terrain.height_at(grasp.x_m, grasp.y_m)) if z_m is None else float(z_m)
+
+
+# -- GeoJSON --------------------------------------------------------------------------------
+def pile_geojson(pile: PileSpec, grasp: Grasp | None = None, plan_extra: Mapping[str, Any] | None = None,
+                 *, crs: str = CRS_WGS84, grasp_z_m: float | None = None) -> dict[str, Any]:
+    """A GeoJSON FeatureCollection of the pile (and grasp) — see the module docstring.
+
+    ``plan_extra``: JSON-serialisable planner information, stored as ``loggrasp.plan`` and added
+    to the grasp features' properties; its ``target_logs`` (log indices) mark logs as targets.
+    ``grasp_z_m``: pile-frame height of the grasp point (default: the terrain under it)."""
+    if crs not in (CRS_WGS84, CRS_TM):
+        raise ValueError(f"crs must be {CRS_WGS84} (RFC 7946) or {CRS_TM} (QGIS), got {crs!r}")
+    g = _georef(pile)
+    plan = dict(plan_extra or {})
+    targets = {int(i) for i in plan.get("target_logs", ())}
+
+    def pos(points_pile: np.ndarray) -> list[list[float]]:
+        pts = np.asarray(points_pile, float).reshape(-1, 3)
+        try:
+            if crs == CRS_TM:
+                e, n, h = geodesy.pile_to_sweref_tm(g, pts)
+                return [[round(float(a), 3), round(float(b), 3), round(float(c), 3)] for a, b, c in zip(e, n, h)]
+            lat, lon, h = geodesy.pile_to_geodetic(g, pts)
+            lat, lon = geodesy.sweref_to_wgs84(lat, lon)
+            return [[round(float(b), 9), round(float(a), 9), round(float(c), 3)] for a, b, c in zip(lat, lon, h)]
+        except geodesy.GeodesyError as exc:
+            raise GeoExportError(f"cannot place the pile on Earth: {exc}") from exc
+
+    def ring(points_pile: np.ndarray) -> list[list[list[float]]]:
+        c = pos(points_pile)
+        xy = np.array([p[:2] for p in c])
+        area2 = float(np.sum(xy[:, 0] * np.roll(xy[:, 1], -1) - np.roll(xy[:, 0], -1) * xy[:, 1]))
+        if area2 < 0:  # RFC 7946: exterior rings counter-clockwise
+            c = c[::-1]
+        return [c + [c[0]]]
+
+    feats: list[dict[str, Any]] = []
+    for i, log in enumerate(pile.logs):
+        feats.append(_feature("LineString", pos(np.stack(log.endpoints_m())), {
+            "kind": "log", "index": i, "length_m": round(log.length_m, 4),
+            "diameter_m": round(log.diameter_m, 4), "top_diameter_m": round(log.top_d_m, 4),
+            "target": i in targets,
+        }))
+    for i, s in enumerate(pile.stumps):
+        feats.append(_feature("Polygon", ring(_stump_outline(pile, s)), {
+            "kind": "stump", "index": i, "radius_m": s.bottom_radius_m, "height_m": s.height_m,
+        }))
+    for i, r in enumerate(pile.rocks):
+        feats.append(_feature("Polygon", ring(_rock_outline(r)), {
+            "kind": "rock", "index": i, "size_m": round(r.size_m(), 3),
+        }))
+    if grasp is not None:
+        z = _grasp_z(pile, grasp, grasp_z_m)
+        geo = grasp_to_gnss(grasp, g, z)
+        common = {"heading_grid_deg": round(geo.heading_grid_deg, 3),
+                  "heading_true_deg": round(geo.heading_true_deg, 3), "width_m": geo.width_m, **plan}
+        rect = np.column_stack([grasp.rectangle(RECT_WIDTH_M), np.full(4, z)])
+        feats.append(_feature("Polygon", ring(rect), {"kind": "grasp_rectangle", **common}))
+        feats.append(_feature("Point", pos(np.array([grasp.x_m, grasp.y_m, z]))[0], {
+            "kind": "grasp_point", **geo.to_dict(), **plan,
+        }))
+    fc: dict[str, Any] = {
+        "type": "FeatureCollection",
+        "loggrasp": {
+            "format": GEOJSON_FORMAT, "format_version": GEOJSON_VERSION, "crs": crs,
+            "heights": "ellipsoidal (GRS80) [m]",
+            "datum": ("SWEREF 99 values labelled WGS 84 (they differ by ~0.5-1 m)"
+                      if crs == CRS_WGS84 else "SWEREF 99 TM easting, northing [m]"),
+            "plan": plan,
+        },
+        "features": feats,
+    }
+    if crs == CRS_TM:
+        fc["crs"] = _TM_CRS_MEMBER
+    validate_geojson(fc)
+    return fc
+
+
+def _feature(kind: str, coords: Any, props: dict[str, Any]) -> dict[str, Any]:
+    return {"type": "Feature", "geometry": {"type": kind, "coordinates": coords}, "properties": props}
+
+
+def _positions(geom: Mapping[str, Any]) -> list[list[float]]:
+    t, c = geom.get("type"), geom.get("coordinates")
+    if t == "Point":
+        return [c]
+    if t == "LineString":
+        return list(c)
+    if t == "Polygon":
+        out = []
+        for r in c:
+            if len(r) < 4 or r[0] != r[-1]:
+                raise GeoExportError("a GeoJSON Polygon ring must be closed and have >= 4 positions")
+            out += r
+        return out
+    raise GeoExportError(f"unsupported GeoJSON geometry type {t!r}")
+
+
+def validate_geojson(fc: Mapping[str, Any]) -> None:
+    """Check a loggrasp FeatureCollection: structure, JSON round trip, closed rings and every
+    position inside Sweden in its CRS. Raises :class:`GeoExportError`."""
+    if fc.get("type") != "FeatureCollection" or not isinstance(fc.get("features"), list):
+        raise GeoExportError("not a GeoJSON FeatureCollection")
+    meta = fc.get("loggrasp", {})
+    crs = meta.get("crs", CRS_WGS84)
+    if crs == CRS_TM and fc.get("crs") != _TM_CRS_MEMBER:
+        raise GeoExportError("an EPSG:3006 FeatureCollection needs its 'crs' member for QGIS")
+    if crs not in (CRS_WGS84, CRS_TM):
+        raise GeoExportError(f"unknown CRS {crs!r} in the loggrasp member")
+    try:
+        if json.loads(json.dumps(fc, allow_nan=False)) != fc:
+            raise GeoExportError("the FeatureCollection does not survive a JSON round trip")
+    except (TypeError, ValueError) as exc:
+        if isinstance(exc, GeoExportError):
+            raise
+        raise GeoExportError(f"the FeatureCollection is not valid JSON: {exc}") from exc
+    for i, f in enumerate(fc["features"]):
+        if f.get("type") != "Feature" or "geometry" not in f:
+            raise GeoExportError(f"feature {i} is not a GeoJSON Feature")
+        pts = np.array(_positions(f["geometry"]), dtype=float)
+        what = f"feature {i} ({f.get('properties', {}).get('kind', '?')})"
+        try:
+            if crs == CRS_TM:
+                geodesy.check_sweref_tm(pts[:, 0], pts[:, 1], what)
+            else:
+                geodesy.check_geodetic(pts[:, 1], pts[:, 0], what)
+        except geodesy.CoordinateError as exc:
+            raise GeoExportError(str(exc)) from exc
+
+
+def write_geojson(pile: PileSpec, path: str | Path, grasp: Grasp | None = None,
+                  plan_extra: Mapping[str, Any] | None = None, *, crs: str = CRS_WGS84,
+                  grasp_z_m: float | None = None) -> Path:
+    """Write :func:`pile_geojson` atomically to ``path`` (``.geojson``). Returns the path."""
+    fc = pile_geojson(pile, grasp, plan_extra, crs=crs, grasp_z_m=grasp_z_m)
+    path = Path(path)
+    atomic_write_bytes(path, json.dumps(fc, indent=1).encode("utf-8"))
+    return path
+
+
+def write_geojson_pair(pile: PileSpec, out_dir: str | Path, grasp: Grasp | None = None,
+                       plan_extra: Mapping[str, Any] | None = None, *, stem: str = "pile",
+                       grasp_z_m: float | None = None) -> tuple[Path, Path]:
+    """Write both variants: ``<stem>.geojson`` (WGS 84, RFC 7946) and
+    ``<stem>.sweref99tm.geojson`` (EPSG:3006, for QGIS). Returns both paths."""
+    out = Path(out_dir)
+    a = write_geojson(pile, out / f"{stem}.geojson", grasp, plan_extra, crs=CRS_WGS84, grasp_z_m=grasp_z_m)
+    b = write_geojson(pile, out / f"{stem}.sweref99tm.geojson", grasp, plan_extra, crs=CRS_TM,
+                      grasp_z_m=grasp_z_m)
+    return a, b
+
+
+def read_geojson(path: str | Path) -> dict[str, Any]:
+    """Read and validate a GeoJSON file written by :func:`write_geojson`."""
+    path = Path(path)
+    try:
+        fc = json.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise GeoExportError(f"cannot read {path}: {exc}") from exc
+    except json.JSONDecodeError as exc:
+        raise GeoExportError(f"{path} is not valid JSON: {exc}") from exc
+    meta = fc.get("loggrasp") if isinstance(fc, dict) else None
+    if not isinstance(meta, dict) or meta.get("format") != GEOJSON_FORMAT:
+        raise GeoExportError(f"{path} is not a loggrasp GeoJSON (no 'loggrasp' member)")
+    if str(meta.get("format_version", "")).split(".")[0] != GEOJSON_VERSION.split(".")[0]:
+        raise GeoExportError(
+            f"{path}: {GEOJSON_FORMAT} version {meta.get('format_version')!r} is not supported "
+            f"(reads {GEOJSON_VERSION.split('.')[0]}.x); upgrade loggrasp"
+        )
+    try:
+        validate_geojson(fc)
+    except GeoExportError as exc:
+        raise GeoExportError(f"{path}: {exc}") from exc
+    return fc
+
+
+# -- the map picture ------------------------------------------------------------------------
+def draw_grasp_map(pile: PileSpec, grasp: Grasp | None, path: str | Path, *,
+                   grasp_z_m: float | None = None, target_logs: Sequence[int] = (),
+                   title: str | None = None, dpi: int = 150) -> Path:
+    """A PNG map of the pile in SWEREF 99 TM metres: log outlines and axes (numbered, targets
+    in ``target_logs`` highlighted), obstacles, the grasp rectangle and point, a grid-north
+    and a true-north arrow, a 1 m scale bar and the grasp's numbers. Written atomically."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Polygon as MplPolygon
+    from matplotlib.ticker import MultipleLocator, ScalarFormatter
+    from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
+
+    g = _georef(pile)
+
+    def tm(points_pile: np.ndarray) -> np.ndarray:
+        e, n, _ = geodesy.pile_to_sweref_tm(g, np.asarray(points_pile, float).reshape(-1, 3))
+        return np.column_stack([e, n])
+
+    fig = Figure(figsize=(8.0, 8.6), dpi=dpi)
+    FigureCanvasAgg(fig)
+    ax = fig.add_axes((0.14, 0.20, 0.80, 0.72))
+    half = pile.terrain.extent_m / 2
+    patch = tm(np.array([[-half, -half, 0], [half, -half, 0], [half, half, 0], [-half, half, 0]]))
+    ax.add_patch(MplPolygon(patch, closed=True, fill=False, ls="--", lw=0.8, ec="0.5",
+                            label="scanned area"))
+    for i, s in enumerate(pile.stumps):
+        ax.add_patch(MplPolygon(tm(_stump_outline(pile, s)), closed=True, fc="0.35", ec="k", lw=0.6,
+                                label="stump / rock" if i == 0 else None))
+    for i, r in enumerate(pile.rocks):
+        ax.add_patch(MplPolygon(tm(_rock_outline(r)), closed=True, fc="0.55", ec="k", lw=0.6,
+                                label="stump / rock" if (i == 0 and not pile.stumps) else None))
+    targets = {int(t) for t in target_logs}
+    for i, log in enumerate(pile.logs):
+        tgt = i in targets
+        ax.add_patch(MplPolygon(tm(_log_outline(log)), closed=True, fc="#e0a030" if tgt else "#d9c7a0",
+                                ec="#6b4f1d", lw=1.4 if tgt else 0.8,
+                                label=("target log" if tgt else "log")
+                                if i == min(j for j in range(len(pile.logs)) if (j in targets) == tgt)
+                                else None))
+        ends = tm(np.stack(log.endpoints_m()))
+        ax.plot(ends[:, 0], ends[:, 1], color="#6b4f1d", lw=0.8, ls=":")
+        mid = ends.mean(axis=0)
+        ax.text(mid[0], mid[1], str(i), ha="center", va="center", fontsize=8, weight="bold",
+                bbox={"boxstyle": "circle,pad=0.15", "fc": "white", "ec": "#6b4f1d", "lw": 0.6})
+    info = ""
+    if grasp is not None:
+        z = _grasp_z(pile, grasp, grasp_z_m)
+        geo = grasp_to_gnss(grasp, g, z)
+        rect = tm(np.column_stack([grasp.rectangle(RECT_WIDTH_M), np.full(4, z)]))
+        ax.add_patch(MplPolygon(rect, closed=True, fc=(0.85, 0.1, 0.1, 0.25), ec="#c00000", lw=2.0,
+                                label="grasp (claws close along the long side)"))
+        c = np.array([grasp.x_m, grasp.y_m, z])
+        a = np.r_[grasp.closing_axis(), 0.0] * grasp.width_m / 2
+        tips = tm(np.stack([c - a, c + a]))  # the claw tips when open
+        ax.plot(tips[:, 0], tips[:, 1], color="#c00000", lw=1.2)
+        ax.plot(tips[:, 0], tips[:, 1], "v", color="#c00000", ms=6)
+        ax.plot([geo.easting_m], [geo.northing_m], "+", color="k", ms=14, mew=2, label="grasp point")
+        info = geo.summary()
+    # extent: the scanned area with a margin
+    lo, hi = patch.min(axis=0), patch.max(axis=0)
+    pad = 0.08 * float(np.max(hi - lo))
+    ax.set_xlim(lo[0] - pad, hi[0] + pad)
+    ax.set_ylim(lo[1] - pad, hi[1] + pad)
+    ax.set_aspect("equal")
+    step = 1.0 if pile.terrain.extent_m <= 12 else 5.0
+    for axis in (ax.xaxis, ax.yaxis):
+        fmt = ScalarFormatter(useOffset=False)
+        fmt.set_scientific(False)
+        axis.set_major_formatter(fmt)
+        axis.set_major_locator(MultipleLocator(step))
+    ax.tick_params(axis="x", labelrotation=30, labelsize=7)
+    ax.tick_params(axis="y", labelsize=7)
+    ax.grid(True, lw=0.3, color="0.8")
+    ax.set_xlabel("Easting [m], SWEREF 99 TM (EPSG:3006)")
+    ax.set_ylabel("Northing [m], SWEREF 99 TM")
+    ax.add_artist(AnchoredSizeBar(ax.transData, 1.0, "1 m", "lower left", pad=0.6, sep=4,
+                                  frameon=True, size_vertical=0.04))
+    # north arrows: grid north is up; true north lies at grid bearing -convergence
+    centre = (lo + hi) / 2
+    lat_c, lon_c = geodesy.tm_to_geodetic(centre[0], centre[1])
+    gamma = float(geodesy.meridian_convergence_deg(lat_c, lon_c))
+    ax.annotate("N\n(grid)", xy=(0.93, 0.95), xytext=(0.93, 0.80), xycoords="axes fraction",
+                ha="center", va="top", fontsize=9, weight="bold",
+                arrowprops={"arrowstyle": "-|>", "lw": 2.0, "color": "k"})
+    b = math.radians(-gamma)
+    L = 0.15
+    ax.annotate(f"true N\n({gamma:+.2f}°)", xy=(0.82 + L * math.sin(b), 0.80 + L * math.cos(b)),
+                xytext=(0.82, 0.80), xycoords="axes fraction", ha="center", va="top", fontsize=7,
+                color="0.3", arrowprops={"arrowstyle": "-|>", "lw": 1.2, "color": "0.3"})
+    ax.legend(loc="lower right", fontsize=7, framealpha=0.9)
+    ax.set_title(title or f"Log pile — {len(pile.logs)} logs (heights ellipsoidal, GRS80)", fontsize=11)
+    if info:
+        fig.text(0.5, 0.035, info, ha="center", va="bottom", fontsize=9.5, family="monospace",
+                 bbox={"fc": "#fff4f4", "ec": "#c00000", "boxstyle": "round,pad=0.5"})
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi,
+                metadata={"Software": f"loggrasp field.geo {GEOJSON_VERSION}",
+                          "Description": "grasp map, SWEREF 99 TM (EPSG:3006)"})
+    path = Path(path)
+    atomic_write_bytes(path, buf.getvalue())
+    return path
