@@ -35,3 +35,21 @@ class GnssQualityError(GnssError):
 class GnssOutlierError(GnssError):
     """A point lies implausibly far from the other points or from the scanned area (a wrong
     log id, a point measured elsewhere, a typo in a coordinate)."""
+
+
+# --- stereo scans, fitting and registration (reconstruct.stereo / fit / pipeline) -------------
+
+
+class ScanError(ReconstructError):
+    """A stereo scan cannot be used: a missing or unreadable image or calibration, left and
+    right images of different sizes, a calibration that does not fit the images, or no depth."""
+
+
+class FitError(ReconstructError):
+    """The scan does not support a model: a log with (almost) no scan points around its GNSS
+    axis (outside the scanned area, or wrong endpoints), or a fit that failed."""
+
+
+class RegistrationError(ReconstructError):
+    """The scan could not be aligned to the site frame (endpoints far from the scanned area,
+    residuals too large, too few logs to constrain the transform)."""
