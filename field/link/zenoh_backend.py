@@ -1,0 +1,335 @@
+"""Zenoh backend of the crane link (eclipse-zenoh 1.x), laptop side and crane side.
+
+Key expressions, under a configurable prefix (default ``loggrasp/<crane>``)::
+
+    <prefix>/grasp/cmd       queryable on the crane: get(payload=GraspCommand frame) -> reply Ack frame
+    <prefix>/grasp/ack       the crane also puts every Ack here (monitoring / recording)
+    <prefix>/grasp/status    queryable on the crane: get(payload=StatusRequest) -> reply Status;
+                             the crane also puts unsolicited Status frames here (laptop subscribes)
+    <prefix>/grasp/outcome   crane puts Outcome frames (laptop subscribes)
+    <prefix>/grasp/estop     laptop puts EStop frames (REAL_TIME priority, express, blocking)
+    <prefix>/grasp/heartbeat crane puts CraneHeartbeat frames each period (monitoring)
+    <prefix>/alive/controller, <prefix>/alive/laptop   liveliness tokens
+
+Request/acknowledge uses a **queryable** (``session.get``): the reply goes to the requester
+only, the query has its own timeout, and an unreachable or unauthorised crane simply produces no
+reply (-> ``LinkTimeout``). Payloads are exactly the CAN FD frame bytes (same DBC codec, same
+AUTOSAR E2E protection). Presence uses liveliness tokens: a killed peer's token disappears at
+once, a hung one after the transport lease (``lease_ms``, default 1000 ms via
+``transport/link/tx/lease``).
+
+URLs: ``zenoh://127.0.0.1:7447/crane1`` (the laptop connects to, the controller listens on
+``tcp/127.0.0.1:7447``) and/or ``zenoh://crane1?config=PATH`` (a JSON5 Zenoh config file used
+as given: user/password auth in ``transport/auth/usrpwd``, ``access_control`` rules...). When the
+URL names an endpoint, multicast scouting and gossip are switched off and only that endpoint is
+used. Parameters: ``prefix``, ``lease_ms``, ``config``.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+from dataclasses import dataclass
+from typing import Any
+
+from field.errors import LinkError
+from field.link.base import CraneLink, LinkConfig, LinkURL, track_resource, untrack_resource
+
+
+@dataclass(frozen=True)
+class ZenohKeys:
+    prefix: str
+
+    @property
+    def cmd(self) -> str:
+        return f"{self.prefix}/grasp/cmd"
+
+    @property
+    def ack(self) -> str:
+        return f"{self.prefix}/grasp/ack"
+
+    @property
+    def status(self) -> str:
+        return f"{self.prefix}/grasp/status"
+
+    @property
+    def outcome(self) -> str:
+        return f"{self.prefix}/grasp/outcome"
+
+    @property
+    def estop(self) -> str:
+        return f"{self.prefix}/grasp/estop"
+
+    @property
+    def heartbeat(self) -> str:
+        return f"{self.prefix}/grasp/heartbeat"
+
+    @property
+    def alive_controller(self) -> str:
+        return f"{self.prefix}/alive/controller"
+
+    @property
+    def alive_laptop(self) -> str:
+        return f"{self.prefix}/alive/laptop"
+
+
+@dataclass(frozen=True)
+class ZenohTarget:
+    """What a ``zenoh://`` URL says: crane name, endpoint, config file, prefix, lease."""
+
+    crane: str
+    endpoint: str | None  # "tcp/127.0.0.1:7447" or None (config file decides)
+    config_path: str | None
+    prefix: str
+    lease_ms: int
+
+    @classmethod
+    def from_url(cls, url: LinkURL, query: dict[str, str]) -> "ZenohTarget":
+        q = dict(query)
+        endpoint = None
+        if ":" in url.netloc or url.path:
+            host = url.netloc
+            if ":" not in host:
+                raise ValueError(f"zenoh URL endpoint needs HOST:PORT, got {host!r} (e.g. zenoh://127.0.0.1:7447/crane1)")
+            endpoint = f"tcp/{host}"
+            crane = url.path.strip("/")
+        else:
+            crane = url.netloc
+        if not crane or "/" in crane or "*" in crane:
+            raise ValueError(f"zenoh URL needs a crane name without '/' or '*', got {crane!r}")
+        prefix = q.pop("prefix", f"loggrasp/{crane}").strip("/")
+        try:
+            lease_ms = int(q.pop("lease_ms", "1000"))
+        except ValueError as exc:
+            raise ValueError(f"lease_ms must be an integer [ms]: {exc}") from exc
+        config_path = q.pop("config", None)
+        if q:
+            raise ValueError(f"unknown zenoh:// parameters {sorted(q)}")
+        if endpoint is None and config_path is None:
+            raise ValueError("a zenoh:// URL needs an endpoint (zenoh://HOST:PORT/crane) or ?config=PATH")
+        return cls(crane, endpoint, config_path, prefix, lease_ms)
+
+    def zenoh_config(self, role: str) -> Any:
+        """A ``zenoh.Config`` for ``role`` ``"laptop"`` (client, connects) or ``"controller"``
+        (peer, listens)."""
+        import zenoh
+
+        try:
+            conf = zenoh.Config.from_file(self.config_path) if self.config_path else zenoh.Config()
+        except Exception as exc:
+            raise LinkError(f"cannot read Zenoh config {self.config_path}: {exc}") from exc
+        if self.endpoint is not None:
+            if role == "laptop":
+                conf.insert_json5("mode", '"client"')
+                conf.insert_json5("connect/endpoints", json.dumps([self.endpoint]))
+                conf.insert_json5("listen/endpoints", "[]")
+            else:
+                conf.insert_json5("mode", '"peer"')
+                conf.insert_json5("listen/endpoints", json.dumps([self.endpoint]))
+                conf.insert_json5("connect/endpoints", "[]")
+            conf.insert_json5("scouting/multicast/enabled", "false")
+            conf.insert_json5("scouting/gossip/enabled", "false")
+        conf.insert_json5("transport/link/tx/lease", str(self.lease_ms))
+        return conf
+
+
+def _open_session(conf: Any, what: str) -> Any:
+    import zenoh
+
+    try:
+        session = zenoh.open(conf)
+    except Exception as exc:
+        raise LinkError(
+            f"cannot open the Zenoh session for the {what}: {exc}. Check that the controller runs, "
+            f"the endpoint, and the credentials in the config file"
+        ) from exc
+    track_resource(session, f"zenoh session ({what})", session.close)
+    return session
+
+
+def _close_session(session: Any) -> None:
+    try:
+        session.close()
+    except Exception:
+        pass  # close after a hang can time out; the session is gone either way
+    finally:
+        untrack_resource(session)
+
+
+def _payload(sample_or_query: Any) -> bytes:
+    p = sample_or_query.payload
+    return b"" if p is None else p.to_bytes()
+
+
+# --- laptop side ----------------------------------------------------------------------------
+
+
+class ZenohLink(CraneLink):
+    backend_name = "zenoh"
+    query_timeout_s = 10.0  # zenoh-level query lifetime; the link's own deadlines are shorter
+
+    def __init__(self, target: ZenohTarget, config: LinkConfig | None = None):
+        super().__init__(config)
+        import zenoh
+
+        self.target = target
+        self.keys = ZenohKeys(target.prefix)
+        self._present = False
+        self._session = _open_session(target.zenoh_config("laptop"), "laptop")
+        try:
+            s = self._session
+            self._subs = [
+                s.declare_subscriber(self.keys.outcome, lambda smp: self._deliver("Outcome", _payload(smp))),
+                s.declare_subscriber(self.keys.status, lambda smp: self._deliver("Status", _payload(smp))),
+                s.liveliness().declare_subscriber(self.keys.alive_controller, self._on_alive, history=True),
+            ]
+            self._token = s.liveliness().declare_token(self.keys.alive_laptop)
+            self._zenoh = zenoh
+        except BaseException:
+            _close_session(self._session)
+            raise
+
+    @classmethod
+    def from_url(cls, url: LinkURL, config: LinkConfig | None = None) -> "ZenohLink":
+        cfg, q = url.pop_link_config(config)
+        link = cls(ZenohTarget.from_url(url, q), cfg)
+        _await(link)
+        return link
+
+    def _on_alive(self, sample: Any) -> None:
+        if sample.kind == self._zenoh.SampleKind.PUT:
+            self._present = True
+            self._mark_alive()
+        else:
+            self._present = False
+            self._mark_lost()
+
+    def controller_alive(self) -> bool:
+        return self._present
+
+    def _reply_to(self, kind: str) -> Any:
+        def on_reply(reply: Any) -> None:
+            ok = reply.ok
+            if ok is not None:
+                self._deliver(kind, _payload(ok))
+
+        return on_reply
+
+    def _transmit(self, kind: str, data: bytes) -> None:
+        z = self._zenoh
+        if kind == "GraspCommand":
+            self._session.get(self.keys.cmd, self._reply_to("Ack"), payload=data, timeout=self.query_timeout_s,
+                              priority=z.Priority.INTERACTIVE_HIGH, congestion_control=z.CongestionControl.BLOCK)
+        elif kind == "StatusRequest":
+            self._session.get(self.keys.status, self._reply_to("Status"), payload=data, timeout=self.query_timeout_s)
+        elif kind == "EStop":
+            self._session.put(self.keys.estop, data, priority=z.Priority.REAL_TIME,
+                              congestion_control=z.CongestionControl.BLOCK, express=True)
+        else:
+            raise LinkError(f"the zenoh link does not send {kind} frames")
+
+    def _close_transport(self) -> None:
+        try:
+            self._token.undeclare()
+        except Exception:
+            pass
+        _close_session(self._session)
+
+
+def _await(link: CraneLink) -> None:
+    if link.config.require_controller and not link.wait_for_controller(link.config.connect_timeout_s):
+        link.close()
+        raise LinkError(
+            f"no crane controller is alive on the zenoh link within {link.config.connect_timeout_s:.1f} s "
+            f"(no liveliness token); check that it runs, the endpoint, and the credentials"
+        )
+
+
+# --- crane side -----------------------------------------------------------------------------
+
+
+class ZenohControllerTransport:
+    """Crane side over Zenoh: queryables for commands and status, liveliness, publications."""
+
+    def __init__(self, target: ZenohTarget, heartbeat_period_s: float = 0.05):
+        self.target = target
+        self.keys = ZenohKeys(target.prefix)
+        self.heartbeat_period_s = heartbeat_period_s
+        self.controller: Any = None
+        self._session: Any = None
+        self._laptop_present = False
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._closed = False
+
+    @classmethod
+    def from_url(cls, url: LinkURL, *, heartbeat_period_s: float = 0.05) -> "ZenohControllerTransport":
+        _, q = url.pop_link_config()
+        return cls(ZenohTarget.from_url(url, q), heartbeat_period_s)
+
+    def start(self, controller: Any) -> None:
+        import zenoh
+
+        self._zenoh = zenoh
+        self.controller = controller
+        controller.attach(self.send)
+        self._session = _open_session(self.target.zenoh_config("controller"), "controller")
+        s = self._session
+        try:
+            self._entities = [
+                s.declare_queryable(self.keys.cmd, self._on_command),
+                s.declare_queryable(self.keys.status, self._on_status_query),
+                s.declare_subscriber(self.keys.estop, lambda smp: controller.on_frame("EStop", _payload(smp), self.send)),
+                s.liveliness().declare_subscriber(self.keys.alive_laptop, self._on_laptop, history=True),
+            ]
+            self._token = s.liveliness().declare_token(self.keys.alive_controller)
+        except BaseException:
+            _close_session(s)
+            raise
+        self._thread = threading.Thread(target=self._heartbeat_loop, name="zenoh-controller-heartbeat", daemon=True)
+        self._thread.start()
+
+    def _on_command(self, query: Any) -> None:
+        def reply(kind: str, data: bytes) -> None:
+            if kind == "Ack":
+                query.reply(query.key_expr, data)
+            self.send(kind, data)
+
+        self.controller.on_frame("GraspCommand", _payload(query), reply)
+
+    def _on_status_query(self, query: Any) -> None:
+        self.controller.on_frame("StatusRequest", _payload(query), lambda kind, data: query.reply(query.key_expr, data))
+
+    def _on_laptop(self, sample: Any) -> None:
+        if sample.kind == self._zenoh.SampleKind.PUT:
+            self._laptop_present = True
+            self.controller.laptop_seen()
+        else:
+            self._laptop_present = False
+            self.controller.laptop_lost("laptop liveliness token gone")
+
+    def _heartbeat_loop(self) -> None:
+        while not self._stop.wait(self.heartbeat_period_s):
+            if self._laptop_present:
+                self.controller.laptop_seen()
+            try:
+                self._session.put(self.keys.heartbeat, self.controller.heartbeat_frame())
+            except Exception:
+                pass
+
+    def send(self, kind: str, data: bytes) -> None:
+        if self._closed or self._session is None:
+            return
+        key = {"Ack": self.keys.ack, "Outcome": self.keys.outcome, "Status": self.keys.status}.get(kind)
+        if key is not None:
+            self._session.put(key, data, congestion_control=self._zenoh.CongestionControl.BLOCK)
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(1.0)
+        if self._session is not None:
+            _close_session(self._session)
