@@ -129,59 +129,63 @@ def check_geodetic(lat_deg: Any, lon_deg: Any, what: str = "coordinate") -> None
 
     Detects swapped latitude/longitude (the most common mistake in hand-made files) and says so.
     """
-    lat, lon = np.broadcast_arrays(_f64(lat_deg), _f64(lon_deg))
-    for la, lo in zip(lat.ravel(), lon.ravel()):
-        if not (math.isfinite(la) and math.isfinite(lo)):
-            raise CoordinateError(f"{what}: latitude/longitude must be finite, got ({la}, {lo})")
-        lat_ok = SWEDEN_LAT_DEG[0] <= la <= SWEDEN_LAT_DEG[1]
-        lon_ok = SWEDEN_LON_DEG[0] <= lo <= SWEDEN_LON_DEG[1]
-        if lat_ok and lon_ok:
-            continue
-        if SWEDEN_LAT_DEG[0] <= lo <= SWEDEN_LAT_DEG[1] and SWEDEN_LON_DEG[0] <= la <= SWEDEN_LON_DEG[1]:
-            raise CoordinateError(
-                f"{what}: latitude {la}° / longitude {lo}° look swapped (Sweden is at latitude "
-                f"{SWEDEN_LAT_DEG[0]:g}–{SWEDEN_LAT_DEG[1]:g}°N, longitude "
-                f"{SWEDEN_LON_DEG[0]:g}–{SWEDEN_LON_DEG[1]:g}°E); swap the columns"
-            )
+    lat, lon = (a.ravel() for a in np.broadcast_arrays(_f64(lat_deg), _f64(lon_deg)))
+    ok = ((lat >= SWEDEN_LAT_DEG[0]) & (lat <= SWEDEN_LAT_DEG[1])
+          & (lon >= SWEDEN_LON_DEG[0]) & (lon <= SWEDEN_LON_DEG[1]))
+    if ok.all():
+        return
+    i = int(np.flatnonzero(~ok)[0])
+    la, lo = float(lat[i]), float(lon[i])
+    if not (math.isfinite(la) and math.isfinite(lo)):
+        raise CoordinateError(f"{what}: latitude/longitude must be finite, got ({la}, {lo})")
+    if SWEDEN_LAT_DEG[0] <= lo <= SWEDEN_LAT_DEG[1] and SWEDEN_LON_DEG[0] <= la <= SWEDEN_LON_DEG[1]:
         raise CoordinateError(
-            f"{what}: (latitude {la}°, longitude {lo}°) is not in Sweden (expected latitude "
+            f"{what}: latitude {la}° / longitude {lo}° look swapped (Sweden is at latitude "
             f"{SWEDEN_LAT_DEG[0]:g}–{SWEDEN_LAT_DEG[1]:g}°N, longitude "
-            f"{SWEDEN_LON_DEG[0]:g}–{SWEDEN_LON_DEG[1]:g}°E, SWEREF 99 degrees); check the CRS "
-            "and the sign/units of the values"
+            f"{SWEDEN_LON_DEG[0]:g}–{SWEDEN_LON_DEG[1]:g}°E); swap the columns"
         )
+    raise CoordinateError(
+        f"{what}: (latitude {la}°, longitude {lo}°) is not in Sweden (expected latitude "
+        f"{SWEDEN_LAT_DEG[0]:g}–{SWEDEN_LAT_DEG[1]:g}°N, longitude "
+        f"{SWEDEN_LON_DEG[0]:g}–{SWEDEN_LON_DEG[1]:g}°E, SWEREF 99 degrees); check the CRS "
+        "and the sign/units of the values"
+    )
 
 
 def check_sweref_tm(easting_m: Any, northing_m: Any, what: str = "coordinate") -> None:
     """Raise :class:`CoordinateError` unless every (E, N) lies in SWEREF 99 TM's area of use."""
-    e, n = np.broadcast_arrays(_f64(easting_m), _f64(northing_m))
-    for ee, nn in zip(e.ravel(), n.ravel()):
-        if not (math.isfinite(ee) and math.isfinite(nn)):
-            raise CoordinateError(f"{what}: easting/northing must be finite, got ({ee}, {nn})")
-        e_ok = SWEREF_TM_EASTING_M[0] <= ee <= SWEREF_TM_EASTING_M[1]
-        n_ok = SWEREF_TM_NORTHING_M[0] <= nn <= SWEREF_TM_NORTHING_M[1]
-        if e_ok and n_ok:
-            continue
-        if (SWEREF_TM_NORTHING_M[0] <= ee <= SWEREF_TM_NORTHING_M[1]
-                and SWEREF_TM_EASTING_M[0] <= nn <= SWEREF_TM_EASTING_M[1]):
-            raise CoordinateError(
-                f"{what}: easting {ee} m / northing {nn} m look swapped (EPSG:3006 lists "
-                "northing first; loggrasp always writes easting, northing); swap the columns"
-            )
+    e, n = (a.ravel() for a in np.broadcast_arrays(_f64(easting_m), _f64(northing_m)))
+    ok = ((e >= SWEREF_TM_EASTING_M[0]) & (e <= SWEREF_TM_EASTING_M[1])
+          & (n >= SWEREF_TM_NORTHING_M[0]) & (n <= SWEREF_TM_NORTHING_M[1]))
+    if ok.all():
+        return
+    i = int(np.flatnonzero(~ok)[0])
+    ee, nn = float(e[i]), float(n[i])
+    if not (math.isfinite(ee) and math.isfinite(nn)):
+        raise CoordinateError(f"{what}: easting/northing must be finite, got ({ee}, {nn})")
+    if (SWEREF_TM_NORTHING_M[0] <= ee <= SWEREF_TM_NORTHING_M[1]
+            and SWEREF_TM_EASTING_M[0] <= nn <= SWEREF_TM_EASTING_M[1]):
         raise CoordinateError(
-            f"{what}: (easting {ee} m, northing {nn} m) is outside SWEREF 99 TM's area of use "
-            f"(easting {SWEREF_TM_EASTING_M[0]:.0f}–{SWEREF_TM_EASTING_M[1]:.0f} m, northing "
-            f"{SWEREF_TM_NORTHING_M[0]:.0f}–{SWEREF_TM_NORTHING_M[1]:.0f} m); is it really EPSG:3006?"
+            f"{what}: easting {ee} m / northing {nn} m look swapped (EPSG:3006 lists "
+            "northing first; loggrasp always writes easting, northing); swap the columns"
         )
+    raise CoordinateError(
+        f"{what}: (easting {ee} m, northing {nn} m) is outside SWEREF 99 TM's area of use "
+        f"(easting {SWEREF_TM_EASTING_M[0]:.0f}–{SWEREF_TM_EASTING_M[1]:.0f} m, northing "
+        f"{SWEREF_TM_NORTHING_M[0]:.0f}–{SWEREF_TM_NORTHING_M[1]:.0f} m); is it really EPSG:3006?"
+    )
 
 
 def check_height(h_m: Any, what: str = "coordinate") -> None:
     """Raise :class:`CoordinateError` unless every ellipsoidal height is plausible for Sweden."""
-    for h in _f64(h_m).ravel():
-        if not (math.isfinite(h) and ELLIPSOIDAL_H_M[0] <= h <= ELLIPSOIDAL_H_M[1]):
-            raise CoordinateError(
-                f"{what}: ellipsoidal height {h} m is outside [{ELLIPSOIDAL_H_M[0]:g}, "
-                f"{ELLIPSOIDAL_H_M[1]:g}] m; is it in millimetres or feet?"
-            )
+    hs = _f64(h_m).ravel()
+    bad = ~((hs >= ELLIPSOIDAL_H_M[0]) & (hs <= ELLIPSOIDAL_H_M[1]))  # NaN is bad too
+    if bad.any():
+        h = float(hs[np.flatnonzero(bad)[0]])
+        raise CoordinateError(
+            f"{what}: ellipsoidal height {h} m is outside [{ELLIPSOIDAL_H_M[0]:g}, "
+            f"{ELLIPSOIDAL_H_M[1]:g}] m; is it in millimetres or feet?"
+        )
 
 
 # -- SWEREF 99 <-> SWEREF 99 TM <-> WGS 84 --------------------------------------------------

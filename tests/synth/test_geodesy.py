@@ -75,6 +75,16 @@ def test_tm_matches_lantmateriet_control_points(row):
     assert abs(float(lat2) - lat) < 1e-8 and abs(float(lon2) - lon) < 2e-8
 
 
+def test_tm_matches_metre_level_published_examples():
+    # Stockholm Central Station, 59.330231 N 18.059196 E -> N 6580822, E 674032 (kartor.eniro.se,
+    # quoted in the MightyLittleGeodesy / sweden_crs_transformations test suites), and
+    # 65.6542 N 14.5360 E -> N 7281446, E 478656 (a public C++ SWEREF 99 library's test).
+    for lat, lon, n_ref, e_ref in ((59.330231, 18.059196, 6580822, 674032),
+                                   (65.6542, 14.5360, 7281446, 478656)):
+        e, n = G.geodetic_to_tm(lat, lon)
+        assert abs(float(e) - e_ref) <= 0.5 and abs(float(n) - n_ref) <= 0.5
+
+
 def test_geodetic_tm_round_trip_below_a_millimetre():
     rng = np.random.default_rng(0)
     lat = rng.uniform(55.5, 69.0, 200)
