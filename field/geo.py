@@ -360,9 +360,10 @@ def draw_grasp_map(pile: PileSpec, grasp: Grasp | None, path: str | Path, *,
         e, n, _ = geodesy.pile_to_sweref_tm(g, np.asarray(points_pile, float).reshape(-1, 3))
         return np.column_stack([e, n])
 
-    fig = Figure(figsize=(8.0, 8.6), dpi=dpi)
+    fig = Figure(figsize=(10.0, 8.6), dpi=dpi)
     FigureCanvasAgg(fig)
-    ax = fig.add_axes((0.14, 0.20, 0.80, 0.72))
+    ax = fig.add_axes((0.10, 0.20, 0.62, 0.72))  # the map; compass and legend to its right
+    ax.set_anchor("W")
     half = pile.terrain.extent_m / 2
     patch = tm(np.array([[-half, -half, 0], [half, -half, 0], [half, half, 0], [-half, half, 0]]))
     ax.add_patch(MplPolygon(patch, closed=True, fill=False, ls="--", lw=0.8, ec="0.5",
@@ -374,25 +375,29 @@ def draw_grasp_map(pile: PileSpec, grasp: Grasp | None, path: str | Path, *,
         ax.add_patch(MplPolygon(tm(_rock_outline(r)), closed=True, fc="0.55", ec="k", lw=0.6,
                                 label="stump / rock" if (i == 0 and not pile.stumps) else None))
     targets = {int(t) for t in target_logs}
-    for i, log in enumerate(pile.logs):
+    label_done: set[str] = set()
+    for i in sorted(range(len(pile.logs)), key=lambda j: pile.logs[j].centre_m[2]):  # low first
+        log = pile.logs[i]
         tgt = i in targets
-        ax.add_patch(MplPolygon(tm(_log_outline(log)), closed=True, fc="#e0a030" if tgt else "#d9c7a0",
+        label = "target log" if tgt else "log"
+        outline = tm(_log_outline(log))
+        ax.add_patch(MplPolygon(outline, closed=True, fc="#e0a030" if tgt else "#d9c7a0",
                                 ec="#6b4f1d", lw=1.4 if tgt else 0.8,
-                                label=("target log" if tgt else "log")
-                                if i == min(j for j in range(len(pile.logs)) if (j in targets) == tgt)
-                                else None))
+                                label=None if label in label_done else label))
+        label_done.add(label)
         ends = tm(np.stack(log.endpoints_m()))
         ax.plot(ends[:, 0], ends[:, 1], color="#6b4f1d", lw=0.8, ls=":")
-        mid = ends.mean(axis=0)
-        ax.text(mid[0], mid[1], str(i), ha="center", va="center", fontsize=8, weight="bold",
+        tag = ends[0] + 0.12 * (ends[1] - ends[0])  # near the butt: labels of crossing logs part
+        ax.text(tag[0], tag[1], str(i), ha="center", va="center", fontsize=8, weight="bold",
                 bbox={"boxstyle": "circle,pad=0.15", "fc": "white", "ec": "#6b4f1d", "lw": 0.6})
+    extent_pts = [np.asarray(a.get_xy()) for a in ax.patches[1:]]  # all but the scanned area
     info = ""
     if grasp is not None:
         z = _grasp_z(pile, grasp, grasp_z_m)
         geo = grasp_to_gnss(grasp, g, z)
         rect = tm(np.column_stack([grasp.rectangle(RECT_WIDTH_M), np.full(4, z)]))
         ax.add_patch(MplPolygon(rect, closed=True, fc=(0.85, 0.1, 0.1, 0.25), ec="#c00000", lw=2.0,
-                                label="grasp (claws close along the long side)"))
+                                label="grasp (claws close\nalong the long side)"))
         c = np.array([grasp.x_m, grasp.y_m, z])
         a = np.r_[grasp.closing_axis(), 0.0] * grasp.width_m / 2
         tips = tm(np.stack([c - a, c + a]))  # the claw tips when open
@@ -400,13 +405,18 @@ def draw_grasp_map(pile: PileSpec, grasp: Grasp | None, path: str | Path, *,
         ax.plot(tips[:, 0], tips[:, 1], "v", color="#c00000", ms=6)
         ax.plot([geo.easting_m], [geo.northing_m], "+", color="k", ms=14, mew=2, label="grasp point")
         info = geo.summary()
-    # extent: the scanned area with a margin
-    lo, hi = patch.min(axis=0), patch.max(axis=0)
-    pad = 0.08 * float(np.max(hi - lo))
-    ax.set_xlim(lo[0] - pad, hi[0] + pad)
-    ax.set_ylim(lo[1] - pad, hi[1] + pad)
+        extent_pts += [rect, tips]
+    # extent: the logs, obstacles and grasp with a margin (at least 3 m square); the scanned
+    # area's outline shows where it falls inside
+    allp = np.concatenate(extent_pts)
+    lo, hi = allp.min(axis=0), allp.max(axis=0)
+    centre = (lo + hi) / 2
+    half_span = max(1.5, float(np.max(hi - lo)) / 2 + 0.6)
+    lo, hi = centre - half_span, centre + half_span
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(lo[1], hi[1])
     ax.set_aspect("equal")
-    step = 1.0 if pile.terrain.extent_m <= 12 else 5.0
+    step = 1.0 if half_span <= 6 else 5.0
     for axis in (ax.xaxis, ax.yaxis):
         fmt = ScalarFormatter(useOffset=False)
         fmt.set_scientific(False)
@@ -420,18 +430,20 @@ def draw_grasp_map(pile: PileSpec, grasp: Grasp | None, path: str | Path, *,
     ax.add_artist(AnchoredSizeBar(ax.transData, 1.0, "1 m", "lower left", pad=0.6, sep=4,
                                   frameon=True, size_vertical=0.04))
     # north arrows: grid north is up; true north lies at grid bearing -convergence
-    centre = (lo + hi) / 2
     lat_c, lon_c = geodesy.tm_to_geodetic(centre[0], centre[1])
     gamma = float(geodesy.meridian_convergence_deg(lat_c, lon_c))
-    ax.annotate("N\n(grid)", xy=(0.93, 0.95), xytext=(0.93, 0.80), xycoords="axes fraction",
+    fig.text(0.86, 0.925, "North", ha="center", fontsize=10, weight="bold")
+    ax.annotate("grid", xy=(0.82, 0.90), xytext=(0.82, 0.72), xycoords="figure fraction",
                 ha="center", va="top", fontsize=9, weight="bold",
-                arrowprops={"arrowstyle": "-|>", "lw": 2.0, "color": "k"})
+                arrowprops={"arrowstyle": "-|>", "lw": 2.2, "color": "k"})
     b = math.radians(-gamma)
-    L = 0.15
-    ax.annotate(f"true N\n({gamma:+.2f}°)", xy=(0.82 + L * math.sin(b), 0.80 + L * math.cos(b)),
-                xytext=(0.82, 0.80), xycoords="axes fraction", ha="center", va="top", fontsize=7,
-                color="0.3", arrowprops={"arrowstyle": "-|>", "lw": 1.2, "color": "0.3"})
-    ax.legend(loc="lower right", fontsize=7, framealpha=0.9)
+    L = 0.18
+    side = "W" if gamma > 0 else "E"
+    ax.annotate(f"true\n({abs(gamma):.2f}° {side}\nof grid N)", xy=(0.91 + L * math.sin(b) * 8.6 / 10.0, 0.72 + L * math.cos(b)),
+                xytext=(0.91, 0.72), xycoords="figure fraction", ha="center", va="top", fontsize=8,
+                color="0.3", arrowprops={"arrowstyle": "-|>", "lw": 1.4, "color": "0.3"})
+    fig.legend(*ax.get_legend_handles_labels(), loc="upper left", bbox_to_anchor=(0.74, 0.62),
+               fontsize=8, frameon=True)
     ax.set_title(title or f"Log pile — {len(pile.logs)} logs (heights ellipsoidal, GRS80)", fontsize=11)
     if info:
         fig.text(0.5, 0.035, info, ha="center", va="bottom", fontsize=9.5, family="monospace",
