@@ -145,7 +145,7 @@ class StereoRigConfig:
         R_yaw = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
         t = math.radians(self.tilt_deg)
         # rotation about camera x moving the optical axis (z) towards -y_cam (the image top)
-        R_tilt = np.array([[1.0, 0.0, 0.0], [0.0, math.cos(t), math.sin(t)], [0.0, -math.sin(t), math.cos(t)]])
+        R_tilt = np.array([[1.0, 0.0, 0.0], [0.0, math.cos(t), -math.sin(t)], [0.0, math.sin(t), math.cos(t)]])
         R = R_yaw @ R_down @ R_tilt
         pos = np.asarray(self.target_m, dtype=float) + np.array([0.0, 0.0, self.height_m])
         return make_T(R, pos)
@@ -483,6 +483,12 @@ class StereoRenderer:
             self._world.pile = pile
             self._world._build()
         apply_textures(self._world, textures)
+        if self.backend == "egl":
+            # the first EGL frame after a (re)build differs slightly from every later one
+            # (measured: a sliver of ~1 % of pixels); a tiny warm-up frame makes renders repeatable
+            p = self._world.p
+            for flags in (0, p.ER_NO_SEGMENTATION_MASK):
+                self._world.client.getCameraImage(16, 16, renderer=p.ER_BULLET_HARDWARE_OPENGL, flags=flags)
         self._key = key
         return self._world
 

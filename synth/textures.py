@@ -11,8 +11,10 @@ Texture coordinates of the bodies built by :class:`synth.world.World`:
   the texture's ``u`` (column) direction.
 * stumps: the same, with ``uv_m = 0.3``, axis along local z.
 * rocks: planar projection of local x, y with ``uv_m = 0.5``.
-* terrain: pybullet maps the whole heightfield onto the texture once (verified in
-  ``tests/synth/test_stereo.py``), so the soil texture is sized from the terrain extent.
+* terrain: the visual grid mesh from :func:`synth.meshes.grid_mesh` has metric UVs with
+  ``uv_m = 0.5`` (pile x, y divided by 0.5 m; checked in ``tests/synth/test_stereo.py``), so the
+  soil texture is a seamless 0.5 m tile. The tile repeats on the ground, which stereo tolerates:
+  at 3 m a repeat spans far more pixels than the disparity search range.
 
 Files are PNGs (``cv2.imwrite``) in a per-user temporary cache, named by the SHA-1 of the recipe
 (kind, seed, size, :data:`TEXTURE_VERSION`) and written atomically; generation is deterministic, so
@@ -51,27 +53,21 @@ class TextureConfig:
     variants: int = 4  # distinct bark / rock textures in use (logs cycle through them) [-]
     bark_px: int = 512  # side of a bark texture = one 0.5 m repeat (~1 mm / px) [px]
     rock_px: int = 512  # side of a rock / stump texture [px]
-    ground_m_per_px: float = 0.0025  # soil texture resolution on the terrain [m/px]
-    ground_max_px: int = 4096  # cap on the soil texture side [px]
+    ground_px: int = 512  # side of the soil tile [px]
+    ground_uv_m: float = 0.5  # ground repeat length: the terrain mesh's UV scale (synth.meshes.grid_mesh) [m]
     specular: float = 0.0  # specular colour of textured bodies (view-dependent highlights hurt stereo) [-]
 
     def __post_init__(self) -> None:
         if not 1 <= self.variants <= 64:
             raise ValueError(f"texture variants must be in [1, 64], got {self.variants}")
-        for name in ("bark_px", "rock_px", "ground_max_px"):
+        for name in ("bark_px", "rock_px", "ground_px"):
             v = getattr(self, name)
             if not 32 <= v <= 8192:
                 raise ValueError(f"{name} must be in [32, 8192] px, got {v}")
-        if not 0.0002 <= self.ground_m_per_px <= 0.1:
-            raise ValueError(f"ground_m_per_px must be in [0.0002, 0.1] m, got {self.ground_m_per_px}")
+        if not 0.05 <= self.ground_uv_m <= 100.0:
+            raise ValueError(f"ground_uv_m must be in [0.05, 100] m, got {self.ground_uv_m}")
         if not 0.0 <= self.specular <= 1.0:
             raise ValueError(f"specular must be in [0, 1], got {self.specular}")
-
-    def ground_px(self, extent_m: float) -> int:
-        """Side of the soil texture for a terrain of ``extent_m`` (a power of two, capped)."""
-        want = extent_m / self.ground_m_per_px
-        px = 1 << int(np.ceil(np.log2(max(want, 32.0))))
-        return int(min(px, self.ground_max_px))
 
 
 # -- noise primitives ------------------------------------------------------------------------
@@ -168,10 +164,10 @@ def stump_texture(seed: int, size_px: int = 512) -> np.ndarray:
     return _to_uint8(rgb)
 
 
-def ground_texture(seed: int, size_px: int = 2048, m_per_px: float = 0.0025) -> np.ndarray:
+def ground_texture(seed: int, size_px: int = 512, m_per_px: float = 0.5 / 512) -> np.ndarray:
     """Forest-floor soil: multi-scale noise, moss/litter patches, gravel and conifer needles.
 
-    ``m_per_px`` sets the physical size of gravel and needles.
+    Seamlessly tileable. ``m_per_px`` sets the physical size of gravel and needles.
     """
     import cv2
 
@@ -193,7 +189,7 @@ def ground_texture(seed: int, size_px: int = 2048, m_per_px: float = 0.0025) -> 
     px = 1.0 / m_per_px  # pixels per metre
     area_m2 = (n * m_per_px) ** 2
     # gravel: small irregular grey-brown stones with a lit and a shaded side
-    for _ in range(int(rng.poisson(60 * area_m2))):
+    for _ in range(int(rng.poisson(120 * area_m2))):
         r = max(1.0, rng.uniform(0.004, 0.02) * px)
         g = rng.uniform(0.35, 0.75)
         col = tuple(int(255 * min(1.0, g * f)) for f in (1.0, 1.02, 1.05))
@@ -209,7 +205,7 @@ def ground_texture(seed: int, size_px: int = 2048, m_per_px: float = 0.0025) -> 
 
         _stamp_wrapped(stone, (n, n), float(rng.uniform(0, n)), float(rng.uniform(0, n)), 2 * r + 2)
     # needles: thin short segments, fresh (green-brown) and old (rust)
-    for _ in range(int(rng.poisson(400 * area_m2))):
+    for _ in range(int(rng.poisson(900 * area_m2))):
         length = rng.uniform(0.02, 0.05) * px
         th = float(rng.uniform(0, np.pi))
         dx, dy = 0.5 * length * np.cos(th), 0.5 * length * np.sin(th)
@@ -238,7 +234,7 @@ def make_texture(kind: str, seed: int, size_px: int, m_per_px: float | None = No
     if not 32 <= size_px <= 8192:
         raise ValueError(f"texture size must be in [32, 8192] px, got {size_px}")
     if kind == "ground":
-        return ground_texture(seed, size_px, 0.0025 if m_per_px is None else m_per_px)
+        return ground_texture(seed, size_px, 0.5 / size_px if m_per_px is None else m_per_px)
     return _GENERATORS[kind](seed, size_px)
 
 
@@ -279,7 +275,7 @@ def apply_textures(world: "World", config: TextureConfig | None = None) -> dict[
 
     The body colour is set to white so the texture shows unmodified, and the specular colour to
     ``config.specular``. Log ``i`` gets bark variant ``(seed + i) % variants``; the soil texture
-    is seeded from ``config.seed`` and the terrain seed. Returns ``{body_id: texture_id}``.
+    is variant ``terrain.seed % variants``. Returns ``{body_id: texture_id}``.
     """
     cfg = config or TextureConfig()
     c = world.client
@@ -303,8 +299,8 @@ def apply_textures(world: "World", config: TextureConfig | None = None) -> dict[
         out[body] = tid
 
     t = world.pile.terrain
-    ground_px = cfg.ground_px(t.extent_m)
-    put(world.terrain_id, tex("ground", cfg.seed * 7919 + t.seed, ground_px, t.extent_m / ground_px))
+    put(world.terrain_id, tex("ground", cfg.seed * cfg.variants + t.seed % cfg.variants, cfg.ground_px,
+                              cfg.ground_uv_m / cfg.ground_px))
     for i, body in enumerate(world.log_ids):
         put(body, tex("bark", (cfg.seed + i) % cfg.variants + cfg.seed * cfg.variants, cfg.bark_px))
     n_stumps = len(world.pile.stumps)
