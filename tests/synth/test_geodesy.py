@@ -7,6 +7,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from synth import geodesy as G
 from synth.frames import make_T, rot_z
@@ -224,3 +226,15 @@ def test_wgs84_is_the_null_transformation():
     assert abs(float(lat) - 64.1) < 1e-12 and abs(float(lon) - 20.0) < 1e-12
     lat2, lon2 = G.wgs84_to_sweref(lat, lon)
     assert abs(float(lat2) - 64.1) < 1e-12 and abs(float(lon2) - 20.0) < 1e-12
+
+
+@settings(max_examples=150, deadline=None)
+@given(lat=st.floats(55.2, 69.0), lon=st.floats(11.0, 24.0), h=st.floats(-20.0, 1500.0),
+       east=st.floats(-50.0, 50.0), north=st.floats(-50.0, 50.0), up=st.floats(-10.0, 10.0))
+def test_site_tm_round_trip_property(lat, lon, h, east, north, up):
+    origin = (lat, lon, h)
+    p = np.array([east, north, up])
+    e, n, hh = G.site_to_tm(origin, p)
+    back = G.tm_to_site(origin, e, n, hh)
+    assert np.linalg.norm(back - p) < 1e-3
+    assert abs(float(np.linalg.norm(G.geodetic_to_site(origin, lat, lon, h)))) < 1e-6
