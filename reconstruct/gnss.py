@@ -201,6 +201,12 @@ class GnssSurvey:
             raise GnssFormatError(f"logs {missing} lack an 'a' or 'b' end; run check_survey first")
         return {k: (v["a"], v["b"]) for k, v in out.items()}
 
+    def endpoints_pile(self, georef: Georeference) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """``{log_id: (end_a, end_b)}`` in the pile frame of ``georef`` [m] (through its site
+        frame and ``T_site_pile``) — ready for :meth:`synth.pile.LogSpec.from_endpoints`."""
+        site = self.endpoints_site(georef)
+        return {k: tuple(geodesy.site_to_pile(georef, np.stack(v))) for k, v in site.items()}
+
     def georeference(self, origin: Any = None) -> Georeference:
         """A :class:`Georeference` at ``origin`` (default: the mean point) with the pile frame
         equal to the site frame (identity ``T_site_pile``)."""

@@ -79,6 +79,8 @@ def test_simulated_noise_is_realistic_and_endpoints_site_exact_without_noise():
     assert list(got) == [f"log{i}" for i in range(150)]
     est = np.array([[got[k][0], got[k][1]] for k in got]).reshape(-1, 3)
     assert np.abs(est - truth).max() < 1e-6
+    pile_ends = s0.endpoints_pile(GEOREF)["log7"]
+    assert np.abs(geodesy.pile_to_site(GEOREF, np.stack(pile_ends)) - np.array(ends[7])).max() < 1e-6
     s = gnss.simulate_survey(ends, GEOREF, np.random.default_rng(0), sigma_h_m=0.015, sigma_v_m=0.025)
     err = s.points_site(GEOREF) - truth
     rms_h = math.sqrt(np.mean(err[:, 0] ** 2 + err[:, 1] ** 2))
