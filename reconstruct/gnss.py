@@ -355,8 +355,8 @@ def read_gnss_csv(path: str | Path, *, allow_float: bool = False, max_distance_m
             )
         except GnssError:
             raise
-        except ValueError as exc:
-            raise GnssFormatError(f"{where} (log {log_id!r}): {exc}") from exc
+        except ValueError as exc:  # GnssPoint's checks: the message names file, line and log
+            raise GnssFormatError(str(exc)) from exc
         points.append(point)
     survey = GnssSurvey(points=tuple(points), source=f"{path} ({crs})")
     return check_survey(survey, allow_float=allow_float, max_distance_m=max_distance_m, area=area)
