@@ -166,6 +166,8 @@ def make_executor(name: str, **kwargs: Any) -> GraspExecutor:
 class FixedOutcomeExecutor:
     """Deterministic test executor: after ``delay_s`` returns a fixed outcome.
 
+    ``delay_by_target_logs`` overrides the delay per target log count (a slow command in tests).
+
     ``logs_grasped`` defaults to the command's target count. Every execution start is appended
     to ``log_path`` (when given; read it with :func:`read_execution_log`) so tests in another
     process can prove a command never ran twice. ``abort()`` cuts the delay short.
@@ -178,6 +180,7 @@ class FixedOutcomeExecutor:
         logs_grasped: int | None = None,
         balance_cos_milli: int = 985,
         log_path: str | None = None,
+        delay_by_target_logs: dict[int, float] | None = None,
     ):
         if not delay_s >= 0:
             raise ValueError(f"delay_s must be >= 0 s, got {delay_s}")
@@ -188,6 +191,8 @@ class FixedOutcomeExecutor:
         self.logs_grasped = logs_grasped
         self.balance_cos_milli = int(balance_cos_milli)
         self.log_path = log_path
+        # per-target-count delay overrides [s] (lets a test make one command slow)
+        self.delay_by_target_logs = {int(k): float(v) for k, v in (delay_by_target_logs or {}).items()}
         self.executed: list[int] = []
         self._abort = threading.Event()
         if log_path is not None and not Path(log_path).exists():
@@ -205,7 +210,7 @@ class FixedOutcomeExecutor:
                 f.write(json.dumps({"command_id": cmd.command_id, "t": time.time()}) + "\n")
                 f.flush()
                 os.fsync(f.fileno())
-        self._abort.wait(self.delay_s)
+        self._abort.wait(self.delay_by_target_logs.get(cmd.target_log_count, self.delay_s))
         n = cmd.target_log_count if self.logs_grasped is None else self.logs_grasped
         return Outcome(cmd.command_id, self.outcome_class, n, self.balance_cos_milli)
 

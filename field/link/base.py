@@ -395,7 +395,8 @@ class CraneLink(abc.ABC):
         return t is not None and time.monotonic() - t < self.config.heartbeat_timeout_s
 
     def wait_for_controller(self, timeout_s: float) -> bool:
-        """Wait until the controller shows a sign of life; returns whether it did."""
+        """Wait until the controller shows a sign of life AND answers a status query (its
+        request paths are routed); returns whether it did within ``timeout_s``."""
         deadline = time.monotonic() + timeout_s
         with self._cond:
             while not self.controller_alive():
@@ -403,7 +404,25 @@ class CraneLink(abc.ABC):
                 if left <= 0:
                     return False
                 self._cond.wait(min(left, 0.05))
-        return True
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return False
+            try:
+                self.status(timeout_s=min(self.config.status_timeout_s, left))
+                return True
+            except LinkTimeout:
+                continue
+
+    def _await_controller(self) -> None:
+        """Open-time handshake: raise :class:`LinkError` (and close) when no controller answers."""
+        if self.config.require_controller and not self.wait_for_controller(self.config.connect_timeout_s):
+            self.close()
+            raise LinkError(
+                f"no crane controller answered on the {self.backend_name} link within "
+                f"{self.config.connect_timeout_s:.1f} s; check that it runs, the URL / endpoint and "
+                f"the credentials"
+            )
 
     @property
     def closed(self) -> bool:

@@ -250,7 +250,7 @@ class CanLink(_CanEndpoint, CraneLink):
     def from_url(cls, url: LinkURL, config: LinkConfig | None = None, *, bus: can.BusABC | None = None) -> "CanLink":
         cfg, q = url.pop_link_config(config)
         link = cls(bus_kwargs_from_url(url, q) if bus is None else None, cfg, bus=bus)
-        _await_controller(link)
+        link._await_controller()
         return link
 
     def _next_heartbeat(self, msg: can.Message) -> None:
@@ -275,15 +275,6 @@ class CanLink(_CanEndpoint, CraneLink):
 
     def _close_transport(self) -> None:
         self._shutdown_bus()
-
-
-def _await_controller(link: CraneLink) -> None:
-    if link.config.require_controller and not link.wait_for_controller(link.config.connect_timeout_s):
-        link.close()
-        raise LinkError(
-            f"no crane controller answered on the {link.backend_name} link within "
-            f"{link.config.connect_timeout_s:.1f} s; check that it runs and the URL / credentials"
-        )
 
 
 # --- crane side -----------------------------------------------------------------------------

@@ -16,7 +16,7 @@ from typing import Any
 import can
 
 from field.link.base import LinkConfig, LinkURL
-from field.link.can_backend import CanControllerTransport, CanLink, _await_controller
+from field.link.can_backend import CanControllerTransport, CanLink
 
 
 class TwinLink(CanLink):
@@ -56,7 +56,7 @@ class TwinLink(CanLink):
         if q:
             raise ValueError(f"unknown twin:// parameters {sorted(q)}")
         link = cls(cfg, controller_config=controller_config, executor=executor)
-        _await_controller(link)
+        link._await_controller()
         return link
 
     def _close_transport(self) -> None:

@@ -175,6 +175,7 @@ class ZenohLink(CraneLink):
         self.target = target
         self.keys = ZenohKeys(target.prefix)
         self._present = False
+        self._zenoh = zenoh
         self._session = _open_session(target.zenoh_config("laptop"), "laptop")
         try:
             s = self._session
@@ -184,7 +185,6 @@ class ZenohLink(CraneLink):
                 s.liveliness().declare_subscriber(self.keys.alive_controller, self._on_alive, history=True),
             ]
             self._token = s.liveliness().declare_token(self.keys.alive_laptop)
-            self._zenoh = zenoh
         except BaseException:
             _close_session(self._session)
             raise
@@ -193,7 +193,7 @@ class ZenohLink(CraneLink):
     def from_url(cls, url: LinkURL, config: LinkConfig | None = None) -> "ZenohLink":
         cfg, q = url.pop_link_config(config)
         link = cls(ZenohTarget.from_url(url, q), cfg)
-        _await(link)
+        link._await_controller()
         return link
 
     def _on_alive(self, sample: Any) -> None:
@@ -234,15 +234,6 @@ class ZenohLink(CraneLink):
         except Exception:
             pass
         _close_session(self._session)
-
-
-def _await(link: CraneLink) -> None:
-    if link.config.require_controller and not link.wait_for_controller(link.config.connect_timeout_s):
-        link.close()
-        raise LinkError(
-            f"no crane controller is alive on the zenoh link within {link.config.connect_timeout_s:.1f} s "
-            f"(no liveliness token); check that it runs, the endpoint, and the credentials"
-        )
 
 
 # --- crane side -----------------------------------------------------------------------------
