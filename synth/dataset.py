@@ -38,7 +38,7 @@ import re
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 
@@ -414,3 +414,437 @@ def iter_samples(data_dir: str | Path, verify: bool = True) -> Iterator[Sample]:
         if len(samples) != s.n_samples:
             raise DatasetIntegrityError(f"shard {s.file} holds {len(samples)} samples, the manifest says {s.n_samples}")
         yield from samples
+
+
+# ---------------------------------------------------------------------------------------------
+# the data-set job
+# ---------------------------------------------------------------------------------------------
+class DatasetJobError(DatasetError):
+    """The data-set job could not finish (worker died, disk full, bad input); the folder still
+    holds a consistent data set of the shards completed so far — re-run the same job to resume."""
+
+
+@dataclass(frozen=True)
+class DatasetJob:
+    """Parameters of a data-set job (recorded in the manifest; a resumed job must match them)."""
+
+    n_piles: int  # piles to simulate [-]
+    n_logs: int = 4  # logs per pile [-] (the paper: 4)
+    obstacles_fraction: float = 0.33  # share of piles with obstacles [-] (the paper: a third)
+    max_obstacles: int = 7  # piles with obstacles get 1..max_obstacles [-] (the paper: 0–7)
+    seed: int = 0
+    size_px: int = 128  # image side [px]
+    n_renders: int = 3  # intensity renders per scene [-] (the paper: 3)
+    piles_per_shard: int = 1  # piles per chunk (= per shard) [-]
+    max_trials_per_subset: int | None = 16  # Algorithm 1 trial cap per subset [-]; None = no cap
+    max_candidates: int | None = None  # candidate list cap per subset [-]; None = all
+    trial_preset: str = "fast"  # "fast" or "careful" (synth.trial.TrialConfig presets)
+    piles_dir: str | None = None  # use the piles of a `synth piles` job folder instead of generating
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.n_piles <= 1_000_000:
+            raise ValueError(f"n_piles must be in [1, 1,000,000], got {self.n_piles}")
+        if not 1 <= self.n_logs <= 10:
+            raise ValueError(f"n_logs must be in [1, 10] (2^n - 1 subsets per pile), got {self.n_logs}")
+        if not (isinstance(self.obstacles_fraction, (int, float)) and 0.0 <= self.obstacles_fraction <= 1.0):
+            raise ValueError(f"obstacles_fraction must be in [0, 1], got {self.obstacles_fraction}")
+        if not 1 <= self.max_obstacles <= 12:
+            raise ValueError(f"max_obstacles must be in [1, 12], got {self.max_obstacles}")
+        if not 1 <= self.n_renders <= 32:
+            raise ValueError(f"n_renders must be in [1, 32], got {self.n_renders}")
+        if not 1 <= self.piles_per_shard <= 10_000:
+            raise ValueError(f"piles_per_shard must be in [1, 10000], got {self.piles_per_shard}")
+        if self.max_trials_per_subset is not None and self.max_trials_per_subset < 1:
+            raise ValueError("max_trials_per_subset must be >= 1 or None")
+        if self.max_candidates is not None and self.max_candidates < 1:
+            raise ValueError("max_candidates must be >= 1 or None")
+        if self.trial_preset not in ("fast", "careful"):
+            raise ValueError(f"trial_preset must be 'fast' or 'careful', got {self.trial_preset!r}")
+        from synth.frames import OrthoGrid
+
+        OrthoGrid(self.size_px)  # validates the size
+
+    @property
+    def n_chunks(self) -> int:
+        return -(-self.n_piles // self.piles_per_shard)
+
+    def chunk_piles(self, chunk: int) -> range:
+        return range(chunk * self.piles_per_shard, min(self.n_piles, (chunk + 1) * self.piles_per_shard))
+
+    def pile_params(self, k: int) -> tuple[int, int]:
+        """(pile seed, number of obstacles) of pile ``k`` — a pure function of (seed, k)."""
+        rng = np.random.default_rng(np.random.SeedSequence([int(self.seed), int(k), 0xDA7A]))
+        pile_seed = int(rng.integers(0, 2**31 - 1))
+        n_obst = int(rng.integers(1, self.max_obstacles + 1)) if rng.random() < self.obstacles_fraction else 0
+        return pile_seed, n_obst
+
+    def trial_config(self):
+        from synth.trial import TrialConfig
+
+        return TrialConfig.fast() if self.trial_preset == "fast" else TrialConfig.careful()
+
+    def to_dict(self) -> dict:
+        from dataclasses import asdict
+
+        return asdict(self)
+
+    def params(self) -> dict:
+        """The manifest's parameter record: the job plus the full trial configuration it implies
+        (so a resumed job notices changed trial settings), JSON-normalised."""
+        from dataclasses import asdict
+
+        d = {**self.to_dict(), "trial_config_values": asdict(self.trial_config()),
+             "format_version": DATASET_FORMAT_VERSION}
+        return json.loads(json.dumps(d))
+
+
+@dataclass(frozen=True)
+class JobProgress:
+    """What the progress callback receives after each finished chunk."""
+
+    chunks_done: int
+    chunks_total: int
+    samples: int  # samples in completed shards [-]
+    trials: int  # trials simulated by this run so far [-]
+    trials_per_s: float  # this run's trial throughput, all workers [1/s]
+    elapsed_s: float  # wall time of this run [s]
+
+
+def _subsets(n: int) -> list[tuple[int, ...]]:
+    from itertools import combinations
+
+    return [c for k in range(1, n + 1) for c in combinations(range(n), k)]
+
+
+def _load_source_pile(job: DatasetJob, k: int):
+    """Pile ``k`` and its render: generated from (seed, k), or read from ``job.piles_dir``."""
+    from synth.generate import GenerationConfig, generate_pile
+    from synth.render import OrthoObservation, OrthoRenderConfig, render_ortho
+    from synth.world import World
+
+    if job.piles_dir is not None:
+        from synth.pile import read_pile
+
+        folder = Path(job.piles_dir) / f"pile_{k:05d}"
+        pile = read_pile(folder)  # PileFormatError names the file
+        pile_id = folder.name
+        obs = None
+        ortho = folder / "ortho.npz"
+        if ortho.exists():
+            obs = OrthoObservation.load(ortho)
+            if obs.depth.shape[0] != job.size_px or obs.intensity.shape[0] < job.n_renders:
+                obs = None
+        if obs is None:
+            with World(pile) as world:
+                obs = render_ortho(world, OrthoRenderConfig(size_px=job.size_px, n_renders=job.n_renders),
+                                   seed=int(pile.seed or k))
+        return pile, obs, pile_id, {"obstacles": pile.n_obstacles}
+    pile_seed, n_obst = job.pile_params(k)
+    pile, report = generate_pile(pile_seed, GenerationConfig(n_logs=job.n_logs, n_obstacles=n_obst))
+    with World(pile) as world:
+        obs = render_ortho(world, OrthoRenderConfig(size_px=job.size_px, n_renders=job.n_renders), seed=pile_seed)
+    return pile, obs, f"pile_{k:05d}", {"obstacles": n_obst, "pile_seed": pile_seed,
+                                        "generation_attempts": report.attempts}
+
+
+def build_chunk(out_dir: str, job_dict: dict, chunk: int, worker: str | None = None,
+                simulate_factory: Callable | None = None) -> dict:
+    """Simulate every pile of ``chunk`` and write its shard + done record; returns the done record.
+
+    ``simulate_factory(pile, targets) -> simulate(grasp)`` replaces the real
+    :func:`synth.trial.run_trial` (tests only).
+    """
+    import time
+
+    from synth.candidates import CandidateConfig, generate_candidates, reduce_candidates
+    from synth.errors import GenerationError
+    from synth.frames import OrthoGrid
+    from synth.maps import encode_grasps
+    from synth.pile import write_pile
+
+    job = DatasetJob(**job_dict)
+    worker = worker or f"p{os.getpid()}"
+    if simulate_factory is None:
+        from synth.trial import run_trial
+
+        tc = job.trial_config()
+
+        def simulate_factory(pile, targets):
+            return lambda g: run_trial(pile, g, targets, tc)
+
+    cand_cfg = CandidateConfig(max_candidates=job.max_candidates)
+    writer = ShardWriter(out_dir, worker, chunk)
+    stats: dict[str, Any] = {"piles": 0, "piles_failed": 0, "piles_with_obstacles": 0, "subsets": 0,
+                             "negatives": 0, "grasps": 0, "candidates": 0, "trials": 0, "widened": 0,
+                             "capped_subsets": 0, "outcomes": {}, "trial_wall_s": 0.0, "wall_s": 0.0,
+                             "failed_piles": []}
+    t0 = time.perf_counter()
+    for k in job.chunk_piles(chunk):
+        try:
+            pile, obs, pile_id, info = _load_source_pile(job, k)
+        except GenerationError as exc:  # no valid pile for this seed: recorded, skipped
+            stats["piles_failed"] += 1
+            stats["failed_piles"].append({"pile": k, "reason": str(exc)})
+            continue
+        except SynthError as exc:
+            raise DatasetJobError(f"pile {k} cannot be loaded: {exc}") from exc
+        if job.piles_dir is None:
+            write_pile(pile, Path(out_dir) / "piles" / f"{pile_id}.json")
+        stats["piles"] += 1
+        stats["piles_with_obstacles"] += int(pile.n_obstacles > 0)
+        grid = OrthoGrid(obs.depth.shape[0], obs.extent_m)
+        for T in _subsets(pile.n_logs):
+            cands = generate_candidates(pile, T, cand_cfg)
+            rng = np.random.default_rng(np.random.SeedSequence([int(job.seed), int(k), *T, 0xA1]))
+            sim = simulate_factory(pile, T)
+            t1 = time.perf_counter()
+            res = reduce_candidates(cands, sim, rng=rng, max_trials=job.max_trials_per_subset)
+            stats["trial_wall_s"] += time.perf_counter() - t1
+            stats["candidates"] += len(cands)
+            stats["trials"] += res.n_trials
+            stats["widened"] += res.widened
+            stats["capped_subsets"] += int(res.capped)
+            for _, r in res.trials:
+                o = getattr(getattr(r, "outcome", None), "value", None) or ("success" if getattr(r, "success", False) else "failure")
+                stats["outcomes"][o] = stats["outcomes"].get(o, 0) + 1
+            grasps = [g for g, _ in res.accepted]
+            bal = []
+            for _, r in res.accepted:
+                b = float(getattr(r, "cos_beta", getattr(r, "balance", float("nan"))))
+                bal.append(min(1.0, max(-1.0, b)) if math.isfinite(b) else 1.0)
+            maps = encode_grasps(grid, grasps, bal)
+            arr = np.array([[g.x_m, g.y_m, g.phi_rad, g.width_m, b] for g, b in zip(grasps, bal)]).reshape(-1, 5)
+            mask = obs.target_mask(T)
+            stats["subsets"] += 1
+            stats["negatives"] += int(not grasps)
+            stats["grasps"] += len(grasps)
+            for r in range(job.n_renders):
+                writer.add(Sample(pile_id=pile_id, render=r, subset=tuple(T), intensity=obs.intensity[r],
+                                  depth=obs.depth, target_mask=mask, maps=maps, grasps=arr,
+                                  negative=not grasps, n_logs=pile.n_logs))
+    stats["wall_s"] = time.perf_counter() - t0
+    if len(writer) == 0:  # every pile of the chunk failed: an empty shard still records the chunk
+        return _write_empty_done(Path(out_dir), worker, chunk, stats)
+    info = writer.close(stats)
+    return info.to_dict()
+
+
+def _write_empty_done(out: Path, worker: str, chunk: int, stats: dict) -> dict:
+    info = ShardInfo(file="", worker=worker, chunk=chunk, n_samples=0, n_subsets=0, n_grasps=0,
+                     sha256="", bytes=0, stats=stats)
+    path = out / shard_name(worker, chunk)
+    record = {"format": SHARD_FORMAT_NAME + ".done", "format_version": DATASET_FORMAT_VERSION, **info.to_dict()}
+    _write_bytes(done_record_path(path), json.dumps(record, indent=1).encode())
+    return info.to_dict()
+
+
+def summarise(shards: Sequence[ShardInfo]) -> dict:
+    """The paper's statistics over completed shards."""
+    keys = ("piles", "piles_failed", "piles_with_obstacles", "subsets", "negatives", "grasps", "candidates",
+            "trials", "widened", "capped_subsets")
+    tot = {k: sum(int(s.stats.get(k, 0)) for s in shards) for k in keys}
+    outcomes: dict[str, int] = {}
+    for s in shards:
+        for k, v in s.stats.get("outcomes", {}).items():
+            outcomes[k] = outcomes.get(k, 0) + int(v)
+    trial_wall = sum(float(s.stats.get("trial_wall_s", 0.0)) for s in shards)
+    wall = sum(float(s.stats.get("wall_s", 0.0)) for s in shards)
+    return {
+        "samples": sum(s.n_samples for s in shards), "map_samples": tot["subsets"], **tot,
+        "negative_fraction": tot["negatives"] / tot["subsets"] if tot["subsets"] else 0.0,
+        "grasps_per_positive": tot["grasps"] / max(1, tot["subsets"] - tot["negatives"]),
+        "trials_per_subset": tot["trials"] / tot["subsets"] if tot["subsets"] else 0.0,
+        "outcomes": dict(sorted(outcomes.items())),
+        "success_rate": outcomes.get("success", 0) / tot["trials"] if tot["trials"] else 0.0,
+        "worker_s": wall, "trial_worker_s": trial_wall,
+        "trials_per_worker_s": tot["trials"] / trial_wall if trial_wall > 0 else 0.0,
+        "worker_s_per_pile": wall / tot["piles"] if tot["piles"] else 0.0,
+    }
+
+
+def _prepare(out: Path, job: DatasetJob) -> dict[int, ShardInfo]:
+    """Check/record the job's parameters, drop partial shards, return the complete ones by chunk."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        probe = out / f".write-test-{os.getpid()}"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        raise DatasetJobError(f"cannot write to output folder {out}: {exc.strerror or exc}; choose another folder") from exc
+    params = job.params()
+    if (out / MANIFEST_NAME).exists():
+        have = read_manifest(out).params
+        diff = [k for k in params if k != "n_piles" and have.get(k) != params[k]]
+        if diff:
+            raise DatasetJobError(
+                f"{out} holds a data set made with other parameters ({', '.join(diff)} differ); "
+                "resume with the same parameters or choose a new folder"
+            )
+    for tmp in out.glob(".shard_*.tmp"):
+        tmp.unlink(missing_ok=True)
+    for tmp in out.glob(".manifest.json.*.tmp"):
+        tmp.unlink(missing_ok=True)
+    done: dict[int, ShardInfo] = {}
+    for rec in sorted(out.glob("shard_*.done.json")):
+        try:
+            d = json.loads(rec.read_text())
+            info = ShardInfo.from_dict(d)
+            if info.file:
+                _check_shard_file(out / info.file, info, checksum=True)
+            ok = info.chunk not in done
+        except (OSError, ValueError, DatasetError):
+            ok = False
+        if ok:
+            done[info.chunk] = info
+        else:  # unreadable, mismatched or duplicate record: redo that chunk
+            rec.unlink(missing_ok=True)
+    keep = {s.file for s in done.values() if s.file}
+    for shard in out.glob("shard_*.npz"):
+        if shard.name not in keep and not done_record_path(shard).exists():
+            shard.unlink(missing_ok=True)  # partial: written, but no done record
+    return done
+
+
+def _manifest_for(job: DatasetJob, done: dict[int, ShardInfo]) -> Manifest:
+    shards = [done[c] for c in sorted(done) if c < job.n_chunks]
+    listed = [s for s in shards if s.file]
+    summary = summarise(shards)
+    summary["chunks_done"] = len(shards)
+    summary["chunks_total"] = job.n_chunks
+    summary["complete"] = len(shards) == job.n_chunks
+    return Manifest(params=job.params(), grid={"size_px": job.size_px, "extent_m": 5.0, "camera_height_m": 5.0},
+                    shards=listed, summary=summary)
+
+
+def build_dataset(out_dir: str | Path, n_piles: int, n_logs: int = 4, obstacles_fraction: float = 0.33,
+                  seed: int = 0, workers: int = 0, engine: str = "local", address: str | None = None,
+                  size_px: int = 128, n_renders: int = 3, trial_config: str = "fast",
+                  max_trials_per_subset: int | None = 16, piles_per_shard: int = 1, max_obstacles: int = 7,
+                  max_candidates: int | None = None, piles_dir: str | Path | None = None,
+                  progress: Callable[[JobProgress], None] | None = None,
+                  simulate_factory: Callable | None = None) -> Manifest:
+    """Build (or resume) the grasp training data set in ``out_dir``; returns its manifest.
+
+    Piles come from :func:`synth.generate.generate_pile` (``n_logs`` logs; a share
+    ``obstacles_fraction`` of them with 1..``max_obstacles`` obstacles), or from the pile folders of
+    a ``synth piles`` job (``piles_dir``). For each pile and each of its 2^n − 1 target subsets:
+    geometric candidates (:func:`synth.candidates.generate_candidates`) -> Algorithm 1
+    (:func:`synth.candidates.reduce_candidates`) with :func:`synth.trial.run_trial` under the
+    ``trial_config`` preset ("fast" or "careful") -> target maps; subsets without a successful
+    grasp are kept as negatives. One shard per chunk of ``piles_per_shard`` piles, written by one
+    worker. ``engine``: "local" (``workers`` processes, 0 = all cores, 1 = in this process) or
+    "dask" (``address`` of a running scheduler, or a LocalCluster of ``workers`` processes).
+
+    Resumable: finished shards (a shard + its done record, checksum verified) are kept, partial
+    ones removed and redone. The manifest is rewritten atomically after every finished chunk,
+    from completed shards only. ``progress(JobProgress)`` is called after each chunk. Errors
+    (a dead worker, a full disk, a pile that fails to load) raise :class:`DatasetJobError` with
+    the data set still consistent with its manifest.
+    """
+    import time
+
+    if engine not in ("local", "dask"):
+        raise ValueError(f"engine must be 'local' or 'dask', got {engine!r}")
+    if not isinstance(workers, int) or workers < 0:
+        raise ValueError(f"workers must be a whole number >= 0 (0 = all cores), got {workers!r}")
+    if piles_dir is not None:
+        pdir = Path(piles_dir)
+        if not pdir.is_dir():
+            raise DatasetJobError(f"piles folder {pdir} does not exist; run `loggrasp synth piles` first")
+        have = len(list(pdir.glob("pile_[0-9]*")))
+        if have < n_piles:
+            raise DatasetJobError(f"{pdir} holds {have} piles, {n_piles} were asked for")
+        piles_dir = str(pdir.resolve())
+    job = DatasetJob(n_piles=n_piles, n_logs=n_logs, obstacles_fraction=obstacles_fraction,
+                     max_obstacles=max_obstacles, seed=seed, size_px=size_px, n_renders=n_renders,
+                     piles_per_shard=piles_per_shard, max_trials_per_subset=max_trials_per_subset,
+                     max_candidates=max_candidates, trial_preset=trial_config, piles_dir=piles_dir)
+    out = Path(out_dir)
+    done = _prepare(out, job)
+    try:
+        write_manifest(out, _manifest_for(job, done))
+    except OSError as exc:
+        raise DatasetJobError(f"cannot write the manifest in {out}: {exc.strerror or exc}") from exc
+    todo = [c for c in range(job.n_chunks) if c not in done]
+    done = {c: s for c, s in done.items() if c < job.n_chunks}
+    workers = workers or os.cpu_count() or 1
+    t0 = time.perf_counter()
+    run_trials = 0
+
+    def finished(record: dict) -> None:
+        nonlocal run_trials
+        info = ShardInfo.from_dict(record)
+        done[info.chunk] = info
+        run_trials += int(info.stats.get("trials", 0))
+        write_manifest(out, _manifest_for(job, done))
+        if progress:
+            el = time.perf_counter() - t0
+            progress(JobProgress(chunks_done=len(done), chunks_total=job.n_chunks,
+                                 samples=sum(s.n_samples for s in done.values()), trials=run_trials,
+                                 trials_per_s=run_trials / el if el > 0 else 0.0, elapsed_s=el))
+
+    args = (str(out), job.to_dict())
+    try:
+        if engine == "dask":
+            _run_dask(todo, args, workers, address, finished, simulate_factory)
+        elif workers == 1 or len(todo) <= 1:
+            for c in todo:
+                finished(build_chunk(*args, c, simulate_factory=simulate_factory))
+        else:
+            _run_pool(todo, args, workers, finished, simulate_factory)
+    except DatasetJobError:
+        raise
+    except OSError as exc:
+        raise DatasetJobError(
+            f"writing the data set failed ({exc.strerror or exc}); {len(done)} of {job.n_chunks} chunks are "
+            "complete and listed in the manifest — free space / fix the folder and re-run the same job to resume"
+        ) from exc
+    except Exception as exc:
+        name = type(exc).__name__
+        if name in ("BrokenProcessPool", "KilledWorker", "CommClosedError") or isinstance(exc, (ConnectionError, TimeoutError)):
+            raise DatasetJobError(
+                f"a worker died ({name}: {exc}); {len(done)} of {job.n_chunks} chunks are complete and listed "
+                "in the manifest — re-run the same job to resume"
+            ) from exc
+        raise
+    return read_manifest(out)
+
+
+def _run_pool(todo, args, workers, finished, simulate_factory) -> None:
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
+        futures = [pool.submit(build_chunk, *args, c, None, simulate_factory) for c in todo]
+        try:
+            for f in as_completed(futures):
+                finished(f.result())
+        except BaseException:
+            for f in futures:
+                f.cancel()
+            raise
+
+
+def _run_dask(todo, args, workers, address, finished, simulate_factory) -> None:
+    from distributed import Client, LocalCluster, as_completed
+
+    cluster = None
+    if address is None:
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                               dashboard_address=None)
+        client = Client(cluster)
+    else:
+        client = Client(address)
+    try:
+        futures = [client.submit(build_chunk, *args, c, None, simulate_factory, pure=False, retries=0)
+                   for c in todo]
+        try:
+            for f in as_completed(futures):
+                finished(f.result())
+        except BaseException:
+            client.cancel(futures)
+            raise
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()

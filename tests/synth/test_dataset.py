@@ -130,3 +130,170 @@ def test_malformed_samples_are_refused(tmp_path, change):
 def test_bad_worker_label():
     with pytest.raises(ValueError, match="worker label"):
         ShardWriter("/tmp", "a/b", 0)
+
+
+# ---------------------------------------------------------------------------------------------
+# the data-set job
+# ---------------------------------------------------------------------------------------------
+from types import SimpleNamespace  # noqa: E402
+
+from synth.dataset import DatasetJobError, build_dataset, verify_dataset  # noqa: E402
+
+TINY = dict(n_logs=2, obstacles_fraction=0.0, seed=3, size_px=32, n_renders=2, max_trials_per_subset=3)
+
+
+def _fake_factory(pile, targets):
+    """A deterministic stand-in for run_trial: grasps narrower than 0.75 m succeed."""
+    def simulate(g):
+        ok = g.width_m < 0.75
+        return SimpleNamespace(success=ok, cos_beta=0.9 if ok else float("nan"),
+                               outcome=SimpleNamespace(value="success" if ok else "collision"))
+    return simulate
+
+
+def _digest(path):
+    return {p.name: p.read_bytes() for p in sorted(path.glob("shard_*"))}
+
+
+def test_job_writes_consistent_samples(tmp_path):
+    seen = []
+    man = build_dataset(tmp_path, n_piles=2, workers=1, progress=seen.append, simulate_factory=_fake_factory, **TINY)
+    assert [p.chunks_done for p in seen] == [1, 2] and seen[-1].trials == man.summary["trials"] > 0
+    s = man.summary
+    assert s["complete"] and s["piles"] == 2 and s["subsets"] == 6 and s["samples"] == 12
+    assert s["samples"] == man.n_samples and s["grasps"] > 0
+    assert 0 <= s["negative_fraction"] <= 1 and s["outcomes"].get("success", 0) > 0
+    samples = list(iter_samples(tmp_path))
+    assert len(samples) == 12
+    assert {x.subset for x in samples} == {(0,), (1,), (0, 1)} and {x.render for x in samples} == {0, 1}
+    for x in samples:
+        assert x.target_mask.any() and x.maps.shape == (5, 32, 32)
+        want = encode_grasps(GRID, [g for g, _ in x.grasp_list()], [b for _, b in x.grasp_list()])
+        np.testing.assert_array_equal(x.maps, want)
+        assert all(g.width_m < 0.75 + 0.10 for g, _ in x.grasp_list())
+        assert x.negative == (len(x.grasps) == 0)
+    # both renders of a scene share depth and maps but differ in intensity
+    a, b = [x for x in samples if x.pile_id == "pile_00000" and x.subset == (0,)]
+    assert np.shares_memory(a.depth, b.depth) and np.shares_memory(a.maps, b.maps)
+    assert not np.array_equal(a.intensity, b.intensity)
+    assert (tmp_path / "piles" / "pile_00000.json").exists()
+
+
+def test_job_with_real_trials_in_process(tmp_path):
+    man = build_dataset(tmp_path, n_piles=1, workers=1, **{**TINY, "max_trials_per_subset": 1})
+    assert 1 <= man.summary["trials"] <= 3 and sum(man.summary["outcomes"].values()) == man.summary["trials"]
+    assert man.params["trial_preset"] == "fast" and "physics" in man.params["trial_config_values"]
+    verify_dataset(tmp_path)
+
+
+def test_resume_keeps_finished_shards_and_redoes_partial_ones(tmp_path):
+    build_dataset(tmp_path, n_piles=2, workers=1, simulate_factory=_fake_factory, **TINY)
+    before = _digest(tmp_path)
+    first, second = sorted(tmp_path.glob("shard_*.done.json"))
+    # a kill after the shard was renamed but before its done record: the shard is partial
+    second.unlink()
+    (tmp_path / ".shard_p1_00005.npz.abc.tmp").write_bytes(b"half")  # a kill mid-write
+    stray = tmp_path / "shard_p99_00007.npz"
+    stray.write_bytes(b"partial")
+    calls = []
+
+    def counting(pile, targets):
+        calls.append(tuple(targets))
+        return _fake_factory(pile, targets)
+
+    man = build_dataset(tmp_path, n_piles=3, workers=1, simulate_factory=counting, **TINY)
+    assert len(calls) == 2 * 3  # chunks 1 and 2 redone, chunk 0 kept
+    assert man.summary["complete"] and man.summary["piles"] == 3
+    after = _digest(tmp_path)
+    assert after[first.name] == before[first.name]
+    assert after[first.name.replace(".done.json", ".npz")] == before[first.name.replace(".done.json", ".npz")]
+    assert not stray.exists() and not list(tmp_path.glob(".shard_*"))
+    verify_dataset(tmp_path)
+    assert len(list(iter_samples(tmp_path))) == 3 * 3 * 2
+
+
+def test_resume_with_other_parameters_is_refused(tmp_path):
+    build_dataset(tmp_path, n_piles=1, workers=1, simulate_factory=_fake_factory, **TINY)
+    with pytest.raises(DatasetJobError, match="other parameters.*seed"):
+        build_dataset(tmp_path, n_piles=1, workers=1, simulate_factory=_fake_factory, **{**TINY, "seed": 4})
+
+
+def test_full_disk_keeps_the_manifest_consistent(tmp_path, monkeypatch):
+    real = ds._write_bytes
+
+    def fill_after_first_shard(path, data):
+        if path.name.endswith(".npz") and list(tmp_path.glob("shard_*.npz")):
+            raise OSError(errno.ENOSPC, "No space left on device")
+        real(path, data)
+
+    monkeypatch.setattr(ds, "_write_bytes", fill_after_first_shard)
+    with pytest.raises(DatasetJobError, match="No space left.*1 of 2 chunks"):
+        build_dataset(tmp_path, n_piles=2, workers=1, simulate_factory=_fake_factory, **TINY)
+    man = verify_dataset(tmp_path)
+    assert len(man.shards) == 1 and not man.summary["complete"]
+    assert len(list(iter_samples(tmp_path))) == man.n_samples == 6
+    monkeypatch.setattr(ds, "_write_bytes", real)
+    man = build_dataset(tmp_path, n_piles=2, workers=1, simulate_factory=_fake_factory, **TINY)
+    assert man.summary["complete"] and man.n_samples == 12
+
+
+def test_bad_inputs(tmp_path):
+    with pytest.raises(ValueError, match="engine"):
+        build_dataset(tmp_path, n_piles=1, engine="ray")
+    with pytest.raises(ValueError, match="obstacles_fraction"):
+        build_dataset(tmp_path, n_piles=1, obstacles_fraction=float("nan"))
+    with pytest.raises(ValueError, match="n_piles"):
+        build_dataset(tmp_path, n_piles=0)
+    with pytest.raises(DatasetJobError, match="does not exist"):
+        build_dataset(tmp_path / "out", n_piles=1, piles_dir=tmp_path / "nope")
+    bad = tmp_path / "piles" / "pile_00000"
+    bad.mkdir(parents=True)
+    (bad / "pile.json").write_text("{broken")
+    with pytest.raises(DatasetJobError, match="pile 0 cannot be loaded.*not valid JSON"):
+        build_dataset(tmp_path / "out", n_piles=1, piles_dir=tmp_path / "piles", workers=1, **TINY)
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    with pytest.raises(DatasetJobError, match="cannot write"):
+        build_dataset(blocker / "sub", n_piles=1, workers=1)
+
+
+def test_piles_from_a_piles_job(tmp_path):
+    from synth.jobs import PileJob, run_pile_job
+
+    run_pile_job(tmp_path / "piles", PileJob(count=1, logs=(2, 2), size_px=32, n_renders=2, seed=2), workers=1)
+    man = build_dataset(tmp_path / "ds", n_piles=1, workers=1, piles_dir=tmp_path / "piles",
+                        simulate_factory=_fake_factory, **TINY)
+    samples = list(iter_samples(tmp_path / "ds"))
+    assert man.n_samples == 6 and samples[0].pile_id == "pile_00000"
+    from synth.render import OrthoObservation
+
+    obs = OrthoObservation.load(tmp_path / "piles" / "pile_00000")
+    np.testing.assert_array_equal(samples[0].depth, obs.depth)
+
+
+def test_dead_worker_is_reported_and_the_job_resumes(tmp_path):
+    import multiprocessing as mp
+    import os
+    import signal
+
+    def kill_pool_workers(p):
+        for child in mp.active_children():  # the pool's processes, started by this job
+            os.kill(child.pid, signal.SIGKILL)
+
+    kw = {**TINY, "max_trials_per_subset": 1, "n_renders": 1}
+    with pytest.raises(DatasetJobError, match="worker died"):
+        build_dataset(tmp_path, n_piles=4, workers=2, progress=kill_pool_workers, **kw)
+    man = verify_dataset(tmp_path)
+    assert 1 <= len(man.shards) < 4
+    man = build_dataset(tmp_path, n_piles=4, workers=1, **kw)
+    assert man.summary["complete"] and man.summary["piles"] == 4
+
+
+def test_dask_engine_on_a_local_cluster(tmp_path):
+    pytest.importorskip("distributed")
+    seen = []
+    man = build_dataset(tmp_path, n_piles=2, workers=2, engine="dask", progress=seen.append,
+                        **{**TINY, "max_trials_per_subset": 1, "n_renders": 1})
+    assert man.summary["complete"] and 1 <= man.summary["trials"] <= 6 and len(man.shards) == 2
+    assert seen[-1].chunks_done == 2 and seen[-1].trials_per_s > 0
+    assert len(list(iter_samples(tmp_path))) == 6
