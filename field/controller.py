@@ -606,7 +606,10 @@ def run_controller(
         controller.start()
         if ready_event is not None:
             ready_event.set()
-        stop_event.wait()
+        # poll: a signal delivered to a library thread (zenoh, python-can) must not leave the
+        # main thread blocked forever, so handlers that set stop_event get to run
+        while not stop_event.wait(0.1):
+            pass
     finally:
         controller.close()
         transport.close()

@@ -30,25 +30,29 @@ def test_send_ack_outcome_status(rig, make_cmd):
     assert rig.executed() == [cmd.command_id]
 
 
-@pytest.mark.parametrize(
-    "kwargs, reason",
-    [
-        ({"de": 50.0}, RejectReason.OUT_OF_REACH),
-        ({"de": 0.5}, RejectReason.OUT_OF_REACH),  # inside the minimum reach
-        ({"dz": -20.0}, RejectReason.OUT_OF_REACH),
-        ({"width_m": 1.6}, RejectReason.WIDTH_RANGE),
-        ({"width_m": 0.2}, RejectReason.WIDTH_RANGE),
-        ({"age_s": 10.0}, RejectReason.STALE),  # controller limit 5 s, laptop limit 30 s
-        ({"logs": 0}, RejectReason.MALFORMED),
-    ],
-)
-def test_rejections_carry_the_reason(rig, make_cmd, kwargs, reason):
-    with open_link(rig.url, FAST) as link:
-        cmd = make_cmd(link.new_command_id(), **kwargs)
-        with pytest.raises(CommandRejected) as ei:
-            link.send_grasp(cmd, timeout_s=2.0)
-        assert ei.value.reason is reason and not ei.value.local
-        assert ei.value.command_id == cmd.command_id
+REJECTIONS = [
+    ({"de": 50.0}, RejectReason.OUT_OF_REACH),
+    ({"de": 0.5}, RejectReason.OUT_OF_REACH),  # inside the minimum reach
+    ({"dz": -20.0}, RejectReason.OUT_OF_REACH),
+    ({"width_m": 1.6}, RejectReason.WIDTH_RANGE),
+    ({"width_m": 0.2}, RejectReason.WIDTH_RANGE),
+    ({"age_s": 10.0}, RejectReason.STALE),  # controller limit 5 s, laptop limit 30 s
+    ({"age_s": -4.0}, RejectReason.STALE),  # from the future (beyond the 2 s skew allowance)
+    ({"logs": 0}, RejectReason.MALFORMED),
+]
+
+
+def test_rejections_carry_the_reason(rig, make_cmd):
+    from field.link.safety import SafetyConfig
+
+    cfg = LinkConfig(heartbeat_timeout_s=0.5, connect_timeout_s=10.0, safety=SafetyConfig(max_future_skew_s=10.0))
+    with open_link(rig.url, cfg) as link:
+        for kwargs, reason in REJECTIONS:
+            cmd = make_cmd(link.new_command_id(), **kwargs)
+            with pytest.raises(CommandRejected) as ei:
+                link.send_grasp(cmd, timeout_s=2.0)
+            assert (ei.value.reason, ei.value.local, ei.value.command_id) == (reason, False, cmd.command_id), kwargs
+        assert link.status().state is ControllerState.IDLE
     assert rig.executed() == []
 
 
