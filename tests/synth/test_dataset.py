@@ -297,3 +297,44 @@ def test_dask_engine_on_a_local_cluster(tmp_path):
     assert man.summary["complete"] and 1 <= man.summary["trials"] <= 6 and len(man.shards) == 2
     assert seen[-1].chunks_done == 2 and seen[-1].trials_per_s > 0
     assert len(list(iter_samples(tmp_path))) == 6
+
+
+_KILL_SCRIPT = """
+import sys, time
+from types import SimpleNamespace
+from synth.dataset import build_dataset
+
+def factory(pile, targets):
+    def simulate(g):
+        time.sleep(0.2)
+        ok = g.width_m < 0.75
+        return SimpleNamespace(success=ok, cos_beta=0.9, outcome=SimpleNamespace(value="success" if ok else "collision"))
+    return simulate
+
+build_dataset(sys.argv[1], n_piles=3, workers=1, simulate_factory=factory, n_logs=2, obstacles_fraction=0.0,
+              seed=3, size_px=32, n_renders=2, max_trials_per_subset=3)
+"""
+
+
+def test_resume_after_killing_the_job_process(tmp_path):
+    import subprocess
+    import sys
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-c", _KILL_SCRIPT, str(tmp_path)])
+    try:
+        deadline = time.monotonic() + 60
+        while not list(tmp_path.glob("shard_*.done.json")) and time.monotonic() < deadline:
+            if proc.poll() is not None:
+                pytest.fail("the job process ended before it could be killed")
+            time.sleep(0.05)
+    finally:
+        proc.kill()  # SIGKILL, this test's own child only
+        proc.wait()
+    man = verify_dataset(tmp_path)  # consistent right after the kill
+    assert 1 <= len(man.shards) < 3
+    kept = {s.file: (tmp_path / s.file).read_bytes() for s in man.shards}
+    man = build_dataset(tmp_path, n_piles=3, workers=1, simulate_factory=_fake_factory, **TINY)
+    assert man.summary["complete"] and man.summary["piles"] == 3
+    assert all((tmp_path / f).read_bytes() == b for f, b in kept.items())
+    assert len(list(iter_samples(tmp_path))) == 3 * 3 * 2
