@@ -1,0 +1,216 @@
+"""Fault injection on the CAN link (in-process virtual bus, FaultyBus on both ends): a command is
+never executed twice, never when stale or out of sequence, and the final state is always known."""
+
+from __future__ import annotations
+
+import time
+import uuid
+from dataclasses import dataclass
+
+import can
+import pytest
+
+from field.controller import ControllerConfig, CraneController, FixedOutcomeExecutor
+from field.errors import CommandRejected, LinkError, LinkTimeout
+from field.link import ControllerState, OutcomeClass, RejectReason
+from field.link.base import LinkConfig
+from field.link.can_backend import CanControllerTransport, CanLink
+from field.link.faults import FaultyBus
+
+
+@dataclass
+class Pair:
+    link: CanLink
+    lbus: FaultyBus  # laptop side
+    cbus: FaultyBus  # crane side
+    controller: CraneController
+    executor: FixedOutcomeExecutor
+    transport: CanControllerTransport
+
+
+@pytest.fixture
+def pair():
+    made = []
+
+    def make(delay_s: float = 0.05, **cfg) -> Pair:
+        channel = f"faults-{uuid.uuid4().hex[:8]}"
+        cbus = FaultyBus(can.Bus(interface="virtual", channel=channel, fd=True))
+        executor = FixedOutcomeExecutor(delay_s=delay_s)
+        controller = CraneController(ControllerConfig(**{"laptop_timeout_s": 0.5, **cfg}), executor)
+        transport = CanControllerTransport(bus=cbus, heartbeat_period_s=controller.config.heartbeat_period_s)
+        transport.start(controller)
+        controller.start()
+        lbus = FaultyBus(can.Bus(interface="virtual", channel=channel, fd=True))
+        link = CanLink(config=LinkConfig(heartbeat_timeout_s=0.3, status_timeout_s=0.3), bus=lbus)
+        link._await_controller()
+        p = Pair(link, lbus, cbus, controller, executor, transport)
+        made.append(p)
+        return p
+
+    yield make
+    for p in made:
+        p.link.close()
+        p.controller.close()
+        p.transport.close()
+
+
+def test_dropped_command_frame(pair, make_cmd):
+    p = pair()
+    p.lbus.arm("drop", "GraspCommand")
+    cmd = make_cmd(p.link.new_command_id())
+    with pytest.raises(LinkTimeout) as ei:
+        p.link.send_grasp(cmd, timeout_s=0.3)
+    assert ei.value.status is not None and ei.value.status.state is ControllerState.IDLE
+    assert "NOT executing" in str(ei.value)
+    with pytest.raises(CommandRejected):  # never re-sent with the same id
+        p.link.send_grasp(cmd)
+    nxt = make_cmd(p.link.new_command_id())
+    assert p.link.send_grasp(nxt, timeout_s=1.0).accepted  # one lost frame is within the counter tolerance
+    p.link.wait_outcome(nxt.command_id, 2.0)
+    assert p.executor.executed == [nxt.command_id]
+
+
+def test_dropped_ack_final_state_known(pair, make_cmd):
+    p = pair(delay_s=0.6)
+    p.cbus.arm("drop", "Ack")
+    cmd = make_cmd(p.link.new_command_id())
+    with pytest.raises(LinkTimeout) as ei:
+        p.link.send_grasp(cmd, timeout_s=0.2)
+    assert ei.value.status.current_command_id == cmd.command_id  # the operator learns it IS running
+    assert "IS executing" in str(ei.value)
+    assert p.link.wait_outcome(cmd.command_id, 3.0).outcome_class is OutcomeClass.SUCCESS
+    assert p.executor.executed == [cmd.command_id]
+
+
+def test_duplicated_command_frame_executes_once(pair, make_cmd):
+    p = pair()
+    p.lbus.arm("duplicate", "GraspCommand")
+    cmd = make_cmd(p.link.new_command_id())
+    assert p.link.send_grasp(cmd, timeout_s=1.0).accepted
+    p.link.wait_outcome(cmd.command_id, 2.0)
+    time.sleep(0.1)
+    assert p.executor.executed == [cmd.command_id]
+    assert p.controller.rejections == []  # the copy was recognised by its counter and dropped
+
+
+def test_corrupted_command_frame_rejected_crc(pair, make_cmd):
+    p = pair()
+    p.lbus.arm("corrupt", "GraspCommand", byte=20)  # inside the northing
+    cmd = make_cmd(p.link.new_command_id())
+    with pytest.raises(CommandRejected) as ei:
+        p.link.send_grasp(cmd, timeout_s=1.0)
+    assert ei.value.reason is RejectReason.CRC
+    # corruption inside the command id: the reject goes to an id nobody waits for
+    p.lbus.arm("corrupt", "GraspCommand", byte=5)
+    cmd2 = make_cmd(p.link.new_command_id())
+    with pytest.raises(LinkTimeout) as ei:
+        p.link.send_grasp(cmd2, timeout_s=0.3)
+    assert ei.value.status.state is ControllerState.IDLE
+    assert p.executor.executed == []
+
+
+def test_reordered_late_command_is_never_executed(pair, make_cmd):
+    p = pair()
+    a = make_cmd(p.link.new_command_id())
+    p.lbus.arm("hold", "GraspCommand")
+    with pytest.raises(LinkTimeout):
+        p.link.send_grasp(a, timeout_s=0.2)
+    b = make_cmd(p.link.new_command_id())
+    assert p.link.send_grasp(b, timeout_s=1.0).accepted  # b overtakes a
+    p.link.wait_outcome(b.command_id, 2.0)
+    assert p.lbus.release() == 1  # a arrives late, out of sequence
+    deadline = time.monotonic() + 2
+    while (a.command_id, RejectReason.COUNTER) not in p.controller.rejections and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert (a.command_id, RejectReason.COUNTER) in p.controller.rejections
+    assert p.executor.executed == [b.command_id]
+
+
+def test_corrupted_and_duplicated_answers(pair, make_cmd):
+    p = pair(delay_s=0.3)
+    p.cbus.arm("corrupt", "Ack")
+    cmd = make_cmd(p.link.new_command_id())
+    with pytest.raises(LinkTimeout) as ei:
+        p.link.send_grasp(cmd, timeout_s=0.2)
+    assert p.link.stats.crc_errors == 1
+    assert ei.value.status.current_command_id == cmd.command_id
+    p.link.wait_outcome(cmd.command_id, 2.0)
+    p.lbus.arm("duplicate", "Ack", direction="rx")
+    cmd2 = make_cmd(p.link.new_command_id())
+    assert p.link.send_grasp(cmd2, timeout_s=1.0).accepted
+    p.link.wait_outcome(cmd2.command_id, 2.0)
+    assert p.link.stats.duplicates_dropped == 1
+    assert p.executor.executed == [cmd.command_id, cmd2.command_id]
+
+
+def test_lost_outcome_recovered_from_status(pair, make_cmd):
+    p = pair()
+    p.cbus.arm("drop", "Outcome")
+    p.cbus.arm("drop", "Status")  # the unsolicited status after the outcome is lost too
+    cmd = make_cmd(p.link.new_command_id(), logs=4)
+    p.link.send_grasp(cmd, timeout_s=1.0)
+    out = p.link.wait_outcome(cmd.command_id, 0.5)  # recovered by the status query at the deadline
+    assert out.command_id == cmd.command_id and out.logs_grasped == 4
+
+
+def test_crane_heartbeat_loss(pair, make_cmd):
+    p = pair()
+    p.cbus.arm("drop", "CraneHeartbeat", count=None)
+    time.sleep(0.45)
+    assert not p.link.controller_alive()
+    cmd = make_cmd(p.link.new_command_id())
+    assert p.link.send_grasp(cmd, timeout_s=1.0).accepted  # the status query proves it is there
+    p.link.wait_outcome(cmd.command_id, 2.0)
+    p.cbus.arm("drop", None, count=None)  # now the crane is mute
+    time.sleep(0.4)
+    cmd2 = make_cmd(p.link.new_command_id())
+    with pytest.raises(LinkTimeout, match="NOT sent") as ei:
+        p.link.send_grasp(cmd2, timeout_s=0.3)
+    assert ei.value.status is None
+    assert p.executor.executed == [cmd.command_id]
+
+
+def test_laptop_heartbeat_loss_aborts_the_running_grasp(pair, make_cmd):
+    p = pair(delay_s=3.0, laptop_timeout_s=0.3)
+    cmd = make_cmd(p.link.new_command_id())
+    p.link.send_grasp(cmd, timeout_s=1.0)
+    p.lbus.arm("drop", "LaptopHeartbeat", count=None)
+    t = time.monotonic()
+    out = p.link.wait_outcome(cmd.command_id, 3.0)
+    assert out.outcome_class is OutcomeClass.ABORTED and time.monotonic() - t < 1.5
+    p.lbus.disarm()
+    time.sleep(0.1)
+    nxt = make_cmd(p.link.new_command_id())  # heartbeats back: a new session, counters re-synced
+    p.executor.delay_s = 0.05
+    assert p.link.send_grasp(nxt, timeout_s=1.0).accepted
+    p.link.wait_outcome(nxt.command_id, 2.0)
+    assert p.executor.executed == [cmd.command_id, nxt.command_id]
+
+
+def test_bus_errors(pair, make_cmd):
+    p = pair()
+    p.lbus.arm("error", "GraspCommand")
+    cmd = make_cmd(p.link.new_command_id())
+    with pytest.raises(LinkError) as ei:
+        p.link.send_grasp(cmd, timeout_s=0.5)
+    assert type(ei.value) is LinkError and isinstance(ei.value.__cause__, can.CanError)
+    assert p.link.guard.used(cmd.command_id)  # burned: never sent later by accident
+    nxt = make_cmd(p.link.new_command_id())
+    assert p.link.send_grasp(nxt, timeout_s=1.0).accepted
+    p.link.wait_outcome(nxt.command_id, 2.0)
+    # a receive error is unrecoverable for this link: every call says so
+    p.lbus.arm("error", None, direction="rx")
+    time.sleep(0.2)
+    with pytest.raises(LinkError, match="failed"):
+        p.link.status()
+    assert p.link.stats.bus_errors >= 1
+    assert p.executor.executed == [nxt.command_id]
+
+
+def test_stale_on_the_crane_clock_is_never_executed(pair, make_cmd):
+    p = pair(max_pile_age_s=1.0)
+    cmd = make_cmd(p.link.new_command_id(), age_s=2.0)  # fine for the laptop (30 s), stale for the crane
+    with pytest.raises(CommandRejected) as ei:
+        p.link.send_grasp(cmd, timeout_s=1.0)
+    assert ei.value.reason is RejectReason.STALE
+    assert p.executor.executed == []
