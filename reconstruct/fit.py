@@ -1,0 +1,826 @@
+"""Model fitting: a scan point cloud plus GNSS log end points become a :class:`PileSpec`.
+
+Everything here works in ONE frame, the *pile frame* of the pile being built (metres, z up, origin
+at the centre of the terrain patch; see :mod:`synth.pile`). :mod:`reconstruct.pipeline` moves the
+scan and the endpoints into that frame first.
+
+Logs
+----
+The two RTK points of a log give its axis and length. What the points are is a parameter
+(``FitConfig.endpoint_ref``):
+
+* ``"end_centre"`` (default): the rover pole stood on the centre of each end face — the points
+  lie ON the axis (this is what :func:`reconstruct.gnss.simulate_survey` measures);
+* ``"top_surface"``: the points were taken on top of the log at each end — the axis lies one
+  radius below them (perpendicular to the axis, in the vertical plane through it).
+
+RTK noise (1.5 cm horizontal, 2.5 cm vertical, 1 sigma) is larger than the diameter accuracy
+wanted (1 cm), so the GNSS axis is only the *start* of the fit:
+
+1. the scan points around the GNSS axis are cut into ``chunk_length_m`` chunks; each chunk's
+   visible cross-section profile gets the upper half-circle that explains it best (an exhaustive
+   search with a visibility test: nothing can be seen *below* a log's top inside its
+   footprint), with its centre within ``axis_tolerance_m`` of the GNSS axis; a line through the
+   chunk centres is the initial axis — robust to neighbouring logs, ground and obstacles;
+2. a cylinder (or a truncated cone, ``fit_taper``) is fitted to the inliers in 3-D by robust
+   least squares (scipy ``least_squares``, soft-L1 loss): axis position and direction, radius
+   and radius slope, with a weak prior tying the axis to the GNSS points, on the points within
+   ``max_angle_deg`` of the top (selected by angle, which does not bias the radius); this is
+   done twice: the second time every point belongs only to the log whose first-pass surface
+   it lies on;
+3. the log's ends are the GNSS points projected onto the fitted axis (``axis_source="fit"``)
+   or the GNSS axis itself (``axis_source="gnss"``). The distance between each GNSS point and
+   the fitted axis is reported as that point's residual.
+
+Logs are indexed by the natural order of their ids (``log2`` before ``log10``), whatever the
+order of the survey rows.
+
+Terrain, obstacles
+------------------
+Points not explained by a log (farther than ``log_clearance_m`` from every fitted log surface)
+are ground or obstacles. The ground is the grey-scale *opening* of the per-cell lowest points
+(window ``ground_window_m``, wider than the obstacles) followed by the median of the points near
+that surface, on the :class:`TerrainSpec` grid; holes are filled (scipy ``griddata`` linear inside the
+covered area, nearest sample outside). Points more than ``obstacle_min_height_m`` above the ground are clustered with
+open3d's DBSCAN; a cluster with a flat, circular top is a stump (:class:`StumpSpec`, no roots:
+they are not visible), any other a rock (:class:`RockSpec`, the convex hull of its points
+extended down into the ground).
+
+The assembled pile is loaded into the twin (:func:`synth.generate.validate_pile`-style check);
+logs that interpenetrate a little (fit noise) are lifted by the smallest amount that separates
+them, and every lift is reported.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+from reconstruct.errors import FitError
+from synth.pile import LogSpec, PileSpec, RockSpec, StumpSpec, TerrainSpec
+
+ENDPOINT_REFS = ("end_centre", "top_surface")
+AXIS_SOURCES = ("fit", "gnss")
+
+
+@dataclass(frozen=True)
+class FitConfig:
+    """How logs, terrain and obstacles are fitted to a scan (units in the names/comments)."""
+
+    endpoint_ref: str = "end_centre"  # what the GNSS points are: "end_centre" or "top_surface"
+    axis_source: str = "fit"  # final axis: "fit" (scan, GNSS for the ends) or "gnss"
+    max_radius_m: float = 0.40  # largest log radius considered [m]
+    min_radius_m: float = 0.015  # smallest log radius considered [m]
+    axis_tolerance_m: float = 0.10  # how far the true axis may lie from the GNSS axis [m]
+    end_margin_m: float = 0.08  # points this close to a GNSS end are not used [m]
+    ransac_tolerance_m: float = 0.01  # profile bins this close to a half-circle fit it [m]
+    profile_bin_m: float = 0.01  # lateral bin of the cross-section profile; search step x2 [m]
+    chunk_length_m: float = 0.5  # cross-section profiles are taken over this axial length [m]
+    inlier_band_m: float = 0.015  # points within this of the surface are used by the 3-D fit [m]
+    max_angle_deg: float = 60.0  # ... and at most this far round from the top (not the flanks,
+    #                              where neighbours, ground and occluders meet the log) [deg]
+    loss_scale_m: float = 0.01  # soft-L1 scale of the 3-D fit [m]
+    gnss_sigma_m: float = 0.03  # prior sigma tying the fitted axis to the GNSS points [m]
+    fit_taper: bool = True  # fit a linear radius change along the log
+    taper_min_m: float = 0.012  # smaller butt-top diameter differences give a cylinder [m]
+    min_points: int = 60  # fewer inlier points than this: the log is not in the scan [-]
+    max_points_per_log: int = 20000  # random subsample for the 3-D fit [-]
+    log_clearance_m: float = 0.04  # points this close to a fitted log surface are log [m]
+    terrain_resolution: int = 64  # heightfield samples per side [-]
+    ground_window_m: float = 1.0  # opening window; wider than any obstacle [m]
+    ground_band_m: float = 0.06  # points within this above the opened surface are ground [m]
+    obstacle_min_height_m: float = 0.08  # obstacle points lie this far above the ground [m]
+    dbscan_eps_m: float = 0.06  # open3d DBSCAN neighbourhood [m]
+    dbscan_min_points: int = 10  # open3d DBSCAN core size [-]
+    obstacle_min_points: int = 80  # smaller clusters are noise [-]
+    obstacle_min_size_m: float = 0.12  # smaller clusters (horizontal extent) are noise [m]
+    obstacle_voxel_m: float = 0.02  # obstacle points are voxel-downsampled to this first [m]
+    stump_flat_fraction: float = 0.3  # share of points in the top 4 cm for a stump [-]
+    stump_max_circle_rms: float = 0.25  # circle-fit RMS of the top over its radius, stump [-]
+    rock_max_vertices: int = 48  # convex hull vertices kept per rock [-]
+    validate: bool = True  # load the pile into the twin and separate interpenetrating logs
+    penetration_tolerance_m: float = 0.01  # allowed interpenetration [m]
+    max_lift_m: float = 0.05  # larger needed lifts are an error, not noise [m]
+    seed: int = 0  # RANSAC / subsampling seed [-]
+
+    def __post_init__(self) -> None:
+        if self.endpoint_ref not in ENDPOINT_REFS:
+            raise ValueError(f"endpoint_ref must be one of {ENDPOINT_REFS}, got {self.endpoint_ref!r}")
+        if self.axis_source not in AXIS_SOURCES:
+            raise ValueError(f"axis_source must be one of {AXIS_SOURCES}, got {self.axis_source!r}")
+        if not 0 < self.min_radius_m < self.max_radius_m <= 1.0:
+            raise ValueError("need 0 < min_radius_m < max_radius_m <= 1 m")
+        for name in ("axis_tolerance_m", "ransac_tolerance_m", "inlier_band_m", "loss_scale_m",
+                     "gnss_sigma_m", "log_clearance_m", "ground_window_m", "ground_band_m",
+                     "obstacle_min_height_m", "dbscan_eps_m", "obstacle_min_size_m", "obstacle_voxel_m"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+        if self.end_margin_m < 0 or self.taper_min_m < 0 or self.max_lift_m < 0:
+            raise ValueError("end_margin_m, taper_min_m and max_lift_m must be >= 0")
+        if not 0.002 <= self.profile_bin_m <= 0.05:
+            raise ValueError(f"profile_bin_m must be in [0.002, 0.05] m, got {self.profile_bin_m}")
+        if self.min_points < 10 or self.max_points_per_log < 100:
+            raise ValueError("min_points >= 10, max_points_per_log >= 100 needed")
+        if not 8 <= self.terrain_resolution <= 512:
+            raise ValueError(f"terrain_resolution must be in [8, 512], got {self.terrain_resolution}")
+
+
+@dataclass
+class LogFit:
+    """One fitted log and how well the scan supports it."""
+
+    log_id: str
+    index: int  # position in PileSpec.logs
+    butt_m: tuple[float, float, float]  # pile frame [m]
+    top_m: tuple[float, float, float]  # pile frame [m]
+    length_m: float
+    diameter_m: float  # butt diameter [m]
+    top_diameter_m: float | None  # None: cylinder
+    n_points: int  # inliers used by the 3-D fit [-]
+    rms_m: float  # RMS of the inliers' distance to the fitted surface [m]
+    coverage: float  # share of the length with scan points (10 cm bins) [-]
+    gnss_residual_a_m: float  # distance of GNSS point a from the fitted axis [m]
+    gnss_residual_b_m: float  # ... of point b [m]
+    axis_shift_m: float  # largest move of the axis end from the GNSS point (perpendicular) [m]
+    swapped: bool  # True when end "b" turned out to be the butt (the thicker end)
+    lift_m: float = 0.0  # lift applied to separate it from other bodies [m]
+
+    @property
+    def mean_diameter_m(self) -> float:
+        return 0.5 * (self.diameter_m + (self.diameter_m if self.top_diameter_m is None else self.top_diameter_m))
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["mean_diameter_m"] = self.mean_diameter_m
+        return d
+
+
+@dataclass
+class PileFit:
+    """The fitted pile and its report."""
+
+    pile: PileSpec
+    logs: list[LogFit]
+    terrain_coverage: float  # share of terrain cells with ground points [-]
+    n_ground_points: int
+    n_obstacle_points: int
+    obstacles: list[dict] = field(default_factory=list)  # kind, position, size, n_points
+    lifts: list[str] = field(default_factory=list)  # what the validation moved
+    timings_s: dict = field(default_factory=dict)
+
+
+# -- helpers ---------------------------------------------------------------------------------
+def natural_key(log_id: str) -> tuple:
+    """Sort key putting ``log2`` before ``log10``."""
+    return tuple(int(t) if t.isdigit() else t for t in re.split(r"(\d+)", str(log_id)))
+
+
+def _frame(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors perpendicular to ``u``: e1 horizontal, e2 'up-ish'."""
+    e1 = np.cross((0.0, 0.0, 1.0), u)
+    if np.linalg.norm(e1) < 1e-6:  # vertical axis
+        e1 = np.cross((1.0, 0.0, 0.0), u)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(u, e1)
+    return e1, e2
+
+
+def _circles_from_triples(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Circumcircles of (K, 3, 2) point triples: centres (K, 2) and radii (K,); NaN if collinear."""
+    a, b, c = p[:, 0], p[:, 1], p[:, 2]
+    d = 2 * (a[:, 0] * (b[:, 1] - c[:, 1]) + b[:, 0] * (c[:, 1] - a[:, 1]) + c[:, 0] * (a[:, 1] - b[:, 1]))
+    a2, b2, c2 = (a * a).sum(1), (b * b).sum(1), (c * c).sum(1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ux = (a2 * (b[:, 1] - c[:, 1]) + b2 * (c[:, 1] - a[:, 1]) + c2 * (a[:, 1] - b[:, 1])) / d
+        uy = (a2 * (c[:, 0] - b[:, 0]) + b2 * (a[:, 0] - c[:, 0]) + c2 * (b[:, 0] - a[:, 0])) / d
+    centre = np.stack([ux, uy], axis=1)
+    r = np.linalg.norm(a - centre, axis=1)
+    return centre, r
+
+
+def _profile_circle(sw: np.ndarray, prior_centre: np.ndarray, cfg: FitConfig,
+                    ) -> tuple[np.ndarray, float, int]:
+    """Best upper half-circle (centre (2,), radius, bins explained) for one axial chunk.
+
+    ``sw``: points in cross-section coordinates (s horizontal across the axis, w up-ish). Seen
+    from above, every lateral position ``s`` shows ONE surface along a short straight chunk, so
+    the chunk is reduced to its visible profile (the median ``w`` per ``profile_bin_m`` bin). An
+    exhaustive search over centre offset and radius then scores each upper half-circle by the
+    bins it explains minus three times the bins that lie clearly BELOW it inside its footprint
+    (impossible: ground beside a too-wide circle, points inside the log); bins above it are
+    occluders and count for nothing. Robust to neighbouring logs, the ground and obstacles.
+    """
+    step = cfg.profile_bin_m
+    reach = cfg.max_radius_m + cfg.axis_tolerance_m + abs(float(prior_centre[0]))
+    nb = int(np.ceil(2 * reach / step))
+    idx = np.floor((sw[:, 0] + reach) / step).astype(np.int64)
+    ok = (idx >= 0) & (idx < nb)
+    idx, w = idx[ok], sw[ok, 1]
+    order = np.lexsort((w, idx))
+    idx, w = idx[order], w[order]
+    starts = np.flatnonzero(np.r_[True, idx[1:] != idx[:-1]])
+    ends = np.r_[starts[1:], len(idx)]
+    counts = ends - starts
+    good = counts >= 3
+    if good.sum() < 4:
+        raise FitError("too few profile bins")
+    bins = idx[starts[good]]
+    wb = w[(starts[good] + ends[good] - 1) // 2]  # per-bin median (sorted within a bin)
+    sb = -reach + (bins + 0.5) * step
+    tol = cfg.ransac_tolerance_m
+    cs = prior_centre[0] + np.arange(-cfg.axis_tolerance_m, cfg.axis_tolerance_m + 1e-9, step / 2)
+    rs = np.arange(cfg.min_radius_m, cfg.max_radius_m + 1e-9, step / 2)
+    C, R = np.meshgrid(cs, rs, indexing="ij")
+    C, R = C.ravel(), R.ravel()
+    ds = sb[None, :] - C[:, None]
+    fp = np.abs(ds) < R[:, None] - step / 2
+    sq = np.sqrt(np.clip(R[:, None] ** 2 - ds ** 2, 0.0, None))
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # hypotheses with an empty footprint
+        cw = np.nanmedian(np.where(fp, wb[None, :] - sq, np.nan), axis=1)
+    valid = np.isfinite(cw) & (np.abs(cw - prior_centre[1]) <= cfg.axis_tolerance_m)
+    if not valid.any():
+        raise FitError("no half-circle near the axis")
+    e = wb[None, :] - (cw[:, None] + sq)
+    rad = np.hypot(ds, wb[None, :] - cw[:, None]) - R[:, None]
+    upper = wb[None, :] > cw[:, None] - tol  # the visible (upper) half only
+    on = fp & upper & ((np.abs(e) < tol) | (np.abs(rad) < tol))
+    below = fp & (e < -2 * tol) & ~(upper & (np.abs(rad) < tol))
+    score = np.where(valid, on.sum(axis=1) - 3 * below.sum(axis=1), -10**9)
+    best = int(np.argmax(score))
+    return np.array([C[best], cw[best]]), float(R[best]), int(on[best].sum())
+
+
+def fit_log(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = None,
+            log_id: str = "log", rng: np.random.Generator | None = None) -> dict:
+    """Fit one log to scan points (pile frame) around its GNSS axis ``end_a`` → ``end_b``.
+
+    Returns a dict with ``centre`` (a point on the fitted axis, (3,)), ``axis`` (unit, a → b),
+    ``ends`` ((2, 3): the GNSS points projected on the fitted axis, or the GNSS axis ends),
+    ``radius_a_m``, ``radius_b_m`` (radius at each end), ``n_points``, ``rms_m``, ``coverage``,
+    ``residual_a_m``, ``residual_b_m``, ``inliers`` (indices into ``points``).
+    Raises :class:`FitError` naming ``log_id`` when the scan does not cover the log.
+    """
+    from scipy.optimize import least_squares
+
+    cfg = cfg or FitConfig()
+    rng = rng or np.random.default_rng(cfg.seed)
+    a, b = np.asarray(end_a, dtype=np.float64), np.asarray(end_b, dtype=np.float64)
+    L = float(np.linalg.norm(b - a))
+    if L < 0.1:
+        raise FitError(f"log {log_id!r}: its two GNSS points are only {L * 100:.1f} cm apart; "
+                       "check that they are the two ends of one log")
+    u0 = (b - a) / L
+    e1, e2 = _frame(u0)
+    P = np.asarray(points, dtype=np.float64)
+    rel = P - a
+    t = rel @ u0
+    q = rel - np.outer(t, u0)
+    near = (t > cfg.end_margin_m) & (t < L - cfg.end_margin_m)
+    near &= np.einsum("ij,ij->i", q, q) < (cfg.max_radius_m + cfg.axis_tolerance_m) ** 2
+    cand = np.flatnonzero(near)
+    if cand.size < cfg.min_points:
+        raise FitError(
+            f"log {log_id!r}: only {cand.size} scan points within "
+            f"{cfg.max_radius_m + cfg.axis_tolerance_m:.2f} m of the axis between its GNSS points "
+            f"a={np.round(a, 2).tolist()} and b={np.round(b, 2).tolist()} (pile frame, m); the log "
+            "is outside the scanned area, or its endpoints are wrong (wrong log id, swapped points)"
+        )
+    sw = np.stack([q[cand] @ e1, q[cand] @ e2], axis=1)
+    # prior circle centre in the cross-section: on the axis, or one radius below (top_surface)
+    prior = np.zeros(2)
+    if cfg.endpoint_ref == "top_surface":
+        prior = np.array([0.0, -0.5 * (cfg.min_radius_m + cfg.max_radius_m)])
+        tol = cfg.axis_tolerance_m + 0.5 * (cfg.max_radius_m - cfg.min_radius_m)
+        cfg_r = replace(cfg, axis_tolerance_m=tol)
+    else:
+        cfg_r = cfg
+    # half-circle profiles in axial chunks (the GNSS axis direction is off by up to a few cm over the
+    # length, which would smear one cross-section of the whole log), then a line through their
+    # centres: the initial axis
+    tc = t[cand]
+    n_chunks = max(1, int((L - 2 * cfg.end_margin_m) // cfg.chunk_length_m))
+    edges = np.linspace(cfg.end_margin_m, L - cfg.end_margin_m, n_chunks + 1)
+    chunk = []
+    for k in range(n_chunks):
+        m = (tc >= edges[k]) & (tc < edges[k + 1])
+        if m.sum() < 20:
+            continue
+        try:
+            c2, rk, n_on = _profile_circle(sw[m], prior, cfg_r)
+        except FitError:
+            continue
+        if n_on >= 3:
+            chunk.append((0.5 * (edges[k] + edges[k + 1]) - L / 2, c2[0], c2[1], rk, n_on))
+    if not chunk:
+        raise FitError(f"log {log_id!r}: no cylinder of radius {cfg.min_radius_m}-{cfg.max_radius_m} m "
+                       "near its GNSS axis fits the scan; the log is hidden, outside the scanned area, "
+                       "or its endpoints are wrong")
+    ch = np.asarray(chunk, dtype=np.float64)
+    keep = np.ones(len(ch), bool)
+    coef = np.zeros((2, 2))  # [s0, s1], [w0, w1]
+    for _ in range(3):
+        if keep.sum() >= 2 and np.ptp(ch[keep, 0]) > 0.2:
+            A = np.column_stack([np.ones(keep.sum()), ch[keep, 0]])
+            wts = np.sqrt(ch[keep, 4])
+            for j, col in enumerate((1, 2)):
+                coef[j], *_ = np.linalg.lstsq(A * wts[:, None], ch[keep, col] * wts, rcond=None)
+        else:
+            coef[:, 0] = np.median(ch[keep, 1:3], axis=0)
+            coef[:, 1] = 0.0
+        pred = coef[:, 0][None, :] + np.outer(ch[:, 0], coef[:, 1])
+        dev = np.linalg.norm(ch[:, 1:3] - pred, axis=1)
+        new_keep = dev < max(0.02, 2 * cfg.ransac_tolerance_m)
+        if new_keep.sum() == 0 or np.array_equal(new_keep, keep):
+            break
+        keep = new_keep
+    r0 = float(np.median(ch[keep, 3])) if keep.any() else float(np.median(ch[:, 3]))
+    x_init = np.array([coef[0, 0], coef[1, 0], coef[0, 1], coef[1, 1], r0, 0.0])
+    mid = a + u0 * (L / 2)
+    prior_mid = np.array([prior[0], prior[1]])
+
+    def model(x):
+        c = x[0] * e1 + x[1] * e2
+        u = u0 + x[2] * e1 + x[3] * e2
+        u = u / np.linalg.norm(u)
+        return c, u
+
+    Pc = P[cand]
+
+    def select(x):
+        """Candidates on the visible top of cylinder ``x``, away from its flanks."""
+        c, u = model(x)
+        f1, f2 = _frame(u)
+        d = Pc - (mid + c)
+        tt = d @ u
+        perp = d - np.outer(tt, u)
+        rr = x[4] + x[5] * tt
+        rad = np.linalg.norm(perp, axis=1)
+        # select by the angle from the top (tangential: unlike a cut on the lateral offset it
+        # does not correlate with the radial noise, so it does not bias the radius)
+        ang = np.arctan2(np.abs(perp @ f1), perp @ f2)
+        ok = (np.abs(rad - rr) < cfg.inlier_band_m) & (ang < math.radians(cfg.max_angle_deg))
+        out = cand[ok]
+        if out.size > cfg.max_points_per_log:
+            out = rng.choice(out, cfg.max_points_per_log, replace=False)
+        return out
+
+    sel = select(x_init)
+    if sel.size < cfg.min_points:
+        raise FitError(f"log {log_id!r}: only {sel.size} scan points lie on a cylinder around its "
+                       "GNSS axis; the log is hidden or outside the scanned area")
+    Pm = P[sel] - mid
+
+    def residuals(x):
+        c, u = model(x)
+        d = Pm - c
+        tt = d @ u
+        rad = np.linalg.norm(d - np.outer(tt, u), axis=1)
+        res = rad - (x[4] + x[5] * tt)
+        # weak prior: the GNSS axis (ends at +-L/2) within gnss_sigma_m; tilt priors at the ends
+        w = cfg.loss_scale_m / cfg.gnss_sigma_m
+        end_off = np.array([x[0] - prior_mid[0] + x[2] * L / 2, x[1] - prior_mid[1] + x[3] * L / 2,
+                            x[0] - prior_mid[0] - x[2] * L / 2, x[1] - prior_mid[1] - x[3] * L / 2])
+        if cfg.endpoint_ref == "top_surface":
+            end_off[[1, 3]] *= 0.1  # the vertical prior is loose: the radius is not known a priori
+        return np.concatenate([res, w * end_off])
+
+    x0 = x_init.copy()
+    if not cfg.fit_taper:
+        lb = [-np.inf] * 5 + [-1e-9]
+        ub = [np.inf] * 5 + [1e-9]
+    else:
+        lb = [-np.inf] * 4 + [cfg.min_radius_m, -0.2]
+        ub = [np.inf] * 4 + [cfg.max_radius_m, 0.2]
+    x0[4] = float(np.clip(x0[4], cfg.min_radius_m + 1e-6, cfg.max_radius_m - 1e-6))
+    sol = None
+    for _ in range(2):  # fit, re-select the band around the fitted surface, refit
+        sol = least_squares(residuals, x0, loss="soft_l1", f_scale=cfg.loss_scale_m,
+                            bounds=(lb, ub), x_scale=[0.01, 0.01, 0.01, 0.01, 0.01, 0.01], max_nfev=60)
+        new_sel = select(sol.x)
+        if new_sel.size < cfg.min_points:
+            break
+        sel = new_sel
+        Pm = P[sel] - mid
+        x0 = sol.x
+    x = sol.x
+    c, u = model(x)
+    centre = mid + c
+    res = residuals(x)[: len(sel)]
+    rms = float(np.sqrt(np.mean(res ** 2)))
+    tt_sel = (P[sel] - centre) @ u
+    # coverage in 10 cm bins over the length
+    nb = max(1, int(round(L / 0.1)))
+    hist, _ = np.histogram(tt_sel, bins=nb, range=(-L / 2, L / 2))
+    coverage = float(np.mean(hist > 0))
+    # radius at the ends (GNSS a at t = -L/2 about the fitted centre)
+    ta = float((a - centre) @ u)
+    tb = float((b - centre) @ u)
+    r_a = float(x[4] + x[5] * ta)
+    r_b = float(x[4] + x[5] * tb)
+    if not cfg.fit_taper:
+        r_a = r_b = float(x[4])
+    proj_a, proj_b = centre + ta * u, centre + tb * u
+    res_a, res_b = float(np.linalg.norm(a - proj_a)), float(np.linalg.norm(b - proj_b))
+    if cfg.axis_source == "fit":
+        ends = np.stack([proj_a, proj_b])
+    elif cfg.endpoint_ref == "top_surface":
+        r_mean = 0.5 * (r_a + r_b)
+        ends = np.stack([a, b]) - r_mean * e2
+    else:
+        ends = np.stack([a, b])
+    return {
+        "centre": centre, "axis": u, "ends": ends, "radius_a_m": max(r_a, cfg.min_radius_m),
+        "radius_b_m": max(r_b, cfg.min_radius_m), "n_points": int(sel.size), "rms_m": rms,
+        "coverage": coverage, "residual_a_m": res_a, "residual_b_m": res_b, "inliers": sel,
+    }
+
+
+def _distance_to_logs(P: np.ndarray, logs: Sequence[LogSpec], pad_m: float) -> np.ndarray:
+    """Signed distance [m] of points to the nearest log surface (negative inside); logs are
+    extended by ``pad_m`` at both ends."""
+    best = np.full(len(P), np.inf)
+    for log in logs:
+        p0, p1 = log.endpoints_m()
+        L = log.length_m
+        u = (p1 - p0) / L
+        rel = P - p0
+        t = rel @ u
+        inside = (t > -pad_m) & (t < L + pad_m)
+        if not inside.any():
+            continue
+        ri = rel[inside]
+        ti = t[inside]
+        rad = np.linalg.norm(ri - np.outer(ti, u), axis=1)
+        r = log.diameter_m / 2 + (log.top_d_m - log.diameter_m) / 2 * np.clip(ti / L, 0, 1)
+        d = rad - r
+        best[inside] = np.minimum(best[inside], d)
+    return best
+
+
+# -- terrain ---------------------------------------------------------------------------------
+def fit_terrain(ground_candidates: np.ndarray, extent_m: float, cfg: FitConfig | None = None,
+                colour: tuple[float, float, float] = (0.45, 0.40, 0.30)) -> tuple[TerrainSpec, np.ndarray, float]:
+    """A :class:`TerrainSpec` (explicit heights) from points that are ground or obstacles.
+
+    Returns the terrain, a boolean mask of the points accepted as ground, and the share of grid
+    cells that had ground points (the rest are filled)."""
+    from scipy import ndimage
+
+    cfg = cfg or FitConfig()
+    n = cfg.terrain_resolution
+    P = np.asarray(ground_candidates, dtype=np.float64)
+    step = extent_m / (n - 1)
+    half = extent_m / 2
+    ix = np.rint((P[:, 0] + half) / step).astype(np.int64)
+    iy = np.rint((P[:, 1] + half) / step).astype(np.int64)
+    inside = (ix >= 0) & (ix < n) & (iy >= 0) & (iy < n)
+    if inside.sum() < 10:
+        raise FitError("almost no ground points inside the terrain patch; the scan does not see "
+                       "the ground around the pile (scan from higher up, or enlarge the scanned area)")
+    flat = iy * n + ix
+    # per-cell low value: 10th percentile (robust to single low outliers)
+    low = np.full(n * n, np.nan)
+    order = np.lexsort((P[:, 2], flat))
+    order = order[inside[order]]
+    f_sorted = flat[order]
+    starts = np.flatnonzero(np.r_[True, f_sorted[1:] != f_sorted[:-1]])
+    ends = np.r_[starts[1:], len(order)]
+    for s, e in zip(starts, ends):
+        k = s + int(0.1 * (e - s))
+        low[f_sorted[s]] = P[order[k], 2]
+    low = low.reshape(n, n)
+    have = np.isfinite(low)
+    filled = _fill(low, have)
+    w = max(3, int(round(cfg.ground_window_m / step)) | 1)
+    opened = ndimage.grey_opening(filled, size=(w, w))
+    # ground points: within the band above the opened surface (bilinear)
+    from synth.pile import height_at
+
+    z_open = height_at(opened, extent_m, P[:, 0], P[:, 1])
+    is_ground = inside & (P[:, 2] < z_open + cfg.ground_band_m) & (P[:, 2] > z_open - 3 * cfg.ground_band_m)
+    med = np.full(n * n, np.nan)
+    g = np.flatnonzero(is_ground)
+    if g.size:
+        fg = flat[g]
+        o = np.lexsort((P[g, 2], fg))
+        fs = fg[o]
+        st = np.flatnonzero(np.r_[True, fs[1:] != fs[:-1]])
+        en = np.r_[st[1:], len(o)]
+        for s, e in zip(st, en):
+            med[fs[s]] = P[g[o[(s + e - 1) // 2]], 2]
+    med = med.reshape(n, n)
+    have_g = np.isfinite(med)
+    coverage = float(have_g.mean())
+    if not have_g.any():
+        heights = opened
+    else:
+        heights = _fill(med, have_g)
+        # holes: linear interpolation between the cells with ground (scipy griddata); the
+        # nearest-cell fill above stays outside their convex hull
+        if (~have_g).any() and have_g.sum() >= 3:
+            from scipy.interpolate import griddata
+
+            yy, xx = np.nonzero(have_g)
+            hy, hx = np.nonzero(~have_g)
+            try:
+                lin = griddata(np.column_stack([yy, xx]), med[yy, xx], (hy, hx), method="linear")
+                ok = np.isfinite(lin)
+                heights[hy[ok], hx[ok]] = lin[ok]
+            except Exception:  # qhull fails on collinear cells: keep the nearest fill
+                pass
+    heights = ndimage.median_filter(heights, size=3, mode="nearest")
+    terrain = TerrainSpec(extent_m=extent_m, resolution=n, amplitude_m=0.0,
+                          heights_m=tuple(tuple(float(v) for v in row) for row in heights), colour=colour)
+    return terrain, is_ground, coverage
+
+
+def _fill(grid: np.ndarray, have: np.ndarray) -> np.ndarray:
+    """Fill cells without data from the nearest cell with data."""
+    from scipy import ndimage
+
+    if have.all():
+        return grid.copy()
+    _, (iy, ix) = ndimage.distance_transform_edt(~have, return_indices=True)
+    return grid[iy, ix]
+
+
+# -- obstacles -------------------------------------------------------------------------------
+def find_obstacles(points: np.ndarray, terrain: TerrainSpec, cfg: FitConfig | None = None,
+                   ) -> tuple[list[StumpSpec], list[RockSpec], list[dict]]:
+    """Stumps and rocks from points above the terrain (already without log points)."""
+    import open3d as o3d
+
+    cfg = cfg or FitConfig()
+    P = np.asarray(points, dtype=np.float64)
+    if len(P) == 0:
+        return [], [], []
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P))
+    pc = pc.voxel_down_sample(cfg.obstacle_voxel_m)
+    Q = np.asarray(pc.points)
+    labels = np.asarray(pc.cluster_dbscan(eps=cfg.dbscan_eps_m, min_points=cfg.dbscan_min_points))
+    stumps: list[StumpSpec] = []
+    rocks: list[RockSpec] = []
+    info: list[dict] = []
+    half = terrain.extent_m / 2
+    for lab in range(int(labels.max()) + 1 if labels.size else 0):
+        C = Q[labels == lab]
+        if len(C) < cfg.obstacle_min_points:
+            continue
+        ext = C[:, :2].max(0) - C[:, :2].min(0)
+        if float(ext.max()) < cfg.obstacle_min_size_m:
+            continue
+        ground = terrain.height_at(C[:, 0], C[:, 1])
+        h = C[:, 2] - ground
+        top = float(np.percentile(h, 95))
+        top_pts = C[h > top - 0.04]
+        flat_frac = len(top_pts) / len(C)
+        cx, cy, r, rms = _circle_fit_xy(top_pts[:, :2])
+        is_stump = (flat_frac >= cfg.stump_flat_fraction and np.isfinite(r) and 0.03 <= r <= 1.0
+                    and rms <= cfg.stump_max_circle_rms * r and 0.05 <= top <= 2.0
+                    and abs(cx) < half and abs(cy) < half)
+        if is_stump:
+            stumps.append(StumpSpec(position_m=(float(cx), float(cy)), height_m=float(np.clip(top, 0.05, 2.0)),
+                                    bottom_radius_m=float(min(1.0, r * 1.1)), top_radius_m=float(r)))
+            info.append({"kind": "stump", "position_m": [float(cx), float(cy)], "height_m": top,
+                         "radius_m": float(r), "n_points": int(len(C)), "flat_fraction": flat_frac})
+        else:
+            rock = _rock_from_points(C, terrain, cfg)
+            rocks.append(rock)
+            info.append({"kind": "rock", "position_m": list(rock.position_m), "size_m": rock.size_m(),
+                         "n_points": int(len(C)), "flat_fraction": flat_frac})
+    return stumps, rocks, info
+
+
+def _circle_fit_xy(xy: np.ndarray) -> tuple[float, float, float, float]:
+    """Algebraic (Kasa) circle fit: centre x, y, radius, RMS of radial residuals."""
+    if len(xy) < 3:
+        return math.nan, math.nan, math.nan, math.nan
+    A = np.column_stack([2 * xy[:, 0], 2 * xy[:, 1], np.ones(len(xy))])
+    bvec = (xy ** 2).sum(1)
+    sol, *_ = np.linalg.lstsq(A, bvec, rcond=None)
+    cx, cy = sol[0], sol[1]
+    r2 = sol[2] + cx * cx + cy * cy
+    if r2 <= 0:
+        return math.nan, math.nan, math.nan, math.nan
+    r = math.sqrt(r2)
+    # the top is a filled disk, not a ring: use the 90th percentile distance as the radius
+    d = np.hypot(xy[:, 0] - cx, xy[:, 1] - cy)
+    r_disk = float(np.percentile(d, 95))
+    # roundness: how far the outline deviates from a circle (outer points only)
+    outer = d > 0.6 * r_disk
+    rms = float(np.sqrt(np.mean((d[outer] - r_disk) ** 2))) if outer.any() else math.nan
+    return float(cx), float(cy), r_disk, rms
+
+
+def _rock_from_points(C: np.ndarray, terrain: TerrainSpec, cfg: FitConfig) -> RockSpec:
+    """A convex rock: hull of the cluster plus its outline pushed 5 cm into the ground."""
+    from scipy.spatial import ConvexHull
+
+    ground = terrain.height_at(C[:, 0], C[:, 1])
+    below = C.copy()
+    below[:, 2] = ground - 0.05
+    allp = np.vstack([C, below])
+    try:
+        hull = ConvexHull(allp)
+        V = allp[hull.vertices]
+    except Exception as exc:  # scipy raises QhullError for flat sets
+        raise FitError(f"cannot build a rock from a flat cluster of {len(C)} points: {exc}") from exc
+    if len(V) > cfg.rock_max_vertices:  # farthest-point subsampling of the hull vertices
+        keep = [int(np.argmax(V[:, 2]))]
+        dmin = np.linalg.norm(V - V[keep[0]], axis=1)
+        while len(keep) < cfg.rock_max_vertices:
+            k = int(np.argmax(dmin))
+            keep.append(k)
+            dmin = np.minimum(dmin, np.linalg.norm(V - V[k], axis=1))
+        V = V[keep]
+    centre = V.mean(0)
+    return RockSpec(position_m=tuple(float(v) for v in centre), orientation=(0.0, 0.0, 0.0, 1.0),
+                    vertices_m=tuple(tuple(float(c) for c in v - centre) for v in V))
+
+
+# -- validation ------------------------------------------------------------------------------
+def separate_logs(pile: PileSpec, cfg: FitConfig | None = None) -> tuple[PileSpec, list[str], list[float]]:
+    """Lift logs that interpenetrate other bodies (fit noise) by the smallest amount, repeatedly,
+    until the twin accepts the pile. Returns the pile, what was done, and each log's total lift.
+    Raises :class:`FitError` when a log would need more than ``max_lift_m``."""
+    from synth.errors import PileValidationError
+    from synth.world import World
+
+    cfg = cfg or FitConfig()
+    lifts = [0.0] * pile.n_logs
+    notes: list[str] = []
+    for _ in range(10 * pile.n_logs + 5):
+        with World(pile) as world:
+            bad = world.penetrations(cfg.penetration_tolerance_m)
+            try:
+                if not bad:
+                    world.check_valid(cfg.penetration_tolerance_m)
+                    return pile, notes, lifts
+            except PileValidationError as exc:
+                raise FitError(f"the reconstructed pile is not physical: {exc}") from exc
+        a, b, depth = bad[0]
+        # which log moves: the upper one of a log pair, the log against terrain/obstacles
+        idx = [int(s.split()[1]) for s in (a, b) if s.startswith("log ")]
+        if len(idx) == 2:
+            i = max(idx, key=lambda j: pile.logs[j].centre_m[2])
+        else:
+            i = idx[0]
+        dz = depth - cfg.penetration_tolerance_m + 0.002
+        lifts[i] += dz
+        if lifts[i] > cfg.max_lift_m:
+            raise FitError(
+                f"log {i} would have to be lifted {lifts[i] * 100:.1f} cm to clear {a if b == f'log {i}' else b} "
+                f"(limit {cfg.max_lift_m * 100:.0f} cm); its fit or endpoints are wrong"
+            )
+        log = pile.logs[i]
+        c = log.centre_m
+        logs = list(pile.logs)
+        logs[i] = replace(log, centre_m=(c[0], c[1], c[2] + dz))
+        pile = pile.with_logs(tuple(logs))
+        notes.append(f"log {i} lifted {dz * 1000:.1f} mm ({a} / {b} interpenetrated {depth * 1000:.1f} mm)")
+    raise FitError("could not separate the reconstructed logs; check the fits")
+
+
+def _spec_from_fit(f: dict, cfg: FitConfig) -> tuple[LogSpec, bool]:
+    """A :class:`LogSpec` from :func:`fit_log`'s result (butt = the thicker end) and whether
+    end ``b`` became the butt."""
+    ra, rb = f["radius_a_m"], f["radius_b_m"]
+    ends = f["ends"]
+    taper = cfg.fit_taper and abs(ra - rb) * 2 >= cfg.taper_min_m
+    swapped = bool(taper and rb > ra)
+    if taper:
+        d_butt, d_top = 2 * max(ra, rb), 2 * min(ra, rb)
+    else:
+        d_butt, d_top = ra + rb, None
+    butt, top = (ends[1], ends[0]) if swapped else (ends[0], ends[1])
+    d_butt = float(np.clip(d_butt, 0.03, 1.2))
+    if d_top is not None:
+        d_top = float(np.clip(d_top, 0.02, d_butt))
+    return LogSpec.from_endpoints(butt, top, d_butt, d_top), swapped
+
+
+def _owners(P: np.ndarray, logs: Sequence[LogSpec], band_m: float) -> np.ndarray:
+    """Index of the log whose surface each point lies on (within ``band_m``, nearest wins);
+    -1 for points on no log."""
+    best = np.full(len(P), np.inf)
+    owner = np.full(len(P), -1, dtype=np.int64)
+    for i, log in enumerate(logs):
+        d = np.abs(_distance_to_logs(P, [log], pad_m=0.0))
+        closer = (d < best) & (d < band_m)
+        owner[closer] = i
+        best = np.where(closer, d, best)
+    return owner
+
+
+# -- the whole pile --------------------------------------------------------------------------
+def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], extent_m: float,
+             cfg: FitConfig | None = None, progress: Callable[[str], None] | None = None,
+             georef: Any = None, notes: str = "") -> PileFit:
+    """Fit a whole pile to scan ``points`` ((N, 3), pile frame) and GNSS ``endpoints``
+    (``{log_id: (end_a, end_b)}``, pile frame). ``extent_m``: side of the terrain patch,
+    centred on the origin. Returns a :class:`PileFit` whose ``pile`` has ``source="reconstructed"``.
+    """
+    import time
+
+    cfg = cfg or FitConfig()
+    say = progress or (lambda s: None)
+    P = np.asarray(points, dtype=np.float64)
+    if P.ndim != 2 or P.shape[1] != 3 or len(P) == 0:
+        raise ValueError(f"points must be a non-empty (N, 3) array, got shape {P.shape}")
+    P = P[np.all(np.isfinite(P), axis=1)]
+    if not endpoints:
+        raise ValueError("no log endpoints given; the survey is empty")
+    rng = np.random.default_rng(cfg.seed)
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    ids = sorted(endpoints, key=natural_key)
+    half = extent_m / 2
+    for log_id in ids:
+        for end, p in zip("ab", endpoints[log_id]):
+            p = np.asarray(p, dtype=float)
+            if p.shape != (3,) or not np.all(np.isfinite(p)):
+                raise ValueError(f"log {log_id!r} end {end!r}: need a finite 3-D point, got {p!r}")
+            if abs(p[0]) > half or abs(p[1]) > half:
+                raise FitError(f"log {log_id!r} end {end!r} at ({p[0]:.2f}, {p[1]:.2f}) m lies outside "
+                               f"the {extent_m:g} m terrain patch; enlarge extent_m or check the point")
+    # pass 1: each log on its own; pass 2: each scan point belongs to the log whose fitted
+    # surface it lies on (so a neighbour's flank never bends this log's fit), then refit
+    first = []
+    for log_id in ids:
+        say(f"fitting log {log_id}")
+        first.append(fit_log(P, *endpoints[log_id], cfg, log_id=log_id, rng=rng))
+    owner = _owners(P, [_spec_from_fit(f, cfg)[0] for f in first], cfg.inlier_band_m)
+    fits: list[LogFit] = []
+    logs: list[LogSpec] = []
+    for i, log_id in enumerate(ids):
+        a, b = endpoints[log_id]
+        f = fit_log(P[(owner == i) | (owner < 0)], a, b, cfg, log_id=log_id, rng=rng)
+        spec, swapped = _spec_from_fit(f, cfg)
+        logs.append(spec)
+        butt, top = spec.endpoints_m()
+        p0, p1 = np.asarray(a, float), np.asarray(b, float)
+        ends = f["ends"]
+        fits.append(LogFit(
+            log_id=log_id, index=i, butt_m=tuple(float(v) for v in butt), top_m=tuple(float(v) for v in top),
+            length_m=spec.length_m, diameter_m=spec.diameter_m, top_diameter_m=spec.top_diameter_m,
+            n_points=f["n_points"], rms_m=f["rms_m"], coverage=f["coverage"],
+            gnss_residual_a_m=f["residual_a_m"], gnss_residual_b_m=f["residual_b_m"],
+            axis_shift_m=float(max(np.linalg.norm(ends[0] - p0), np.linalg.norm(ends[1] - p1))),
+            swapped=bool(swapped),
+        ))
+    timings["logs_s"] = time.perf_counter() - t0
+    t1 = time.perf_counter()
+    say("fitting terrain")
+    dist = _distance_to_logs(P, logs, pad_m=0.10)
+    rest = P[dist > cfg.log_clearance_m]
+    terrain, is_ground, coverage = fit_terrain(rest, extent_m, cfg)
+    timings["terrain_s"] = time.perf_counter() - t1
+    t2 = time.perf_counter()
+    say("finding obstacles")
+    z_ground = terrain.height_at(rest[:, 0], rest[:, 1])
+    above = rest[(~is_ground) & (rest[:, 2] > z_ground + cfg.obstacle_min_height_m)
+                 & (np.abs(rest[:, 0]) < half) & (np.abs(rest[:, 1]) < half)]
+    stumps, rocks, info = find_obstacles(above, terrain, cfg)
+    timings["obstacles_s"] = time.perf_counter() - t2
+    pile = PileSpec(terrain=terrain, logs=tuple(logs), stumps=tuple(stumps), rocks=tuple(rocks),
+                    georef=georef, source="reconstructed", notes=notes)
+    lifts_notes: list[str] = []
+    if cfg.validate:
+        t3 = time.perf_counter()
+        say("checking the pile in the twin")
+        pile, lifts_notes, lifts = separate_logs(pile, cfg)
+        for lf, dz in zip(fits, lifts):
+            lf.lift_m = float(dz)
+            if dz:
+                lf.butt_m = (lf.butt_m[0], lf.butt_m[1], lf.butt_m[2] + dz)
+                lf.top_m = (lf.top_m[0], lf.top_m[1], lf.top_m[2] + dz)
+        timings["validate_s"] = time.perf_counter() - t3
+    return PileFit(pile=pile, logs=fits, terrain_coverage=coverage, n_ground_points=int(is_ground.sum()),
+                   n_obstacle_points=int(len(above)), obstacles=info, lifts=lifts_notes, timings_s=timings)
+
+
+# -- synthetic scans (tests, benchmarks) -----------------------------------------------------
+def sample_top_view_points(pile: PileSpec, size_px: int = 500, noise_m: float = 0.0,
+                           rng: np.random.Generator | None = None) -> np.ndarray:
+    """Points of ``pile`` as seen from straight above (what a downward scanner sees, occlusion
+    included): the exact orthographic height map of the twin at ``size_px`` pixels per side,
+    one point per pixel, plus Gaussian noise of ``noise_m`` on every coordinate. Pile frame, (N, 3)."""
+    from synth.frames import OrthoGrid
+    from synth.render import OrthoRenderConfig, render_ortho
+    from synth.world import World
+
+    with World(pile) as world:
+        obs = render_ortho(world, OrthoRenderConfig(size_px=size_px, n_renders=1))
+    X, Y = OrthoGrid(size_px, pile.terrain.extent_m).pixel_centres()
+    P = np.column_stack([X.ravel(), Y.ravel(), obs.height().ravel().astype(np.float64)])
+    if noise_m > 0:
+        rng = rng or np.random.default_rng(0)
+        P = P + rng.normal(0.0, noise_m, size=P.shape)
+    return P
