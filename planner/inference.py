@@ -1,0 +1,300 @@
+"""Plan grasps on one observation: every target subset through the network, batched.
+
+For a top-down observation (intensity, depth, instance map of :class:`synth.render.OrthoObservation`)
+the planner
+
+1. finds the visible logs (instance codes ``i + 1``) and chooses target subsets
+   (:mod:`planner.subsets`: all 2^n - 1, or those that fit one grapple opening);
+2. drops subsets over the lift capacity (:mod:`planner.constraints`);
+3. runs the network on all remaining target masks in batches, in inference mode
+   (channels-last + bfloat16 autocast on CPU when ``precision="bf16"``);
+4. scores each pixel with ``Q = f(u, tau, b)`` (:class:`Objective`), masks pixels out of reach,
+   takes the best pixel whose grasp rectangle avoids the keep-out zones;
+5. decodes phi = atan2(S, C) / 2 from C and S *smoothed* with a Gaussian around that pixel
+   (never by averaging angles), the width [m], and the pile-frame position via
+   :class:`synth.frames.OrthoGrid`.
+
+The :class:`Plan` lists the best grasp of each subset, best first.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from planner.constraints import Constraints, polygon_raster
+from planner.data import make_inputs
+from planner.errors import ObservationError
+from planner.model import UNetConfig
+from planner.subsets import SubsetPolicy, choose_subsets
+from synth.frames import OrthoGrid, wrap_phi
+from synth.grasp import MAX_WIDTH_M, MIN_WIDTH_M, RECT_WIDTH_M, Grasp
+
+OBSTACLE_CODE_BASE = 1000  # instance codes >= this are obstacles (synth.render)
+
+
+@dataclass(frozen=True)
+class Objective:
+    """Pixel quality ``Q = f(u, tau, b)`` (the paper's f1, f2, f3)."""
+
+    kind: str = "f1"  # "f1": u; "f2": u tau^mu; "f3": u tau^mu exp(-(b - b_opt)^2 / sigma_b^2)
+    mu: float = 1.0 / 3.0  # exponent on the number of target logs [-]
+    b_opt: float = 1.0  # optimal balance cos(beta) [-]
+    sigma_b: float = 0.25  # balance tolerance [-]
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("f1", "f2", "f3"):
+            raise ValueError(f"objective kind must be 'f1', 'f2' or 'f3', got {self.kind!r}")
+        if self.mu < 0 or not self.sigma_b > 0:
+            raise ValueError("need mu >= 0 and sigma_b > 0")
+
+    def quality(self, u, tau, b):
+        """Element-wise quality; ``tau`` broadcasts (e.g. shape (N, 1, 1) for N subsets)."""
+        u = np.asarray(u, dtype=np.float32)
+        if self.kind == "f1":
+            return u
+        q = u * np.power(np.asarray(tau, dtype=np.float32), np.float32(self.mu))
+        if self.kind == "f3":
+            q = q * np.exp(-((np.asarray(b, dtype=np.float32) - self.b_opt) ** 2) / self.sigma_b ** 2)
+        return q
+
+
+@dataclass
+class Planner:
+    """A loaded network plus how to run it."""
+
+    model: object  # torch.nn.Module in eval mode
+    config: UNetConfig
+    device: str = "cpu"  # "cpu" or "cuda"
+    precision: str = "bf16"  # "fp32" or "bf16" (autocast; channels-last on CPU)
+    batch_size: int = 32  # target masks per forward pass [-]
+    meta: dict = field(default_factory=dict)
+    angle_smoothing_px: float = 1.0  # Gaussian sigma for C, S (and W) before decoding [px]
+    candidates_per_subset: int = 64  # pixels tried per subset against keep-out zones [-]
+
+    def __post_init__(self) -> None:
+        if self.precision not in ("fp32", "bf16"):
+            raise ValueError(f"precision must be 'fp32' or 'bf16', got {self.precision!r}")
+        if self.batch_size < 1:
+            raise ValueError("batch_size must be >= 1")
+        from planner.model import prepare_for_inference
+
+        self._net = prepare_for_inference(self.model, self.precision, self.device)
+
+    @property
+    def dtype(self):
+        import torch
+
+        return torch.bfloat16 if self.precision == "bf16" else torch.float32
+
+    def _tensor(self, a: np.ndarray):
+        import torch
+
+        t = torch.from_numpy(np.ascontiguousarray(a)).to(self.device, self.dtype)
+        return t.contiguous(memory_format=torch.channels_last) if self.device == "cpu" else t
+
+    def predict(self, x: np.ndarray) -> np.ndarray:
+        """Network output (N, 5, H, W) float32 for inputs (N, C, H, W) that share one image
+        (all channels but the last, the target mask), batched."""
+        import torch
+
+        outs = []
+        with torch.inference_mode():
+            net = self._net
+            if net.late and len(x):
+                feats = net.encode(self._tensor(x[:1, :-1]))
+            for k in range(0, len(x), self.batch_size):
+                if net.late:
+                    y = net.decode(feats, self._tensor(x[k : k + self.batch_size, -1:]))
+                else:
+                    y = net(self._tensor(x[k : k + self.batch_size]))
+                outs.append(y.float().contiguous().cpu().numpy())
+        return np.concatenate(outs) if outs else np.zeros((0, 5, *x.shape[2:]), np.float32)
+
+
+def default_device() -> str:
+    import torch
+
+    return "cuda" if torch.cuda.is_available() else "cpu"
+
+
+def load_planner(path: str | Path, device: str = "auto", precision: str = "bf16", batch_size: int = 32) -> Planner:
+    """Load a checkpoint (:func:`planner.checkpoint.load_checkpoint`) as a :class:`Planner`."""
+    from planner.checkpoint import load_checkpoint
+
+    model, config, meta = load_checkpoint(path)
+    return Planner(model, config, default_device() if device == "auto" else device, precision, batch_size, meta)
+
+
+@dataclass(frozen=True)
+class PlannedGrasp:
+    grasp: Grasp  # pile frame
+    quality: float  # q = f(u, tau, b)
+    graspability: float  # u
+    balance: float  # b
+    targets: tuple[int, ...]  # log indices
+    pixel: tuple[int, int]  # (row, col)
+
+    def to_dict(self) -> dict:
+        return {**self.grasp.to_dict(), "quality": self.quality, "graspability": self.graspability,
+                "balance": self.balance, "targets": list(self.targets)}
+
+
+@dataclass
+class Plan:
+    grasps: list[PlannedGrasp]  # best first
+    subsets_evaluated: int
+    elapsed_s: float
+    rejected: list[dict] = field(default_factory=list)  # {"targets", "constraint", "detail"}
+    info: dict = field(default_factory=dict)  # subset selection, visible logs, ...
+
+    @property
+    def best(self) -> PlannedGrasp | None:
+        return self.grasps[0] if self.grasps else None
+
+    def to_dict(self) -> dict:
+        return {"grasps": [g.to_dict() for g in self.grasps], "subsets_evaluated": self.subsets_evaluated,
+                "elapsed_s": self.elapsed_s, "rejected": self.rejected, "info": self.info}
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=1)
+
+
+def _observation_arrays(observation) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
+    inten = np.asarray(observation.intensity, dtype=np.float32)
+    if inten.ndim == 3:
+        inten = inten[0]  # first render (the pile's own colours)
+    depth = np.asarray(observation.depth, dtype=np.float32)
+    inst = np.asarray(observation.instance)
+    if depth.ndim != 2 or depth.shape[0] != depth.shape[1]:
+        raise ObservationError(f"depth must be a square (H, W) image, got shape {depth.shape}")
+    if inten.shape != depth.shape or inst.shape != depth.shape:
+        raise ObservationError(f"intensity {inten.shape}, depth {depth.shape} and instance {inst.shape} differ in size")
+    if not np.isfinite(depth).all():
+        n = int((~np.isfinite(depth)).sum())
+        raise ObservationError(f"depth has {n} NaN/inf pixels; fill holes (e.g. stereo dropouts) before planning")
+    if not np.isfinite(inten).all():
+        raise ObservationError("intensity has NaN/inf pixels; fix the image before planning")
+    return inten, depth, inst, float(getattr(observation, "extent_m", 5.0)), float(getattr(observation, "camera_height_m", 5.0))
+
+
+def _smoothed_at(img: np.ndarray, r: int, c: int, sigma: float) -> float:
+    if sigma <= 0:
+        return float(img[r, c])
+    k = max(1, int(math.ceil(2 * sigma)))
+    r0, r1, c0, c1 = max(0, r - k), min(img.shape[0], r + k + 1), max(0, c - k), min(img.shape[1], c + k + 1)
+    rr, cc = np.mgrid[r0:r1, c0:c1]
+    w = np.exp(-((rr - r) ** 2 + (cc - c) ** 2) / (2 * sigma ** 2))
+    return float((w * img[r0:r1, c0:c1]).sum() / w.sum())
+
+
+def plan(observation, planner: Planner, objective: Objective = Objective(), constraints: Constraints = Constraints(),
+         top_k: int | None = None, *, subsets: SubsetPolicy = SubsetPolicy(), pile=None) -> Plan:
+    """Plan multi-log grasps on ``observation`` (an :class:`synth.render.OrthoObservation` or any
+    object with ``intensity`` (H, W) or (R, H, W), ``depth`` (H, W) [m], ``instance`` (H, W),
+    ``extent_m``, ``camera_height_m``).
+
+    Returns the best grasp of each evaluated subset, best first (``top_k`` of them, all if None).
+    ``pile`` (a :class:`synth.pile.PileSpec`), when known, gives exact log volumes for the lift
+    capacity. Raises :class:`ObservationError` for unusable input."""
+    t0 = time.perf_counter()
+    inten, depth, inst, extent_m, cam_h = _observation_arrays(observation)
+    cfg = planner.config
+    if depth.shape[0] != cfg.size_px:
+        raise ObservationError(f"the observation is {depth.shape[0]} px but the network was trained on {cfg.size_px} px; "
+                               "render at the checkpoint's size")
+    grid = OrthoGrid(depth.shape[0], extent_m)
+    codes, counts = np.unique(inst[(inst > 0) & (inst < OBSTACLE_CODE_BASE)], return_counts=True)
+    if len(codes) == 0:
+        raise ObservationError("the observation shows no logs (no instance codes 1..999); nothing to grasp")
+    visible = {int(c) - 1: int(n) for c, n in zip(codes, counts)}
+    masks = {i: inst == i + 1 for i in visible}
+    try:
+        chosen, info = choose_subsets(masks, grid.pixel_m, subsets)
+    except ValueError as exc:
+        raise ObservationError(str(exc)) from exc
+    info = {**info, "visible_logs": sorted(visible)}
+    rejected: list[dict] = []
+
+    if constraints.lift_capacity_kg is not None:
+        masses = constraints.log_masses_kg(visible, grid.pixel_m, pile)
+        info["log_mass_kg"] = {str(i): round(m, 1) for i, m in masses.items()}
+        info["log_mass_source"] = "pile volumes" if pile is not None else "mask area x assumed diameter"
+        kept = []
+        for s in chosen:
+            m = sum(masses[i] for i in s)
+            if m > constraints.lift_capacity_kg:
+                rejected.append({"targets": list(s), "constraint": "lift_capacity",
+                                 "detail": f"{m:.0f} kg > {constraints.lift_capacity_kg:.0f} kg"})
+            else:
+                kept.append(s)
+        chosen = kept
+
+    grasps: list[PlannedGrasp] = []
+    if chosen:
+        subset_masks = np.stack([np.any([masks[i] for i in s], axis=0) for s in chosen])
+        x = make_inputs(inten, depth, subset_masks, cfg.in_channels, cam_h)
+        out = planner.predict(x)
+        grasps, more = _select(out, chosen, grid, objective, constraints, planner)
+        rejected += more
+    grasps.sort(key=lambda g: -g.quality)
+    if top_k is not None:
+        grasps = grasps[:top_k]
+    return Plan(grasps, len(chosen), time.perf_counter() - t0, rejected, info)
+
+
+def _select(out, chosen, grid, objective, constraints, planner) -> tuple[list[PlannedGrasp], list[dict]]:
+    u = 1.0 / (1.0 + np.exp(-out[:, 3]))
+    tau = np.array([len(s) for s in chosen], np.float32)[:, None, None]
+    q = objective.quality(u, tau, out[:, 4])
+    reach = constraints.reach_ok(grid)
+    keep_out = constraints.keep_out_raster(grid)
+    grasps, rejected = [], []
+    n_px = q.shape[1] * q.shape[2]
+    for k, s in enumerate(chosen):
+        qk = q[k].ravel()
+        best_any = int(np.argmax(qk))
+        if reach is not None:
+            qk = np.where(reach.ravel(), qk, -np.inf)
+            if not np.isfinite(qk).any():
+                rejected.append({"targets": list(s), "constraint": "reach", "detail": "no pixel within reach"})
+                continue
+            if int(np.argmax(qk)) != best_any:
+                rejected.append({"targets": list(s), "constraint": "reach",
+                                 "detail": "best grasp out of reach; next best in reach used"})
+        n_try = min(planner.candidates_per_subset if keep_out is not None else 1, n_px)
+        order = np.argpartition(-qk, n_try - 1)[:n_try] if n_try < n_px else np.arange(n_px)
+        order = order[np.argsort(-qk[order], kind="stable")]
+        picked = None
+        for idx in order:
+            if not np.isfinite(qk[idx]):
+                break
+            g = _decode(out[k], int(idx) // q.shape[2], int(idx) % q.shape[2], grid, planner.angle_smoothing_px)
+            if keep_out is not None and (polygon_raster(grid, g.rectangle(RECT_WIDTH_M)) & keep_out).any():
+                continue
+            picked = (int(idx), g)
+            break
+        if picked is None:
+            rejected.append({"targets": list(s), "constraint": "keep_out",
+                             "detail": f"the best {n_try} grasps all overlap a keep-out zone"})
+            continue
+        idx, g = picked
+        if keep_out is not None and idx != int(order[0]):
+            rejected.append({"targets": list(s), "constraint": "keep_out",
+                             "detail": "best grasp overlaps a keep-out zone; next best used"})
+        r, c = idx // q.shape[2], idx % q.shape[2]
+        grasps.append(PlannedGrasp(g, float(q[k, r, c]), float(u[k, r, c]), float(out[k, 4, r, c]), tuple(s), (r, c)))
+    return grasps, rejected
+
+
+def _decode(maps: np.ndarray, r: int, c: int, grid: OrthoGrid, sigma: float) -> Grasp:
+    cs = _smoothed_at(maps[0], r, c, sigma)
+    sn = _smoothed_at(maps[1], r, c, sigma)
+    w = float(np.clip(_smoothed_at(maps[2], r, c, sigma), MIN_WIDTH_M, MAX_WIDTH_M))
+    x, y = grid.pixel_to_pile(r, c)
+    return Grasp(float(x), float(y), float(wrap_phi(math.atan2(sn, cs) / 2.0)), w)

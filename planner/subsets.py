@@ -1,0 +1,122 @@
+"""Which target subsets to evaluate.
+
+Exhaustive: every non-empty subset of the visible logs (2^n - 1). For large piles that is too many
+network passes, so :func:`feasible_subsets` keeps only subsets a grapple could close around at
+all: every log of the subset must come within ``R = hypot(max_opening/2, rect_width/2)`` of one
+common grasp centre (R is the radius of the circle around the grasp rectangle, so this never
+drops a subset that one grasp rectangle could cover). For each log the distance map
+``d_i(p)`` (metres from pixel p to the log's mask) is computed once; a subset S fits when
+``r(S) = min_p max_{i in S} d_i(p) <= R``. The test is monotone (a superset of a subset that does
+not fit does not fit either), so a depth-first enumeration prunes whole branches. It implies the
+"adjacency graph" condition (every pair of logs within 2R of each other, hence connected).
+When more subsets fit than ``max_subsets``, all single logs are kept and the rest are ranked by
+``r(S)`` (tightest groups first).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from synth.grasp import MAX_WIDTH_M, RECT_WIDTH_M
+
+
+@dataclass(frozen=True)
+class SubsetPolicy:
+    mode: str = "auto"  # "auto": exhaustive when 2^n-1 <= max_subsets, else "fit"; "exhaustive"; "fit"
+    max_subsets: int = 127  # network passes per plan [-]
+    max_opening_m: float = MAX_WIDTH_M  # grapple's maximum opening [m]
+    rect_width_m: float = RECT_WIDTH_M  # grasp rectangle across the closing axis [m]
+    max_logs_per_subset: int | None = None  # optional cap on |S| [-]
+
+    def __post_init__(self) -> None:
+        if self.mode not in ("auto", "exhaustive", "fit"):
+            raise ValueError(f"subset mode must be 'auto', 'exhaustive' or 'fit', got {self.mode!r}")
+        if self.max_subsets < 1:
+            raise ValueError(f"max_subsets must be >= 1, got {self.max_subsets}")
+        if self.max_opening_m <= 0 or self.rect_width_m < 0:
+            raise ValueError("max_opening_m must be > 0 and rect_width_m >= 0")
+        if self.max_logs_per_subset is not None and self.max_logs_per_subset < 1:
+            raise ValueError("max_logs_per_subset must be >= 1 or None")
+
+    @property
+    def fit_radius_m(self) -> float:
+        return math.hypot(self.max_opening_m / 2, self.rect_width_m / 2)
+
+
+def all_subsets(logs: list[int], max_size: int | None = None) -> list[tuple[int, ...]]:
+    """Every non-empty subset of ``logs`` (sorted tuples), smallest first."""
+    k_max = len(logs) if max_size is None else min(max_size, len(logs))
+    return [c for k in range(1, k_max + 1) for c in itertools.combinations(sorted(logs), k)]
+
+
+def distance_maps(masks: dict[int, np.ndarray], pixel_m: float) -> dict[int, np.ndarray]:
+    """Per log: distance [m] from every pixel to the nearest pixel of its mask (float32)."""
+    from scipy.ndimage import distance_transform_edt
+
+    return {i: (distance_transform_edt(~m) * pixel_m).astype(np.float32) for i, m in masks.items()}
+
+
+def feasible_subsets(masks: dict[int, np.ndarray], pixel_m: float, policy: SubsetPolicy = SubsetPolicy(),
+                     ) -> tuple[list[tuple[int, ...]], dict]:
+    """Subsets that fit one grapple opening, capped at ``policy.max_subsets``.
+
+    Returns ``(subsets, info)``; ``info`` has ``n_fit`` (subsets that fit before the cap),
+    ``n_kept`` and ``radius_m``. Coarse grid (every 2nd pixel) for speed, then exact."""
+    logs = sorted(masks)
+    dist = distance_maps(masks, pixel_m)
+    # candidate centres on every `step`-th pixel: any point lies within step/sqrt(2) px of one, and
+    # pixel-centre distances can be half a pixel long; both are added to R (distances are
+    # 1-Lipschitz) so that no subset that fits is lost
+    step = 2 if next(iter(masks.values())).shape[0] >= 64 else 1
+    slack = pixel_m * (step / math.sqrt(2) + 0.5)
+    R = policy.fit_radius_m + slack
+    d = {i: dist[i][::step, ::step].ravel() for i in logs}
+    max_size = policy.max_logs_per_subset or len(logs)
+    found: list[tuple[float, tuple[int, ...]]] = []
+
+    def grow(subset: tuple[int, ...], running: np.ndarray, start: int) -> None:
+        for j in range(start, len(logs)):
+            i = logs[j]
+            m = np.maximum(running, d[i]) if subset else d[i]
+            r = float(m.min())
+            if r > R:
+                continue
+            s = subset + (i,)
+            found.append((r, s))
+            if len(s) < max_size:
+                grow(s, m, j + 1)
+
+    grow((), np.empty(0, np.float32), 0)
+    n_fit = len(found)
+    if n_fit > policy.max_subsets:
+        singles = [s for r, s in found if len(s) == 1]
+        rest = sorted(((r, -len(s), s) for r, s in found if len(s) > 1))
+        keep = singles + [s for _, _, s in rest[: max(0, policy.max_subsets - len(singles))]]
+    else:
+        keep = [s for _, s in found]
+    keep.sort(key=lambda s: (len(s), s))
+    return keep, {"n_fit": n_fit, "n_kept": len(keep), "radius_m": policy.fit_radius_m}
+
+
+def choose_subsets(masks: dict[int, np.ndarray], pixel_m: float, policy: SubsetPolicy = SubsetPolicy()):
+    """Apply the policy: ``(subsets, info)`` where info["selection"] is "exhaustive" or "fit".
+
+    Raises ``ValueError`` when "exhaustive" is asked for but 2^n - 1 exceeds ``max_subsets``."""
+    n = len(masks)
+    n_all = 2 ** n - 1
+    if policy.max_logs_per_subset is not None:
+        n_all = sum(math.comb(n, k) for k in range(1, min(n, policy.max_logs_per_subset) + 1))
+    if policy.mode == "exhaustive" or (policy.mode == "auto" and n_all <= policy.max_subsets):
+        if n_all > policy.max_subsets:
+            raise ValueError(
+                f"{n} logs give {n_all} target subsets, more than the budget of {policy.max_subsets}; "
+                "use subset mode 'fit' (or 'auto') to pre-select the subsets a grapple can close around, "
+                "or raise max_subsets"
+            )
+        return all_subsets(sorted(masks), policy.max_logs_per_subset), {"selection": "exhaustive", "n_possible": n_all}
+    subsets, info = feasible_subsets(masks, pixel_m, policy)
+    return subsets, {"selection": "fit", "n_possible": n_all, **info}

@@ -1,0 +1,280 @@
+import json
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import torch
+
+from planner.checkpoint import load_checkpoint, save_checkpoint
+from planner.constraints import Constraints
+from planner.errors import CheckpointError, ObservationError
+from planner.inference import Objective, Planner, plan
+from planner.model import UNetConfig, build_unet, prepare_for_inference
+from planner.subsets import SubsetPolicy, all_subsets, choose_subsets, feasible_subsets
+from synth.frames import OrthoGrid
+from planner_helpers import bar_pile, observation
+
+TINY = UNetConfig.tiny()
+
+
+def _planner(cfg=TINY, precision="fp32"):
+    torch.manual_seed(0)
+    return Planner(build_unet(cfg), cfg, precision=precision)
+
+
+class FakeNet:
+    """Stands in for the network: hand-made outputs so selection can be checked exactly."""
+
+    def __init__(self, fn):
+        self.fn = fn
+
+
+def _fixed_planner(out_fn):
+    p = _planner()
+    p.predict = lambda x: out_fn(x)
+    return p
+
+
+# -- subsets --------------------------------------------------------------------------------
+def test_all_subsets_count_and_order():
+    s = all_subsets([0, 1, 2, 3])
+    assert len(s) == 15 and len(set(s)) == 15
+    assert s[0] == (0,) and s[-1] == (0, 1, 2, 3)
+    assert len(all_subsets(list(range(7)))) == 127
+    assert all(len(t) <= 2 for t in all_subsets(list(range(5)), max_size=2))
+
+
+def test_feasible_subsets_drop_far_apart_logs_and_are_monotone():
+    size, grid = 64, OrthoGrid(64, 5.0)
+    masks = {i: np.zeros((size, size), bool) for i in range(3)}
+    masks[0][10:12, 10:40] = True
+    masks[1][20:22, 10:40] = True  # 0.7 m from log 0
+    masks[2][50:52, 10:40] = True  # ~3 m away
+    subs, info = feasible_subsets(masks, grid.pixel_m)
+    assert set(subs) == {(0,), (1,), (2,), (0, 1)}
+    assert info["n_fit"] == 4
+    # a tight opening keeps only singletons
+    subs2, _ = feasible_subsets(masks, grid.pixel_m, SubsetPolicy(mode="fit", max_opening_m=0.1, rect_width_m=0.0))
+    assert set(subs2) == {(0,), (1,), (2,)}
+
+
+def test_feasible_subsets_never_drop_what_exhaustive_finds_feasible():
+    rng = np.random.default_rng(1)
+    size, grid = 64, OrthoGrid(64, 5.0)
+    masks = {}
+    for i in range(6):
+        m = np.zeros((size, size), bool)
+        r, c = rng.integers(5, 55, 2)
+        m[r : r + 2, c : c + 8] = True
+        masks[i] = m
+    subs, _ = feasible_subsets(masks, grid.pixel_m, SubsetPolicy(mode="fit", max_subsets=10 ** 6))
+    # brute force on the full grid
+    from planner.subsets import distance_maps
+
+    d = distance_maps(masks, grid.pixel_m)
+    R = SubsetPolicy().fit_radius_m
+    for s in all_subsets(list(range(6))):
+        fits = np.max([d[i] for i in s], axis=0).min() <= R
+        if fits:
+            assert s in subs
+
+
+def test_subset_cap_keeps_singletons_and_budget():
+    inten, depth, inst, _ = bar_pile(12, 64)
+    masks = {i: inst == i + 1 for i in range(12)}
+    subs, info = choose_subsets(masks, 5.0 / 64, SubsetPolicy(max_subsets=40))
+    assert info["selection"] == "fit" and len(subs) <= 40
+    assert all((i,) in subs for i in range(12))
+    with pytest.raises(ValueError, match="budget"):
+        choose_subsets(masks, 5.0 / 64, SubsetPolicy(mode="exhaustive", max_subsets=127))
+
+
+# -- objectives -------------------------------------------------------------------------------
+def test_objectives():
+    u, b = np.array([0.5, 0.9]), np.array([1.0, 0.5])
+    np.testing.assert_allclose(Objective("f1").quality(u, 4, b), u)
+    np.testing.assert_allclose(Objective("f2").quality(u, 8, b), u * 2.0, rtol=1e-6)
+    q3 = Objective("f3").quality(u, 8, b)
+    np.testing.assert_allclose(q3, u * 2.0 * np.exp(-((b - 1.0) ** 2) / 0.25 ** 2), rtol=1e-5)
+    assert q3[1] < q3[0]  # unbalanced grasp penalised despite higher u
+    with pytest.raises(ValueError):
+        Objective("f4")
+
+
+# -- model / checkpoint -------------------------------------------------------------------------
+def test_model_sizes_and_variants():
+    from planner.model import count_parameters
+
+    assert 3.9e6 < count_parameters(build_unet(UNetConfig())) < 4.2e6  # the paper's ~4.1 M
+    m2 = build_unet(UNetConfig.tiny(in_channels=2))
+    y = m2(torch.rand(2, 2, 32, 32))
+    assert y.shape == (2, 5, 32, 32)
+    assert (y[:, 2] >= 0.30).all() and (y[:, 2] <= 1.55).all() and (y[:, :2].abs() <= 1).all()
+    late = build_unet(UNetConfig.tiny(mask_injection="decoder")).eval()
+    x = torch.rand(3, 3, 32, 32)
+    with torch.no_grad():
+        torch.testing.assert_close(late(x[:1].expand(3, -1, -1, -1).clone().copy_(
+            torch.cat([x[:1, :2].expand(3, -1, -1, -1), x[:, 2:]], 1))),
+            late.forward_shared(x[:1, :2], x[:, 2:]))
+    with pytest.raises(ValueError):
+        UNetConfig(size_px=100)  # not divisible by 16
+
+
+def test_inference_copy_matches_training_model():
+    torch.manual_seed(0)
+    m = build_unet(TINY)
+    m.train()
+    m(torch.rand(4, 3, 32, 32))  # move BatchNorm statistics away from the defaults
+    m.eval()
+    x = torch.rand(2, 3, 32, 32)
+    with torch.no_grad():
+        ref = m(x)
+        f32 = prepare_for_inference(m, "fp32")(x.contiguous(memory_format=torch.channels_last))
+        bf = prepare_for_inference(m, "bf16")(x.to(torch.bfloat16).contiguous(memory_format=torch.channels_last))
+    torch.testing.assert_close(f32, ref, atol=1e-4, rtol=1e-4)
+    assert (bf - ref).abs().max() < 0.1
+
+
+def test_checkpoint_round_trip_and_errors(tmp_path):
+    torch.manual_seed(0)
+    m = build_unet(TINY)
+    path = save_checkpoint(tmp_path / "m.safetensors", m, TINY, {"epoch": 3})
+    m2, cfg, meta = load_checkpoint(path)
+    assert cfg == TINY and meta == {"epoch": 3}
+    for k, v in m.state_dict().items():
+        torch.testing.assert_close(v, m2.state_dict()[k])
+    with pytest.raises(CheckpointError, match="does not exist"):
+        load_checkpoint(tmp_path / "nope.safetensors")
+    bad = tmp_path / "bad.safetensors"
+    bad.write_bytes(path.read_bytes()[: len(path.read_bytes()) // 2])
+    with pytest.raises(CheckpointError, match="corrupt"):
+        load_checkpoint(bad)
+    with pytest.raises(CheckpointError, match="input channels"):
+        load_checkpoint(path, in_channels=2)
+    with pytest.raises(CheckpointError, match="32 px"):
+        load_checkpoint(path, size_px=128)
+    # weights that do not fit the stored architecture
+    from planner.checkpoint import save_tensors
+
+    hdr = {"format": "loggrasp.planner.checkpoint", "format_version": "1.0",
+           "model_config": UNetConfig.tiny(base_channels=8).to_dict(), "meta": {}}
+    save_tensors(tmp_path / "mismatch.safetensors", m.state_dict(), hdr)
+    with pytest.raises(CheckpointError, match="do not fit"):
+        load_checkpoint(tmp_path / "mismatch.safetensors")
+    save_tensors(tmp_path / "v9.safetensors", m.state_dict(), {**hdr, "format_version": "9.0"})
+    with pytest.raises(CheckpointError, match="version"):
+        load_checkpoint(tmp_path / "v9.safetensors")
+
+
+# -- planning -------------------------------------------------------------------------------------
+def _peak_output(peaks):
+    """Network stand-in: for subset k (batch order) put u = peaks[k][2] at pixel peaks[k][:2]."""
+    def fn(x):
+        n = len(x)
+        out = np.zeros((n, 5, 32, 32), np.float32)
+        out[:, 0] = -1.0  # C = cos 2phi = -1 -> phi = pi/2
+        out[:, 2] = 0.8
+        out[:, 3] = -10.0
+        out[:, 4] = 1.0
+        for k in range(n):
+            r, c, u = peaks[k % len(peaks)]
+            out[k, 3, r, c] = math.log(u / (1 - u))
+        return out
+    return fn
+
+
+def test_plan_output_format_ranking_and_decoding():
+    obs = observation(3)
+    pl = _fixed_planner(_peak_output([(10, 10, 0.6), (16, 16, 0.9), (20, 12, 0.7)]))
+    p = plan(obs, pl)
+    assert p.subsets_evaluated == 7
+    d = json.loads(p.to_json())
+    assert set(d) >= {"grasps", "subsets_evaluated", "elapsed_s"}
+    g0 = d["grasps"][0]
+    assert set(g0) >= {"x_m", "y_m", "phi_rad", "width_m", "quality", "graspability", "balance", "targets"}
+    qs = [g["quality"] for g in d["grasps"]]
+    assert qs == sorted(qs, reverse=True) and len(qs) == 7
+    assert g0["quality"] == pytest.approx(0.9, abs=1e-4)
+    x, y = OrthoGrid(32, 5.0).pixel_to_pile(16, 16)
+    assert (g0["x_m"], g0["y_m"]) == pytest.approx((float(x), float(y)))
+    assert abs(abs(g0["phi_rad"]) - math.pi / 2) < 1e-6 and g0["width_m"] == pytest.approx(0.8)
+    assert len(plan(obs, pl, top_k=2).grasps) == 2
+
+
+def test_f2_prefers_more_logs():
+    obs = observation(3)
+    peaks = [(10, 10, 0.8)] * 3 + [(12, 12, 0.7)] * 4  # singletons 0.8, pairs/triple 0.7
+    pl = _fixed_planner(_peak_output(peaks))
+    assert len(plan(obs, pl, Objective("f1")).best.targets) == 1
+    assert len(plan(obs, pl, Objective("f2")).best.targets) >= 2
+
+
+def test_constraints_reach_capacity_keep_out():
+    obs = observation(3)
+    grid = OrthoGrid(32, 5.0)
+    pl = _fixed_planner(_peak_output([(16, 16, 0.9)]))
+    free = plan(obs, pl)
+    gx, gy = free.best.grasp.x_m, free.best.grasp.y_m
+    # reach: base far away, max reach excludes the peak
+    c = Constraints(crane_base_xy_m=(gx + 3.0, gy), min_reach_m=0.0, max_reach_m=2.5)
+    p = plan(obs, pl, constraints=c)
+    assert all(math.hypot(g.grasp.x_m - gx - 3.0, g.grasp.y_m - gy) <= 2.5 + 1e-9 for g in p.grasps)
+    assert any(r["constraint"] == "reach" for r in p.rejected)
+    # lift capacity from the masks: singles pass, the triple does not
+    masses = Constraints().log_masses_kg({i: int((obs.instance == i + 1).sum()) for i in range(3)}, grid.pixel_m)
+    cap = Constraints(lift_capacity_kg=2.5 * masses[0])
+    p = plan(obs, pl, constraints=cap)
+    assert p.subsets_evaluated == 6 and all(len(g.targets) <= 2 for g in p.grasps)
+    assert any(r["constraint"] == "lift_capacity" and r["targets"] == [0, 1, 2] for r in p.rejected)
+    # keep-out polygon around the best pixel: every grasp rectangle avoids it
+    zone = ((gx - 0.3, gy - 0.3), (gx + 0.3, gy - 0.3), (gx + 0.3, gy + 0.3), (gx - 0.3, gy + 0.3))
+    p = plan(obs, pl, constraints=Constraints(keep_out_zones=(zone,)))
+    from planner.constraints import polygon_raster
+
+    zr = polygon_raster(grid, np.array(zone))
+    for g in p.grasps:
+        assert not (polygon_raster(grid, g.grasp.rectangle()) & zr).any()
+    assert any(r["constraint"] == "keep_out" for r in p.rejected)
+
+
+def test_capacity_uses_pile_volumes_when_known():
+    c = Constraints()
+    fake_log = SimpleNamespace(volume_m3=lambda: 0.1)
+    m = c.log_masses_kg({0: 10}, 0.1, pile=SimpleNamespace(logs=[fake_log]))
+    assert m[0] == pytest.approx(90.0)
+
+
+def test_bad_observations_raise_clear_errors():
+    pl = _planner()
+    obs = observation(3)
+    empty = observation(3)
+    empty.instance = np.where(empty.instance < 1000, 0, empty.instance).astype(np.int16)
+    with pytest.raises(ObservationError, match="no logs"):
+        plan(empty, pl)
+    nan = observation(3)
+    nan.depth = nan.depth.copy()
+    nan.depth[3, 3] = np.nan
+    with pytest.raises(ObservationError, match="NaN"):
+        plan(nan, pl)
+    with pytest.raises(ObservationError, match="trained on 32 px"):
+        plan(observation(3, size=64), pl)
+    many = observation(8)
+    with pytest.raises(ObservationError, match="budget"):
+        plan(many, pl, subsets=SubsetPolicy(mode="exhaustive"))
+    p = plan(many, pl)  # auto: pre-selects
+    assert p.info["selection"] == "fit" and 0 < p.subsets_evaluated <= 127
+    assert plan(obs, pl).best is not None
+
+
+def test_obstacles_are_never_targets():
+    pl = _planner()
+    p = plan(observation(2, n_obstacles=2), pl)
+    assert p.subsets_evaluated == 3
+    assert all(set(g.targets) <= {0, 1} for g in p.grasps)
+
+
+def test_real_network_bf16_plan_runs():
+    p = plan(observation(3), _planner(precision="bf16"))
+    assert p.subsets_evaluated == 7 and len(p.grasps) == 7
+    assert all(0.30 <= g.grasp.width_m <= 1.55 and 0 <= g.graspability <= 1 for g in p.grasps)
