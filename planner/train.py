@@ -317,11 +317,11 @@ def train(data_dir: str | Path, out_dir: str | Path, config: TrainConfig = Train
             t_compute += time.perf_counter() - t0
             b = len(x)
             n_samples += b
-            loss_sum += float(loss) * b
+            loss_sum += float(loss.detach()) * b
             for k, v in parts.items():
                 parts_sum[k] = parts_sum.get(k, 0.0) + v * b
             if progress:
-                progress({"kind": "step", "epoch": epoch, "step": step, "loss": float(loss),
+                progress({"kind": "step", "epoch": epoch, "step": step, "loss": float(loss.detach()),
                           "samples_per_s": n_samples / max(time.perf_counter() - t_epoch, 1e-9)})
             if step % config.checkpoint_every_steps == 0:
                 _save_state(state_path, model, opt, {"epoch": epoch, "step": step}, config)

@@ -1,0 +1,108 @@
+import json
+
+import numpy as np
+import pytest
+
+from planner.augment import AugmentConfig
+from planner.data import DataConfig, ShardStream, is_validation_pile, list_shards, make_inputs, normalise_depth
+from planner.errors import CheckpointError, DataError, TrainingError
+from planner.inference import Objective, load_planner, plan
+from planner.model import UNetConfig
+from planner.train import TrainConfig, read_log, train
+from planner_helpers import make_dataset, observation
+
+
+def _cfg(**kw):
+    base = dict(model=UNetConfig.tiny(), epochs=2, batch_size=4, lr=3e-3, precision="fp32",
+                data=DataConfig(val_fraction=0.34, split_seed=1, shuffle_buffer=8), checkpoint_every_steps=2)
+    base.update(kw)
+    return TrainConfig(**base)
+
+
+def test_split_is_by_pile_and_deterministic(tmp_path):
+    make_dataset(tmp_path, n_piles=9)
+    shards, grid = list_shards(tmp_path)
+    assert grid["size_px"] == 32
+    cfg = DataConfig(val_fraction=0.34, split_seed=1)
+    # which piles each side sees (through the real stream)
+    from planner.data import load_samples, sample_pile_id
+
+    piles = {sample_pile_id(s) for sh in shards for s in load_samples(sh)}
+    val = {p for p in piles if is_validation_pile(p, 1, 0.34)}
+    assert 0 < len(val) < len(piles)
+    tr_stream = ShardStream(shards, "train", cfg, AugmentConfig.off())
+    va_stream = ShardStream(shards, "val", cfg)
+    n_tr, n_va = sum(1 for _ in tr_stream), sum(1 for _ in va_stream)
+    assert n_tr == 4 * (len(piles) - len(val)) and n_va == 4 * len(val)
+    # deterministic and seed dependent
+    assert [is_validation_pile(p, 1, 0.34) for p in sorted(piles)] == [is_validation_pile(p, 1, 0.34) for p in sorted(piles)]
+    assert any(is_validation_pile(f"pile_{i}", 1) != is_validation_pile(f"pile_{i}", 2) for i in range(50))
+    # about 20 % by default over many piles
+    frac = np.mean([is_validation_pile(f"p{i}") for i in range(4000)])
+    assert 0.18 < frac < 0.22
+
+
+def test_depth_normalisation():
+    d = np.full((10, 10), 4.9, np.float32)  # ground 0.1 m above datum
+    d[2:4] = 4.7  # a log 0.2 m above ground
+    h = normalise_depth(d)
+    assert h[0, 0] == pytest.approx(0.0) and h[2, 0] == pytest.approx(0.2, abs=1e-5)
+    x = make_inputs(np.zeros((10, 10)), d, np.ones((2, 10, 10), bool))
+    assert x.shape == (2, 3, 10, 10) and x[0, 2].all()
+    assert make_inputs(np.zeros((10, 10)), d, np.ones((10, 10)), in_channels=2).shape == (1, 2, 10, 10)
+
+
+def test_missing_data_set_is_a_clear_error(tmp_path):
+    with pytest.raises(DataError, match="manifest"):
+        train(tmp_path / "none", tmp_path / "out", _cfg())
+
+
+def test_train_save_load_plan_end_to_end_and_resume(tmp_path):
+    data, out = tmp_path / "data", tmp_path / "run"
+    data.mkdir()
+    make_dataset(data, n_piles=6)
+    seen = []
+    res = train(data, out, _cfg(), progress=seen.append)
+    assert res.model_path.exists() and res.curve_path.stat().st_size > 1000
+    log = read_log(res.log_path)
+    assert [e["epoch"] for e in log["epochs"]] == [0, 1]
+    assert all(np.isfinite(e["train_loss"]) for e in log["epochs"])
+    assert any(s["kind"] == "epoch" for s in seen) and any(s["kind"] == "step" for s in seen)
+    # load and plan on an observation of the same size
+    pl = load_planner(res.model_path, device="cpu", precision="fp32")
+    p = plan(observation(3), pl, Objective("f3"))
+    assert p.subsets_evaluated == 7 and p.grasps[0].quality >= p.grasps[-1].quality
+    # resume: more epochs with an otherwise equal config is refused (different config) ...
+    with pytest.raises(TrainingError, match="different configuration"):
+        train(data, out, _cfg(epochs=3))
+    # ... while the same config resumes and has nothing left to do
+    res2 = train(data, out, _cfg())
+    assert res2.resumed_from == {"epoch": 2, "step": 0} and len(res2.history) == 2
+
+
+def test_resume_after_kill_mid_epoch(tmp_path, monkeypatch):
+    data, out = tmp_path / "data", tmp_path / "run"
+    data.mkdir()
+    make_dataset(data, n_piles=6)
+    import planner.train as T
+
+    calls = {"n": 0}
+    real = T.grasp_loss
+
+    def dying_loss(*a, **k):
+        calls["n"] += 1
+        if calls["n"] == 5:  # during epoch 0's third step (after the step-2 checkpoint)
+            raise KeyboardInterrupt
+        return real(*a, **k)
+
+    monkeypatch.setattr(T, "grasp_loss", dying_loss)
+    with pytest.raises(KeyboardInterrupt):
+        train(data, out, _cfg(epochs=1))
+    monkeypatch.setattr(T, "grasp_loss", real)
+    res = train(data, out, _cfg(epochs=1))
+    assert res.resumed_from == {"epoch": 0, "step": 2}
+    assert res.history[0]["resumed_at_step"] == 2
+    # a damaged state file is a clear error
+    res.state_path.write_bytes(b"garbage")
+    with pytest.raises(CheckpointError):
+        train(data, out, _cfg(epochs=1))
