@@ -33,6 +33,7 @@ from __future__ import annotations
 import importlib
 import json
 import math
+import secrets
 import threading
 import time
 from dataclasses import asdict, dataclass, field
@@ -325,7 +326,7 @@ class CraneController:
         if not callable(self.executor):
             raise ValueError(f"executor must be callable (GraspCommand -> Outcome), got {self.executor!r}")
         self._clock = clock
-        self._encoder = Encoder()
+        self._encoder = Encoder(first_counter=secrets.randbits(8))  # a restart is a new counter session
         self._counters = CounterMonitor(self.config.counter_max_delta)
         self._lock = threading.RLock()
         self._state = ControllerState.IDLE

@@ -206,6 +206,7 @@ class CraneLink(abc.ABC):
         self._status_replies: dict[int, ControllerStatus] = {}
         self._latest_status: ControllerStatus | None = None
         self._last_heartbeat_mono: float | None = None
+        self._last_rx_mono: float | None = None
         self._last_crane_state: ControllerState | None = None
         self._request_id = secrets.randbits(31) + 1
         self._failure: BaseException | None = None
@@ -464,6 +465,10 @@ class CraneLink(abc.ABC):
         from field.link.codec import CounterCheck, CraneHeartbeat, decode
 
         self.stats.frames_received += 1
+        now = time.monotonic()
+        last, self._last_rx_mono = self._last_rx_mono, now
+        if last is None or now - last > self.config.heartbeat_timeout_s:
+            self._counters.reset()  # the controller was silent: a new session, re-synchronise
         try:
             d = decode(kind, data)
         except ProtocolError as exc:
@@ -499,11 +504,13 @@ class CraneLink(abc.ABC):
 
     def _mark_alive(self) -> None:
         """Backends with their own liveness signal (Zenoh liveliness) call this."""
+        self._counters.reset()  # a (re)appearing controller starts a new counter session
         with self._cond:
             self._last_heartbeat_mono = time.monotonic()
             self._cond.notify_all()
 
     def _mark_lost(self) -> None:
+        self._counters.reset()
         with self._cond:
             self._last_heartbeat_mono = None
             self._cond.notify_all()

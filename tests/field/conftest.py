@@ -259,3 +259,28 @@ def rig(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Rig]:
     finally:
         for c in r.cleanup:
             c()
+
+
+@pytest.fixture
+def port() -> int:
+    """A free TCP port on 127.0.0.1."""
+    return free_port()
+
+
+@pytest.fixture
+def controller_process(tmp_path: Path) -> Iterator[Callable[..., ControllerProcess]]:
+    """``controller_process(url, config={...}, executor={...})`` -> a started controller process
+    (rig defaults; ``executor["log_path"]`` defaults to ``tmp_path/executed.jsonl``); stopped
+    at teardown."""
+    made: list[ControllerProcess] = []
+
+    def start(url: str, *, config: dict | None = None, executor: dict | None = None) -> ControllerProcess:
+        ex = {**RIG_EXECUTOR, "log_path": str(tmp_path / "executed.jsonl"), **(executor or {})}
+        p = ControllerProcess(url, {**RIG_CONFIG, **(config or {})}, ex).start()
+        made.append(p)
+        return p
+
+    yield start
+    for p in made:
+        p.kill()
+        p.stop()

@@ -1,0 +1,141 @@
+"""Zenoh-specific behaviour: peer vanishing and returning, user/password auth, access control,
+raw payload fuzzing through the queryable. Sessions use tcp/127.0.0.1 only, no scouting."""
+
+from __future__ import annotations
+
+import json
+import random
+import time
+
+import pytest
+
+from field.controller import read_execution_log
+from field.errors import CommandRejected, LinkError
+from field.link import ControllerState, RejectReason, open_link
+from field.link.base import LinkConfig
+
+FAST = LinkConfig(heartbeat_timeout_s=0.5, connect_timeout_s=10.0)
+
+
+def test_controller_vanishes_and_returns(port, controller_process, tmp_path, make_cmd):
+    url = f"zenoh://127.0.0.1:{port}/crane-v"
+    cfg = {"journal_path": str(tmp_path / "journal.json")}
+    p = controller_process(url, config=cfg)
+    with open_link(url, FAST) as link:
+        first = make_cmd(link.new_command_id())
+        link.send_grasp(first)
+        link.wait_outcome(first.command_id, 3.0)
+        p.kill()
+        t = time.monotonic()
+        while link.controller_alive() and time.monotonic() - t < 3.0:
+            time.sleep(0.01)
+        assert not link.controller_alive()  # liveliness token gone
+        assert time.monotonic() - t < 1.5
+        with pytest.raises(LinkError, match="NOT sent"):
+            link.send_grasp(make_cmd(link.new_command_id()), timeout_s=0.3)
+        controller_process(url, config=cfg)  # returns, same journal
+        assert link.wait_for_controller(10.0)
+        again = make_cmd(link.new_command_id())
+        assert link.send_grasp(again, timeout_s=2.0).accepted
+        link.wait_outcome(again.command_id, 3.0)
+        st = link.status()
+        assert st.state is ControllerState.DONE and st.last_outcome.command_id == again.command_id
+    # another laptop replaying the first id: the restarted controller remembers it
+    with open_link(url, FAST) as other:
+        from dataclasses import replace
+
+        with pytest.raises(CommandRejected) as ei:
+            other.send_grasp(replace(first, plan_timestamp_ms=int(time.time() * 1000)), timeout_s=2.0)
+        assert ei.value.reason is RejectReason.DUPLICATE_ID
+    assert read_execution_log(tmp_path / "executed.jsonl") == [first.command_id, again.command_id]
+
+
+def _write(path, doc) -> str:
+    path.write_text(json.dumps(doc, indent=1))  # JSON is JSON5
+    return str(path)
+
+
+@pytest.fixture
+def auth_files(tmp_path):
+    users = tmp_path / "users.txt"
+    users.write_text("operator:op-secret\nobserver:obs-secret\ncrane:crane-secret\n")
+    allowed = ["put", "delete", "declare_subscriber", "query", "declare_queryable", "reply",
+               "liveliness_token", "declare_liveliness_subscriber", "liveliness_query"]
+    controller = _write(tmp_path / "controller.json5", {
+        "transport": {"auth": {"usrpwd": {"user": "crane", "password": "crane-secret", "dictionary_file": str(users)}}},
+        "access_control": {
+            "enabled": True,
+            "default_permission": "deny",
+            "rules": [{"id": "link", "permission": "allow", "flows": ["ingress", "egress"], "messages": allowed,
+                       "key_exprs": ["loggrasp/**"]}],
+            "subjects": [{"id": "operators", "usernames": ["operator"]}],
+            "policies": [{"rules": ["link"], "subjects": ["operators"]}],
+        },
+    })
+
+    def laptop(user, password):
+        return _write(tmp_path / f"laptop-{user}.json5",
+                      {"transport": {"auth": {"usrpwd": {"user": user, "password": password}}}})
+
+    return controller, laptop
+
+
+def test_auth_and_access_control(port, controller_process, tmp_path, auth_files, make_cmd):
+    controller_cfg, laptop = auth_files
+    base = f"zenoh://127.0.0.1:{port}/crane-a"
+    controller_process(f"{base}?config={controller_cfg}")
+    short = LinkConfig(connect_timeout_s=1.0)
+    # no credentials: the session cannot even connect
+    with pytest.raises(LinkError):
+        open_link(base, short)
+    # wrong password
+    with pytest.raises(LinkError):
+        open_link(f"{base}?config={laptop('operator', 'guess')}", short)
+    # authenticated, but not allowed by the access-control policy: sees no controller
+    with pytest.raises(LinkError, match="controller"):
+        open_link(f"{base}?config={laptop('observer', 'obs-secret')}", short)
+    log = tmp_path / "executed.jsonl"
+    assert read_execution_log(log) == []
+    # the operator commands the crane
+    with open_link(f"{base}?config={laptop('operator', 'op-secret')}", FAST) as link:
+        cmd = make_cmd(link.new_command_id())
+        assert link.send_grasp(cmd, timeout_s=2.0).accepted
+        assert link.wait_outcome(cmd.command_id, 3.0).success
+    assert read_execution_log(log) == [cmd.command_id]
+
+
+def test_raw_payloads_through_the_queryable(port, controller_process, tmp_path, make_cmd):
+    """Arbitrary bytes sent straight to the command queryable: answered as rejections (or not at
+    all), never executed, and the controller keeps serving."""
+    import zenoh
+
+    from field.link.codec import decode
+    from field.link.zenoh_backend import ZenohKeys
+
+    url = f"zenoh://127.0.0.1:{port}/crane-f"
+    controller_process(url)
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"client"')
+    conf.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("scouting/gossip/enabled", "false")
+    rng = random.Random(7)
+    payloads = [b"", b"\x00", bytes(64), bytes(range(64))] + [rng.randbytes(rng.choice([8, 63, 64, 65, 200])) for _ in range(20)]
+    session = zenoh.open(conf)
+    try:
+        keys = ZenohKeys("loggrasp/crane-f")
+        time.sleep(0.3)
+        answers = []
+        for p in payloads:
+            for reply in session.get(keys.cmd, payload=p, timeout=2.0):
+                if reply.ok is not None:
+                    answers.append(decode("Ack", reply.ok.payload.to_bytes()).message)
+        assert answers and all(not a.accepted for a in answers)
+        assert {a.reason for a in answers} <= {RejectReason.CRC, RejectReason.MALFORMED}
+    finally:
+        session.close()
+    with open_link(url, FAST) as link:
+        cmd = make_cmd(link.new_command_id())
+        assert link.send_grasp(cmd, timeout_s=2.0).accepted
+        link.wait_outcome(cmd.command_id, 3.0)
+    assert read_execution_log(tmp_path / "executed.jsonl") == [cmd.command_id]
