@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import typer
 
+from planner.cli import plan_command, train_command
 from synth.cli import app as synth_app
 
 app = typer.Typer(
@@ -12,6 +13,8 @@ app = typer.Typer(
     no_args_is_help=True, pretty_exceptions_enable=False,
 )
 app.add_typer(synth_app, name="synth")
+app.command("train")(train_command)
+app.command("plan")(plan_command)
 
 
 @app.command("demo")

@@ -79,3 +79,52 @@ def render(
     except (SynthError, ValueError) as exc:
         fail(str(exc))
     typer.echo(f"rendered {spec.n_logs} logs to {out_dir}")
+
+
+@app.command("dataset")
+def dataset(
+    piles: int = typer.Option(..., "--piles", help="Number of piles."),
+    out: Path = typer.Option(..., "--out", help="Data set folder (manifest.json + shards)."),
+    logs: int = typer.Option(4, "--logs", help="Logs per pile (the paper: 4)."),
+    obstacles_fraction: float = typer.Option(0.33, "--obstacles-fraction", help="Share of piles with obstacles."),
+    seed: int = typer.Option(0, "--seed"),
+    workers: int = typer.Option(0, "--workers", help="Processes (0 = all cores) or Dask workers."),
+    engine: str = typer.Option("local", "--engine", help="local (process pool) or dask."),
+    address: str = typer.Option(None, "--address", help="Dask scheduler address (tcp://host:port); "
+                                                        "none = a local cluster."),
+    size: int = typer.Option(128, "--size", help="Render size [px]."),
+    renders: int = typer.Option(3, "--renders", help="Renders per scene."),
+    trial: str = typer.Option("fast", "--trial", help="Trial settings preset: fast or careful."),
+    max_trials_per_subset: int = typer.Option(16, "--max-trials-per-subset"),
+    piles_dir: Path = typer.Option(None, "--piles-dir", help="Use the piles of a `synth piles` job."),
+) -> None:
+    """Try rule-based candidate grasps in physics (Algorithm 1) and write the grasp-map data set.
+
+    Example: loggrasp synth dataset --piles 604 --logs 4 --obstacles-fraction 0.33 --out data/
+    Re-running resumes: finished shards are kept, partial ones redone. With --engine dask
+    --address tcp://HOST:8786 the same job runs on a Dask cluster.
+    """
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from synth.dataset import build_dataset
+    from synth.errors import SynthError
+
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[info]}"),
+                  TimeElapsedColumn()) as bar:
+        task = bar.add_task("piles", total=None, info="")
+
+        def progress(p) -> None:
+            bar.update(task, total=p.chunks_total, completed=p.chunks_done,
+                       info=f"{p.samples} samples, {p.trials} trials, {p.trials_per_s:.1f} trials/s")
+
+        try:
+            manifest = build_dataset(out, n_piles=piles, n_logs=logs, obstacles_fraction=obstacles_fraction,
+                                     seed=seed, workers=workers, engine=engine, address=address, size_px=size,
+                                     n_renders=renders, trial_config=trial,
+                                     max_trials_per_subset=max_trials_per_subset, piles_dir=piles_dir,
+                                     progress=progress)
+        except (SynthError, ValueError) as exc:
+            fail(str(exc))
+    import json
+
+    typer.echo(json.dumps(manifest.summary, indent=1))

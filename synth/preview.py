@@ -58,3 +58,39 @@ def write_png(path: str | Path, bgr: np.ndarray) -> Path:
         raise OSError(f"could not encode {path}")
     atomic_write_bytes(Path(path), data.tobytes())
     return Path(path)
+
+
+def draw_grasps(obs: OrthoObservation, grasps, scale: int = 4, render: int = 0, labels=None) -> np.ndarray:
+    """BGR picture of the render with the target logs brightened and grasp rectangles drawn.
+
+    ``grasps``: sequence of ``(Grasp, targets)``; the first is drawn thick (the chosen one).
+    ``labels``: optional text per grasp (e.g. its quality)."""
+    import cv2
+
+    from synth.grasp import RECT_WIDTH_M
+
+    img = preview_image(obs, scale=scale, render=render)
+    n = obs.depth.shape[0]
+    size = n * scale
+    left = img[:, :size].copy()
+    inst = cv2.resize(obs.instance.astype(np.int32), (size, size), interpolation=cv2.INTER_NEAREST)
+    grid = obs.grid
+    for k, (grasp, targets) in reversed(list(enumerate(grasps))):
+        if k == 0 and targets:
+            m = np.isin(inst, [t + 1 for t in targets])
+            left[m] = (0.5 * left[m] + 0.5 * 255).astype(np.uint8)
+        corners = grasp.rectangle(RECT_WIDTH_M)
+        r, c = grid.pile_to_pixel(corners[:, 0], corners[:, 1])
+        pts = np.stack([(c + 0.5) * scale, (r + 0.5) * scale], axis=1).astype(np.int32)
+        colour = (0, 255, 255) if k == 0 else (200, 200, 0)
+        cv2.polylines(left, [pts], True, (0, 0, 0), 5 if k == 0 else 3)
+        cv2.polylines(left, [pts], True, colour, 3 if k == 0 else 1)
+        # claw tips: the two short sides
+        for a, b in ((0, 3), (1, 2)):
+            cv2.line(left, tuple(pts[a]), tuple(pts[b]), (0, 0, 255) if k == 0 else colour, 4 if k == 0 else 2)
+        if labels is not None:
+            cx, cy = pts.mean(axis=0).astype(int)
+            cv2.putText(left, str(labels[k]), (cx + 8, cy - 8), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 3)
+            cv2.putText(left, str(labels[k]), (cx + 8, cy - 8), cv2.FONT_HERSHEY_SIMPLEX, 0.5, colour, 1)
+    img[:, :size] = left
+    return img

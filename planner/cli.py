@@ -1,0 +1,141 @@
+"""``loggrasp train`` and ``loggrasp plan``: thin commands over :mod:`planner`."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import typer
+
+from synth.cli import fail
+
+#: The trained default model shipped with loggrasp (safetensors + config in its header).
+DEFAULT_MODEL = Path(__file__).resolve().parent / "weights" / "default.safetensors"
+
+
+def train_command(
+    data: Path = typer.Option(..., "--data", help="Data set folder (from `loggrasp synth dataset`)."),
+    out: Path = typer.Option(..., "--out", help="Run folder: checkpoints, log, training curve."),
+    epochs: int = typer.Option(50, "--epochs"),
+    batch_size: int = typer.Option(16, "--batch-size"),
+    lr: float = typer.Option(1e-3, "--lr"),
+    base_channels: int = typer.Option(32, "--base-channels", help="U-Net width (32 ~ 4.1M parameters)."),
+    no_depth: bool = typer.Option(False, "--no-depth", help="The paper's ablation: inputs (I, M_T) only."),
+    seed: int = typer.Option(0, "--seed"),
+    device: str = typer.Option("auto", "--device", help="auto, cpu or cuda."),
+    precision: str = typer.Option("bf16", "--precision", help="bf16 (autocast) or fp32."),
+    max_steps_per_epoch: int = typer.Option(None, "--max-steps-per-epoch", help="Cap steps per epoch (quick runs)."),
+) -> None:
+    """Train the target-conditioned U-Net; re-running the same command resumes from the last checkpoint.
+
+    Example: loggrasp train --data data/ --out runs/r1 --epochs 50
+    """
+    from dataclasses import replace
+
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from planner.data import DataConfig
+    from planner.errors import PlannerError
+    from planner.model import UNetConfig
+    from planner.train import TrainConfig, train
+    from synth.errors import SynthError
+
+    try:
+        in_ch = 2 if no_depth else 3
+        cfg = TrainConfig(model=replace(UNetConfig(), base_channels=base_channels, in_channels=in_ch),
+                          data=replace(DataConfig(), in_channels=in_ch), epochs=epochs, batch_size=batch_size,
+                          lr=lr, seed=seed, device=device, precision=precision,
+                          max_steps_per_epoch=max_steps_per_epoch)
+    except (ValueError, TypeError) as exc:
+        fail(str(exc))
+    with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.fields[info]}"),
+                  TimeElapsedColumn()) as bar:
+        task = bar.add_task("training", total=epochs, info="")
+
+        def progress(ev: dict) -> None:
+            if ev.get("kind") == "epoch":
+                bar.update(task, completed=ev.get("epoch", 0) + 1,
+                           info=f"train {ev.get('train_loss', float('nan')):.4f} val {ev.get('val_loss', float('nan')):.4f}")
+            else:
+                bar.update(task, info=f"step {ev.get('step')} loss {ev.get('loss', float('nan')):.4f} "
+                                      f"{ev.get('samples_per_s', 0):.1f} samples/s")
+
+        try:
+            result = train(data, out, cfg, progress=progress)
+        except (PlannerError, SynthError, ValueError) as exc:
+            fail(str(exc))
+    typer.echo(f"best checkpoint: {result.model_path}\ntraining curve: {result.curve_path}")
+
+
+def load_observation(path: Path, size_px: int):
+    """An observation from a pile folder (its ortho.npz when the size fits, else re-rendered) or a
+    pile.json (rendered). Returns (observation, pile or None)."""
+    from synth.pile import read_pile
+    from synth.render import OrthoObservation, OrthoRenderConfig, render_ortho
+    from synth.world import World
+
+    folder = path if path.is_dir() else path.parent
+    pile = None
+    if (folder / "pile.json").exists() or path.suffix == ".json":
+        pile = read_pile(path)
+    npz = folder / "ortho.npz"
+    if npz.exists():
+        obs = OrthoObservation.load(npz)
+        if obs.depth.shape[0] == size_px:
+            return obs, pile
+    if pile is None:
+        raise FileNotFoundError(f"{path}: neither a pile.json nor an ortho.npz of {size_px} px")
+    with World(pile) as world:
+        return render_ortho(world, OrthoRenderConfig(size_px=size_px, n_renders=1), seed=pile.seed or 0), pile
+
+
+def plan_command(
+    pile: Path = typer.Argument(..., help="A pile folder (pile.json and/or ortho.npz) or a pile.json."),
+    model: Path = typer.Option(None, "--model", help="Checkpoint (.safetensors); default: the shipped model."),
+    objective: str = typer.Option("f1", "--objective", help="f1 (graspability), f2 (+ more logs), f3 (+ balance)."),
+    top: int = typer.Option(5, "--top", help="How many subsets' best grasps to list."),
+    as_json: bool = typer.Option(False, "--json", help="Print the plan as JSON."),
+    png: Path = typer.Option(None, "--png", help="Draw the chosen grasp and targets over the render."),
+    max_subsets: int = typer.Option(127, "--max-subsets", help="Network passes budget; larger piles are pruned."),
+) -> None:
+    """Plan the best multi-log grasp on a pile: every target subset scored with Q = f(U, tau, B).
+
+    Example: loggrasp plan piles/pile_00000 --objective f3 --json
+    """
+    from planner.errors import PlannerError
+    from planner.inference import Objective, load_planner, plan
+    from planner.subsets import SubsetPolicy
+    from synth.errors import SynthError
+
+    path = model or DEFAULT_MODEL
+    try:
+        planner = load_planner(path)
+        obs, spec = load_observation(pile, planner.config.size_px)
+        result = plan(obs, planner, Objective(kind=objective), top_k=top,
+                      subsets=SubsetPolicy(max_subsets=max_subsets), pile=spec)
+    except (PlannerError, SynthError, ValueError, FileNotFoundError) as exc:
+        fail(str(exc))
+    if png is not None:
+        from synth.preview import draw_grasps, write_png
+
+        write_png(png, draw_grasps(obs, [(g.grasp, g.targets) for g in result.grasps],
+                                   labels=[f"{g.quality:.2f}" for g in result.grasps]))
+    if as_json:
+        d = result.to_dict()
+        typer.echo(json.dumps({k: d[k] for k in ("grasps", "subsets_evaluated", "elapsed_s")}, indent=1))
+        return
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=f"{result.subsets_evaluated} subsets in {result.elapsed_s:.2f} s, objective {objective}")
+    for col in ("rank", "targets", "x m", "y m", "phi deg", "width m", "q", "u", "b"):
+        table.add_column(col, justify="right")
+    import math
+
+    for i, g in enumerate(result.grasps):
+        table.add_row(str(i + 1), ",".join(map(str, g.targets)), f"{g.grasp.x_m:.2f}", f"{g.grasp.y_m:.2f}",
+                      f"{math.degrees(g.grasp.phi_rad):.1f}", f"{g.grasp.width_m:.2f}", f"{g.quality:.3f}",
+                      f"{g.graspability:.3f}", f"{g.balance:.3f}")
+    Console().print(table)
+    for r in result.rejected:
+        typer.echo(f"rejected {r['targets']}: {r['constraint']} ({r['detail']})")
