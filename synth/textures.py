@@ -270,26 +270,46 @@ def texture_file(kind: str, seed: int, size_px: int, m_per_px: float | None = No
     return str(path)
 
 
+def texture_set(config: TextureConfig) -> list[str]:
+    """Every texture file a world can use under ``config``, in a fixed order (generated if needed)."""
+    cfg = config
+    paths = []
+    for k in range(cfg.variants):
+        s = cfg.seed * cfg.variants + k
+        paths.append(texture_file("ground", s, cfg.ground_px, cfg.ground_uv_m / cfg.ground_px))
+        paths.append(texture_file("bark", s, cfg.bark_px))
+        paths.append(texture_file("stump", s, cfg.rock_px))
+        paths.append(texture_file("rock", s, cfg.rock_px))
+    return paths
+
+
 def apply_textures(world: "World", config: TextureConfig | None = None) -> dict[int, int]:
     """Texture every body of ``world`` (terrain, logs, stumps, rocks) in its own client.
 
     The body colour is set to white so the texture shows unmodified, and the specular colour to
-    ``config.specular``. Log ``i`` gets bark variant ``(seed + i) % variants``; the soil texture
-    is variant ``terrain.seed % variants``. Returns ``{body_id: texture_id}``.
+    ``config.specular``. Log ``i`` gets bark variant ``(seed + i) % variants``, obstacle ``j``
+    stump/rock variant ``(seed + j) % variants``; the soil is variant ``terrain.seed % variants``.
+    Returns ``{body_id: texture_id}``.
+
+    The whole :func:`texture_set` is loaded, always in the same order: after
+    ``resetSimulation`` pybullet restarts texture ids while the EGL plugin keeps its old
+    textures, so a rebuilt scene only gets the right images if id k always names the same file
+    (measured; ``tests/synth/test_stereo.py`` checks rebuilt scenes against fresh ones).
+    pybullet never frees texture memory either (see ``StereoRenderer``'s ``max_scenes``).
     """
     cfg = config or TextureConfig()
     c = world.client
-    loaded: dict[str, int] = {}
+    ids: dict[str, int] = {}
+    for path in texture_set(cfg):
+        tid = c.loadTexture(path)
+        if tid < 0:
+            from synth.errors import RenderError
 
-    def tex(kind: str, seed: int, size: int, m_per_px: float | None = None) -> int:
-        path = texture_file(kind, int(seed), int(size), m_per_px)
-        if path not in loaded:
-            loaded[path] = c.loadTexture(path)
-            if loaded[path] < 0:
-                from synth.errors import RenderError
+            raise RenderError(f"pybullet could not load the texture {path}; delete the file to regenerate it")
+        ids[path] = tid
 
-                raise RenderError(f"pybullet could not load the texture {path}; delete the file to regenerate it")
-        return loaded[path]
+    def tex(kind: str, variant: int, size: int, m_per_px: float | None = None) -> int:
+        return ids[texture_file(kind, cfg.seed * cfg.variants + variant % cfg.variants, size, m_per_px)]
 
     out: dict[int, int] = {}
     spec = [cfg.specular] * 3
@@ -299,16 +319,10 @@ def apply_textures(world: "World", config: TextureConfig | None = None) -> dict[
         out[body] = tid
 
     t = world.pile.terrain
-    put(world.terrain_id, tex("ground", cfg.seed * cfg.variants + t.seed % cfg.variants, cfg.ground_px,
-                              cfg.ground_uv_m / cfg.ground_px))
+    put(world.terrain_id, tex("ground", t.seed, cfg.ground_px, cfg.ground_uv_m / cfg.ground_px))
     for i, body in enumerate(world.log_ids):
-        put(body, tex("bark", (cfg.seed + i) % cfg.variants + cfg.seed * cfg.variants, cfg.bark_px))
+        put(body, tex("bark", cfg.seed + i, cfg.bark_px))
     n_stumps = len(world.pile.stumps)
     for j, body in enumerate(world.obstacle_ids):
-        kind = "stump" if j < n_stumps else "rock"
-        put(body, tex(kind, (cfg.seed + j) % cfg.variants + cfg.seed * cfg.variants, cfg.rock_px))
+        put(body, tex("stump" if j < n_stumps else "rock", cfg.seed + j, cfg.rock_px))
     return out
-
-
-def texture_config_dict(config: TextureConfig) -> dict:
-    return asdict(config)
