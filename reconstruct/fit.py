@@ -40,8 +40,9 @@ Terrain, obstacles
 Points not explained by a log (farther than ``log_clearance_m`` from every fitted log surface)
 are ground or obstacles. The ground is the grey-scale *opening* of the per-cell lowest points
 (window ``ground_window_m``, wider than the obstacles) followed by the median of the points near
-that surface, on the :class:`TerrainSpec` grid; holes are filled (scipy ``griddata`` linear inside the
-covered area, nearest sample outside). Points more than ``obstacle_min_height_m`` above the ground are clustered with
+that surface, on the :class:`TerrainSpec` grid; holes are filled (OpenCV ``inpaint``, Telea);
+the unseen ground under a log is lowered to the log's underside where needed. Points more than
+``obstacle_min_height_m`` above the ground are clustered with
 open3d's DBSCAN; a cluster with a flat, circular top is a stump (:class:`StumpSpec`, no roots:
 they are not visible), any other a rock (:class:`RockSpec`, the convex hull of its points
 extended down into the ground).
@@ -86,10 +87,12 @@ class FitConfig:
     loss_scale_m: float = 0.01  # soft-L1 scale of the 3-D fit [m]
     gnss_sigma_m: float = 0.03  # prior sigma tying the fitted axis to the GNSS points [m]
     fit_taper: bool = True  # fit a linear radius change along the log
-    taper_min_m: float = 0.012  # smaller butt-top diameter differences give a cylinder [m]
+    taper_min_m: float = 0.02  # smaller butt-top diameter differences give a cylinder [m]
+    taper_min_coverage: float = 0.7  # a taper needs scan points over this share of the length [-]
     min_points: int = 60  # fewer inlier points than this: the log is not in the scan [-]
-    max_points_per_log: int = 20000  # random subsample for the 3-D fit [-]
+    max_points_per_log: int = 6000  # random subsample for the 3-D fit [-]
     log_clearance_m: float = 0.04  # points this close to a fitted log surface are log [m]
+    footprint_margin_m: float = 0.03  # ground points are this far outside log footprints [m]
     terrain_resolution: int = 64  # heightfield samples per side [-]
     ground_window_m: float = 1.0  # opening window; wider than any obstacle [m]
     ground_band_m: float = 0.06  # points within this above the opened surface are ground [m]
@@ -424,7 +427,21 @@ def fit_log(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = 
     tb = float((b - centre) @ u)
     r_a = float(x[4] + x[5] * ta)
     r_b = float(x[4] + x[5] * tb)
-    if not cfg.fit_taper:
+    taper_sig = 0.0
+    if cfg.fit_taper:
+        # keep the taper only when it is significant (3 standard errors): noise over a partly
+        # seen log otherwise extrapolates to a false taper
+        J = sol.jac[: len(sel)]
+        sigma = 1.4826 * float(np.median(np.abs(res - np.median(res))))
+        try:
+            cov = np.linalg.inv(J.T @ J) * sigma ** 2
+            se_k = math.sqrt(max(cov[5, 5], 0.0))
+        except np.linalg.LinAlgError:
+            se_k = math.inf
+        taper_sig = abs(x[5]) / se_k if se_k > 0 else math.inf
+        if taper_sig < 3.0 or coverage < cfg.taper_min_coverage:
+            r_a = r_b = float(x[4] + x[5] * np.mean(tt_sel))
+    else:
         r_a = r_b = float(x[4])
     proj_a, proj_b = centre + ta * u, centre + tb * u
     res_a, res_b = float(np.linalg.norm(a - proj_a)), float(np.linalg.norm(b - proj_b))
@@ -438,7 +455,7 @@ def fit_log(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = 
     return {
         "centre": centre, "axis": u, "ends": ends, "radius_a_m": max(r_a, cfg.min_radius_m),
         "radius_b_m": max(r_b, cfg.min_radius_m), "n_points": int(sel.size), "rms_m": rms,
-        "coverage": coverage, "residual_a_m": res_a, "residual_b_m": res_b, "inliers": sel,
+        "coverage": coverage, "taper_significance": taper_sig, "residual_a_m": res_a, "residual_b_m": res_b, "inliers": sel,
     }
 
 
@@ -522,19 +539,13 @@ def fit_terrain(ground_candidates: np.ndarray, extent_m: float, cfg: FitConfig |
         heights = opened
     else:
         heights = _fill(med, have_g)
-        # holes: linear interpolation between the cells with ground (scipy griddata); the
-        # nearest-cell fill above stays outside their convex hull
-        if (~have_g).any() and have_g.sum() >= 3:
-            from scipy.interpolate import griddata
+        # holes: OpenCV inpainting (Telea, float32) from the cells with ground, smoother than the
+        # nearest-cell fill it starts from
+        if (~have_g).any():
+            import cv2
 
-            yy, xx = np.nonzero(have_g)
-            hy, hx = np.nonzero(~have_g)
-            try:
-                lin = griddata(np.column_stack([yy, xx]), med[yy, xx], (hy, hx), method="linear")
-                ok = np.isfinite(lin)
-                heights[hy[ok], hx[ok]] = lin[ok]
-            except Exception:  # qhull fails on collinear cells: keep the nearest fill
-                pass
+            inp = cv2.inpaint(heights.astype(np.float32), (~have_g).astype(np.uint8), 3, cv2.INPAINT_TELEA)
+            heights = np.where(have_g, heights, inp.astype(np.float64))
     heights = ndimage.median_filter(heights, size=3, mode="nearest")
     terrain = TerrainSpec(extent_m=extent_m, resolution=n, amplitude_m=0.0,
                           heights_m=tuple(tuple(float(v) for v in row) for row in heights), colour=colour)
@@ -719,6 +730,47 @@ def _owners(P: np.ndarray, logs: Sequence[LogSpec], band_m: float) -> np.ndarray
     return owner
 
 
+def _footprint_distance(xy: np.ndarray, logs: Sequence[LogSpec]) -> np.ndarray:
+    """Horizontal distance [m] of points outside the nearest log's top-view footprint
+    (negative inside)."""
+    best = np.full(len(xy), np.inf)
+    for log in logs:
+        p0, p1 = (e[:2] for e in log.endpoints_m())
+        d = p1 - p0
+        L2 = max(float(d @ d), 1e-12)
+        t = np.clip((xy - p0) @ d / L2, 0.0, 1.0)
+        dist = np.linalg.norm(xy - (p0 + np.outer(t, d)), axis=1)
+        r = log.diameter_m / 2 + (log.top_d_m - log.diameter_m) / 2 * t
+        best = np.minimum(best, dist - r)
+    return best
+
+
+def _clamp_under_logs(terrain: TerrainSpec, logs: Sequence[LogSpec], gap_m: float = 0.003) -> TerrainSpec:
+    """Lower the (unseen, interpolated) ground under each log to at most its underside: the
+    ground cannot be above a log lying on it. Returns a new :class:`TerrainSpec`."""
+    h = terrain.height_grid().copy()
+    xs, ys = terrain.grid_xy()
+    X, Y = np.meshgrid(xs, ys)
+    pts = np.column_stack([X.ravel(), Y.ravel()])
+    flat = h.ravel()
+    for log in logs:
+        p0, p1 = log.endpoints_m()
+        d = p1 - p0
+        d2 = d[:2]
+        L2 = max(float(d2 @ d2), 1e-12)
+        t = np.clip((pts - p0[:2]) @ d2 / L2, 0.0, 1.0)
+        lat = np.linalg.norm(pts - (p0[:2] + np.outer(t, d2)), axis=1)
+        r = log.diameter_m / 2 + (log.top_d_m - log.diameter_m) / 2 * t
+        inside = lat < r
+        if not inside.any():
+            continue
+        z_axis = p0[2] + t[inside] * d[2]
+        under = z_axis - np.sqrt(np.clip(r[inside] ** 2 - lat[inside] ** 2, 0.0, None)) - gap_m
+        flat[inside] = np.minimum(flat[inside], under)
+    h = flat.reshape(h.shape)
+    return replace(terrain, heights_m=tuple(tuple(float(v) for v in row) for row in h))
+
+
 # -- the whole pile --------------------------------------------------------------------------
 def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], extent_m: float,
              cfg: FitConfig | None = None, progress: Callable[[str], None] | None = None,
@@ -779,8 +831,10 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
     t1 = time.perf_counter()
     say("fitting terrain")
     dist = _distance_to_logs(P, logs, pad_m=0.10)
-    rest = P[dist > cfg.log_clearance_m]
+    # not log, and not inside a log's top-view footprint (stereo smears log edges down there)
+    rest = P[(dist > cfg.log_clearance_m) & (_footprint_distance(P[:, :2], logs) > cfg.footprint_margin_m)]
     terrain, is_ground, coverage = fit_terrain(rest, extent_m, cfg)
+    terrain = _clamp_under_logs(terrain, logs)
     timings["terrain_s"] = time.perf_counter() - t1
     t2 = time.perf_counter()
     say("finding obstacles")

@@ -1,0 +1,451 @@
+"""The reconstruction pipeline: a stereo scan + an RTK survey of log ends → a georeferenced pile.
+
+``reconstruct(scan_dir, gnss_path, out_dir)`` runs every stage and writes its results:
+
+1. **Survey** (:mod:`reconstruct.gnss`): the log end points, checked (RTK fixed, both ends of
+   every log, no outliers), in the *site frame* (ENU at ``site_origin``).
+2. **Scan** (:mod:`reconstruct.stereo`): the fused point cloud of every pair, in the *scan
+   frame* (the frame of the calibrations' ``T_pile_cam``).
+3. **Scan pose**: ``T_site_scan`` places the scan in the site frame. It comes from the config,
+   or from ``scan_pose.json`` in the scan folder (:func:`write_scan_pose` /
+   :func:`read_scan_pose`; e.g. the crane's own RTK/IMU pose of the camera, or a survey of the
+   rig). Every GNSS end point must then lie within ``max_endpoint_distance_m`` (horizontally) of
+   scan points — otherwise the scan and the survey are of different places, or a log id is
+   wrong, and the error names the point.
+4. **Registration refinement**: each log is fitted to the scan around its GNSS axis; the rigid
+   transform (open3d's point-to-point estimation, Umeyama's method; scale optional) that brings
+   the fitted axes through the GNSS end points is found by iterating closest points on the
+   axes (point-to-line ICP over the end points). Its size and the residuals before/after are
+   reported; a correction beyond ``max_correction_m`` / ``max_correction_deg`` is an error.
+5. **Fit** (:mod:`reconstruct.fit`): logs, terrain and obstacles in the new *pile frame* (the
+   site frame shifted to the centre of the surveyed logs, at ground level), the pile checked
+   in the twin.
+6. **Outputs** in ``out_dir``: ``pile.json`` (with the site georeference), ``ortho.npz`` (the
+   re-render in the training format, :func:`synth.render.render_ortho`), ``preview.png``,
+   ``compare.png`` (scan seen from above beside the re-render) and ``report.json``
+   (``loggrasp.reconstruction-report`` 1.0: per log length, diameters, GNSS residuals, fit
+   quality; registration; obstacles; timings).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from reconstruct.errors import ReconstructError, RegistrationError
+from reconstruct.fit import FitConfig, PileFit, fit_log, fit_pile, natural_key
+from reconstruct.stereo import ScanCloud, StereoConfig, scan_cloud
+from synth.frames import apply_T, invert_T, make_T
+from synth.pile import Georeference, PileSpec, atomic_write_bytes, write_pile
+
+SCAN_POSE_FORMAT = "loggrasp.scan-pose"
+SCAN_POSE_VERSION = "1.0"
+REPORT_FORMAT = "loggrasp.reconstruction-report"
+REPORT_VERSION = "1.0"
+
+
+# -- the scan pose sidecar ---------------------------------------------------------------------
+@dataclass(frozen=True)
+class ScanPose:
+    """Where a scan lies on Earth: the site origin and the scan frame's pose in that site frame."""
+
+    origin_lat_deg: float  # SWEREF 99 [deg]
+    origin_lon_deg: float  # SWEREF 99 [deg]
+    origin_h_m: float  # ellipsoidal height [m]
+    T_site_scan: tuple[tuple[float, ...], ...]  # 4x4, scan frame -> site ENU frame
+
+    def __post_init__(self) -> None:
+        Georeference(self.origin_lat_deg, self.origin_lon_deg, self.origin_h_m, self.T_site_scan)
+
+    @property
+    def origin(self) -> tuple[float, float, float]:
+        return (self.origin_lat_deg, self.origin_lon_deg, self.origin_h_m)
+
+    def matrix(self) -> np.ndarray:
+        return np.asarray(self.T_site_scan, dtype=np.float64)
+
+
+def write_scan_pose(pose: ScanPose, path: str | Path) -> Path:
+    """Write ``scan_pose.json`` (a folder: inside it) atomically. Returns the path."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / "scan_pose.json"
+    d = {"format": SCAN_POSE_FORMAT, "format_version": SCAN_POSE_VERSION, **asdict(pose)}
+    d["T_site_scan"] = [list(r) for r in pose.T_site_scan]
+    atomic_write_bytes(path, json.dumps(d, indent=1).encode())
+    return path
+
+
+def read_scan_pose(path: str | Path) -> ScanPose:
+    """Read ``scan_pose.json`` (or a folder holding one). Raises :class:`RegistrationError`."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / "scan_pose.json"
+    try:
+        d = json.loads(path.read_text())
+    except OSError as exc:
+        raise RegistrationError(f"cannot read scan pose {path}: {exc.strerror or exc}") from exc
+    except json.JSONDecodeError as exc:
+        raise RegistrationError(f"{path} is not valid JSON: {exc}") from exc
+    if not isinstance(d, dict) or d.get("format") != SCAN_POSE_FORMAT:
+        raise RegistrationError(f"{path} is not a loggrasp scan pose (format {SCAN_POSE_FORMAT})")
+    if str(d.get("format_version", "")).split(".")[0] != SCAN_POSE_VERSION.split(".")[0]:
+        raise RegistrationError(f"{path}: scan pose version {d.get('format_version')!r} is not supported "
+                                f"(reads {SCAN_POSE_VERSION.split('.')[0]}.x)")
+    try:
+        return ScanPose(float(d["origin_lat_deg"]), float(d["origin_lon_deg"]), float(d["origin_h_m"]),
+                        tuple(tuple(float(v) for v in row) for row in d["T_site_scan"]))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise RegistrationError(f"malformed scan pose {path}: {exc}") from exc
+
+
+# -- configuration and result ------------------------------------------------------------------
+@dataclass(frozen=True)
+class ReconstructConfig:
+    """Every setting of :func:`reconstruct` (units in the names/comments)."""
+
+    stereo: StereoConfig = field(default_factory=StereoConfig)
+    fit: FitConfig = field(default_factory=FitConfig)
+    scan_pose: ScanPose | None = None  # None: read scan_pose.json from the scan folder
+    allow_float: bool = False  # accept RTK float end points
+    max_endpoint_distance_m: float = 0.5  # an end point this far from every scan point is an error [m]
+    refine: bool = True  # refine the scan pose against the GNSS end points
+    refine_with_scale: bool = False  # let the refinement scale the scan (a stereo baseline error)
+    refine_iterations: int = 10  # point-to-line iterations [-]
+    max_correction_m: float = 0.30  # larger refinement translations are an error [m]
+    max_correction_deg: float = 5.0  # larger refinement rotations are an error [deg]
+    terrain_margin_m: float = 0.75  # terrain reaches this far beyond the outermost log end [m]
+    min_extent_m: float = 5.0  # smallest terrain patch [m]
+    render_size_px: int = 128  # re-render size (the training format) [px]
+    render_n: int = 3  # intensity renders [-]
+    seed: int = 0  # render colours [-]
+
+    def __post_init__(self) -> None:
+        if not self.max_endpoint_distance_m > 0:
+            raise ValueError("max_endpoint_distance_m must be > 0 m")
+        if self.max_correction_m < 0 or self.max_correction_deg < 0 or self.terrain_margin_m < 0:
+            raise ValueError("max_correction_m, max_correction_deg and terrain_margin_m must be >= 0")
+        if not 1.0 <= self.min_extent_m <= 100.0:
+            raise ValueError("min_extent_m must be in [1, 100] m")
+        if self.refine_iterations < 1:
+            raise ValueError("refine_iterations must be >= 1")
+
+
+@dataclass
+class ReconstructionResult:
+    """What :func:`reconstruct` produced."""
+
+    pile: PileSpec
+    fit: PileFit
+    report: dict
+    out_dir: Path
+    files: dict[str, Path]
+    cloud: ScanCloud | None = None  # the scan (scan frame), when kept
+
+    @property
+    def time_s(self) -> float:
+        return float(self.report["timings_s"]["total_s"])
+
+
+# -- registration ------------------------------------------------------------------------------
+def _rigid_from_correspondences(src: np.ndarray, dst: np.ndarray, with_scale: bool) -> np.ndarray:
+    """Similarity/rigid transform (4x4) taking ``src`` points onto ``dst`` (Umeyama, via open3d)."""
+    import open3d as o3d
+
+    a = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(src, dtype=np.float64)))
+    b = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(dst, dtype=np.float64)))
+    corr = o3d.utility.Vector2iVector(np.column_stack([np.arange(len(src)), np.arange(len(src))]).astype(np.int32))
+    est = o3d.pipelines.registration.TransformationEstimationPointToPoint(with_scaling=with_scale)
+    return np.asarray(est.compute_transformation(a, b, corr), dtype=np.float64)
+
+
+def refine_registration(points: np.ndarray, endpoints: dict[str, tuple[np.ndarray, np.ndarray]],
+                        cfg: ReconstructConfig) -> tuple[np.ndarray, dict]:
+    """Correction ``T`` (4x4, applied to ``points``) that brings the logs fitted to the scan
+    through their GNSS end points, and a report (residuals before/after, size of the
+    correction). Points and endpoints in the same frame."""
+    fcfg = cfg.fit
+    axes = {}
+    failures = {}
+    rng = np.random.default_rng(fcfg.seed)
+    for log_id in sorted(endpoints, key=natural_key):
+        a, b = endpoints[log_id]
+        try:
+            f = fit_log(points, a, b, fcfg, log_id=log_id, rng=rng)
+        except ReconstructError as exc:
+            failures[log_id] = str(exc)
+            continue
+        axes[log_id] = (f["centre"], f["axis"])
+    if not axes:
+        raise RegistrationError("no log could be fitted to the scan around its GNSS axis: "
+                                + "; ".join(failures.values()))
+    ids = list(axes)
+    gnss = np.array([p for k in ids for p in endpoints[k]], dtype=np.float64)
+    C = np.array([axes[k][0] for k in ids for _ in range(2)])
+    U = np.array([axes[k][1] for k in ids for _ in range(2)])
+    directions = np.array([axes[k][1] for k in ids])
+    # with one log (or parallel ones) a rotation about the common axis is unobservable: translate only
+    spread = np.degrees(np.arccos(np.clip(np.abs(directions @ directions.T), 0, 1))).max() if len(ids) > 1 else 0.0
+    full = len(ids) >= 2 and spread > 10.0
+
+    def residuals(T):
+        c = apply_T(T, C)
+        u = U @ T[:3, :3].T
+        u /= np.linalg.norm(u, axis=1, keepdims=True)
+        t = np.einsum("ij,ij->i", gnss - c, u)
+        proj = c + u * t[:, None]
+        return proj, np.linalg.norm(gnss - proj, axis=1)
+
+    T = np.eye(4)
+    _, before = residuals(T)
+    for _ in range(cfg.refine_iterations):
+        proj, _ = residuals(T)
+        if full:
+            dT = _rigid_from_correspondences(proj, gnss, cfg.refine_with_scale)
+        else:
+            dT = make_T(t=np.mean(gnss - proj, axis=0))
+        T = dT @ T
+        if np.linalg.norm(dT[:3, 3]) < 1e-5 and np.allclose(dT[:3, :3], np.eye(3), atol=1e-7):
+            break
+    _, after = residuals(T)
+    scale = float(np.cbrt(abs(np.linalg.det(T[:3, :3]))))
+    R = T[:3, :3] / scale
+    angle = math.degrees(math.acos(float(np.clip((np.trace(R) - 1) / 2, -1, 1))))
+    shift = float(np.linalg.norm(T[:3, 3]))
+    report = {
+        "mode": "rigid" if full else "translation",
+        "with_scale": bool(cfg.refine_with_scale and full), "scale": scale,
+        "correction_m": shift, "correction_deg": angle,
+        "residual_rms_before_m": float(np.sqrt(np.mean(before ** 2))),
+        "residual_rms_after_m": float(np.sqrt(np.mean(after ** 2))),
+        "residual_max_after_m": float(after.max()),
+        "logs_used": ids, "logs_not_fitted": failures,
+        "T_correction": T.tolist(),
+    }
+    if shift > cfg.max_correction_m or angle > cfg.max_correction_deg:
+        raise RegistrationError(
+            f"the scan pose needs a correction of {shift:.2f} m / {angle:.1f} deg to match the GNSS end "
+            f"points (limits {cfg.max_correction_m} m / {cfg.max_correction_deg} deg); the scan pose "
+            "is wrong, or the survey belongs to another pile"
+        )
+    return T, report
+
+
+def _check_coverage(points_xy: np.ndarray, endpoints: dict[str, tuple[np.ndarray, np.ndarray]],
+                    limit_m: float) -> dict[str, list[float]]:
+    """Horizontal distance from every end point to the nearest scan point; error beyond ``limit_m``."""
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(points_xy)
+    out = {}
+    worst = []
+    for log_id, ends in endpoints.items():
+        d, _ = tree.query(np.array([e[:2] for e in ends]))
+        out[log_id] = [float(v) for v in d]
+        for end, dist in zip("ab", d):
+            if dist > limit_m:
+                worst.append((float(dist), log_id, end, ends["ab".index(end)]))
+    if worst:
+        worst.sort(reverse=True)
+        dist, log_id, end, p = worst[0]
+        raise RegistrationError(
+            f"GNSS point of log {log_id!r} end {end!r} (site E {p[0]:.2f} m, N {p[1]:.2f} m) is {dist:.2f} m "
+            f"from the nearest scan point (limit {limit_m} m); {len(worst)} end point(s) lie outside the "
+            "scanned area. Check the log id and the scan pose, or scan the whole pile"
+        )
+    return out
+
+
+# -- pictures ---------------------------------------------------------------------------------
+def scan_top_view(points: np.ndarray, colours: np.ndarray, extent_m: float, size_px: int) -> np.ndarray:
+    """BGR uint8 top view of a coloured cloud (pile frame) on the ortho grid: the highest point
+    per pixel; grey where nothing was seen."""
+    from synth.frames import OrthoGrid
+
+    g = OrthoGrid(size_px, extent_m)
+    r, c = g.pile_to_pixel(points[:, 0], points[:, 1])
+    r, c = np.rint(r).astype(np.int64), np.rint(c).astype(np.int64)
+    ok = (r >= 0) & (r < size_px) & (c >= 0) & (c < size_px)
+    r, c, z, col = r[ok], c[ok], points[ok, 2], colours[ok]
+    order = np.argsort(z)  # later (higher) points overwrite lower ones
+    img = np.full((size_px, size_px, 3), 128, np.uint8)
+    img[r[order], c[order]] = (np.clip(col[order][:, ::-1], 0, 1) * 255).astype(np.uint8)
+    return img
+
+
+def comparison_image(points: np.ndarray, colours: np.ndarray, obs: Any, scale: int = 4) -> np.ndarray:
+    """The scan from above (left) beside the re-render with log outlines (right), BGR uint8."""
+    import cv2
+
+    from synth.preview import log_colour_bgr
+
+    n = obs.depth.shape[0]
+    size = n * scale
+    left = scan_top_view(points, colours, obs.extent_m, size)
+    grey = (np.clip(obs.intensity[0], 0, 1) * 255).astype(np.uint8)
+    right = cv2.cvtColor(cv2.resize(grey, (size, size), interpolation=cv2.INTER_NEAREST), cv2.COLOR_GRAY2BGR)
+    inst = cv2.resize(obs.instance.astype(np.int32), (size, size), interpolation=cv2.INTER_NEAREST)
+    for i in range(obs.n_logs):
+        mask = (inst == i + 1).astype(np.uint8)
+        if mask.any():
+            contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+            for img in (left, right):
+                cv2.drawContours(img, contours, -1, log_colour_bgr(i), 2)
+    cv2.putText(left, "scan (top view) + fitted logs", (6, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (255, 255, 255), 1)
+    cv2.putText(right, "re-render (training format)", (6, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (255, 255, 255), 1)
+    return np.concatenate([left, np.full((size, 4, 3), 255, np.uint8), right], axis=1)
+
+
+# -- the pipeline -----------------------------------------------------------------------------
+def _pose(scan_dir: Path, cfg: ReconstructConfig) -> tuple[ScanPose, str]:
+    if cfg.scan_pose is not None:
+        return cfg.scan_pose, "config"
+    path = scan_dir / "scan_pose.json"
+    if not path.exists():
+        raise RegistrationError(
+            f"{scan_dir} has no scan_pose.json and no scan pose was given: the scan cannot be placed in "
+            "the site frame. Write one with reconstruct.pipeline.write_scan_pose (site origin + "
+            "T_site_scan of the scan frame) or pass ReconstructConfig(scan_pose=...)"
+        )
+    return read_scan_pose(path), str(path)
+
+
+def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path,
+                config: ReconstructConfig | None = None,
+                progress: Callable[[str], None] | None = None) -> ReconstructionResult:
+    """Reconstruct a pile from a stereo scan folder and an RTK survey of the log ends.
+
+    ``scan_dir``: one pair folder (``left.png``, ``right.png``, ``calibration.yaml``) or a folder
+    of pair folders, plus ``scan_pose.json`` unless ``config.scan_pose`` is given.
+    ``gnss_path``: a survey CSV (:func:`reconstruct.gnss.read_gnss`). ``out_dir``: created; gets
+    ``pile.json``, ``ortho.npz``, ``preview.png``, ``compare.png``, ``report.json``.
+    ``progress``: called with a short line per stage.
+
+    Raises a :class:`~reconstruct.errors.ReconstructError` subclass (``ScanError``,
+    ``GnssError``, ``RegistrationError``, ``FitError``) naming the file, log or point at fault.
+    """
+    from reconstruct.gnss import read_gnss
+    from synth.render import OrthoRenderConfig, render_ortho
+    from synth.preview import preview_image, write_png
+    from synth.world import World
+
+    cfg = config or ReconstructConfig()
+    say = progress or (lambda s: None)
+    scan_dir, out_dir = Path(scan_dir), Path(out_dir)
+    timings: dict[str, float] = {}
+    t_start = time.perf_counter()
+
+    say(f"reading survey {gnss_path}")
+    pose, pose_source = _pose(scan_dir, cfg)
+    survey = read_gnss(gnss_path, allow_float=cfg.allow_float, area=pose.origin)
+    ends_site = {k: (np.asarray(a, float), np.asarray(b, float))
+                 for k, (a, b) in survey.endpoints_site(pose.origin).items()}
+    timings["survey_s"] = time.perf_counter() - t_start
+
+    t = time.perf_counter()
+    say(f"matching stereo pairs in {scan_dir}")
+    cloud = scan_cloud(scan_dir, cfg.stereo, progress=say)
+    timings["stereo_s"] = time.perf_counter() - t
+
+    # site frame, then the pile frame: site shifted to the centre of the logs, at ground level
+    T_site_scan = pose.matrix()
+    pts_site = apply_T(T_site_scan, cloud.points)
+    coverage = _check_coverage(pts_site[:, :2], ends_site, cfg.max_endpoint_distance_m)
+    all_ends = np.array([p for ends in ends_site.values() for p in ends])
+    centre_xy = 0.5 * (all_ends[:, :2].min(0) + all_ends[:, :2].max(0))
+    reach = float(np.max(np.abs(all_ends[:, :2] - centre_xy))) + cfg.terrain_margin_m
+    extent = min(100.0, max(cfg.min_extent_m, math.ceil(2 * reach / 0.5) * 0.5))
+    near = np.all(np.abs(pts_site[:, :2] - centre_xy) < extent / 2, axis=1)
+    if near.sum() < 100:
+        raise RegistrationError(f"only {int(near.sum())} scan points lie on the {extent} m patch around the logs")
+    z0 = float(np.percentile(pts_site[near, 2], 10))
+    T_site_pile = make_T(t=(centre_xy[0], centre_xy[1], z0))
+    T_pile_site = invert_T(T_site_pile)
+    pts = apply_T(T_pile_site, pts_site)
+    ends = {k: (apply_T(T_pile_site, a), apply_T(T_pile_site, b)) for k, (a, b) in ends_site.items()}
+
+    t = time.perf_counter()
+    reg_report: dict = {"mode": "none"}
+    if cfg.refine:
+        say("refining the scan pose against the GNSS end points")
+        T_corr, reg_report = refine_registration(pts[near], ends, cfg)
+        pts = apply_T(T_corr, pts)
+    else:
+        T_corr = np.eye(4)
+    timings["registration_s"] = time.perf_counter() - t
+    # T_site_scan after refinement: site <- pile <- (corrected) <- scan
+    T_site_scan_refined = T_site_pile @ T_corr @ T_pile_site @ T_site_scan
+
+    t = time.perf_counter()
+    georef = Georeference(origin_lat_deg=pose.origin_lat_deg, origin_lon_deg=pose.origin_lon_deg,
+                          origin_h_m=pose.origin_h_m,
+                          T_site_pile=tuple(tuple(float(v) for v in row) for row in T_site_pile))
+    in_patch = np.all(np.abs(pts[:, :2]) < extent / 2, axis=1)
+    fit = fit_pile(pts[in_patch], ends, extent, cfg.fit, progress=say, georef=georef,
+                   notes=f"reconstructed from {scan_dir} and {gnss_path}")
+    timings["fit_s"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    say(f"writing {out_dir}")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    files = {"pile": write_pile(fit.pile, out_dir / "pile.json")}
+    with World(fit.pile) as world:
+        obs = render_ortho(world, OrthoRenderConfig(size_px=cfg.render_size_px, n_renders=cfg.render_n),
+                           seed=cfg.seed)
+    obs.meta["source"] = "reconstructed"
+    files["ortho"] = obs.save(out_dir / "ortho.npz")
+    files["preview"] = write_png(out_dir / "preview.png", preview_image(obs))
+    files["compare"] = write_png(out_dir / "compare.png", comparison_image(pts[in_patch], cloud.colours[in_patch], obs))
+    timings["outputs_s"] = time.perf_counter() - t
+    timings["total_s"] = time.perf_counter() - t_start
+    timings.update({f"stereo_{k}": v for k, v in cloud.timings_s.items()})
+    timings.update({f"fit_{k}": v for k, v in fit.timings_s.items()})
+
+    report = {
+        "format": REPORT_FORMAT, "format_version": REPORT_VERSION,
+        "scan_dir": str(scan_dir), "gnss": str(gnss_path), "pairs": cloud.pairs,
+        "n_points": int(len(cloud.points)), "matched_fraction": cloud.valid_fractions,
+        "scan_pose_source": pose_source, "site_origin": list(pose.origin),
+        "T_site_scan_given": T_site_scan.tolist(), "T_site_scan_refined": T_site_scan_refined.tolist(),
+        "T_site_pile": T_site_pile.tolist(), "extent_m": extent,
+        "registration": reg_report, "endpoint_scan_distance_m": coverage,
+        "survey_warnings": list(survey.warnings),
+        "logs": [lf.to_dict() for lf in fit.logs],
+        "terrain_coverage": fit.terrain_coverage, "obstacles": fit.obstacles, "lifts": fit.lifts,
+        "timings_s": timings,
+    }
+    report_path = out_dir / "report.json"
+    atomic_write_bytes(report_path, json.dumps(report, indent=1, default=_json_default).encode())
+    files["report"] = report_path
+    say(f"done in {timings['total_s']:.1f} s")
+    return ReconstructionResult(pile=fit.pile, fit=fit, report=report, out_dir=out_dir, files=files, cloud=cloud)
+
+
+def read_report(path: str | Path) -> dict:
+    """Read a ``report.json`` written by :func:`reconstruct` (the version is checked)."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / "report.json"
+    try:
+        d = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ReconstructError(f"cannot read reconstruction report {path}: {exc}") from exc
+    if d.get("format") != REPORT_FORMAT or str(d.get("format_version", "")).split(".")[0] != REPORT_VERSION.split(".")[0]:
+        raise ReconstructError(f"{path} is not a {REPORT_FORMAT} {REPORT_VERSION.split('.')[0]}.x report")
+    return d
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"cannot serialise {type(o).__name__}")
