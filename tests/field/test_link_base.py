@@ -114,3 +114,16 @@ def test_latency_function():
     assert s.n == 20 and 0 < s.p50_ms <= s.p99_ms <= s.max_ms < 1000
     s = measure_latency("twin://", n=10, mode="accept", warmup=1)
     assert s.mode == "accept" and s.p50_ms > 0
+
+
+def test_leak_tracking_sees_an_unclosed_link():
+    """What the autouse ``no_leaked_links`` fixture relies on."""
+    from field.link.base import open_resources
+
+    before = len(open_resources())
+    link = open_link("twin://")
+    try:
+        assert len(open_resources()) == before + 2  # the laptop bus and the twin's bus
+    finally:
+        link.close()
+    assert len(open_resources()) == before
