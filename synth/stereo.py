@@ -38,13 +38,13 @@ import os
 import shutil
 import tempfile
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from synth.errors import OutputError, PileFormatError, RenderError, SynthError
+from synth.errors import OutputError, RenderError, SynthError
 from synth.frames import apply_T, invert_T, make_T
 from synth.pile import PileSpec, atomic_write_bytes
 from synth.textures import TextureConfig
@@ -63,7 +63,7 @@ RENDERERS = ("auto", "egl", "tiny")
 ZED_RESOLUTIONS = {(2208, 1242): "2K", (1920, 1080): "FHD", (1280, 720): "HD", (672, 376): "VGA"}
 
 
-class StereoFormatError(PileFormatError):
+class StereoFormatError(SynthError):
     """A stereo pair folder or calibration file is missing, malformed or of an unsupported version."""
 
 

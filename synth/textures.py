@@ -27,7 +27,7 @@ import hashlib
 import json
 import os
 import tempfile
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -38,7 +38,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from synth.world import World
 
 #: Bump when any generator changes its output (part of every cache key).
-TEXTURE_VERSION = "1"
+TEXTURE_VERSION = "2"
 
 _CACHE = Path(tempfile.gettempdir()) / f"loggrasp-textures-{os.getuid() if hasattr(os, 'getuid') else 0}"
 
@@ -176,11 +176,12 @@ def ground_texture(seed: int, size_px: int = 512, m_per_px: float = 0.5 / 512) -
     coarse = spectral_noise(rng, n, n, beta=2.6, k_min=1.0)
     mid = spectral_noise(rng, n, n, beta=1.8, k_min=4.0)
     fine = spectral_noise(rng, n, n, beta=0.5, k_min=max(8.0, n / 64))
-    lum = 1.0 + 0.12 * coarse + 0.12 * mid + 0.10 * fine
+    # weak tile-scale structure: the tile repeats every ground_uv_m on the terrain
+    lum = 1.0 + 0.05 * coarse + 0.12 * mid + 0.10 * fine
     soil = _colourise(np.clip(lum, 0.3, 1.8), (0.40, 0.33, 0.24))
-    litter = np.clip(spectral_noise(rng, n, n, beta=2.4, k_min=2.0) * 0.8 - 0.2, 0.0, 1.0)[..., None]
+    litter = np.clip(spectral_noise(rng, n, n, beta=2.0, k_min=3.0) * 0.8 - 0.2, 0.0, 1.0)[..., None]
     litter_rgb = np.array([0.50, 0.40, 0.25], dtype=np.float32) * (1.0 + 0.15 * mid[..., None])
-    moss = np.clip(spectral_noise(rng, n, n, beta=2.8, k_min=1.0) - 1.0, 0.0, 1.0)[..., None]
+    moss = np.clip(spectral_noise(rng, n, n, beta=2.0, k_min=3.0) - 1.8, 0.0, 1.0)[..., None]
     moss_rgb = np.array([0.30, 0.38, 0.18], dtype=np.float32) * (1.0 + 0.2 * fine[..., None])
     rgb = soil * (1 - litter) + litter_rgb * litter
     rgb = rgb * (1 - moss) + moss_rgb * moss
