@@ -164,6 +164,26 @@ class ShardStream:
             yield self._convert(buf.pop(int(rng.integers(len(buf)))), rng)
 
 
+def as_torch_dataset(stream: ShardStream):
+    """Wrap a :class:`ShardStream` as a ``torch.utils.data.IterableDataset`` yielding tensors
+    (for a ``DataLoader``; use ``num_workers=0`` or give each worker its own shards)."""
+    import torch
+    from torch.utils.data import IterableDataset
+
+    class _ShardDataset(IterableDataset):
+        def __init__(self, s: ShardStream) -> None:
+            self.stream = s
+
+        def set_epoch(self, epoch: int) -> None:
+            self.stream.set_epoch(epoch)
+
+        def __iter__(self):
+            for x, y in self.stream:
+                yield torch.from_numpy(x), torch.from_numpy(y)
+
+    return _ShardDataset(stream)
+
+
 def batches(stream, batch_size: int, limit: int | None = None):
     """Group a :class:`ShardStream` into torch (x, y) batches (the last one may be smaller)."""
     import torch

@@ -9,8 +9,8 @@ drops a subset that one grasp rectangle could cover). For each log the distance 
 ``r(S) = min_p max_{i in S} d_i(p) <= R``. The test is monotone (a superset of a subset that does
 not fit does not fit either), so a depth-first enumeration prunes whole branches. It implies the
 "adjacency graph" condition (every pair of logs within 2R of each other, hence connected).
-When more subsets fit than ``max_subsets``, all single logs are kept and the rest are ranked by
-``r(S)`` (tightest groups first).
+When more subsets fit than ``max_subsets``, all single logs are kept and the budget is shared
+round-robin across subset sizes, tightest ``r(S)`` first within each size.
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ class SubsetPolicy:
     max_opening_m: float = MAX_WIDTH_M  # grapple's maximum opening [m]
     rect_width_m: float = RECT_WIDTH_M  # grasp rectangle across the closing axis [m]
     max_logs_per_subset: int | None = None  # optional cap on |S| [-]
+    enumeration_limit: int = 8192  # subsets examined before larger sizes are no longer enumerated [-]
 
     def __post_init__(self) -> None:
         if self.mode not in ("auto", "exhaustive", "fit"):
@@ -64,42 +65,66 @@ def feasible_subsets(masks: dict[int, np.ndarray], pixel_m: float, policy: Subse
                      ) -> tuple[list[tuple[int, ...]], dict]:
     """Subsets that fit one grapple opening, capped at ``policy.max_subsets``.
 
-    Returns ``(subsets, info)``; ``info`` has ``n_fit`` (subsets that fit before the cap),
-    ``n_kept`` and ``radius_m``. Coarse grid (every 2nd pixel) for speed, then exact."""
+    Enumerated level by level (1 log, 2 logs, ...); each subset carries the candidate centres
+    where it still fits (a point that fails can never fit a superset), so the work shrinks as
+    subsets grow. Enumeration stops after the level at which ``policy.enumeration_limit`` subsets
+    are exceeded (``info["stopped_after_size"]``). When more subsets fit than the budget, the
+    budget is shared round-robin across subset sizes, tightest ``r(S)`` first within a size, all
+    single logs always kept. Returns ``(subsets, info)``."""
     logs = sorted(masks)
     dist = distance_maps(masks, pixel_m)
     # candidate centres on every `step`-th pixel: any point lies within step/sqrt(2) px of one, and
     # pixel-centre distances can be half a pixel long; both are added to R (distances are
     # 1-Lipschitz) so that no subset that fits is lost
-    step = 2 if next(iter(masks.values())).shape[0] >= 64 else 1
+    size = next(iter(masks.values())).shape[0]
+    step = max(1, size // 64)
     slack = pixel_m * (step / math.sqrt(2) + 0.5)
     R = policy.fit_radius_m + slack
     d = {i: dist[i][::step, ::step].ravel() for i in logs}
     max_size = policy.max_logs_per_subset or len(logs)
-    found: list[tuple[float, tuple[int, ...]]] = []
-
-    def grow(subset: tuple[int, ...], running: np.ndarray, start: int) -> None:
-        for j in range(start, len(logs)):
-            i = logs[j]
-            m = np.maximum(running, d[i]) if subset else d[i]
-            r = float(m.min())
-            if r > R:
-                continue
-            s = subset + (i,)
-            found.append((r, s))
-            if len(s) < max_size:
-                grow(s, m, j + 1)
-
-    grow((), np.empty(0, np.float32), 0)
+    level = []
+    for j, i in enumerate(logs):
+        idx = np.flatnonzero(d[i] <= R)
+        if len(idx):
+            level.append(((i,), j, idx, d[i][idx]))
+    found: list[tuple[float, tuple[int, ...]]] = [(float(m.min()), s) for s, _, _, m in level]
+    stopped = None
+    k = 1
+    while level and k < max_size:
+        if len(found) > policy.enumeration_limit:
+            stopped = k
+            break
+        nxt = []
+        for s, j0, idx, m in level:
+            for j in range(j0 + 1, len(logs)):
+                i = logs[j]
+                m2 = np.maximum(m, d[i][idx])
+                ok = m2 <= R
+                if ok.any():
+                    s2 = s + (i,)
+                    nxt.append((s2, j, idx[ok], m2[ok]))
+                    found.append((float(m2[ok].min()), s2))
+        level = nxt
+        k += 1
     n_fit = len(found)
     if n_fit > policy.max_subsets:
-        singles = [s for r, s in found if len(s) == 1]
-        rest = sorted(((r, -len(s), s) for r, s in found if len(s) > 1))
-        keep = singles + [s for _, _, s in rest[: max(0, policy.max_subsets - len(singles))]]
+        by_size: dict[int, list] = {}
+        for r, s in sorted(found):
+            by_size.setdefault(len(s), []).append(s)
+        keep = list(by_size.pop(1, []))
+        queues = [by_size[k] for k in sorted(by_size)]
+        pos = 0
+        while len(keep) < policy.max_subsets and any(queues):
+            q = queues[pos % len(queues)]
+            if q:
+                keep.append(q.pop(0))
+            pos += 1
+        keep = keep[: max(policy.max_subsets, len([s for s in keep if len(s) == 1]))]
     else:
         keep = [s for _, s in found]
     keep.sort(key=lambda s: (len(s), s))
-    return keep, {"n_fit": n_fit, "n_kept": len(keep), "radius_m": policy.fit_radius_m}
+    return keep, {"n_fit": n_fit, "n_kept": len(keep), "radius_m": policy.fit_radius_m,
+                  "stopped_after_size": stopped}
 
 
 def choose_subsets(masks: dict[int, np.ndarray], pixel_m: float, policy: SubsetPolicy = SubsetPolicy()):

@@ -106,3 +106,15 @@ def test_resume_after_kill_mid_epoch(tmp_path, monkeypatch):
     res.state_path.write_bytes(b"garbage")
     with pytest.raises(CheckpointError):
         train(data, out, _cfg(epochs=1))
+
+
+def test_torch_dataset_wrapper(tmp_path):
+    import torch
+
+    from planner.data import as_torch_dataset
+
+    make_dataset(tmp_path, n_piles=3)
+    shards, _ = list_shards(tmp_path)
+    ds = as_torch_dataset(ShardStream(shards, "train", DataConfig(val_fraction=0.0)))
+    xs = list(torch.utils.data.DataLoader(ds, batch_size=4))
+    assert sum(len(x) for x, _ in xs) == 12 and xs[0][0].shape == (4, 3, 32, 32) and xs[0][1].shape == (4, 5, 32, 32)
