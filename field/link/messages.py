@@ -121,6 +121,37 @@ class GraspCommand:
             plan_timestamp_ms=int(round(plan_time_s * 1000.0)),
         )
 
+    @classmethod
+    def from_pile_grasp(
+        cls,
+        command_id: int,
+        grasp: "object",
+        z_m: float,
+        georef: "object",
+        target_log_count: int,
+        plan_time_s: float,
+    ) -> "GraspCommand":
+        """Build a command from a pile-frame :class:`synth.grasp.Grasp` (``x_m, y_m, phi_rad,
+        width_m``) at pile height ``z_m`` [m], using the pile's :class:`synth.pile.Georeference`.
+
+        The position goes pile -> site ENU -> SWEREF 99 TM with :mod:`synth.geodesy`
+        (ellipsoidal height). The heading is measured in the projection itself: the grasp
+        centre and a point 1 m along the closing axis are both projected and the grid bearing
+        of that segment (clockwise from grid north) is taken, so meridian convergence and the
+        pile's rotation on site are accounted for without sign conventions.
+        """
+        import numpy as np
+
+        from synth.geodesy import pile_to_sweref_tm
+
+        c, s = math.cos(grasp.phi_rad), math.sin(grasp.phi_rad)
+        pts = np.array([[grasp.x_m, grasp.y_m, z_m], [grasp.x_m + c, grasp.y_m + s, z_m]], dtype=float)
+        e, n, h = pile_to_sweref_tm(georef, pts)
+        heading_deg = math.degrees(math.atan2(float(e[1] - e[0]), float(n[1] - n[0])))
+        return cls.from_metres(
+            command_id, float(e[0]), float(n[0]), float(h[0]), heading_deg, grasp.width_m, target_log_count, plan_time_s
+        )
+
     @property
     def heading_deg(self) -> float:
         return self.heading_cdeg / 100.0

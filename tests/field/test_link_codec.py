@@ -279,3 +279,22 @@ def test_fuzz_laptop_side_decoder(kind, data):
 def test_fuzz_exercised_acceptance():
     """Runs after the controller fuzz test: it must have seen some valid commands accepted."""
     assert ACCEPTED, "the fuzz strategy produced no acceptable command; widen it"
+
+
+def test_command_from_pile_grasp_uses_grid_bearing():
+    import math
+
+    import numpy as np
+
+    from synth.geodesy import sweref_tm_to_pile
+    from synth.grasp import Grasp
+    from synth.pile import Georeference
+
+    geo = Georeference(64.1, 20.0, 50.0)  # meridian convergence ~4.49 deg here
+    east = GraspCommand.from_pile_grasp(1, Grasp(1.0, -2.0, 0.0, 0.9), 0.4, geo, 2, time.time())
+    assert east.heading_deg == pytest.approx(90.0 - 4.49, abs=0.02)  # closing axis along east
+    north = GraspCommand.from_pile_grasp(2, Grasp(1.0, -2.0, math.pi / 2, 0.9), 0.4, geo, 2, time.time())
+    assert north.heading_deg == pytest.approx(180.0 - 4.49, abs=0.02)  # pi-periodic fold of -4.49
+    back = sweref_tm_to_pile(geo, east.easting_mm / 1000, east.northing_mm / 1000, east.height_mm / 1000)
+    assert np.allclose(back, [1.0, -2.0, 0.4], atol=1.5e-3)  # mm wire resolution
+    assert east.opening_width_mm == 900
