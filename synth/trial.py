@@ -18,9 +18,10 @@ The trial (paper, "Simulator"):
 3. *Close* the claws as far as the torque limit allows (until they stop moving).
 4. *Lift* back to the start height, then hold briefly and measure the balance ``cos β``.
 
-Outcomes (checked in this order): COLLISION (the contact force on the grapple — from obstacles at
-any time, from anything while lowering — averaged over ``collision_window_s`` exceeded
-``collision_force_n``), NOT_CLOSED (tip gap after closing above ``max_closed_gap_m``; the lift is
+Outcomes (checked in this order): COLLISION (the contact force on the grapple from obstacles at
+any time, or from non-target logs while lowering, averaged over ``collision_window_s``, exceeded
+``collision_force_n``, about the grapple's weight: resting on a rock, a stump or a log it should
+not touch is a collision; grazing is not; the claws' squeeze on logs while closing is not), NOT_CLOSED (tip gap after closing above ``max_closed_gap_m``; the lift is
 skipped, as an operator would not lift), SUCCESS (held set == targets, nothing dropped), DROPPED
 (a log enclosed after closing was not held after the lift), MORE_THAN_INTENDED (held ⊋ targets),
 FEWER_OR_OTHER (anything else, including nothing held).
@@ -80,9 +81,9 @@ class TrialConfig:
     inside_margin_v_m: float = 0.10  # extra reach of the inside box along v beyond the claws [m]
     ground_clearance_m: float = -0.03  # stop lowering when a tip reaches this height over the ground
     # [m]; negative: tips dig a few cm into soil, as real ones do (terrain contacts are disabled)
-    stop_force_n: float = 1500.0  # stop lowering on this filtered contact force [N]
+    stop_force_n: float = 1500.0  # stop lowering on this filtered contact force (all contacts) [N]
     stop_window_s: float = 0.10  # its moving-mean window [s]
-    collision_force_n: float = 8000.0  # filtered force on the grapple that counts as a collision [N]
+    collision_force_n: float = 2500.0  # filtered force from obstacles / non-target logs = collision [N]
     collision_window_s: float = 0.075  # its moving-mean window [s] (50–100 ms)
     max_closed_gap_m: float = 0.12  # claws "sufficiently closed" below this tip gap [m]
     close_timeout_s: float = 2.5  # [s]
@@ -142,7 +143,9 @@ class TrialResult:
     phase_s: dict[str, float]  # simulated time per phase: lower, close, lift, hold [s]
     sim_time_s: float  # total simulated time [s]
     wall_time_s: float  # wall-clock time of the whole call [s]
+    cpu_time_s: float  # CPU time of the whole call (this process) [s]
     stop_reason: str  # why lowering stopped: "inside", "force", "ground", "timeout"
+    final_poses: tuple[tuple[float, ...], ...]  # per log: x, y, z [m], quaternion x, y, z, w at the end
 
     @property
     def success(self) -> bool:
@@ -158,7 +161,8 @@ class TrialResult:
             "max_collision_force_n": self.max_collision_force_n,
             "max_penetration_m": self.max_penetration_m, "max_log_speed_m_s": self.max_log_speed_m_s,
             "phase_s": dict(self.phase_s), "sim_time_s": self.sim_time_s,
-            "wall_time_s": self.wall_time_s, "stop_reason": self.stop_reason,
+            "wall_time_s": self.wall_time_s, "cpu_time_s": self.cpu_time_s,
+            "stop_reason": self.stop_reason, "final_poses": [list(p) for p in self.final_poses],
         }
 
 
@@ -268,7 +272,7 @@ def run_trial(
     step the simulation. Deterministic: the same arguments give the same result in any process
     and after any other trials.
     """
-    t_wall = time.perf_counter()
+    t_wall, t_cpu = time.perf_counter(), time.process_time()
     cfg = config or TrialConfig.fast()
     target_idx, n_targets = _parse_targets(pile, targets)
     g = cfg.grapple
@@ -295,30 +299,41 @@ def run_trial(
         stop_mean = _Mean(round(cfg.stop_window_s / dt))
         coll_mean = _Mean(round(cfg.collision_window_s / dt))
         stats = {"max_force": 0.0, "max_coll": 0.0, "pen": 0.0, "speed": 0.0}
+        speed_every = max(1, round(0.05 / dt))
         phase_s: dict[str, float] = {}
         steps = 0
+
+        # bodies whose contact counts as a collision: obstacles always, non-target logs while lowering
+        if target_idx is not None:
+            non_target = {log_ids[i] for i in range(len(log_ids)) if i not in set(target_idx)}
+        else:
+            non_target = set()
+        coll_lowering = obstacle_set | non_target
 
         def contact_step(lowering: bool) -> float:
             """Step once; update the filtered forces and the stability statistics."""
             nonlocal steps
             c.stepSimulation()
             steps += 1
-            total = obst = pen = 0.0
+            total = coll = pen = 0.0
+            coll_set = coll_lowering if lowering else obstacle_set
             for cp in c.getContactPoints(bodyA=grapple.body):
                 other, f = cp[2], cp[9]
                 total += f
-                if other in obstacle_set:
-                    obst += f
+                if other in coll_set:
+                    coll += f
                 if cp[8] < -pen and other in log_set:
                     pen = -cp[8]
             fm = stop_mean.push(total)
-            cm = coll_mean.push(total if lowering else obst)
+            cm = coll_mean.push(coll)
             if fm > stats["max_force"]:
                 stats["max_force"] = fm
             if cm > stats["max_coll"]:
                 stats["max_coll"] = cm
             if pen > stats["pen"]:
                 stats["pen"] = pen
+            if steps % speed_every == 0:
+                stats["speed"] = max(stats["speed"], max_log_speed())
             return fm
 
         def log_axes() -> tuple[np.ndarray, np.ndarray]:
@@ -447,6 +462,7 @@ def run_trial(
         if on_phase:
             on_phase("end", world, grapple)
         sim_time = steps * dt
+        final_poses = tuple(tuple(float(v) for v in row) for row in world.log_poses())
 
     enclosed_t = tuple(int(i) for i in enclosed)
     held = set(grasped)
@@ -468,5 +484,22 @@ def run_trial(
         enclosed=enclosed_t, cos_beta=cos_beta, final_gap_m=final_gap, max_force_n=stats["max_force"],
         max_collision_force_n=stats["max_coll"], max_penetration_m=stats["pen"],
         max_log_speed_m_s=stats["speed"], phase_s=phase_s, sim_time_s=sim_time,
-        wall_time_s=time.perf_counter() - t_wall, stop_reason=stop_reason,
+        wall_time_s=time.perf_counter() - t_wall, cpu_time_s=time.process_time() - t_cpu,
+        stop_reason=stop_reason, final_poses=final_poses,
     )
+
+
+def render_view(world: World, look_at_m, distance_m: float = 3.2, yaw_deg: float = 35.0,
+                pitch_deg: float = -28.0, size_px: tuple[int, int] = (640, 480)) -> np.ndarray:
+    """An oblique RGB picture (H, W, 3) uint8 of the world with TinyRenderer (for docs/debugging).
+
+    Use as ``on_phase`` callback of :func:`run_trial` to picture a trial's phases.
+    """
+    c, p = world.client, world.p
+    w, h = size_px
+    view = c.computeViewMatrixFromYawPitchRoll(list(map(float, look_at_m)), distance_m, yaw_deg, pitch_deg, 0, 2)
+    proj = c.computeProjectionMatrixFOV(50.0, w / h, 0.05, 30.0)
+    img = c.getCameraImage(w, h, view, proj, renderer=p.ER_TINY_RENDERER, lightDirection=[0.4, 0.3, 1.0],
+                           shadow=0, flags=p.ER_NO_SEGMENTATION_MASK)
+    rgba = np.asarray(img[2], dtype=np.uint8).reshape(h, w, 4)
+    return rgba[:, :, :3].copy()

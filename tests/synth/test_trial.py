@@ -1,0 +1,127 @@
+"""Grasp trials on hand-built piles whose answer is obvious."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from synth.grasp import Grasp
+from synth.pile import LogSpec, PileSpec, RockSpec, TerrainSpec, quat_from_x_axis
+from synth.trial import Outcome, TrialConfig, TrialResult, run_trial, trial_pile
+
+FAST = TrialConfig.fast()
+
+
+def flat_pile(logs, rocks=(), resolution: int = 32) -> PileSpec:
+    heights = tuple(tuple(0.0 for _ in range(resolution)) for _ in range(resolution))
+    return PileSpec(terrain=TerrainSpec(resolution=resolution, heights_m=heights), logs=tuple(logs),
+                    rocks=tuple(rocks))
+
+
+def log_along_y(x: float, d: float = 0.16, y: float = 0.0) -> LogSpec:
+    # a pentagonal log rests with its axis 0.41 d above the ground (flat face down)
+    return LogSpec(centre_m=(x, y, 0.41 * d), orientation=quat_from_x_axis((0, 1, 0)), length_m=2.5, diameter_m=d)
+
+
+def check_stable(r: TrialResult) -> None:
+    assert r.max_penetration_m < 0.006, f"claw {1000 * r.max_penetration_m:.1f} mm into a log"
+    assert r.max_log_speed_m_s < 3.0, f"a log moved at {r.max_log_speed_m_s:.1f} m/s: the pile exploded"
+
+
+def test_isolated_log_centred_grasp_succeeds():
+    pile = flat_pile([log_along_y(0.0)])
+    r = run_trial(pile, Grasp(0.0, 0.0, 0.0, 0.6), [0], FAST)
+    assert r.outcome is Outcome.SUCCESS, r
+    assert r.grasped == (0,) and r.success
+    assert r.final_gap_m < 0.05
+    assert r.cos_beta > 0.98  # centred: the load hangs balanced
+    assert set(r.phase_s) == {"lower", "close", "lift", "hold"}
+    assert r.final_poses[0][2] > 0.3  # the log was lifted
+    check_stable(r)
+
+
+def test_isolated_log_careful_agrees():
+    pile = flat_pile([log_along_y(0.0)])
+    r = run_trial(pile, Grasp(0.0, 0.0, 0.0, 0.6), 1, TrialConfig.careful())
+    assert r.outcome is Outcome.SUCCESS
+    assert r.targets is None and r.n_targets == 1
+    check_stable(r)
+
+
+def test_two_adjacent_logs_one_targeted_grasps_more_than_intended():
+    pile = flat_pile([log_along_y(-0.1), log_along_y(0.1)])
+    r = run_trial(pile, Grasp(0.0, 0.0, 0.0, 0.8), [0], FAST)
+    assert r.outcome is Outcome.MORE_THAN_INTENDED, r
+    assert r.grasped == (0, 1)
+    # with both targeted the same grasp is a success
+    r2 = run_trial(pile, Grasp(0.0, 0.0, 0.0, 0.8), [0, 1], FAST)
+    assert r2.outcome is Outcome.SUCCESS
+    check_stable(r2)
+
+
+def test_grasp_into_a_rock_is_a_collision():
+    s = 0.35
+    cube = tuple((sx * s, sy * s, sz * s) for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1))
+    rock = RockSpec(position_m=(0.0, 0.0, 0.25), orientation=(0.0, 0.0, 0.0, 1.0), vertices_m=cube)
+    pile = flat_pile([log_along_y(1.5)], rocks=[rock])
+    r = run_trial(pile, Grasp(0.0, 0.0, 0.0, 0.5), [0], FAST)
+    assert r.outcome is Outcome.COLLISION, r
+    assert r.stop_reason == "force"
+    assert r.max_collision_force_n > FAST.collision_force_n
+
+
+def test_too_narrow_for_the_log_does_not_close():
+    """A 0.30 m opening over a 0.35 m log: the tips land on top of it and cannot close around it
+    (the paper's "not sufficiently closed": an operator would not lift)."""
+    pile = flat_pile([log_along_y(0.0, d=0.35)])
+    r = run_trial(pile, Grasp(0.0, 0.0, 0.0, 0.30), [0], FAST)
+    assert r.outcome is Outcome.NOT_CLOSED, r
+    assert r.final_gap_m > FAST.max_closed_gap_m
+    assert "lift" not in r.phase_s  # not lifted
+    check_stable(r)
+
+
+def test_grasp_beside_the_log_gets_nothing():
+    pile = flat_pile([log_along_y(0.0)])
+    r = run_trial(pile, Grasp(0.8, 0.0, 0.0, 0.4), [0], FAST)
+    assert r.outcome is Outcome.FEWER_OR_OTHER
+    assert r.grasped == ()
+
+
+def test_trials_are_deterministic_and_history_free():
+    pile = flat_pile([log_along_y(-0.1), log_along_y(0.12, d=0.18), log_along_y(0.05, y=0.3)])
+    pile = pile.with_logs(pile.logs[:2] + (replace(pile.logs[2], centre_m=(0.02, 0.1, 0.28),
+                                                   orientation=quat_from_x_axis((0.2, 1, 0))),))
+    grasp = Grasp(0.02, 0.05, 0.1, 0.9)
+    a = run_trial(pile, grasp, [0, 1], FAST)
+    # other trials in between, on other piles and grasps
+    run_trial(flat_pile([log_along_y(0.0)]), Grasp(0.0, 0.0, 0.0, 0.6), [0], FAST)
+    run_trial(pile, Grasp(-0.1, 0.0, 0.0, 0.4), [0], FAST)
+    b = run_trial(pile, grasp, [0, 1], FAST)
+    assert a.outcome is b.outcome
+    assert a.grasped == b.grasped
+    assert np.array_equal(np.asarray(a.final_poses), np.asarray(b.final_poses))
+    assert a.cos_beta == b.cos_beta or (math.isnan(a.cos_beta) and math.isnan(b.cos_beta))
+
+
+def test_result_serialises_and_inputs_are_validated():
+    pile = flat_pile([log_along_y(0.0)])
+    r = run_trial(pile, Grasp(0.8, 0.0, 0.0, 0.4), [0], FAST)
+    d = r.to_dict()
+    assert d["format"] == "loggrasp.trial" and d["outcome"] == r.outcome.value
+    with pytest.raises(ValueError, match="not in the pile"):
+        run_trial(pile, Grasp(0.0, 0.0, 0.0, 0.6), [3], FAST)
+    with pytest.raises(ValueError, match="n_targets"):
+        run_trial(pile, Grasp(0.0, 0.0, 0.0, 0.6), 0, FAST)
+    with pytest.raises(ValueError, match="collision_force_n"):
+        TrialConfig(stop_force_n=3000.0, collision_force_n=2000.0)
+
+
+def test_terrain_override_resamples_only_the_heightfield():
+    pile = flat_pile([log_along_y(0.0)], resolution=64)
+    small = trial_pile(pile, 32)
+    assert small.terrain.resolution == 32 and small.logs == pile.logs
+    assert trial_pile(pile, None) is pile
