@@ -9,7 +9,7 @@ Key expressions, under a configurable prefix (default ``loggrasp/<crane>``)::
     <prefix>/grasp/outcome   crane puts Outcome frames (laptop subscribes)
     <prefix>/grasp/estop     laptop puts EStop frames (REAL_TIME priority, express, blocking)
     <prefix>/grasp/heartbeat crane puts CraneHeartbeat frames each period (monitoring)
-    <prefix>/alive/controller, <prefix>/alive/laptop   liveliness tokens
+    <prefix>/alive/controller, <prefix>/alive/laptop/<zid>   liveliness tokens
 
 Request/acknowledge uses a **queryable** (``session.get``): the reply goes to the requester
 only, the query has its own timeout, and an unreachable or unauthorised crane simply produces no
@@ -184,7 +184,8 @@ class ZenohLink(CraneLink):
                 s.declare_subscriber(self.keys.status, lambda smp: self._deliver("Status", _payload(smp))),
                 s.liveliness().declare_subscriber(self.keys.alive_controller, self._on_alive, history=True),
             ]
-            self._token = s.liveliness().declare_token(self.keys.alive_laptop)
+            # one token per laptop session, so one laptop leaving does not hide another
+            self._token = s.liveliness().declare_token(f"{self.keys.alive_laptop}/{s.zid()}")
         except BaseException:
             _close_session(self._session)
             raise
@@ -249,6 +250,7 @@ class ZenohControllerTransport:
         self.controller: Any = None
         self._session: Any = None
         self._laptop_present = False
+        self._laptops: set[str] = set()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._closed = False
@@ -271,7 +273,7 @@ class ZenohControllerTransport:
                 s.declare_queryable(self.keys.cmd, self._on_command),
                 s.declare_queryable(self.keys.status, self._on_status_query),
                 s.declare_subscriber(self.keys.estop, lambda smp: controller.on_frame("EStop", _payload(smp), self.send)),
-                s.liveliness().declare_subscriber(self.keys.alive_laptop, self._on_laptop, history=True),
+                s.liveliness().declare_subscriber(f"{self.keys.alive_laptop}/**", self._on_laptop, history=True),
             ]
             self._token = s.liveliness().declare_token(self.keys.alive_controller)
         except BaseException:
@@ -292,12 +294,16 @@ class ZenohControllerTransport:
         self.controller.on_frame("StatusRequest", _payload(query), lambda kind, data: query.reply(query.key_expr, data))
 
     def _on_laptop(self, sample: Any) -> None:
+        key = str(sample.key_expr)
         if sample.kind == self._zenoh.SampleKind.PUT:
+            self._laptops.add(key)
             self._laptop_present = True
             self.controller.laptop_seen()
         else:
-            self._laptop_present = False
-            self.controller.laptop_lost("laptop liveliness token gone")
+            self._laptops.discard(key)
+            if not self._laptops:
+                self._laptop_present = False
+                self.controller.laptop_lost("laptop liveliness token gone")
 
     def _heartbeat_loop(self) -> None:
         while not self._stop.wait(self.heartbeat_period_s):

@@ -139,3 +139,25 @@ def test_raw_payloads_through_the_queryable(port, controller_process, tmp_path, 
         assert link.send_grasp(cmd, timeout_s=2.0).accepted
         link.wait_outcome(cmd.command_id, 3.0)
     assert read_execution_log(tmp_path / "executed.jsonl") == [cmd.command_id]
+
+
+def test_laptop_loss_aborts_but_a_second_laptop_leaving_does_not(port, controller_process, make_cmd):
+    from field.link import OutcomeClass
+
+    url = f"zenoh://127.0.0.1:{port}/crane-l"
+    controller_process(url)
+    with open_link(url, FAST) as link:
+        slow = make_cmd(link.new_command_id(), logs=9)  # 1.5 s
+        link.send_grasp(slow, timeout_s=2.0)
+        with open_link(url, FAST) as other:
+            assert other.status().current_command_id == slow.command_id
+        assert link.wait_outcome(slow.command_id, 5.0).outcome_class is OutcomeClass.SUCCESS
+        slow2 = make_cmd(link.new_command_id(), logs=9)
+        link.send_grasp(slow2, timeout_s=2.0)
+    # the commanding laptop left mid-grasp (token gone): the controller aborts the grasp
+    with open_link(url, FAST) as again:
+        deadline = time.monotonic() + 3
+        while (st := again.status()).current_command_id == slow2.command_id and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert st.last_outcome.command_id == slow2.command_id
+        assert st.last_outcome.outcome_class is OutcomeClass.ABORTED
