@@ -139,3 +139,61 @@ def plan_command(
     Console().print(table)
     for r in result.rejected:
         typer.echo(f"rejected {r['targets']}: {r['constraint']} ({r['detail']})")
+
+
+def eval_command(
+    out: Path = typer.Option(..., "--out", help="Results folder (records, results.md/json, examples.png)."),
+    model: Path = typer.Option(None, "--model", help="Checkpoint; default: the shipped model."),
+    per_cell: int = typer.Option(100, "--per-cell", help="Piles per (size, obstacles) cell."),
+    logs: str = typer.Option("2-7", "--logs", help="Pile sizes, 'A-B'."),
+    obstacles: str = typer.Option("both", "--obstacles", help="yes, no or both."),
+    objectives: str = typer.Option("f1,f2,f3", "--objectives", help="Comma-separated: f1,f2,f3."),
+    baselines: str = typer.Option("random,geometric,oracle", "--baselines",
+                                  help="Comma-separated baselines through the same trials ('' for none)."),
+    extra_model: list[str] = typer.Option([], "--extra-model", help="LABEL=PATH, e.g. no-depth=runs/nd/best.safetensors."),
+    workers: int = typer.Option(0, "--workers", help="Processes (0 = all cores) or Dask workers."),
+    engine: str = typer.Option("local", "--engine", help="local or dask."),
+    address: str = typer.Option(None, "--address", help="Dask scheduler address."),
+    trial: str = typer.Option("fast", "--trial", help="Trial preset: fast or careful."),
+    seed_base: int = typer.Option(900_000_000, "--seed-base", help="First test seed (keep far from training seeds)."),
+) -> None:
+    """Evaluate planners in the twin, the paper's protocol: fresh piles, one grasp each, tried in physics.
+
+    Example: loggrasp eval --per-cell 100 --logs 2-7 --obstacles both --objectives f1,f2,f3 --out results/
+    Re-running resumes (one record file per pile).
+    """
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn, TimeRemainingColumn
+
+    from planner.evaluate import EvalConfig, PlannerSpec, run_evaluation
+    from synth.errors import SynthError
+    from synth.jobs import parse_range
+
+    try:
+        lo, hi = parse_range(logs, "--logs")
+        obs = {"yes": (True,), "no": (False,), "both": (True, False)}.get(obstacles)
+        if obs is None:
+            raise ValueError(f"--obstacles must be yes, no or both, got {obstacles!r}")
+        cfg = EvalConfig(logs=tuple(range(lo, hi + 1)), obstacles=obs, per_cell=per_cell, trial=trial,
+                         seed_base=seed_base)
+        path = str(model or DEFAULT_MODEL)
+        specs = [PlannerSpec("unet", model=path, objective=o.strip()) for o in objectives.split(",") if o.strip()]
+        for item in extra_model:
+            label, _, p = item.partition("=")
+            if not p:
+                raise ValueError(f"--extra-model must be LABEL=PATH, got {item!r}")
+            specs.append(PlannerSpec("unet", model=p, objective="f1", label=label))
+        specs += [PlannerSpec(b.strip()) for b in baselines.split(",") if b.strip()]
+        for s in specs:
+            if s.kind == "unet" and not Path(s.model).exists():
+                raise ValueError(f"model {s.model} not found; train one with `loggrasp train` or pass --model")
+    except ValueError as exc:
+        fail(str(exc))
+    with Progress("[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(),
+                  TimeElapsedColumn(), TimeRemainingColumn()) as bar:
+        task = bar.add_task("piles", total=len(cfg.tasks()))
+        try:
+            run_evaluation(specs, cfg, out, workers=workers, engine=engine, address=address,
+                           progress=lambda d, t: bar.update(task, completed=d))
+        except (SynthError, ValueError) as exc:
+            fail(str(exc))
+    typer.echo((Path(out) / "results.md").read_text())

@@ -150,7 +150,9 @@ class Plan:
     grasps: list[PlannedGrasp]  # best first
     subsets_evaluated: int
     elapsed_s: float
-    rejected: list[dict] = field(default_factory=list)  # {"targets", "constraint", "detail"}
+    # what the constraints did: {"targets", "constraint": "lift_capacity" | "reach" | "keep_out",
+    # "action": "removed" (subset not planned) | "moved" (its best grasp replaced), "detail"}
+    rejected: list[dict] = field(default_factory=list)
     info: dict = field(default_factory=dict)  # subset selection, visible logs, ...
 
     @property
@@ -229,7 +231,7 @@ def plan(observation, planner: Planner, objective: Objective = Objective(), cons
         for s in chosen:
             m = sum(masses[i] for i in s)
             if m > constraints.lift_capacity_kg:
-                rejected.append({"targets": list(s), "constraint": "lift_capacity",
+                rejected.append({"targets": list(s), "constraint": "lift_capacity", "action": "removed",
                                  "detail": f"{m:.0f} kg > {constraints.lift_capacity_kg:.0f} kg"})
             else:
                 kept.append(s)
@@ -262,11 +264,12 @@ def _select(out, chosen, grid, objective, constraints, planner) -> tuple[list[Pl
         if reach is not None:
             qk = np.where(reach.ravel(), qk, -np.inf)
             if not np.isfinite(qk).any():
-                rejected.append({"targets": list(s), "constraint": "reach", "detail": "no pixel within reach"})
+                rejected.append({"targets": list(s), "constraint": "reach", "action": "removed",
+                                 "detail": "no pixel within reach"})
                 continue
             if int(np.argmax(qk)) != best_any:
-                rejected.append({"targets": list(s), "constraint": "reach",
-                                 "detail": "best grasp out of reach; next best in reach used"})
+                rejected.append({"targets": list(s), "constraint": "reach", "action": "moved",
+                                 "detail": "best grasp out of reach; best in reach used"})
         n_try = min(planner.candidates_per_subset if keep_out is not None else 1, n_px)
         order = np.argpartition(-qk, n_try - 1)[:n_try] if n_try < n_px else np.arange(n_px)
         order = order[np.argsort(-qk[order], kind="stable")]
@@ -280,12 +283,12 @@ def _select(out, chosen, grid, objective, constraints, planner) -> tuple[list[Pl
             picked = (int(idx), g)
             break
         if picked is None:
-            rejected.append({"targets": list(s), "constraint": "keep_out",
+            rejected.append({"targets": list(s), "constraint": "keep_out", "action": "removed",
                              "detail": f"the best {n_try} grasps all overlap a keep-out zone"})
             continue
         idx, g = picked
         if keep_out is not None and idx != int(order[0]):
-            rejected.append({"targets": list(s), "constraint": "keep_out",
+            rejected.append({"targets": list(s), "constraint": "keep_out", "action": "moved",
                              "detail": "best grasp overlaps a keep-out zone; next best used"})
         r, c = idx // q.shape[2], idx % q.shape[2]
         grasps.append(PlannedGrasp(g, float(q[k, r, c]), float(u[k, r, c]), float(out[k, 4, r, c]), tuple(s), (r, c)))

@@ -66,9 +66,8 @@ class TrainConfig:
             raise ValueError(f"precision must be 'bf16' or 'fp32', got {self.precision!r}")
         if self.checkpoint_every_steps < 1:
             raise ValueError("checkpoint_every_steps must be >= 1")
-        if self.data.in_channels != self.model.in_channels:
-            raise ValueError(f"data.in_channels={self.data.in_channels} but model.in_channels={self.model.in_channels}; "
-                             "set both (3 = I, D, M_T; 2 = I, M_T)")
+        if self.data.in_channels != self.model.in_channels:  # the model decides (2 = no-depth ablation)
+            object.__setattr__(self, "data", replace(self.data, in_channels=self.model.in_channels))
 
     def to_dict(self) -> dict:
         return asdict(self)

@@ -220,7 +220,9 @@ def test_constraints_reach_capacity_keep_out():
     c = Constraints(crane_base_xy_m=(gx + 3.0, gy), min_reach_m=0.0, max_reach_m=2.5)
     p = plan(obs, pl, constraints=c)
     assert all(math.hypot(g.grasp.x_m - gx - 3.0, g.grasp.y_m - gy) <= 2.5 + 1e-9 for g in p.grasps)
-    assert any(r["constraint"] == "reach" for r in p.rejected)
+    assert any(r["constraint"] == "reach" and r["action"] == "moved" for r in p.rejected)
+    far = plan(obs, pl, constraints=Constraints(crane_base_xy_m=(50.0, 0.0), max_reach_m=10.0))
+    assert far.grasps == [] and all(r["action"] == "removed" for r in far.rejected) and len(far.rejected) == 7
     # lift capacity from the masks: singles pass, the triple does not
     masses = Constraints().log_masses_kg({i: int((obs.instance == i + 1).sum()) for i in range(3)}, grid.pixel_m)
     cap = Constraints(lift_capacity_kg=2.5 * masses[0])
