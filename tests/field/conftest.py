@@ -130,7 +130,7 @@ class RemoteCanServer:
                     return
             except OSError:
                 if self.proc.poll() is not None:
-                    raise RuntimeError("can_remote server exited")
+                    raise RuntimeError("can_remote server exited") from None
                 time.sleep(0.05)
         self.close()
         raise RuntimeError("can_remote server did not start")

@@ -9,8 +9,8 @@ import pytest
 
 from field.link import OutcomeClass, open_link
 from field.link.can_backend import decode_recording, read_recording, replay
-from field.link.codec import LAPTOP_TO_CRANE, kind_of_frame_id
-from field.link.messages import Ack, GraspCommand, Outcome
+from field.link.codec import kind_of_frame_id
+from field.link.messages import Ack, Outcome
 
 
 @pytest.mark.parametrize("suffix", [".blf", ".asc"])
