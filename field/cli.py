@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import typer
 
-from planner.cli import plan_command, train_command
+from planner.cli import eval_command, plan_command, train_command
 from synth.cli import app as synth_app
 
 app = typer.Typer(
@@ -15,6 +15,7 @@ app = typer.Typer(
 app.add_typer(synth_app, name="synth")
 app.command("train")(train_command)
 app.command("plan")(plan_command)
+app.command("eval")(eval_command)
 
 
 @app.command("demo")
