@@ -1,0 +1,159 @@
+"""reconstruct.fit on point clouds sampled from a known pile: what a downward scanner sees (the
+twin's exact top-view height map, occlusion included) plus noise, with RTK-like noisy ends."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from reconstruct.errors import FitError, ReconstructError
+from reconstruct.fit import FitConfig, fit_log, fit_pile, natural_key, sample_top_view_points, separate_logs
+from synth.pile import LogSpec, PileSpec, RockSpec, StumpSpec, TerrainSpec, quat_from_euler
+
+SLOPE = 0.02  # terrain z = SLOPE * x
+
+
+def _ground_log(x0, x1, y, d, top=None):
+    """A log along x lying on the sloped plane (axis one radius above it)."""
+    r0, r1 = d / 2, (top or d) / 2
+    return LogSpec.from_endpoints((x0, y, SLOPE * x0 + r0), (x1, y, SLOPE * x1 + r1), d, top)
+
+
+@pytest.fixture(scope="module")
+def truth() -> PileSpec:
+    n = 32
+    xs = np.linspace(-2.5, 2.5, n)
+    heights = tuple(tuple(float(SLOPE * x) for x in xs) for _ in range(n))
+    terrain = TerrainSpec(extent_m=5.0, resolution=n, amplitude_m=0.0, heights_m=heights)
+    a = _ground_log(-1.0, 1.0, -0.5, 0.16)
+    b = _ground_log(-1.0, 1.0, -0.5 + 0.155, 0.14)
+    c = _ground_log(-1.2, 1.2, 0.8, 0.22, top=0.15)  # tapered
+    d = LogSpec.from_endpoints((0.0, -1.1, 0.223), (0.0, 0.15, 0.223), 0.12)  # across a and b
+    stump = StumpSpec(position_m=(-1.5, -1.6), height_m=0.4, bottom_radius_m=0.2, top_radius_m=0.18)
+    rng = np.random.default_rng(3)
+    v = rng.normal(size=(14, 3))
+    v = v / np.linalg.norm(v, axis=1, keepdims=True) * np.array([0.35, 0.3, 0.2])
+    rock = RockSpec(position_m=(1.5, -1.5, SLOPE * 1.5 + 0.08), orientation=quat_from_euler(0, 0, 0.3),
+                    vertices_m=tuple(tuple(float(c) for c in p) for p in v))
+    return PileSpec(terrain=terrain, logs=(a, b, c, d), stumps=(stump,), rocks=(rock,))
+
+
+@pytest.fixture(scope="module")
+def points(truth) -> np.ndarray:
+    return sample_top_view_points(truth, size_px=400, noise_m=0.003, rng=np.random.default_rng(0))
+
+
+def _survey(truth: PileSpec, seed: int = 1, ids=None) -> dict:
+    rng = np.random.default_rng(seed)
+    ids = ids or [f"log{i}" for i in range(truth.n_logs)]
+    out = {}
+    for log_id, log in zip(ids, truth.logs):
+        butt, top = log.endpoints_m()
+        noise = rng.normal(size=(2, 3)) * np.array([0.015 / math.sqrt(2)] * 2 + [0.025])
+        out[log_id] = (butt + noise[0], top + noise[1])
+    return out
+
+
+@pytest.fixture(scope="module")
+def fitted(truth, points):
+    return fit_pile(points, _survey(truth), truth.terrain.extent_m, FitConfig())
+
+
+def test_diameters_within_a_few_millimetres(truth, fitted):
+    errs = [lf.mean_diameter_m - t.mean_diameter_m for lf, t in zip(fitted.logs, truth.logs)]
+    assert max(abs(e) for e in errs) < 0.006, errs
+    assert float(np.median(np.abs(errs))) < 0.004, errs
+
+
+def test_taper_found_only_where_it_is(truth, fitted):
+    lf = fitted.logs[2]
+    assert lf.top_diameter_m is not None
+    assert abs(lf.diameter_m - 0.22) < 0.015 and abs(lf.top_diameter_m - 0.15) < 0.015
+    for k in (0, 1, 3):
+        assert fitted.logs[k].top_diameter_m is None, fitted.logs[k]
+
+
+def test_ends_follow_the_survey_and_the_scan(truth, fitted):
+    for lf, t in zip(fitted.logs, truth.logs):
+        butt, top = t.endpoints_m()
+        e = max(np.linalg.norm(np.array(lf.butt_m) - butt), np.linalg.norm(np.array(lf.top_m) - top))
+        assert e < 0.05, (lf.log_id, e)
+        # GNSS residual = distance from the survey point to the fitted axis: RTK-sized
+        assert lf.gnss_residual_a_m < 0.08 and lf.gnss_residual_b_m < 0.08
+    assert fitted.pile.source == "reconstructed"
+
+
+def test_terrain_and_obstacles(truth, fitted):
+    grid_t = truth.terrain.height_grid()
+    grid_r = fitted.pile.terrain.height_grid()
+    assert grid_r.shape == (64, 64)
+    xs, ys = fitted.pile.terrain.grid_xy()
+    X, Y = np.meshgrid(xs, ys)
+    err = np.abs(grid_r - SLOPE * X)
+    assert float(np.median(err)) < 0.01
+    assert grid_t.shape == (32, 32)
+    assert len(fitted.pile.stumps) == 1 and len(fitted.pile.rocks) == 1, fitted.obstacles
+    s = fitted.pile.stumps[0]
+    assert np.hypot(s.position_m[0] + 1.5, s.position_m[1] + 1.6) < 0.08
+    assert abs(s.height_m - 0.4) < 0.06 and abs(s.top_radius_m - 0.18) < 0.05
+    r = fitted.pile.rocks[0]
+    assert np.hypot(r.position_m[0] - 1.5, r.position_m[1] + 1.5) < 0.15
+
+
+def test_log_order_is_natural_and_independent_of_input_order(truth, points):
+    ids = ["log10", "log2", "log1", "log3"]
+    survey = _survey(truth, ids=ids)
+    shuffled = dict(reversed(list(survey.items())))
+    fit = fit_pile(points, shuffled, 5.0, FitConfig(validate=False))
+    assert [lf.log_id for lf in fit.logs] == ["log1", "log2", "log3", "log10"]
+    assert [lf.index for lf in fit.logs] == [0, 1, 2, 3]
+    assert sorted(ids, key=natural_key) == ["log1", "log2", "log3", "log10"]
+
+
+def test_top_surface_endpoints(truth, points):
+    log = truth.logs[0]
+    butt, top = log.endpoints_m()
+    up = np.array([0.0, 0.0, log.diameter_m / 2])
+    f = fit_log(points, butt + up, top + up, FitConfig(endpoint_ref="top_surface", fit_taper=False))
+    assert abs(2 * f["radius_a_m"] - log.diameter_m) < 0.006
+    # the fitted axis passes through the true end centres, not the surveyed top points
+    assert np.linalg.norm(f["ends"][0] - butt) < 0.02
+
+
+def test_log_outside_the_scan_is_named(points, truth):
+    survey = _survey(truth)
+    survey["stray"] = (np.array([-2.2, 2.0, 0.1]), np.array([-0.6, 2.3, 0.1]))  # bare ground
+    with pytest.raises(FitError, match="stray"):
+        fit_pile(points, survey, 5.0, FitConfig(validate=False))
+    far = {"x": (np.array([1.0, 3.0, 0.1]), np.array([2.0, 3.0, 0.1]))}
+    with pytest.raises(FitError, match="outside the 5 m terrain"):
+        fit_pile(points, far, 5.0, FitConfig(validate=False))
+
+
+def test_coincident_endpoints_and_bad_config():
+    pts = np.random.default_rng(0).normal(size=(500, 3))
+    with pytest.raises(FitError, match="only 0.0 cm apart"):
+        fit_log(pts, (0, 0, 0), (0, 0, 0), log_id="x")
+    with pytest.raises(ValueError):
+        FitConfig(endpoint_ref="middle")
+    with pytest.raises(ValueError):
+        FitConfig(min_radius_m=0.5, max_radius_m=0.4)
+    with pytest.raises(ValueError):
+        fit_pile(np.zeros((0, 3)), {"a": ((0, 0, 0), (1, 0, 0))}, 5.0)
+    assert issubclass(FitError, ReconstructError)
+
+
+def test_interpenetrating_logs_are_lifted_minimally(truth):
+    d = truth.logs[3]
+    sunk = truth.with_logs(truth.logs[:3] + (LogSpec.from_endpoints(
+        *(e - np.array([0, 0, 0.05]) for e in d.endpoints_m()), d.diameter_m),))
+    pile, notes, lifts = separate_logs(sunk, FitConfig())
+    assert 0.005 < lifts[3] < 0.05, lifts
+    assert lifts[:3] == [0.0, 0.0, 0.0]
+    assert notes and "log 3 lifted" in notes[0]
+    too_deep = truth.with_logs(truth.logs[:3] + (LogSpec.from_endpoints(
+        *(e - np.array([0, 0, 0.12]) for e in d.endpoints_m()), d.diameter_m),))
+    with pytest.raises(FitError, match="lifted"):
+        separate_logs(too_deep, FitConfig(max_lift_m=0.05))
