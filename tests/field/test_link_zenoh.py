@@ -94,6 +94,25 @@ def test_auth_and_access_control(port, controller_process, tmp_path, auth_files,
     # authenticated, but not allowed by the access-control policy: sees no controller
     with pytest.raises(LinkError, match="controller"):
         open_link(f"{base}?config={laptop('observer', 'obs-secret')}", short)
+    # an unauthenticated raw *peer* session: opens (peers may run alone) but reaches nobody
+    import zenoh
+
+    from field.link.codec import Encoder
+    from field.link.zenoh_backend import ZenohKeys
+
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
+    conf.insert_json5("listen/endpoints", "[]")
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("scouting/gossip/enabled", "false")
+    rogue = zenoh.open(conf)
+    try:
+        _, frame = Encoder().encode(make_cmd(123456))
+        replies = list(rogue.get(ZenohKeys("loggrasp/crane-a").cmd, payload=frame, timeout=1.0))
+        assert [r for r in replies if r.ok is not None] == []
+    finally:
+        rogue.close()
     log = tmp_path / "executed.jsonl"
     assert read_execution_log(log) == []
     # the operator commands the crane
