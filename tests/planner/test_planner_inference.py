@@ -280,3 +280,9 @@ def test_real_network_bf16_plan_runs():
     p = plan(observation(3), _planner(precision="bf16"))
     assert p.subsets_evaluated == 7 and len(p.grasps) == 7
     assert all(0.30 <= g.grasp.width_m <= 1.55 and 0 <= g.graspability <= 1 for g in p.grasps)
+
+
+def test_no_depth_ablation_and_decoder_injection_plan():
+    for cfg in (UNetConfig.tiny(in_channels=2), UNetConfig.tiny(mask_injection="decoder")):
+        p = plan(observation(3), _planner(cfg, precision="bf16"))
+        assert p.subsets_evaluated == 7 and len(p.grasps) == 7
