@@ -6,12 +6,14 @@ from __future__ import annotations
 import typer
 
 from planner.cli import eval_command, plan_command, train_command
+from reconstruct.cli import scan_command
 from synth.cli import app as synth_app
 
 app = typer.Typer(
     help="loggrasp — multi-log grasp planning for forestry cranes, from simulator twin to field.",
     no_args_is_help=True, pretty_exceptions_enable=False,
 )
+synth_app.command("scan")(scan_command)
 app.add_typer(synth_app, name="synth")
 app.command("train")(train_command)
 app.command("plan")(plan_command)

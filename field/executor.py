@@ -1,0 +1,72 @@
+"""The controller twin's hands: accepted grasp commands executed as grasp trials in pybullet.
+
+A :class:`PybulletTrialExecutor` holds the (true, georeferenced) pile the crane stands at. For a
+command it converts the SWEREF 99 TM position and the grid heading back into the pile frame,
+runs :func:`synth.trial.run_trial` from the settled pile and reports the outcome the way a real
+controller would (class, logs held, balance). Registered in
+:data:`field.controller.EXECUTORS` as ``"pybullet"``.
+"""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+
+from field.errors import ControllerError
+from field.link.messages import GraspCommand, Outcome, OutcomeClass
+
+_CLASS = {
+    "success": OutcomeClass.SUCCESS,
+    "more_than_intended": OutcomeClass.MORE_THAN_INTENDED,
+    "fewer_or_other": OutcomeClass.FEWER,
+    "collision": OutcomeClass.COLLISION,
+    "not_closed": OutcomeClass.NOT_CLOSED,
+    "dropped": OutcomeClass.DROPPED,
+}
+
+
+def command_to_grasp(cmd: GraspCommand, georef):
+    """(Grasp in the pile frame, grasp-point height z [m]) of a grasp command."""
+    import numpy as np
+
+    from synth.geodesy import grid_bearing_to_pile_angle, sweref_tm_to_pile
+    from synth.grasp import Grasp
+
+    p = np.asarray(sweref_tm_to_pile(georef, cmd.easting_mm / 1000.0, cmd.northing_mm / 1000.0,
+                                     cmd.height_mm / 1000.0), dtype=float).reshape(3)
+    phi = float(grid_bearing_to_pile_angle(georef, cmd.heading_cdeg / 100.0, p))
+    return Grasp(float(p[0]), float(p[1]), phi, cmd.opening_width_mm / 1000.0), float(p[2])
+
+
+class PybulletTrialExecutor:
+    """Execute commands as grasp trials on ``pile`` (a PileSpec or a pile.json path)."""
+
+    def __init__(self, pile, trial: str = "fast") -> None:
+        from synth.pile import PileSpec, read_pile
+        from synth.trial import TrialConfig
+
+        self.pile = pile if isinstance(pile, PileSpec) else read_pile(Path(pile))
+        if self.pile.georef is None:
+            raise ControllerError("the controller twin's pile has no georeference: it cannot place "
+                                  "SWEREF 99 TM commands on it; give it a georeferenced pile.json")
+        if trial not in ("fast", "careful"):
+            raise ControllerError(f"trial preset must be 'fast' or 'careful', got {trial!r}")
+        self.config = TrialConfig.fast() if trial == "fast" else TrialConfig.careful()
+        self._aborted = threading.Event()
+        self.last_result = None
+
+    def __call__(self, cmd: GraspCommand) -> Outcome:
+        from synth.trial import run_trial
+
+        self._aborted.clear()
+        grasp, _ = command_to_grasp(cmd, self.pile.georef)
+        result = run_trial(self.pile, grasp, int(cmd.target_log_count), self.config)
+        self.last_result = result
+        if self._aborted.is_set():
+            return Outcome(cmd.command_id, OutcomeClass.ABORTED, 0, 0)
+        cos_b = result.cos_beta if result.cos_beta == result.cos_beta else 1.0
+        return Outcome(cmd.command_id, _CLASS[result.outcome.value], len(result.grasped),
+                       int(round(max(-1.0, min(1.0, cos_b)) * 1000)))
+
+    def abort(self) -> None:
+        self._aborted.set()
