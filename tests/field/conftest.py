@@ -170,7 +170,7 @@ class Rig:
 BACKENDS = ["can-virtual", "can-remote", "zenoh"]
 
 #: controller config used by rigs (short timeouts: fast tests)
-RIG_CONFIG = {"max_pile_age_s": 5.0, "laptop_timeout_s": 0.5, "heartbeat_period_s": 0.05}
+RIG_CONFIG = {"max_pile_age_s": 5.0, "laptop_timeout_s": 1.0, "heartbeat_period_s": 0.05}
 #: executor used by rigs: 50 ms per grasp, 1.5 s for 9-log grasps (a slow command), 7 logs -> COLLISION
 RIG_EXECUTOR = {"delay_s": 0.05, "delay_by_target_logs": {"9": 1.5}}
 

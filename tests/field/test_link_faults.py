@@ -36,7 +36,7 @@ def pair():
         channel = f"faults-{uuid.uuid4().hex[:8]}"
         cbus = FaultyBus(can.Bus(interface="virtual", channel=channel, fd=True))
         executor = FixedOutcomeExecutor(delay_s=delay_s)
-        controller = CraneController(ControllerConfig(**{"laptop_timeout_s": 0.5, **cfg}), executor)
+        controller = CraneController(ControllerConfig(**{"laptop_timeout_s": 1.0, **cfg}), executor)
         transport = CanControllerTransport(bus=cbus, heartbeat_period_s=controller.config.heartbeat_period_s)
         transport.start(controller)
         controller.start()
