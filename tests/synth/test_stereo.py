@@ -344,3 +344,14 @@ def test_stereo_pair_folder_round_trip(tmp_path):
         StereoPair.load(folder)
     with pytest.raises(StereoFormatError):
         StereoPair.load(tmp_path / "missing")
+
+
+def test_auto_falls_back_to_tinyrenderer_without_egl(monkeypatch):
+    import synth.stereo as stereo
+    from synth.errors import RenderError
+
+    monkeypatch.setattr(stereo, "egl_plugin_path", lambda: None)
+    pair = render_stereo(_pile(), _small_rig("auto", width_px=64, height_px=36))
+    assert pair.meta["renderer"] == "tiny"
+    with pytest.raises(RenderError, match="EGL"):
+        render_stereo(_pile(), _small_rig("egl", width_px=64, height_px=36))
