@@ -28,6 +28,10 @@ A candidate for targets ``T``
 5. has no non-target log crossing its closing segment higher than ``under_tolerance_m`` below the
    lowest target crossing (that log would be reached before the targets), and no obstacle
    footprint inside the grapple's footprint (claw to claw, ``claw_width_m`` wide).
+
+Besides the narrowest width (rule 3), each position is also tried ``extra_widths_m`` wider, centred
+and shifted by ±extra/2 along the closing axis, so that a claw that would land on a neighbour can
+reach past it (the candidate list stays sorted narrowest first).
 """
 
 from __future__ import annotations
@@ -52,8 +56,9 @@ class CandidateConfig:
     end_margin_m: float = 0.30  # keep crossings this far from a target's ends [m]
     side_margin_m: float = 0.08  # free space between the outermost target and a claw [m]
     claw_width_m: float = 0.22  # claw extent across the closing axis [m]
-    claw_clearance_m: float = 0.05  # claws keep this far from logs and obstacles [m]
+    claw_clearance_m: float = 0.03  # claws keep this far from logs and obstacles (> half the 5 cm plate) [m]
     under_tolerance_m: float = 0.10  # a non-target this far below the lowest target may cross [m]
+    extra_widths_m: tuple[float, ...] = (0.0, 0.15, 0.30)  # also try this much wider, shifted [m]
     max_candidates: int | None = None  # keep at most this many (narrowest first); None = all
 
     def __post_init__(self) -> None:
@@ -67,6 +72,8 @@ class CandidateConfig:
         for name in ("end_margin_m", "side_margin_m", "claw_clearance_m", "under_tolerance_m"):
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
                 raise ValueError(f"{name} must be a finite number >= 0 m, got {getattr(self, name)}")
+        if not self.extra_widths_m or any(not (math.isfinite(e) and e >= 0) for e in self.extra_widths_m):
+            raise ValueError(f"extra_widths_m must be finite widths >= 0 m, got {self.extra_widths_m}")
         if self.max_candidates is not None and self.max_candidates < 1:
             raise ValueError("max_candidates must be >= 1 or None")
 
@@ -74,50 +81,85 @@ class CandidateConfig:
 # ---------------------------------------------------------------------------------------------
 # plane geometry
 # ---------------------------------------------------------------------------------------------
-def _point_segment_dist(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
-    d = b - a
-    L2 = float(d @ d)
-    t = 0.0 if L2 < 1e-18 else min(1.0, max(0.0, float((p - a) @ d) / L2))
-    return float(np.linalg.norm(p - (a + t * d)))
+def _psd(px: float, py: float, ax: float, ay: float, bx: float, by: float) -> float:
+    """Distance from point p to segment ab (plain floats: this is the search's inner loop)."""
+    dx, dy = bx - ax, by - ay
+    L2 = dx * dx + dy * dy
+    t = 0.0 if L2 < 1e-18 else min(1.0, max(0.0, ((px - ax) * dx + (py - ay) * dy) / L2))
+    return math.hypot(px - ax - t * dx, py - ay - t * dy)
+
+
+def _sint(p1x, p1y, p2x, p2y, q1x, q1y, q2x, q2y) -> bool:
+    d1x, d1y, d2x, d2y = p2x - p1x, p2y - p1y, q2x - q1x, q2y - q1y
+    den = d1x * d2y - d1y * d2x
+    if abs(den) < 1e-15:
+        return False  # parallel: the distance test covers touching
+    wx, wy = q1x - p1x, q1y - p1y
+    t = (wx * d2y - wy * d2x) / den
+    u = (wx * d1y - wy * d1x) / den
+    return -1e-12 <= t <= 1 + 1e-12 and -1e-12 <= u <= 1 + 1e-12
+
+
+def _ssd(p1x, p1y, p2x, p2y, q1x, q1y, q2x, q2y) -> float:
+    if _sint(p1x, p1y, p2x, p2y, q1x, q1y, q2x, q2y):
+        return 0.0
+    return min(_psd(p1x, p1y, q1x, q1y, q2x, q2y), _psd(p2x, p2y, q1x, q1y, q2x, q2y),
+               _psd(q1x, q1y, p1x, p1y, p2x, p2y), _psd(q2x, q2y, p1x, p1y, p2x, p2y))
 
 
 def _cross(u: np.ndarray, v: np.ndarray) -> float:
     return float(u[0] * v[1] - u[1] * v[0])
 
 
+def _point_segment_dist(p, a, b) -> float:
+    return _psd(float(p[0]), float(p[1]), float(a[0]), float(a[1]), float(b[0]), float(b[1]))
+
+
 def segments_intersect(p1, p2, q1, q2) -> bool:
     """Do the closed segments p1p2 and q1q2 intersect (2-D)?"""
-    p1, p2, q1, q2 = (np.asarray(v, dtype=float) for v in (p1, p2, q1, q2))
-    d1, d2 = p2 - p1, q2 - q1
-    den = _cross(d1, d2)
-    if abs(den) < 1e-15:
-        return False  # parallel: the distance test covers touching
-    t = _cross(q1 - p1, d2) / den
-    u = _cross(q1 - p1, d1) / den
-    return -1e-12 <= t <= 1 + 1e-12 and -1e-12 <= u <= 1 + 1e-12
+    return _sint(*(float(v) for pt in (p1, p2, q1, q2) for v in pt[:2]))
 
 
 def segment_distance(p1, p2, q1, q2) -> float:
     """Shortest distance between two 2-D segments."""
-    p1, p2, q1, q2 = (np.asarray(v, dtype=float) for v in (p1, p2, q1, q2))
-    if segments_intersect(p1, p2, q1, q2):
-        return 0.0
-    return min(_point_segment_dist(p1, q1, q2), _point_segment_dist(p2, q1, q2),
-               _point_segment_dist(q1, p1, p2), _point_segment_dist(q2, p1, p2))
+    return _ssd(*(float(v) for pt in (p1, p2, q1, q2) for v in pt[:2]))
 
 
-def segment_polygon_distance(p1, p2, poly: np.ndarray) -> float:
-    """Distance from a segment to a convex polygon (0 when they overlap)."""
-    poly = np.asarray(poly, dtype=float)
-    if _inside_convex(np.asarray(p1, float), poly) or _inside_convex(np.asarray(p2, float), poly):
-        return 0.0
+def _inside_convex_f(px: float, py: float, poly: Sequence[tuple[float, float]]) -> bool:
+    pos = neg = False
     n = len(poly)
-    return min(segment_distance(p1, p2, poly[i], poly[(i + 1) % n]) for i in range(n))
+    for i in range(n):
+        ax, ay = poly[i]
+        bx, by = poly[(i + 1) % n]
+        c = (bx - ax) * (py - ay) - (by - ay) * (px - ax)
+        pos |= c > 1e-12
+        neg |= c < -1e-12
+    return not (pos and neg)
 
 
-def _inside_convex(p: np.ndarray, poly: np.ndarray) -> bool:
-    signs = [_cross(poly[(i + 1) % len(poly)] - poly[i], p - poly[i]) for i in range(len(poly))]
-    return all(s >= -1e-12 for s in signs) or all(s <= 1e-12 for s in signs)
+def _inside_convex(p, poly) -> bool:
+    return _inside_convex_f(float(p[0]), float(p[1]), [(float(x), float(y)) for x, y in poly])
+
+
+def segment_polygon_distance(p1, p2, poly) -> float:
+    """Distance from a segment to a convex polygon (0 when they overlap)."""
+    P = [(float(x), float(y)) for x, y in poly]
+    return _seg_poly_f(float(p1[0]), float(p1[1]), float(p2[0]), float(p2[1]), P)
+
+
+def _seg_poly_f(p1x, p1y, p2x, p2y, P) -> float:
+    if _inside_convex_f(p1x, p1y, P) or _inside_convex_f(p2x, p2y, P):
+        return 0.0
+    n = len(P)
+    return min(_ssd(p1x, p1y, p2x, p2y, *P[i], *P[(i + 1) % n]) for i in range(n))
+
+
+def _convex_overlap_f(A, B) -> bool:
+    """Do two convex polygons (lists of (x, y)) overlap or touch?"""
+    if any(_inside_convex_f(x, y, B) for x, y in A) or any(_inside_convex_f(x, y, A) for x, y in B):
+        return True
+    na, nb = len(A), len(B)
+    return any(_sint(*A[i], *A[(i + 1) % na], *B[j], *B[(j + 1) % nb]) for i in range(na) for j in range(nb))
 
 
 def _convex_hull(points: np.ndarray) -> np.ndarray:
@@ -179,6 +221,23 @@ class PlaneScene:
             v = np.array([rotate(r.orientation, p) for p in r.vertices_m]) + np.asarray(r.position_m)
             polys.append(_convex_hull(v[:, :2]))
         return PlaneScene(logs=logs, discs=tuple(discs), polygons=tuple(polys))
+
+    def _floats(self):
+        """Plain-float copies for the inner loop (cached): logs (ax, ay, bx, by, r, z0, z1),
+        discs (cx, cy, r), polygons (vertex list, centre x, centre y, bounding radius)."""
+        cached = getattr(self, "_cache", None)
+        if cached is None:
+            logs = [(float(l.p0[0]), float(l.p0[1]), float(l.p1[0]), float(l.p1[1]), float(l.radius_m),
+                     float(l.p0[2]), float(l.p1[2])) for l in self.logs]
+            discs = [(float(c[0]), float(c[1]), float(r)) for c, r in self.discs]
+            polys = []
+            for poly in self.polygons:
+                P = [(float(x), float(y)) for x, y in poly]
+                cx, cy = float(np.mean(poly[:, 0])), float(np.mean(poly[:, 1]))
+                polys.append((P, cx, cy, max(math.hypot(x - cx, y - cy) for x, y in P)))
+            cached = (logs, discs, polys)
+            object.__setattr__(self, "_cache", cached)
+        return cached
 
 
 def _crossing(c: np.ndarray, a: np.ndarray, log: LogFootprint) -> tuple[float, float, float] | None:
@@ -263,17 +322,21 @@ def generate_candidates(pile: PileSpec | PlaneScene, targets: Iterable[int],
             else:
                 t_lo = min(t - r for t, r, _ in crossings) - config.side_margin_m
                 t_hi = max(t + r for t, r, _ in crossings) + config.side_margin_m
-                width = max(t_hi - t_lo, MIN_WIDTH_M)
-                if width > MAX_WIDTH_M:
-                    continue
-                c = p + a * (t_lo + t_hi) / 2
-                key = (round(float(c[0]), 4), round(float(c[1]), 4), round(float(phi), 4))
-                if key in seen:
-                    continue
-                seen.add(key)
                 z_min = min(z for _, _, z in crossings)
-                if _admissible(scene, c, a, b, width, others, z_min, config):
-                    out.append(Grasp(float(c[0]), float(c[1]), float(phi), float(width)))
+                span = max(t_hi - t_lo, MIN_WIDTH_M)
+                mid = (t_lo + t_hi) / 2
+                for extra in config.extra_widths_m:
+                    width = span + extra
+                    if width > MAX_WIDTH_M + 1e-9:
+                        continue
+                    for shift in sorted({0.0, -extra / 2, extra / 2}):
+                        c = p + a * (mid + shift)
+                        key = (round(float(c[0]), 4), round(float(c[1]), 4), round(float(phi), 4), round(width, 4))
+                        if key in seen:
+                            continue
+                        seen.add(key)
+                        if _admissible(scene, c, a, b, width, others, z_min, config):
+                            out.append(Grasp(float(c[0]), float(c[1]), float(phi), float(min(width, MAX_WIDTH_M))))
     out.sort(key=lambda g: g.width_m)
     if config.max_candidates is not None:
         out = out[: config.max_candidates]
@@ -282,39 +345,48 @@ def generate_candidates(pile: PileSpec | PlaneScene, targets: Iterable[int],
 
 def _admissible(scene: PlaneScene, c: np.ndarray, a: np.ndarray, b: np.ndarray, width: float,
                 others: Sequence[int], z_min: float, cfg: CandidateConfig) -> bool:
-    e1, e2 = c - a * width / 2, c + a * width / 2
-    hw = cfg.claw_width_m / 2
-    claws = [(e - b * hw, e + b * hw) for e in (e1, e2)]
+    logs, discs, polys = scene._floats()
+    cx, cy, ax, ay, bx, by = float(c[0]), float(c[1]), float(a[0]), float(a[1]), float(b[0]), float(b[1])
+    hw, hr, clr = cfg.claw_width_m / 2, width / 2, cfg.claw_clearance_m
+    e1x, e1y, e2x, e2y = cx - ax * hr, cy - ay * hr, cx + ax * hr, cy + ay * hr
+    claws = [(ex - bx * hw, ey - by * hw, ex + bx * hw, ey + by * hw, ex, ey) for ex, ey in ((e1x, e1y), (e2x, e2y))]
     # 4. claws clear of every log and obstacle
-    for lg in scene.logs:
-        for q1, q2 in claws:
-            if segment_distance(q1, q2, lg.a2, lg.b2) < lg.radius_m + cfg.claw_clearance_m:
+    for lax, lay, lbx, lby, r, _, _ in logs:
+        for q1x, q1y, q2x, q2y, ex, ey in claws:
+            if _psd(ex, ey, lax, lay, lbx, lby) > hw + r + clr:
+                continue  # the claw's bounding circle is clear
+            if _ssd(q1x, q1y, q2x, q2y, lax, lay, lbx, lby) < r + clr:
                 return False
-    for centre, r in scene.discs:
-        for q1, q2 in claws:
-            if _point_segment_dist(centre, q1, q2) < r + cfg.claw_clearance_m:
+    for dx, dy, r in discs:
+        for q1x, q1y, q2x, q2y, _, _ in claws:
+            if _psd(dx, dy, q1x, q1y, q2x, q2y) < r + clr:
                 return False
-    for poly in scene.polygons:
-        for q1, q2 in claws:
-            if segment_polygon_distance(q1, q2, poly) < cfg.claw_clearance_m:
+    for P, pcx, pcy, R in polys:
+        for q1x, q1y, q2x, q2y, ex, ey in claws:
+            if math.hypot(ex - pcx, ey - pcy) > R + hw + clr:
+                continue
+            if _seg_poly_f(q1x, q1y, q2x, q2y, P) < clr:
                 return False
     # 5a. no non-target log crossing between the claws above the targets
     for i in others:
-        lg = scene.logs[i]
-        if segments_intersect(e1, e2, lg.a2, lg.b2):
-            cr = _crossing(c, a, lg)
+        lax, lay, lbx, lby, r, z0, z1 = logs[i]
+        if _sint(e1x, e1y, e2x, e2y, lax, lay, lbx, lby):
+            cr = _crossing(c, a, scene.logs[i])
             if cr is None or cr[2] > z_min - cfg.under_tolerance_m:
                 return False
     # 5b. no obstacle inside the grapple's footprint (claw to claw, claw_width wide)
-    rect = np.array([e1 - b * hw, e2 - b * hw, e2 + b * hw, e1 + b * hw])
-    for centre, r in scene.discs:
-        if _inside_convex(centre, rect) or min(
-                _point_segment_dist(centre, rect[k], rect[(k + 1) % 4]) for k in range(4)) < r:
+    rect = [(e1x - bx * hw, e1y - by * hw), (e2x - bx * hw, e2y - by * hw),
+            (e2x + bx * hw, e2y + by * hw), (e1x + bx * hw, e1y + by * hw)]
+    reach = math.hypot(hr, hw)
+    for dx, dy, r in discs:
+        if math.hypot(dx - cx, dy - cy) > reach + r:
+            continue
+        if _inside_convex_f(dx, dy, rect) or min(_psd(dx, dy, *rect[k], *rect[(k + 1) % 4]) for k in range(4)) < r:
             return False
-    for poly in scene.polygons:
-        if any(_inside_convex(v, rect) for v in poly) or any(_inside_convex(v, poly) for v in rect) or any(
-                segments_intersect(rect[k], rect[(k + 1) % 4], poly[m], poly[(m + 1) % len(poly)])
-                for k in range(4) for m in range(len(poly))):
+    for P, pcx, pcy, R in polys:
+        if math.hypot(pcx - cx, pcy - cy) > reach + R:
+            continue
+        if _convex_overlap_f(rect, P):
             return False
     return True
 

@@ -478,6 +478,11 @@ class DatasetJob:
         n_obst = int(rng.integers(1, self.max_obstacles + 1)) if rng.random() < self.obstacles_fraction else 0
         return pile_seed, n_obst
 
+    def candidate_config(self):
+        from synth.candidates import CandidateConfig
+
+        return CandidateConfig(max_candidates=self.max_candidates)
+
     def trial_config(self):
         from synth.trial import TrialConfig
 
@@ -494,7 +499,7 @@ class DatasetJob:
         from dataclasses import asdict
 
         d = {**self.to_dict(), "trial_config_values": asdict(self.trial_config()),
-             "format_version": DATASET_FORMAT_VERSION}
+             "candidate_config_values": asdict(self.candidate_config()), "format_version": DATASET_FORMAT_VERSION}
         return json.loads(json.dumps(d))
 
 
@@ -556,7 +561,7 @@ def build_chunk(out_dir: str, job_dict: dict, chunk: int, worker: str | None = N
     """
     import time
 
-    from synth.candidates import CandidateConfig, generate_candidates, reduce_candidates
+    from synth.candidates import generate_candidates, reduce_candidates
     from synth.errors import GenerationError
     from synth.frames import OrthoGrid
     from synth.maps import encode_grasps
@@ -572,12 +577,12 @@ def build_chunk(out_dir: str, job_dict: dict, chunk: int, worker: str | None = N
         def simulate_factory(pile, targets):
             return lambda g: run_trial(pile, g, targets, tc)
 
-    cand_cfg = CandidateConfig(max_candidates=job.max_candidates)
+    cand_cfg = job.candidate_config()
     writer = ShardWriter(out_dir, worker, chunk)
     stats: dict[str, Any] = {"piles": 0, "piles_failed": 0, "piles_with_obstacles": 0, "subsets": 0,
                              "negatives": 0, "grasps": 0, "candidates": 0, "trials": 0, "widened": 0,
-                             "capped_subsets": 0, "outcomes": {}, "trial_wall_s": 0.0, "wall_s": 0.0,
-                             "failed_piles": []}
+                             "capped_subsets": 0, "no_candidate_subsets": 0, "outcomes": {},
+                             "trial_wall_s": 0.0, "wall_s": 0.0, "failed_piles": []}
     t0 = time.perf_counter()
     for k in job.chunk_piles(chunk):
         try:
@@ -593,6 +598,7 @@ def build_chunk(out_dir: str, job_dict: dict, chunk: int, worker: str | None = N
         stats["piles"] += 1
         stats["piles_with_obstacles"] += int(pile.n_obstacles > 0)
         grid = OrthoGrid(obs.depth.shape[0], obs.extent_m)
+        stats["grid"] = {"size_px": grid.size_px, "extent_m": grid.extent_m, "camera_height_m": obs.camera_height_m}
         for T in _subsets(pile.n_logs):
             cands = generate_candidates(pile, T, cand_cfg)
             rng = np.random.default_rng(np.random.SeedSequence([int(job.seed), int(k), *T, 0xA1]))
@@ -601,6 +607,7 @@ def build_chunk(out_dir: str, job_dict: dict, chunk: int, worker: str | None = N
             res = reduce_candidates(cands, sim, rng=rng, max_trials=job.max_trials_per_subset)
             stats["trial_wall_s"] += time.perf_counter() - t1
             stats["candidates"] += len(cands)
+            stats["no_candidate_subsets"] += int(not cands)
             stats["trials"] += res.n_trials
             stats["widened"] += res.widened
             stats["capped_subsets"] += int(res.capped)
@@ -641,7 +648,7 @@ def _write_empty_done(out: Path, worker: str, chunk: int, stats: dict) -> dict:
 def summarise(shards: Sequence[ShardInfo]) -> dict:
     """The paper's statistics over completed shards."""
     keys = ("piles", "piles_failed", "piles_with_obstacles", "subsets", "negatives", "grasps", "candidates",
-            "trials", "widened", "capped_subsets")
+            "trials", "widened", "capped_subsets", "no_candidate_subsets")
     tot = {k: sum(int(s.stats.get(k, 0)) for s in shards) for k in keys}
     outcomes: dict[str, int] = {}
     for s in shards:
@@ -712,8 +719,9 @@ def _manifest_for(job: DatasetJob, done: dict[int, ShardInfo]) -> Manifest:
     summary["chunks_done"] = len(shards)
     summary["chunks_total"] = job.n_chunks
     summary["complete"] = len(shards) == job.n_chunks
-    return Manifest(params=job.params(), grid={"size_px": job.size_px, "extent_m": 5.0, "camera_height_m": 5.0},
-                    shards=listed, summary=summary)
+    grid = next((s.stats["grid"] for s in shards if "grid" in s.stats),
+                {"size_px": job.size_px, "extent_m": 5.0, "camera_height_m": 5.0})
+    return Manifest(params=job.params(), grid=dict(grid), shards=listed, summary=summary)
 
 
 def build_dataset(out_dir: str | Path, n_piles: int, n_logs: int = 4, obstacles_fraction: float = 0.33,

@@ -43,6 +43,10 @@ def test_two_parallel_logs_yield_candidates_spanning_both():
     g0 = cands[0]
     assert g0.y_m == pytest.approx(0.15, abs=1e-6)
     assert g0.width_m == pytest.approx(0.3 + 0.16 + 2 * 0.08, abs=1e-6)
+    # wider variants (+0.15, +0.30 m), centred or shifted by half the extra along the closing axis
+    here = [g for g in cands if abs(g.x_m - g0.x_m) < 1e-6 and abs(g.phi_rad - g0.phi_rad) < 1e-9]
+    assert sorted({round(g.width_m - g0.width_m, 6) for g in here}) == [0.0, 0.15, 0.3]
+    assert sorted({round(g.y_m, 6) for g in here}) == [0.0, 0.075, 0.15, 0.225, 0.3]
     # single targets work too and sit on their log
     for i, y in ((0, 0.0), (1, 0.3)):
         one = generate_candidates(pile, [i])
@@ -83,7 +87,7 @@ def test_a_rock_next_to_a_target_removes_the_candidates_over_it():
     assert not [g for g in blocked if abs(g.x_m - 0.6) < 0.1 and abs(math.sin(g.phi_rad)) > 0.99]
     assert [g for g in blocked if g.x_m < 0.0]  # away from the rock candidates survive
     # a stump works the same way
-    stump = StumpSpec(position_m=(-0.5, -0.35), height_m=0.4, bottom_radius_m=0.15, top_radius_m=0.12)
+    stump = StumpSpec(position_m=(-0.5, -0.30), height_m=0.4, bottom_radius_m=0.15, top_radius_m=0.12)
     s_blocked = generate_candidates(_pile([_log(0.0), _log(0.3)], stumps=[stump]), [0, 1])
     assert not [g for g in s_blocked if abs(g.x_m + 0.5) < 0.1 and abs(math.sin(g.phi_rad)) > 0.99]
 

@@ -162,6 +162,8 @@ def test_job_writes_consistent_samples(tmp_path):
     s = man.summary
     assert s["complete"] and s["piles"] == 2 and s["subsets"] == 6 and s["samples"] == 12
     assert s["samples"] == man.n_samples and s["grasps"] > 0
+    assert man.grid == {"size_px": 32, "extent_m": 5.0, "camera_height_m": 5.0}
+    assert 0 <= s["no_candidate_subsets"] <= s["negatives"]
     assert 0 <= s["negative_fraction"] <= 1 and s["outcomes"].get("success", 0) > 0
     samples = list(iter_samples(tmp_path))
     assert len(samples) == 12
