@@ -22,7 +22,8 @@ URLs: ``zenoh://127.0.0.1:7447/crane1`` (the laptop connects to, the controller 
 ``tcp/127.0.0.1:7447``) and/or ``zenoh://crane1?config=PATH`` (a JSON5 Zenoh config file used
 as given: user/password auth in ``transport/auth/usrpwd``, ``access_control`` rules...). When the
 URL names an endpoint, multicast scouting and gossip are switched off and only that endpoint is
-used. Parameters: ``prefix``, ``lease_ms``, ``config``.
+used. Parameters: ``prefix``, ``lease_ms``, ``config`` (+ the common link options; ``record=x.blf``
+writes every payload as the CAN FD frame it is, so CAN and Zenoh sessions read back alike).
 """
 
 from __future__ import annotations
@@ -176,6 +177,11 @@ class ZenohLink(CraneLink):
         self.keys = ZenohKeys(target.prefix)
         self._present = False
         self._zenoh = zenoh
+        self._recorder = None
+        if self.config.record_path:  # the same python-can writers as the CAN backend
+            from field.link.can_backend import LockedWriter
+
+            self._recorder = LockedWriter(self.config.record_path)
         self._session = _open_session(target.zenoh_config("laptop"), "laptop")
         try:
             s = self._session
@@ -216,8 +222,25 @@ class ZenohLink(CraneLink):
 
         return on_reply
 
+    def _record(self, kind: str, data: bytes, is_rx: bool) -> None:
+        if self._recorder is not None:
+            import time as _time
+
+            import can
+
+            from field.link.codec import frame_id
+
+            self._recorder.on_message_received(can.Message(
+                timestamp=_time.time(), arbitration_id=frame_id(kind), is_extended_id=False, is_fd=True,
+                data=data, is_rx=is_rx, check=False))
+
+    def _deliver(self, kind: str, data: bytes) -> None:
+        self._record(kind, data, True)
+        super()._deliver(kind, data)
+
     def _transmit(self, kind: str, data: bytes) -> None:
         z = self._zenoh
+        self._record(kind, data, False)
         if kind == "GraspCommand":
             self._session.get(self.keys.cmd, self._reply_to("Ack"), payload=data, timeout=self.query_timeout_s,
                               priority=z.Priority.INTERACTIVE_HIGH, congestion_control=z.CongestionControl.BLOCK)
@@ -235,6 +258,8 @@ class ZenohLink(CraneLink):
         except Exception:
             pass
         _close_session(self._session)
+        if self._recorder is not None:
+            self._recorder.stop()
 
 
 # --- crane side -----------------------------------------------------------------------------

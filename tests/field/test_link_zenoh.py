@@ -180,3 +180,18 @@ def test_laptop_loss_aborts_but_a_second_laptop_leaving_does_not(port, controlle
             time.sleep(0.05)
         assert st.last_outcome.command_id == slow2.command_id
         assert st.last_outcome.outcome_class is OutcomeClass.ABORTED
+
+
+def test_zenoh_session_recorded_like_can(port, controller_process, tmp_path, make_cmd):
+    from field.link.can_backend import decode_recording
+    from field.link.messages import Ack
+
+    url = f"zenoh://127.0.0.1:{port}/crane-r"
+    controller_process(url)
+    rec = tmp_path / "zenoh.blf"
+    with open_link(f"{url}?record={rec}", FAST) as link:
+        cmd = make_cmd(link.new_command_id())
+        link.send_grasp(cmd, timeout_s=2.0)
+        link.wait_outcome(cmd.command_id, 3.0)
+    msgs = [m for _, _, m in decode_recording(rec)]
+    assert cmd in msgs and Ack(cmd.command_id, True) in msgs
