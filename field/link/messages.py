@@ -152,6 +152,21 @@ class GraspCommand:
             command_id, float(e[0]), float(n[0]), float(h[0]), heading_deg, grasp.width_m, target_log_count, plan_time_s
         )
 
+    def to_pile_grasp(self, georef: "object") -> tuple["object", float]:
+        """Inverse of :meth:`from_pile_grasp`: ``(synth.grasp.Grasp, z_m)`` in the pile frame of
+        ``georef`` (what a simulator executor needs). Raises ``ValueError`` when the width is
+        outside the grapple's range (the controller rejects such commands before execution)."""
+        import numpy as np
+
+        from synth.geodesy import sweref_tm_to_pile
+        from synth.grasp import Grasp
+
+        e, n, h = self.easting_mm / 1000.0, self.northing_mm / 1000.0, self.height_mm / 1000.0
+        b = math.radians(self.heading_deg)
+        pts = sweref_tm_to_pile(georef, np.array([e, e + math.sin(b)]), np.array([n, n + math.cos(b)]), np.array([h, h]))
+        phi = math.atan2(float(pts[1, 1] - pts[0, 1]), float(pts[1, 0] - pts[0, 0]))
+        return Grasp(float(pts[0, 0]), float(pts[0, 1]), phi, self.opening_width_m), float(pts[0, 2])
+
     @property
     def heading_deg(self) -> float:
         return self.heading_cdeg / 100.0

@@ -298,3 +298,20 @@ def test_command_from_pile_grasp_uses_grid_bearing():
     back = sweref_tm_to_pile(geo, east.easting_mm / 1000, east.northing_mm / 1000, east.height_mm / 1000)
     assert np.allclose(back, [1.0, -2.0, 0.4], atol=1.5e-3)  # mm wire resolution
     assert east.opening_width_mm == 900
+
+
+def test_pile_grasp_round_trip():
+    import math
+
+    from synth.grasp import Grasp
+    from synth.pile import Georeference
+
+    geo = Georeference(63.5, 17.2, 120.0, T_site_pile=((0.0, -1.0, 0.0, 3.0), (1.0, 0.0, 0.0, -4.0),
+                                                         (0.0, 0.0, 1.0, 0.5), (0.0, 0.0, 0.0, 1.0)))
+    g = Grasp(0.7, -1.1, 2.0, 1.2)
+    cmd = GraspCommand.from_pile_grasp(9, g, 0.35, geo, 3, time.time())
+    back, z = cmd.to_pile_grasp(geo)
+    assert (back.x_m, back.y_m, z) == pytest.approx((0.7, -1.1, 0.35), abs=1.5e-3)
+    d = (back.phi_rad - g.phi_rad + math.pi / 2) % math.pi - math.pi / 2  # pi-periodic
+    assert abs(d) < math.radians(0.011)  # 0.01 deg wire resolution
+    assert back.width_m == pytest.approx(1.2)
