@@ -273,6 +273,7 @@ def test_piles_from_a_piles_job(tmp_path):
     np.testing.assert_array_equal(samples[0].depth, obs.depth)
 
 
+@pytest.mark.slow
 def test_dead_worker_is_reported_and_the_job_resumes(tmp_path):
     import multiprocessing as mp
     import os
