@@ -95,8 +95,8 @@ class StereoRigConfig:
     yaw_deg: float = 0.0  # default pose: rig rotation about pile z [deg]
     tilt_deg: float = 0.0  # default pose: optical axis tilt about camera x [deg]
     T_pile_cam: tuple[tuple[float, ...], ...] | None = None  # explicit left-camera pose (4x4)
-    near_m: float = 0.05  # near clipping plane [m]
-    far_m: float = 50.0  # far clipping plane [m]
+    near_m: float = 0.5  # near clipping plane [m]; keep it large: EGL depth precision scales with it
+    far_m: float = 20.0  # far clipping plane [m]
     renderer: str = "auto"  # "egl", "tiny" or "auto" (EGL when it works, else TinyRenderer)
     shadow: bool = False  # cast shadows (both renderers) [-]
     textures: TextureConfig = field(default_factory=TextureConfig)
