@@ -27,6 +27,7 @@ import secrets
 import threading
 import time
 from dataclasses import dataclass, field, replace
+from collections.abc import Mapping
 from typing import Any, Callable
 from urllib.parse import parse_qsl, unquote, urlsplit
 
@@ -592,14 +593,26 @@ def _check_timeout(timeout_s: float) -> None:
         raise ValueError(f"timeout_s must be > 0 s, got {timeout_s!r}")
 
 
-def open_link(url_or_config: str | LinkURL, config: LinkConfig | None = None, **backend_kwargs: Any) -> CraneLink:
+def open_link(url_or_config: "str | LinkURL | Mapping[str, Any]", config: LinkConfig | None = None, **backend_kwargs: Any) -> CraneLink:
     """Open a crane link chosen by URL (see the module docstring for the forms).
 
-    ``config`` gives the common options (URL query parameters override them);
-    ``backend_kwargs`` go to the backend (e.g. ``bus=`` an already open python-can bus,
-    ``zenoh_config=`` a JSON5 path). Raises :class:`LinkError` when the backend cannot open or
-    (``config.require_controller``) no controller answers within ``connect_timeout_s``.
+    ``url_or_config`` is a URL, or a mapping (e.g. read from a JSON file) with ``"url"`` plus
+    :class:`LinkConfig` fields (``"safety"`` as a nested mapping). ``config`` gives the common
+    options (URL query parameters override them); ``backend_kwargs`` go to the backend (e.g.
+    ``bus=`` an already open python-can bus). Raises :class:`LinkError` when the backend cannot
+    open or (``config.require_controller``) no controller answers within ``connect_timeout_s``.
     """
+    if isinstance(url_or_config, Mapping):
+        d = dict(url_or_config)
+        if "url" not in d:
+            raise ValueError(f"a link config mapping needs a 'url' key, got keys {sorted(d)}")
+        url_or_config = d.pop("url")
+        if "safety" in d:
+            d["safety"] = SafetyConfig(**d["safety"])
+        try:
+            config = replace(config or LinkConfig(), **d)
+        except TypeError as exc:
+            raise ValueError(f"unknown link config keys in {sorted(d)}: {exc}") from exc
     url = url_or_config if isinstance(url_or_config, LinkURL) else LinkURL.parse(url_or_config)
     cls = load_entry(BACKENDS, url.scheme, "link backend")
     return cls.from_url(url, config, **backend_kwargs)

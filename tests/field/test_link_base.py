@@ -127,3 +127,16 @@ def test_leak_tracking_sees_an_unclosed_link():
     finally:
         link.close()
     assert len(open_resources()) == before
+
+
+def test_open_link_from_a_config_mapping(make_cmd):
+    with open_link({"url": "twin://", "status_timeout_s": 0.5, "safety": {"max_pile_age_s": 5.0}}) as link:
+        assert link.config.status_timeout_s == 0.5 and link.config.safety.max_pile_age_s == 5.0
+        from field.errors import CommandRejected
+
+        with pytest.raises(CommandRejected, match="rescan"):
+            link.send_grasp(make_cmd(link.new_command_id(), age_s=6.0))
+    with pytest.raises(ValueError, match="url"):
+        open_link({"status_timeout_s": 0.5})
+    with pytest.raises(ValueError, match="unknown"):
+        open_link({"url": "twin://", "bogus": 1})
