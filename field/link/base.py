@@ -192,6 +192,9 @@ class CraneLink(abc.ABC):
     """
 
     backend_name = "abstract"
+    #: re-synchronise the rolling counters after heartbeat-timeout silence (heartbeat-driven
+    #: backends); backends with a presence signal call :meth:`_mark_alive` / :meth:`_mark_lost`
+    _resync_on_silence = True
 
     def __init__(self, config: LinkConfig | None = None, *, clock: Callable[[], float] = time.time):
         from field.link.codec import CounterMonitor, Encoder
@@ -468,7 +471,7 @@ class CraneLink(abc.ABC):
         self.stats.frames_received += 1
         now = time.monotonic()
         last, self._last_rx_mono = self._last_rx_mono, now
-        if last is None or now - last > self.config.heartbeat_timeout_s:
+        if self._resync_on_silence and (last is None or now - last > self.config.heartbeat_timeout_s):
             self._counters.reset()  # the controller was silent: a new session, re-synchronise
         try:
             d = decode(kind, data)

@@ -167,6 +167,7 @@ def _payload(sample_or_query: Any) -> bytes:
 
 class ZenohLink(CraneLink):
     backend_name = "zenoh"
+    _resync_on_silence = False  # liveliness tells when the controller (re)appears
     query_timeout_s = 10.0  # zenoh-level query lifetime; the link's own deadlines are shorter
 
     def __init__(self, target: ZenohTarget, config: LinkConfig | None = None):
