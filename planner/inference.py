@@ -72,7 +72,7 @@ class Planner:
     config: UNetConfig
     device: str = "cpu"  # "cpu" or "cuda"
     precision: str = "bf16"  # "fp32" or "bf16" (autocast; channels-last on CPU)
-    batch_size: int = 32  # target masks per forward pass [-]
+    batch_size: int = 64  # target masks per forward pass [-] (64-128 use ~10-15 % less CPU than 32)
     meta: dict = field(default_factory=dict)
     angle_smoothing_px: float = 1.0  # Gaussian sigma for C, S (and W) before decoding [px]
     candidates_per_subset: int = 64  # pixels tried per subset against keep-out zones [-]
@@ -123,7 +123,7 @@ def default_device() -> str:
     return "cuda" if torch.cuda.is_available() else "cpu"
 
 
-def load_planner(path: str | Path, device: str = "auto", precision: str = "bf16", batch_size: int = 32) -> Planner:
+def load_planner(path: str | Path, device: str = "auto", precision: str = "bf16", batch_size: int = 64) -> Planner:
     """Load a checkpoint (:func:`planner.checkpoint.load_checkpoint`) as a :class:`Planner`."""
     from planner.checkpoint import load_checkpoint
 

@@ -11,7 +11,8 @@
 Every file is written atomically, the state every ``checkpoint_every_steps`` steps and at each
 epoch's end, so killing the process at any moment loses at most that many steps; calling
 ``train`` again with the same folder and config resumes (the data order is a function of
-(seed, epoch), so skipped batches are replayed exactly).
+(seed, epoch), so skipped batches are replayed exactly). Only ``epochs`` may differ on resume
+(to extend a finished run); any other change is refused.
 
 Speed on the CPU: channels-last memory + bfloat16 autocast (``precision="bf16"``) is about twice
 plain fp32 here (see ``bench/bench_planner.py``); on CUDA bf16 autocast is used as well.
@@ -260,9 +261,13 @@ def train(data_dir: str | Path, out_dir: str | Path, config: TrainConfig = Train
             old = json.loads(cfg_path.read_text())
         except (OSError, ValueError) as exc:
             raise TrainingError(f"{cfg_path} is unreadable ({exc}); delete {out} to start afresh") from exc
-        if old != json.loads(json.dumps(config.to_dict())):
+        now = json.loads(json.dumps(config.to_dict()))
+        if {k: v for k, v in old.items() if k != "epochs"} != {k: v for k, v in now.items() if k != "epochs"}:
             raise TrainingError(f"{out} holds a training run with a different configuration; "
-                                "use another output folder or the same configuration to resume")
+                                "use another output folder or the same configuration to resume "
+                                "(only 'epochs' may change, to extend a run)")
+        if old.get("epochs") != now["epochs"]:
+            atomic_write_bytes(cfg_path, json.dumps(config.to_dict(), indent=1).encode())
     else:
         atomic_write_bytes(cfg_path, json.dumps(config.to_dict(), indent=1).encode())
 
@@ -343,9 +348,10 @@ def train(data_dir: str | Path, out_dir: str | Path, config: TrainConfig = Train
             best = min(best, score)
             save_checkpoint(model_path, model, config.model,
                             {**meta_common, "epoch": epoch, "val_loss": entry["val_loss"], "train_loss": entry["train_loss"]})
-        _save_state(state_path, model, opt, {"epoch": epoch + 1, "step": 0}, config)
+        # log before state: a kill in between replays the epoch and drops its log entry
         _write_log(log_path, history, config, {"n_parameters": n_params, "device": device})
         plot_curve(history, curve_path)
+        _save_state(state_path, model, opt, {"epoch": epoch + 1, "step": 0}, config)
         if progress:
             progress({"kind": "epoch", **entry})
     if not model_path.exists():  # resumed after the last epoch had finished

@@ -72,12 +72,14 @@ def test_train_save_load_plan_end_to_end_and_resume(tmp_path):
     pl = load_planner(res.model_path, device="cpu", precision="fp32")
     p = plan(observation(3), pl, Objective("f3"))
     assert p.subsets_evaluated == 7 and p.grasps[0].quality >= p.grasps[-1].quality
-    # resume: more epochs with an otherwise equal config is refused (different config) ...
+    # resume: a different configuration is refused ...
     with pytest.raises(TrainingError, match="different configuration"):
-        train(data, out, _cfg(epochs=3))
-    # ... while the same config resumes and has nothing left to do
+        train(data, out, _cfg(lr=1e-4))
+    # ... the same config resumes and has nothing left to do; more epochs extend the run
     res2 = train(data, out, _cfg())
     assert res2.resumed_from == {"epoch": 2, "step": 0} and len(res2.history) == 2
+    res3 = train(data, out, _cfg(epochs=3))
+    assert [e["epoch"] for e in res3.history] == [0, 1, 2]
 
 
 def test_resume_after_kill_mid_epoch(tmp_path, monkeypatch):
