@@ -86,7 +86,8 @@ class FitConfig:
     #                              where neighbours, ground and occluders meet the log) [deg]
     loss_scale_m: float = 0.01  # soft-L1 scale of the 3-D fit [m]
     gnss_sigma_m: float = 0.03  # prior sigma tying the fitted axis to the GNSS points [m]
-    fit_taper: bool = True  # fit a linear radius change along the log
+    fit_taper: bool = False  # fit a linear radius change along the log (weakly determined from
+    #                           above: the taper trades off against the axis pitch; off by default)
     taper_min_m: float = 0.02  # smaller butt-top diameter differences give a cylinder [m]
     taper_min_coverage: float = 0.7  # a taper needs scan points over this share of the length [-]
     min_points: int = 60  # fewer inlier points than this: the log is not in the scan [-]
@@ -429,16 +430,30 @@ def fit_log(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = 
     r_b = float(x[4] + x[5] * tb)
     taper_sig = 0.0
     if cfg.fit_taper:
-        # keep the taper only when it is significant (3 standard errors): noise over a partly
-        # seen log otherwise extrapolates to a false taper
-        J = sol.jac[: len(sel)]
-        sigma = 1.4826 * float(np.median(np.abs(res - np.median(res))))
-        try:
-            cov = np.linalg.inv(J.T @ J) * sigma ** 2
-            se_k = math.sqrt(max(cov[5, 5], 0.0))
-        except np.linalg.LinAlgError:
-            se_k = math.inf
-        taper_sig = abs(x[5]) / se_k if se_k > 0 else math.inf
+        # keep the taper only when it is significant: the radii of 25 cm sections along the log
+        # (mean surface residual + fitted radius) must change linearly by more than 3 standard
+        # errors of their own scatter (stereo errors are correlated over a section, so the
+        # scatter between sections, not between points, measures the uncertainty)
+        res_pts = res
+        sec = np.floor((tt_sel + L / 2) / 0.25).astype(np.int64)
+        ts, rs = [], []
+        for k in np.unique(sec):
+            m = sec == k
+            if m.sum() >= 20:
+                ts.append(float(np.mean(tt_sel[m])))
+                rs.append(float(np.mean(x[4] + x[5] * tt_sel[m] + res_pts[m])))
+        taper_sig = 0.0
+        if len(ts) >= 4:
+            A = np.column_stack([np.ones(len(ts)), ts])
+            coef_r, *_ = np.linalg.lstsq(A, np.asarray(rs), rcond=None)
+            resid = np.asarray(rs) - A @ coef_r
+            dof = max(len(ts) - 2, 1)
+            s2 = float(resid @ resid) / dof
+            try:
+                se = math.sqrt(max(s2 * np.linalg.inv(A.T @ A)[1, 1], 1e-12))
+            except np.linalg.LinAlgError:
+                se = math.inf
+            taper_sig = abs(coef_r[1]) / se
         if taper_sig < 3.0 or coverage < cfg.taper_min_coverage:
             r_a = r_b = float(x[4] + x[5] * np.mean(tt_sel))
     else:
@@ -539,13 +554,18 @@ def fit_terrain(ground_candidates: np.ndarray, extent_m: float, cfg: FitConfig |
         heights = opened
     else:
         heights = _fill(med, have_g)
-        # holes: OpenCV inpainting (Telea, float32) from the cells with ground, smoother than the
+        # holes: OpenCV inpainting (Telea) from the cells with ground, smoother than the
         # nearest-cell fill it starts from
         if (~have_g).any():
             import cv2
 
-            inp = cv2.inpaint(heights.astype(np.float32), (~have_g).astype(np.uint8), 3, cv2.INPAINT_TELEA)
-            heights = np.where(have_g, heights, inp.astype(np.float64))
+            # on a 16-bit image spanning the measured heights (OpenCV 5's float32 inpainting
+            # returned values far outside the data); quantisation < 0.02 mm per metre of relief
+            lo, hi = float(heights.min()), float(heights.max())
+            span = max(hi - lo, 1e-6)
+            img = np.rint((heights - lo) / span * 65535).astype(np.uint16)
+            inp = cv2.inpaint(img, (~have_g).astype(np.uint8), 3, cv2.INPAINT_TELEA)
+            heights = np.where(have_g, heights, lo + inp.astype(np.float64) / 65535 * span)
     heights = ndimage.median_filter(heights, size=3, mode="nearest")
     terrain = TerrainSpec(extent_m=extent_m, resolution=n, amplitude_m=0.0,
                           heights_m=tuple(tuple(float(v) for v in row) for row in heights), colour=colour)
@@ -683,7 +703,7 @@ def separate_logs(pile: PileSpec, cfg: FitConfig | None = None) -> tuple[PileSpe
             i = max(idx, key=lambda j: pile.logs[j].centre_m[2])
         else:
             i = idx[0]
-        dz = depth - cfg.penetration_tolerance_m + 0.002
+        dz = depth + 0.002  # contact depths of the prism hulls shrink slowly with lifts: clear fully
         lifts[i] += dz
         if lifts[i] > cfg.max_lift_m:
             raise FitError(

@@ -48,7 +48,7 @@ class StereoConfig:
     voxel_m: float = 0.01  # voxel downsampling size [m]; 0 = none
     outlier_neighbours: int = 20  # statistical outlier removal neighbours [-]; 0 = none
     outlier_std_ratio: float = 2.0  # ... standard deviation ratio [-]
-    min_valid_fraction: float = 0.05  # fewer matched pixels than this: the pair is unusable [-]
+    min_valid_fraction: float = 0.3  # fewer matched pixels: unusable (unrelated images still "match" ~25 %) [-]
 
     def __post_init__(self) -> None:
         if not 0 < self.z_min_m < self.z_max_m:

@@ -1,0 +1,228 @@
+"""reconstruct.stereo / pipeline / compare: bad inputs fail loudly and by name; a twin scan is
+reconstructed end to end and measured against its ground truth."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from reconstruct.compare import compare_piles, simulate_scan
+from reconstruct.errors import GnssFormatError, ReconstructError, RegistrationError, ScanError
+from reconstruct.fit import FitConfig, sample_top_view_points
+from reconstruct.pipeline import (
+    ReconstructConfig, ScanPose, read_report, read_scan_pose, reconstruct, refine_registration,
+    write_scan_pose,
+)
+from reconstruct.stereo import find_pairs, read_pair, scan_cloud
+from synth.frames import apply_T, make_T, rot_z
+from synth.pile import LogSpec, PileSpec, TerrainSpec, read_pile
+
+
+# -- scan folders ----------------------------------------------------------------------------
+def _write_pair(folder: Path, size=(320, 180), right_size=None, calib_size=None) -> Path:
+    import cv2
+
+    from synth.stereo import StereoRigConfig, write_calibration_yaml
+
+    folder.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(0)
+    w, h = size
+    img = (rng.random((h, w, 3)) * 255).astype(np.uint8)
+    cv2.imwrite(str(folder / "left.png"), img)
+    rw, rh = right_size or size
+    cv2.imwrite(str(folder / "right.png"), np.roll(img, -8, axis=1)[:rh, :rw] if (rw, rh) == size
+                else (rng.random((rh, rw, 3)) * 255).astype(np.uint8))
+    cw, ch = calib_size or size
+    write_calibration_yaml(StereoRigConfig(width_px=cw, height_px=ch).calibration(), folder / "calibration.yaml")
+    return folder
+
+
+def test_missing_unreadable_and_mismatched_inputs(tmp_path):
+    with pytest.raises(ScanError, match="does not exist"):
+        find_pairs(tmp_path / "nope")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ScanError, match="holds no stereo pair"):
+        find_pairs(tmp_path / "empty")
+    p = _write_pair(tmp_path / "ok")
+    assert read_pair(p).left.shape == (180, 320, 3)
+    (p / "right.png").unlink()
+    with pytest.raises(ScanError, match=r"right\.png is missing"):
+        read_pair(p)
+    p = _write_pair(tmp_path / "corrupt")
+    (p / "left.png").write_bytes(b"not a png at all")
+    with pytest.raises(ScanError, match=r"left\.png cannot be read"):
+        read_pair(p)
+    p = _write_pair(tmp_path / "sizes", right_size=(300, 180))
+    with pytest.raises(ScanError, match="same size"):
+        read_pair(p)
+    p = _write_pair(tmp_path / "calib", calib_size=(640, 360))
+    with pytest.raises(ScanError, match=r"calibration\.yaml is for 640x360"):
+        read_pair(p)
+    p = _write_pair(tmp_path / "nocalib")
+    (p / "calibration.yaml").unlink()
+    with pytest.raises(ScanError, match=r"calibration\.yaml is missing"):
+        read_pair(p)
+    # a pair of unrelated noise images: no depth -> a clear error, not an empty pile
+    p = tmp_path / "noise"
+    _write_pair(p)
+    import cv2
+
+    cv2.imwrite(str(p / "right.png"), (np.random.default_rng(9).random((180, 320, 3)) * 255).astype(np.uint8))
+    with pytest.raises(ScanError, match="found depth for only"):
+        scan_cloud(p)
+
+
+def test_scan_pose_round_trip(tmp_path):
+    T = make_T(rot_z(0.3), (1.0, 2.0, 3.0))
+    pose = ScanPose(64.1, 20.0, 250.0, tuple(tuple(float(v) for v in r) for r in T))
+    write_scan_pose(pose, tmp_path)
+    back = read_scan_pose(tmp_path)
+    assert back == pose
+    d = json.loads((tmp_path / "scan_pose.json").read_text())
+    d["format_version"] = "2.0"
+    (tmp_path / "scan_pose.json").write_text(json.dumps(d))
+    with pytest.raises(RegistrationError, match="not supported"):
+        read_scan_pose(tmp_path)
+    with pytest.raises(ValueError):
+        ScanPose(164.1, 20.0, 250.0, pose.T_site_scan)
+
+
+# -- registration and comparison on exact geometry ---------------------------------------------
+@pytest.fixture(scope="module")
+def crossed() -> PileSpec:
+    terrain = TerrainSpec(extent_m=5.0, resolution=32, amplitude_m=0.0,
+                          heights_m=tuple(tuple(0.0 for _ in range(32)) for _ in range(32)))
+    logs = (
+        LogSpec.from_endpoints((-1.0, -0.4, 0.08), (1.0, -0.4, 0.08), 0.16),
+        LogSpec.from_endpoints((-0.9, 0.5, 0.07), (1.1, 0.3, 0.07), 0.14),
+        LogSpec.from_endpoints((-0.6, -1.0, 0.233), (-0.4, 1.0, 0.233), 0.14),  # across both
+    )
+    return PileSpec(terrain=terrain, logs=logs)
+
+
+def test_refinement_recovers_a_small_pose_error(crossed):
+    pts = sample_top_view_points(crossed, 300, 0.002, np.random.default_rng(0))
+    ends = {f"log{i}": log.endpoints_m() for i, log in enumerate(crossed.logs)}
+    wrong = make_T(rot_z(math.radians(1.0)), (0.03, -0.02, 0.015))
+    T, rep = refine_registration(apply_T(wrong, pts), ends, ReconstructConfig())
+    assert rep["mode"] == "rigid"
+    assert rep["residual_rms_after_m"] < rep["residual_rms_before_m"]
+    assert rep["residual_rms_after_m"] < 0.01
+    probe = np.array([[1.0, 1.0, 0.1], [-1.0, -1.0, 0.1]])
+    err = np.linalg.norm(apply_T(T @ wrong, probe) - probe, axis=1)
+    assert err.max() < 0.01, err
+    with pytest.raises(RegistrationError, match="correction"):
+        refine_registration(apply_T(wrong, pts), ends, ReconstructConfig(max_correction_m=0.01))
+
+
+def test_compare_is_order_and_direction_independent(crossed):
+    same = compare_piles(crossed, crossed, size_px=64)
+    s = same["summary"]
+    assert s["n_matched"] == 3 and s["endpoint_err_m"]["max"] < 1e-9
+    assert s["abs_diameter_err_m"]["max"] < 1e-12 and s["mask_iou"]["min"] == pytest.approx(1.0)
+    # reversed order, swapped ends, one log 2 cm thicker and shifted 5 cm
+    logs = [LogSpec.from_endpoints(*reversed(l.endpoints_m()), l.diameter_m) for l in reversed(crossed.logs)]
+    b0, b1 = logs[2].endpoints_m()
+    logs[2] = LogSpec.from_endpoints(b0 + [0, 0.05, 0.02], b1 + [0, 0.05, 0.02], logs[2].diameter_m + 0.02)
+    other = replace(crossed, logs=tuple(logs))
+    c = compare_piles(crossed, other, size_px=64)
+    match = {e["truth_index"]: e for e in c["logs"]}
+    assert [match[i]["recon_index"] for i in range(3)] == [2, 1, 0]
+    assert all(e["ends_swapped"] for e in c["logs"])
+    assert match[0]["diameter_err_m"] == pytest.approx(0.02)
+    assert match[0]["endpoint_err_m"] == pytest.approx(math.hypot(0.05, 0.02))
+    assert match[0]["mask_iou"] < 0.95 and match[1]["mask_iou"] == pytest.approx(1.0)
+    json.dumps(c)  # serialisable
+
+
+# -- the whole pipeline on a twin scan --------------------------------------------------------
+@pytest.fixture(scope="module")
+def small_scan(tmp_path_factory, crossed):
+    """One pair over a small pile of short logs, its scan pose and an RTK survey."""
+    logs = tuple(LogSpec.from_endpoints(*(e * [0.6, 0.6, 1.0] for e in l.endpoints_m()), l.diameter_m)
+                 for l in crossed.logs)
+    pile = replace(crossed, logs=logs)
+    d = tmp_path_factory.mktemp("small")
+    scan, gnss, truth = simulate_scan(pile, d, seed=4)
+    return scan, gnss, truth, d
+
+
+def test_reconstruct_a_single_pair(small_scan):
+    scan, gnss, truth, d = small_scan
+    res = reconstruct(scan, gnss, d / "out", ReconstructConfig())
+    for name in ("pile.json", "ortho.npz", "preview.png", "compare.png", "report.json"):
+        assert (d / "out" / name).exists(), name
+    back = read_pile(d / "out" / "pile.json")
+    assert back.source == "reconstructed" and back.georef is not None and back.n_logs == 3
+    rep = read_report(d / "out")
+    assert [lg["log_id"] for lg in rep["logs"]] == ["log0", "log1", "log2"]
+    c = compare_piles(truth, res.pile)
+    s = c["summary"]
+    assert s["n_matched"] == 3
+    assert s["abs_diameter_err_m"]["median"] < 0.015, c["logs"]
+    assert s["endpoint_err_m"]["median"] < 0.05, c["logs"]
+    assert s["mask_iou"]["median"] > 0.8, c["logs"]
+
+
+def _rows(path: Path) -> list[str]:
+    return path.read_text().splitlines()
+
+
+def test_survey_problems_are_named(small_scan, tmp_path):
+    scan, gnss, truth, d = small_scan
+    lines = _rows(gnss)
+    data = [i for i, line in enumerate(lines) if line.startswith("log1,")]
+    dup = tmp_path / "dup.csv"
+    dup.write_text("\n".join(lines + [lines[data[0]]]) + "\n")
+    with pytest.raises(GnssFormatError, match="log1.*measured twice"):
+        reconstruct(scan, dup, tmp_path / "o1")
+    missing = tmp_path / "missing.csv"
+    missing.write_text("\n".join(line for i, line in enumerate(lines) if i != data[1]) + "\n")
+    with pytest.raises(GnssFormatError, match="log 'log1' has no end 'b'"):
+        reconstruct(scan, missing, tmp_path / "o2")
+
+
+def test_endpoints_far_from_the_scan_are_named(small_scan, tmp_path):
+    from reconstruct.gnss import pile_endpoints_site, simulate_survey, write_gnss_csv
+
+    scan, gnss, truth, d = small_scan
+    ends = dict(zip(["log0", "log1", "log2"], pile_endpoints_site(truth)))
+    ends["far"] = (ends["log0"][0] + [8.0, 0, 0], ends["log0"][1] + [8.0, 0, 0])
+    survey = simulate_survey(ends, truth.georef, np.random.default_rng(0))
+    path = write_gnss_csv(survey, tmp_path / "far.csv")
+    with pytest.raises(RegistrationError, match="log 'far' end '[ab]'.*outside the scanned area"):
+        reconstruct(scan, path, tmp_path / "o3")
+
+
+def test_scan_without_pose_is_refused(small_scan, tmp_path):
+    import shutil
+
+    scan, gnss, truth, d = small_scan
+    bare = tmp_path / "bare"
+    shutil.copytree(scan, bare)
+    (bare / "scan_pose.json").unlink()
+    with pytest.raises(RegistrationError, match="no scan_pose.json"):
+        reconstruct(bare, gnss, tmp_path / "o4")
+    assert issubclass(RegistrationError, ReconstructError)
+
+
+@pytest.mark.slow
+def test_end_to_end_generated_pile(tmp_path):
+    """A generated, settled pile with an obstacle, scanned by a 2x2 grid of pairs."""
+    from synth.generate import GenerationConfig, generate_pile
+
+    pile, _ = generate_pile(3, GenerationConfig(n_logs=5, n_obstacles=2))
+    scan, gnss, truth = simulate_scan(pile, tmp_path, grid=(2, 2), seed=3)
+    res = reconstruct(scan, gnss, tmp_path / "out", ReconstructConfig(fit=FitConfig()))
+    c = compare_piles(truth, res.pile)
+    s = c["summary"]
+    assert s["n_matched"] == 5
+    assert s["abs_diameter_err_m"]["median"] <= 0.01, c["logs"]
+    assert s["mask_iou"]["median"] >= 0.9, c["logs"]
+    assert s["endpoint_err_m"]["median"] < 0.04, c["logs"]
+    assert s["obstacles_detected"] >= 1
