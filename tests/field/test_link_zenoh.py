@@ -195,3 +195,26 @@ def test_zenoh_session_recorded_like_can(port, controller_process, tmp_path, mak
         link.wait_outcome(cmd.command_id, 3.0)
     msgs = [m for _, _, m in decode_recording(rec)]
     assert cmd in msgs and Ack(cmd.command_id, True) in msgs
+
+
+def test_hung_controller_detected_after_the_lease(port, controller_process, make_cmd):
+    """A frozen controller (SIGSTOP) keeps its TCP connection; the 1 s transport lease
+    (``transport/link/tx/lease``) expires its liveliness token; after SIGCONT it returns."""
+    import signal
+
+    url = f"zenoh://127.0.0.1:{port}/crane-h?lease_ms=1000"
+    p = controller_process(url)
+    with open_link(url, FAST) as link:
+        p.proc.send_signal(signal.SIGSTOP)
+        try:
+            t = time.monotonic()
+            while link.controller_alive() and time.monotonic() - t < 6.0:
+                time.sleep(0.02)
+            lost_after = time.monotonic() - t
+            assert not link.controller_alive() and lost_after < 4.0
+        finally:
+            p.proc.send_signal(signal.SIGCONT)
+        assert link.wait_for_controller(10.0)
+        cmd = make_cmd(link.new_command_id())
+        assert link.send_grasp(cmd, timeout_s=2.0).accepted
+        link.wait_outcome(cmd.command_id, 3.0)
