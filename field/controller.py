@@ -219,6 +219,32 @@ class FixedOutcomeExecutor:
         self._abort.set()
 
 
+#: synth.trial.Outcome value -> link OutcomeClass (names of the simulator's trial outcomes)
+TRIAL_OUTCOME_TO_CLASS: dict[str, OutcomeClass] = {
+    "success": OutcomeClass.SUCCESS,
+    "more_than_intended": OutcomeClass.MORE_THAN_INTENDED,
+    "fewer_or_other": OutcomeClass.FEWER,
+    "fewer": OutcomeClass.FEWER,
+    "collision": OutcomeClass.COLLISION,
+    "not_closed": OutcomeClass.NOT_CLOSED,
+    "dropped": OutcomeClass.DROPPED,
+}
+
+
+def outcome_from_trial(result: Any, command_id: int) -> Outcome:
+    """Map a simulator trial result (:class:`synth.trial.TrialResult`: ``outcome``, ``grasped``,
+    ``cos_beta``) to the link's :class:`Outcome` — for the pybullet executor. A NaN balance
+    (nothing lifted) is reported as 0."""
+    name = getattr(result.outcome, "value", result.outcome)
+    try:
+        cls = TRIAL_OUTCOME_TO_CLASS[str(name).lower()]
+    except KeyError as exc:
+        raise ControllerError(f"unknown trial outcome {name!r}; extend TRIAL_OUTCOME_TO_CLASS") from exc
+    cos_beta = float(result.cos_beta)
+    milli = 0 if not math.isfinite(cos_beta) else int(round(max(-1.0, min(1.0, cos_beta)) * 1000))
+    return Outcome(int(command_id), cls, min(255, len(result.grasped)), milli)
+
+
 def read_execution_log(path: str | Path) -> list[int]:
     """Command ids in the order a :class:`FixedOutcomeExecutor` started them."""
     lines = Path(path).read_text().splitlines()

@@ -215,3 +215,21 @@ def test_run_controller_serves_until_stopped(make_cmd):
         th.join(5)
     assert not th.is_alive()
     assert result[0].last_outcome.command_id == cmd.command_id
+
+
+def test_outcome_from_trial_mapping():
+    import enum
+    from types import SimpleNamespace
+
+    from field.controller import outcome_from_trial
+
+    class TrialOutcome(enum.Enum):  # the shape of synth.trial.Outcome
+        FEWER_OR_OTHER = "fewer_or_other"
+        SUCCESS = "success"
+
+    r = SimpleNamespace(outcome=TrialOutcome.FEWER_OR_OTHER, grasped=(1, 3), cos_beta=float("nan"))
+    assert outcome_from_trial(r, 5) == Outcome(5, OutcomeClass.FEWER, 2, 0)
+    r = SimpleNamespace(outcome=TrialOutcome.SUCCESS, grasped=(0, 1, 2), cos_beta=0.9876)
+    assert outcome_from_trial(r, 6) == Outcome(6, OutcomeClass.SUCCESS, 3, 988)
+    with pytest.raises(ControllerError):
+        outcome_from_trial(SimpleNamespace(outcome="teleported", grasped=(), cos_beta=1.0), 7)
