@@ -79,12 +79,16 @@ class ControllerProcess:
 
     def start(self, timeout_s: float = 20.0) -> "ControllerProcess":
         args = json.dumps({"url": self.url, "config": self.config, "executor": self.executor})
-        self.proc = subprocess.Popen([PY, "-c", _CONTROLLER_MAIN, args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+        import tempfile
+
+        self._stderr = tempfile.TemporaryFile(mode="w+")  # a file, not a pipe: never blocks the child
+        self.proc = subprocess.Popen([PY, "-c", _CONTROLLER_MAIN, args], stdout=subprocess.PIPE, stderr=self._stderr,
                                      text=True, cwd=REPO, env={**os.environ, "PYTHONUNBUFFERED": "1"})
         line = _readline_with_timeout(self.proc, timeout_s)
         if line.strip() != "READY":
-            err = self.proc.stderr.read() if self.proc.poll() is not None else ""
             self.kill()
+            self._stderr.seek(0)
+            err = self._stderr.read()[-4000:]
             raise RuntimeError(f"controller process did not start: {line!r} {err}")
         return self
 
@@ -101,9 +105,11 @@ class ControllerProcess:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait(10)
-        for s in (self.proc.stdout, self.proc.stderr) if self.proc else ():
-            if s:
-                s.close()
+        if self.proc is not None and self.proc.stdout:
+            self.proc.stdout.close()
+        if getattr(self, "_stderr", None) is not None:
+            self._stderr.close()
+            self._stderr = None
 
 
 def _readline_with_timeout(proc: subprocess.Popen, timeout_s: float) -> str:
