@@ -78,7 +78,7 @@ class FitConfig:
     min_radius_m: float = 0.015  # smallest log radius considered [m]
     axis_tolerance_m: float = 0.10  # how far the true axis may lie from the GNSS axis [m]
     end_margin_m: float = 0.08  # points this close to a GNSS end are not used [m]
-    ransac_tolerance_m: float = 0.01  # profile bins this close to a half-circle fit it [m]
+    profile_tolerance_m: float = 0.01  # profile bins this close to a half-circle fit it [m]
     profile_bin_m: float = 0.01  # lateral bin of the cross-section profile; search step x2 [m]
     chunk_length_m: float = 0.5  # cross-section profiles are taken over this axial length [m]
     inlier_band_m: float = 0.015  # points within this of the surface are used by the 3-D fit [m]
@@ -109,7 +109,7 @@ class FitConfig:
     validate: bool = True  # load the pile into the twin and separate interpenetrating logs
     penetration_tolerance_m: float = 0.01  # allowed interpenetration [m]
     max_lift_m: float = 0.05  # larger needed lifts are an error, not noise [m]
-    seed: int = 0  # RANSAC / subsampling seed [-]
+    seed: int = 0  # subsampling seed [-]
 
     def __post_init__(self) -> None:
         if self.endpoint_ref not in ENDPOINT_REFS:
@@ -118,7 +118,7 @@ class FitConfig:
             raise ValueError(f"axis_source must be one of {AXIS_SOURCES}, got {self.axis_source!r}")
         if not 0 < self.min_radius_m < self.max_radius_m <= 1.0:
             raise ValueError("need 0 < min_radius_m < max_radius_m <= 1 m")
-        for name in ("axis_tolerance_m", "ransac_tolerance_m", "inlier_band_m", "loss_scale_m",
+        for name in ("axis_tolerance_m", "profile_tolerance_m", "inlier_band_m", "loss_scale_m",
                      "gnss_sigma_m", "log_clearance_m", "ground_window_m", "ground_band_m",
                      "obstacle_min_height_m", "dbscan_eps_m", "obstacle_min_size_m", "obstacle_voxel_m"):
             if not getattr(self, name) > 0:
@@ -235,7 +235,7 @@ def _profile_circle(sw: np.ndarray, prior_centre: np.ndarray, cfg: FitConfig,
     bins = idx[starts[good]]
     wb = w[(starts[good] + ends[good] - 1) // 2]  # per-bin median (sorted within a bin)
     sb = -reach + (bins + 0.5) * step
-    tol = cfg.ransac_tolerance_m
+    tol = cfg.profile_tolerance_m
     cs = prior_centre[0] + np.arange(-cfg.axis_tolerance_m, cfg.axis_tolerance_m + 1e-9, step / 2)
     rs = np.arange(cfg.min_radius_m, cfg.max_radius_m + 1e-9, step / 2)
     C, R = np.meshgrid(cs, rs, indexing="ij")
@@ -340,7 +340,7 @@ def fit_log(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = 
             coef[:, 1] = 0.0
         pred = coef[:, 0][None, :] + np.outer(ch[:, 0], coef[:, 1])
         dev = np.linalg.norm(ch[:, 1:3] - pred, axis=1)
-        new_keep = dev < max(0.02, 2 * cfg.ransac_tolerance_m)
+        new_keep = dev < max(0.02, 2 * cfg.profile_tolerance_m)
         if new_keep.sum() == 0 or np.array_equal(new_keep, keep):
             break
         keep = new_keep
