@@ -21,9 +21,9 @@ and remembered in the status (``last_outcome``). The controller sends a heartbea
 ``abort_on_laptop_loss``), and latches ESTOP on an e-stop frame — fail-safe: any frame on the
 e-stop identifier stops, even one that fails its CRC. Only a local :meth:`reset_estop` clears it.
 
-Executors are registered by name in :data:`EXECUTORS` (imported when chosen). Only the
-deterministic test executor ``"fixed"`` lives here; the pybullet grasp-trial executor is to be
-registered as ``"pybullet"`` by its owner.
+Executors are registered by name in :data:`EXECUTORS` (imported when chosen): ``"fixed"``
+(deterministic, here, for tests) and ``"pybullet"`` (:mod:`field.executor`, grasp trials on the
+twin pile: ``make_executor("pybullet", pile="pile.json")``).
 
 Run as its own process with :func:`run_controller` (a CLI calls it).
 """
@@ -145,10 +145,10 @@ class GraspExecutor(Protocol):
     def __call__(self, cmd: GraspCommand) -> Outcome: ...
 
 
-#: executor name -> "module:Class" (imported when chosen). The pybullet executor is to be
-#: registered here as "pybullet" by the engineer writing it.
+#: executor name -> "module:Class" (imported when chosen, so pybullet loads only for "pybullet").
 EXECUTORS: dict[str, str] = {
-    "fixed": "field.controller:FixedOutcomeExecutor",
+    "fixed": "field.controller:FixedOutcomeExecutor",  # deterministic, for tests
+    "pybullet": "field.executor:PybulletTrialExecutor",  # grasp trials on the twin pile (pile=...)
 }
 
 
@@ -217,32 +217,6 @@ class FixedOutcomeExecutor:
 
     def abort(self) -> None:
         self._abort.set()
-
-
-#: synth.trial.Outcome value -> link OutcomeClass (names of the simulator's trial outcomes)
-TRIAL_OUTCOME_TO_CLASS: dict[str, OutcomeClass] = {
-    "success": OutcomeClass.SUCCESS,
-    "more_than_intended": OutcomeClass.MORE_THAN_INTENDED,
-    "fewer_or_other": OutcomeClass.FEWER,
-    "fewer": OutcomeClass.FEWER,
-    "collision": OutcomeClass.COLLISION,
-    "not_closed": OutcomeClass.NOT_CLOSED,
-    "dropped": OutcomeClass.DROPPED,
-}
-
-
-def outcome_from_trial(result: Any, command_id: int) -> Outcome:
-    """Map a simulator trial result (:class:`synth.trial.TrialResult`: ``outcome``, ``grasped``,
-    ``cos_beta``) to the link's :class:`Outcome` — for the pybullet executor. A NaN balance
-    (nothing lifted) is reported as 0."""
-    name = getattr(result.outcome, "value", result.outcome)
-    try:
-        cls = TRIAL_OUTCOME_TO_CLASS[str(name).lower()]
-    except KeyError as exc:
-        raise ControllerError(f"unknown trial outcome {name!r}; extend TRIAL_OUTCOME_TO_CLASS") from exc
-    cos_beta = float(result.cos_beta)
-    milli = 0 if not math.isfinite(cos_beta) else int(round(max(-1.0, min(1.0, cos_beta)) * 1000))
-    return Outcome(int(command_id), cls, min(255, len(result.grasped)), milli)
 
 
 def read_execution_log(path: str | Path) -> list[int]:

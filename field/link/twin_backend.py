@@ -5,7 +5,9 @@ channel and a :class:`field.link.can_backend.CanLink` talks to it, so the whole 
 codec, E2E, counters, heartbeats, recording) runs exactly as against a real crane.
 
 URL parameters: ``executor=NAME`` (registered executor, default ``fixed``), ``delay_ms`` and
-``outcome`` (for ``fixed``), plus the common link options (``record=...`` etc.).
+``outcome`` (for ``fixed``); other parameters go to the executor as strings
+(``twin://?executor=pybullet&pile=runs/pile.json&trial=fast``); plus the common link options
+(``record=...`` etc.).
 """
 
 from __future__ import annotations
@@ -52,8 +54,13 @@ class TwinLink(CanLink):
                 kwargs["delay_s"] = float(q.pop("delay_ms")) / 1000.0
             if "outcome" in q:
                 kwargs["outcome_class"] = q.pop("outcome")
-            executor = make_executor(name, **kwargs) if name != "fixed" else FixedOutcomeExecutor(**kwargs)
-        if q:
+            if name == "fixed":
+                if q:
+                    raise ValueError(f"unknown twin:// parameters {sorted(q)}")
+                executor = FixedOutcomeExecutor(**kwargs)
+            else:  # the remaining parameters are the executor's (strings), e.g. pile=PATH&trial=fast
+                executor = make_executor(name, **kwargs, **q)
+        elif q:
             raise ValueError(f"unknown twin:// parameters {sorted(q)}")
         link = cls(cfg, controller_config=controller_config, executor=executor)
         link._await_controller()

@@ -181,7 +181,11 @@ def test_corrupted_status_request_is_ignored():
 
 
 def test_executor_registry_and_log(tmp_path, make_cmd):
-    assert "fixed" in EXECUTORS
+    assert {"fixed", "pybullet"} <= set(EXECUTORS)
+    module, _, attr = EXECUTORS["pybullet"].partition(":")
+    import importlib
+
+    assert callable(getattr(importlib.import_module(module), attr))
     with pytest.raises(ControllerError, match="unknown executor"):
         make_executor("pybullet-not-registered")
     log = tmp_path / "exec.jsonl"
@@ -216,20 +220,3 @@ def test_run_controller_serves_until_stopped(make_cmd):
     assert not th.is_alive()
     assert result[0].last_outcome.command_id == cmd.command_id
 
-
-def test_outcome_from_trial_mapping():
-    import enum
-    from types import SimpleNamespace
-
-    from field.controller import outcome_from_trial
-
-    class TrialOutcome(enum.Enum):  # the shape of synth.trial.Outcome
-        FEWER_OR_OTHER = "fewer_or_other"
-        SUCCESS = "success"
-
-    r = SimpleNamespace(outcome=TrialOutcome.FEWER_OR_OTHER, grasped=(1, 3), cos_beta=float("nan"))
-    assert outcome_from_trial(r, 5) == Outcome(5, OutcomeClass.FEWER, 2, 0)
-    r = SimpleNamespace(outcome=TrialOutcome.SUCCESS, grasped=(0, 1, 2), cos_beta=0.9876)
-    assert outcome_from_trial(r, 6) == Outcome(6, OutcomeClass.SUCCESS, 3, 988)
-    with pytest.raises(ControllerError):
-        outcome_from_trial(SimpleNamespace(outcome="teleported", grasped=(), cos_beta=1.0), 7)
