@@ -719,7 +719,7 @@ def separate_logs(pile: PileSpec, cfg: FitConfig | None = None) -> tuple[PileSpe
     raise FitError("could not separate the reconstructed logs; check the fits")
 
 
-def _spec_from_fit(f: dict, cfg: FitConfig) -> tuple[LogSpec, bool]:
+def log_spec_from_fit(f: dict, cfg: FitConfig) -> tuple[LogSpec, bool]:
     """A :class:`LogSpec` from :func:`fit_log`'s result (butt = the thicker end) and whether
     end ``b`` became the butt."""
     ra, rb = f["radius_a_m"], f["radius_b_m"]
@@ -794,7 +794,8 @@ def _clamp_under_logs(terrain: TerrainSpec, logs: Sequence[LogSpec], gap_m: floa
 # -- the whole pile --------------------------------------------------------------------------
 def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], extent_m: float,
              cfg: FitConfig | None = None, progress: Callable[[str], None] | None = None,
-             georef: Any = None, notes: str = "") -> PileFit:
+             georef: Any = None, notes: str = "",
+             first_pass: Mapping[str, LogSpec] | None = None) -> PileFit:
     """Fit a whole pile to scan ``points`` ((N, 3), pile frame) and GNSS ``endpoints``
     (``{log_id: (end_a, end_b)}``, pile frame). ``extent_m``: side of the terrain patch,
     centred on the origin. Returns a :class:`PileFit` whose ``pile`` has ``source="reconstructed"``.
@@ -824,17 +825,20 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
                                f"the {extent_m:g} m terrain patch; enlarge extent_m or check the point")
     # pass 1: each log on its own; pass 2: each scan point belongs to the log whose fitted
     # surface it lies on (so a neighbour's flank never bends this log's fit), then refit
-    first = []
+    first: list[LogSpec] = []
     for log_id in ids:
+        if first_pass is not None and log_id in first_pass:
+            first.append(first_pass[log_id])
+            continue
         say(f"fitting log {log_id}")
-        first.append(fit_log(P, *endpoints[log_id], cfg, log_id=log_id, rng=rng))
-    owner = _owners(P, [_spec_from_fit(f, cfg)[0] for f in first], cfg.inlier_band_m)
+        first.append(log_spec_from_fit(fit_log(P, *endpoints[log_id], cfg, log_id=log_id, rng=rng), cfg)[0])
+    owner = _owners(P, first, cfg.inlier_band_m)
     fits: list[LogFit] = []
     logs: list[LogSpec] = []
     for i, log_id in enumerate(ids):
         a, b = endpoints[log_id]
         f = fit_log(P[(owner == i) | (owner < 0)], a, b, cfg, log_id=log_id, rng=rng)
-        spec, swapped = _spec_from_fit(f, cfg)
+        spec, swapped = log_spec_from_fit(f, cfg)
         logs.append(spec)
         butt, top = spec.endpoints_m()
         p0, p1 = np.asarray(a, float), np.asarray(b, float)

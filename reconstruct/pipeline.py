@@ -39,7 +39,7 @@ from typing import Any, Callable
 import numpy as np
 
 from reconstruct.errors import ReconstructError, RegistrationError
-from reconstruct.fit import FitConfig, PileFit, fit_log, fit_pile, natural_key
+from reconstruct.fit import FitConfig, PileFit, fit_log, fit_pile, log_spec_from_fit, natural_key
 from reconstruct.stereo import ScanCloud, StereoConfig, scan_cloud
 from synth.frames import apply_T, invert_T, make_T
 from synth.pile import Georeference, PileSpec, atomic_write_bytes, write_pile
@@ -166,10 +166,11 @@ def _rigid_from_correspondences(src: np.ndarray, dst: np.ndarray, with_scale: bo
 
 
 def refine_registration(points: np.ndarray, endpoints: dict[str, tuple[np.ndarray, np.ndarray]],
-                        cfg: ReconstructConfig) -> tuple[np.ndarray, dict]:
+                        cfg: ReconstructConfig) -> tuple[np.ndarray, dict, dict]:
     """Correction ``T`` (4x4, applied to ``points``) that brings the logs fitted to the scan
-    through their GNSS end points, and a report (residuals before/after, size of the
-    correction). Points and endpoints in the same frame."""
+    through their GNSS end points, a report (residuals before/after, size of the correction)
+    and the fitted logs (``{log_id: LogSpec}``, moved by ``T``). Points and endpoints in the
+    same frame."""
     fcfg = cfg.fit
     axes = {}
     failures = {}
@@ -181,13 +182,13 @@ def refine_registration(points: np.ndarray, endpoints: dict[str, tuple[np.ndarra
         except ReconstructError as exc:
             failures[log_id] = str(exc)
             continue
-        axes[log_id] = (f["centre"], f["axis"])
+        axes[log_id] = (f["centre"], f["axis"], f)
     if not axes:
         raise RegistrationError("no log could be fitted to the scan around its GNSS axis: "
                                 + "; ".join(failures.values()))
     ids = list(axes)
     gnss = np.array([p for k in ids for p in endpoints[k]], dtype=np.float64)
-    C = np.array([axes[k][0] for k in ids for _ in range(2)])
+    C = np.array([axes[k][0] for k in ids for _ in range(2)])  # a point on each fitted axis
     U = np.array([axes[k][1] for k in ids for _ in range(2)])
     directions = np.array([axes[k][1] for k in ids])
     # with one log (or parallel ones) a rotation about the common axis is unobservable: translate only
@@ -228,13 +229,19 @@ def refine_registration(points: np.ndarray, endpoints: dict[str, tuple[np.ndarra
         "logs_used": ids, "logs_not_fitted": failures,
         "T_correction": T.tolist(),
     }
+    # the fitted logs, moved with the correction: the first pass of fit_pile
+    fitted = {}
+    for k in ids:
+        f = dict(axes[k][2])
+        f["ends"] = apply_T(T, f["ends"])
+        fitted[k] = log_spec_from_fit(f, fcfg)[0]
     if shift > cfg.max_correction_m or angle > cfg.max_correction_deg:
         raise RegistrationError(
             f"the scan pose needs a correction of {shift:.2f} m / {angle:.1f} deg to match the GNSS end "
             f"points (limits {cfg.max_correction_m} m / {cfg.max_correction_deg} deg); the scan pose "
             "is wrong, or the survey belongs to another pile"
         )
-    return T, report
+    return T, report, fitted
 
 
 def _check_coverage(points_xy: np.ndarray, endpoints: dict[str, tuple[np.ndarray, np.ndarray]],
@@ -372,9 +379,10 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
 
     t = time.perf_counter()
     reg_report: dict = {"mode": "none"}
+    first_pass = None
     if cfg.refine:
         say("refining the scan pose against the GNSS end points")
-        T_corr, reg_report = refine_registration(pts[near], ends, cfg)
+        T_corr, reg_report, first_pass = refine_registration(pts[near], ends, cfg)
         pts = apply_T(T_corr, pts)
     else:
         T_corr = np.eye(4)
@@ -388,7 +396,7 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
                           T_site_pile=tuple(tuple(float(v) for v in row) for row in T_site_pile))
     in_patch = np.all(np.abs(pts[:, :2]) < extent / 2, axis=1)
     fit = fit_pile(pts[in_patch], ends, extent, cfg.fit, progress=say, georef=georef,
-                   notes=f"reconstructed from {scan_dir} and {gnss_path}")
+                   notes=f"reconstructed from {scan_dir} and {gnss_path}", first_pass=first_pass)
     timings["fit_s"] = time.perf_counter() - t
 
     t = time.perf_counter()

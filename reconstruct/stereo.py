@@ -217,6 +217,11 @@ def scan_cloud(scan_dir: str | Path, config: StereoConfig | None = None,
         p, c, frac = pair_points(pair, cfg)
         t_read += tb - ta
         t_match += time.perf_counter() - tb
+        if cfg.voxel_m > 0:  # thin each pair first: ~1 M points a pair is mostly redundant
+            one = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(p))
+            one.colors = o3d.utility.Vector3dVector(c.astype(np.float64))
+            one = one.voxel_down_sample(cfg.voxel_m)
+            p, c = np.asarray(one.points), np.asarray(one.colors, dtype=np.float32)
         all_p.append(p)
         all_c.append(c)
         fracs.append(frac)
@@ -226,7 +231,7 @@ def scan_cloud(scan_dir: str | Path, config: StereoConfig | None = None,
     t1 = time.perf_counter()
     pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P))
     pc.colors = o3d.utility.Vector3dVector(C.astype(np.float64))
-    if cfg.voxel_m > 0:
+    if cfg.voxel_m > 0 and len(pairs) > 1:
         pc = pc.voxel_down_sample(cfg.voxel_m)
     if cfg.outlier_neighbours > 0 and len(pc.points) > cfg.outlier_neighbours:
         pc, _ = pc.remove_statistical_outlier(cfg.outlier_neighbours, cfg.outlier_std_ratio)

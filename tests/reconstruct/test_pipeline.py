@@ -109,7 +109,8 @@ def test_refinement_recovers_a_small_pose_error(crossed):
     pts = sample_top_view_points(crossed, 300, 0.002, np.random.default_rng(0))
     ends = {f"log{i}": log.endpoints_m() for i, log in enumerate(crossed.logs)}
     wrong = make_T(rot_z(math.radians(1.0)), (0.03, -0.02, 0.015))
-    T, rep = refine_registration(apply_T(wrong, pts), ends, ReconstructConfig())
+    T, rep, fitted = refine_registration(apply_T(wrong, pts), ends, ReconstructConfig())
+    assert sorted(fitted) == ["log0", "log1", "log2"]
     assert rep["mode"] == "rigid"
     assert rep["residual_rms_after_m"] < rep["residual_rms_before_m"]
     assert rep["residual_rms_after_m"] < 0.01
