@@ -53,12 +53,16 @@ def train_command(
         task = bar.add_task("training", total=epochs, info="")
 
         def progress(ev: dict) -> None:
+            def num(key: str) -> str:
+                v = ev.get(key)
+                return "-" if v is None else f"{v:.4f}"
+
             if ev.get("kind") == "epoch":
-                bar.update(task, completed=ev.get("epoch", 0) + 1,
-                           info=f"train {ev.get('train_loss', float('nan')):.4f} val {ev.get('val_loss', float('nan')):.4f}")
+                bar.update(task, completed=(ev.get("epoch") or 0) + 1,
+                           info=f"train {num('train_loss')} val {num('val_loss')}")
             else:
-                bar.update(task, info=f"step {ev.get('step')} loss {ev.get('loss', float('nan')):.4f} "
-                                      f"{ev.get('samples_per_s', 0):.1f} samples/s")
+                bar.update(task, info=f"step {ev.get('step')} loss {num('loss')} "
+                                      f"{ev.get('samples_per_s') or 0:.1f} samples/s")
 
         try:
             result = train(data, out, cfg, progress=progress)

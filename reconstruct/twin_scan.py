@@ -6,7 +6,9 @@ kept apart::
     DIR/scan/pair_000/left.png, right.png   ZED 2-like stereo pair (procedural textures)
     DIR/scan/pair_000/calibration.yaml      OpenCV stereo calibration (K1 D1 K2 D2 R T)
     DIR/scan/pair_000/zed.conf              the same in ZED's SN*.conf form
-    DIR/scan/pair_000/meta.json             pair format version, left camera pose in the site frame
+    DIR/scan/pair_000/meta.json             pair format version, capture time (captured_utc)
+    DIR/scan/scan_pose.json                 the scan frame in the site frame (the crane's RTK/IMU
+                                            camera pose), with a realistic error
     DIR/gnss.csv                            RTK endpoints (SWEREF 99), realistic noise, a few float fixes
     DIR/truth/pile.json                     the ground-truth pile (georeferenced)
     DIR/truth/pair_000_depth.npz            ground-truth depth and instances of each left image
@@ -60,7 +62,8 @@ def _rig_over_pile(pile: PileSpec, height_m: float, hfov_deg: float):
 
 def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5), obstacles: tuple[int, int] = (0, 2),
                    packed: bool = False, site: tuple[float, float, float] = DEFAULT_SITE,
-                   n_float: int = 2, height_m: float = 4.0, hfov_deg: float = 60.0) -> Path:
+                   n_float: int = 2, height_m: float = 4.0, hfov_deg: float = 60.0,
+                   pose_error_m: float = 0.03, pose_error_deg: float = 0.5) -> Path:
     """Generate a pile, render its stereo pair and survey its log ends; write a scan folder.
 
     Written into a temporary sibling folder and renamed into place (never half-written)."""
@@ -84,15 +87,27 @@ def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5
         write_pile(pile, tmp / "truth" / "pile.json")
         rig = _rig_over_pile(pile, height_m, hfov_deg)
         pair = render_stereo(pile, rig)
-        T_site_cam = pile.georef.matrix() @ pair.calibration.T_pile_cam
-        pair.meta.update({"T_site_cam": T_site_cam.tolist(), "camera": "ZED 2 (twin)"})
+        import datetime as dt
+
+        from reconstruct.pipeline import ScanPose, write_scan_pose
+
+        captured = dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds").replace("+00:00", "Z")
+        pair.meta.update({"camera": "ZED 2 (twin)", "captured_utc": captured})
         pair_dir = pair.save(tmp / "scan" / "pair_000")
+        # the scan frame is the pile frame (the calibration's T_pile_cam); the crane knows where its
+        # camera is only to a few centimetres / a fraction of a degree: perturb the true pose
+        err_yaw = math.radians(rng.normal(0, pose_error_deg))
+        err_t = np.array([*rng.normal(0, pose_error_m, 2), rng.normal(0, pose_error_m / 2)])
+        T_site_scan = make_T(rot_z(err_yaw), err_t) @ pile.georef.matrix()
+        write_scan_pose(ScanPose(site[0], site[1], site[2], tuple(tuple(float(v) for v in r) for r in T_site_scan)),
+                        tmp / "scan" / "scan_pose.json")
         os.replace(pair_dir / "depth_left.npz", tmp / "truth" / "pair_000_depth.npz")
         survey = simulate_survey(pile_endpoints_site(pile), pile.georef, rng, n_float=n_float)
         write_gnss_csv(survey, tmp / "gnss.csv")
         info = {"format": "loggrasp.twin-scan", "format_version": SCAN_FORMAT_VERSION, "seed": seed,
                 "n_logs": n_logs, "n_obstacles": n_obst, "packed": packed, "site": list(site),
-                "n_float": n_float, "rig": rig.to_dict(), "pairs": 1}
+                "n_float": n_float, "rig": rig.to_dict(), "pairs": 1,
+                "pose_error": {"sigma_m": pose_error_m, "sigma_deg": pose_error_deg}}
         atomic_write_bytes(tmp / "scan.json", json.dumps(info, indent=1, default=str).encode())
         if out.exists():
             shutil.rmtree(out)

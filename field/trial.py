@@ -1,0 +1,360 @@
+"""A field trial: scan + RTK endpoints → reconstructed pile → plan → GNSS grasp → crane → record.
+
+:func:`prepare_trial` does everything up to the command (reconstruction, planning, the grasp in
+SWEREF 99 TM, the safety checks, pictures and GeoJSON); :func:`execute_trial` sends it over a
+crane link and waits for the acknowledgement and the outcome; :func:`run_trial_record` does both
+and writes the *trial record* atomically (built in a temporary sibling folder, renamed when
+complete: a crash leaves either nothing or a whole record). :func:`replay_record` re-runs
+reconstruction and planning from a record and says whether the command is bit-identical.
+
+Trial record (``loggrasp.trial-record`` 1.0)::
+
+    RECORD/record.json        versions, input hashes, options, plan, command, messages, outcome
+    RECORD/inputs/scan/...    copies of the scan and the GNSS file as used
+    RECORD/inputs/gnss.csv
+    RECORD/reconstruction/    pile.json, ortho.npz, preview.png, compare.png, report.json
+    RECORD/plan/              plan.json, plan.png, grasp_map.png, pile.geojson, pile.sweref99tm.geojson
+    RECORD/link/traffic.blf   every CAN frame of the session (CAN links)
+
+Nothing unsafe is sent: no RTK fix (the survey reader refuses float/no-fix points unless
+allowed), a grasp out of reach or over the lift capacity, stale pile data, an operator who does
+not confirm — each stops with a clear :class:`TrialAborted` before anything goes on the link.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import shutil
+import tempfile
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from field.errors import FieldError
+
+RECORD_FORMAT = "loggrasp.trial-record"
+RECORD_VERSION = "1.0"
+
+
+class TrialAborted(FieldError):
+    """The trial stopped before or instead of sending a command; the message says why."""
+
+
+@dataclass(frozen=True)
+class TrialOptions:
+    objective: str = "f3"  # f1, f2 or f3
+    model: str | None = None  # checkpoint; None = the shipped default
+    allow_float: bool = False  # accept RTK float endpoints (the operator's explicit choice)
+    max_pile_age_s: float = 600.0  # refuse plans on pile data older than this [s]
+    crane_base_tm: tuple[float, float, float] | None = None  # SWEREF 99 TM E, N [m], ellipsoidal h [m]
+    min_reach_m: float = 2.0  # [m]
+    max_reach_m: float = 10.0  # [m]
+    lift_capacity_kg: float | None = 1500.0  # [kg]; None = unchecked
+    wood_density_kg_m3: float = 900.0  # [kg/m³]
+    ack_timeout_s: float = 2.0  # [s]
+    outcome_timeout_s: float = 120.0  # [s]
+
+    def __post_init__(self) -> None:
+        if self.objective not in ("f1", "f2", "f3"):
+            raise ValueError(f"objective must be f1, f2 or f3, got {self.objective!r}")
+        if not self.max_pile_age_s > 0:
+            raise ValueError("max_pile_age_s must be > 0")
+        if not 0 <= self.min_reach_m < self.max_reach_m:
+            raise ValueError("need 0 <= min_reach_m < max_reach_m")
+
+
+@dataclass
+class PreparedTrial:
+    pile: object  # PileSpec (georeferenced)
+    plan: object  # planner.inference.Plan
+    geo: object  # field.geo.GraspGeo of the chosen grasp
+    command_fields: dict  # GraspCommand fields except the id
+    captured_utc_s: float  # when the pile data was captured [s since epoch]
+    work_dir: Path
+    report: dict = field(default_factory=dict)
+
+    def summary_lines(self) -> list[str]:
+        best = self.plan.best
+        g = self.geo
+        return [
+            f"targets: logs {list(best.targets)} ({len(best.targets)} of {self.pile.n_logs})",
+            f"quality q={best.quality:.3f}  graspability u={best.graspability:.3f}  balance b={best.balance:.3f}",
+            f"SWEREF 99 TM  E {g.easting_m:.3f}  N {g.northing_m:.3f}  h {g.h_ell_m:.3f} m (ellipsoidal)",
+            f"heading (closing axis) {g.heading_grid_deg:.2f}° from grid north, {g.heading_true_deg:.2f}° from true north",
+            f"opening width {g.width_m:.3f} m",
+        ]
+
+
+def sha256_of(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def _captured_time(scan_dir: Path, gnss_path: Path) -> float:
+    """When the pile data was captured: the scan's ``captured_utc`` (pair meta.json) if present,
+    else the newest input file's modification time."""
+    import datetime as dt
+
+    for meta in sorted(scan_dir.rglob("meta.json")):
+        try:
+            d = json.loads(meta.read_text())
+        except (OSError, ValueError):
+            continue
+        if "captured_utc" in d:
+            return dt.datetime.fromisoformat(str(d["captured_utc"]).replace("Z", "+00:00")).timestamp()
+    times = [p.stat().st_mtime for p in [*scan_dir.rglob("*.png"), gnss_path] if p.exists()]
+    return max(times) if times else time.time()
+
+
+def prepare_trial(scan_dir: str | Path, gnss_path: str | Path, work_dir: str | Path, options: TrialOptions,
+                  progress: Callable[[str], None] | None = None, now: float | None = None) -> PreparedTrial:
+    """Reconstruct, plan, convert to SWEREF 99 TM and check safety. Raises :class:`TrialAborted`."""
+    from planner.cli import DEFAULT_MODEL
+    from planner.constraints import Constraints
+    from planner.errors import PlannerError
+    from planner.inference import Objective, load_planner, plan
+    from reconstruct.errors import ReconstructError
+    from reconstruct.pipeline import ReconstructConfig, reconstruct
+    from synth.errors import SynthError
+    from synth.geodesy import sweref_tm_to_pile
+    from synth.render import OrthoObservation
+
+    from field.geo import draw_grasp_map, grasp_to_gnss, write_geojson_pair
+
+    say = progress or (lambda s: None)
+    scan_dir, gnss_path, work = Path(scan_dir), Path(gnss_path), Path(work_dir)
+    now = time.time() if now is None else now
+    captured = _captured_time(scan_dir, gnss_path)
+    age = now - captured
+    if age > options.max_pile_age_s:
+        raise TrialAborted(f"the pile data is {age:.0f} s old (captured {time.ctime(captured)}), over the "
+                           f"{options.max_pile_age_s:.0f} s limit: scan the pile again before grasping")
+    say("reconstructing the pile from the scan and the RTK endpoints")
+    try:
+        result = reconstruct(scan_dir, gnss_path, work / "reconstruction",
+                             ReconstructConfig(allow_float=options.allow_float), progress=say)
+    except (ReconstructError, SynthError, ValueError) as exc:
+        raise TrialAborted(f"reconstruction failed: {exc}") from exc
+    pile = result.pile
+    obs = OrthoObservation.load(work / "reconstruction" / "ortho.npz")
+
+    constraints = Constraints(lift_capacity_kg=options.lift_capacity_kg, wood_density_kg_m3=options.wood_density_kg_m3)
+    if options.crane_base_tm is not None:
+        e, n, h = options.crane_base_tm
+        base_pile = np.asarray(sweref_tm_to_pile(pile.georef, e, n, h), dtype=float).reshape(3)
+        constraints = Constraints(crane_base_xy_m=(float(base_pile[0]), float(base_pile[1])),
+                                  min_reach_m=options.min_reach_m, max_reach_m=options.max_reach_m,
+                                  lift_capacity_kg=options.lift_capacity_kg,
+                                  wood_density_kg_m3=options.wood_density_kg_m3)
+    say("planning: every target subset through the network")
+    try:
+        planner = load_planner(options.model or DEFAULT_MODEL)
+        if obs.depth.shape[0] != planner.config.size_px:
+            raise TrialAborted(f"the reconstruction was rendered at {obs.depth.shape[0]} px but the model needs "
+                               f"{planner.config.size_px} px")
+        the_plan = plan(obs, planner, Objective(kind=options.objective), constraints, top_k=10, pile=pile)
+    except PlannerError as exc:
+        raise TrialAborted(f"planning failed: {exc}") from exc
+    if the_plan.best is None:
+        why = "; ".join(f"{r['targets']}: {r['constraint']}" for r in the_plan.rejected[:5])
+        raise TrialAborted("no grasp satisfies the constraints (reach, lift capacity, keep-out)"
+                           + (f": {why}" if why else ""))
+    best = the_plan.best
+    z = float(pile.terrain.height_at(best.grasp.x_m, best.grasp.y_m))
+    geo = grasp_to_gnss(best.grasp, pile.georef, z)
+    command_fields = {
+        "easting_mm": int(round(geo.easting_m * 1000)), "northing_mm": int(round(geo.northing_m * 1000)),
+        "height_mm": int(round(geo.h_ell_m * 1000)), "heading_cdeg": int(round(geo.heading_grid_deg * 100)) % 18000,
+        "opening_width_mm": int(round(best.grasp.width_m * 1000)), "target_log_count": len(best.targets),
+        "plan_timestamp_ms": int(round(captured * 1000)),
+    }
+    plan_dir = work / "plan"
+    plan_dir.mkdir(parents=True, exist_ok=True)
+    from synth.pile import atomic_write_bytes
+    from synth.preview import draw_grasps, write_png
+
+    atomic_write_bytes(plan_dir / "plan.json", the_plan.to_json().encode())
+    write_png(plan_dir / "plan.png", draw_grasps(obs, [(g.grasp, g.targets) for g in the_plan.grasps[:5]],
+                                                  labels=[f"{g.quality:.2f}" for g in the_plan.grasps[:5]]))
+    write_geojson_pair(pile, plan_dir, grasp=best.grasp, plan_extra={"target_logs": list(best.targets)})
+    draw_grasp_map(pile, best.grasp, plan_dir / "grasp_map.png", target_logs=best.targets)
+    return PreparedTrial(pile=pile, plan=the_plan, geo=geo, command_fields=command_fields,
+                         captured_utc_s=captured, work_dir=work, report={"pile_age_s": age})
+
+
+@dataclass
+class TrialOutcome:
+    command_id: int
+    accepted: bool
+    reject_reason: str | None
+    outcome: dict | None
+    final_state: str
+    messages: list[dict]
+
+
+def execute_trial(prepared: PreparedTrial, link_url: str, options: TrialOptions,
+                  record_traffic: Path | None = None, say: Callable[[str], None] | None = None) -> TrialOutcome:
+    """Send the prepared command over ``link_url`` and follow it to its final state."""
+    from field.link import open_link
+    from field.link.base import LinkConfig
+    from field.errors import CommandRejected, LinkError, LinkTimeout
+    from field.link.messages import GraspCommand
+    from field.link.safety import SafetyConfig
+
+    say = say or (lambda s: None)
+    msgs: list[dict] = []
+
+    def log(kind: str, **kw) -> None:
+        msgs.append({"t_utc_s": time.time(), "kind": kind, **kw})
+
+    cfg = LinkConfig(record_path=str(record_traffic) if record_traffic else None,
+                     safety=SafetyConfig(max_pile_age_s=options.max_pile_age_s))
+    try:
+        link = open_link(link_url, cfg)
+    except (LinkError, ValueError) as exc:
+        raise TrialAborted(f"cannot open the crane link {link_url}: {exc}") from exc
+    with link:
+        cid = link.new_command_id()
+        cmd = GraspCommand(command_id=cid, **prepared.command_fields)
+        log("command", **asdict(cmd))
+        say(f"sending command {cid}")
+        try:
+            ack = link.send_grasp(cmd, timeout_s=options.ack_timeout_s)
+        except CommandRejected as exc:
+            log("rejected", reason=exc.reason.name)
+            return TrialOutcome(cid, False, exc.reason.name, None, "REJECTED", msgs)
+        except LinkTimeout as exc:
+            st = exc.status
+            log("ack_timeout", status=None if st is None else st.state.name)
+            return TrialOutcome(cid, False, None, None,
+                                f"NO ACK ({'controller unreachable' if st is None else st.state.name}): {exc}", msgs)
+        log("ack", accepted=ack.accepted)
+        say(f"command {cid} accepted; waiting for the outcome")
+        try:
+            out = link.wait_outcome(cid, timeout_s=options.outcome_timeout_s)
+        except LinkTimeout as exc:
+            log("outcome_timeout", status=None if exc.status is None else exc.status.state.name)
+            return TrialOutcome(cid, True, None, None, f"OUTCOME UNKNOWN: {exc}", msgs)
+        od = {"class": out.outcome_class.name, "logs_grasped": out.logs_grasped,
+              "cos_beta": out.balance_cos_milli / 1000.0}
+        log("outcome", **od)
+        return TrialOutcome(cid, True, None, od, out.outcome_class.name, msgs)
+
+
+def _versions() -> dict:
+    import platform
+
+    import synth
+
+    v = {"loggrasp": synth.__version__, "python": platform.python_version()}
+    try:
+        import subprocess
+
+        v["git"] = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
+                                  cwd=Path(__file__).resolve().parents[1], timeout=5).stdout.strip() or None
+    except (OSError, subprocess.SubprocessError):
+        v["git"] = None
+    return v
+
+
+def run_trial_record(scan_dir: str | Path, gnss_path: str | Path, link_url: str, record_dir: str | Path,
+                     options: TrialOptions, confirm: Callable[[PreparedTrial], bool] | None = None,
+                     progress: Callable[[str], None] | None = None, now: float | None = None) -> dict:
+    """The whole trial; returns the record dict. The record folder appears only when complete.
+
+    ``confirm(prepared)`` asks the operator (None = already confirmed, e.g. ``--yes``). A trial that
+    stops before sending still writes a record (with its reason), so nothing is lost."""
+    from planner.cli import DEFAULT_MODEL
+    from synth.pile import atomic_write_bytes
+
+    say = progress or (lambda s: None)
+    scan_dir, gnss_path, record_dir = Path(scan_dir), Path(gnss_path), Path(record_dir)
+    if record_dir.exists():
+        raise FieldError(f"trial record {record_dir} already exists; choose a new --record folder")
+    record_dir.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{record_dir.name}.", suffix=".tmp", dir=record_dir.parent))
+    try:
+        inputs = tmp / "inputs"
+        shutil.copytree(scan_dir, inputs / "scan")
+        shutil.copy2(gnss_path, inputs / "gnss.csv")
+        model = Path(options.model or DEFAULT_MODEL)
+        record: dict = {
+            "format": RECORD_FORMAT, "format_version": RECORD_VERSION, "versions": _versions(),
+            "started_utc_s": time.time(), "link": link_url, "options": asdict(options),
+            "inputs": {"scan": str(scan_dir), "gnss": str(gnss_path),
+                       "hashes": {str(p.relative_to(inputs)): sha256_of(p) for p in sorted(inputs.rglob("*")) if p.is_file()}},
+            "model": {"path": str(model), "sha256": sha256_of(model) if model.exists() else None},
+        }
+        try:
+            prepared = prepare_trial(inputs / "scan", inputs / "gnss.csv", tmp, options, progress=say, now=now)
+        except TrialAborted as exc:
+            record.update({"final_state": "NOT SENT", "reason": str(exc)})
+            atomic_write_bytes(tmp / "record.json", json.dumps(record, indent=1).encode())
+            os.replace(tmp, record_dir)
+            raise
+        record["plan"] = json.loads((tmp / "plan" / "plan.json").read_text())
+        record["command"] = prepared.command_fields
+        record["geo"] = prepared.geo.to_dict()
+        record["pile_age_s"] = prepared.report.get("pile_age_s")
+        if confirm is not None and not confirm(prepared):
+            record.update({"final_state": "NOT SENT", "reason": "the operator declined"})
+            atomic_write_bytes(tmp / "record.json", json.dumps(record, indent=1).encode())
+            os.replace(tmp, record_dir)
+            raise TrialAborted("the operator declined: nothing was sent")
+        traffic = None
+        if link_url.startswith("can"):
+            (tmp / "link").mkdir()
+            traffic = tmp / "link" / "traffic.blf"
+        outcome = execute_trial(prepared, link_url, options, record_traffic=traffic, say=say)
+        record.update({"command_id": outcome.command_id, "accepted": outcome.accepted,
+                       "reject_reason": outcome.reject_reason, "outcome": outcome.outcome,
+                       "final_state": outcome.final_state, "messages": outcome.messages,
+                       "finished_utc_s": time.time()})
+        atomic_write_bytes(tmp / "record.json", json.dumps(record, indent=1).encode())
+        os.replace(tmp, record_dir)
+        return record
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+def read_record(record_dir: str | Path) -> dict:
+    path = Path(record_dir) / "record.json"
+    try:
+        d = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise FieldError(f"{path} is not a readable trial record: {exc}") from exc
+    if d.get("format") != RECORD_FORMAT:
+        raise FieldError(f"{path} is not a loggrasp trial record")
+    if str(d.get("format_version", "")).split(".")[0] != RECORD_VERSION.split(".")[0]:
+        raise FieldError(f"{path}: trial record version {d.get('format_version')!r} is not supported by this loggrasp")
+    return d
+
+
+def replay_record(record_dir: str | Path, work_dir: str | Path, progress=None) -> dict:
+    """Re-run reconstruction and planning from a record's inputs; compare with what was sent.
+
+    Returns ``{"identical": bool, "command_sent", "command_replayed", "plan_identical", "differences"}``.
+    The staleness check is judged against the record's own time (the data was fresh then)."""
+    rec = read_record(record_dir)
+    opts = TrialOptions(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in rec["options"].items()})
+    inputs = Path(record_dir) / "inputs"
+    prepared = prepare_trial(inputs / "scan", inputs / "gnss.csv", work_dir, opts, progress=progress,
+                             now=rec["started_utc_s"])
+    sent = rec.get("command")
+    again = prepared.command_fields
+    plan_again = json.loads((Path(work_dir) / "plan" / "plan.json").read_text())
+    strip = lambda p: {k: p[k] for k in ("grasps", "subsets_evaluated")}  # noqa: E731 - elapsed_s differs
+    diffs = [k for k in again if sent is None or sent.get(k) != again[k]]
+    plan_same = rec.get("plan") is not None and strip(rec["plan"]) == strip(plan_again)
+    return {"identical": sent is not None and not diffs and plan_same, "command_sent": sent,
+            "command_replayed": again, "plan_identical": plan_same, "differences": diffs}
