@@ -39,3 +39,64 @@ def scan_command(
     except (SynthError, ValueError) as exc:
         fail(str(exc))
     typer.echo(f"scan written to {path} (truth in {path / 'truth'})")
+
+
+def reconstruct_command(
+    scan: Path = typer.Argument(..., help="Scan folder: stereo pair folder(s) + scan_pose.json."),
+    gnss: Path = typer.Option(..., "--gnss", help="RTK endpoint survey CSV (see README)."),
+    out: Path = typer.Option(..., "--out", help="Output folder: pile.json, ortho.npz, previews, report.json."),
+    allow_float: bool = typer.Option(False, "--allow-float", help="Accept RTK float endpoints (not recommended)."),
+) -> None:
+    """Rebuild the scanned pile in the twin from a stereo scan and RTK GNSS log endpoints.
+
+    Example: loggrasp reconstruct scans/s3/scan --gnss scans/s3/gnss.csv --out recon/s3
+    """
+    from rich.console import Console
+    from rich.table import Table
+
+    from reconstruct.errors import ReconstructError
+    from reconstruct.pipeline import ReconstructConfig, reconstruct
+    from synth.errors import SynthError
+
+    console = Console()
+    try:
+        with console.status("reconstructing") as status:
+            result = reconstruct(scan, gnss, out, ReconstructConfig(allow_float=allow_float),
+                                 progress=lambda s: status.update(s))
+    except (ReconstructError, SynthError, ValueError) as exc:
+        fail(str(exc))
+    table = Table(title=f"{result.pile.n_logs} logs, {result.pile.n_obstacles} obstacles in {result.time_s:.1f} s")
+    logs = result.report.get("logs", [])
+    keys = [k for k in ("id", "length_m", "diameter_m", "top_diameter_m", "gnss_residual_m", "fit_rms_m", "n_points")
+            if logs and k in logs[0]]
+    for k in keys:
+        table.add_column(k, justify="right")
+    for row in logs:
+        table.add_row(*[f"{row[k]:.3f}" if isinstance(row[k], float) else str(row[k]) for k in keys])
+    console.print(table)
+    typer.echo(f"wrote {out}/pile.json, ortho.npz, preview.png, compare.png, report.json")
+
+
+def compare_command(
+    truth: Path = typer.Argument(..., help="Ground-truth pile.json (or its folder)."),
+    recon: Path = typer.Argument(..., help="Reconstructed pile.json (or its folder)."),
+    as_json: bool = typer.Option(False, "--json", help="Print the full comparison as JSON."),
+) -> None:
+    """Per-log and summary errors of a reconstruction against the truth (endpoint, diameter, mask IoU, obstacles).
+
+    Example: loggrasp compare-piles scans/s3/truth recon/s3 --json
+    """
+    import json
+
+    from reconstruct.compare import compare_piles
+    from synth.errors import SynthError
+    from synth.pile import read_pile
+
+    try:
+        result = compare_piles(read_pile(truth), read_pile(recon))
+    except (SynthError, ValueError) as exc:
+        fail(str(exc))
+    if as_json:
+        typer.echo(json.dumps(result, indent=1))
+    else:
+        typer.echo(json.dumps(result["summary"], indent=1))
