@@ -84,6 +84,8 @@ SECTIONS = {
 OPTIONAL = {  # module in bench/ -> function returning Markdown; skipped if the module is absent
     "stereo": ("bench_stereo", "markdown"),
     "trials": ("bench_trials", "markdown"),
+    "planner": ("bench_planner", "markdown"),
+    "reconstruct": ("bench_reconstruct", "markdown"),
     "link": ("bench_link", "markdown"),
 }
 
