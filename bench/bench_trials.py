@@ -89,7 +89,42 @@ def _run(args):
     pile, grasp, targets, which = args
     cfg = TrialConfig.fast() if which == "fast" else TrialConfig.careful()
     r = run_trial(pile, grasp, targets, cfg)
-    return r.outcome.name, r.wall_time_s, r.sim_time_s, r.max_penetration_m, r.cos_beta
+    return r.outcome.name, r.cpu_time_s, r.sim_time_s, r.max_penetration_m, r.wall_time_s
+
+
+def pictures(out_dir: Path, n_piles: int = 6, seed0: int = 0) -> list[Path]:
+    """Before/after PNGs of example trials (one per outcome class found) under ``out_dir``."""
+    import cv2
+
+    from synth.trial import render_view
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written, seen = [], set()
+    for pile, grasp, targets in sorted(make_cases(n_piles, seed0, 8), key=lambda c: -len(c[2])):
+        frames = {}
+
+        def grab(name, world, grapple, g=grasp):
+            if name in ("start", "end"):
+                head, _ = grapple.head_pose()
+                ground = float(pile.terrain.height_at(g.x_m, g.y_m))
+                look_z = 0.5 * (ground + head[2] - 0.9)  # between the ground and the claws
+                frames[name] = render_view(world, (g.x_m, g.y_m, look_z), distance_m=3.4,
+                                           yaw_deg=math.degrees(g.phi_rad) + 20.0, pitch_deg=-18.0)
+
+        r = run_trial(pile, grasp, targets, TrialConfig.fast())
+        if r.outcome in seen:
+            continue
+        seen.add(r.outcome)
+        run_trial(pile, grasp, targets, TrialConfig.fast(), on_phase=grab)  # deterministic: same trial
+        stem = r.outcome.name.lower()
+        for phase, suffix in (("start", "before"), ("end", "after")):
+            path = out_dir / f"{stem}_{suffix}.png"
+            img = cv2.cvtColor(frames[phase], cv2.COLOR_RGB2BGR)
+            label = f"{r.outcome.name}  targets {list(targets)}  held {list(r.grasped)}  w={grasp.width_m:.2f} m"
+            cv2.putText(img, label, (10, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 2)
+            cv2.imwrite(str(path), img)
+            written.append(path)
+    return written
 
 
 def main(argv=None) -> int:
@@ -98,7 +133,12 @@ def main(argv=None) -> int:
     ap.add_argument("--per-pile", type=int, default=8)
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--pictures", type=Path, default=None, help="write example PNGs here and exit")
     a = ap.parse_args(argv)
+    if a.pictures is not None:
+        for path in pictures(a.pictures):
+            print(path)
+        return 0
     t0 = time.perf_counter()
     cases = make_cases(a.piles, a.seed, a.per_pile)
     t_gen = time.perf_counter() - t0
@@ -121,15 +161,17 @@ def main(argv=None) -> int:
     per_trial_careful = np.mean([c[1] for c in careful])
     confusion = Counter((c[0], f[0]) for f, c in zip(fast, careful) if f[0] != c[0])
     print("```")
+    print(f"bench_trials: {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} at the end (CPU time is "
+          "per process, so it is the per-core cost even on a shared machine)")
     print(f"bench_trials: {n} grasps on {a.piles} generated 4-log piles (half with 3 obstacles), "
           f"workers={a.workers}, pile generation {t_gen:.1f} s")
     print("```")
     print()
-    print("| preset | mean wall s / trial (1 core) | trials/s per core | mean sim s | max penetration mm |")
-    print("|---|---|---|---|---|")
+    print("| preset | CPU s / trial | trials/s per core | mean wall s / trial | mean sim s | max penetration mm |")
+    print("|---|---|---|---|---|---|")
     for name, out, per in (("fast", fast, per_trial_fast), ("careful", careful, per_trial_careful)):
-        print(f"| {name} | {per:.3f} | {1 / per:.2f} | {np.mean([o[2] for o in out]):.2f} | "
-              f"{1000 * max(o[3] for o in out):.1f} |")
+        print(f"| {name} | {per:.3f} | {1 / per:.2f} | {np.mean([o[4] for o in out]):.3f} | "
+              f"{np.mean([o[2] for o in out]):.2f} | {1000 * max(o[3] for o in out):.1f} |")
     print()
     print(f"- outcome agreement fast vs careful: **{agree}/{n} = {100 * agree / n:.1f} %** "
           f"(success/failure only: {100 * agree_bin / n:.1f} %)")

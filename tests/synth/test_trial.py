@@ -117,7 +117,7 @@ def test_result_serialises_and_inputs_are_validated():
     with pytest.raises(ValueError, match="n_targets"):
         run_trial(pile, Grasp(0.0, 0.0, 0.0, 0.6), 0, FAST)
     with pytest.raises(ValueError, match="collision_force_n"):
-        TrialConfig(stop_force_n=3000.0, collision_force_n=2000.0)
+        TrialConfig(collision_force_n=0.0)
 
 
 def test_terrain_override_resamples_only_the_heightfield():
