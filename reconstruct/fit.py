@@ -42,14 +42,15 @@ are ground or obstacles. The ground is the grey-scale *opening* of the per-cell 
 (window ``ground_window_m``, wider than the obstacles) followed by the median of the points near
 that surface, on the :class:`TerrainSpec` grid; holes are filled (OpenCV ``inpaint``, Telea);
 the unseen ground under a log is lowered to the log's underside where needed. Points more than
-``obstacle_min_height_m`` above the ground are clustered with
-open3d's DBSCAN; a cluster with a flat, circular top is a stump (:class:`StumpSpec`, no roots:
-they are not visible), any other a rock (:class:`RockSpec`, the convex hull of its points
-extended down into the ground).
+``obstacle_min_height_m`` above the ground are clustered with open3d's DBSCAN; a cluster with a
+flat, circular top at least its radius high is a stump (:class:`StumpSpec`, no roots: they are
+not visible), any other a rock (:class:`RockSpec`, the convex hull of its points extended down
+into the ground).
 
 The assembled pile is loaded into the twin (:func:`synth.generate.validate_pile`-style check);
-logs that interpenetrate a little (fit noise) are lifted by the smallest amount that separates
-them, and every lift is reported.
+logs that interpenetrate a little (fit noise) are moved out along the contact normal by the
+penetration depth (lifted when stacked, pushed apart when side by side), and every move is
+reported.
 """
 
 from __future__ import annotations
@@ -105,10 +106,11 @@ class FitConfig:
     obstacle_voxel_m: float = 0.02  # obstacle points are voxel-downsampled to this first [m]
     stump_flat_fraction: float = 0.3  # share of points in the top 4 cm for a stump [-]
     stump_max_circle_rms: float = 0.25  # circle-fit RMS of the top over its radius, stump [-]
+    stump_min_aspect: float = 1.0  # a stump's height is at least this times its radius [-]
     rock_max_vertices: int = 48  # convex hull vertices kept per rock [-]
     validate: bool = True  # load the pile into the twin and separate interpenetrating logs
     penetration_tolerance_m: float = 0.01  # allowed interpenetration [m]
-    max_lift_m: float = 0.05  # larger needed lifts are an error, not noise [m]
+    max_move_m: float = 0.05  # larger needed separating moves are an error, not noise [m]
     seed: int = 0  # subsampling seed [-]
 
     def __post_init__(self) -> None:
@@ -123,8 +125,8 @@ class FitConfig:
                      "obstacle_min_height_m", "dbscan_eps_m", "obstacle_min_size_m", "obstacle_voxel_m"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
-        if self.end_margin_m < 0 or self.taper_min_m < 0 or self.max_lift_m < 0:
-            raise ValueError("end_margin_m, taper_min_m and max_lift_m must be >= 0")
+        if self.end_margin_m < 0 or self.taper_min_m < 0 or self.max_move_m < 0:
+            raise ValueError("end_margin_m, taper_min_m and max_move_m must be >= 0")
         if not 0.002 <= self.profile_bin_m <= 0.05:
             raise ValueError(f"profile_bin_m must be in [0.002, 0.05] m, got {self.profile_bin_m}")
         if self.min_points < 10 or self.max_points_per_log < 100:
@@ -151,7 +153,7 @@ class LogFit:
     gnss_residual_b_m: float  # ... of point b [m]
     axis_shift_m: float  # largest move of the axis end from the GNSS point (perpendicular) [m]
     swapped: bool  # True when end "b" turned out to be the butt (the thicker end)
-    lift_m: float = 0.0  # lift applied to separate it from other bodies [m]
+    moved_m: float = 0.0  # how far it was moved to separate it from other bodies [m]
 
     @property
     def mean_diameter_m(self) -> float:
@@ -173,7 +175,7 @@ class PileFit:
     n_ground_points: int
     n_obstacle_points: int
     obstacles: list[dict] = field(default_factory=list)  # kind, position, size, n_points
-    lifts: list[str] = field(default_factory=list)  # what the validation moved
+    moves: list[str] = field(default_factory=list)  # what the validation moved
     timings_s: dict = field(default_factory=dict)
 
 
@@ -613,9 +615,10 @@ def find_obstacles(points: np.ndarray, terrain: TerrainSpec, cfg: FitConfig | No
         top_pts = C[h > top - 0.04]
         flat_frac = len(top_pts) / len(C)
         cx, cy, r, rms = _circle_fit_xy(top_pts[:, :2])
+        # a stump stands up: flat round top, height at least its radius; rocks are domes or slabs
         is_stump = (flat_frac >= cfg.stump_flat_fraction and np.isfinite(r) and 0.03 <= r <= 1.0
                     and rms <= cfg.stump_max_circle_rms * r and 0.05 <= top <= 2.0
-                    and abs(cx) < half and abs(cy) < half)
+                    and top >= cfg.stump_min_aspect * r and abs(cx) < half and abs(cy) < half)
         if is_stump:
             stumps.append(StumpSpec(position_m=(float(cx), float(cy)), height_m=float(np.clip(top, 0.05, 2.0)),
                                     bottom_radius_m=float(min(1.0, r * 1.1)), top_radius_m=float(r)))
@@ -678,44 +681,56 @@ def _rock_from_points(C: np.ndarray, terrain: TerrainSpec, cfg: FitConfig) -> Ro
 
 # -- validation ------------------------------------------------------------------------------
 def separate_logs(pile: PileSpec, cfg: FitConfig | None = None) -> tuple[PileSpec, list[str], list[float]]:
-    """Lift logs that interpenetrate other bodies (fit noise) by the smallest amount, repeatedly,
-    until the twin accepts the pile. Returns the pile, what was done, and each log's total lift.
-    Raises :class:`FitError` when a log would need more than ``max_lift_m``."""
+    """Move logs that interpenetrate other bodies (fit noise) out along the contact normal by
+    the penetration depth, the worst contact first, until the twin accepts the pile (of two
+    logs, the one the normal moves up; side by side logs are pushed apart, stacked ones lifted).
+    Returns the pile, what was done, and how far each log moved [m]. Raises
+    :class:`FitError` when a log would have to move more than ``max_move_m``."""
     from synth.errors import PileValidationError
     from synth.world import World
 
     cfg = cfg or FitConfig()
-    lifts = [0.0] * pile.n_logs
+    moves = [np.zeros(3) for _ in range(pile.n_logs)]
     notes: list[str] = []
     for _ in range(10 * pile.n_logs + 5):
         with World(pile) as world:
-            bad = world.penetrations(cfg.penetration_tolerance_m)
-            try:
-                if not bad:
+            names = {world.terrain_id: "terrain"}
+            names.update({b: f"log {i}" for i, b in enumerate(world.log_ids)})
+            names.update({b: f"obstacle {j}" for j, b in enumerate(world.obstacle_ids)})
+            log_of = {b: i for i, b in enumerate(world.log_ids)}
+            world.client.performCollisionDetection()
+            worst = None
+            for i, b in enumerate(world.log_ids):
+                for cp in world.client.getContactPoints(bodyA=b):
+                    if cp[8] < -cfg.penetration_tolerance_m and (worst is None or cp[8] < worst[0]):
+                        worst = (cp[8], i, cp[2], np.asarray(cp[7], dtype=float))  # normal B -> A
+            if worst is None:
+                try:
                     world.check_valid(cfg.penetration_tolerance_m)
-                    return pile, notes, lifts
-            except PileValidationError as exc:
-                raise FitError(f"the reconstructed pile is not physical: {exc}") from exc
-        a, b, depth = bad[0]
-        # which log moves: the upper one of a log pair, the log against terrain/obstacles
-        idx = [int(s.split()[1]) for s in (a, b) if s.startswith("log ")]
-        if len(idx) == 2:
-            i = max(idx, key=lambda j: pile.logs[j].centre_m[2])
-        else:
-            i = idx[0]
-        dz = depth + 0.002  # contact depths of the prism hulls shrink slowly with lifts: clear fully
-        lifts[i] += dz
-        if lifts[i] > cfg.max_lift_m:
+                except PileValidationError as exc:
+                    raise FitError(f"the reconstructed pile is not physical: {exc}") from exc
+                return pile, notes, [float(np.linalg.norm(m)) for m in moves]
+        dist, i, other, normal = worst
+        other_name = names.get(other, str(other))
+        j = log_of.get(other)
+        if j is not None and normal[2] < 0:  # move whichever log goes UP (never push one down)
+            i, normal, other_name = j, -normal, f"log {worst[1]}"
+        step = normal / max(np.linalg.norm(normal), 1e-9) * (-dist + 0.002)
+        moves[i] = moves[i] + step
+        if np.linalg.norm(moves[i]) > cfg.max_move_m:
             raise FitError(
-                f"log {i} would have to be lifted {lifts[i] * 100:.1f} cm to clear {a if b == f'log {i}' else b} "
-                f"(limit {cfg.max_lift_m * 100:.0f} cm); its fit or endpoints are wrong"
+                f"log {i} would have to move {np.linalg.norm(moves[i]) * 100:.1f} cm to clear {other_name} "
+                f"(limit {cfg.max_move_m * 100:.0f} cm); its fit or its GNSS end points are wrong"
             )
         log = pile.logs[i]
-        c = log.centre_m
         logs = list(pile.logs)
-        logs[i] = replace(log, centre_m=(c[0], c[1], c[2] + dz))
+        logs[i] = replace(log, centre_m=tuple(float(v) for v in np.asarray(log.centre_m) + step))
         pile = pile.with_logs(tuple(logs))
-        notes.append(f"log {i} lifted {dz * 1000:.1f} mm ({a} / {b} interpenetrated {depth * 1000:.1f} mm)")
+        how = "lifted" if step[2] > 0.7 * np.linalg.norm(step) else "moved"
+        notes.append(f"log {i} {how} {np.linalg.norm(step) * 1000:.1f} mm along "
+                     f"({step[0] / np.linalg.norm(step):+.2f}, {step[1] / np.linalg.norm(step):+.2f}, "
+                     f"{step[2] / np.linalg.norm(step):+.2f}) (log {i} / {other_name} interpenetrated "
+                     f"{-dist * 1000:.1f} mm)")
     raise FitError("could not separate the reconstructed logs; check the fits")
 
 
@@ -869,19 +884,20 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
     timings["obstacles_s"] = time.perf_counter() - t2
     pile = PileSpec(terrain=terrain, logs=tuple(logs), stumps=tuple(stumps), rocks=tuple(rocks),
                     georef=georef, source="reconstructed", notes=notes)
-    lifts_notes: list[str] = []
+    move_notes: list[str] = []
     if cfg.validate:
         t3 = time.perf_counter()
         say("checking the pile in the twin")
-        pile, lifts_notes, lifts = separate_logs(pile, cfg)
-        for lf, dz in zip(fits, lifts):
-            lf.lift_m = float(dz)
-            if dz:
-                lf.butt_m = (lf.butt_m[0], lf.butt_m[1], lf.butt_m[2] + dz)
-                lf.top_m = (lf.top_m[0], lf.top_m[1], lf.top_m[2] + dz)
+        pile, move_notes, moved = separate_logs(pile, cfg)
+        for lf, log, dist in zip(fits, pile.logs, moved):
+            lf.moved_m = float(dist)
+            if dist:
+                butt, top = log.endpoints_m()
+                lf.butt_m = tuple(float(v) for v in butt)
+                lf.top_m = tuple(float(v) for v in top)
         timings["validate_s"] = time.perf_counter() - t3
     return PileFit(pile=pile, logs=fits, terrain_coverage=coverage, n_ground_points=int(is_ground.sum()),
-                   n_obstacle_points=int(len(above)), obstacles=info, lifts=lifts_notes, timings_s=timings)
+                   n_obstacle_points=int(len(above)), obstacles=info, moves=move_notes, timings_s=timings)
 
 
 # -- synthetic scans (tests, benchmarks) -----------------------------------------------------

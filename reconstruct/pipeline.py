@@ -114,7 +114,7 @@ class ReconstructConfig:
     fit: FitConfig = field(default_factory=FitConfig)
     scan_pose: ScanPose | None = None  # None: read scan_pose.json from the scan folder
     allow_float: bool = False  # accept RTK float end points
-    max_endpoint_distance_m: float = 0.5  # an end point this far from every scan point is an error [m]
+    max_endpoint_distance_m: float = 1.0  # an end point this far from every scan point is an error [m]
     refine: bool = True  # refine the scan pose against the GNSS end points
     refine_with_scale: bool = False  # let the refinement scale the scan (a stereo baseline error)
     refine_iterations: int = 10  # point-to-line iterations [-]
@@ -302,8 +302,8 @@ def comparison_image(points: np.ndarray, colours: np.ndarray, obs: Any, scale: i
         mask = (inst == i + 1).astype(np.uint8)
         if mask.any():
             contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-            for img in (left, right):
-                cv2.drawContours(img, contours, -1, log_colour_bgr(i), 2)
+            cv2.drawContours(left, contours, -1, log_colour_bgr(i), 1)  # thin: the scan stays visible
+            cv2.drawContours(right, contours, -1, log_colour_bgr(i), 2)
     cv2.putText(left, "scan (top view) + fitted logs", (6, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (255, 255, 255), 1)
     cv2.putText(right, "re-render (training format)", (6, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (255, 255, 255), 1)
     return np.concatenate([left, np.full((size, 4, 3), 255, np.uint8), right], axis=1)
@@ -425,7 +425,7 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
         "registration": reg_report, "endpoint_scan_distance_m": coverage,
         "survey_warnings": list(survey.warnings),
         "logs": [lf.to_dict() for lf in fit.logs],
-        "terrain_coverage": fit.terrain_coverage, "obstacles": fit.obstacles, "lifts": fit.lifts,
+        "terrain_coverage": fit.terrain_coverage, "obstacles": fit.obstacles, "moves": fit.moves,
         "timings_s": timings,
     }
     report_path = out_dir / "report.json"
