@@ -83,7 +83,8 @@ def _pile_observations(n_logs: int, count: int, size: int = 128, seed0: int = 10
     return out
 
 
-def planning_latency(n_logs=(4, 7, 12), repeats: int = 3, injections=("input", "decoder")) -> list[dict]:
+def planning_latency(n_logs=(4, 7, 12), repeats: int = 3,
+                     variants=(("default", 23, "input"), ("default", 23, "decoder"), ("small", 16, "input"))) -> list[dict]:
     import torch
 
     from planner.inference import Planner, plan
@@ -92,8 +93,8 @@ def planning_latency(n_logs=(4, 7, 12), repeats: int = 3, injections=("input", "
     torch.set_num_threads(2)
     obs = {n: _pile_observations(n, 1)[0][0] for n in n_logs}
     rows = []
-    for inj in injections:
-        cfg = UNetConfig(mask_injection=inj)
+    for name, base, inj in variants:
+        cfg = UNetConfig(base_channels=base, mask_injection=inj)
         torch.manual_seed(0)
         pl = Planner(build_unet(cfg), cfg, precision="bf16")
         plan(obs[n_logs[0]], pl)  # warm-up (oneDNN kernels)
@@ -104,7 +105,7 @@ def planning_latency(n_logs=(4, 7, 12), repeats: int = 3, injections=("input", "
                 p = plan(obs[n], pl)
                 walls.append(p.elapsed_s)
                 cpus.append(time.process_time() - c0)
-            rows.append({"injection": inj, "logs": n, "subsets": p.subsets_evaluated,
+            rows.append({"model": name, "injection": inj, "logs": n, "subsets": p.subsets_evaluated,
                          "selection": p.info["selection"], "n_fit": p.info.get("n_fit"),
                          "wall_s": statistics.median(walls), "cpu_s": statistics.median(cpus)})
     return rows
@@ -164,12 +165,12 @@ def markdown(repeats: int = 3) -> str:
     parts += [f"| {r['model']} | {r['params'] / 1e6:.2f} M | {r['mode']} | {r['samples_per_s']:.1f} | "
               f"{r['cpu_s_per_sample']:.3f} |" for r in t]
     lat = planning_latency(repeats=repeats)
-    parts += ["", f"Planning one settled, rendered pile (2 obstacles), default-width network, bf16 + BN folded, "
+    parts += ["", f"Planning one settled, rendered pile (2 obstacles), bf16 + BN folded, "
               f"all subsets batched, median of {repeats} ({_load()}). Targets: 7 logs (127 subsets) < 1 s; 12 logs with "
               "pre-selection < 2 s.", "",
-              "| mask injection | logs | subsets evaluated | selection (fit / possible) | wall s | CPU s |",
-              "|---|---|---|---|---|---|"]
-    parts += [f"| {r['injection']} | {r['logs']} | {r['subsets']} | {r['selection']}"
+              "| model | mask injection | logs | subsets evaluated | selection | wall s | CPU s |",
+              "|---|---|---|---|---|---|---|"]
+    parts += [f"| {r['model']} | {r['injection']} | {r['logs']} | {r['subsets']} | {r['selection']}"
               f"{fit_note(r)} | "
               f"{r['wall_s']:.2f} | {r['cpu_s']:.2f} |" for r in lat]
     pc = pruning_cost(checkpoint=os.environ.get("LOGGRASP_PLANNER_CKPT"))
