@@ -689,7 +689,7 @@ def _prepare(out: Path, job: DatasetJob) -> dict[int, ShardInfo]:
             )
     for tmp in out.glob(".shard_*.tmp"):
         tmp.unlink(missing_ok=True)
-    for tmp in out.glob(".manifest.json.*.tmp"):
+    for tmp in [*out.glob(".manifest.json.*.tmp"), *out.glob("piles/.pile_*.tmp")]:
         tmp.unlink(missing_ok=True)
     done: dict[int, ShardInfo] = {}
     for rec in sorted(out.glob("shard_*.done.json")):

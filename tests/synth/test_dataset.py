@@ -195,6 +195,7 @@ def test_resume_keeps_finished_shards_and_redoes_partial_ones(tmp_path):
     # a kill after the shard was renamed but before its done record: the shard is partial
     second.unlink()
     (tmp_path / ".shard_p1_00005.npz.abc.tmp").write_bytes(b"half")  # a kill mid-write
+    (tmp_path / "piles" / ".pile_00001.json.abc.tmp").write_bytes(b"half")
     stray = tmp_path / "shard_p99_00007.npz"
     stray.write_bytes(b"partial")
     calls = []
@@ -209,7 +210,7 @@ def test_resume_keeps_finished_shards_and_redoes_partial_ones(tmp_path):
     after = _digest(tmp_path)
     assert after[first.name] == before[first.name]
     assert after[first.name.replace(".done.json", ".npz")] == before[first.name.replace(".done.json", ".npz")]
-    assert not stray.exists() and not list(tmp_path.glob(".shard_*"))
+    assert not stray.exists() and not list(tmp_path.glob(".shard_*")) and not list(tmp_path.glob("piles/.*"))
     verify_dataset(tmp_path)
     assert len(list(iter_samples(tmp_path))) == 3 * 3 * 2
 
