@@ -12,7 +12,12 @@ from field.cli import app
 runner = CliRunner()
 
 
-@pytest.mark.parametrize("args", [[], ["synth"], ["synth", "piles"], ["synth", "render"], ["demo"]])
+COMMANDS = [[], ["synth"], ["synth", "piles"], ["synth", "render"], ["synth", "dataset"], ["synth", "scan"],
+            ["train"], ["plan"], ["eval"], ["reconstruct"], ["compare-piles"], ["crane-sim"], ["trial"],
+            ["replay"], ["demo"]]
+
+
+@pytest.mark.parametrize("args", COMMANDS)
 def test_help(args):
     result = runner.invoke(app, [*args, "--help"])
     assert result.exit_code == 0, result.output
@@ -40,3 +45,26 @@ def test_synth_render_rejects_malformed_pile(tmp_path):
     (tmp_path / "pile.json").write_text("{")
     result = runner.invoke(app, ["synth", "render", str(tmp_path)])
     assert result.exit_code != 0 and "not valid JSON" in result.output
+
+
+def test_synth_scan_rejects_swapped_site(tmp_path):
+    result = runner.invoke(app, ["synth", "scan", "--out", str(tmp_path / "s"), "--site", "20.0,64.1"])
+    assert result.exit_code != 0 and "swap" in result.output
+    assert not (tmp_path / "s").exists()
+
+
+def test_plan_with_missing_model_fails_clearly(tmp_path):
+    result = runner.invoke(app, ["plan", str(tmp_path), "--model", str(tmp_path / "none.safetensors")])
+    assert result.exit_code != 0 and "none.safetensors" in result.output
+
+
+def test_eval_rejects_bad_obstacles_option(tmp_path):
+    result = runner.invoke(app, ["eval", "--out", str(tmp_path), "--obstacles", "maybe"])
+    assert result.exit_code != 0 and "--obstacles" in result.output
+
+
+def test_trial_refuses_an_existing_record(tmp_path):
+    (tmp_path / "rec").mkdir()
+    result = runner.invoke(app, ["trial", "--scan", str(tmp_path), "--gnss", str(tmp_path / "g.csv"),
+                                 "--link", "twin://", "--record", str(tmp_path / "rec"), "--yes"])
+    assert result.exit_code != 0 and "already exists" in result.output
