@@ -15,8 +15,10 @@
 4. **Registration refinement**: each log is fitted to the scan around its GNSS axis; the rigid
    transform (open3d's point-to-point estimation, Umeyama's method; scale optional) that brings
    the fitted axes through the GNSS end points is found by iterating closest points on the
-   axes (point-to-line ICP over the end points). Its size and the residuals before/after are
-   reported; a correction beyond ``max_correction_m`` / ``max_correction_deg`` is an error.
+   axes (point-to-line ICP over the end points); the logs are refitted and this repeated until
+   the correction is negligible (``refine_rounds``). Its size and the residuals before/after are
+   reported; a correction beyond ``max_correction_m`` / ``max_correction_deg`` is an error (the
+   fits start from the GNSS axes, so the given pose must be right to a few centimetres).
 5. **Fit** (:mod:`reconstruct.fit`): logs, terrain and obstacles in the new *pile frame* (the
    site frame shifted to the centre of the surveyed logs, at ground level), the pile checked
    in the twin.
@@ -116,8 +118,11 @@ class ReconstructConfig:
     allow_float: bool = False  # accept RTK float end points
     max_endpoint_distance_m: float = 1.0  # an end point this far from every scan point is an error [m]
     refine: bool = True  # refine the scan pose against the GNSS end points
+    refine_dof: str = "4dof"  # "4dof": yaw + translation (gravity from the camera's IMU kept),
+    #                           "6dof": full rotation (roll about a parallel pile is weakly seen)
     refine_with_scale: bool = False  # let the refinement scale the scan (a stereo baseline error)
-    refine_iterations: int = 10  # point-to-line iterations [-]
+    refine_iterations: int = 10  # point-to-line iterations per round [-]
+    refine_rounds: int = 3  # fit logs + estimate the correction, at most this often [-]
     max_correction_m: float = 0.30  # larger refinement translations are an error [m]
     max_correction_deg: float = 5.0  # larger refinement rotations are an error [deg]
     terrain_margin_m: float = 0.75  # terrain reaches this far beyond the outermost log end [m]
@@ -133,8 +138,10 @@ class ReconstructConfig:
             raise ValueError("max_correction_m, max_correction_deg and terrain_margin_m must be >= 0")
         if not 1.0 <= self.min_extent_m <= 100.0:
             raise ValueError("min_extent_m must be in [1, 100] m")
-        if self.refine_iterations < 1:
-            raise ValueError("refine_iterations must be >= 1")
+        if self.refine_dof not in ("4dof", "6dof"):
+            raise ValueError(f"refine_dof must be '4dof' or '6dof', got {self.refine_dof!r}")
+        if self.refine_iterations < 1 or self.refine_rounds < 1:
+            raise ValueError("refine_iterations and refine_rounds must be >= 1")
 
 
 @dataclass
@@ -207,8 +214,14 @@ def refine_registration(points: np.ndarray, endpoints: dict[str, tuple[np.ndarra
     _, before = residuals(T)
     for _ in range(cfg.refine_iterations):
         proj, _ = residuals(T)
-        if full:
+        if full and cfg.refine_dof == "6dof":
             dT = _rigid_from_correspondences(proj, gnss, cfg.refine_with_scale)
+        elif full:  # yaw about the vertical + translation: the scan's gravity direction is kept
+            flat_src, flat_dst = proj.copy(), gnss.copy()
+            flat_src[:, 2] = 0.0
+            flat_dst[:, 2] = 0.0
+            dT = _rigid_from_correspondences(flat_src, flat_dst, cfg.refine_with_scale)
+            dT[2, 3] = float(np.mean(gnss[:, 2] - (proj @ dT[:3, :3].T)[:, 2]))
         else:
             dT = make_T(t=np.mean(gnss - proj, axis=0))
         T = dT @ T
@@ -220,7 +233,7 @@ def refine_registration(points: np.ndarray, endpoints: dict[str, tuple[np.ndarra
     angle = math.degrees(math.acos(float(np.clip((np.trace(R) - 1) / 2, -1, 1))))
     shift = float(np.linalg.norm(T[:3, 3]))
     report = {
-        "mode": "rigid" if full else "translation",
+        "mode": (cfg.refine_dof if full else "translation"),
         "with_scale": bool(cfg.refine_with_scale and full), "scale": scale,
         "correction_m": shift, "correction_deg": angle,
         "residual_rms_before_m": float(np.sqrt(np.mean(before ** 2))),
@@ -380,12 +393,33 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
     t = time.perf_counter()
     reg_report: dict = {"mode": "none"}
     first_pass = None
+    T_corr = np.eye(4)
     if cfg.refine:
-        say("refining the scan pose against the GNSS end points")
-        T_corr, reg_report, first_pass = refine_registration(pts[near], ends, cfg)
+        # rounds: the logs are refitted after each correction (a pose error of several cm
+        # moves the scan away from the GNSS axes the fits start from)
+        rounds = []
+        best = None
+        for k in range(cfg.refine_rounds):
+            say(f"refining the scan pose against the GNSS end points (round {k + 1})")
+            T_k, rep_k, fp_k = refine_registration(apply_T(T_corr, pts[near]), ends, cfg)
+            rounds.append({key: rep_k[key] for key in (
+                "correction_m", "correction_deg", "residual_rms_before_m", "residual_rms_after_m")})
+            if best is not None and rep_k["residual_rms_after_m"] >= best:
+                rounds[-1]["kept"] = False  # refitting did not help: keep the previous round
+                break
+            rounds[-1]["kept"] = True
+            best = rep_k["residual_rms_after_m"]
+            T_corr, reg_report, first_pass = T_k @ T_corr, rep_k, fp_k
+            if rep_k["correction_m"] < 0.005 and rep_k["correction_deg"] < 0.2:
+                break
+        R = T_corr[:3, :3] / np.cbrt(abs(np.linalg.det(T_corr[:3, :3])))
+        reg_report.update({
+            "rounds": rounds, "T_correction": T_corr.tolist(),
+            "total_correction_m": float(np.linalg.norm(T_corr[:3, 3])),
+            "total_correction_deg": math.degrees(math.acos(float(np.clip((np.trace(R) - 1) / 2, -1, 1)))),
+            "residual_rms_before_m": rounds[0]["residual_rms_before_m"],
+        })
         pts = apply_T(T_corr, pts)
-    else:
-        T_corr = np.eye(4)
     timings["registration_s"] = time.perf_counter() - t
     # T_site_scan after refinement: site <- pile <- (corrected) <- scan
     T_site_scan_refined = T_site_pile @ T_corr @ T_pile_site @ T_site_scan

@@ -111,7 +111,7 @@ def test_refinement_recovers_a_small_pose_error(crossed):
     wrong = make_T(rot_z(math.radians(1.0)), (0.03, -0.02, 0.015))
     T, rep, fitted = refine_registration(apply_T(wrong, pts), ends, ReconstructConfig())
     assert sorted(fitted) == ["log0", "log1", "log2"]
-    assert rep["mode"] == "rigid"
+    assert rep["mode"] == "4dof"
     assert rep["residual_rms_after_m"] < rep["residual_rms_before_m"]
     assert rep["residual_rms_after_m"] < 0.01
     probe = np.array([[1.0, 1.0, 0.1], [-1.0, -1.0, 0.1]])
