@@ -117,10 +117,12 @@ class TrialConfig:
 
     @staticmethod
     def fast() -> "TrialConfig":
-        """Data-generation settings (measured against :meth:`careful`, see docs/trials.md)."""
+        """Data-generation settings: dt 1/120 s, 32² physics terrain, tips start 0.12 m above the
+        pile, shorter hold. Measured against :meth:`careful` on 160 grasps (docs/trials.md):
+        ~0.3 s CPU per 4-log trial, success/failure agreement 99 %, outcome-class agreement 90 %."""
         return TrialConfig(
-            physics=PhysicsConfig(dt_s=1 / 120, solver_iterations=20),
-            terrain_resolution=32, start_clearance_m=0.12, hold_s=0.3, lift_height_m=0.5, check_every=2,
+            physics=PhysicsConfig(dt_s=1 / 120, solver_iterations=50),
+            terrain_resolution=32, start_clearance_m=0.12, hold_s=0.3, check_every=2,
         )
 
 
