@@ -87,6 +87,7 @@ class FitConfig:
     #                              where neighbours, ground and occluders meet the log) [deg]
     loss_scale_m: float = 0.01  # soft-L1 scale of the 3-D fit [m]
     gnss_sigma_m: float = 0.03  # prior sigma tying the fitted axis to the GNSS points [m]
+    widen_search: bool = False  # search farther around imprecise (RTK float) ends; experimental
     fit_taper: bool = False  # fit a linear radius change along the log (weakly determined from
     #                           above: the taper trades off against the axis pitch; off by default)
     taper_min_m: float = 0.02  # smaller butt-top diameter differences give a cylinder [m]
@@ -154,6 +155,7 @@ class LogFit:
     axis_shift_m: float  # largest move of the axis end from the GNSS point (perpendicular) [m]
     swapped: bool  # True when end "b" turned out to be the butt (the thicker end)
     moved_m: float = 0.0  # how far it was moved to separate it from other bodies [m]
+    end_source: tuple[str, str] = ("gnss", "gnss")  # butt, top: "gnss" point or "scan" extent
 
     @property
     def mean_diameter_m(self) -> float:
@@ -264,8 +266,14 @@ def _profile_circle(sw: np.ndarray, prior_centre: np.ndarray, cfg: FitConfig,
 
 
 def fit_log(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = None,
-            log_id: str = "log", rng: np.random.Generator | None = None) -> dict:
+            log_id: str = "log", rng: np.random.Generator | None = None,
+            sigma_a_m: float | None = None, sigma_b_m: float | None = None) -> dict:
     """Fit one log to scan points (pile frame) around its GNSS axis ``end_a`` → ``end_b``.
+
+    ``sigma_a_m``/``sigma_b_m``: 1-sigma accuracy of each GNSS point (default
+    ``cfg.gnss_sigma_m``). An imprecise point (an RTK float fix) widens the search around the
+    axis, weakens the prior, and its end is taken from the scan (the extent of the log's points
+    along the fitted axis) when the scan shows it better than the point does.
 
     Returns a dict with ``centre`` (a point on the fitted axis, (3,)), ``axis`` (unit, a → b),
     ``ends`` ((2, 3): the GNSS points projected on the fitted axis, or the GNSS axis ends),
@@ -288,7 +296,16 @@ def fit_log(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = 
     rel = P - a
     t = rel @ u0
     q = rel - np.outer(t, u0)
-    near = (t > cfg.end_margin_m) & (t < L - cfg.end_margin_m)
+    sig_a = cfg.gnss_sigma_m if sigma_a_m is None or not np.isfinite(sigma_a_m) else max(float(sigma_a_m), 1e-3)
+    sig_b = cfg.gnss_sigma_m if sigma_b_m is None or not np.isfinite(sigma_b_m) else max(float(sigma_b_m), 1e-3)
+    tol0 = cfg.axis_tolerance_m
+    if cfg.widen_search and max(sig_a, sig_b) * 3 > tol0:  # imprecise ends: search wider, shorter chunks
+        cfg = replace(cfg, axis_tolerance_m=min(0.4, 3 * max(sig_a, sig_b)),
+                      chunk_length_m=min(cfg.chunk_length_m, 0.25))
+    # look past an imprecise end (its position along the axis then comes from the scan)
+    ext_a = min(3 * sig_a, 0.5) if cfg.widen_search and sig_a > 2 * cfg.gnss_sigma_m else 0.0
+    ext_b = min(3 * sig_b, 0.5) if cfg.widen_search and sig_b > 2 * cfg.gnss_sigma_m else 0.0
+    near = (t > cfg.end_margin_m - ext_a) & (t < L - cfg.end_margin_m + ext_b)
     near &= np.einsum("ij,ij->i", q, q) < (cfg.max_radius_m + cfg.axis_tolerance_m) ** 2
     cand = np.flatnonzero(near)
     if cand.size < cfg.min_points:
@@ -318,12 +335,17 @@ def fit_log(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = 
         m = (tc >= edges[k]) & (tc < edges[k + 1])
         if m.sum() < 20:
             continue
+        # the search around the GNSS axis is as wide as the axis is uncertain THERE: tight near a
+        # precise end, wide near an imprecise one
+        f = 0.5 * (edges[k] + edges[k + 1]) / L
+        tol_k = float(np.clip(3 * (sig_a + (sig_b - sig_a) * f), tol0, cfg.axis_tolerance_m))
         try:
-            c2, rk, n_on = _profile_circle(sw[m], prior, cfg_r)
+            c2, rk, n_on = _profile_circle(sw[m], prior, replace(cfg_r, axis_tolerance_m=tol_k + (
+                cfg_r.axis_tolerance_m - cfg.axis_tolerance_m)))
         except FitError:
             continue
         if n_on >= 3:
-            chunk.append((0.5 * (edges[k] + edges[k + 1]) - L / 2, c2[0], c2[1], rk, n_on))
+            chunk.append((0.5 * (edges[k] + edges[k + 1]) - L / 2, c2[0], c2[1], rk, n_on / tol_k ** 2))
     if not chunk:
         raise FitError(f"log {log_id!r}: no cylinder of radius {cfg.min_radius_m}-{cfg.max_radius_m} m "
                        "near its GNSS axis fits the scan; the log is hidden, outside the scanned area, "
@@ -390,12 +412,12 @@ def fit_log(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = 
         rad = np.linalg.norm(d - np.outer(tt, u), axis=1)
         res = rad - (x[4] + x[5] * tt)
         # weak prior: the GNSS axis (ends at +-L/2) within gnss_sigma_m; tilt priors at the ends
-        w = cfg.loss_scale_m / cfg.gnss_sigma_m
-        end_off = np.array([x[0] - prior_mid[0] + x[2] * L / 2, x[1] - prior_mid[1] + x[3] * L / 2,
-                            x[0] - prior_mid[0] - x[2] * L / 2, x[1] - prior_mid[1] - x[3] * L / 2])
+        w_a, w_b = cfg.loss_scale_m / sig_a, cfg.loss_scale_m / sig_b
+        end_off = np.array([w_b * (x[0] - prior_mid[0] + x[2] * L / 2), w_b * (x[1] - prior_mid[1] + x[3] * L / 2),
+                            w_a * (x[0] - prior_mid[0] - x[2] * L / 2), w_a * (x[1] - prior_mid[1] - x[3] * L / 2)])
         if cfg.endpoint_ref == "top_surface":
             end_off[[1, 3]] *= 0.1  # the vertical prior is loose: the radius is not known a priori
-        return np.concatenate([res, w * end_off])
+        return np.concatenate([res, end_off])
 
     x0 = x_init.copy()
     if not cfg.fit_taper:
@@ -462,6 +484,17 @@ def fit_log(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = 
         r_a = r_b = float(x[4])
     proj_a, proj_b = centre + ta * u, centre + tb * u
     res_a, res_b = float(np.linalg.norm(a - proj_a)), float(np.linalg.norm(b - proj_b))
+    end_source = ["gnss", "gnss"]
+    if ext_a or ext_b:  # an imprecise end: where the scan shows the log end, if it does
+        t_in = (P[sel] - centre) @ u
+        if ext_a and t_in.size:
+            t_lo = float(np.percentile(t_in, 0.5))
+            if abs(t_lo - ta) < 3 * sig_a:
+                proj_a, end_source[0] = centre + t_lo * u, "scan"
+        if ext_b and t_in.size:
+            t_hi = float(np.percentile(t_in, 99.5))
+            if abs(t_hi - tb) < 3 * sig_b:
+                proj_b, end_source[1] = centre + t_hi * u, "scan"
     if cfg.axis_source == "fit":
         ends = np.stack([proj_a, proj_b])
     elif cfg.endpoint_ref == "top_surface":
@@ -472,7 +505,7 @@ def fit_log(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = 
     return {
         "centre": centre, "axis": u, "ends": ends, "radius_a_m": max(r_a, cfg.min_radius_m),
         "radius_b_m": max(r_b, cfg.min_radius_m), "n_points": int(sel.size), "rms_m": rms,
-        "coverage": coverage, "taper_significance": taper_sig, "residual_a_m": res_a, "residual_b_m": res_b, "inliers": sel,
+        "coverage": coverage, "taper_significance": taper_sig, "end_source": end_source, "residual_a_m": res_a, "residual_b_m": res_b, "inliers": sel,
     }
 
 
@@ -810,7 +843,8 @@ def _clamp_under_logs(terrain: TerrainSpec, logs: Sequence[LogSpec], gap_m: floa
 def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], extent_m: float,
              cfg: FitConfig | None = None, progress: Callable[[str], None] | None = None,
              georef: Any = None, notes: str = "",
-             first_pass: Mapping[str, LogSpec] | None = None) -> PileFit:
+             first_pass: Mapping[str, LogSpec] | None = None,
+             sigmas: Mapping[str, tuple[float, float]] | None = None) -> PileFit:
     """Fit a whole pile to scan ``points`` ((N, 3), pile frame) and GNSS ``endpoints``
     (``{log_id: (end_a, end_b)}``, pile frame). ``extent_m``: side of the terrain patch,
     centred on the origin. Returns a :class:`PileFit` whose ``pile`` has ``source="reconstructed"``.
@@ -846,13 +880,16 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
             first.append(first_pass[log_id])
             continue
         say(f"fitting log {log_id}")
-        first.append(log_spec_from_fit(fit_log(P, *endpoints[log_id], cfg, log_id=log_id, rng=rng), cfg)[0])
+        sa, sb = (sigmas or {}).get(log_id, (None, None))
+        first.append(log_spec_from_fit(fit_log(P, *endpoints[log_id], cfg, log_id=log_id, rng=rng,
+                                               sigma_a_m=sa, sigma_b_m=sb), cfg)[0])
     owner = _owners(P, first, cfg.inlier_band_m)
     fits: list[LogFit] = []
     logs: list[LogSpec] = []
     for i, log_id in enumerate(ids):
         a, b = endpoints[log_id]
-        f = fit_log(P[(owner == i) | (owner < 0)], a, b, cfg, log_id=log_id, rng=rng)
+        sa, sb = (sigmas or {}).get(log_id, (None, None))
+        f = fit_log(P[(owner == i) | (owner < 0)], a, b, cfg, log_id=log_id, rng=rng, sigma_a_m=sa, sigma_b_m=sb)
         spec, swapped = log_spec_from_fit(f, cfg)
         logs.append(spec)
         butt, top = spec.endpoints_m()
@@ -864,7 +901,7 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
             n_points=f["n_points"], rms_m=f["rms_m"], coverage=f["coverage"],
             gnss_residual_a_m=f["residual_a_m"], gnss_residual_b_m=f["residual_b_m"],
             axis_shift_m=float(max(np.linalg.norm(ends[0] - p0), np.linalg.norm(ends[1] - p1))),
-            swapped=bool(swapped),
+            swapped=bool(swapped), end_source=tuple(reversed(f["end_source"])) if swapped else tuple(f["end_source"]),
         ))
     timings["logs_s"] = time.perf_counter() - t0
     t1 = time.perf_counter()

@@ -123,6 +123,7 @@ class ReconstructConfig:
     refine_with_scale: bool = False  # let the refinement scale the scan (a stereo baseline error)
     refine_iterations: int = 10  # point-to-line iterations per round [-]
     refine_rounds: int = 3  # fit logs + estimate the correction, at most this often [-]
+    registration_max_sigma_m: float = 0.05  # less accurate GNSS points do not steer it [m]
     max_correction_m: float = 0.30  # larger refinement translations are an error [m]
     max_correction_deg: float = 5.0  # larger refinement rotations are an error [deg]
     terrain_margin_m: float = 0.75  # terrain reaches this far beyond the outermost log end [m]
@@ -173,11 +174,13 @@ def _rigid_from_correspondences(src: np.ndarray, dst: np.ndarray, with_scale: bo
 
 
 def refine_registration(points: np.ndarray, endpoints: dict[str, tuple[np.ndarray, np.ndarray]],
-                        cfg: ReconstructConfig) -> tuple[np.ndarray, dict, dict]:
+                        cfg: ReconstructConfig, sigmas: dict[str, tuple[float, float]] | None = None,
+                        ) -> tuple[np.ndarray, dict, dict]:
     """Correction ``T`` (4x4, applied to ``points``) that brings the logs fitted to the scan
     through their GNSS end points, a report (residuals before/after, size of the correction)
     and the fitted logs (``{log_id: LogSpec}``, moved by ``T``). Points and endpoints in the
-    same frame."""
+    same frame. ``sigmas``: ``{log_id: (sigma_a, sigma_b)}`` 1-sigma accuracy of the GNSS points
+    [m]; points worse than ``registration_max_sigma_m`` (RTK float) do not steer the transform."""
     fcfg = cfg.fit
     axes = {}
     failures = {}
@@ -185,7 +188,8 @@ def refine_registration(points: np.ndarray, endpoints: dict[str, tuple[np.ndarra
     for log_id in sorted(endpoints, key=natural_key):
         a, b = endpoints[log_id]
         try:
-            f = fit_log(points, a, b, fcfg, log_id=log_id, rng=rng)
+            sa, sb = (sigmas or {}).get(log_id, (None, None))
+            f = fit_log(points, a, b, fcfg, log_id=log_id, rng=rng, sigma_a_m=sa, sigma_b_m=sb)
         except ReconstructError as exc:
             failures[log_id] = str(exc)
             continue
@@ -194,9 +198,13 @@ def refine_registration(points: np.ndarray, endpoints: dict[str, tuple[np.ndarra
         raise RegistrationError("no log could be fitted to the scan around its GNSS axis: "
                                 + "; ".join(failures.values()))
     ids = list(axes)
-    gnss = np.array([p for k in ids for p in endpoints[k]], dtype=np.float64)
-    C = np.array([axes[k][0] for k in ids for _ in range(2)])  # a point on each fitted axis
-    U = np.array([axes[k][1] for k in ids for _ in range(2)])
+    sig = np.array([s for k in ids for s in (sigmas or {}).get(k, (0.0, 0.0))], dtype=np.float64)
+    good = ~(sig > cfg.registration_max_sigma_m)  # NaN (unknown) counts as good
+    if good.sum() < 2:
+        good[:] = True
+    gnss = np.array([p for k in ids for p in endpoints[k]], dtype=np.float64)[good]
+    C = np.array([axes[k][0] for k in ids for _ in range(2)])[good]  # a point on each fitted axis
+    U = np.array([axes[k][1] for k in ids for _ in range(2)])[good]
     directions = np.array([axes[k][1] for k in ids])
     # with one log (or parallel ones) a rotation about the common axis is unobservable: translate only
     spread = np.degrees(np.arccos(np.clip(np.abs(directions @ directions.T), 0, 1))).max() if len(ids) > 1 else 0.0
@@ -239,7 +247,7 @@ def refine_registration(points: np.ndarray, endpoints: dict[str, tuple[np.ndarra
         "residual_rms_before_m": float(np.sqrt(np.mean(before ** 2))),
         "residual_rms_after_m": float(np.sqrt(np.mean(after ** 2))),
         "residual_max_after_m": float(after.max()),
-        "logs_used": ids, "logs_not_fitted": failures,
+        "logs_used": ids, "logs_not_fitted": failures, "end_points_used": int(good.sum()),
         "T_correction": T.tolist(),
     }
     # the fitted logs, moved with the correction: the first pass of fit_pile
@@ -255,6 +263,17 @@ def refine_registration(points: np.ndarray, endpoints: dict[str, tuple[np.ndarra
             "is wrong, or the survey belongs to another pile"
         )
     return T, report, fitted
+
+
+def _point_sigma(p: Any) -> float:
+    """1-sigma 3-D accuracy [m] of a GNSS point: its receiver estimates (and epoch scatter), or
+    typical RTK values (fixed 1.5/2.5 cm, float 25/40 cm) when unknown."""
+    fixed = p.fix == "rtk_fixed"
+    h = p.h_acc_m if np.isfinite(p.h_acc_m) else (0.015 if fixed else 0.25)
+    v = p.v_acc_m if np.isfinite(p.v_acc_m) else (0.025 if fixed else 0.40)
+    h = max(h, p.spread_h_m)
+    v = max(v, p.spread_v_m)
+    return float(max(h, v))
 
 
 def _check_coverage(points_xy: np.ndarray, endpoints: dict[str, tuple[np.ndarray, np.ndarray]],
@@ -366,6 +385,7 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
     survey = read_gnss(gnss_path, allow_float=cfg.allow_float, area=pose.origin)
     ends_site = {k: (np.asarray(a, float), np.asarray(b, float))
                  for k, (a, b) in survey.endpoints_site(pose.origin).items()}
+    sigmas = {k: tuple(_point_sigma(survey.point(k, end)) for end in ("a", "b")) for k in ends_site}
     timings["survey_s"] = time.perf_counter() - t_start
 
     t = time.perf_counter()
@@ -401,7 +421,7 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
         best = None
         for k in range(cfg.refine_rounds):
             say(f"refining the scan pose against the GNSS end points (round {k + 1})")
-            T_k, rep_k, fp_k = refine_registration(apply_T(T_corr, pts[near]), ends, cfg)
+            T_k, rep_k, fp_k = refine_registration(apply_T(T_corr, pts[near]), ends, cfg, sigmas)
             rounds.append({key: rep_k[key] for key in (
                 "correction_m", "correction_deg", "residual_rms_before_m", "residual_rms_after_m")})
             if best is not None and rep_k["residual_rms_after_m"] >= best:
@@ -430,7 +450,8 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
                           T_site_pile=tuple(tuple(float(v) for v in row) for row in T_site_pile))
     in_patch = np.all(np.abs(pts[:, :2]) < extent / 2, axis=1)
     fit = fit_pile(pts[in_patch], ends, extent, cfg.fit, progress=say, georef=georef,
-                   notes=f"reconstructed from {scan_dir} and {gnss_path}", first_pass=first_pass)
+                   notes=f"reconstructed from {scan_dir} and {gnss_path}", first_pass=first_pass,
+                   sigmas=sigmas)
     timings["fit_s"] = time.perf_counter() - t
 
     t = time.perf_counter()
