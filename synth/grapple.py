@@ -33,7 +33,7 @@ claws use the same ``q`` (mirror images).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 

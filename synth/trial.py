@@ -40,7 +40,7 @@ import numpy as np
 
 from synth.grapple import Grapple, GrappleConfig
 from synth.grasp import Grasp
-from synth.pile import PileSpec, TerrainSpec
+from synth.pile import PileSpec
 from synth.world import PhysicsConfig, World
 
 TRIAL_FORMAT_VERSION = "1.0"

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from synth.grapple import CLAW_NEG, CLAW_POS, HEAD, SWING_A, Grapple, GrappleConfig
+from synth.grapple import HEAD, SWING_A, Grapple, GrappleConfig
 from synth.grasp import MAX_WIDTH_M, MIN_WIDTH_M, Grasp
 from synth.pile import LogSpec, PileSpec, TerrainSpec, quat_from_x_axis
 from synth.world import PhysicsConfig, World
