@@ -111,7 +111,7 @@ class FitConfig:
     rock_max_vertices: int = 48  # convex hull vertices kept per rock [-]
     validate: bool = True  # load the pile into the twin and separate interpenetrating logs
     penetration_tolerance_m: float = 0.01  # allowed interpenetration [m]
-    max_move_m: float = 0.05  # larger needed separating moves are an error, not noise [m]
+    max_move_m: float = 0.08  # larger needed separating moves are an error, not noise [m]
     seed: int = 0  # subsampling seed [-]
 
     def __post_init__(self) -> None:
@@ -351,7 +351,24 @@ def fit_log(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = 
                        "near its GNSS axis fits the scan; the log is hidden, outside the scanned area, "
                        "or its endpoints are wrong")
     ch = np.asarray(chunk, dtype=np.float64)
+    band = max(0.02, 2 * cfg.profile_tolerance_m)
     keep = np.ones(len(ch), bool)
+    if len(ch) >= 3 and max(sig_a, sig_b) > 2 * cfg.gnss_sigma_m:
+        # an imprecise (RTK float) end: the line through two chunk centres that most chunks
+        # (weighted) agree with, so chunks that latched onto a neighbour or the ground near the
+        # imprecise end do not bend the axis
+        best_score = -1.0
+        for i in range(len(ch)):
+            for j in range(i + 1, len(ch)):
+                dt_ = ch[j, 0] - ch[i, 0]
+                if abs(dt_) < 0.2:
+                    continue
+                slope = (ch[j, 1:3] - ch[i, 1:3]) / dt_
+                pred = ch[i, 1:3][None, :] + np.outer(ch[:, 0] - ch[i, 0], slope)
+                ok = np.linalg.norm(ch[:, 1:3] - pred, axis=1) < band
+                score = float(ch[ok, 4].sum())
+                if score > best_score:
+                    best_score, keep = score, ok
     coef = np.zeros((2, 2))  # [s0, s1], [w0, w1]
     for _ in range(3):
         if keep.sum() >= 2 and np.ptp(ch[keep, 0]) > 0.2:
@@ -364,7 +381,7 @@ def fit_log(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = 
             coef[:, 1] = 0.0
         pred = coef[:, 0][None, :] + np.outer(ch[:, 0], coef[:, 1])
         dev = np.linalg.norm(ch[:, 1:3] - pred, axis=1)
-        new_keep = dev < max(0.02, 2 * cfg.profile_tolerance_m)
+        new_keep = dev < band
         if new_keep.sum() == 0 or np.array_equal(new_keep, keep):
             break
         keep = new_keep
