@@ -30,26 +30,30 @@ def machine() -> str:
                 break
     except OSError:
         pass
-    return f"{platform.system()} {platform.machine()}, {os.cpu_count()} cores ({cpu}), Python {platform.python_version()}"
+    load = "/".join(f"{v:.1f}" for v in os.getloadavg())
+    return (f"{platform.system()} {platform.machine()}, {os.cpu_count()} cores ({cpu}), Python "
+            f"{platform.python_version()}; load average at start {load} (1/5/15 min — other jobs inflate wall times)")
 
 
 def bench_piles(repeats: int = 5) -> str:
     from synth.generate import GenerationConfig, generate_pile
 
-    rows = ["| logs | obstacles | piles | settle wall s (median) | p90 | sim s (median) | attempts (mean) |",
-            "|---|---|---|---|---|---|---|"]
+    rows = ["| logs | obstacles | piles | wall s (median) | wall p90 | CPU s (median) | sim s (median) | attempts (mean) |",
+            "|---|---|---|---|---|---|---|---|"]
     for n_logs in (4, 7):
         for n_obst in (0, 3):
-            walls, sims, attempts = [], [], []
+            walls, cpus, sims, attempts = [], [], [], []
             for seed in range(repeats):
-                t0 = time.perf_counter()
+                t0, c0 = time.perf_counter(), time.process_time()
                 _, rep = generate_pile(1000 + seed, GenerationConfig(n_logs=n_logs, n_obstacles=n_obst))
                 walls.append(time.perf_counter() - t0)
+                cpus.append(time.process_time() - c0)
                 sims.append(rep.settle_time_s)
                 attempts.append(rep.attempts)
             walls.sort()
             rows.append(f"| {n_logs} | {n_obst} | {repeats} | {statistics.median(walls):.2f} | "
-                        f"{walls[int(0.9 * (len(walls) - 1))]:.2f} | {statistics.median(sims):.2f} | "
+                        f"{walls[int(0.9 * (len(walls) - 1))]:.2f} | {statistics.median(cpus):.2f} | "
+                        f"{statistics.median(sims):.2f} | "
                         f"{statistics.mean(attempts):.1f} |")
     return ("### Settled piles (generate + drop + settle + validate, one process)\n"
             "Target: a 4-log pile settled in under 2 s.\n\n" + "\n".join(rows))
@@ -61,18 +65,22 @@ def bench_render(repeats: int = 20) -> str:
     from synth.world import World
 
     pile, _ = generate_pile(3, GenerationConfig(n_logs=7, n_obstacles=3))
-    rows = ["| size px | one render s (median) | 3 renders + depth + instance s (median) |", "|---|---|---|"]
+    rows = ["| size px | one render wall s (median) | CPU s | 3 renders + depth + instance wall s (median) | CPU s |",
+            "|---|---|---|---|---|"]
     with World(pile) as world:
         for size in (128, 256):
-            one, three = [], []
+            one, three, one_c, three_c = [], [], [], []
             for _ in range(repeats):
-                t0 = time.perf_counter()
+                t0, c0 = time.perf_counter(), time.process_time()
                 render_ortho(world, OrthoRenderConfig(size_px=size, n_renders=1))
                 one.append(time.perf_counter() - t0)
-                t0 = time.perf_counter()
+                one_c.append(time.process_time() - c0)
+                t0, c0 = time.perf_counter(), time.process_time()
                 render_ortho(world, OrthoRenderConfig(size_px=size, n_renders=3))
                 three.append(time.perf_counter() - t0)
-            rows.append(f"| {size} | {statistics.median(one):.4f} | {statistics.median(three):.4f} |")
+                three_c.append(time.process_time() - c0)
+            rows.append(f"| {size} | {statistics.median(one):.4f} | {statistics.median(one_c):.4f} | "
+                        f"{statistics.median(three):.4f} | {statistics.median(three_c):.4f} |")
     return ("### Orthographic render (TinyRenderer, 7 logs + 3 obstacles)\n"
             "Target: under 0.1 s at 128 px.\n\n" + "\n".join(rows))
 
