@@ -17,8 +17,9 @@ def scan_command(
     packed: bool = typer.Option(False, "--packed"),
     site: str = typer.Option("64.1,20.0", "--site", help="Site origin LAT,LON (SWEREF 99) [deg], optional ,H [m]."),
     float_fixes: int = typer.Option(2, "--float-fixes", help="Endpoints measured with an RTK float fix only."),
-    height: float = typer.Option(4.0, "--height", help="Camera height above the pile [m]."),
-    hfov: float = typer.Option(60.0, "--hfov", help="Horizontal field of view [deg]."),
+    height: float = typer.Option(3.0, "--height", help="Camera height above the pile [m]."),
+    hfov: float = typer.Option(50.0, "--hfov", help="Horizontal field of view [deg]."),
+    pairs: str = typer.Option("2x2", "--pairs", help="Grid of stereo pairs over the pile, NXxNY (along x across)."),
 ) -> None:
     """Make a field scan of a generated pile whose truth is known: a ZED 2-like stereo pair with its
     calibration, an RTK GNSS endpoint CSV with realistic noise, and the true pile kept apart in truth/.
@@ -34,8 +35,15 @@ def scan_command(
         if len(parts) not in (2, 3):
             raise ValueError(f"--site must be LAT,LON or LAT,LON,H, got {site!r}")
         site_t = (parts[0], parts[1], parts[2] if len(parts) == 3 else DEFAULT_SITE[2])
+        try:
+            grid = tuple(int(v) for v in pairs.lower().split("x"))
+        except ValueError:
+            grid = ()
+        if len(grid) != 2 or min(grid) < 1 or max(grid) > 4:
+            raise ValueError(f"--pairs must look like 2x2 (1..4 each), got {pairs!r}")
         path = make_twin_scan(out, seed, parse_range(logs, "--logs"), parse_range(obstacles, "--obstacles"),
-                              packed=packed, site=site_t, n_float=float_fixes, height_m=height, hfov_deg=hfov)
+                              packed=packed, site=site_t, n_float=float_fixes, height_m=height, hfov_deg=hfov,
+                              grid=grid)
     except (SynthError, ValueError) as exc:
         fail(str(exc))
     typer.echo(f"scan written to {path} (truth in {path / 'truth'})")
