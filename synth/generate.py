@@ -227,7 +227,7 @@ def generate_pile(seed: int, cfg: GenerationConfig | None = None,
     rejections: list[str] = []
     for attempt in range(cfg.max_attempts):
         pile = draw_pile(seed, cfg, attempt)
-        with World(pile, physics) as world:
+        with World(pile, physics, visuals=False) as world:
             try:
                 t = settle(world, cfg)
                 world.check_valid(cfg.penetration_tol_m)
@@ -245,5 +245,5 @@ def generate_pile(seed: int, cfg: GenerationConfig | None = None,
 def validate_pile(pile: PileSpec, physics: PhysicsConfig | None = None, tolerance_m: float = 0.01) -> None:
     """Load a (hand-written or reconstructed) pile into the twin and check it is physical:
     no log through the terrain, an obstacle or another log. Raises :class:`PileValidationError`."""
-    with World(pile, physics) as world:
+    with World(pile, physics, visuals=False) as world:
         world.check_valid(tolerance_m)

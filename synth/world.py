@@ -72,12 +72,15 @@ def _quiet_stdout():
 class World:
     """One pile in its own pybullet DIRECT client. Use as a context manager; ``close`` is idempotent."""
 
-    def __init__(self, pile: PileSpec, physics: PhysicsConfig | None = None) -> None:
+    def __init__(self, pile: PileSpec, physics: PhysicsConfig | None = None, visuals: bool = True) -> None:
+        """``visuals=False`` builds collision shapes only (no meshes to parse): for worlds that are
+        never rendered, e.g. grasp trials; the physics is identical."""
         import pybullet as p
         from pybullet_utils.bullet_client import BulletClient
 
         self.pile = pile
         self.physics = physics or PhysicsConfig()
+        self.visuals = visuals
         self.p = p
         with _quiet_stdout():  # pybullet's C code prints "argv[0]=" on every connect
             self.client = BulletClient(connection_mode=p.DIRECT)
@@ -126,10 +129,12 @@ class World:
         # TinyRenderer shades heightfields badly: render an OBJ of the same grid instead
         from synth.meshes import grid_mesh
 
-        vis = c.createVisualShape(p.GEOM_MESH, fileName=grid_mesh(self.height_grid, t.extent_m, zc))
+        vis = (c.createVisualShape(p.GEOM_MESH, fileName=grid_mesh(self.height_grid, t.extent_m, zc))
+               if self.visuals else -1)
         body = c.createMultiBody(0, shape, vis, [0.0, 0.0, zc], [0, 0, 0, 1])
         c.changeDynamics(body, -1, lateralFriction=self.physics.terrain_friction)
-        c.changeVisualShape(body, -1, rgbaColor=[*t.colour, 1.0])
+        if self.visuals:
+            c.changeVisualShape(body, -1, rgbaColor=[*t.colour, 1.0])
         return body
 
     def _add_log(self, log: LogSpec) -> int:
@@ -154,7 +159,7 @@ class World:
         vis = c.createVisualShape(
             p.GEOM_MESH, fileName=frustum(log.length_m, log.diameter_m, log.top_d_m, uv_m=0.5),
             rgbaColor=[*log.colour, 1.0],
-        )
+        ) if self.visuals else -1
         mass = log.volume_m3() * ph.log_density_kg_m3
         body = c.createMultiBody(mass, col, vis, list(log.centre_m), list(log.orientation))
         c.changeDynamics(
@@ -195,10 +200,11 @@ class World:
         vis = c.createVisualShapeArray(
             shapeTypes=[p.GEOM_MESH] * len(files), fileNames=files, meshScales=scales,
             visualFramePositions=pos, visualFrameOrientations=orn,
-        )
+        ) if self.visuals else -1
         body = c.createMultiBody(0, col, vis, [x, y, foot - sink], [0, 0, 0, 1])
         c.changeDynamics(body, -1, lateralFriction=self.physics.obstacle_friction)
-        c.changeVisualShape(body, -1, rgbaColor=[*stump.colour, 1.0])
+        if self.visuals:
+            c.changeVisualShape(body, -1, rgbaColor=[*stump.colour, 1.0])
         return body
 
     def _add_rock(self, rock) -> int:
@@ -207,7 +213,7 @@ class World:
         c, p = self.client, self.p
         mesh = convex_hull_mesh(np.asarray(rock.vertices_m))
         col = c.createCollisionShape(p.GEOM_MESH, fileName=mesh)
-        vis = c.createVisualShape(p.GEOM_MESH, fileName=mesh, rgbaColor=[*rock.colour, 1.0])
+        vis = c.createVisualShape(p.GEOM_MESH, fileName=mesh, rgbaColor=[*rock.colour, 1.0]) if self.visuals else -1
         body = c.createMultiBody(0, col, vis, list(rock.position_m), list(rock.orientation))
         c.changeDynamics(body, -1, lateralFriction=self.physics.obstacle_friction)
         return body
