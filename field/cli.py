@@ -115,8 +115,7 @@ def _show_plan(prepared) -> None:
     console.print(table)
     for line in prepared.summary_lines():
         console.print("  " + line)
-    console.print(f"  pictures: {prepared.work_dir / 'plan' / 'plan.png'}, {prepared.work_dir / 'plan' / 'grasp_map.png'}"
-                  f"; GeoJSON: {prepared.work_dir / 'plan' / 'pile.geojson'}")
+    console.print("  pictures and GeoJSON go to the record's plan/ folder: plan.png, grasp_map.png, pile.geojson")
 
 
 @app.command("trial")

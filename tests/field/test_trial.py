@@ -117,11 +117,15 @@ def test_stale_pile_data_is_never_sent(tmp_path):
 
 def test_float_fix_is_refused_unless_allowed(tmp_path):
     rows = (DEMO_DATA / "gnss.csv").read_text().splitlines()
-    i = next(k for k, r in enumerate(rows) if r.startswith("log"))
+    i = next(k for k, r in enumerate(rows) if r.startswith("log0,"))
+    assert "rtk_fixed" in rows[i]
     rows[i] = rows[i].replace("rtk_fixed", "rtk_float")
     (tmp_path / "gnss.csv").write_text("\n".join(rows) + "\n")
     with pytest.raises(TrialAborted, match="float"):
         prepare_trial(DEMO_DATA / "scan", tmp_path / "gnss.csv", tmp_path / "w", options())
+    # the operator's explicit choice lets it through
+    prepared = prepare_trial(DEMO_DATA / "scan", tmp_path / "gnss.csv", tmp_path / "w2", options(allow_float=True))
+    assert prepared.command_fields["target_log_count"] >= 1
 
 
 def test_out_of_reach_and_declined_are_not_sent(tmp_path):
