@@ -193,12 +193,22 @@ def replay_command(
         from field.link.base import LinkConfig
         from field.link.safety import SafetyConfig
 
+        from field.errors import CommandRejected, LinkError
+
         rec = read_record(record)
         fields = dict(rec["command"])
-        with open_link(link, LinkConfig(safety=SafetyConfig(max_pile_age_s=1e9))) as lk:
-            cmd = GraspCommand(command_id=lk.new_command_id(), **fields)
-            lk.send_grasp(cmd, timeout_s=2.0)
-            res = lk.wait_outcome(cmd.command_id, timeout_s=120.0)
+        try:
+            # the recorded plan is old by design: the laptop-side age check is lifted for a replay;
+            # the controller keeps its own (a real crane refuses it: use a twin with crane_max_pile_age_s)
+            with open_link(link, LinkConfig(safety=SafetyConfig(max_pile_age_s=1e12))) as lk:
+                cmd = GraspCommand(command_id=lk.new_command_id(), **fields)
+                lk.send_grasp(cmd, timeout_s=2.0)
+                res = lk.wait_outcome(cmd.command_id, timeout_s=120.0)
+        except CommandRejected as exc:
+            fail(f"the controller rejected the re-sent command: {exc}. Recorded data is old; a twin "
+                 "accepts it with e.g. twin://?executor=pybullet&pile=PILE.json&crane_base=E,N,H&crane_max_pile_age_s=1e9")
+        except LinkError as exc:
+            fail(f"re-sending failed: {exc}")
         typer.echo(f"re-sent as command {cmd.command_id}: {res.outcome_class.name}, {res.logs_grasped} logs")
     if not result["identical"]:
         raise typer.Exit(5)

@@ -4,7 +4,8 @@ A :class:`field.controller.CraneController` is served on a private python-can ``
 channel and a :class:`field.link.can_backend.CanLink` talks to it, so the whole CAN stack (DBC
 codec, E2E, counters, heartbeats, recording) runs exactly as against a real crane.
 
-URL parameters: ``executor=NAME`` (registered executor, default ``fixed``), ``delay_ms`` and
+URL parameters: ``crane_base=E,N,H`` / ``crane_max_reach_m`` / ``crane_max_pile_age_s`` (the simulated
+crane's own reach envelope and staleness limit), ``executor=NAME`` (registered executor, default ``fixed``), ``delay_ms`` and
 ``outcome`` (for ``fixed``); other parameters go to the executor as strings
 (``twin://?executor=pybullet&pile=runs/pile.json&trial=fast``); plus the common link options
 (``record=...`` etc.).
@@ -47,6 +48,21 @@ class TwinLink(CanLink):
         from field.controller import FixedOutcomeExecutor, make_executor
 
         cfg, q = url.pop_link_config(config)
+        if controller_config is None and ("crane_base" in q or "crane_max_pile_age_s" in q or "crane_max_reach_m" in q):
+            # the simulated crane's own limits (a real controller has them configured on board)
+            from field.controller import ControllerConfig, ReachEnvelope
+
+            try:
+                kw: dict[str, Any] = {}
+                if "crane_base" in q:
+                    e, n, h = (float(v) for v in q.pop("crane_base").split(","))
+                    kw["reach"] = ReachEnvelope(base_easting_m=e, base_northing_m=n, base_height_m=h,
+                                                max_reach_m=float(q.pop("crane_max_reach_m", 10.0)))
+                if "crane_max_pile_age_s" in q:
+                    kw["max_pile_age_s"] = float(q.pop("crane_max_pile_age_s"))
+            except ValueError as exc:
+                raise ValueError(f"twin:// crane_base must be E,N,H and crane_max_pile_age_s a number: {exc}") from exc
+            controller_config = ControllerConfig(**kw)
         if executor is None:
             name = q.pop("executor", "fixed")
             kwargs: dict[str, Any] = {}
