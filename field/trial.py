@@ -23,7 +23,6 @@ not confirm — each stops with a clear :class:`TrialAborted` before anything go
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import os
@@ -37,6 +36,7 @@ from typing import Callable
 import numpy as np
 
 from field.errors import FieldError
+from synth.dataset import sha256_file as sha256_of
 
 RECORD_FORMAT = "loggrasp.trial-record"
 RECORD_VERSION = "1.0"
@@ -89,14 +89,6 @@ class PreparedTrial:
             f"heading (closing axis) {g.heading_grid_deg:.2f}° from grid north, {g.heading_true_deg:.2f}° from true north",
             f"opening width {g.width_m:.3f} m",
         ]
-
-
-def sha256_of(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def _captured_time(scan_dir: Path, gnss_path: Path) -> float:
