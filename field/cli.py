@@ -51,7 +51,7 @@ def crane_sim(
     import signal
     import threading
 
-    from field.controller import ControllerConfig, run_controller
+    from field.controller import run_controller
     from field.errors import FieldError
     from field.executor import PybulletTrialExecutor
     from synth.errors import SynthError

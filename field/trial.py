@@ -24,7 +24,6 @@ not confirm — each stops with a clear :class:`TrialAborted` before anything go
 from __future__ import annotations
 
 import json
-import math
 import os
 import shutil
 import tempfile

@@ -58,7 +58,6 @@ class Constraints:
         """(H, W) uint8 raster of the keep-out zones (1 inside), or None without zones."""
         if not self.keep_out_zones:
             return None
-        import cv2
 
         out = np.zeros((grid.size_px, grid.size_px), np.uint8)
         for zone in self.keep_out_zones:

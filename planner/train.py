@@ -237,7 +237,6 @@ def train(data_dir: str | Path, out_dir: str | Path, config: TrainConfig = Train
     "samples_per_s"}`` and after every epoch with the epoch's log entry (``"kind": "epoch"``).
     Raises :class:`DataError` for an unusable data set and :class:`TrainingError` when
     ``out_dir`` holds a run with a different configuration."""
-    import numpy as np
     import torch
 
     from planner.checkpoint import save_checkpoint

@@ -183,7 +183,7 @@ class Grapple:
     # -- construction ------------------------------------------------------------------------
     def _claw_shape(self, sign: float) -> int:
         """Compound box collision/visual of one claw in its link (hinge) frame; sign +1 = +u claw."""
-        c, p, g = self.client, self.p, self.config
+        g = self.config
         prof = np.asarray(g.claw_profile_m, dtype=float)
         half, pos, orn = [], [], []
         for a, b in zip(prof[:-1], prof[1:]):

@@ -256,18 +256,9 @@ def texture_file(kind: str, seed: int, size_px: int, m_per_px: float | None = No
         from synth.errors import RenderError
 
         raise RenderError(f"OpenCV could not encode the {kind} texture as PNG")
-    _CACHE.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=_CACHE, prefix=f".{kind}-", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(buf.tobytes())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
+    from synth.pile import atomic_write_bytes
+
+    atomic_write_bytes(path, buf.tobytes())
     return str(path)
 
 

@@ -287,7 +287,6 @@ def run_trial(
         c = world.client
         grapple = Grapple(c, g, grasp, start_z, terrain_id=world.terrain_id)
         log_ids = world.log_ids
-        body_to_log = {b: i for i, b in enumerate(log_ids)}
         obstacle_set = set(world.obstacle_ids)
         log_set = set(log_ids)
         half_len, radius = _log_segments(pile)

@@ -93,7 +93,7 @@ class World:
 
     # -- construction ----------------------------------------------------------------------
     def _build(self) -> None:
-        c, p, ph = self.client, self.p, self.physics
+        c, ph = self.client, self.physics
         c.resetSimulation()
         c.setGravity(0, 0, -ph.gravity_m_s2)
         c.setPhysicsEngineParameter(

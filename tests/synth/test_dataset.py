@@ -183,7 +183,7 @@ def test_job_writes_consistent_samples(tmp_path):
 
 def test_job_with_real_trials_in_process(tmp_path):
     man = build_dataset(tmp_path, n_piles=1, workers=1, **{**TINY, "max_trials_per_subset": 1})
-    assert 1 <= man.summary["trials"] <= 3 and sum(man.summary["outcomes"].values()) == man.summary["trials"]
+    assert man.summary["trials"] in (1, 2, 3) and sum(man.summary["outcomes"].values()) == man.summary["trials"]
     assert man.params["trial_preset"] == "fast" and "physics" in man.params["trial_config_values"]
     verify_dataset(tmp_path)
 
@@ -288,7 +288,7 @@ def test_dead_worker_is_reported_and_the_job_resumes(tmp_path):
     with pytest.raises(DatasetJobError, match="worker died"):
         build_dataset(tmp_path, n_piles=4, workers=2, progress=kill_pool_workers, **kw)
     man = verify_dataset(tmp_path)
-    assert 1 <= len(man.shards) < 4
+    assert len(man.shards) in (1, 2, 3)
     man = build_dataset(tmp_path, n_piles=4, workers=1, **kw)
     assert man.summary["complete"] and man.summary["piles"] == 4
 
@@ -336,7 +336,7 @@ def test_resume_after_killing_the_job_process(tmp_path):
         proc.kill()  # SIGKILL, this test's own child only
         proc.wait()
     man = verify_dataset(tmp_path)  # consistent right after the kill
-    assert 1 <= len(man.shards) < 3
+    assert len(man.shards) in (1, 2)
     kept = {s.file: (tmp_path / s.file).read_bytes() for s in man.shards}
     man = build_dataset(tmp_path, n_piles=3, workers=1, simulate_factory=_fake_factory, **TINY)
     assert man.summary["complete"] and man.summary["piles"] == 3
