@@ -20,7 +20,6 @@ statistical outlier removal (open3d).
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -153,30 +152,12 @@ def pair_points(pair: ScanPair, config: StereoConfig | None = None) -> tuple[np.
     pixels matched, for one pair."""
     import cv2
 
+    from synth.stereo import rectify_and_match
+
     cfg = config or StereoConfig()
     calib = pair.calibration
-    size = calib.image_size
-    R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(
-        calib.K_left, calib.D_left, calib.K_right, calib.D_right, size, calib.R, calib.T.reshape(3, 1),
-        flags=cv2.CALIB_ZERO_DISPARITY, alpha=0,
-    )
-    m1 = cv2.initUndistortRectifyMap(calib.K_left, calib.D_left, R1, P1, size, cv2.CV_32FC1)
-    m2 = cv2.initUndistortRectifyMap(calib.K_right, calib.D_right, R2, P2, size, cv2.CV_32FC1)
-    left_r = cv2.remap(pair.left, *m1, cv2.INTER_LINEAR)
-    gl = cv2.cvtColor(left_r, cv2.COLOR_RGB2GRAY)
-    gr = cv2.cvtColor(cv2.remap(pair.right, *m2, cv2.INTER_LINEAR), cv2.COLOR_RGB2GRAY)
-    fb = abs(P2[0, 3])  # focal length x baseline [px m]
-    d_min = max(0, int(math.floor(fb / cfg.z_max_m)) - 1)
-    n_disp = int(math.ceil((fb / cfg.z_min_m - d_min + 1) / 16.0)) * 16
-    bs = cfg.block_size
-    matcher = cv2.StereoSGBM_create(
-        minDisparity=d_min, numDisparities=n_disp, blockSize=bs, P1=8 * bs * bs, P2=32 * bs * bs,
-        disp12MaxDiff=cfg.disp12_max_diff, uniquenessRatio=cfg.uniqueness,
-        speckleWindowSize=cfg.speckle_window, speckleRange=cfg.speckle_range,
-        mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY,
-    )
-    disp = matcher.compute(gl, gr).astype(np.float32) / 16.0  # int16 x16 -> pixels
-    valid = disp > d_min - 0.5
+    m = rectify_and_match(pair.left, pair.right, calib, cfg)
+    disp, valid, Q, R1, left_r = m.disparity_px, m.valid, m.Q, m.R1, m.left_rectified
     b = cfg.border_px
     if b:
         valid[:b], valid[-b:], valid[:, :b], valid[:, -b:] = False, False, False, False

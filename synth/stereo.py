@@ -725,6 +725,50 @@ class SGBMConfig:
             raise ValueError(f"block_size must be odd and >= 1, got {self.block_size}")
 
 
+@dataclass
+class Matched:
+    """What :func:`rectify_and_match` returns (rectified-left image frame)."""
+
+    disparity_px: np.ndarray  # (H, W) float32 [px]
+    valid: np.ndarray  # (H, W) bool: matched pixels
+    left_rectified: np.ndarray  # (H, W, 3) uint8 RGB, rectified left image
+    Q: np.ndarray  # 4x4 disparity-to-depth matrix (cv2.reprojectImageTo3D)
+    R1: np.ndarray  # 3x3 rotation original left camera -> rectified left camera
+    d_min: int  # smallest disparity searched [px]
+
+
+def rectify_and_match(left: np.ndarray, right: np.ndarray, calib: StereoCalibration, cfg) -> Matched:
+    """Rectify a pair (``cv2.stereoRectify`` + ``initUndistortRectifyMap``) and match it with
+    OpenCV's 3-way semi-global matcher, searching the disparities of depths ``cfg.z_min_m`` ..
+    ``cfg.z_max_m``. ``cfg`` needs ``z_min_m, z_max_m, block_size, uniqueness, speckle_window,
+    speckle_range, disp12_max_diff`` (:class:`SGBMConfig`, ``reconstruct.stereo.StereoConfig``).
+    The one place loggrasp turns a stereo pair into disparities."""
+    import cv2
+
+    size = calib.image_size
+    R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(
+        calib.K_left, calib.D_left, calib.K_right, calib.D_right, size, calib.R, calib.T.reshape(3, 1),
+        flags=cv2.CALIB_ZERO_DISPARITY, alpha=0,
+    )
+    m1 = cv2.initUndistortRectifyMap(calib.K_left, calib.D_left, R1, P1, size, cv2.CV_32FC1)
+    m2 = cv2.initUndistortRectifyMap(calib.K_right, calib.D_right, R2, P2, size, cv2.CV_32FC1)
+    left_r = cv2.remap(left, *m1, cv2.INTER_LINEAR)
+    gl = cv2.cvtColor(left_r, cv2.COLOR_RGB2GRAY)
+    gr = cv2.cvtColor(cv2.remap(right, *m2, cv2.INTER_LINEAR), cv2.COLOR_RGB2GRAY)
+    fb = abs(P2[0, 3])  # f * baseline [px m]
+    d_min = max(0, int(math.floor(fb / cfg.z_max_m)) - 1)
+    n_disp = int(math.ceil((fb / cfg.z_min_m - d_min + 1) / 16.0)) * 16
+    bs = cfg.block_size
+    matcher = cv2.StereoSGBM_create(
+        minDisparity=d_min, numDisparities=n_disp, blockSize=bs, P1=8 * bs * bs, P2=32 * bs * bs,
+        disp12MaxDiff=cfg.disp12_max_diff, uniquenessRatio=cfg.uniqueness,
+        speckleWindowSize=cfg.speckle_window, speckleRange=cfg.speckle_range,
+        mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY,
+    )
+    disp = matcher.compute(gl, gr).astype(np.float32) / 16.0  # int16 x16 -> pixels
+    return Matched(disp, disp > d_min - 0.5, left_r, Q, R1, d_min)
+
+
 def sgbm_depth(left: np.ndarray, right: np.ndarray, calib: StereoCalibration,
                config: SGBMConfig | None = None) -> np.ndarray:
     """Depth [m] along the left camera's optical axis, per left-image pixel, by OpenCV SGBM.
@@ -736,27 +780,8 @@ def sgbm_depth(left: np.ndarray, right: np.ndarray, calib: StereoCalibration,
     import cv2
 
     cfg = config or SGBMConfig()
-    size = calib.image_size
-    R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(
-        calib.K_left, calib.D_left, calib.K_right, calib.D_right, size, calib.R, calib.T.reshape(3, 1),
-        flags=cv2.CALIB_ZERO_DISPARITY, alpha=0,
-    )
-    m1 = cv2.initUndistortRectifyMap(calib.K_left, calib.D_left, R1, P1, size, cv2.CV_32FC1)
-    m2 = cv2.initUndistortRectifyMap(calib.K_right, calib.D_right, R2, P2, size, cv2.CV_32FC1)
-    gl = cv2.remap(cv2.cvtColor(left, cv2.COLOR_RGB2GRAY), *m1, cv2.INTER_LINEAR)
-    gr = cv2.remap(cv2.cvtColor(right, cv2.COLOR_RGB2GRAY), *m2, cv2.INTER_LINEAR)
-    fb = abs(P2[0, 3])  # f * baseline [px m]
-    d_min = max(0, int(math.floor(fb / cfg.z_max_m)) - 1)
-    n_disp = int(math.ceil((fb / cfg.z_min_m - d_min + 1) / 16.0)) * 16
-    bs = cfg.block_size
-    matcher = cv2.StereoSGBM_create(
-        minDisparity=d_min, numDisparities=n_disp, blockSize=bs, P1=8 * bs * bs, P2=32 * bs * bs,
-        disp12MaxDiff=cfg.disp12_max_diff, uniquenessRatio=cfg.uniqueness,
-        speckleWindowSize=cfg.speckle_window, speckleRange=cfg.speckle_range,
-        mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY,
-    )
-    disp = matcher.compute(gl, gr).astype(np.float32) / 16.0
-    valid = disp > d_min - 0.5
+    m = rectify_and_match(left, right, calib, cfg)
+    disp, valid, Q, R1, size = m.disparity_px, m.valid, m.Q, m.R1, calib.image_size
     pts = cv2.reprojectImageTo3D(disp, Q)[valid]  # rectified-left frame
     pts = pts @ R1  # back to the original left camera frame (R1 maps original -> rectified)
     W, H = size
