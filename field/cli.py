@@ -241,9 +241,9 @@ def demo(
     truth = read_pile(data / "truth" / "pile.json")
     base = default_crane_base(truth)
     # the bundled scan was recorded earlier: its staleness limit is set past its age, and said so
-    from field.trial import _captured_time
+    from field.trial import captured_time
 
-    age = _time.time() - _captured_time(data / "scan", data / "gnss.csv")
+    age = _time.time() - captured_time(data / "scan", data / "gnss.csv")
     max_age = age + 3600.0
     typer.echo(f"bundled scan recorded {age / 86400:.1f} days ago: staleness limit raised to {max_age:.0f} s for the demo")
     out_dir = Path(out)

@@ -90,7 +90,7 @@ class PreparedTrial:
         ]
 
 
-def _captured_time(scan_dir: Path, gnss_path: Path) -> float:
+def captured_time(scan_dir: Path, gnss_path: Path) -> float:
     """When the pile data was captured: the scan's ``captured_utc`` (pair meta.json) if present,
     else the newest input file's modification time."""
     import datetime as dt
@@ -124,7 +124,7 @@ def prepare_trial(scan_dir: str | Path, gnss_path: str | Path, work_dir: str | P
     say = progress or (lambda s: None)
     scan_dir, gnss_path, work = Path(scan_dir), Path(gnss_path), Path(work_dir)
     now = time.time() if now is None else now
-    captured = _captured_time(scan_dir, gnss_path)
+    captured = captured_time(scan_dir, gnss_path)
     age = now - captured
     if age > options.max_pile_age_s:
         raise TrialAborted(f"the pile data is {age:.0f} s old (captured {time.ctime(captured)}), over the "
