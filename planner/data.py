@@ -85,9 +85,21 @@ class DataConfig:
             raise ValueError("shuffle_buffer must be >= 1")
 
 
-def list_shards(data_dir: str | Path) -> tuple[list[Path], dict]:
+def list_shards(data_dir: str | Path | list) -> tuple[list[Path], dict]:
     """Shard files of a data set in manifest order, and the manifest's grid (size_px, extent_m,
-    camera_height_m), via :func:`synth.dataset.read_manifest`."""
+    camera_height_m), via :func:`synth.dataset.read_manifest`. A list of folders gives all their
+    shards (in the order given); their grids must agree."""
+    if isinstance(data_dir, (list, tuple)):
+        if not data_dir:
+            raise DataError("no data set folder given")
+        shards, grid = list_shards(data_dir[0])
+        for d in data_dir[1:]:
+            more, g = list_shards(d)
+            if g != grid:
+                raise DataError(f"data set {d} has image grid {g} but {data_dir[0]} has {grid}; "
+                                "data sets trained together must share size_px, extent_m and camera height")
+            shards += more
+        return shards, grid
     from synth import dataset as ds
 
     data_dir = Path(data_dir)

@@ -44,6 +44,8 @@ class TrainConfig:
     epochs: int = 50  # passes over the training split [-]
     batch_size: int = 16  # samples per step [-]
     lr: float = 1e-3  # Adam learning rate [-]
+    lr_schedule: str = "cosine"  # "cosine" (per epoch, down to lr_min_frac * lr at the end) or "constant"
+    lr_min_frac: float = 0.05  # cosine floor as a fraction of lr [-]
     weight_decay: float = 0.0  # Adam weight decay [-]
     seed: int = 0  # initialisation, data order and augmentation [-]
     device: str = "auto"  # "auto" (cuda if available), "cpu" or "cuda"
@@ -61,6 +63,10 @@ class TrainConfig:
             raise ValueError("epochs and batch_size must be >= 1")
         if not self.lr > 0 or self.weight_decay < 0:
             raise ValueError("lr must be > 0 and weight_decay >= 0")
+        if self.lr_schedule not in ("cosine", "constant"):
+            raise ValueError(f"lr_schedule must be 'cosine' or 'constant', got {self.lr_schedule!r}")
+        if not 0.0 <= self.lr_min_frac <= 1.0:
+            raise ValueError(f"lr_min_frac must be in [0, 1], got {self.lr_min_frac}")
         if self.device not in ("auto", "cpu", "cuda"):
             raise ValueError(f"device must be 'auto', 'cpu' or 'cuda', got {self.device!r}")
         if self.precision not in ("bf16", "fp32"):
@@ -95,6 +101,19 @@ class TrainResult:
     curve_path: Path
     history: list[dict]
     resumed_from: dict | None
+
+
+def _data_label(data_dir) -> str:
+    dirs = data_dir if isinstance(data_dir, (list, tuple)) else [data_dir]
+    return ",".join(str(d) for d in dirs)
+
+
+def epoch_lr(cfg: TrainConfig, epoch: int) -> float:
+    """The learning rate of ``epoch`` (a function of the epoch only, so a resumed run matches)."""
+    if cfg.lr_schedule == "constant" or cfg.epochs <= 1:
+        return cfg.lr
+    lo = cfg.lr * cfg.lr_min_frac
+    return lo + 0.5 * (cfg.lr - lo) * (1.0 + math.cos(math.pi * epoch / (cfg.epochs - 1)))
 
 
 def _device(cfg: TrainConfig) -> str:
@@ -229,12 +248,14 @@ def evaluate(model, stream, cfg: TrainConfig, device: str) -> dict | None:
     return {"loss": tot / n, **{k: v / n for k, v in parts_sum.items()}, "samples": n}
 
 
-def train(data_dir: str | Path, out_dir: str | Path, config: TrainConfig = TrainConfig(),
+def train(data_dir: str | Path | list, out_dir: str | Path, config: TrainConfig = TrainConfig(),
           progress: Callable[[dict], None] | None = None) -> TrainResult:
     """Train (or resume training) and return where the results are.
 
     ``progress``, if given, is called after every step with ``{"epoch", "step", "loss",
     "samples_per_s"}`` and after every epoch with the epoch's log entry (``"kind": "epoch"``).
+    ``data_dir`` may be one data set folder or a list of them (same image grid), e.g. a first set
+    and a later extension; their shards are used together.
     Raises :class:`DataError` for an unusable data set and :class:`TrainingError` when
     ``out_dir`` holds a run with a different configuration."""
     import torch
@@ -258,6 +279,8 @@ def train(data_dir: str | Path, out_dir: str | Path, config: TrainConfig = Train
     if cfg_path.exists():
         try:
             old = json.loads(cfg_path.read_text())
+            old.setdefault("lr_schedule", "constant")  # runs from before the schedule existed
+            old.setdefault("lr_min_frac", TrainConfig.lr_min_frac)
         except (OSError, ValueError) as exc:
             raise TrainingError(f"{cfg_path} is unreadable ({exc}); delete {out} to start afresh") from exc
         now = json.loads(json.dumps(config.to_dict()))
@@ -296,12 +319,14 @@ def train(data_dir: str | Path, out_dir: str | Path, config: TrainConfig = Train
     train_stream = ShardStream(shards, "train", config.data, config.augment, config.seed)
     val_stream = ShardStream(shards, "val", config.data, config.augment, config.seed)
     n_params = count_parameters(model)
-    meta_common = {"n_parameters": n_params, "data_dir": str(data_dir), "train_config": config.to_dict()}
+    meta_common = {"n_parameters": n_params, "data_dir": _data_label(data_dir), "train_config": config.to_dict()}
 
     model.train()
     for epoch in range(position["epoch"], config.epochs):
         skip = position["step"] if epoch == position["epoch"] else 0
         train_stream.set_epoch(epoch)
+        for group in opt.param_groups:
+            group["lr"] = epoch_lr(config, epoch)
         t_epoch, n_samples, loss_sum, parts_sum, step = time.perf_counter(), 0, 0.0, {}, 0
         t_compute = 0.0
         for step, (x, y) in enumerate(batches(train_stream, config.batch_size, config.max_steps_per_epoch), start=1):
@@ -329,11 +354,11 @@ def train(data_dir: str | Path, out_dir: str | Path, config: TrainConfig = Train
             if step % config.checkpoint_every_steps == 0:
                 _save_state(state_path, model, opt, {"epoch": epoch, "step": step}, config)
         if n_samples == 0 and skip == 0:
-            raise DataError(f"the training split of {data_dir} is empty (all piles fell into validation?); "
+            raise DataError(f"the training split of {_data_label(data_dir)} is empty (all piles fell into validation?); "
                             "add piles or lower data.val_fraction")
         wall = time.perf_counter() - t_epoch
         val = evaluate(model, val_stream, config, device)
-        entry = {"epoch": epoch, "train_loss": loss_sum / max(n_samples, 1),
+        entry = {"epoch": epoch, "lr": epoch_lr(config, epoch), "train_loss": loss_sum / max(n_samples, 1),
                  "train_parts": {k: v / max(n_samples, 1) for k, v in parts_sum.items()},
                  "train_samples": n_samples, "wall_s": wall,
                  "samples_per_s": n_samples / wall if wall > 0 else None,

@@ -120,3 +120,26 @@ def test_torch_dataset_wrapper(tmp_path):
     ds = as_torch_dataset(ShardStream(shards, "train", DataConfig(val_fraction=0.0)))
     xs = list(torch.utils.data.DataLoader(ds, batch_size=4))
     assert sum(len(x) for x, _ in xs) == 12 and xs[0][0].shape == (4, 3, 32, 32) and xs[0][1].shape == (4, 5, 32, 32)
+
+
+def test_cosine_schedule_and_several_data_sets(tmp_path):
+    from planner.train import epoch_lr
+
+    cfg = _cfg(epochs=5, lr=1e-3, lr_min_frac=0.1)
+    lrs = [epoch_lr(cfg, e) for e in range(5)]
+    assert lrs[0] == pytest.approx(1e-3) and lrs[-1] == pytest.approx(1e-4)
+    assert all(a > b for a, b in zip(lrs, lrs[1:]))
+    assert epoch_lr(_cfg(lr_schedule="constant"), 1) == pytest.approx(3e-3)
+    with pytest.raises(ValueError, match="lr_schedule"):
+        _cfg(lr_schedule="step")
+    make_dataset(tmp_path / "a", n_piles=3)
+    make_dataset(tmp_path / "b", n_piles=4)
+    shards_a, _ = list_shards(tmp_path / "a")
+    shards_b, _ = list_shards(tmp_path / "b")
+    both, grid = list_shards([tmp_path / "a", tmp_path / "b"])
+    assert both == shards_a + shards_b and grid["size_px"] == 32
+    make_dataset(tmp_path / "c", n_piles=3, size=16)
+    with pytest.raises(DataError, match="grid"):
+        list_shards([tmp_path / "a", tmp_path / "c"])
+    res = train([tmp_path / "a", tmp_path / "b"], tmp_path / "run", _cfg(epochs=2))
+    assert [h["lr"] for h in res.history] == pytest.approx([3e-3, 3e-3 * 0.05])
