@@ -102,9 +102,14 @@ class FitConfig:
     obstacle_min_height_m: float = 0.08  # obstacle points lie this far above the ground [m]
     dbscan_eps_m: float = 0.06  # open3d DBSCAN neighbourhood [m]
     dbscan_min_points: int = 10  # open3d DBSCAN core size [-]
-    obstacle_min_points: int = 80  # smaller clusters are noise [-]
+    obstacle_min_points: int = 30  # smaller clusters (voxels) are noise [-]; 30 voxels of 2 cm
+    #                                 = 0.012 m^2 of surface, a 6 cm disc
     obstacle_min_size_m: float = 0.12  # smaller clusters (horizontal extent) are noise [m]
     obstacle_voxel_m: float = 0.02  # obstacle points are voxel-downsampled to this first [m]
+    obstacle_sliver_m: float = 0.08  # a cluster this close to a log's footprint and long along
+    #                                  it is unexplained log surface, not an obstacle [m]
+    obstacle_merge_gap_m: float = 0.45  # clusters this close with a log footprint between them
+    #                                     are one obstacle (a log lying across it hides a band) [m]
     stump_flat_fraction: float = 0.3  # share of points in the top 4 cm for a stump [-]
     stump_max_circle_rms: float = 0.25  # circle-fit RMS of the top over its radius, stump [-]
     stump_min_aspect: float = 1.0  # a stump's height is at least this times its radius [-]
@@ -123,7 +128,8 @@ class FitConfig:
             raise ValueError("need 0 < min_radius_m < max_radius_m <= 1 m")
         for name in ("axis_tolerance_m", "profile_tolerance_m", "inlier_band_m", "loss_scale_m",
                      "gnss_sigma_m", "log_clearance_m", "ground_window_m", "ground_band_m",
-                     "obstacle_min_height_m", "dbscan_eps_m", "obstacle_min_size_m", "obstacle_voxel_m"):
+                     "obstacle_min_height_m", "dbscan_eps_m", "obstacle_min_size_m", "obstacle_voxel_m",
+                     "obstacle_merge_gap_m", "obstacle_sliver_m"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
         if self.end_margin_m < 0 or self.taper_min_m < 0 or self.max_move_m < 0:
@@ -636,8 +642,11 @@ def _fill(grid: np.ndarray, have: np.ndarray) -> np.ndarray:
 
 # -- obstacles -------------------------------------------------------------------------------
 def find_obstacles(points: np.ndarray, terrain: TerrainSpec, cfg: FitConfig | None = None,
-                   ) -> tuple[list[StumpSpec], list[RockSpec], list[dict]]:
-    """Stumps and rocks from points above the terrain (already without log points)."""
+                   logs: Sequence[LogSpec] = ()) -> tuple[list[StumpSpec], list[RockSpec], list[dict]]:
+    """Stumps and rocks from points above the terrain (already without log points).
+
+    ``logs``: the fitted logs; two clusters with one of them between (a log lying across a rock
+    or against a stump hides a band of it) are one obstacle (:func:`_merge_across_logs`)."""
     import open3d as o3d
 
     cfg = cfg or FitConfig()
@@ -648,16 +657,19 @@ def find_obstacles(points: np.ndarray, terrain: TerrainSpec, cfg: FitConfig | No
     pc = pc.voxel_down_sample(cfg.obstacle_voxel_m)
     Q = np.asarray(pc.points)
     labels = np.asarray(pc.cluster_dbscan(eps=cfg.dbscan_eps_m, min_points=cfg.dbscan_min_points))
+    clusters = [Q[labels == lab] for lab in range(int(labels.max()) + 1 if labels.size else 0)]
+    clusters = _merge_across_logs(clusters, logs, cfg)
     stumps: list[StumpSpec] = []
     rocks: list[RockSpec] = []
     info: list[dict] = []
     half = terrain.extent_m / 2
-    for lab in range(int(labels.max()) + 1 if labels.size else 0):
-        C = Q[labels == lab]
+    for C in clusters:
         if len(C) < cfg.obstacle_min_points:
             continue
         ext = C[:, :2].max(0) - C[:, :2].min(0)
         if float(ext.max()) < cfg.obstacle_min_size_m:
+            continue
+        if _log_sliver(C, logs, cfg):
             continue
         ground = terrain.height_at(C[:, 0], C[:, 1])
         h = C[:, 2] - ground
@@ -680,6 +692,55 @@ def find_obstacles(points: np.ndarray, terrain: TerrainSpec, cfg: FitConfig | No
             info.append({"kind": "rock", "position_m": list(rock.position_m), "size_m": rock.size_m(),
                          "n_points": int(len(C)), "flat_fraction": flat_frac})
     return stumps, rocks, info
+
+
+def _log_sliver(C: np.ndarray, logs: Sequence[LogSpec], cfg: FitConfig) -> bool:
+    """True for a cluster that is a strip of log surface the fitted log does not explain (a
+    log fitted a little too thin or too low): every point within ``obstacle_sliver_m`` of one
+    log's top-view footprint, the strip elongated along that log's axis."""
+    for log in logs:
+        if float(np.max(_footprint_distance(C[:, :2], [log]))) > cfg.obstacle_sliver_m:
+            continue
+        xy = C[:, :2] - C[:, :2].mean(0)
+        w, v = np.linalg.eigh(xy.T @ xy / len(xy))
+        axis = log.axis()[:2]
+        axis = axis / max(float(np.linalg.norm(axis)), 1e-9)
+        if w[1] > 4 * w[0] and abs(float(v[:, 1] @ axis)) > math.cos(math.radians(20)):
+            return True
+    return False
+
+
+def _merge_across_logs(clusters: list[np.ndarray], logs: Sequence[LogSpec], cfg: FitConfig) -> list[np.ndarray]:
+    """Join clusters whose nearest points are at most ``obstacle_merge_gap_m`` apart with a log's
+    top-view footprint between them (the middle of the gap inside it): the two visible parts of
+    one obstacle that a log lies across or against."""
+    if len(clusters) < 2 or not logs:
+        return clusters
+    from scipy.spatial import cKDTree
+
+    parent = list(range(len(clusters)))
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    trees = [cKDTree(C[:, :2]) for C in clusters]
+    for i in range(len(clusters)):
+        for j in range(i + 1, len(clusters)):
+            d, k = trees[i].query(clusters[j][:, :2], distance_upper_bound=cfg.obstacle_merge_gap_m)
+            if not np.isfinite(d).any():
+                continue
+            m = int(np.argmin(d))
+            a, b = clusters[i][k[m], :2], clusters[j][m, :2]
+            between = a + np.outer(np.linspace(0.25, 0.75, 5), b - a)
+            if (_footprint_distance(between, logs) < cfg.footprint_margin_m).any():
+                parent[root(j)] = root(i)
+    groups: dict[int, list[np.ndarray]] = {}
+    for i, C in enumerate(clusters):
+        groups.setdefault(root(i), []).append(C)
+    return [np.vstack(g) for g in groups.values()]
 
 
 def _circle_fit_xy(xy: np.ndarray) -> tuple[float, float, float, float]:
@@ -943,7 +1004,7 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
     z_ground = terrain.height_at(rest[:, 0], rest[:, 1])
     above = rest[(~is_ground) & (rest[:, 2] > z_ground + cfg.obstacle_min_height_m)
                  & (np.abs(rest[:, 0]) < half) & (np.abs(rest[:, 1]) < half)]
-    stumps, rocks, info = find_obstacles(above, terrain, cfg)
+    stumps, rocks, info = find_obstacles(above, terrain, cfg, logs)
     timings["obstacles_s"] = time.perf_counter() - t2
     pile = PileSpec(terrain=terrain, logs=tuple(logs), stumps=tuple(stumps), rocks=tuple(rocks),
                     georef=georef, source="reconstructed", notes=notes)
