@@ -21,6 +21,7 @@ read it back.
 
 from __future__ import annotations
 
+import copy
 import threading
 import time
 from pathlib import Path
@@ -117,6 +118,13 @@ class LockedWriter(can.Listener):
         self._closed = False
 
     def on_message_received(self, msg: can.Message) -> None:
+        ch = msg.channel
+        if not (isinstance(ch, int) and 0 <= ch <= 0xFFFF):
+            # BLF stores a 16-bit channel number and python-can derives it from the digits of a
+            # channel *name* ("trial-88983136" -> 88983136, which does not fit): record such
+            # frames on the writer's default channel instead of failing the link.
+            msg = copy.copy(msg)
+            msg.channel = None
         with self._lock:
             if not self._closed:
                 self._writer.on_message_received(msg)

@@ -71,3 +71,19 @@ def test_bad_record_path(tmp_path):
 
     with pytest.raises(ValueError, match="blf"):
         LockedWriter(tmp_path / "x.trc")  # TRC drops CAN FD frames
+
+
+@pytest.mark.parametrize("suffix", [".blf", ".asc"])
+def test_recording_survives_channel_names_with_large_numbers(tmp_path, suffix):
+    """python-can turns the digits of a channel name into the BLF channel number; a virtual
+    bus named "trial-88983136" once failed the link with a 16-bit overflow."""
+    from field.link.can_backend import LockedWriter
+
+    path = tmp_path / f"rec{suffix}"
+    writer = LockedWriter(path)
+    for ch in ("trial-88983136", 3, None, "vcan0"):
+        writer.on_message_received(can.Message(arbitration_id=0x101, data=bytes(64), is_fd=True, channel=ch,
+                                               timestamp=time.time()))
+    writer.stop()
+    frames = read_recording(path)
+    assert len(frames) == 4 and all(len(m.data) == 64 for m in frames)
