@@ -75,6 +75,8 @@ class Planner:
     batch_size: int = 64  # target masks per forward pass [-] (64-128 use ~10-15 % less CPU than 32)
     meta: dict = field(default_factory=dict)
     angle_smoothing_px: float = 1.0  # Gaussian sigma for C, S (and W) before decoding [px]
+    quality_smoothing_px: float = 1.0  # Gaussian sigma for U and B before scoring [px]; 0 = raw
+    # (GG-CNN style: the argmax then favours a grasp zone over a single-pixel spike)
     candidates_per_subset: int = 64  # pixels tried per subset against keep-out zones [-]
 
     def __post_init__(self) -> None:
@@ -82,6 +84,8 @@ class Planner:
             raise ValueError(f"precision must be 'fp32' or 'bf16', got {self.precision!r}")
         if self.batch_size < 1:
             raise ValueError("batch_size must be >= 1")
+        if not (self.angle_smoothing_px >= 0 and self.quality_smoothing_px >= 0):
+            raise ValueError("angle_smoothing_px and quality_smoothing_px must be >= 0 pixels")
         from planner.model import prepare_for_inference
 
         self._net = prepare_for_inference(self.model, self.precision, self.device)
@@ -123,12 +127,24 @@ def default_device() -> str:
     return "cuda" if torch.cuda.is_available() else "cpu"
 
 
-def load_planner(path: str | Path, device: str = "auto", precision: str = "bf16", batch_size: int = 64) -> Planner:
+def load_planner(path: str | Path, device: str = "auto", precision: str = "bf16", batch_size: int = 64,
+                 quality_smoothing_px: float = 1.0) -> Planner:
     """Load a checkpoint (:func:`planner.checkpoint.load_checkpoint`) as a :class:`Planner`."""
     from planner.checkpoint import load_checkpoint
 
     model, config, meta = load_checkpoint(path)
-    return Planner(model, config, default_device() if device == "auto" else device, precision, batch_size, meta)
+    return Planner(model, config, default_device() if device == "auto" else device, precision, batch_size, meta,
+                   quality_smoothing_px=quality_smoothing_px)
+
+
+def _gaussian(maps: np.ndarray, sigma_px: float) -> np.ndarray:
+    """(N, H, W) float32 maps, each blurred with a Gaussian of ``sigma_px`` (reflecting borders)."""
+    if sigma_px <= 0:
+        return maps
+    import cv2
+
+    k = 2 * int(math.ceil(3 * sigma_px)) + 1
+    return np.stack([cv2.GaussianBlur(m, (k, k), sigma_px, borderType=cv2.BORDER_REFLECT) for m in maps])
 
 
 @dataclass(frozen=True)
@@ -251,9 +267,10 @@ def plan(observation, planner: Planner, objective: Objective = Objective(), cons
 
 
 def _select(out, chosen, grid, objective, constraints, planner) -> tuple[list[PlannedGrasp], list[dict]]:
-    u = 1.0 / (1.0 + np.exp(-out[:, 3]))
+    u = _gaussian((1.0 / (1.0 + np.exp(-out[:, 3]))).astype(np.float32), planner.quality_smoothing_px)
+    b = _gaussian(np.ascontiguousarray(out[:, 4], dtype=np.float32), planner.quality_smoothing_px)
     tau = np.array([len(s) for s in chosen], np.float32)[:, None, None]
-    q = objective.quality(u, tau, out[:, 4])
+    q = objective.quality(u, tau, b)
     reach = constraints.reach_ok(grid)
     keep_out = constraints.keep_out_raster(grid)
     grasps, rejected = [], []
@@ -291,7 +308,7 @@ def _select(out, chosen, grid, objective, constraints, planner) -> tuple[list[Pl
             rejected.append({"targets": list(s), "constraint": "keep_out", "action": "moved",
                              "detail": "best grasp overlaps a keep-out zone; next best used"})
         r, c = idx // q.shape[2], idx % q.shape[2]
-        grasps.append(PlannedGrasp(g, float(q[k, r, c]), float(u[k, r, c]), float(out[k, 4, r, c]), tuple(s), (r, c)))
+        grasps.append(PlannedGrasp(g, float(q[k, r, c]), float(u[k, r, c]), float(b[k, r, c]), tuple(s), (r, c)))
     return grasps, rejected
 
 

@@ -30,9 +30,10 @@ class FakeNet:
         self.fn = fn
 
 
-def _fixed_planner(out_fn):
+def _fixed_planner(out_fn, quality_smoothing_px: float = 0.0):
     p = _planner()
     p.predict = lambda x: out_fn(x)
+    p.quality_smoothing_px = quality_smoothing_px  # single-pixel peaks below: score them raw
     return p
 
 
@@ -200,6 +201,22 @@ def test_plan_output_format_ranking_and_decoding():
     assert (g0["x_m"], g0["y_m"]) == pytest.approx((float(x), float(y)))
     assert abs(abs(g0["phi_rad"]) - math.pi / 2) < 1e-6 and g0["width_m"] == pytest.approx(0.8)
     assert len(plan(obs, pl, top_k=2).grasps) == 2
+
+
+def test_quality_smoothing_prefers_a_zone_over_a_spike():
+    def fn(x):
+        out = np.zeros((len(x), 5, 32, 32), np.float32)
+        out[:, 0], out[:, 2], out[:, 3], out[:, 4] = -1.0, 0.8, -10.0, 1.0
+        out[:, 3, 5, 5] = math.log(0.95 / 0.05)  # a lone spike
+        out[:, 3, 19:24, 19:24] = math.log(0.8 / 0.2)  # a grasp zone
+        return out
+
+    obs = observation(3)
+    assert plan(obs, _fixed_planner(fn, 0.0)).best.pixel == (5, 5)
+    smooth = plan(obs, _fixed_planner(fn, 1.0)).best
+    assert smooth.pixel == (21, 21) and 0.6 < smooth.graspability < 0.8
+    with pytest.raises(ValueError, match="smoothing"):
+        Planner(_planner().model, _planner().config, quality_smoothing_px=-1.0)
 
 
 def test_f2_prefers_more_logs():
