@@ -6,8 +6,10 @@ Measures, with 2 torch threads:
   the small (~1.9 M) U-Net, plain fp32 vs channels-last + bf16 autocast;
 * planning latency (``planner.inference.plan``, all steps included) on settled, rendered piles of
   4, 7 and 12 logs with the default-width network, input vs decoder mask injection;
-* the cost of subset pre-selection in best q against exhaustive search on 7-log piles (with a
-  trained checkpoint when ``LOGGRASP_PLANNER_CKPT`` names one, else the untrained network).
+* what subset pre-selection (caps 32 and 64) costs against exhaustive search on 7-log piles with a
+  trained checkpoint (``LOGGRASP_PLANNER_CKPT`` or ``--model``, default the shipped model): best-q
+  ratio, whether the exhaustive best subset is kept, and the twin trial success of each chosen
+  grasp on the same piles (``--pruning-only`` runs just that table, ~5-10 min on 2 cores).
 Wall times are sensitive to other load on the 2 cores: each table states the load average.
 """
 
@@ -111,46 +113,174 @@ def planning_latency(n_logs=(4, 7, 12), repeats: int = 3,
     return rows
 
 
-def pruning_cost(caps=(32, 64), n_piles: int = 3, checkpoint: str | None = None) -> dict:
-    """Best q with pre-selection (max_subsets = cap) relative to exhaustive search, 7-log piles.
+DEFAULT_MODEL = ROOT / "planner" / "weights" / "default.safetensors"
 
-    Each subset's network output does not depend on the other subsets in the batch, so the
-    exhaustive plan's per-subset best grasps are reused: the capped plan's best q is the best
-    over the subsets the pre-selection keeps."""
+
+class _SharedOutputs:
+    """A planner whose network outputs are cached per input (image + one target mask): every
+    plan on one pile (exhaustive, pre-selected, any objective) scores a subset with exactly the
+    same output, computed once. A subset's output does not depend on the other subsets in its
+    batch, so this changes no plan, only the CPU spent on repeated forward passes."""
+
+    def __init__(self, planner) -> None:
+        self._planner = planner
+        self._cache: dict[bytes, object] = {}
+
+    def __getattr__(self, name):
+        return getattr(self._planner, name)
+
+    def clear(self) -> None:
+        self._cache.clear()
+
+    def predict(self, x):
+        import hashlib
+
+        import numpy as np
+
+        keys = [hashlib.blake2b(x[i].tobytes(), digest_size=16).digest() for i in range(len(x))]
+        todo = [i for i, k in enumerate(keys) if k not in self._cache]
+        if todo:
+            for i, y in zip(todo, self._planner.predict(x[todo])):
+                self._cache[keys[i]] = y
+        if not keys:
+            return self._planner.predict(x)
+        return np.stack([self._cache[k] for k in keys])
+
+
+def pruning_quality(checkpoint: str | Path | None = None, n_piles: int = 20, caps=(32, 64),
+                    objectives=("f1", "f3"), seed0: int = 800_000, threads: int = 2,
+                    cache_dir: str | Path | None = None) -> dict:
+    """Subset pre-selection vs exhaustive search with a trained checkpoint, graded in the twin.
+
+    ``n_piles`` fresh 7-log piles (seeds ``seed0 + k``; odd k with 1-7 obstacles, drawn as in
+    :class:`planner.evaluate.EvalConfig`), each planned exhaustively (all 127 subsets) and with
+    the pre-selection (``SubsetPolicy(mode="fit", max_subsets=cap)``) per cap and objective — real
+    :func:`planner.inference.plan` calls, each chosen grasp tried once through
+    :func:`planner.evaluate.evaluate_pile` (same pile, same trial code as the evaluation).
+    Per pile and objective: best-q ratio (capped / exhaustive), whether the exhaustive best subset
+    survived the pre-selection, and each variant's trial outcome. With ``cache_dir``, each pile's
+    rows are kept there (keyed by model hash, caps and objectives) and a rerun resumes."""
+    import json
     import torch
 
-    from planner.inference import Objective, Planner, load_planner, plan
-    from planner.model import UNetConfig, build_unet
+    from planner.evaluate import EvalConfig, PlannerSpec, evaluate_pile
+    from planner.inference import Objective, load_planner, plan
     from planner.subsets import SubsetPolicy, choose_subsets
+    from synth.dataset import sha256_file
 
-    torch.set_num_threads(2)
-    if checkpoint:
-        pl = load_planner(checkpoint, device="cpu")
-        model_note = (f"checkpoint `{checkpoint}` ({pl.meta.get('n_parameters', '?')} parameters, "
-                      f"epoch {pl.meta.get('epoch', '?')}, val loss {pl.meta.get('val_loss', float('nan')):.3f})")
-    else:
-        torch.manual_seed(0)
-        cfg = UNetConfig(base_channels=16)
-        pl = Planner(build_unet(cfg), cfg)
-        model_note = "UNTRAINED network (quality numbers only exercise the mechanics)"
+    torch.set_num_threads(threads)
+    path = Path(checkpoint or DEFAULT_MODEL)
+    pl = _SharedOutputs(load_planner(path, device="cpu"))
+    meta = pl.meta
+    sha = sha256_file(path)
+    model_note = (f"`{path.relative_to(ROOT) if path.resolve().is_relative_to(ROOT) else path}` "
+                  f"(sha256 {sha[:12]}, {meta.get('n_parameters', '?')} parameters, "
+                  f"epoch {meta.get('epoch', '?')}, val loss {meta.get('val_loss', float('nan')):.3f})")
+    cfg = EvalConfig(logs=(7,), obstacles=(False, True), per_cell=1, trial="fast")
+    policies = {"exhaustive": SubsetPolicy(mode="exhaustive", max_subsets=127),
+                **{f"cap{c}": SubsetPolicy(mode="fit", max_subsets=c) for c in caps}}
+    plans: dict[str, object] = {}
+
+    def plan_fn(name: str, objective: str):
+        def fn(obs, pile):
+            p = plan(obs, pl, Objective(objective), subsets=policies[name], pile=pile)
+            plans[f"{objective}/{name}"] = (p, obs)
+            return None if p.best is None else (p.best.grasp, tuple(p.best.targets))
+        return fn
+
+    specs = [PlannerSpec("unet", model=str(path), objective=obj, label=f"{obj}/{name}")
+             for obj in objectives for name in policies]
+    fns = {s.label: plan_fn(s.label.split("/")[1], s.objective) for s in specs}
     rows = []
-    for obs, pile in _pile_observations(7, n_piles, pl.config.size_px, seed0=500):
-        grid = obs.grid
-        masks = {i: obs.instance == i + 1 for i in range(pile.n_logs) if (obs.instance == i + 1).any()}
-        for obj in ("f1", "f2"):
-            full = plan(obs, pl, Objective(obj), subsets=SubsetPolicy(mode="exhaustive", max_subsets=127))
-            by_subset = {g.targets: g.quality for g in full.grasps}
-            row = {"objective": obj, "full_q": full.best.quality, "full_targets": full.best.targets,
-                   "full_s": full.elapsed_s, "n_subsets": full.subsets_evaluated}
-            for cap in caps:
-                kept, info = choose_subsets(masks, grid.pixel_m, SubsetPolicy(mode="fit", max_subsets=cap))
-                best = max(by_subset.get(t, 0.0) for t in kept)
-                row[f"cap{cap}_q_ratio"] = best / full.best.quality
-                row[f"cap{cap}_subsets"] = len(kept)
-                row[f"cap{cap}_n_fit"] = info["n_fit"]
-                row[f"cap{cap}_has_best"] = full.best.targets in kept
+    t0, c0 = time.perf_counter(), time.process_time()
+    for k in range(n_piles):
+        task = (7, bool(k % 2), k, seed0 + k)
+        cached = None
+        if cache_dir is not None:
+            key = f"{sha[:16]}-{'-'.join(map(str, caps))}-{'-'.join(objectives)}-{task[3]}"
+            cached = Path(cache_dir) / f"{key}.json"
+            if cached.exists():
+                rows += [{**r, "full_targets": tuple(r["full_targets"])} for r in json.loads(cached.read_text())]
+                continue
+        first = len(rows)
+        plans.clear()
+        pl.clear()
+        # one pile, every variant and objective through the evaluation's own pile and trial code
+        recs = {r["planner"]: r for r in evaluate_pile(task, specs, cfg, planners=fns)}
+        for obj in objectives:
+            full, obs = plans[f"{obj}/exhaustive"]
+            if full.best is None:
+                raise RuntimeError(f"the model planned no grasp on pile {task[3]}")
+            masks = {i: obs.instance == i + 1 for i in full.info["visible_logs"]}
+            row = {"seed": task[3], "obstacles": task[1], "objective": obj, "visible": len(masks),
+                   "n_subsets": full.subsets_evaluated, "full_q": full.best.quality,
+                   "full_targets": tuple(full.best.targets), "full_s": full.elapsed_s,
+                   "full_outcome": recs[f"{obj}/exhaustive"]["outcome"]}
+            for c in caps:
+                p, _ = plans[f"{obj}/cap{c}"]
+                kept, info = choose_subsets(masks, obs.grid.pixel_m, policies[f"cap{c}"])
+                row.update({f"cap{c}_q_ratio": p.best.quality / full.best.quality, f"cap{c}_subsets": len(kept),
+                            f"cap{c}_n_fit": info.get("n_fit"), f"cap{c}_has_best": row["full_targets"] in kept,
+                            f"cap{c}_same": p.best.grasp == full.best.grasp and p.best.targets == full.best.targets,
+                            f"cap{c}_s": p.elapsed_s, f"cap{c}_outcome": recs[f"{obj}/cap{c}"]["outcome"]})
             rows.append(row)
-    return {"model": model_note, "rows": rows, "caps": caps}
+        if cached is not None:
+            from synth.pile import atomic_write_bytes
+
+            atomic_write_bytes(cached, json.dumps(rows[first:]).encode())
+    return {"model": model_note, "rows": rows, "caps": tuple(caps), "objectives": tuple(objectives),
+            "seed0": seed0, "n_piles": n_piles, "wall_s": time.perf_counter() - t0,
+            "cpu_s": time.process_time() - c0, "load": _load()}
+
+
+def pruning_markdown(pc: dict) -> list[str]:
+    caps, rows = pc["caps"], pc["rows"]
+    n = pc["n_piles"]
+    parts = [f"Subset pre-selection vs exhaustive search, graded in the twin: {n} fresh 7-log piles (seeds "
+             f"{pc['seed0']}..{pc['seed0'] + n - 1}, every second one with 1-7 obstacles), model {pc['model']}. "
+             "Each variant is a real `plan()` call (exhaustive: all subsets of the visible logs, 127 when all 7 "
+             "show; cap N: `SubsetPolicy(mode=\"fit\", max_subsets=N)`), its best grasp tried once with "
+             "`planner.evaluate.evaluate_pile` (trial preset `fast`). q ratio = best q with the pre-selection / "
+             "best q exhaustive; 'best kept' = the exhaustive best subset is among those pre-selected; "
+             f"'same grasp' = identical chosen grasp (so an identical trial). Network outputs are computed once "
+             "per (pile, subset) and shared by all variants (a subset's output does not depend on its batch), so "
+             "the variants differ only in which subsets they plan; latency is in the table above. "
+             f"Run: {pc['wall_s'] / 60:.1f} min wall, {pc['cpu_s'] / 60:.1f} min CPU of this process (piles resumed "
+             f"from a cache count neither), {pc['load']}.", "",
+             "| objective | variant | subsets planned (mean) | best q ratio: mean / min | best kept | same grasp "
+             "| twin success |",
+             "|---|---|---|---|---|---|---|"]
+    for obj in pc["objectives"]:
+        mine = [r for r in rows if r["objective"] == obj]
+        m = len(mine)
+        ok = sum(r["full_outcome"] == "success" for r in mine)
+        parts.append(f"| {obj} | exhaustive | {statistics.mean(r['n_subsets'] for r in mine):.0f} | 1 / 1 | - | - "
+                     f"| {ok}/{m} ({100 * ok / m:.0f} %) |")
+        for c in caps:
+            ratios = [r[f"cap{c}_q_ratio"] for r in mine]
+            okc = sum(r[f"cap{c}_outcome"] == "success" for r in mine)
+            parts.append(
+                f"| {obj} | cap {c} | {statistics.mean(r[f'cap{c}_subsets'] for r in mine):.0f} | "
+                f"{statistics.mean(ratios):.3f} / {min(ratios):.3f} | "
+                f"{sum(r[f'cap{c}_has_best'] for r in mine)}/{m} | {sum(r[f'cap{c}_same'] for r in mine)}/{m} | "
+                f"{okc}/{m} ({100 * okc / m:.0f} %) |")
+    flips = []
+    for c in caps:
+        won = sum(r[f"cap{c}_outcome"] == "success" and r["full_outcome"] != "success" for r in rows)
+        lost = sum(r[f"cap{c}_outcome"] != "success" and r["full_outcome"] == "success" for r in rows)
+        flips.append(f"cap {c}: {lost} success(es) lost, {won} gained")
+    parts += ["", "Paired over the same piles and objectives (exhaustive → pre-selected): " + "; ".join(flips) + ".",
+              "", "<details><summary>per pile</summary>", "",
+              "| seed | obstacles | objective | visible logs | exhaustive: best q [targets] → outcome | "
+              + " | ".join(f"cap {c}: kept (fit) / q ratio / best kept → outcome" for c in caps) + " |",
+              "|---|---|---|---|---|" + "---|" * len(caps)]
+    for r in rows:
+        cells = [f"{r[f'cap{c}_subsets']} ({r[f'cap{c}_n_fit']}) / {r[f'cap{c}_q_ratio']:.3f} / "
+                 f"{'yes' if r[f'cap{c}_has_best'] else 'no'} → {r[f'cap{c}_outcome']}" for c in caps]
+        parts.append(f"| {r['seed']} | {'yes' if r['obstacles'] else 'no'} | {r['objective']} | {r['visible']} | "
+                     f"{r['full_q']:.3f} {list(r['full_targets'])} → {r['full_outcome']} | " + " | ".join(cells) + " |")
+    parts += ["", "</details>"]
+    return parts
 
 
 def fit_note(r: dict) -> str:
@@ -158,7 +288,7 @@ def fit_note(r: dict) -> str:
 
 
 def markdown(repeats: int = 3) -> str:
-    parts = ["### Planner (U-Net) — training throughput and planning latency", ""]
+    parts = ["### Planner (U-Net) — training throughput, planning latency, cost of subset pre-selection", ""]
     t = training_throughput()
     parts += [f"Training step (forward + backward + Adam, batch 16, 128 px, 2 threads; {_load()}):", "",
               "| model | parameters | mode | samples/s | CPU s per sample |", "|---|---|---|---|---|"]
@@ -173,19 +303,26 @@ def markdown(repeats: int = 3) -> str:
     parts += [f"| {r['model']} | {r['injection']} | {r['logs']} | {r['subsets']} | {r['selection']}"
               f"{fit_note(r)} | "
               f"{r['wall_s']:.2f} | {r['cpu_s']:.2f} |" for r in lat]
-    pc = pruning_cost(checkpoint=os.environ.get("LOGGRASP_PLANNER_CKPT"))
-    caps = pc["caps"]
-    parts += ["", f"Subset pre-selection vs exhaustive search on 7-log piles — {pc['model']}:", "",
-              "| pile | objective | exhaustive: subsets, best q [targets] | " + " | ".join(
-                  f"cap {c}: kept (fit) / best q ratio / best subset kept" for c in caps) + " |",
-              "|---|---|---|" + "---|" * len(caps)]
-    for k, r in enumerate(pc["rows"]):
-        cells = [f"{r[f'cap{c}_subsets']} ({r[f'cap{c}_n_fit']}) / {r[f'cap{c}_q_ratio']:.3f} / "
-                 f"{'yes' if r[f'cap{c}_has_best'] else 'no'}" for c in caps]
-        parts.append(f"| {k // 2} | {r['objective']} | {r['n_subsets']}, {r['full_q']:.3f} {list(r['full_targets'])} | "
-                     + " | ".join(cells) + " |")
+    parts += [""] + pruning_markdown(pruning_quality(
+        os.environ.get("LOGGRASP_PLANNER_CKPT"), n_piles=int(os.environ.get("LOGGRASP_BENCH_PRUNING_PILES", "20"))))
     return "\n".join(parts)
 
 
 if __name__ == "__main__":
-    print(markdown(int(os.environ.get("LOGGRASP_BENCH_REPEATS", "3"))))
+    import argparse
+
+    ap = argparse.ArgumentParser(description="Planner benchmarks (Markdown on stdout).")
+    ap.add_argument("--pruning-only", action="store_true",
+                    help="only the pre-selection vs exhaustive table with a trained model, graded in the twin")
+    ap.add_argument("--model", default=os.environ.get("LOGGRASP_PLANNER_CKPT"),
+                    help="checkpoint for the pruning table (default: planner/weights/default.safetensors)")
+    ap.add_argument("--piles", type=int, default=20, help="7-log piles for the pruning table")
+    ap.add_argument("--cache", default=None, help="folder keeping each pile's pruning rows (resume a run)")
+    args = ap.parse_args()
+    if args.pruning_only:
+        print("\n".join(pruning_markdown(pruning_quality(args.model, n_piles=args.piles, cache_dir=args.cache))))
+    else:
+        if args.model:
+            os.environ["LOGGRASP_PLANNER_CKPT"] = args.model
+        os.environ.setdefault("LOGGRASP_BENCH_PRUNING_PILES", str(args.piles))
+        print(markdown(int(os.environ.get("LOGGRASP_BENCH_REPEATS", "3"))))

@@ -601,7 +601,7 @@ def readme_markdown(results: dict) -> str:
                 top = ro[0]
                 lines += [f"{obj}: {ok}/{len(ro)} subsets' best grasps succeed; the top-ranked grasp "
                           f"({_fmt_targets(top['targets'])}, q = {top['q']:.3f}) gives `{top['outcome']}`.", ""]
-        lines += ["| panel | seed | targets | q | u | b | outcome | held |", "|---|---|---|---|---|---|---|---|"]
+        lines += ["| panel | seed | targets | q | u | b | outcome | held (enclosed if not lifted) |", "|---|---|---|---|---|---|---|---|"]
         for r in mine:
             lines.append(f"| {r['panel']} | {r['seed']} | {_fmt_targets(r['targets'])} | {r['q']:.3f} | "
                          f"{r['u']:.3f} | {r['b']:.2f} | {r['outcome']} | {_fmt_targets(r['grasped'])} |")
