@@ -149,7 +149,7 @@ class _SharedOutputs:
 
 def pruning_quality(checkpoint: str | Path | None = None, n_piles: int = 20, caps=(32, 64),
                     objectives=("f1", "f3"), seed0: int = 800_000, threads: int = 2,
-                    cache_dir: str | Path | None = None) -> dict:
+                    cache_dir: str | Path | None = None, only_cached: bool = False) -> dict:
     """Subset pre-selection vs exhaustive search with a trained checkpoint, graded in the twin.
 
     ``n_piles`` fresh 7-log piles (seeds ``seed0 + k``; odd k with 1-7 obstacles, drawn as in
@@ -159,7 +159,8 @@ def pruning_quality(checkpoint: str | Path | None = None, n_piles: int = 20, cap
     :func:`planner.evaluate.evaluate_pile` (same pile, same trial code as the evaluation).
     Per pile and objective: best-q ratio (capped / exhaustive), whether the exhaustive best subset
     survived the pre-selection, and each variant's trial outcome. With ``cache_dir``, each pile's
-    rows are kept there (keyed by model hash, caps and objectives) and a rerun resumes."""
+    rows are kept there (keyed by model hash, caps and objectives) and a rerun resumes;
+    ``only_cached`` tabulates the piles already there and computes nothing."""
     import json
     import torch
 
@@ -202,6 +203,8 @@ def pruning_quality(checkpoint: str | Path | None = None, n_piles: int = 20, cap
             if cached.exists():
                 rows += [{**r, "full_targets": tuple(r["full_targets"])} for r in json.loads(cached.read_text())]
                 continue
+        if only_cached:
+            continue
         first = len(rows)
         plans.clear()
         pl.clear()
@@ -229,15 +232,19 @@ def pruning_quality(checkpoint: str | Path | None = None, n_piles: int = 20, cap
 
             atomic_write_bytes(cached, json.dumps(rows[first:]).encode())
     return {"model": model_note, "rows": rows, "caps": tuple(caps), "objectives": tuple(objectives),
-            "seed0": seed0, "n_piles": n_piles, "wall_s": time.perf_counter() - t0,
+            "seed0": seed0, "n_piles": n_piles, "seeds": sorted({r["seed"] for r in rows}), "wall_s": time.perf_counter() - t0,
             "cpu_s": time.process_time() - c0, "load": _load()}
 
 
 def pruning_markdown(pc: dict) -> list[str]:
     caps, rows = pc["caps"], pc["rows"]
-    n = pc["n_piles"]
-    parts = [f"Subset pre-selection vs exhaustive search, graded in the twin: {n} fresh 7-log piles (seeds "
-             f"{pc['seed0']}..{pc['seed0'] + n - 1}, every second one with 1-7 obstacles), model {pc['model']}. "
+    n, seeds = pc["n_piles"], pc["seeds"]
+    if len(seeds) == n:
+        which = f"{n} fresh 7-log piles (seeds {pc['seed0']}..{pc['seed0'] + n - 1}, every second one with 1-7 obstacles)"
+    else:
+        which = (f"{len(seeds)} of {n} planned fresh 7-log piles (seeds {', '.join(map(str, seeds))}; odd seeds with "
+                 "1-7 obstacles; the rest not run)")
+    parts = [f"Subset pre-selection vs exhaustive search, graded in the twin: {which}, model {pc['model']}. "
              "Each variant is a real `plan()` call (exhaustive: all subsets of the visible logs, 127 when all 7 "
              "show; cap N: `SubsetPolicy(mode=\"fit\", max_subsets=N)`), its best grasp tried once with "
              "`planner.evaluate.evaluate_pile` (trial preset `fast`). q ratio = best q with the pre-selection / "
@@ -318,9 +325,11 @@ if __name__ == "__main__":
                     help="checkpoint for the pruning table (default: planner/weights/default.safetensors)")
     ap.add_argument("--piles", type=int, default=20, help="7-log piles for the pruning table")
     ap.add_argument("--cache", default=None, help="folder keeping each pile's pruning rows (resume a run)")
+    ap.add_argument("--cached-only", action="store_true", help="tabulate the piles in --cache, compute nothing")
     args = ap.parse_args()
     if args.pruning_only:
-        print("\n".join(pruning_markdown(pruning_quality(args.model, n_piles=args.piles, cache_dir=args.cache))))
+        print("\n".join(pruning_markdown(pruning_quality(args.model, n_piles=args.piles, cache_dir=args.cache,
+                                                                  only_cached=args.cached_only))))
     else:
         if args.model:
             os.environ["LOGGRASP_PLANNER_CKPT"] = args.model
