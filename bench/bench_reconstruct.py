@@ -9,6 +9,17 @@ cover a 5-log pile of 2.5 m logs), an RTK survey of the log end centres (1.5 cm 
 disturbed (5 cm and 1 deg about the pile centre), to show the registration refinement. Speed of a single-pair scan is
 measured on a smaller pile of short logs that one pair covers. Wall times depend on other load
 on the 2 cores: the load average is printed, and CPU seconds of this process are given beside.
+
+Obstacles: every true obstacle of those piles, of 6 more with 3 obstacles (seeds 103-108) and of 3
+without (seeds 110-112, false positives) is classed by what the scan could show: its top-view
+area above 8 cm (orthographic instance render of the truth, 2 cm pixels) that is not hidden by
+logs and that the scan covers. Detection is counted over all obstacles and over those with at
+least 0.01 m^2 so seen.
+
+The real test (:mod:`field.real_test`): twin scans with 3-6 logs and 0-2 obstacles (seeds
+700000+), reconstructed; the shipped planner (or ``--model``) plans on the reconstruction's
+re-render and on the truth's render; both grasps are executed on the TRUE pile. Run alone:
+``.venv/bin/python bench/bench_reconstruct.py --real-only --real-piles 24 --model PATH``.
 """
 
 from __future__ import annotations
@@ -47,6 +58,8 @@ def accuracy(n_piles: int = 3, workdir: Path | None = None) -> dict:
 
     ep, dia, iou, walls, cpus, regs, failures = [], [], [], [], [], [], []
     det = tot = 0
+    obstacle_rows: list[dict] = []
+    fps = 0
     pose_err_rows = []
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
         for seed in range(n_piles):
@@ -84,8 +97,171 @@ def accuracy(n_piles: int = 3, workdir: Path | None = None) -> dict:
                 iou += [e["mask_iou"] for e in c["logs"] if e["mask_iou"] is not None]
                 det += c["summary"]["obstacles_detected"]
                 tot += c["summary"]["n_truth_obstacles"]
+                obstacle_rows += obstacle_visibility(truth, res, c, 100 + seed)
+                fps += c["summary"]["obstacle_false_positives"]
     return {"ep": ep, "dia": dia, "iou": iou, "walls": walls, "cpus": cpus, "regs": regs, "det": det,
-            "tot": tot, "pose": pose_err_rows, "failures": failures, "n": n_piles}
+            "tot": tot, "pose": pose_err_rows, "failures": failures, "n": n_piles,
+            "obstacle_rows": obstacle_rows, "fps": fps}
+
+
+def obstacle_visibility(truth, res, comparison: dict, seed: int, min_height_m: float = 0.08) -> list[dict]:
+    """Per true obstacle: its top-view area above ``min_height_m`` not hidden by logs
+    (orthographic instance render of the truth, 256 px), the part of it the scan covers (a scan
+    point within 3 cm), and whether the reconstruction found it."""
+    from scipy.spatial import cKDTree
+
+    from synth.frames import OrthoGrid, apply_T, invert_T
+    from synth.render import OrthoRenderConfig, render_ortho
+    from synth.world import OBSTACLE_BASE, World
+
+    T_truth_scan = invert_T(truth.georef.matrix()) @ np.asarray(res.report["T_site_scan_refined"])
+    pts = apply_T(T_truth_scan, res.cloud.points)
+    tree = cKDTree(pts[:, :2])
+    with World(truth) as world:
+        obs = render_ortho(world, OrthoRenderConfig(size_px=256, n_renders=1))
+    grid = OrthoGrid(256, truth.terrain.extent_m)
+    X, Y = grid.pixel_centres()
+    high = obs.height() - truth.terrain.height_at(X, Y) > min_height_m
+    px_m2 = grid.pixel_m ** 2
+    kinds = ["stump"] * len(truth.stumps) + ["rock"] * len(truth.rocks)
+    rows = []
+    for j, kind in enumerate(kinds):
+        m = (obs.instance == OBSTACLE_BASE + j) & high
+        if m.any():
+            d, _ = tree.query(np.column_stack([X[m], Y[m]]))
+            scanned = float((d < 0.03).sum()) * px_m2
+        else:
+            scanned = 0.0
+        match = comparison["obstacles"][j]
+        rows.append({"seed": seed, "kind": kind, "visible_m2": float(m.sum()) * px_m2, "seen_m2": scanned,
+                     "detected": match["recon_index"] is not None, "recon_kind": match["recon_kind"]})
+    return rows
+
+
+def obstacle_piles(seeds=range(103, 109), n_obstacles: int = 3, clean_seeds=(110, 111, 112),
+                   workdir: Path | None = None) -> dict:
+    """More piles for obstacle detection: ``seeds`` with ``n_obstacles`` each, ``clean_seeds``
+    without any (false positives). Same scans as :func:`accuracy`."""
+    from reconstruct.compare import compare_piles, simulate_scan
+    from reconstruct.errors import ReconstructError
+    from reconstruct.pipeline import reconstruct
+    from synth.generate import GenerationConfig, generate_pile
+
+    rows: list[dict] = []
+    fps = {"with": 0, "without": 0}
+    n = {"with": 0, "without": 0}
+    failures = []
+    with tempfile.TemporaryDirectory(dir=workdir) as tmp:
+        for seed, k in [(s, n_obstacles) for s in seeds] + [(s, 0) for s in clean_seeds]:
+            pile, _ = generate_pile(seed, GenerationConfig(n_logs=5, n_obstacles=k))
+            d = Path(tmp) / f"o{seed}"
+            scan, gnss, truth = simulate_scan(pile, d, grid=(2, 2), seed=seed - 100)
+            try:
+                res = reconstruct(scan, gnss, d / "out")
+            except ReconstructError as exc:
+                failures.append(f"seed {seed}: {exc}")
+                continue
+            c = compare_piles(truth, res.pile, render=False)
+            key = "with" if k else "without"
+            n[key] += 1
+            fps[key] += c["summary"]["obstacle_false_positives"]
+            rows += obstacle_visibility(truth, res, c, seed)
+    return {"rows": rows, "fps": fps, "n": n, "failures": failures}
+
+
+def real_test(n_piles: int = 24, model: str | None = None, workers: int = 2, out: Path | None = None) -> dict:
+    """The real test (:func:`field.real_test.run_real_test`); the record is kept in ``out`` when
+    given (written after every pile; a run of the same test and model there is resumed)."""
+    from field.real_test import RealTestConfig, run_real_test
+
+    return run_real_test(RealTestConfig(n_piles=n_piles, model=model, workers=workers), record_path=out,
+                         progress=lambda s: print(s, file=sys.stderr, flush=True))
+
+
+def real_test_markdown(rec: dict) -> list[str]:
+    cfg = rec["config"]
+    rows = rec["rows"]
+    piles = sorted({r["seed"] for r in rows})
+    cpu = [sum(r["cpu_s"].values()) + r["plan_cpu_s"] + r["trial_cpu_s"] for r in rows]
+    lines = [
+        "#### The real test: plan on the reconstruction, execute on the truth",
+        f"{len(piles)} twin scans (`loggrasp synth scan` piles, seeds {cfg['seed']}..{cfg['seed'] + cfg['n_piles'] - 1}, "
+        f"{cfg['logs'][0]}-{cfg['logs'][1]} logs, {cfg['obstacles'][0]}-{cfg['obstacles'][1]} obstacles, "
+        f"{cfg['grid'][0]}x{cfg['grid'][1]} pairs, RTK fixed), reconstructed; model `{Path(rec['model']['path']).name}` "
+        f"(sha256 {rec['model']['sha256'][:12]}) plans on the reconstruction's re-render and on the truth's render; "
+        "the reconstruction's grasp is taken to the truth frame through both georeferences, its targets "
+        "through the log matching; both grasps run on the TRUE pile (`TrialConfig.fast()`). "
+        "Criterion (issue): the reconstruction-planned success rate within 3 percentage points of the "
+        "truth-planned one. Uncertainties: binomial standard errors of the rates; for the difference, the "
+        "standard error of the paired difference (discordant piles + 1/2 each).\n",
+        "| objective | piles | success, truth-planned | success, recon-planned | difference [pp] | 95 % interval [pp] | "
+        "same outcome | same targets | verdict |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for kind, s in rec["summary"].items():
+        if not s.get("n_piles"):
+            lines.append(f"| {kind} | 0 | | | | | | | no piles |")
+            continue
+        lo, hi = s["difference_ci95_pp"]
+        lines.append(
+            f"| {kind} | {s['n_piles']} | {100 * s['success_truth']:.1f} % ± {100 * s['success_truth_se']:.1f} | "
+            f"{100 * s['success_recon']:.1f} % ± {100 * s['success_recon_se']:.1f} | {s['difference_pp']:+.1f} ± "
+            f"{s['difference_se_pp']:.1f} | [{lo:+.1f}, {hi:+.1f}] | {100 * s['outcome_agreement']:.0f} % "
+            f"({s['both_succeed']} both, {s['only_truth']} truth only, {s['only_recon']} recon only) | "
+            f"{100 * s['same_targets']:.0f} % | {s['verdict']} |")
+    lines += ["", "Grasp differences (recon-planned minus truth-planned, truth frame), all piles / piles where both chose the same target logs:", "",
+              "| objective | position median [m] | p90 | angle median [deg] | p90 | abs width median [m] | p90 | same targets: position median [m] | angle median [deg] |",
+              "|---|---|---|---|---|---|---|---|---|"]
+
+    def f(v, fmt):
+        return "–" if v is None else format(v, fmt)
+
+    for kind, s in rec["summary"].items():
+        if not s.get("n_piles"):
+            continue
+        lines.append(
+            f"| {kind} | {f(s['position_diff_m']['median'], '.3f')} | {f(s['position_diff_m']['p90'], '.3f')} | "
+            f"{f(s['angle_diff_deg']['median'], '.1f')} | {f(s['angle_diff_deg']['p90'], '.1f')} | "
+            f"{f(s['abs_width_diff_m']['median'], '.3f')} | {f(s['abs_width_diff_m']['p90'], '.3f')} | "
+            f"{f(s['position_diff_same_targets_m']['median'], '.3f')} | {f(s['angle_diff_same_targets_deg']['median'], '.1f')} |")
+    rf = sum(r.get("recon_error") is not None for r in rows) // max(1, len(cfg["objectives"]))
+    lines += ["", f"Reconstruction failures: {rf} of {len(piles)} piles (counted as failed grasps); piles the generator could "
+              f"not make: {len(rec['failures'])}. CPU per pile and objective pair (scan + reconstruction + renders + plans + "
+              f"trials, worker processes): median {statistics.median(cpu) if cpu else math.nan:.1f} s; "
+              f"wall {rec['wall_s']:.0f} s with {cfg['workers']} worker(s)."]
+    for fmsg in rec["failures"]:
+        lines.append(f"- {fmsg}")
+    return lines
+
+
+def obstacle_markdown(a: dict, o: dict, min_seen_m2: float = 0.01) -> list[str]:
+    rows = a["obstacle_rows"] + o["rows"]
+    seen = [r for r in rows if r["seen_m2"] >= min_seen_m2]
+    hidden = [r for r in rows if r["visible_m2"] < min_seen_m2]
+    outside = [r for r in rows if r["visible_m2"] >= min_seen_m2 and r["seen_m2"] < min_seen_m2]
+    n_with = a["n"] + o["n"]["with"]
+
+    def rate(rs):
+        return f"{sum(r['detected'] for r in rs)} / {len(rs)}"
+
+    right = sum(r["detected"] and r["recon_kind"] == r["kind"] for r in rows)
+    lines = [
+        "", "Obstacles (seeds 100-102 above plus 103-108 with 3 obstacles each; stumps and rocks of the generator):", "",
+        "| obstacles | detected |", "|---|---|",
+        f"| all | {rate(rows)} |",
+        f"| seen: >= {min_seen_m2} m^2 above 8 cm, not under logs, in the scan | {rate(seen)} |",
+        f"| ... stumps | {rate([r for r in seen if r['kind'] == 'stump'])} |",
+        f"| ... rocks | {rate([r for r in seen if r['kind'] == 'rock'])} |",
+        f"| hidden under logs or lower than 8 cm | {rate(hidden)} |",
+        f"| outside the scanned area | {rate(outside)} |",
+        "",
+        f"Kind right (stump/rock) for {right} of {sum(r['detected'] for r in rows)} detected. False positives: "
+        f"{a['fps'] + o['fps']['with']} on {n_with} piles with obstacles, {o['fps']['without']} on "
+        f"{o['n']['without']} piles without.",
+    ]
+    if o["failures"]:
+        lines += ["Reconstruction failures:"] + [f"- {x}" for x in o["failures"]]
+    return lines
 
 
 def single_pair_speed(repeats: int = 3, workdir: Path | None = None) -> dict:
@@ -118,10 +294,13 @@ def single_pair_speed(repeats: int = 3, workdir: Path | None = None) -> dict:
     return {"walls": walls, "cpus": cpus, "stages": stages[-1]}
 
 
-def markdown(n_piles: int = 3, repeats: int = 3) -> str:
+def markdown(n_piles: int = 3, repeats: int = 3, real_piles: int = 24, model: str | None = None,
+             workers: int = 2, real_out: Path | None = None) -> str:
     load0 = _load()
     a = accuracy(n_piles)
+    o = obstacle_piles()
     s = single_pair_speed(repeats)
+    rec = real_test(real_piles, model, workers, real_out) if real_piles > 0 else None
     load1 = _load()
     lines = [
         "### Reconstruction (stereo scan + RTK ends -> PileSpec), twin scans",
@@ -135,9 +314,8 @@ def markdown(n_piles: int = 3, repeats: int = 3) -> str:
         f"| GNSS end -> fitted axis RMS after registration [m] | {_pct(a['regs'], 50):.3f} | | {max(a['regs'], default=math.nan):.3f} | {len(a['regs'])} |",
         f"| reconstruct() wall, 4 pairs [s] | {_pct(a['walls'], 50):.1f} | | {max(a['walls'], default=math.nan):.1f} | {len(a['walls'])} |",
         f"| reconstruct() CPU of this process, 4 pairs [s] | {_pct(a['cpus'], 50):.1f} | | {max(a['cpus'], default=math.nan):.1f} | {len(a['cpus'])} |",
-        "",
-        f"Obstacles detected: {a['det']} / {a['tot']}.",
     ]
+    lines += obstacle_markdown(a, o)
     if a["pose"]:
         lines += ["", "Scan pose disturbed by (4, -3) cm and 1 deg (about the pile centre) before refinement:", "",
                   "| seed | total correction [m] | [deg] | residual RMS before [m] | after [m] | median end error [m] |",
@@ -150,6 +328,8 @@ def markdown(n_piles: int = 3, repeats: int = 3) -> str:
               f"{statistics.median(s['walls']):.1f} s (CPU {statistics.median(s['cpus']):.1f} s); last run's stages [s]: "
               + ", ".join(f"{k} {st[k]:.2f}" for k in ("survey_s", "stereo_s", "registration_s", "fit_s", "outputs_s")
                           if k in st)]
+    if rec is not None:
+        lines += [""] + real_test_markdown(rec)
     return "\n".join(lines)
 
 
@@ -157,5 +337,14 @@ if __name__ == "__main__":
     ap = argparse.ArgumentParser()
     ap.add_argument("--piles", type=int, default=3)
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--real-piles", type=int, default=24, help="twin scans for the real test (0: skip it)")
+    ap.add_argument("--model", default=None, help="planner checkpoint for the real test (default: the shipped one)")
+    ap.add_argument("--workers", type=int, default=2, help="processes for the real test")
+    ap.add_argument("--real-out", type=Path, default=None,
+                    help="keep the real-test record (JSON) here: written after every pile, resumed when re-run")
+    ap.add_argument("--real-only", action="store_true", help="run only the real test")
     args = ap.parse_args()
-    print(markdown(args.piles, args.repeats))
+    if args.real_only:
+        print("\n".join(real_test_markdown(real_test(args.real_piles, args.model, args.workers, args.real_out))))
+    else:
+        print(markdown(args.piles, args.repeats, args.real_piles, args.model, args.workers, args.real_out))

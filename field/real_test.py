@@ -1,0 +1,404 @@
+"""The real test of a reconstruction: does a grasp planned on the reconstructed pile succeed on the
+real pile as often as one planned on the real pile itself?
+
+For each of ``n_piles`` twin scans (:func:`reconstruct.twin_scan.make_twin_scan`: a generated
+pile with known truth, a grid of stereo pairs, an RTK survey of the log ends):
+
+1. reconstruct the pile (:func:`reconstruct.pipeline.reconstruct`; its own pile frame and its
+   ``ortho.npz`` re-render, exactly what the field stack plans on, :mod:`field.trial`);
+2. plan with the same model and objective on (a) that re-render and (b) an orthographic render
+   of the TRUE pile (same render settings: size of the model, three renders, seed 0);
+3. express the grasp planned on the reconstruction in the true pile's frame (both piles carry a
+   site georeference ``T_site_pile``; the grasp centre and a point along its closing axis go
+   through the site frame, or through geodetic coordinates when the site origins differ) and
+   its target logs as true log indices (logs matched by :func:`reconstruct.compare.compare_piles`;
+   a target without a true match makes the grasp fail);
+4. execute both grasps on the TRUE pile in the twin (:func:`synth.trial.run_trial`,
+   ``TrialConfig.fast()``), success = exactly the intended logs held.
+
+:func:`run_real_test` returns (and :func:`write_real_test` / :func:`read_real_test` store, format
+``loggrasp.real-test`` 1.0) one row per pile and objective and a summary per objective: success
+rates with their binomial standard errors, the difference (reconstruction minus truth) in
+percentage points with the standard error of the *paired* difference, per-pile agreement, and
+how far the two chosen grasps lie apart (position, angle, width). A failed reconstruction counts
+as a failed grasp (the field stack would not send one) and is counted separately.
+
+The issue's criterion: the reconstruction-planned rate lies within 3 percentage points of the
+truth-planned rate. With a paired design the uncertainty of the difference shrinks with the
+agreement of the two plans; the summary says whether ``n_piles`` resolves 3 points.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import tempfile
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from field.errors import FieldError
+
+REAL_TEST_FORMAT = "loggrasp.real-test"
+REAL_TEST_VERSION = "1.0"
+OBJECTIVES = ("f1", "f2", "f3")
+
+
+@dataclass(frozen=True)
+class RealTestConfig:
+    """What the real test runs on (units in the names/comments)."""
+
+    n_piles: int = 24  # twin scans [-]
+    seed: int = 700000  # pile k uses seed + k (far from training seeds) [-]
+    logs: tuple[int, int] = (3, 6)  # logs per pile, inclusive range [-]
+    obstacles: tuple[int, int] = (0, 2)  # stumps + rocks per pile, inclusive range [-]
+    objectives: tuple[str, ...] = ("f1", "f3")  # planner objectives, each planned and executed
+    model: str | None = None  # planner checkpoint; None = the shipped default
+    n_float: int = 0  # RTK float end points per survey (they need allow_float) [-]
+    grid: tuple[int, int] = (2, 2)  # stereo pairs per scan [-]
+    workers: int = 1  # processes (each loads the model once) [-]
+
+    def __post_init__(self) -> None:
+        if self.n_piles < 1:
+            raise ValueError(f"n_piles must be >= 1, got {self.n_piles}")
+        if not 1 <= self.logs[0] <= self.logs[1] <= 16:
+            raise ValueError(f"logs must be an increasing range inside [1, 16], got {self.logs}")
+        if not 0 <= self.obstacles[0] <= self.obstacles[1] <= 12:
+            raise ValueError(f"obstacles must be an increasing range inside [0, 12], got {self.obstacles}")
+        if not self.objectives or any(o not in OBJECTIVES for o in self.objectives):
+            raise ValueError(f"objectives must be a non-empty subset of {OBJECTIVES}, got {self.objectives}")
+        if self.n_float < 0 or self.workers < 1:
+            raise ValueError("n_float must be >= 0 and workers >= 1")
+
+
+# -- frames ------------------------------------------------------------------------------------
+def grasp_to_truth_frame(grasp: Any, recon: Any, truth: Any) -> Any:
+    """A :class:`synth.grasp.Grasp` in ``recon``'s pile frame expressed in ``truth``'s pile frame
+    through both piles' georeferences (the site frame when the origins agree, else geodetic
+    coordinates). The grasp centre sits on the reconstructed terrain; the angle follows the
+    closing axis (pi-periodic); the width is kept."""
+    from synth import geodesy
+    from synth.grasp import Grasp
+
+    if recon.georef is None or truth.georef is None:
+        raise FieldError("both piles need a georeference to compare grasps across their frames; "
+                         "reconstruct with a scan pose and generate the truth with a site")
+    z = float(recon.terrain.height_at(grasp.x_m, grasp.y_m))
+    a = grasp.closing_axis()
+    p = np.array([[grasp.x_m, grasp.y_m, z], [grasp.x_m + a[0], grasp.y_m + a[1], z]])
+    g_r, g_t = recon.georef, truth.georef
+    if (abs(g_r.origin_lat_deg - g_t.origin_lat_deg) < 1e-12 and abs(g_r.origin_lon_deg - g_t.origin_lon_deg) < 1e-12
+            and abs(g_r.origin_h_m - g_t.origin_h_m) < 1e-9):
+        q = geodesy.site_to_pile(g_t, geodesy.pile_to_site(g_r, p))
+    else:
+        lat, lon, h = geodesy.pile_to_geodetic(g_r, p)
+        q = geodesy.geodetic_to_pile(g_t, lat, lon, h)
+    q = np.asarray(q, dtype=float).reshape(2, 3)
+    d = q[1, :2] - q[0, :2]
+    return Grasp(float(q[0, 0]), float(q[0, 1]), math.atan2(d[1], d[0]), grasp.width_m)
+
+
+def _angle_diff_deg(a: float, b: float) -> float:
+    """Difference of two pi-periodic grasp angles [deg], in [0, 90]."""
+    d = (a - b + math.pi / 2) % math.pi - math.pi / 2
+    return abs(math.degrees(d))
+
+
+# -- one pile ----------------------------------------------------------------------------------
+def _render_truth(truth: Any, size_px: int) -> Any:
+    """The true pile's orthographic render with the reconstruction's render settings."""
+    from synth.render import OrthoRenderConfig, render_ortho
+    from synth.world import World
+
+    with World(truth) as world:
+        return render_ortho(world, OrthoRenderConfig(size_px=size_px, n_renders=3), seed=0)
+
+
+def _execute(truth: Any, grasp: Any, targets: tuple[int, ...]) -> dict:
+    from synth.trial import TrialConfig, run_trial
+
+    res = run_trial(truth, grasp, targets, TrialConfig.fast())
+    return {"success": res.success, "outcome": res.outcome.value, "grasped": list(res.grasped),
+            "cpu_s": res.cpu_time_s}
+
+
+def real_test_pile(seed: int, work_dir: str | Path, planner: Any, cfg: RealTestConfig) -> list[dict]:
+    """The real test on one twin scan (``seed``): one row per objective (see the module
+    docstring). ``planner``: a loaded :class:`planner.inference.Planner`."""
+    from planner.errors import PlannerError
+    from planner.inference import Objective, plan
+    from reconstruct.compare import compare_piles
+    from reconstruct.errors import ReconstructError
+    from reconstruct.pipeline import ReconstructConfig, reconstruct
+    from reconstruct.twin_scan import make_twin_scan
+    from synth.pile import read_pile
+    from synth.render import OrthoObservation
+
+    work = Path(work_dir)
+    c0 = time.process_time()
+    scan_root = make_twin_scan(work / f"scan_{seed}", seed, logs=cfg.logs, obstacles=cfg.obstacles,
+                               n_float=cfg.n_float, grid=cfg.grid)
+    truth = read_pile(scan_root / "truth" / "pile.json")
+    cpu = {"scan_s": time.process_time() - c0}
+    base = {"seed": seed, "n_logs": truth.n_logs, "n_obstacles": len(truth.stumps) + len(truth.rocks)}
+    c0 = time.process_time()
+    recon = obs_r = None
+    recon_error = None
+    try:
+        res = reconstruct(scan_root / "scan", scan_root / "gnss.csv", work / f"recon_{seed}",
+                          ReconstructConfig(allow_float=cfg.n_float > 0, render_size_px=planner.config.size_px))
+        recon = res.pile
+        obs_r = OrthoObservation.load(res.files["ortho"])
+    except ReconstructError as exc:
+        recon_error = str(exc)
+    cpu["reconstruct_s"] = time.process_time() - c0
+    match: dict[int, int] = {}
+    if recon is not None:
+        cmp = compare_piles(truth, recon, render=False)
+        match = {e["recon_index"]: e["truth_index"] for e in cmp["logs"]}
+        base.update({"n_matched_logs": len(match), "recon_extent_m": float(obs_r.extent_m),
+                     "recon_obstacles": len(recon.stumps) + len(recon.rocks)})
+    c0 = time.process_time()
+    obs_t = _render_truth(truth, planner.config.size_px)
+    cpu["render_s"] = time.process_time() - c0
+    rows = []
+    for kind in cfg.objectives:
+        row: dict[str, Any] = {**base, "objective": kind, "recon_error": recon_error}
+        c0 = time.process_time()
+        try:
+            best_t = plan(obs_t, planner, Objective(kind=kind), top_k=1, pile=truth).best
+        except PlannerError as exc:
+            best_t, row["truth_plan_error"] = None, str(exc)
+        best_r = None
+        if obs_r is not None:
+            try:
+                best_r = plan(obs_r, planner, Objective(kind=kind), top_k=1, pile=recon).best
+            except PlannerError as exc:
+                row["recon_plan_error"] = str(exc)
+        row["plan_cpu_s"] = time.process_time() - c0
+        c0 = time.process_time()
+        if best_t is not None:
+            row["truth"] = {"grasp": best_t.grasp.to_dict(), "targets": list(best_t.targets),
+                            **_execute(truth, best_t.grasp, best_t.targets)}
+        if best_r is not None:
+            g = grasp_to_truth_frame(best_r.grasp, recon, truth)
+            targets = [match.get(i) for i in best_r.targets]
+            entry = {"grasp": g.to_dict(), "grasp_recon_frame": best_r.grasp.to_dict(),
+                     "recon_targets": list(best_r.targets), "targets": targets}
+            if any(t is None for t in targets):
+                entry.update({"success": False, "outcome": "unmatched_target", "grasped": []})
+            else:
+                entry.update(_execute(truth, g, tuple(targets)))
+            row["recon"] = entry
+        row["trial_cpu_s"] = time.process_time() - c0
+        if best_t is not None and best_r is not None:
+            gt, gr = row["truth"]["grasp"], row["recon"]["grasp"]
+            row["diff"] = {
+                "position_m": math.hypot(gt["x_m"] - gr["x_m"], gt["y_m"] - gr["y_m"]),
+                "angle_deg": _angle_diff_deg(gt["phi_rad"], gr["phi_rad"]),
+                "width_m": gr["width_m"] - gt["width_m"],
+                "same_targets": sorted(row["truth"]["targets"]) == sorted(t for t in row["recon"]["targets"] if t is not None)
+                and None not in row["recon"]["targets"],
+            }
+        row["cpu_s"] = dict(cpu)
+        rows.append(row)
+    return rows
+
+
+# -- many piles ----------------------------------------------------------------------------------
+_WORKER: dict = {}
+
+
+def _model_path(cfg: RealTestConfig) -> Path:
+    from planner.cli import DEFAULT_MODEL
+
+    return Path(cfg.model or DEFAULT_MODEL)
+
+
+def _worker_init(model: str, threads: int | None) -> None:
+    from planner.inference import load_planner
+
+    if threads is not None:
+        import torch
+
+        torch.set_num_threads(threads)
+    _WORKER["planner"] = load_planner(model, device="cpu")
+
+
+def _worker_pile(seed: int, work_dir: str, cfg: RealTestConfig) -> list[dict]:
+    return real_test_pile(seed, work_dir, _WORKER["planner"], cfg)
+
+
+def _record(cfg: RealTestConfig, model: Path, model_sha: str, rows: list[dict], failures: list[str],
+            wall_s: float, cpu_s: float) -> dict:
+    rows = sorted(rows, key=lambda r: (r["seed"], r["objective"]))
+    return {
+        "format": REAL_TEST_FORMAT, "format_version": REAL_TEST_VERSION,
+        "config": asdict(cfg), "model": {"path": str(model), "sha256": model_sha},
+        "rows": rows, "failures": failures, "piles_done": len({r["seed"] for r in rows}),
+        "summary": {kind: summarize([r for r in rows if r["objective"] == kind]) for kind in cfg.objectives},
+        "wall_s": wall_s, "cpu_s_main_process": cpu_s,
+    }
+
+
+def _same_test(old: dict, cfg: RealTestConfig, model_sha: str) -> bool:
+    """Whether a stored record ran the same test (all settings but n_piles and workers, same model)."""
+    mine = {k: v for k, v in json.loads(json.dumps(asdict(cfg))).items() if k not in ("n_piles", "workers", "model")}
+    theirs = {k: v for k, v in old.get("config", {}).items() if k not in ("n_piles", "workers", "model")}
+    return mine == theirs and old.get("model", {}).get("sha256") == model_sha
+
+
+def run_real_test(cfg: RealTestConfig | None = None, work_dir: str | Path | None = None,
+                  progress: Callable[[str], None] | None = None, record_path: str | Path | None = None) -> dict:
+    """Run the real test on ``cfg.n_piles`` twin scans; returns the record (rows + summary).
+
+    ``work_dir``: where scans and reconstructions go (a temporary folder, removed, when None).
+    ``record_path``: the record is written there after every pile (an interrupted run keeps what
+    it measured), and a record already there from the same test and the same model (by its
+    sha256) is resumed: its piles are not run again."""
+    from synth.dataset import sha256_file
+
+    cfg = cfg or RealTestConfig()
+    say = progress or (lambda s: None)
+    model = _model_path(cfg)
+    if not model.exists():
+        raise FieldError(f"planner model {model} not found; pass --model PATH to a checkpoint")
+    model_sha = sha256_file(model)
+    t0, c0 = time.perf_counter(), time.process_time()
+    seeds = [cfg.seed + k for k in range(cfg.n_piles)]
+    rows: list[dict] = []
+    failures: list[str] = []
+    if record_path is not None and Path(record_path).exists():
+        old = read_real_test(record_path)
+        if _same_test(old, cfg, model_sha):
+            rows = [r for r in old["rows"] if r["seed"] in seeds]
+            failures = [f for f in old.get("failures", []) if int(f.split()[1].rstrip(":")) in seeds]
+            done = {r["seed"] for r in rows} | {int(f.split()[1].rstrip(":")) for f in failures}
+            say(f"resuming {record_path}: {len(done)} piles done")
+            seeds = [s for s in seeds if s not in done]
+
+    def save() -> None:
+        if record_path is not None:
+            write_real_test(_record(cfg, model, model_sha, rows, failures, time.perf_counter() - t0,
+                                    time.process_time() - c0), record_path)
+
+    tmp = None
+    if work_dir is None:
+        tmp = tempfile.mkdtemp(prefix="loggrasp-real-test-")
+        work_dir = tmp
+    Path(work_dir).mkdir(parents=True, exist_ok=True)
+    try:
+        if cfg.workers == 1 and seeds:
+            _worker_init(str(model), None)
+            for k, seed in enumerate(seeds):
+                say(f"pile {k + 1}/{len(seeds)} (seed {seed})")
+                try:
+                    rows += _worker_pile(seed, str(work_dir), cfg)
+                except Exception as exc:  # a pile the generator or the twin could not make
+                    failures.append(f"seed {seed}: {type(exc).__name__}: {exc}")
+                save()
+        elif seeds:
+            from concurrent.futures import ProcessPoolExecutor, as_completed
+            import multiprocessing as mp
+
+            with ProcessPoolExecutor(cfg.workers, mp_context=mp.get_context("spawn"), initializer=_worker_init,
+                                     initargs=(str(model), 1)) as pool:
+                futures = {pool.submit(_worker_pile, s, str(work_dir), cfg): s for s in seeds}
+                for k, fut in enumerate(as_completed(futures)):
+                    seed = futures[fut]
+                    try:
+                        rows += fut.result()
+                    except Exception as exc:
+                        failures.append(f"seed {seed}: {type(exc).__name__}: {exc}")
+                    save()
+                    say(f"pile {k + 1}/{len(seeds)} (seed {seed}) done")
+    finally:
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
+    rec = _record(cfg, model, model_sha, rows, failures, time.perf_counter() - t0, time.process_time() - c0)
+    save()
+    return rec
+
+
+def summarize(rows: list[dict]) -> dict:
+    """Success rates, their difference and the grasp differences over rows of one objective.
+
+    Piles whose truth plan failed (no grasp) are left out; a failed reconstruction or plan on
+    it counts as a failed grasp."""
+    rows = [r for r in rows if "truth" in r]
+    n = len(rows)
+    if n == 0:
+        return {"n_piles": 0}
+    s_t = np.array([bool(r["truth"]["success"]) for r in rows], dtype=float)
+    s_r = np.array([bool(r.get("recon", {}).get("success", False)) for r in rows], dtype=float)
+    p_t, p_r = float(s_t.mean()), float(s_r.mean())
+    # standard error of the paired difference from the discordant piles, each count plus one half
+    # (Agresti-Min style: no false certainty when few piles disagree)
+    b = float(((s_t == 1) & (s_r == 0)).sum()) + 0.5
+    c = float(((s_t == 0) & (s_r == 1)).sum()) + 0.5
+    se_diff = math.sqrt(max(b + c - (c - b) ** 2 / n, 0.0)) / n
+    diffs = [r["diff"] for r in rows if "diff" in r]
+
+    def stats(v: list[float]) -> dict:
+        a = np.asarray(v, dtype=float)
+        if a.size == 0:
+            return {"median": None, "p90": None, "max": None}
+        return {"median": float(np.median(a)), "p90": float(np.percentile(a, 90)), "max": float(a.max())}
+
+    half95 = 1.96 * se_diff
+    diff_pp = 100 * (p_r - p_t)
+    if abs(diff_pp) + 100 * half95 <= 3.0:
+        verdict = "within 3 pp (95 % interval inside +-3 pp)"
+    elif abs(diff_pp) - 100 * half95 > 3.0:
+        verdict = "NOT within 3 pp (95 % interval outside +-3 pp)"
+    else:
+        verdict = "not resolved at this number of piles (95 % interval wider than the 3 pp margin)"
+    return {
+        "n_piles": n,
+        "success_truth": p_t, "success_truth_se": math.sqrt(p_t * (1 - p_t) / n),
+        "success_recon": p_r, "success_recon_se": math.sqrt(p_r * (1 - p_r) / n),
+        "difference_pp": diff_pp, "difference_se_pp": 100 * se_diff,
+        "difference_ci95_pp": [diff_pp - 100 * half95, diff_pp + 100 * half95],
+        "verdict": verdict,
+        "outcome_agreement": float(np.mean(s_t == s_r)),
+        "both_succeed": int(((s_t == 1) & (s_r == 1)).sum()), "only_truth": int(((s_t == 1) & (s_r == 0)).sum()),
+        "only_recon": int(((s_t == 0) & (s_r == 1)).sum()), "neither": int(((s_t == 0) & (s_r == 0)).sum()),
+        "reconstruction_failures": sum(r.get("recon_error") is not None for r in rows),
+        "unmatched_targets": sum(r.get("recon", {}).get("outcome") == "unmatched_target" for r in rows),
+        "same_targets": (float(np.mean([x["same_targets"] for x in diffs])) if diffs else None),
+        "position_diff_m": stats([x["position_m"] for x in diffs]),
+        "angle_diff_deg": stats([x["angle_deg"] for x in diffs]),
+        "abs_width_diff_m": stats([abs(x["width_m"]) for x in diffs]),
+        "position_diff_same_targets_m": stats([x["position_m"] for x in diffs if x["same_targets"]]),
+        "angle_diff_same_targets_deg": stats([x["angle_deg"] for x in diffs if x["same_targets"]]),
+    }
+
+
+# -- the record --------------------------------------------------------------------------------
+def write_real_test(record: dict, path: str | Path) -> Path:
+    """Write a :func:`run_real_test` record as JSON, atomically. Returns the path."""
+    from synth.pile import atomic_write_bytes
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(path, json.dumps(record, indent=1, default=float).encode())
+    return path
+
+
+def read_real_test(path: str | Path) -> dict:
+    """Read a record written by :func:`write_real_test` (format and major version checked)."""
+    path = Path(path)
+    try:
+        d = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise FieldError(f"{path} is not a readable real-test record: {exc}") from exc
+    if not isinstance(d, dict) or d.get("format") != REAL_TEST_FORMAT:
+        raise FieldError(f"{path} is not a {REAL_TEST_FORMAT} record")
+    if str(d.get("format_version", "")).split(".")[0] != REAL_TEST_VERSION.split(".")[0]:
+        raise FieldError(f"{path}: real-test version {d.get('format_version')!r} is not supported "
+                         f"(reads {REAL_TEST_VERSION.split('.')[0]}.x)")
+    return d
