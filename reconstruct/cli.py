@@ -20,11 +20,16 @@ def scan_command(
     height: float = typer.Option(3.0, "--height", help="Camera height above the pile [m]."),
     hfov: float = typer.Option(50.0, "--hfov", help="Horizontal field of view [deg]."),
     pairs: str = typer.Option("2x2", "--pairs", help="Grid of stereo pairs over the pile, NXxNY (along x across)."),
+    unposed: bool = typer.Option(False, "--unposed", help="No camera poses: calibrations without T_pile_cam, no "
+                                 "scan_pose.json, the rig moved by hand between pairs (truth/poses.json keeps them)."),
+    handheld: bool | None = typer.Option(None, "--handheld/--grid", help="Move the rig between pairs like a handheld or "
+                                  "boom camera (default: with --unposed), or hold a straight-down grid."),
 ) -> None:
     """Make a field scan of a generated pile whose truth is known: a ZED 2-like stereo pair with its
     calibration, an RTK GNSS endpoint CSV with realistic noise, and the true pile kept apart in truth/.
 
     Example: loggrasp synth scan --seed 3 --logs 3-5 --site 64.1,20.0 --out scans/s3
+    Unposed (SfM + GNSS georegistration): loggrasp synth scan --seed 3 --unposed --out scans/s3u
     """
     from reconstruct.twin_scan import DEFAULT_SITE, make_twin_scan
     from synth.errors import SynthError
@@ -43,7 +48,7 @@ def scan_command(
             raise ValueError(f"--pairs must look like 2x2 (1..4 each), got {pairs!r}")
         path = make_twin_scan(out, seed, parse_range(logs, "--logs"), parse_range(obstacles, "--obstacles"),
                               packed=packed, site=site_t, n_float=float_fixes, height_m=height, hfov_deg=hfov,
-                              grid=grid)
+                              grid=grid, unposed=unposed, handheld=handheld)
     except (SynthError, ValueError) as exc:
         fail(str(exc))
     typer.echo(f"scan written to {path} (truth in {path / 'truth'})")
@@ -54,10 +59,15 @@ def reconstruct_command(
     gnss: Path = typer.Option(..., "--gnss", help="RTK endpoint survey CSV (see README)."),
     out: Path = typer.Option(..., "--out", help="Output folder: pile.json, ortho.npz, previews, report.json."),
     allow_float: bool = typer.Option(False, "--allow-float", help="Accept RTK float endpoints (not recommended)."),
+    pair_poses: str = typer.Option("auto", "--pair-poses", help="Where the pairs' poses come from: auto (the "
+                                   "calibrations' T_pile_cam, SfM when they have none), calibration, sfm (pycolmap)."),
+    georegister: str = typer.Option("auto", "--georegister", help="How the scan is placed in the site frame: auto "
+                                    "(scan_pose.json; from the GNSS ends for an unposed scan), scan-pose, gnss."),
 ) -> None:
     """Rebuild the scanned pile in the twin from a stereo scan and RTK GNSS log endpoints.
 
     Example: loggrasp reconstruct scans/s3/scan --gnss scans/s3/gnss.csv --out recon/s3
+    No poses at all (SfM + GNSS): loggrasp reconstruct scans/s3u/scan --gnss scans/s3u/gnss.csv --out recon/s3u
     """
     from rich.console import Console
     from rich.table import Table
@@ -69,8 +79,8 @@ def reconstruct_command(
     console = Console()
     try:
         with console.status("reconstructing") as status:
-            result = reconstruct(scan, gnss, out, ReconstructConfig(allow_float=allow_float),
-                                 progress=lambda s: status.update(s))
+            cfg = ReconstructConfig(allow_float=allow_float, pair_poses=pair_poses, georegister=georegister)
+            result = reconstruct(scan, gnss, out, cfg, progress=lambda s: status.update(s))
     except (ReconstructError, SynthError, ValueError) as exc:
         fail(str(exc))
     table = Table(title=f"{result.pile.n_logs} logs, {result.pile.n_obstacles} obstacles in {result.time_s:.1f} s")
@@ -82,6 +92,13 @@ def reconstruct_command(
     for row in logs:
         table.add_row(*[f"{row[k]:.3f}" if isinstance(row[k], float) else str(row[k]) for k in keys])
     console.print(table)
+    rep = result.report
+    reg = rep.get("registration", {})
+    line = f"scan pose: {rep.get('scan_pose_source')}; pair poses: {rep.get('pair_poses_source')}"
+    if "residual_rms_after_m" in reg:
+        line += (f"; GNSS residual RMS {reg.get('residual_rms_before_m', float('nan')):.3f} -> "
+                 f"{reg['residual_rms_after_m']:.3f} m")
+    typer.echo(line)
     typer.echo(f"wrote {out}/pile.json, ortho.npz, preview.png, compare.png, report.json")
 
 

@@ -53,3 +53,25 @@ class FitError(ReconstructError):
 class RegistrationError(ReconstructError):
     """The scan could not be aligned to the site frame (endpoints far from the scanned area,
     residuals too large, too few logs to constrain the transform)."""
+
+
+# --- unposed scans: pair poses from SfM (reconstruct.sfm), coarse georegistration (pipeline) ---
+
+
+class SfmError(ScanError):
+    """The stereo pairs' relative poses could not be recovered by structure from motion."""
+
+
+class SfmRegistrationError(SfmError):
+    """SfM placed too few images: some pairs do not overlap the others (or lack texture). The
+    message names them; re-take overlapping pairs, drop them, or give the pairs their poses."""
+
+
+class SfmScaleError(SfmError):
+    """The metric scale from the pairs' calibrated baselines is inconsistent across pairs."""
+
+
+class CoarseRegistrationError(RegistrationError):
+    """The scan could not be placed in the site frame from the GNSS end points alone: no ground
+    plane, no yaw that puts the surveyed logs on the scan, or two equally good yaws (a symmetric
+    pile). Give a scan pose (scan_pose.json), or survey a log that breaks the symmetry."""

@@ -34,14 +34,15 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 
-from reconstruct.errors import ReconstructError, RegistrationError
+from reconstruct.errors import ReconstructError, RegistrationError, ScanError
 from reconstruct.fit import FitConfig, PileFit, fit_log, fit_pile, log_spec_from_fit, natural_key
+from reconstruct.sfm import SfmConfig
 from reconstruct.stereo import ScanCloud, StereoConfig, scan_cloud
 from synth.frames import apply_T, invert_T, make_T
 from synth.pile import Georeference, PileSpec, atomic_write_bytes, write_pile
@@ -50,6 +51,8 @@ SCAN_POSE_FORMAT = "loggrasp.scan-pose"
 SCAN_POSE_VERSION = "1.0"
 REPORT_FORMAT = "loggrasp.reconstruction-report"
 REPORT_VERSION = "1.0"
+PAIR_POSES = ("auto", "calibration", "sfm")
+GEOREGISTER = ("auto", "scan-pose", "gnss")
 
 
 # -- the scan pose sidecar ---------------------------------------------------------------------
@@ -115,6 +118,13 @@ class ReconstructConfig:
     stereo: StereoConfig = field(default_factory=StereoConfig)
     fit: FitConfig = field(default_factory=FitConfig)
     scan_pose: ScanPose | None = None  # None: read scan_pose.json from the scan folder
+    pair_poses: str = "auto"  # "auto": the calibrations' T_pile_cam when every pair has one, else
+    #                           SfM; "calibration"; "sfm" (pycolmap, reconstruct.sfm)
+    georegister: str = "auto"  # "auto": the scan pose (scan_pose / scan_pose.json); for an unposed
+    #                            scan (no pair poses, no scan pose) from the GNSS end points;
+    #                            "scan-pose": a scan pose is required; "gnss": from the GNSS end points
+    sfm: SfmConfig = field(default_factory=SfmConfig)
+    coarse: "CoarseConfig" = field(default_factory=lambda: CoarseConfig())
     allow_float: bool = False  # accept RTK float end points
     max_endpoint_distance_m: float = 1.0  # an end point this far from every scan point is an error [m]
     refine: bool = True  # refine the scan pose against the GNSS end points
@@ -141,6 +151,10 @@ class ReconstructConfig:
             raise ValueError("min_extent_m must be in [1, 100] m")
         if self.refine_dof not in ("4dof", "6dof"):
             raise ValueError(f"refine_dof must be '4dof' or '6dof', got {self.refine_dof!r}")
+        if self.pair_poses not in PAIR_POSES:
+            raise ValueError(f"pair_poses must be one of {PAIR_POSES}, got {self.pair_poses!r}")
+        if self.georegister not in GEOREGISTER:
+            raise ValueError(f"georegister must be one of {GEOREGISTER}, got {self.georegister!r}")
         if self.refine_iterations < 1 or self.refine_rounds < 1:
             raise ValueError("refine_iterations and refine_rounds must be >= 1")
 
@@ -265,6 +279,208 @@ def refine_registration(points: np.ndarray, endpoints: dict[str, tuple[np.ndarra
     return T, report, fitted
 
 
+# -- coarse georegistration: the scan placed from the GNSS end points alone -----------------------
+@dataclass(frozen=True)
+class CoarseConfig:
+    """Coarse placement of a scan in the site frame from the GNSS end points alone (no scan pose):
+    ground plane -> vertical; yaw and horizontal shift by matching the surveyed log axes to the
+    scan's raised points; height from the ground under the logs (units in the names/comments)."""
+
+    voxel_m: float = 0.03  # cloud thinned to this first [m]
+    ground_distance_m: float = 0.04  # RANSAC ground-plane inlier distance [m]
+    ground_iterations: int = 2000  # RANSAC iterations [-]
+    min_ground_fraction: float = 0.15  # the dominant plane must hold this share of the points [-]
+    log_min_height_m: float = 0.05  # points this far above the ground plane may be logs [m]
+    log_max_height_m: float = 2.0  # ... and at most this far [m]
+    cell_m: float = 0.02  # raster cell of the yaw/shift search [m]
+    band_m: float = 0.05  # support of an axis sample: its depth inside the raised region, full at this [m]
+    end_trim_m: float = 0.15  # axis samples this close to a surveyed end are not used [m]
+    yaw_step_deg: float = 2.0  # coarse yaw grid [deg]
+    fine_step_deg: float = 0.25  # refined yaw grid around the best coarse yaw [deg]
+    min_support: float = 0.4  # mean support of the axis samples needed [-]
+    ambiguity_ratio: float = 0.9  # a distinct second yaw scoring this share of the best: error [-]
+    peak_separation_deg: float = 15.0  # yaws closer than this belong to one peak [deg]
+    refine_dof: str = "6dof"  # refinement after the coarse pose: the vertical came from the ground plane
+    max_correction_m: float = 0.30  # refinement limits after the coarse pose [m]
+    max_correction_deg: float = 5.0  # [deg]
+    seed: int = 0  # RANSAC seed [-]
+
+    def __post_init__(self) -> None:
+        for name in ("voxel_m", "ground_distance_m", "log_min_height_m", "cell_m", "band_m", "yaw_step_deg",
+                     "fine_step_deg", "peak_separation_deg", "max_correction_m", "max_correction_deg"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+        if not self.log_max_height_m > self.log_min_height_m:
+            raise ValueError("log_max_height_m must be > log_min_height_m")
+        if self.end_trim_m < 0 or self.ground_iterations < 10:
+            raise ValueError("end_trim_m must be >= 0 and ground_iterations >= 10")
+        for name in ("min_ground_fraction", "min_support", "ambiguity_ratio"):
+            if not 0 < getattr(self, name) <= 1:
+                raise ValueError(f"{name} must be in (0, 1], got {getattr(self, name)}")
+        if self.refine_dof not in ("4dof", "6dof"):
+            raise ValueError(f"refine_dof must be '4dof' or '6dof', got {self.refine_dof!r}")
+
+
+def _rot_z(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, -s], [s, c]])
+
+
+def _axis_samples(ends: dict[str, tuple[np.ndarray, np.ndarray]], step_m: float,
+                  trim_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Points along every surveyed axis (site frame, (N, 3)) and their log index."""
+    pts, owner = [], []
+    for k, (a, b) in enumerate(ends.values()):
+        L = float(np.linalg.norm(b[:2] - a[:2]))
+        if L <= 2 * trim_m:
+            continue
+        t = np.arange(trim_m, L - trim_m + 1e-9, step_m) / L
+        pts.append(a + np.outer(t, b - a))
+        owner.append(np.full(len(t), k))
+    if not pts:
+        raise RegistrationError("the surveyed logs are too short to place the scan from them")
+    return np.concatenate(pts), np.concatenate(owner)
+
+
+def coarse_scan_pose(points: np.ndarray, camera_positions: np.ndarray,
+                     ends_site: dict[str, tuple[np.ndarray, np.ndarray]],
+                     cfg: CoarseConfig | None = None) -> tuple[np.ndarray, dict]:
+    """``T_site_scan`` (4x4) of a scan whose pose is unknown, from the GNSS end points alone.
+
+    ``points``: the fused cloud (scan frame); ``camera_positions``: the pairs' left cameras
+    (scan frame; they tell which side of the ground is up); ``ends_site``: ``{log_id: (a, b)}``
+    log end centres in the site frame. Steps: the ground is the dominant plane (open3d
+    ``segment_plane``) -> the vertical; points raised above it are rasterised; for every yaw on
+    a grid the surveyed axes are rasterised and slid over that raster
+    (``cv2.matchTemplate``): the yaw and horizontal shift putting the most axis samples on
+    raised points wins (then a finer yaw grid); the height puts the lowest log on the ground
+    (a log's axis lies half its seen top height above the ground under it). Returns the pose and
+    a report (ground, scores, peaks). Raises :class:`CoarseRegistrationError` when there is no
+    ground plane, the best yaw supports too few axis samples, or a distinct second yaw scores
+    nearly as well (a symmetric pile: survey another log, or give a scan pose)."""
+    import cv2
+    import open3d as o3d
+
+    from reconstruct.errors import CoarseRegistrationError
+
+    cfg = cfg or CoarseConfig()
+    o3d.utility.random.seed(cfg.seed)
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, dtype=np.float64)))
+    pc = pc.voxel_down_sample(cfg.voxel_m)
+    P = np.asarray(pc.points)
+    if len(P) < 100:
+        raise CoarseRegistrationError(f"only {len(P)} scan points: too few to find the ground")
+    plane, inl = pc.segment_plane(cfg.ground_distance_m, 3, cfg.ground_iterations)
+    frac = len(inl) / len(P)
+    if frac < cfg.min_ground_fraction:
+        raise CoarseRegistrationError(
+            f"no dominant ground plane in the scan (the best plane holds {frac * 100:.0f} % of the points, need "
+            f"{cfg.min_ground_fraction * 100:.0f} %): the scan must show the ground around the pile, or give a "
+            "scan pose (scan_pose.json)")
+    n, d = np.asarray(plane[:3], dtype=np.float64), float(plane[3])
+    norm = float(np.linalg.norm(n))
+    n, d = n / norm, d / norm
+    cams = np.atleast_2d(np.asarray(camera_positions, dtype=np.float64))
+    if len(cams) and np.median(cams @ n + d) < 0:  # the cameras are above the ground
+        n, d = -n, -d
+    # R_level: the shortest rotation taking n to +z
+    z = np.array([0.0, 0.0, 1.0])
+    v, c = np.cross(n, z), float(n @ z)
+    vx = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    R_level = np.eye(3) + vx + vx @ vx / (1 + c) if c > -0.999999 else np.diag([1.0, -1.0, -1.0])
+    T_level_scan = make_T(R_level, (0.0, 0.0, d))  # level z = height above the ground plane
+    Q = apply_T(T_level_scan, P)
+    raised = Q[(Q[:, 2] > cfg.log_min_height_m) & (Q[:, 2] < cfg.log_max_height_m)]
+    if len(raised) < 50:
+        raise CoarseRegistrationError("the scan shows (almost) nothing above the ground plane: no logs to match")
+    # raster of raised points (level frame), dilated by the band
+    lo = raised[:, :2].min(0) - 0.5
+    hi = raised[:, :2].max(0) + 0.5
+    shape = tuple(int(v) for v in np.ceil((hi - lo) / cfg.cell_m)[::-1] + 1)  # rows (y), cols (x)
+    occ = np.zeros(shape, np.uint8)
+    ij = np.floor((raised[:, :2] - lo) / cfg.cell_m).astype(np.int64)
+    occ[ij[:, 1], ij[:, 0]] = 1
+    occ = cv2.morphologyEx(occ, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
+    # how deep inside the raised region a cell lies: largest on a log's centre line (its axis seen from
+    # above), so a surveyed axis scores most when it runs along the middle of a log, not just across one
+    inside = cv2.distanceTransform(occ, cv2.DIST_L2, 5) * cfg.cell_m
+    occ = (np.clip(inside, 0.0, cfg.band_m) / cfg.band_m).astype(np.float32)
+    samples, owner = _axis_samples(ends_site, cfg.cell_m, cfg.end_trim_m)
+    centre = samples[:, :2].mean(0)
+    rel = samples[:, :2] - centre
+
+    def score(yaw: float) -> tuple[float, np.ndarray]:
+        a = rel @ _rot_z(-yaw).T  # axis samples in the level frame, up to a shift
+        amin = a.min(0)
+        idx = np.floor((a - amin) / cfg.cell_m).astype(np.int64)
+        th, tw = int(idx[:, 1].max()) + 1, int(idx[:, 0].max()) + 1
+        if th >= occ.shape[0] or tw >= occ.shape[1]:
+            return 0.0, np.zeros(2)
+        tmpl = np.zeros((th, tw), np.float32)
+        np.add.at(tmpl, (idx[:, 1], idx[:, 0]), 1.0)
+        res = cv2.matchTemplate(occ, tmpl, cv2.TM_CCORR)
+        _, best, _, loc = cv2.minMaxLoc(res)
+        # level position of the samples' centre: template origin + (centre - amin)
+        u = lo + np.array(loc, dtype=np.float64) * cfg.cell_m - amin
+        return float(best) / len(a), u
+
+    yaws = np.radians(np.arange(-180.0, 180.0, cfg.yaw_step_deg))
+    coarse = [score(float(y)) for y in yaws]
+    sc = np.array([c[0] for c in coarse])
+    i_best = int(np.argmax(sc))
+    sep = np.radians(cfg.peak_separation_deg)
+    dist = np.abs((yaws - yaws[i_best] + np.pi) % (2 * np.pi) - np.pi)
+    peak = (sc >= np.roll(sc, 1)) & (sc >= np.roll(sc, -1))  # local maxima (circular)
+    other = peak & (dist > sep)
+    second = float(sc[other].max()) if other.any() else 0.0
+    y_second = float(yaws[other][int(np.argmax(sc[other]))]) if other.any() else math.nan
+    fine = np.radians(np.arange(-cfg.yaw_step_deg, cfg.yaw_step_deg + 1e-9, cfg.fine_step_deg)) + yaws[i_best]
+    best_yaw, (best, u) = max(((float(y), score(float(y))) for y in fine), key=lambda t: t[1][0])
+    report = {
+        "ground_plane_scan": [float(v) for v in (*n, d)], "ground_fraction": float(frac),
+        "raised_points": int(len(raised)), "axis_samples": int(len(samples)),
+        "yaw_deg": math.degrees(best_yaw), "support": best,
+        "second_peak_yaw_deg": math.degrees(y_second) if np.isfinite(y_second) else None,
+        "second_peak_support": second,
+        "yaw_scores": {"step_deg": cfg.yaw_step_deg, "support": [round(float(v), 4) for v in sc]},
+    }
+    if best < cfg.min_support:
+        raise CoarseRegistrationError(
+            f"no yaw puts the surveyed logs on the scan: at best {best * 100:.0f} % of the axis samples lie on "
+            f"raised scan points (need {cfg.min_support * 100:.0f} %). The survey belongs to another pile, the "
+            "scan misses part of it, or the ground was not found; give a scan pose (scan_pose.json)")
+    if second >= cfg.ambiguity_ratio * best:
+        raise CoarseRegistrationError(
+            f"the scan fits the surveyed logs almost equally well at yaw {math.degrees(best_yaw):.0f} deg "
+            f"({best * 100:.0f} % support) and {math.degrees(y_second):.0f} deg ({second * 100:.0f} %): the pile "
+            "looks (nearly) symmetric from above. Survey a log that breaks the symmetry, or give a scan pose "
+            "(scan_pose.json)")
+    # height: a log's axis lies half its seen top height above the ground under it, if it lies on the
+    # ground; logs on other logs give higher grounds, so the lowest log sets the height
+    R2 = _rot_z(best_yaw)
+    t_xy = centre - R2 @ u  # site_xy = R2 @ level_xy + t_xy
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(raised[:, :2])
+    lvl = (samples[:, :2] - t_xy) @ R2  # = R2.T @ (site - t)
+    grounds = []
+    for k in np.unique(owner):
+        sel = owner == k
+        nb = tree.query_ball_point(lvl[sel], 0.03)
+        tops = [float(np.max(raised[j, 2])) for j in nb if len(j)]
+        if len(tops) >= 5:
+            h_top = float(np.median(tops))
+            grounds.append(float(np.median(samples[sel, 2])) - h_top / 2)
+    if not grounds:
+        raise CoarseRegistrationError("no surveyed log has raised scan points along its axis")
+    dz = float(min(grounds))
+    T_site_level = np.eye(4)
+    T_site_level[:2, :2] = R2
+    T_site_level[:3, 3] = (t_xy[0], t_xy[1], dz)
+    report["ground_height_site_m"] = dz
+    return T_site_level @ T_level_scan, report
+
+
 def _point_sigma(p: Any) -> float:
     """1-sigma 3-D accuracy [m] of a GNSS point: its receiver estimates (and epoch scatter), or
     typical RTK values (fixed 1.5/2.5 cm, float 25/40 cm) when unknown."""
@@ -342,17 +558,55 @@ def comparison_image(points: np.ndarray, colours: np.ndarray, obs: Any, scale: i
 
 
 # -- the pipeline -----------------------------------------------------------------------------
-def _pose(scan_dir: Path, cfg: ReconstructConfig) -> tuple[ScanPose, str]:
+def _pose(scan_dir: Path, cfg: ReconstructConfig, unposed: bool = False) -> tuple[ScanPose | None, str]:
+    """The given scan pose and where it came from; ``(None, "gnss-coarse")`` when it is to be
+    found from the GNSS end points (``georegister="gnss"``, or "auto" for an unposed scan)."""
+    if cfg.georegister == "gnss":
+        return None, "gnss-coarse"
     if cfg.scan_pose is not None:
         return cfg.scan_pose, "config"
     path = scan_dir / "scan_pose.json"
     if not path.exists():
+        if cfg.georegister == "auto" and unposed:
+            return None, "gnss-coarse"
         raise RegistrationError(
             f"{scan_dir} has no scan_pose.json and no scan pose was given: the scan cannot be placed in "
             "the site frame. Write one with reconstruct.pipeline.write_scan_pose (site origin + "
-            "T_site_scan of the scan frame) or pass ReconstructConfig(scan_pose=...)"
+            "T_site_scan of the scan frame), pass ReconstructConfig(scan_pose=...), or place it from the "
+            "GNSS end points (ReconstructConfig(georegister='gnss'), loggrasp reconstruct --georegister gnss)"
         )
     return read_scan_pose(path), str(path)
+
+
+def _scan(scan_dir: Path, cfg: ReconstructConfig, say: Callable[[str], None]) -> tuple[ScanCloud, str, dict | None]:
+    """The fused cloud (scan frame), where the pair poses came from ("calibration", "sfm",
+    "single pair") and the SfM report (None without SfM)."""
+    from reconstruct.sfm import camera_clouds, estimate_pair_poses, fuse_pairs, pair_has_pose
+    from reconstruct.stereo import find_pairs, read_pair
+
+    folders = find_pairs(scan_dir)
+    posed = [pair_has_pose(f / "calibration.yaml") for f in folders]
+    mode = cfg.pair_poses
+    if mode == "auto":
+        mode = "calibration" if all(posed) or len(folders) == 1 else "sfm"
+    if mode == "calibration":
+        if len(folders) > 1 and not all(posed):
+            missing = [f.name for f, ok in zip(folders, posed) if not ok]
+            raise ScanError(f"pairs {missing} have no T_pile_cam in calibration.yaml; estimate the pair poses "
+                            "by SfM (pair_poses='sfm' / --pair-poses sfm) or add them")
+        return scan_cloud(scan_dir, cfg.stereo, progress=say), ("calibration" if all(posed) else "single pair"), None
+    if len(folders) < 2:
+        raise ScanError(f"{scan_dir} holds one stereo pair: SfM needs two or more (pair_poses='calibration')")
+    say(f"reading {len(folders)} pairs")
+    pairs = [read_pair(f) for f in folders]
+    t = time.perf_counter()
+    clouds = camera_clouds(pairs, cfg.stereo, progress=say)
+    t_match = time.perf_counter() - t
+    poses = estimate_pair_poses(pairs, cfg.sfm, clouds=clouds, progress=say)
+    cloud = fuse_pairs(pairs, poses.T_scan_cam, cfg.stereo, clouds=clouds, progress=say)
+    cloud.timings_s["match_s"] = t_match
+    cloud.timings_s["total_s"] += t_match
+    return cloud, "sfm", poses.to_dict()
 
 
 def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path,
@@ -380,18 +634,36 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
     timings: dict[str, float] = {}
     t_start = time.perf_counter()
 
+    from reconstruct.sfm import pair_has_pose
+    from reconstruct.stereo import find_pairs
+
     say(f"reading survey {gnss_path}")
-    pose, pose_source = _pose(scan_dir, cfg)
-    survey = read_gnss(gnss_path, allow_float=cfg.allow_float, area=pose.origin)
+    unposed = not any(pair_has_pose(f / "calibration.yaml") for f in find_pairs(scan_dir))
+    pose, pose_source = _pose(scan_dir, cfg, unposed=unposed)
+    survey = read_gnss(gnss_path, allow_float=cfg.allow_float, area=None if pose is None else pose.origin)
+    origin = survey.default_origin() if pose is None else pose.origin
     ends_site = {k: (np.asarray(a, float), np.asarray(b, float))
-                 for k, (a, b) in survey.endpoints_site(pose.origin).items()}
+                 for k, (a, b) in survey.endpoints_site(origin).items()}
     sigmas = {k: tuple(_point_sigma(survey.point(k, end)) for end in ("a", "b")) for k in ends_site}
     timings["survey_s"] = time.perf_counter() - t_start
 
     t = time.perf_counter()
     say(f"matching stereo pairs in {scan_dir}")
-    cloud = scan_cloud(scan_dir, cfg.stereo, progress=say)
+    cloud, pair_pose_source, sfm_report = _scan(scan_dir, cfg, say)
     timings["stereo_s"] = time.perf_counter() - t
+    if sfm_report is not None:
+        timings["sfm_s"] = float(sfm_report["timings_s"].get("total_s", math.nan))
+
+    coarse_report = None
+    reg_cfg = cfg
+    if pose is None:
+        t = time.perf_counter()
+        say("placing the scan from the GNSS end points (ground plane, yaw search)")
+        T_coarse, coarse_report = coarse_scan_pose(cloud.points, cloud.camera_positions, ends_site, cfg.coarse)
+        pose = ScanPose(*origin, T_site_scan=tuple(tuple(float(v) for v in r) for r in T_coarse))
+        reg_cfg = replace(cfg, refine_dof=cfg.coarse.refine_dof, max_correction_m=cfg.coarse.max_correction_m,
+                          max_correction_deg=cfg.coarse.max_correction_deg)
+        timings["georegistration_s"] = time.perf_counter() - t
 
     # site frame, then the pile frame: site shifted to the centre of the logs, at ground level
     T_site_scan = pose.matrix()
@@ -421,7 +693,7 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
         best = None
         for k in range(cfg.refine_rounds):
             say(f"refining the scan pose against the GNSS end points (round {k + 1})")
-            T_k, rep_k, fp_k = refine_registration(apply_T(T_corr, pts[near]), ends, cfg, sigmas)
+            T_k, rep_k, fp_k = refine_registration(apply_T(T_corr, pts[near]), ends, reg_cfg, sigmas)
             rounds.append({key: rep_k[key] for key in (
                 "correction_m", "correction_deg", "residual_rms_before_m", "residual_rms_after_m")})
             if best is not None and rep_k["residual_rms_after_m"] >= best:
@@ -475,6 +747,7 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
         "scan_dir": str(scan_dir), "gnss": str(gnss_path), "pairs": cloud.pairs,
         "n_points": int(len(cloud.points)), "matched_fraction": cloud.valid_fractions,
         "scan_pose_source": pose_source, "site_origin": list(pose.origin),
+        "pair_poses_source": pair_pose_source, "sfm": sfm_report, "coarse_registration": coarse_report,
         "T_site_scan_given": T_site_scan.tolist(), "T_site_scan_refined": T_site_scan_refined.tolist(),
         "T_site_pile": T_site_pile.tolist(), "extent_m": extent,
         "registration": reg_report, "endpoint_scan_distance_m": coverage,

@@ -12,13 +12,23 @@ kept apart::
     DIR/gnss.csv                            RTK endpoints (SWEREF 99), realistic noise, a few float fixes
     DIR/truth/pile.json                     the ground-truth pile (georeferenced)
     DIR/truth/pair_NNN_depth.npz            ground-truth depth and instances of each left image
+    DIR/truth/poses.json                    true left-camera pose of every pair (T_pile_cam)
     DIR/scan.json                           what was made, and how
+
+An *unposed* scan (``unposed=True``, ``loggrasp synth scan --unposed``) is what a handheld or
+boom-mounted camera with no pose sensor brings back: the rig moved between pairs (grid positions
+jittered by ``jitter_m``, heights by ``jitter_height_m``, yaw by ``jitter_yaw_deg``, tilts about
+both image axes by ``jitter_tilt_deg``), the calibrations carry no ``T_pile_cam`` (neither
+``calibration.yaml`` nor ``zed.conf``; ``meta.json`` keeps the intrinsics only) and there is no
+``scan_pose.json``: the reconstruction has to recover the pair poses (SfM) and the scan's place
+in the site frame (from the GNSS end points). The truth keeps the true poses.
 
 It lives in :mod:`reconstruct` (not :mod:`synth`) because the GNSS CSV format is this package's.
 """
 
 from __future__ import annotations
 
+import io
 import json
 import math
 import os
@@ -46,7 +56,8 @@ def georeference_pile(pile: PileSpec, site: tuple[float, float, float], rng: np.
                                              T_site_pile=tuple(tuple(float(v) for v in row) for row in T)))
 
 
-def _rig_over_pile(pile: PileSpec, height_m: float, hfov_deg: float):
+def _rig_over_pile(pile: PileSpec, height_m: float, hfov_deg: float,
+                   image_size: tuple[int, int] = (1280, 720)):
     from synth.stereo import StereoRigConfig
 
     ends = np.array([e for log in pile.logs for e in log.endpoints_m()])
@@ -55,17 +66,77 @@ def _rig_over_pile(pile: PileSpec, height_m: float, hfov_deg: float):
     axes = np.array([log.axis()[:2] for log in pile.logs])
     axes *= np.sign(axes @ axes[0])[:, None]
     yaw = math.degrees(math.atan2(axes[:, 1].mean(), axes[:, 0].mean()))
-    return StereoRigConfig(height_m=height_m, hfov_deg=hfov_deg,
+    return StereoRigConfig(width_px=int(image_size[0]), height_px=int(image_size[1]), height_m=height_m,
+                           hfov_deg=hfov_deg,
                            target_m=(float(centre[0]), float(centre[1]), float(pile.terrain.height_at(*centre[:2]))),
                            yaw_deg=yaw)
+
+
+def _handheld_pose(rig, rng: np.random.Generator, jitter_m: float, jitter_height_m: float,
+                   jitter_yaw_deg: float, jitter_tilt_deg: float) -> np.ndarray:
+    """``T_pile_cam`` of a rig held by hand / on a boom near ``rig``'s straight-down pose: moved
+    horizontally (uniform within ``jitter_m``), up or down (``jitter_height_m``), turned about the
+    vertical (``jitter_yaw_deg``) and tilted about both image axes (``jitter_tilt_deg``)."""
+    from synth.frames import rot_z
+
+    T = rig.camera_pose()
+    ax, ay = np.radians(rng.uniform(-jitter_tilt_deg, jitter_tilt_deg, 2))
+    Rx = np.array([[1, 0, 0], [0, math.cos(ax), -math.sin(ax)], [0, math.sin(ax), math.cos(ax)]])
+    Ry = np.array([[math.cos(ay), 0, math.sin(ay)], [0, 1, 0], [-math.sin(ay), 0, math.cos(ay)]])
+    R = rot_z(math.radians(rng.uniform(-jitter_yaw_deg, jitter_yaw_deg))) @ T[:3, :3] @ Rx @ Ry
+    t = T[:3, 3] + np.array([*rng.uniform(-jitter_m, jitter_m, 2), rng.uniform(-jitter_height_m, jitter_height_m)])
+    return make_T(R, t)
+
+
+def _strip_pose(pair_dir: Path) -> None:
+    """Make a saved pair look like one from a camera with no pose sensor: calibration.yaml and
+    zed.conf without ``T_pile_cam``, meta.json without the rig's pose."""
+    import configparser
+
+    import cv2
+
+    from synth.stereo import CALIB_FORMAT_NAME, CALIB_FORMAT_VERSION, read_calibration_yaml
+
+    calib = read_calibration_yaml(pair_dir / "calibration.yaml")
+    fs = cv2.FileStorage("calibration.yaml", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY)
+    fs.write("format", CALIB_FORMAT_NAME)
+    fs.write("format_version", CALIB_FORMAT_VERSION)
+    fs.write("image_size", np.array(calib.image_size, dtype=np.int32).reshape(1, 2))
+    for key, value in (("K1", calib.K_left), ("D1", calib.D_left.reshape(1, 5)), ("K2", calib.K_right),
+                       ("D2", calib.D_right.reshape(1, 5)), ("R", calib.R), ("T", calib.T.reshape(3, 1))):
+        fs.write(key, value)
+    fs.write("baseline_m", calib.baseline_m)
+    atomic_write_bytes(pair_dir / "calibration.yaml", fs.releaseAndGetString().encode())
+    cfg = configparser.ConfigParser()
+    cfg.optionxform = str
+    cfg.read(pair_dir / "zed.conf")
+    if cfg.has_section("LOGGRASP"):
+        cfg.remove_option("LOGGRASP", "T_pile_cam")
+    buf = io.StringIO()
+    cfg.write(buf)
+    atomic_write_bytes(pair_dir / "zed.conf", buf.getvalue().encode())
+    meta = json.loads((pair_dir / "meta.json").read_text())
+    rig = meta.get("rig", {})
+    for key in ("height_m", "target_m", "yaw_deg", "tilt_deg", "T_pile_cam"):
+        rig.pop(key, None)
+    atomic_write_bytes(pair_dir / "meta.json", json.dumps(meta, indent=1).encode())
 
 
 def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5), obstacles: tuple[int, int] = (0, 2),
                    packed: bool = False, site: tuple[float, float, float] = DEFAULT_SITE,
                    n_float: int = 2, height_m: float = 3.0, hfov_deg: float = 50.0,
                    grid: tuple[int, int] = (2, 2), spacing_m: tuple[float, float] = (1.4, 1.0),
-                   pose_error_m: float = 0.03, pose_error_deg: float = 0.5) -> Path:
-    """Generate a pile, render its stereo pair and survey its log ends; write a scan folder.
+                   pose_error_m: float = 0.03, pose_error_deg: float = 0.5,
+                   unposed: bool = False, handheld: bool | None = None,
+                   image_size: tuple[int, int] = (1280, 720), jitter_m: float = 0.15,
+                   jitter_height_m: float = 0.2, jitter_yaw_deg: float = 8.0, jitter_tilt_deg: float = 4.0) -> Path:
+    """Generate a pile, render its stereo pairs and survey its log ends; write a scan folder.
+
+    ``unposed``: calibrations without ``T_pile_cam`` and no ``scan_pose.json`` (see the module
+    docstring). ``handheld`` (default: ``unposed``): the rig moves between pairs (``jitter_*``)
+    instead of holding a straight-down grid; the same seed gives the same images with or without
+    ``unposed``. ``image_size``: (width, height) [px]. The pile, the survey and the scan pose
+    error depend on ``seed`` only.
 
     Written into a temporary sibling folder and renamed into place (never half-written)."""
     from reconstruct.gnss import pile_endpoints_site, simulate_survey, write_gnss_csv
@@ -91,34 +162,51 @@ def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5
         from synth.stereo import StereoRenderer
 
         captured = dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds").replace("+00:00", "Z")
-        rig0 = _rig_over_pile(pile, height_m, hfov_deg)
+        rig0 = _rig_over_pile(pile, height_m, hfov_deg, image_size)
         yaw = math.radians(rig0.yaw_deg)
         along, across = np.array([math.cos(yaw), math.sin(yaw)]), np.array([-math.sin(yaw), math.cos(yaw)])
         nx, ny = grid
         centre = np.asarray(rig0.target_m[:2])
+        moving = unposed if handheld is None else bool(handheld)
+        # the rig's motion has its own stream: pile, survey and pose error do not depend on it
+        rig_rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x5CA7, 1]))
+        poses = {}
         with StereoRenderer(rig0.renderer) as renderer:
             for iy in range(ny):
                 for ix in range(nx):
                     k = iy * nx + ix
                     xy = centre + along * (ix - (nx - 1) / 2) * spacing_m[0] + across * (iy - (ny - 1) / 2) * spacing_m[1]
                     rig = replace(rig0, target_m=(float(xy[0]), float(xy[1]), float(pile.terrain.height_at(*xy))))
+                    if moving:
+                        T = _handheld_pose(rig, rig_rng, jitter_m, jitter_height_m, jitter_yaw_deg, jitter_tilt_deg)
+                        rig = replace(rig, T_pile_cam=tuple(tuple(float(v) for v in r) for r in T))
                     pair = renderer.render(pile, rig)
                     pair.meta.update({"camera": "ZED 2 (twin)", "captured_utc": captured})
                     pair_dir = pair.save(tmp / "scan" / f"pair_{k:03d}")
                     os.replace(pair_dir / "depth_left.npz", tmp / "truth" / f"pair_{k:03d}_depth.npz")
+                    poses[f"pair_{k:03d}"] = pair.calibration.T_pile_cam.tolist()
+                    if unposed:
+                        _strip_pose(pair_dir)
+        atomic_write_bytes(tmp / "truth" / "poses.json", json.dumps(
+            {"format": "loggrasp.twin-scan-poses", "format_version": SCAN_FORMAT_VERSION,
+             "frame": "pile (truth/pile.json)", "T_pile_cam": poses}, indent=1).encode())
         # the scan frame is the pile frame (the calibration's T_pile_cam); the crane knows where its
         # camera is only to a few centimetres / a fraction of a degree: perturb the true pose
         err_yaw = math.radians(rng.normal(0, pose_error_deg))
         err_t = np.array([*rng.normal(0, pose_error_m, 2), rng.normal(0, pose_error_m / 2)])
         T_site_scan = make_T(rot_z(err_yaw), err_t) @ pile.georef.matrix()
-        write_scan_pose(ScanPose(site[0], site[1], site[2], tuple(tuple(float(v) for v in r) for r in T_site_scan)),
-                        tmp / "scan" / "scan_pose.json")
+        if not unposed:
+            write_scan_pose(ScanPose(site[0], site[1], site[2], tuple(tuple(float(v) for v in r) for r in T_site_scan)),
+                            tmp / "scan" / "scan_pose.json")
         survey = simulate_survey(pile_endpoints_site(pile), pile.georef, rng, n_float=n_float)
         write_gnss_csv(survey, tmp / "gnss.csv")
         info = {"format": "loggrasp.twin-scan", "format_version": SCAN_FORMAT_VERSION, "seed": seed,
                 "n_logs": n_logs, "n_obstacles": n_obst, "packed": packed, "site": list(site),
                 "n_float": n_float, "rig": rig0.to_dict(), "pairs": nx * ny, "spacing_m": list(spacing_m),
-                "pose_error": {"sigma_m": pose_error_m, "sigma_deg": pose_error_deg}}
+                "pose_error": {"sigma_m": pose_error_m, "sigma_deg": pose_error_deg},
+                "image_size": list(image_size), "unposed": bool(unposed), "handheld": bool(moving),
+                "jitter": ({"m": jitter_m, "height_m": jitter_height_m, "yaw_deg": jitter_yaw_deg,
+                            "tilt_deg": jitter_tilt_deg} if moving else None)}
         atomic_write_bytes(tmp / "scan.json", json.dumps(info, indent=1, default=str).encode())
         if out.exists():
             shutil.rmtree(out)

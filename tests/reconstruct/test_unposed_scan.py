@@ -1,0 +1,163 @@
+"""Unposed scans: pair poses from pycolmap SfM, the scan placed in the site frame from the GNSS end
+points alone (coarse yaw/shift search + the usual refinement); clear errors when that cannot work."""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from reconstruct.errors import CoarseRegistrationError, ReconstructError, SfmRegistrationError
+from reconstruct.pipeline import CoarseConfig, ReconstructConfig, coarse_scan_pose, read_report, reconstruct
+from synth.frames import apply_T, invert_T, make_T, rot_z
+from synth.pile import LogSpec, PileSpec, TerrainSpec
+
+
+# -- coarse georegistration on exact geometry -----------------------------------------------------
+def _flat(extent: float = 5.0) -> TerrainSpec:
+    return TerrainSpec(extent_m=extent, resolution=32, amplitude_m=0.0,
+                       heights_m=tuple(tuple(0.0 for _ in range(32)) for _ in range(32)))
+
+
+def _scan_of(pile: PileSpec, T_site_pile: np.ndarray, noise_m: float = 0.003):
+    """Top-view points of ``pile`` in a camera-like scan frame (z down, turned, tilted 3 deg,
+    shifted), the camera position there, and the GNSS ends in the site frame."""
+    from reconstruct.fit import sample_top_view_points
+
+    pts = sample_top_view_points(pile, 250, noise_m, np.random.default_rng(1))
+    tilt = math.radians(3.0)
+    R_tilt = np.array([[1, 0, 0], [0, math.cos(tilt), -math.sin(tilt)], [0, math.sin(tilt), math.cos(tilt)]])
+    T_pile_scan = make_T(rot_z(0.7) @ R_tilt @ np.diag([1.0, -1.0, -1.0]), (0.3, -0.2, 3.0))  # a camera at 3 m
+    T_scan_pile = invert_T(T_pile_scan)
+    ends = {f"log{i}": tuple(apply_T(T_site_pile, np.stack(log.endpoints_m()))) for i, log in enumerate(pile.logs)}
+    return apply_T(T_scan_pile, pts), np.zeros((1, 3)), ends, T_pile_scan
+
+
+def test_coarse_pose_from_gnss_ends():
+    pile = PileSpec(terrain=_flat(), logs=(
+        LogSpec.from_endpoints((-1.0, -0.4, 0.08), (1.0, -0.4, 0.08), 0.16),
+        LogSpec.from_endpoints((-0.9, 0.5, 0.07), (1.1, 0.3, 0.07), 0.14),
+        LogSpec.from_endpoints((-0.6, -1.0, 0.233), (-0.4, 1.0, 0.233), 0.14),
+    ))
+    T_site_pile = make_T(rot_z(math.radians(130.0)), (12.0, -4.0, 0.5))
+    pts, cams, ends, T_pile_scan = _scan_of(pile, T_site_pile)
+    T, rep = coarse_scan_pose(pts, cams, ends)
+    probe = np.array([[1.0, 1.0, 0.0], [-1.0, -1.0, 0.2], [1.0, -1.0, 0.1]])
+    err = np.linalg.norm(apply_T(T @ invert_T(T_pile_scan), probe) - apply_T(T_site_pile, probe), axis=1)
+    assert err.max() < 0.08, (err, rep)  # the refinement takes it from here (limits 0.3 m / 5 deg)
+    assert rep["support"] > 0.8 and rep["second_peak_support"] < 0.9 * rep["support"]
+
+
+def test_symmetric_pile_is_an_error_not_a_guess():
+    # two equal parallel logs: turned by 180 deg the pile looks the same from above
+    pile = PileSpec(terrain=_flat(), logs=(
+        LogSpec.from_endpoints((-1.0, -0.35, 0.08), (1.0, -0.35, 0.08), 0.16),
+        LogSpec.from_endpoints((-1.0, 0.35, 0.08), (1.0, 0.35, 0.08), 0.16),
+    ))
+    pts, cams, ends, _ = _scan_of(pile, make_T(rot_z(0.3), (2.0, 1.0, 0.0)))
+    with pytest.raises(CoarseRegistrationError, match="almost equally well.*symmetric"):
+        coarse_scan_pose(pts, cams, ends)
+
+
+def test_survey_of_another_pile_is_named():
+    pile = PileSpec(terrain=_flat(), logs=(LogSpec.from_endpoints((-1.0, 0.0, 0.08), (1.0, 0.0, 0.08), 0.16),))
+    pts, cams, _, _ = _scan_of(pile, np.eye(4))
+    star = {f"s{k}": (np.array([0.0, 0.0, 0.1]), np.array([1.5 * math.cos(a), 1.5 * math.sin(a), 0.1]))
+            for k, a in enumerate((0.0, 2.1, 4.2))}
+    with pytest.raises(CoarseRegistrationError, match="no yaw puts the surveyed logs on the scan"):
+        coarse_scan_pose(pts, cams, star)
+    with pytest.raises(CoarseRegistrationError, match="no dominant ground plane"):
+        rng = np.random.default_rng(0)
+        coarse_scan_pose(rng.uniform(-2, 2, (5000, 3)), cams, star)
+    with pytest.raises(ValueError):
+        CoarseConfig(ambiguity_ratio=1.5)
+    with pytest.raises(ValueError):
+        ReconstructConfig(pair_poses="gps")
+
+
+# -- an unposed twin scan end to end ------------------------------------------------------------
+SEED = 7
+
+
+@pytest.fixture(scope="module")
+def scans(tmp_path_factory):
+    """The same handheld scan twice: unposed (made through the CLI) and with its poses."""
+    from typer.testing import CliRunner
+
+    from field.cli import app
+    from reconstruct.twin_scan import make_twin_scan
+
+    d = tmp_path_factory.mktemp("unposed")
+    res = CliRunner().invoke(app, ["synth", "scan", "--out", str(d / "u"), "--seed", str(SEED), "--logs", "3-3",
+                                   "--obstacles", "0-0", "--float-fixes", "0", "--unposed"])
+    assert res.exit_code == 0, res.output
+    posed = make_twin_scan(d / "p", SEED, logs=(3, 3), obstacles=(0, 0), n_float=0, handheld=True)
+    return d / "u", posed, d
+
+
+def test_unposed_scan_files(scans):
+    from reconstruct.sfm import pair_has_pose
+
+    u, p, _ = scans
+    assert not (u / "scan" / "scan_pose.json").exists() and (p / "scan" / "scan_pose.json").exists()
+    for k in range(4):
+        assert not pair_has_pose(u / "scan" / f"pair_{k:03d}" / "calibration.yaml")
+        assert pair_has_pose(p / "scan" / f"pair_{k:03d}" / "calibration.yaml")
+        assert (u / "scan" / f"pair_{k:03d}" / "left.png").read_bytes() == \
+            (p / "scan" / f"pair_{k:03d}" / "left.png").read_bytes()
+        assert "T_pile_cam" not in (u / "scan" / f"pair_{k:03d}" / "zed.conf").read_text()
+    poses = json.loads((u / "truth" / "poses.json").read_text())["T_pile_cam"]
+    heights = [T[2][3] for T in poses.values()]
+    assert len(poses) == 4 and np.ptp(heights) > 0.01  # the rig moved between pairs
+
+
+def test_unposed_scan_reconstructs_like_the_posed_one(scans):
+    from reconstruct.compare import compare_piles
+    from synth.pile import read_pile
+
+    u, p, d = scans
+    truth = read_pile(u / "truth" / "pile.json")
+    res_u = reconstruct(u / "scan", u / "gnss.csv", d / "out_u")
+    rep = read_report(d / "out_u")
+    assert rep["scan_pose_source"] == "gnss-coarse" and rep["pair_poses_source"] == "sfm"
+    assert rep["registration"]["residual_rms_after_m"] < 0.03
+    assert rep["sfm"]["scale_spread"] < 0.05
+    # SfM poses against the truth (relative to the first pair)
+    true = {k: np.asarray(v) for k, v in json.loads((u / "truth" / "poses.json").read_text())["T_pile_cam"].items()}
+    for k, T in rep["sfm"]["T_scan_cam"].items():
+        T_true = invert_T(true["pair_000"]) @ true[k]
+        assert np.linalg.norm(np.asarray(T)[:3, 3] - T_true[:3, 3]) < 0.02, k
+    res_p = reconstruct(p / "scan", p / "gnss.csv", d / "out_p")
+    assert res_p.report["scan_pose_source"].endswith("scan_pose.json")
+    cu, cp = compare_piles(truth, res_u.pile), compare_piles(truth, res_p.pile)
+    assert cu["summary"]["n_matched"] == 3
+    assert cu["summary"]["endpoint_err_m"]["max"] < 0.06, cu["logs"]
+    assert cu["summary"]["endpoint_err_m"]["median"] < 0.04, cu["logs"]
+    dia_u = {e["truth_index"]: e["diameter_err_m"] for e in cu["logs"]}
+    dia_p = {e["truth_index"]: e["diameter_err_m"] for e in cp["logs"]}
+    assert all(abs(dia_u[i] - dia_p[i]) < 0.01 for i in dia_p), (dia_u, dia_p)
+
+
+def test_a_pair_that_overlaps_nothing_is_named(scans, tmp_path):
+    from reconstruct.twin_scan import make_twin_scan
+
+    u, _, _ = scans
+    bad = tmp_path / "bad"
+    shutil.copytree(u / "scan", bad)
+    other = make_twin_scan(tmp_path / "other", SEED + 50, logs=(3, 3), obstacles=(0, 0), n_float=0,
+                           grid=(1, 1), unposed=True)
+    shutil.rmtree(bad / "pair_003")
+    shutil.copytree(other / "scan" / "pair_000", bad / "pair_003")
+    with pytest.raises(SfmRegistrationError, match="pair_003") as info:
+        reconstruct(bad, u / "gnss.csv", tmp_path / "o")
+    assert isinstance(info.value, ReconstructError)
+    # a posed-only request on an unposed scan says what to do
+    with pytest.raises(ReconstructError, match="pair_poses='sfm'|no T_pile_cam"):
+        reconstruct(u / "scan", u / "gnss.csv", tmp_path / "o2", ReconstructConfig(pair_poses="calibration"))
+    with pytest.raises(ReconstructError, match="no scan_pose.json"):
+        reconstruct(u / "scan", u / "gnss.csv", tmp_path / "o3", replace(ReconstructConfig(), georegister="scan-pose"))
