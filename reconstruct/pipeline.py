@@ -5,11 +5,18 @@
 1. **Survey** (:mod:`reconstruct.gnss`): the log end points, checked (RTK fixed, both ends of
    every log, no outliers), in the *site frame* (ENU at ``site_origin``).
 2. **Scan** (:mod:`reconstruct.stereo`): the fused point cloud of every pair, in the *scan
-   frame* (the frame of the calibrations' ``T_pile_cam``).
+   frame* (the frame of the calibrations' ``T_pile_cam``). When the pairs carry no pose (a
+   handheld/boom camera without a pose sensor; ``pair_poses``), their poses come from pycolmap
+   SfM anchored to each pair's stereo depth (:mod:`reconstruct.sfm`) and the scan frame is the
+   first pair's left camera.
 3. **Scan pose**: ``T_site_scan`` places the scan in the site frame. It comes from the config,
    or from ``scan_pose.json`` in the scan folder (:func:`write_scan_pose` /
    :func:`read_scan_pose`; e.g. the crane's own RTK/IMU pose of the camera, or a survey of the
-   rig). Every GNSS end point must then lie within ``max_endpoint_distance_m`` (horizontally) of
+   rig), or — for an unposed scan, or ``georegister="gnss"`` — from the GNSS end points alone
+   (:func:`coarse_scan_pose`: ground plane, yaw and shift search; the site origin is then the
+   mean surveyed point, and the refinement below runs in 6 DoF). ``report.json`` names the
+   source (``scan_pose_source``: "config", the scan_pose.json path, or "gnss-coarse"). Every
+   GNSS end point must then lie within ``max_endpoint_distance_m`` (horizontally) of
    scan points — otherwise the scan and the survey are of different places, or a log id is
    wrong, and the error names the point.
 4. **Registration refinement**: each log is fitted to the scan around its GNSS axis; the rigid
@@ -624,6 +631,8 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
     ``GnssError``, ``RegistrationError``, ``FitError``) naming the file, log or point at fault.
     """
     from reconstruct.gnss import read_gnss
+    from reconstruct.sfm import pair_has_pose
+    from reconstruct.stereo import find_pairs
     from synth.render import OrthoRenderConfig, render_ortho
     from synth.preview import preview_image, write_png
     from synth.world import World
@@ -633,9 +642,6 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
     scan_dir, out_dir = Path(scan_dir), Path(out_dir)
     timings: dict[str, float] = {}
     t_start = time.perf_counter()
-
-    from reconstruct.sfm import pair_has_pose
-    from reconstruct.stereo import find_pairs
 
     say(f"reading survey {gnss_path}")
     unposed = not any(pair_has_pose(f / "calibration.yaml") for f in find_pairs(scan_dir))

@@ -14,6 +14,7 @@ import pytest
 
 from reconstruct.errors import CoarseRegistrationError, ReconstructError, SfmRegistrationError
 from reconstruct.pipeline import CoarseConfig, ReconstructConfig, coarse_scan_pose, read_report, reconstruct
+from reconstruct.sfm import SfmConfig
 from synth.frames import apply_T, invert_T, make_T, rot_z
 from synth.pile import LogSpec, PileSpec, TerrainSpec
 
@@ -82,6 +83,7 @@ def test_survey_of_another_pile_is_named():
 
 # -- an unposed twin scan end to end ------------------------------------------------------------
 SEED = 7
+FAST = ReconstructConfig(sfm=SfmConfig(max_image_size_px=960, max_features=2048))  # SIFT on smaller images
 
 
 @pytest.fixture(scope="module")
@@ -122,16 +124,18 @@ def test_unposed_scan_reconstructs_like_the_posed_one(scans):
 
     u, p, d = scans
     truth = read_pile(u / "truth" / "pile.json")
-    res_u = reconstruct(u / "scan", u / "gnss.csv", d / "out_u")
+    res_u = reconstruct(u / "scan", u / "gnss.csv", d / "out_u", FAST)
     rep = read_report(d / "out_u")
     assert rep["scan_pose_source"] == "gnss-coarse" and rep["pair_poses_source"] == "sfm"
     assert rep["registration"]["residual_rms_after_m"] < 0.03
     assert rep["sfm"]["scale_spread"] < 0.05
-    # SfM poses against the truth (relative to the first pair)
+    # SfM poses against the truth (relative to the first pair); SfM alone is off by 10-20 cm / 2-3 deg
     true = {k: np.asarray(v) for k, v in json.loads((u / "truth" / "poses.json").read_text())["T_pile_cam"].items()}
     for k, T in rep["sfm"]["T_scan_cam"].items():
         T_true = invert_T(true["pair_000"]) @ true[k]
-        assert np.linalg.norm(np.asarray(T)[:3, 3] - T_true[:3, 3]) < 0.02, k
+        dR = T_true[:3, :3].T @ np.asarray(T)[:3, :3]
+        assert np.linalg.norm(np.asarray(T)[:3, 3] - T_true[:3, 3]) < 0.06, k
+        assert math.degrees(math.acos(min(1.0, (np.trace(dR) - 1) / 2))) < 1.5, k
     res_p = reconstruct(p / "scan", p / "gnss.csv", d / "out_p")
     assert res_p.report["scan_pose_source"].endswith("scan_pose.json")
     cu, cp = compare_piles(truth, res_u.pile), compare_piles(truth, res_p.pile)
@@ -154,7 +158,7 @@ def test_a_pair_that_overlaps_nothing_is_named(scans, tmp_path):
     shutil.rmtree(bad / "pair_003")
     shutil.copytree(other / "scan" / "pair_000", bad / "pair_003")
     with pytest.raises(SfmRegistrationError, match="pair_003") as info:
-        reconstruct(bad, u / "gnss.csv", tmp_path / "o")
+        reconstruct(bad, u / "gnss.csv", tmp_path / "o", FAST)
     assert isinstance(info.value, ReconstructError)
     # a posed-only request on an unposed scan says what to do
     with pytest.raises(ReconstructError, match="pair_poses='sfm'|no T_pile_cam"):
