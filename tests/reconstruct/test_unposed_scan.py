@@ -118,6 +118,7 @@ def test_unposed_scan_files(scans):
     assert len(poses) == 4 and np.ptp(heights) > 0.01  # the rig moved between pairs
 
 
+@pytest.mark.slow
 def test_unposed_scan_reconstructs_like_the_posed_one(scans):
     from reconstruct.compare import compare_piles
     from synth.pile import read_pile
