@@ -185,7 +185,8 @@ def real_test_markdown(rec: dict) -> list[str]:
     cpu = [sum(r["cpu_s"].values()) + r["plan_cpu_s"] + r["trial_cpu_s"] for r in rows]
     lines = [
         "#### The real test: plan on the reconstruction, execute on the truth",
-        f"{len(piles)} twin scans (`loggrasp synth scan` piles, seeds {cfg['seed']}..{cfg['seed'] + cfg['n_piles'] - 1}, "
+        f"{len(piles)} twin scans{'' if len(piles) == cfg['n_piles'] else ' (of ' + str(cfg['n_piles']) + ' asked for; the run was stopped)'} "
+        f"(`loggrasp synth scan` piles, seeds {cfg['seed']}..{cfg['seed'] + cfg['n_piles'] - 1}, "
         f"{cfg['logs'][0]}-{cfg['logs'][1]} logs, {cfg['obstacles'][0]}-{cfg['obstacles'][1]} obstacles, "
         f"{cfg['grid'][0]}x{cfg['grid'][1]} pairs, RTK fixed), reconstructed; model `{Path(rec['model']['path']).name}` "
         f"(sha256 {rec['model']['sha256'][:12]}) plans on the reconstruction's re-render and on the truth's render; "

@@ -100,6 +100,8 @@ class FitConfig:
     ground_window_m: float = 1.0  # opening window; wider than any obstacle [m]
     ground_band_m: float = 0.06  # points within this above the opened surface are ground [m]
     obstacle_min_height_m: float = 0.08  # obstacle points lie this far above the ground [m]
+    obstacle_flank_height_m: float = 0.03  # a found obstacle takes in the points connected to it
+    #                                        at least this far above the ground (its flanks) [m]
     dbscan_eps_m: float = 0.06  # open3d DBSCAN neighbourhood [m]
     dbscan_min_points: int = 10  # open3d DBSCAN core size [-]
     obstacle_min_points: int = 30  # smaller clusters (voxels) are noise [-]; 30 voxels of 2 cm
@@ -113,6 +115,8 @@ class FitConfig:
     stump_flat_fraction: float = 0.3  # share of points in the top 4 cm for a stump [-]
     stump_max_circle_rms: float = 0.25  # circle-fit RMS of the top over its radius, stump [-]
     stump_min_aspect: float = 1.0  # a stump's height is at least this times its radius [-]
+    stump_min_cover: float = 0.6  # a stump's top radius is at least this share of the cluster's
+    #                               half extent (a rounded rock's top band is a small disc) [-]
     rock_max_vertices: int = 48  # convex hull vertices kept per rock [-]
     validate: bool = True  # load the pile into the twin and separate interpenetrating logs
     penetration_tolerance_m: float = 0.01  # allowed interpenetration [m]
@@ -129,9 +133,12 @@ class FitConfig:
         for name in ("axis_tolerance_m", "profile_tolerance_m", "inlier_band_m", "loss_scale_m",
                      "gnss_sigma_m", "log_clearance_m", "ground_window_m", "ground_band_m",
                      "obstacle_min_height_m", "dbscan_eps_m", "obstacle_min_size_m", "obstacle_voxel_m",
-                     "obstacle_merge_gap_m", "obstacle_sliver_m"):
+                     "obstacle_merge_gap_m", "obstacle_sliver_m", "obstacle_flank_height_m"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+        if self.obstacle_flank_height_m > self.obstacle_min_height_m:
+            raise ValueError(f"obstacle_flank_height_m ({self.obstacle_flank_height_m} m) must not exceed "
+                             f"obstacle_min_height_m ({self.obstacle_min_height_m} m)")
         if self.end_margin_m < 0 or self.taper_min_m < 0 or self.max_move_m < 0:
             raise ValueError("end_margin_m, taper_min_m and max_move_m must be >= 0")
         if not 0.002 <= self.profile_bin_m <= 0.05:
@@ -642,11 +649,15 @@ def _fill(grid: np.ndarray, have: np.ndarray) -> np.ndarray:
 
 # -- obstacles -------------------------------------------------------------------------------
 def find_obstacles(points: np.ndarray, terrain: TerrainSpec, cfg: FitConfig | None = None,
-                   logs: Sequence[LogSpec] = ()) -> tuple[list[StumpSpec], list[RockSpec], list[dict]]:
+                   logs: Sequence[LogSpec] = (), flank_points: np.ndarray | None = None,
+                   ) -> tuple[list[StumpSpec], list[RockSpec], list[dict]]:
     """Stumps and rocks from points above the terrain (already without log points).
 
     ``logs``: the fitted logs; two clusters with one of them between (a log lying across a rock
-    or against a stump hides a band of it) are one obstacle (:func:`_merge_across_logs`)."""
+    or against a stump hides a band of it) are one obstacle (:func:`_merge_across_logs`).
+    ``flank_points``: lower points (``obstacle_flank_height_m`` above the ground or more) that a
+    cluster takes in where they connect to it: the flanks of a half-buried rock, so that its size
+    is its footprint and not only the cap above ``obstacle_min_height_m``."""
     import open3d as o3d
 
     cfg = cfg or FitConfig()
@@ -659,6 +670,8 @@ def find_obstacles(points: np.ndarray, terrain: TerrainSpec, cfg: FitConfig | No
     labels = np.asarray(pc.cluster_dbscan(eps=cfg.dbscan_eps_m, min_points=cfg.dbscan_min_points))
     clusters = [Q[labels == lab] for lab in range(int(labels.max()) + 1 if labels.size else 0)]
     clusters = _merge_across_logs(clusters, logs, cfg)
+    if flank_points is not None and len(flank_points) and clusters:
+        clusters = _grow_into_flanks(clusters, np.asarray(flank_points, dtype=np.float64), cfg)
     stumps: list[StumpSpec] = []
     rocks: list[RockSpec] = []
     info: list[dict] = []
@@ -677,10 +690,12 @@ def find_obstacles(points: np.ndarray, terrain: TerrainSpec, cfg: FitConfig | No
         top_pts = C[h > top - 0.04]
         flat_frac = len(top_pts) / len(C)
         cx, cy, r, rms = _circle_fit_xy(top_pts[:, :2])
-        # a stump stands up: flat round top, height at least its radius; rocks are domes or slabs
+        # a stump stands up: flat round top as wide as the cluster, height at least its radius;
+        # rocks are domes or slabs
         is_stump = (flat_frac >= cfg.stump_flat_fraction and np.isfinite(r) and 0.03 <= r <= 1.0
                     and rms <= cfg.stump_max_circle_rms * r and 0.05 <= top <= 2.0
-                    and top >= cfg.stump_min_aspect * r and abs(cx) < half and abs(cy) < half)
+                    and top >= cfg.stump_min_aspect * r and abs(cx) < half and abs(cy) < half
+                    and r >= cfg.stump_min_cover * 0.5 * float(ext.max()))
         if is_stump:
             stumps.append(StumpSpec(position_m=(float(cx), float(cy)), height_m=float(np.clip(top, 0.05, 2.0)),
                                     bottom_radius_m=float(min(1.0, r * 1.1)), top_radius_m=float(r)))
@@ -692,6 +707,35 @@ def find_obstacles(points: np.ndarray, terrain: TerrainSpec, cfg: FitConfig | No
             info.append({"kind": "rock", "position_m": list(rock.position_m), "size_m": rock.size_m(),
                          "n_points": int(len(C)), "flat_fraction": flat_frac})
     return stumps, rocks, info
+
+
+def _grow_into_flanks(clusters: list[np.ndarray], flank: np.ndarray, cfg: FitConfig) -> list[np.ndarray]:
+    """Each cluster plus the flank points reachable from it in steps of ``dbscan_eps_m`` (region
+    growing on the voxel-downsampled flank points; a flank point joins the first cluster that
+    reaches it)."""
+    import open3d as o3d
+    from scipy.spatial import cKDTree
+
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(flank)).voxel_down_sample(cfg.obstacle_voxel_m)
+    F = np.asarray(pc.points)
+    if not len(F):
+        return clusters
+    tree = cKDTree(F)
+    taken = np.zeros(len(F), dtype=bool)
+    out = []
+    for C in clusters:
+        front = C
+        grown = [C]
+        while len(front):
+            hits = {j for row in tree.query_ball_point(front, cfg.dbscan_eps_m) for j in row}
+            new = np.array(sorted(j for j in hits if not taken[j]), dtype=np.int64)
+            if not len(new):
+                break
+            taken[new] = True
+            front = F[new]
+            grown.append(front)
+        out.append(np.vstack(grown))
+    return out
 
 
 def _log_sliver(C: np.ndarray, logs: Sequence[LogSpec], cfg: FitConfig) -> bool:
@@ -1004,7 +1048,10 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
     z_ground = terrain.height_at(rest[:, 0], rest[:, 1])
     above = rest[(~is_ground) & (rest[:, 2] > z_ground + cfg.obstacle_min_height_m)
                  & (np.abs(rest[:, 0]) < half) & (np.abs(rest[:, 1]) < half)]
-    stumps, rocks, info = find_obstacles(above, terrain, cfg, logs)
+    flank = rest[(rest[:, 2] > z_ground + cfg.obstacle_flank_height_m)
+                 & (rest[:, 2] <= z_ground + cfg.obstacle_min_height_m)
+                 & (np.abs(rest[:, 0]) < half) & (np.abs(rest[:, 1]) < half)]
+    stumps, rocks, info = find_obstacles(above, terrain, cfg, logs, flank_points=flank)
     timings["obstacles_s"] = time.perf_counter() - t2
     pile = PileSpec(terrain=terrain, logs=tuple(logs), stumps=tuple(stumps), rocks=tuple(rocks),
                     georef=georef, source="reconstructed", notes=notes)
