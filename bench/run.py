@@ -95,6 +95,7 @@ OPTIONAL = {  # module in bench/ -> function returning Markdown; skipped if the 
     "planner": ("bench_planner", "markdown"),
     "reconstruct": ("bench_reconstruct", "markdown"),
     "link": ("bench_link", "markdown"),
+    "unposed": ("bench_unposed", "markdown"),
 }
 
 
