@@ -42,8 +42,10 @@ are ground or obstacles. The ground is the grey-scale *opening* of the per-cell 
 (window ``ground_window_m``, wider than the obstacles) followed by the median of the points near
 that surface, on the :class:`TerrainSpec` grid; holes are filled (OpenCV ``inpaint``, Telea);
 the unseen ground under a log is lowered to the log's underside where needed. Points more than
-``obstacle_min_height_m`` above the ground are clustered with open3d's DBSCAN; a cluster with a
-flat, circular top at least its radius high is a stump (:class:`StumpSpec`, no roots: they are
+``obstacle_min_height_m`` above the ground are clustered with open3d's DBSCAN; each cluster then
+takes in the lower points (``obstacle_flank_height_m`` and up) connected to it, so a half-buried
+rock is sized by its footprint and not only by the cap above the threshold. A cluster with a
+flat, circular top at least its radius high, covering the cluster, is a stump (:class:`StumpSpec`, no roots: they are
 not visible), any other a rock (:class:`RockSpec`, the convex hull of its points extended down
 into the ground).
 
