@@ -48,7 +48,9 @@ from synth.pile import atomic_write_bytes
 
 DATASET_FORMAT_NAME = "loggrasp.grasp_dataset"
 SHARD_FORMAT_NAME = "loggrasp.grasp_shard"
-DATASET_FORMAT_VERSION = "1.0"
+DATASET_FORMAT_VERSION = "1.1"
+# 1.1: U marks each grasp's 20 x 20 cm graspable region around its centre (synth.maps); 1.0 marked
+# its whole footprint between the claw tips. 1.0 shards are re-encoded from their grasps on load.
 MANIFEST_NAME = "manifest.json"
 _SHARD_RE = re.compile(r"^shard_([A-Za-z0-9-]+)_(\d{5,})\.npz$")
 
@@ -309,6 +311,8 @@ def load_shard(path: str | Path) -> list[Sample]:
         starts, samples = arrays["grasp_start"], arrays["samples"]
         if len(samples) != int(meta["n_samples"]) or len(starts) != len(subsets) + 1:
             raise ValueError("array lengths disagree with the shard's metadata")
+        if meta.get("format_version") == "1.0":
+            arrays["maps"] = _reencode_1_0(path, arrays)
         out = []
         for p, q, k in samples:
             sm = subsets[k]
@@ -321,6 +325,32 @@ def load_shard(path: str | Path) -> list[Sample]:
     except (KeyError, IndexError, TypeError, ValueError) as exc:
         raise DatasetFormatError(f"shard {path} is inconsistent ({exc}); delete it and re-run the job") from exc
     return out
+
+
+def _reencode_1_0(path: Path, arrays: dict) -> np.ndarray:
+    """The maps of a format 1.0 shard encoded anew from its stored grasps: 1.0 marked a grasp's
+    whole footprint between the claw tips in U, 1.1 its graspable region (:mod:`synth.maps`).
+    The grid's extent comes from the shard's done record."""
+    from synth.frames import OrthoGrid
+    from synth.maps import encode_grasps
+
+    rec_path = done_record_path(path)
+    try:
+        extent_m = float(json.loads(rec_path.read_text())["stats"]["grid"]["extent_m"])
+    except (OSError, KeyError, TypeError, ValueError) as exc:
+        raise DatasetFormatError(
+            f"{path} is a format 1.0 shard; its maps are re-encoded from its grasps, which needs the image "
+            f"extent from its done record {rec_path.name} ({type(exc).__name__}: {exc}); regenerate the data set"
+        ) from exc
+    old = arrays["maps"]
+    grid = OrthoGrid(int(old.shape[-1]), extent_m)
+    starts, G = arrays["grasp_start"], arrays["grasps"]
+    maps = np.empty_like(old)
+    for k in range(len(old)):
+        rows = G[starts[k]:starts[k + 1]]
+        maps[k] = encode_grasps(grid, [Grasp(float(x), float(y), float(p), float(w)) for x, y, p, w, _ in rows],
+                                [float(r[4]) for r in rows])
+    return maps
 
 
 # ---------------------------------------------------------------------------------------------
@@ -681,7 +711,11 @@ def _prepare(out: Path, job: DatasetJob) -> dict[int, ShardInfo]:
     params = job.params()
     if (out / MANIFEST_NAME).exists():
         have = read_manifest(out).params
-        diff = [k for k in params if k != "n_piles" and have.get(k) != params[k]]
+        # a data set of an older minor format version is resumed: every shard carries its own
+        # version and is read accordingly (load_shard)
+        diff = [k for k in params if k not in ("n_piles", "format_version") and have.get(k) != params[k]]
+        if _major(have.get("format_version")) != _major(params["format_version"]):
+            diff.append("format_version")
         if diff:
             raise DatasetJobError(
                 f"{out} holds a data set made with other parameters ({', '.join(diff)} differ); "

@@ -26,8 +26,8 @@ def _angle_diff(a, b):
     return abs(float(wrap_phi(a - b)))
 
 
-def _sample(g):
-    maps = encode_grasps(GRID, [g], [0.9])
+def _sample(g, length_m: float = 0.2):
+    maps = encode_grasps(GRID, [g], [0.9], length_m=length_m)
     inten = np.random.default_rng(0).random((64, 64)).astype(np.float32)
     depth = np.full((64, 64), 5.0, np.float32)
     return inten, depth, maps[3] > 0, maps
@@ -64,7 +64,7 @@ def test_loss_rejects_bad_shapes():
 @pytest.mark.parametrize("flip", [False, True])
 def test_rotated_flipped_sample_decodes_to_transformed_grasp(theta, flip):
     g = Grasp(0.8, 0.5, 0.3, 0.9)
-    inten, depth, mask, maps = _sample(g)
+    inten, depth, mask, maps = _sample(g, length_m=0.9)  # a long region: its orientation is visible
     x, y, phi = g.x_m, g.y_m, g.phi_rad
     if flip:
         inten, depth, mask, maps = flip_lr(inten, depth, mask, maps)
@@ -79,7 +79,7 @@ def test_rotated_flipped_sample_decodes_to_transformed_grasp(theta, flip):
     # the whole-image decoder of synth.maps agrees with the transformed angle on every U pixel
     phis, _, u, _ = decode_maps(maps)
     assert all(_angle_diff(p, phi) < 1e-4 for p in phis[u > 0.5])
-    # the rectangle keeps its orientation: its long axis (closing axis) lies along the new phi
+    # the region keeps its orientation: its long axis (closing axis) lies along the new phi
     rows, cols = np.nonzero(maps[3] > 0.5)
     xs, ys = GRID.pixel_to_pile(rows, cols)
     pts = np.stack([xs - xs.mean(), ys - ys.mean()])

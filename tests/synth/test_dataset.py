@@ -327,8 +327,14 @@ def test_resume_after_killing_the_job_process(tmp_path):
 
     proc = subprocess.Popen([sys.executable, "-c", _KILL_SCRIPT, str(tmp_path)])
     try:
+        def listed() -> int:  # shards the manifest lists (0 before the first is rewritten)
+            try:
+                return len(read_manifest(tmp_path).shards)
+            except DatasetFormatError:
+                return 0
+
         deadline = time.monotonic() + 60
-        while not list(tmp_path.glob("shard_*.done.json")) and time.monotonic() < deadline:
+        while not listed() and time.monotonic() < deadline:
             if proc.poll() is not None:
                 pytest.fail("the job process ended before it could be killed")
             time.sleep(0.05)
@@ -337,8 +343,45 @@ def test_resume_after_killing_the_job_process(tmp_path):
         proc.wait()
     man = verify_dataset(tmp_path)  # consistent right after the kill
     assert len(man.shards) in (1, 2)
-    kept = {s.file: (tmp_path / s.file).read_bytes() for s in man.shards}
+    # every finished shard (done record written, listed or not yet) is kept as it is
+    done = [json.loads(r.read_text())["file"] for r in tmp_path.glob("shard_*.done.json")]
+    assert {s.file for s in man.shards} <= set(done)
+    kept = {f: (tmp_path / f).read_bytes() for f in done}
     man = build_dataset(tmp_path, n_piles=3, workers=1, simulate_factory=_fake_factory, **TINY)
     assert man.summary["complete"] and man.summary["piles"] == 3
     assert all((tmp_path / f).read_bytes() == b for f, b in kept.items())
     assert len(list(iter_samples(tmp_path))) == 3 * 3 * 2
+
+
+def _as_format_1_0(path, stats_grid=True):
+    """Rewrite a shard as format 1.0 wrote it: U marking each grasp's whole footprint."""
+    from synth.maps import rectangle_mask
+
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files}
+    meta = json.loads(bytes(arrays["meta"]).decode())
+    meta["format_version"] = "1.0"
+    arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8)
+    starts, G = arrays["grasp_start"], arrays["grasps"]
+    for k in range(len(arrays["maps"])):
+        for x, y, p, w, _ in G[starts[k]:starts[k + 1]]:
+            arrays["maps"][k, 3][rectangle_mask(GRID, Grasp(x, y, p, w))] = 1.0
+    np.savez_compressed(path, **arrays)
+    rec_path = ds.done_record_path(path)
+    rec = json.loads(rec_path.read_text())
+    rec["stats"] = {"grid": {"size_px": 32, "extent_m": 5.0}} if stats_grid else {}
+    rec_path.write_text(json.dumps(rec))
+
+
+def test_format_1_0_shards_are_re_encoded_from_their_grasps(tmp_path):
+    info = _write(tmp_path)[0]
+    path = tmp_path / info.file
+    new = {(x.subset, x.render): x.maps.copy() for x in load_shard(path)}
+    _as_format_1_0(path)
+    old = load_shard(path)
+    assert len(old) == len(new)
+    for x in old:  # the footprint U of 1.0 is gone: the maps are the 1.1 encoding of the same grasps
+        np.testing.assert_array_equal(x.maps, new[(x.subset, x.render)])
+    _as_format_1_0(path, stats_grid=False)
+    with pytest.raises(DatasetFormatError, match="format 1.0 shard.*extent"):
+        load_shard(path)

@@ -8,7 +8,8 @@ from hypothesis import strategies as st
 from synth.frames import OrthoGrid
 from synth.grasp import Grasp, RECT_WIDTH_M
 from synth.maps import (
-    MAP_CHANNELS, decode_at, decode_maps, denormalise_width, encode_grasps, normalise_width, rectangle_mask,
+    MAP_CHANNELS, U_BREADTH_M, U_LENGTH_M, decode_at, decode_maps, denormalise_width, encode_grasps, normalise_width,
+    rectangle_mask, region_mask,
 )
 
 GRID = OrthoGrid(128, 5.0)
@@ -40,8 +41,8 @@ def test_angle_is_pi_periodic_and_in_the_pile_frame():
     a = encode_grasps(GRID, [Grasp(0, 0, 0.3, 0.8)], [1.0])
     b = encode_grasps(GRID, [Grasp(0, 0, 0.3 + math.pi, 0.8)], [1.0])
     np.testing.assert_allclose(a[:2], b[:2], atol=1e-6)
-    # phi = pi/2 (closing along pile +y = image up/down): the rectangle is tall, not wide
-    maps = encode_grasps(GRID, [Grasp(0, 0, math.pi / 2, 1.2)], [1.0])
+    # phi = pi/2 (closing along pile +y = image up/down): a region long along the closing axis is tall
+    maps = encode_grasps(GRID, [Grasp(0, 0, math.pi / 2, 1.2)], [1.0], length_m=0.8)
     rows, cols = np.nonzero(maps[3])
     assert np.ptp(rows) > 3 * np.ptp(cols)
     phi, _, _, _ = decode_at(maps, *_pixel(GRID, 0, 0))
@@ -66,19 +67,33 @@ def test_negative_is_all_zero_and_outside_is_zero():
     assert not maps[:, off].any()
 
 
-def test_overlaps_union_and_nearest_centre_line_wins():
-    g1 = Grasp(0.0, 0.0, 0.0, 1.2)  # closing along x, centre line y = 0
-    g2 = Grasp(0.0, 0.12, 0.0, 0.6)  # centre line y = 0.12, overlaps g1 on 0.02 <= y <= 0.1
+def test_u_marks_the_graspable_region_not_the_footprint():
+    g = Grasp(0.4, 0.1, 0.7, 1.3)
+    u = encode_grasps(GRID, [g], [1.0])[3].astype(bool)
+    np.testing.assert_array_equal(u, region_mask(GRID, g))
+    area = u.sum() * GRID.pixel_m ** 2
+    assert area == pytest.approx(U_LENGTH_M * U_BREADTH_M, rel=0.3)
+    # a pixel 0.3 m from the centre along the closing axis is inside the footprint, not the region
+    a = g.closing_axis()
+    rc = _pixel(GRID, 0.4 + 0.3 * a[0], 0.1 + 0.3 * a[1])
+    assert rectangle_mask(GRID, g)[rc] and not u[rc]
+    with pytest.raises(ValueError, match="positive size"):
+        encode_grasps(GRID, [g], [1.0], length_m=0.0)
+
+
+def test_overlaps_union_and_nearest_centre_wins():
+    g1 = Grasp(0.0, 0.0, 0.0, 1.2)  # closing along x, centre (0, 0)
+    g2 = Grasp(0.12, 0.0, 0.0, 0.6)  # centre (0.12, 0): regions overlap on 0.02 <= x <= 0.1
     for order in ([g1, g2], [g2, g1]):
         bal = [0.9 if g is g1 else 0.5 for g in order]
         maps = encode_grasps(GRID, order, bal)
-        union = rectangle_mask(GRID, g1) | rectangle_mask(GRID, g2)
+        union = region_mask(GRID, g1) | region_mask(GRID, g2)
         np.testing.assert_array_equal(maps[3].astype(bool), union)
         X, Y = GRID.pixel_centres()
-        both = rectangle_mask(GRID, g1) & rectangle_mask(GRID, g2)
+        both = region_mask(GRID, g1) & region_mask(GRID, g2)
         assert both.any()
-        near1 = both & (np.abs(Y) < np.abs(Y - 0.12))
-        near2 = both & (np.abs(Y) > np.abs(Y - 0.12))
+        d1, d2 = np.hypot(X, Y), np.hypot(X - 0.12, Y)
+        near1, near2 = both & (d1 < d2), both & (d1 > d2)
         assert near1.any() and near2.any()
         assert np.allclose(maps[2][near1], 1.2) and np.allclose(maps[4][near1], 0.9)
         assert np.allclose(maps[2][near2], 0.6) and np.allclose(maps[4][near2], 0.5)
