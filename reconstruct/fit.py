@@ -104,6 +104,8 @@ class FitConfig:
     obstacle_min_height_m: float = 0.08  # obstacle points lie this far above the ground [m]
     obstacle_flank_height_m: float = 0.03  # a found obstacle takes in the points connected to it
     #                                        at least this far above the ground (its flanks) [m]
+    obstacle_flank_log_gap_m: float = 0.12  # ... but none this close to a log's footprint (stereo
+    #                                         smears log edges down to the ground there) [m]
     dbscan_eps_m: float = 0.06  # open3d DBSCAN neighbourhood [m]
     dbscan_min_points: int = 10  # open3d DBSCAN core size [-]
     obstacle_min_points: int = 30  # smaller clusters (voxels) are noise [-]; 30 voxels of 2 cm
@@ -135,7 +137,8 @@ class FitConfig:
         for name in ("axis_tolerance_m", "profile_tolerance_m", "inlier_band_m", "loss_scale_m",
                      "gnss_sigma_m", "log_clearance_m", "ground_window_m", "ground_band_m",
                      "obstacle_min_height_m", "dbscan_eps_m", "obstacle_min_size_m", "obstacle_voxel_m",
-                     "obstacle_merge_gap_m", "obstacle_sliver_m", "obstacle_flank_height_m"):
+                     "obstacle_merge_gap_m", "obstacle_sliver_m", "obstacle_flank_height_m",
+                     "obstacle_flank_log_gap_m"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
         if self.obstacle_flank_height_m > self.obstacle_min_height_m:
@@ -1053,6 +1056,8 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
     flank = rest[(rest[:, 2] > z_ground + cfg.obstacle_flank_height_m)
                  & (rest[:, 2] <= z_ground + cfg.obstacle_min_height_m)
                  & (np.abs(rest[:, 0]) < half) & (np.abs(rest[:, 1]) < half)]
+    if logs and len(flank):
+        flank = flank[_footprint_distance(flank[:, :2], logs) > cfg.obstacle_flank_log_gap_m]
     stumps, rocks, info = find_obstacles(above, terrain, cfg, logs, flank_points=flank)
     timings["obstacles_s"] = time.perf_counter() - t2
     pile = PileSpec(terrain=terrain, logs=tuple(logs), stumps=tuple(stumps), rocks=tuple(rocks),
