@@ -63,7 +63,9 @@ class SfmConfig:
     anchor_min_threshold_m: float = 0.01  # outlier threshold: 3 robust sigmas, at least this [m]
     anchor_max_threshold_m: float = 0.10  # ... and at most this [m]
     max_anchor_rms_m: float = 0.03  # a pair's stereo points farther (RMS) from the tracks: error [m]
-    num_threads: int = -1  # pycolmap threads; -1 = all cores [-]
+    num_threads: int = 1  # pycolmap threads [-]; 1 = deterministic (several threads gave a different
+    #                       model from run to run under load, one leaving a pair 11 shared points
+    #                       instead of ~340); -1 = all cores, ~30 % faster
     seed: int = 0  # pycolmap's RANSAC seed [-]
     rig: bool = True  # left + right as one rig frame with the calibrated R, T (metric, tied)
     keep_workdir: str | None = None  # copy the pycolmap database/model here (debugging) [path]
