@@ -22,6 +22,7 @@ def train_command(
     lr_schedule: str = typer.Option("cosine", "--lr-schedule", help="cosine (decays to 5 % of --lr) or constant."),
     base_channels: int = typer.Option(23, "--base-channels", help="U-Net width (23 ~ 4.0M parameters, the paper's size; 16 ~ 1.9M)."),
     no_depth: bool = typer.Option(False, "--no-depth", help="The paper's ablation: inputs (I, M_T) only."),
+    u_pos_weight: float = typer.Option(1.0, "--u-pos-weight", help="BCE weight of positive U pixels (1 = the paper's plain BCE; U marks ~0.3 % of pixels)."),
     seed: int = typer.Option(0, "--seed"),
     device: str = typer.Option("auto", "--device", help="auto, cpu or cuda."),
     precision: str = typer.Option("bf16", "--precision", help="bf16 (autocast) or fp32."),
@@ -37,6 +38,7 @@ def train_command(
 
     from planner.data import DataConfig
     from planner.errors import PlannerError
+    from planner.loss import LossWeights
     from planner.model import UNetConfig
     from planner.train import TrainConfig, train
     from synth.errors import SynthError
@@ -44,6 +46,7 @@ def train_command(
     try:
         in_ch = 2 if no_depth else 3
         cfg = TrainConfig(model=replace(UNetConfig(), base_channels=base_channels, in_channels=in_ch),
+                          loss=replace(LossWeights(), u_pos_weight=u_pos_weight),
                           data=replace(DataConfig(), in_channels=in_ch), epochs=epochs, batch_size=batch_size,
                           lr=lr, lr_schedule=lr_schedule, seed=seed, device=device, precision=precision,
                           max_steps_per_epoch=max_steps_per_epoch)
