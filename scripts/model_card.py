@@ -26,11 +26,13 @@ lines = [
     f"{100 * s['negative_fraction']:.0f} % negatives; split 80/20 by pile (seed {cfg['seed']}). See docs/dataset.md.",
     f"- Training: Adam lr {cfg['lr']}, batch {cfg['batch_size']}, {cfg['precision']} autocast on {log['device']}, "
     f"loss weights λ_B, λ_S, λ_C, λ_W = {cfg['loss']['lambda_b']}, {cfg['loss']['lambda_s']}, "
-    f"{cfg['loss']['lambda_c']}, {cfg['loss']['lambda_w']}; augmentations: flips, rotations, colour/light, noise.",
-    f"- Epochs run: {len(epochs)} (of {cfg['epochs']} planned; stopped for time); best validation loss "
+    f"{cfg['loss']['lambda_c']}, {cfg['loss']['lambda_w']}, BCE weight of positive U pixels "
+    f"{cfg['loss'].get('u_pos_weight', 1.0)}; learning rate schedule {cfg.get('lr_schedule', 'constant')}; "
+    "augmentations: flips, rotations, colour/light, noise.",
+    f"- Epochs run: {len(epochs)} (of {cfg['epochs']} planned); best validation loss "
     f"{best['val_loss']:.4f} at epoch {best['epoch']} (train loss then {best['train_loss']:.4f}). "
     f"Throughput {max(e['samples_per_s'] for e in epochs):.0f} samples/s at best on this 2-core CPU "
-    "(it fell to ~7 samples/s while other jobs competed for the cores).",
+    "(lower while other jobs shared the cores).",
     f"- Command: `{command}`",
     "",
     "![training curve](img/training_curve.png)",
