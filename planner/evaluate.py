@@ -300,8 +300,14 @@ def run_evaluation(specs: list[PlannerSpec], cfg: EvalConfig, out_dir: str | Pat
     params = {"format": "loggrasp.eval", "format_version": EVAL_FORMAT_VERSION, "config": asdict(cfg),
               "planners": [asdict(s) for s in specs]}
     pfile = out / "eval.json"
-    if pfile.exists() and json.loads(pfile.read_text()).get("config") != json.loads(json.dumps(asdict(cfg))):
-        raise ValueError(f"{out} holds an evaluation with another configuration; choose a new --out")
+    if pfile.exists():
+        # the same evaluation with more (or fewer) piles per cell reuses the records of the piles
+        # both share (a pile's seed depends on its cell and index only)
+        have = dict(json.loads(pfile.read_text()).get("config") or {})
+        want = json.loads(json.dumps(asdict(cfg)))
+        if {k: v for k, v in have.items() if k != "per_cell"} != {k: v for k, v in want.items() if k != "per_cell"}:
+            raise ValueError(f"{out} holds an evaluation with another configuration (only --per-cell may change "
+                             "when it is resumed); choose a new --out")
     atomic_write_bytes(pfile, json.dumps(params, indent=1).encode())
 
     tasks = cfg.tasks()

@@ -52,6 +52,12 @@ def test_other_configuration_refused(tmp_path):
     with pytest.raises(ValueError, match="another configuration"):
         run_evaluation([PlannerSpec("random")], EvalConfig(logs=(3,), obstacles=(False,), per_cell=1), tmp_path,
                        workers=1)
+    # more piles per cell extends the same evaluation: the first pile's record is kept as it is
+    first = sorted((tmp_path / "records").glob("*.json"))
+    kept = first[0].read_bytes()
+    tables = run_evaluation([PlannerSpec("random")], EvalConfig(logs=(2,), obstacles=(False,), per_cell=2), tmp_path,
+                            workers=1)
+    assert tables["planners"]["random"]["total"]["piles"] == 2 and first[0].read_bytes() == kept
 
 
 def test_bad_specs():
