@@ -384,7 +384,8 @@ def summarise(records: list[dict], cfg: EvalConfig, names: list[str]) -> dict:
         cells = {}
         for n, ob in cfg.cells():
             cells[f"{n}-{'yes' if ob else 'no'}"] = _stats([r for r in mine if r["n_logs"] == n and r["obstacles"] == ob])
-        by[name] = {"total": _stats(mine), "cells": cells}
+        rows = {("yes" if ob else "no"): _stats([r for r in mine if r["obstacles"] == ob]) for ob in cfg.obstacles}
+        by[name] = {"total": _stats(mine), "rows": rows, "cells": cells}
     return {"format": "loggrasp.eval-results", "format_version": EVAL_FORMAT_VERSION, "planners": by}
 
 
@@ -399,7 +400,11 @@ def tables_markdown(tables: dict, cfg: EvalConfig) -> str:
         for ob in cfg.obstacles:
             row = [f"{t['cells'][f'{n}-' + ('yes' if ob else 'no')]['success_rate'] * 100:.0f}%/"
                    f"{t['cells'][f'{n}-' + ('yes' if ob else 'no')]['avg_logs_success']:.1f}" for n in cfg.logs]
+            tot = t.get("rows", {}).get("yes" if ob else "no", t["total"])  # that row's piles
             lines.append(f"| {'yes' if ob else 'no'} | " + " | ".join(row) +
+                         f" | {tot['success_rate'] * 100:.0f}%/{tot['avg_logs_success']:.1f} |")
+        if len(cfg.obstacles) > 1:
+            lines.append("| all | " + " | ".join("" for _ in cfg.logs) +
                          f" | {t['total']['success_rate'] * 100:.0f}%/{t['total']['avg_logs_success']:.1f} |")
     lines.append("\n## Table 2 — planners and objectives\n")
     lines.append("| planner | success | avg. grasped logs | β_avg | piles |")
