@@ -9,7 +9,6 @@ re-runs the grasp trial (fast preset) on the stored pile:
 from __future__ import annotations
 
 import argparse
-import math
 from collections import defaultdict
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -25,10 +24,10 @@ def _trial(args) -> tuple[float, float, bool]:
     from synth.trial import TrialConfig, run_trial
 
     pile_path, (x, y, phi, w), subset, along, across = args
-    a = np.array([math.cos(phi), math.sin(phi)])
-    b = np.array([-a[1], a[0]])
-    cx, cy = np.array([x, y]) + along * a + across * b
-    r = run_trial(read_pile(pile_path), Grasp(float(cx), float(cy), float(phi), float(w)), subset, TrialConfig.fast())
+    g = Grasp(x, y, phi, w)
+    a = g.closing_axis()
+    cx, cy = np.array([x, y]) + along * a + across * np.array([-a[1], a[0]])
+    r = run_trial(read_pile(pile_path), Grasp(float(cx), float(cy), phi, w), subset, TrialConfig.fast())
     return along, across, r.outcome.name == "SUCCESS"
 
 

@@ -22,6 +22,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 def main() -> None:
     from planner.data import is_validation_pile, list_shards, load_samples, make_inputs, sample_arrays
     from planner.inference import load_planner
+    from synth.frames import wrap_phi
+    from synth.maps import decode_at
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("model", type=Path)
@@ -46,9 +48,10 @@ def main() -> None:
             rr, cc = np.nonzero(maps[3] > 0.5)
             dist.append(float(np.min(np.hypot(rr - r, cc - c))))
             if inside[-1]:
-                d = (np.arctan2(y[1][r, c], y[0][r, c]) - np.arctan2(maps[1][r, c], maps[0][r, c])) / 2
-                ang.append(abs(np.degrees((d + np.pi / 2) % np.pi - np.pi / 2)))
-                wid.append(abs(float(y[2][r, c] - maps[2][r, c])))
+                phi_p, w_p, _, _ = decode_at(y, r, c)
+                phi_t, w_t, _, _ = decode_at(maps, r, c)
+                ang.append(abs(float(np.degrees(wrap_phi(phi_p - phi_t)))))
+                wid.append(abs(w_p - w_t))
     p, n = np.array(pos), np.array(neg)
     auc = float(np.mean(p[:, None] > n[None, :])) if len(p) and len(n) else float("nan")
     print(f"| validation subsets | {len(p)} with a grasp, {len(n)} without |\n|---|---|")

@@ -76,7 +76,13 @@ def rectangle_mask(grid: OrthoGrid, grasp: Grasp, rect_width_m: float = RECT_WID
     """(H, W) bool: pixel centres inside the grasp rectangle, the footprint between the claw tips
     (``width_m`` x ``rect_width_m``); U marks the smaller :func:`region_mask`."""
     u, v = _local_coords(grid, grasp)
-    return (np.abs(u) <= grasp.width_m / 2 + _EPS) & (np.abs(v) <= rect_width_m / 2 + _EPS)
+    return _inside(u, v, grasp.width_m, rect_width_m)
+
+
+def _inside(u: np.ndarray, v: np.ndarray, length_m: float, breadth_m: float) -> np.ndarray:
+    """Pixel centres with grasp-local coordinates (u along the closing axis, v across) inside a
+    ``length_m`` x ``breadth_m`` rectangle centred on the grasp (edges count as inside)."""
+    return (np.abs(u) <= length_m / 2 + _EPS) & (np.abs(v) <= breadth_m / 2 + _EPS)
 
 
 def region_mask(grid: OrthoGrid, grasp: Grasp, length_m: float = U_LENGTH_M,
@@ -84,7 +90,7 @@ def region_mask(grid: OrthoGrid, grasp: Grasp, length_m: float = U_LENGTH_M,
     """(H, W) bool: pixel centres inside the grasp's graspable region (``length_m`` along the
     closing axis x ``breadth_m`` across, centred on (x, y)) — what U marks."""
     u, v = _local_coords(grid, grasp)
-    return (np.abs(u) <= length_m / 2 + _EPS) & (np.abs(v) <= breadth_m / 2 + _EPS)
+    return _inside(u, v, length_m, breadth_m)
 
 
 def encode_grasps(grid: OrthoGrid, grasps: Sequence[Grasp], balances: Sequence[float],
@@ -116,7 +122,7 @@ def encode_grasps(grid: OrthoGrid, grasps: Sequence[Grasp], balances: Sequence[f
     best = np.full((n, n), np.inf)  # distance to the winning grasp's centre per pixel [m]
     for g, b in zip(grasps, balances):
         u, v = _local_coords(grid, g)
-        inside = (np.abs(u) <= length_m / 2 + _EPS) & (np.abs(v) <= breadth_m / 2 + _EPS)
+        inside = _inside(u, v, length_m, breadth_m)
         d = np.hypot(u, v)
         win = inside & (d < best)  # strict: ties keep the grasp listed first
         best[win] = d[win]
