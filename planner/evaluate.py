@@ -297,8 +297,9 @@ def run_evaluation(specs: list[PlannerSpec], cfg: EvalConfig, out_dir: str | Pat
     out = Path(out_dir)
     rec_dir = out / "records"
     rec_dir.mkdir(parents=True, exist_ok=True)
+    fingerprints = {s.name: _fingerprint(s) for s in specs}
     params = {"format": "loggrasp.eval", "format_version": EVAL_FORMAT_VERSION, "config": asdict(cfg),
-              "planners": [asdict(s) for s in specs]}
+              "planners": [asdict(s) | {"model_sha256": fingerprints[s.name]} for s in specs]}
     pfile = out / "eval.json"
     if pfile.exists():
         # the same evaluation with more (or fewer) piles per cell reuses the records of the piles
@@ -310,15 +311,30 @@ def run_evaluation(specs: list[PlannerSpec], cfg: EvalConfig, out_dir: str | Pat
                              "when it is resumed); choose a new --out")
     atomic_write_bytes(pfile, json.dumps(params, indent=1).encode())
 
+    # resume per (pile, planner): a pile's record file keeps the planners it already has; a planner
+    # missing from it, or a U-Net record made with another checkpoint (sha256), is (re)run on it
     tasks = cfg.tasks()
-    todo = [t for t in tasks if not (rec_dir / f"{t[3]}.json").exists()]
+    kept: dict[int, list[dict]] = {}
+    todo: list[tuple[tuple, list[PlannerSpec]]] = []
+    for t in tasks:
+        have = _read_records(rec_dir / f"{t[3]}.json")
+        ok = {r["planner"]: r for r in have if r.get("model_sha256", "") == fingerprints.get(r["planner"])}
+        missing = [s for s in specs if s.name not in ok]
+        kept[t[3]] = [r for r in have if r["planner"] not in {s.name for s in missing}]
+        if missing:
+            todo.append((t, missing))
     done = len(tasks) - len(todo)
     if progress:
         progress(done, len(tasks))
 
     def finish(task, recs):
         nonlocal done
-        atomic_write_bytes(rec_dir / f"{task[3]}.json", json.dumps(recs).encode())
+        for r in recs:
+            r["model_sha256"] = fingerprints[r["planner"]]
+        merged = {r["planner"]: r for r in kept[task[3]] + recs}
+        order = [s.name for s in specs] + sorted(set(merged) - set(fingerprints))
+        atomic_write_bytes(rec_dir / f"{task[3]}.json",
+                           json.dumps([merged[n] for n in order if n in merged]).encode())
         done += 1
         if progress:
             progress(done, len(tasks))
@@ -333,7 +349,7 @@ def run_evaluation(specs: list[PlannerSpec], cfg: EvalConfig, out_dir: str | Pat
                                    dashboard_address=None, processes=True)
         client = Client(address or cluster)
         try:
-            futs = {client.submit(evaluate_pile, t, specs, cfg, pure=False): t for t in todo}
+            futs = {client.submit(evaluate_pile, t, sp, cfg, pure=False): t for t, sp in todo}
             for f in dask_completed(futs):
                 finish(futs[f], f.result())
         finally:
@@ -341,14 +357,14 @@ def run_evaluation(specs: list[PlannerSpec], cfg: EvalConfig, out_dir: str | Pat
             if cluster is not None:
                 cluster.close()
     elif workers == 1 or len(todo) <= 1:
-        for t in todo:
-            finish(t, evaluate_pile(t, specs, cfg))
+        for t, sp in todo:
+            finish(t, evaluate_pile(t, sp, cfg))
     else:
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor, as_completed
 
         with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
-            futs = {pool.submit(evaluate_pile, t, specs, cfg): t for t in todo}
+            futs = {pool.submit(evaluate_pile, t, sp, cfg): t for t, sp in todo}
             for f in as_completed(futs):
                 finish(futs[f], f.result())
 
@@ -361,6 +377,31 @@ def run_evaluation(specs: list[PlannerSpec], cfg: EvalConfig, out_dir: str | Pat
     except Exception as exc:  # a picture must not lose the numbers
         (out / "examples.err").write_text(str(exc))
     return tables
+
+
+def _fingerprint(spec: PlannerSpec) -> str:
+    """What a record must match to be reused: the checkpoint's sha256 for a U-Net, '' otherwise."""
+    if spec.kind != "unet" or not spec.model:
+        return ""
+    from synth.dataset import sha256_file
+
+    try:
+        return sha256_file(Path(spec.model))
+    except OSError as exc:
+        raise ValueError(f"cannot read the checkpoint {spec.model} of planner {spec.name!r}: {exc}") from exc
+
+
+def _read_records(path: Path) -> list[dict]:
+    if not path.exists():
+        return []
+    try:
+        recs = json.loads(path.read_text())
+        if not isinstance(recs, list) or not all(isinstance(r, dict) and "planner" in r for r in recs):
+            raise ValueError("not a list of planner records")
+    except ValueError as exc:
+        raise ValueError(f"evaluation record {path} is corrupt ({exc}); delete it to evaluate that pile "
+                         "again") from exc
+    return recs
 
 
 def _stats(recs: list[dict]) -> dict:

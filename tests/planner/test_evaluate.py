@@ -67,3 +67,42 @@ def test_bad_specs():
         from planner.evaluate import build_planner
 
         build_planner(PlannerSpec("magic"))
+
+
+def test_resume_adds_planners_and_reruns_records_of_another_checkpoint(tmp_path):
+    from dataclasses import replace
+
+    import torch
+
+    from planner.checkpoint import save_checkpoint
+    from planner.model import UNetConfig, build_unet
+
+    cfg = EvalConfig(logs=(2,), obstacles=(False,), per_cell=1)
+    out = tmp_path / "eval"
+    run_evaluation([PlannerSpec("random")], cfg, out, workers=1)
+    rec_file = next((out / "records").glob("*.json"))
+    random_rec = json.loads(rec_file.read_text())[0]
+
+    # a planner added later runs on the same pile; the random record is kept byte for byte
+    net_cfg = replace(UNetConfig.tiny(), size_px=cfg.size_px)
+    ckpt = tmp_path / "m.safetensors"
+    torch.manual_seed(0)
+    save_checkpoint(ckpt, build_unet(net_cfg), net_cfg, {})
+    unet = PlannerSpec("unet", model=str(ckpt), objective="f1")
+    run_evaluation([unet, PlannerSpec("random")], cfg, out, workers=1)
+    recs = {r["planner"]: r for r in json.loads(rec_file.read_text())}
+    assert recs["random"] == random_rec
+    sha1 = recs["unet-f1"]["model_sha256"]
+    assert len(sha1) == 64
+    assert json.loads((out / "eval.json").read_text())["planners"][0]["model_sha256"] == sha1
+
+    # another model written to the same path: its records are not reused
+    torch.manual_seed(1)
+    save_checkpoint(ckpt, build_unet(net_cfg), net_cfg, {})
+    run_evaluation([unet, PlannerSpec("random")], cfg, out, workers=1)
+    recs = {r["planner"]: r for r in json.loads(rec_file.read_text())}
+    assert recs["unet-f1"]["model_sha256"] not in ("", sha1) and recs["random"] == random_rec
+
+    rec_file.write_text("{not json")
+    with pytest.raises(ValueError, match="corrupt.*delete it"):
+        run_evaluation([PlannerSpec("random")], cfg, out, workers=1)
