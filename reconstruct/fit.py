@@ -677,6 +677,8 @@ def find_obstacles(points: np.ndarray, terrain: TerrainSpec, cfg: FitConfig | No
     clusters = _merge_across_logs(clusters, logs, cfg)
     if flank_points is not None and len(flank_points) and clusters:
         clusters = _grow_into_flanks(clusters, np.asarray(flank_points, dtype=np.float64), cfg)
+    if logs:
+        clusters = [_clip_log_smear(C, terrain, logs, cfg) for C in clusters]
     stumps: list[StumpSpec] = []
     rocks: list[RockSpec] = []
     info: list[dict] = []
@@ -743,6 +745,25 @@ def _grow_into_flanks(clusters: list[np.ndarray], flank: np.ndarray, cfg: FitCon
     return out
 
 
+def _clip_log_smear(C: np.ndarray, terrain: TerrainSpec, logs: Sequence[LogSpec], cfg: FitConfig) -> np.ndarray:
+    """A cluster whose points near a log (within ``obstacle_flank_log_gap_m`` of its top-view
+    footprint) stand higher above the ground than any of its points away from logs: those
+    heights are capped at the highest far point. Stereo smears a log's edge outwards at
+    heights between the log's top and the ground; on an obstacle beside the log the smear
+    would become a tall ridge of the obstacle, into which the log then seems to sink. A cluster
+    with fewer than ``dbscan_min_points`` points away from logs is left as it is."""
+    near = _footprint_distance(C[:, :2], logs) < cfg.obstacle_flank_log_gap_m
+    if not near.any() or int((~near).sum()) < cfg.dbscan_min_points:
+        return C
+    ground = terrain.height_at(C[:, 0], C[:, 1])
+    h = C[:, 2] - ground
+    cap = float(h[~near].max())
+    out = C.copy()
+    high = near & (h > cap)
+    out[high, 2] = ground[high] + cap
+    return out
+
+
 def _log_sliver(C: np.ndarray, logs: Sequence[LogSpec], cfg: FitConfig) -> bool:
     """True for a cluster that is a strip of log surface the fitted log does not explain (a
     log fitted a little too thin or too low): every point within ``obstacle_sliver_m`` of one
@@ -776,6 +797,9 @@ def _merge_across_logs(clusters: list[np.ndarray], logs: Sequence[LogSpec], cfg:
         return i
 
     trees = [cKDTree(C[:, :2]) for C in clusters]
+    axis_samples = np.vstack([log.endpoints_m()[0] + np.outer(np.linspace(0, 1, max(2, int(log.length_m / 0.05))),
+                                                             log.endpoints_m()[1] - log.endpoints_m()[0])
+                              for log in logs])
     for i in range(len(clusters)):
         for j in range(i + 1, len(clusters)):
             d, k = trees[i].query(clusters[j][:, :2], distance_upper_bound=cfg.obstacle_merge_gap_m)
@@ -784,12 +808,33 @@ def _merge_across_logs(clusters: list[np.ndarray], logs: Sequence[LogSpec], cfg:
             m = int(np.argmin(d))
             a, b = clusters[i][k[m], :2], clusters[j][m, :2]
             between = a + np.outer(np.linspace(0.25, 0.75, 5), b - a)
-            if (_footprint_distance(between, logs) < cfg.footprint_margin_m).any():
-                parent[root(j)] = root(i)
+            if not (_footprint_distance(between, logs) < cfg.footprint_margin_m).any():
+                continue
+            ri, rj = root(i), root(j)
+            if ri == rj:
+                continue
+            union = np.vstack([C for g, C in enumerate(clusters) if root(g) in (ri, rj)])
+            if not _hull_holds_a_log(union, axis_samples):
+                parent[rj] = ri
     groups: dict[int, list[np.ndarray]] = {}
     for i, C in enumerate(clusters):
         groups.setdefault(root(i), []).append(C)
     return [np.vstack(g) for g in groups.values()]
+
+
+def _hull_holds_a_log(C: np.ndarray, axis_samples: np.ndarray) -> bool:
+    """True when the obstacle that the points ``C`` would make (their convex hull down to the
+    ground) contains a point of a log's axis: two clusters on either side of a log that make
+    such a hull are two obstacles, not one that the log lies across (a log rests on top)."""
+    from scipy.spatial import Delaunay
+
+    below = C.copy()
+    below[:, 2] = C[:, 2].min() - 0.05
+    try:
+        tri = Delaunay(np.vstack([C, below]))
+    except Exception:  # flat or degenerate: no volume, holds nothing
+        return False
+    return bool((tri.find_simplex(axis_samples) >= 0).any())
 
 
 def _circle_fit_xy(xy: np.ndarray) -> tuple[float, float, float, float]:

@@ -131,3 +131,25 @@ def test_strip_along_a_log_is_not_an_obstacle():
     rock = _dome((0.0, 0.45), (0.25, 0.25), 0.25)
     stumps, rocks, info = find_obstacles(rock, _flat_terrain(), FitConfig(), logs=[log])
     assert len(stumps) + len(rocks) == 1, info
+
+
+def test_obstacles_either_side_of_a_log_on_the_ground_stay_two():
+    # a log lying on the ground between two rocks: one hull over both would swallow the log
+    log = LogSpec.from_endpoints((-1.0, 0.0, 0.1), (1.0, 0.0, 0.1), 0.2)
+    rocks_pts = np.vstack([_dome((0.0, 0.3), (0.2, 0.15), 0.25), _dome((0.0, -0.3), (0.2, 0.15), 0.25)])
+    stumps, rocks, info = find_obstacles(rocks_pts, _flat_terrain(), FitConfig(), logs=[log])
+    assert len(stumps) + len(rocks) == 2, info
+
+
+def test_stereo_smear_at_a_log_edge_does_not_raise_the_rock_beside_it():
+    # a low rock touching a log's side; the stereo edge smear puts a ridge of points at
+    # mid-log height just outside the log's footprint, connected to the rock
+    log = LogSpec.from_endpoints((-1.0, 0.0, 0.15), (1.0, 0.0, 0.15), 0.3)
+    rock = _dome((0.0, 0.45), (0.3, 0.3), 0.15)
+    X, Y = np.meshgrid(np.arange(-0.2, 0.2, 0.01), np.arange(0.17, 0.225, 0.01))
+    ridge = np.column_stack([X.ravel(), Y.ravel(), 0.26 - (Y.ravel() - 0.17) * 3.2])  # 26 cm down to 10 cm
+    stumps, rocks, info = find_obstacles(np.vstack([rock, ridge]), _flat_terrain(), FitConfig(), logs=[log])
+    assert len(rocks) == 1 and not stumps, info
+    r = rocks[0]
+    top = max(v[2] for v in r.vertices_m) + r.position_m[2]
+    assert top < 0.17, top  # the rock's own height (0.15), not the smear's (0.26)
