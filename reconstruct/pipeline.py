@@ -307,6 +307,8 @@ class CoarseConfig:
     min_support: float = 0.4  # mean support of the axis samples needed [-]
     ambiguity_ratio: float = 0.9  # a distinct second yaw scoring this share of the best: error [-]
     peak_separation_deg: float = 15.0  # yaws closer than this belong to one peak [deg]
+    height_ambiguity_ratio: float = 1.5  # ambiguous yaws: the chosen one's height spread must be
+    #                                      this many times smaller than every other's [-]
     refine_dof: str = "6dof"  # refinement after the coarse pose: the vertical came from the ground plane
     max_correction_m: float = 0.30  # refinement limits after the coarse pose [m]
     max_correction_deg: float = 5.0  # [deg]
@@ -321,6 +323,8 @@ class CoarseConfig:
             raise ValueError("log_max_height_m must be > log_min_height_m")
         if self.end_trim_m < 0 or self.ground_iterations < 10:
             raise ValueError("end_trim_m must be >= 0 and ground_iterations >= 10")
+        if not self.height_ambiguity_ratio >= 1:
+            raise ValueError(f"height_ambiguity_ratio must be >= 1, got {self.height_ambiguity_ratio}")
         for name in ("min_ground_fraction", "min_support", "ambiguity_ratio"):
             if not 0 < getattr(self, name) <= 1:
                 raise ValueError(f"{name} must be in (0, 1], got {getattr(self, name)}")
@@ -431,6 +435,27 @@ def coarse_scan_pose(points: np.ndarray, camera_positions: np.ndarray,
         u = lo + np.array(loc, dtype=np.float64) * cfg.cell_m - amin
         return float(best) / len(a), u
 
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(raised[:, :2])
+
+    def height_spread(yaw: float, u: np.ndarray) -> float:
+        """Median absolute deviation [m] of (surveyed axis height - scan top height under it) over
+        the axis samples: nearly constant (a radius and the ground offset) at the right yaw; at a
+        wrong one the survey's high logs land on low scan points and the other way round."""
+        R2 = _rot_z(yaw)
+        lvl = (samples[:, :2] - (centre - R2 @ u)) @ R2
+        nb = tree.query_ball_point(lvl, 0.03)
+        d = np.array([samples[k, 2] - float(np.max(raised[j, 2])) for k, j in enumerate(nb) if len(j)])
+        if len(d) < 0.3 * len(samples):
+            return math.inf
+        return float(np.median(np.abs(d - np.median(d))))
+
+    def refine_yaw(y0: float) -> tuple[float, float, np.ndarray]:
+        fine = np.radians(np.arange(-cfg.yaw_step_deg, cfg.yaw_step_deg + 1e-9, cfg.fine_step_deg)) + y0
+        y, (b, u) = max(((float(y), score(float(y))) for y in fine), key=lambda t: t[1][0])
+        return y, b, u
+
     yaws = np.radians(np.arange(-180.0, 180.0, cfg.yaw_step_deg))
     coarse = [score(float(y)) for y in yaws]
     sc = np.array([c[0] for c in coarse])
@@ -441,8 +466,7 @@ def coarse_scan_pose(points: np.ndarray, camera_positions: np.ndarray,
     other = peak & (dist > sep)
     second = float(sc[other].max()) if other.any() else 0.0
     y_second = float(yaws[other][int(np.argmax(sc[other]))]) if other.any() else math.nan
-    fine = np.radians(np.arange(-cfg.yaw_step_deg, cfg.yaw_step_deg + 1e-9, cfg.fine_step_deg)) + yaws[i_best]
-    best_yaw, (best, u) = max(((float(y), score(float(y))) for y in fine), key=lambda t: t[1][0])
+    best_yaw, best, u = refine_yaw(float(yaws[i_best]))
     report = {
         "ground_plane_scan": [float(v) for v in (*n, d)], "ground_fraction": float(frac),
         "raised_points": int(len(raised)), "axis_samples": int(len(samples)),
@@ -457,18 +481,33 @@ def coarse_scan_pose(points: np.ndarray, camera_positions: np.ndarray,
             f"raised scan points (need {cfg.min_support * 100:.0f} %). The survey belongs to another pile, the "
             "scan misses part of it, or the ground was not found; give a scan pose (scan_pose.json)")
     if second >= cfg.ambiguity_ratio * best:
-        raise CoarseRegistrationError(
-            f"the scan fits the surveyed logs almost equally well at yaw {math.degrees(best_yaw):.0f} deg "
-            f"({best * 100:.0f} % support) and {math.degrees(y_second):.0f} deg ({second * 100:.0f} %): the pile "
-            "looks (nearly) symmetric from above. Survey a log that breaks the symmetry, or give a scan pose "
-            "(scan_pose.json)")
+        # the top view alone cannot tell: every yaw peak scoring nearly as well is placed and judged by
+        # the heights (the survey's 3-D ends against the scan's tops); one must be clearly more consistent
+        cand_yaws = [float(yaws[i_best])]
+        for i in np.argsort(-sc):
+            far = all(abs((yaws[i] - y + np.pi) % (2 * np.pi) - np.pi) > sep for y in cand_yaws)
+            if peak[i] and far and sc[i] >= cfg.ambiguity_ratio * sc[i_best]:
+                cand_yaws.append(float(yaws[i]))
+        cands = []
+        for y0 in cand_yaws:
+            y, b, uu = refine_yaw(y0)
+            cands.append((height_spread(y, uu), y, b, uu))
+        cands.sort(key=lambda c: c[0])
+        report["height_spread_m"] = {f"{math.degrees(c[1]):.1f}": c[0] for c in cands}
+        (h1, y1, b1, u1), (h2, y2, b2, _) = cands[0], cands[1]
+        if not h1 * cfg.height_ambiguity_ratio <= h2:
+            raise CoarseRegistrationError(
+                f"the scan fits the surveyed logs almost equally well at yaw {math.degrees(best_yaw):.0f} deg "
+                f"({best * 100:.0f} % support) and {math.degrees(y_second):.0f} deg ({second * 100:.0f} %), and "
+                f"the heights do not tell them apart either ({h1 * 100:.1f} vs {h2 * 100:.1f} cm spread): the "
+                "pile looks (nearly) symmetric. Survey a log that breaks the symmetry, or give a scan pose "
+                "(scan_pose.json)")
+        best_yaw, best, u = y1, b1, u1
+        report.update(yaw_deg=math.degrees(best_yaw), support=best, resolved_by="heights")
     # height: a log's axis lies half its seen top height above the ground under it, if it lies on the
     # ground; logs on other logs give higher grounds, so the lowest log sets the height
     R2 = _rot_z(best_yaw)
     t_xy = centre - R2 @ u  # site_xy = R2 @ level_xy + t_xy
-    from scipy.spatial import cKDTree
-
-    tree = cKDTree(raised[:, :2])
     lvl = (samples[:, :2] - t_xy) @ R2  # = R2.T @ (site - t)
     grounds = []
     for k in np.unique(owner):

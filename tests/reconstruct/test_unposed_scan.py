@@ -65,6 +65,24 @@ def test_symmetric_pile_is_an_error_not_a_guess():
         coarse_scan_pose(pts, cams, ends)
 
 
+def test_symmetric_top_view_is_told_apart_by_the_heights():
+    # the same two logs seen from above, but both rise towards +x: turned by 180 deg the top view
+    # is the same, the survey's heights are not
+    pile = PileSpec(terrain=_flat(), logs=(
+        LogSpec.from_endpoints((-1.0, -0.35, 0.08), (1.0, -0.35, 0.45), 0.16),
+        LogSpec.from_endpoints((-1.0, 0.35, 0.08), (1.0, 0.35, 0.45), 0.16),
+    ))
+    T_site_pile = make_T(rot_z(0.3), (2.0, 1.0, 0.0))
+    pts, cams, ends, T_pile_scan = _scan_of(pile, T_site_pile)
+    T, rep = coarse_scan_pose(pts, cams, ends)
+    assert rep["resolved_by"] == "heights" and len(rep["height_spread_m"]) >= 2, rep
+    probe = np.array([[1.0, 1.0, 0.0], [-1.0, -1.0, 0.2], [1.0, -1.0, 0.1]])
+    err = apply_T(T @ invert_T(T_pile_scan), probe) - apply_T(T_site_pile, probe)
+    # right way round (turned by 180 deg the probes would be metres off); the height of a pile of
+    # raised logs is the refinement's to fix (the coarse height assumes the lowest log on the ground)
+    assert np.linalg.norm(err[:, :2], axis=1).max() < 0.15 and np.abs(err[:, 2]).max() < 0.2, (err, rep)
+
+
 def test_survey_of_another_pile_is_named():
     pile = PileSpec(terrain=_flat(), logs=(LogSpec.from_endpoints((-1.0, 0.0, 0.08), (1.0, 0.0, 0.08), 0.16),))
     pts, cams, _, _ = _scan_of(pile, np.eye(4))
