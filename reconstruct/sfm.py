@@ -59,6 +59,7 @@ class SfmConfig:
     depth_patch_px: int = 7  # stereo depth of a feature: median over this square [px], odd
     depth_step_m: float = 0.02  # ... unused when its 10-90 % depth range exceeds this (an edge) [m]
     min_correspondences: int = 30  # stereo points of shared SfM features a pair needs [-]
+    min_link_tracks: int = 10  # shared depth-checked SfM points that tie two pairs together [-]
     anchor_max_evaluations: int = 300  # least-squares function evaluations per solve [-]
     anchor_min_threshold_m: float = 0.01  # outlier threshold: 3 robust sigmas, at least this [m]
     anchor_max_threshold_m: float = 0.10  # ... and at most this [m]
@@ -86,8 +87,8 @@ class SfmConfig:
         for name in ("anchor_min_threshold_m", "anchor_max_threshold_m", "max_anchor_rms_m", "depth_step_m"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
-        if self.min_correspondences < 3 or self.anchor_max_evaluations < 10:
-            raise ValueError("min_correspondences must be >= 3 and anchor_max_evaluations >= 10")
+        if self.min_correspondences < 3 or self.anchor_max_evaluations < 10 or self.min_link_tracks < 1:
+            raise ValueError("min_correspondences must be >= 3, anchor_max_evaluations >= 10 and min_link_tracks >= 1")
 
 
 @dataclass
@@ -311,6 +312,7 @@ def estimate_pair_poses(pairs: Sequence[ScanPair], config: SfmConfig | None = No
                 "little. Re-take it overlapping its neighbours by about a third, drop it, or give the pairs "
                 "their poses"
             )
+    _check_linked(tracks, who, labels, pairs, cfg)
     for lab, sc in zip(labels, _pair_scales(rec, names, pairs, clouds)):
         pair_scales[lab] = sc
     vals = np.array([v for v in pair_scales.values() if np.isfinite(v)])
@@ -454,6 +456,30 @@ def _pair_scales(rec, names: list[str], pairs: Sequence[ScanPair],
                 ratios.append(depth[v, u] / z_sfm)
         out.append(float(np.median(ratios)) if len(ratios) >= 10 else math.nan)
     return out
+
+
+def _check_linked(tracks: np.ndarray, who: np.ndarray, labels: list[str], pairs: Sequence[ScanPair],
+                  cfg: SfmConfig) -> None:
+    """Every pair must be tied to the first through pairs sharing at least ``min_link_tracks``
+    depth-checked SfM points: a group of pairs tied only among themselves is placed by SfM alone,
+    unchecked (on a ground texture that repeats, SfM can join such groups metres apart)."""
+    n = len(labels)
+    sets = [set(tracks[who == i].tolist()) for i in range(n)]
+    linked = {0}
+    frontier = [0]
+    while frontier:
+        i = frontier.pop()
+        for j in range(n):
+            if j not in linked and len(sets[i] & sets[j]) >= cfg.min_link_tracks:
+                linked.add(j)
+                frontier.append(j)
+    if len(linked) < n:
+        loose = [str(pairs[j].folder) for j in range(n) if j not in linked]
+        raise SfmRegistrationError(
+            f"pairs {', '.join(loose)} share fewer than {cfg.min_link_tracks} depth-checked SfM points with "
+            f"{labels[0]} and the pairs tied to it: SfM's placement of them cannot be checked against their stereo "
+            "depth. Take pairs that overlap their neighbours by about a third, or give the pairs their poses"
+        )
 
 
 def _stereo_anchor(T_w_cam: list[np.ndarray], tracks: np.ndarray, who: np.ndarray, Y: np.ndarray,

@@ -185,3 +185,21 @@ def test_a_pair_that_overlaps_nothing_is_named(scans, tmp_path):
         reconstruct(u / "scan", u / "gnss.csv", tmp_path / "o2", ReconstructConfig(pair_poses="calibration"))
     with pytest.raises(ReconstructError, match="no scan_pose.json"):
         reconstruct(u / "scan", u / "gnss.csv", tmp_path / "o3", replace(ReconstructConfig(), georegister="scan-pose"))
+
+
+def test_pairs_tied_only_among_themselves_are_an_error():
+    from types import SimpleNamespace
+
+    from reconstruct.sfm import _check_linked
+
+    pairs = [SimpleNamespace(folder=Path(f"scan/pair_00{k}")) for k in range(4)]
+    labels = [p.folder.name for p in pairs]
+    # tracks 0-19 seen by pairs 0 and 1, 100-119 by 2 and 3, track 50 by 1 and 3 only
+    tracks = np.r_[np.arange(20), np.arange(20), np.arange(100, 120), np.arange(100, 120), 50, 50]
+    who = np.r_[np.zeros(20), np.ones(20), np.full(20, 2), np.full(20, 3), 1, 3].astype(int)
+    with pytest.raises(SfmRegistrationError, match=r"pair_002, scan/pair_003 share fewer than 10"):
+        _check_linked(tracks, who, labels, pairs, SfmConfig())
+    # one more pair that sees both groups ties them
+    tracks = np.r_[tracks, np.arange(10), np.arange(100, 110)]
+    who = np.r_[who, np.full(20, 2)]
+    _check_linked(tracks, who, labels, pairs, SfmConfig())
