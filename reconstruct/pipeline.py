@@ -495,7 +495,7 @@ def coarse_scan_pose(points: np.ndarray, camera_positions: np.ndarray,
         cands.sort(key=lambda c: c[0])
         report["height_spread_m"] = {f"{math.degrees(c[1]):.1f}": c[0] for c in cands}
         (h1, y1, b1, u1), (h2, y2, b2, _) = cands[0], cands[1]
-        if not h1 * cfg.height_ambiguity_ratio <= h2:
+        if not (math.isfinite(h1) and h1 * cfg.height_ambiguity_ratio <= h2):
             raise CoarseRegistrationError(
                 f"the scan fits the surveyed logs almost equally well at yaw {math.degrees(best_yaw):.0f} deg "
                 f"({best * 100:.0f} % support) and {math.degrees(y_second):.0f} deg ({second * 100:.0f} %), and "
