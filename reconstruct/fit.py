@@ -797,9 +797,8 @@ def _merge_across_logs(clusters: list[np.ndarray], logs: Sequence[LogSpec], cfg:
         return i
 
     trees = [cKDTree(C[:, :2]) for C in clusters]
-    axis_samples = np.vstack([log.endpoints_m()[0] + np.outer(np.linspace(0, 1, max(2, int(log.length_m / 0.05))),
-                                                             log.endpoints_m()[1] - log.endpoints_m()[0])
-                              for log in logs])
+    axis_samples = np.vstack([a + np.outer(np.linspace(0, 1, max(2, int(log.length_m / 0.05))), b - a)
+                              for log in logs for a, b in [log.endpoints_m()]])  # every 5 cm
     for i in range(len(clusters)):
         for j in range(i + 1, len(clusters)):
             d, k = trees[i].query(clusters[j][:, :2], distance_upper_bound=cfg.obstacle_merge_gap_m)
