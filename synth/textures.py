@@ -55,7 +55,7 @@ class TextureConfig:
     variants: int = 4  # distinct bark / rock textures in use (logs cycle through them) [-]
     bark_px: int = 512  # side of a bark texture = one 0.5 m repeat (~1 mm / px) [px]
     rock_px: int = 512  # side of a rock / stump texture [px]
-    ground_px: int = 4096  # side of the soil tile [px] (1.2 mm / px over 5 m; 2048 px lost stereo detail)
+    ground_px: int = 2048  # side of the soil tile [px] (2.4 mm / px over 5 m)
     ground_uv_m: float = 5.0  # terrain per soil-tile repeat (the terrain mesh's UVs) [m]: one tile over
     #                           the default 5 m patch. A 0.5 m repeat made SfM join pairs at the
     #                           wrong repeat (features match one tile over), metres off
@@ -269,10 +269,10 @@ def texture_file(kind: str, seed: int, size_px: int, m_per_px: float | None = No
 def texture_set(config: TextureConfig) -> list[str]:
     """Every texture file a world can use under ``config``, in a fixed order (generated if needed)."""
     cfg = config
-    # one soil texture: it is large (4096 px spans the whole terrain, so nothing repeats in a scan)
-    paths = [texture_file("ground", cfg.seed, cfg.ground_px, cfg.ground_uv_m / cfg.ground_px)]
+    paths = []
     for k in range(cfg.variants):
         s = cfg.seed * cfg.variants + k
+        paths.append(texture_file("ground", s, cfg.ground_px, cfg.ground_uv_m / cfg.ground_px))
         paths.append(texture_file("bark", s, cfg.bark_px))
         paths.append(texture_file("stump", s, cfg.rock_px))
         paths.append(texture_file("rock", s, cfg.rock_px))
@@ -284,7 +284,7 @@ def apply_textures(world: "World", config: TextureConfig | None = None) -> dict[
 
     The body colour is set to white so the texture shows unmodified, and the specular colour to
     ``config.specular``. Log ``i`` gets bark variant ``(seed + i) % variants``, obstacle ``j``
-    stump/rock variant ``(seed + j) % variants``; one soil texture for every terrain.
+    stump/rock variant ``(seed + j) % variants``; the soil is variant ``terrain.seed % variants``.
     Returns ``{body_id: texture_id}``.
 
     The whole :func:`texture_set` is loaded, always in the same order: after
@@ -314,7 +314,8 @@ def apply_textures(world: "World", config: TextureConfig | None = None) -> dict[
         c.changeVisualShape(body, -1, textureUniqueId=tid, rgbaColor=[1, 1, 1, 1], specularColor=spec)
         out[body] = tid
 
-    put(world.terrain_id, ids[texture_file("ground", cfg.seed, cfg.ground_px, cfg.ground_uv_m / cfg.ground_px)])
+    t = world.pile.terrain
+    put(world.terrain_id, tex("ground", t.seed, cfg.ground_px, cfg.ground_uv_m / cfg.ground_px))
     for i, body in enumerate(world.log_ids):
         put(body, tex("bark", cfg.seed + i, cfg.bark_px))
     n_stumps = len(world.pile.stumps)

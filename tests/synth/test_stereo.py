@@ -191,7 +191,7 @@ def test_ground_texture_has_metric_uvs():
         pair = r.render(pile, rig)
     cfg = rig.textures
     n = cfg.ground_px
-    tex = cv2.imread(texture_file("ground", cfg.seed, n,
+    tex = cv2.imread(texture_file("ground", cfg.seed * cfg.variants + pile.terrain.seed % cfg.variants, n,
                                   cfg.ground_uv_m / n), cv2.IMREAD_GRAYSCALE).astype(float)
     img = cv2.cvtColor(pair.left, cv2.COLOR_RGB2GRAY).astype(float)
     K, T = pair.calibration.K_left, pair.calibration.T_pile_cam
