@@ -485,14 +485,13 @@ class StereoRenderer:
             self._world = None
         if self._world is None:
             self._scenes = 0
-            self._world = World(pile, ground_uv_m=textures.ground_uv_m)
+            self._world = World(pile)
             self.backend = self._attach_backend(self._world)
             # EGL only draws bodies created after its plugin was loaded: rebuild once
             if self.backend == "egl":
                 self._world._build()
         else:
             self._world.pile = pile
-            self._world.ground_uv_m = textures.ground_uv_m
             self._world._build()
         apply_textures(self._world, textures)
         self._scenes += 1

@@ -12,11 +12,9 @@ Texture coordinates of the bodies built by :class:`synth.world.World`:
 * stumps: the same, with ``uv_m = 0.3``, axis along local z.
 * rocks: planar projection of local x, y with ``uv_m = 0.5``.
 * terrain: the visual grid mesh from :func:`synth.meshes.grid_mesh` has metric UVs with
-  ``uv_m = TextureConfig.ground_uv_m`` (pile x, y divided by it; checked in
-  ``tests/synth/test_stereo.py``): by default one seamless 2048 px soil tile spans the whole 5 m
-  patch, so nothing on the ground repeats inside a scan. (A 0.5 m repeat was harmless to stereo,
-  whose search range is far shorter, but made pycolmap SfM match features one tile over and join
-  handheld pairs metres apart.)
+  ``uv_m = 0.5`` (pile x, y divided by 0.5 m; checked in ``tests/synth/test_stereo.py``), so the
+  soil texture is a seamless 0.5 m tile. The tile repeats on the ground, which stereo tolerates:
+  at 3 m a repeat spans far more pixels than the disparity search range.
 
 Files are PNGs (``cv2.imwrite``) in a per-user temporary cache, named by the SHA-1 of the recipe
 (kind, seed, size, :data:`TEXTURE_VERSION`) and written atomically; generation is deterministic, so
@@ -55,10 +53,8 @@ class TextureConfig:
     variants: int = 4  # distinct bark / rock textures in use (logs cycle through them) [-]
     bark_px: int = 512  # side of a bark texture = one 0.5 m repeat (~1 mm / px) [px]
     rock_px: int = 512  # side of a rock / stump texture [px]
-    ground_px: int = 2048  # side of the soil tile [px] (2.4 mm / px over 5 m)
-    ground_uv_m: float = 5.0  # terrain per soil-tile repeat (the terrain mesh's UVs) [m]: one tile over
-    #                           the default 5 m patch. A 0.5 m repeat made SfM join pairs at the
-    #                           wrong repeat (features match one tile over), metres off
+    ground_px: int = 512  # side of the soil tile [px]
+    ground_uv_m: float = 0.5  # ground repeat length: the terrain mesh's UV scale (synth.meshes.grid_mesh) [m]
     specular: float = 0.0  # specular colour of textured bodies (view-dependent highlights hurt stereo) [-]
 
     def __post_init__(self) -> None:
