@@ -368,7 +368,7 @@ def run_evaluation(specs: list[PlannerSpec], cfg: EvalConfig, out_dir: str | Pat
             for f in as_completed(futs):
                 finish(futs[f], f.result())
 
-    records = [r for t in tasks for r in json.loads((rec_dir / f"{t[3]}.json").read_text())]
+    records = [r for t in tasks for r in _read_records(rec_dir / f"{t[3]}.json")]
     tables = summarise(records, cfg, names)
     atomic_write_bytes(out / "results.json", json.dumps(tables, indent=1).encode())
     atomic_write_bytes(out / "results.md", tables_markdown(tables, cfg).encode())
