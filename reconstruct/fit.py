@@ -125,9 +125,15 @@ class FitConfig:
     validate: bool = True  # load the pile into the twin and separate interpenetrating logs
     penetration_tolerance_m: float = 0.01  # allowed interpenetration [m]
     max_move_m: float = 0.08  # larger needed separating moves are an error, not noise [m]
+    radius_window_m: float = 0.01  # the 3-D fit keeps the radius within this of the chunk profiles'
+    #                                (robust, they see the flanks and the ground) [m]: from above, the top
+    #                                strip alone hardly fixes the curvature, and one noisy scan let
+    #                                the fit slide to 0.031 m for a 0.07 m log
     seed: int = 0  # subsampling seed [-]
 
     def __post_init__(self) -> None:
+        if not 0 < self.radius_window_m <= 1.0:
+            raise ValueError(f"radius_window_m must be in (0, 1] m, got {self.radius_window_m}")
         if self.endpoint_ref not in ENDPOINT_REFS:
             raise ValueError(f"endpoint_ref must be one of {ENDPOINT_REFS}, got {self.endpoint_ref!r}")
         if self.axis_source not in AXIS_SOURCES:
@@ -455,13 +461,15 @@ def fit_log(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = 
         return np.concatenate([res, end_off])
 
     x0 = x_init.copy()
-    if not cfg.fit_taper:
-        lb = [-np.inf] * 5 + [-1e-9]
-        ub = [np.inf] * 5 + [1e-9]
-    else:
-        lb = [-np.inf] * 4 + [cfg.min_radius_m, -0.2]
-        ub = [np.inf] * 4 + [cfg.max_radius_m, 0.2]
     x0[4] = float(np.clip(x0[4], cfg.min_radius_m + 1e-6, cfg.max_radius_m - 1e-6))
+    r_lo = max(cfg.min_radius_m, x0[4] - cfg.radius_window_m)  # about the profiles' radius
+    r_hi = min(cfg.max_radius_m, x0[4] + cfg.radius_window_m)
+    if not cfg.fit_taper:
+        lb = [-np.inf] * 4 + [r_lo, -1e-9]
+        ub = [np.inf] * 4 + [r_hi, 1e-9]
+    else:
+        lb = [-np.inf] * 4 + [r_lo, -0.2]
+        ub = [np.inf] * 4 + [r_hi, 0.2]
     sol = None
     for _ in range(2):  # fit, re-select the band around the fitted surface, refit
         sol = least_squares(residuals, x0, loss="soft_l1", f_scale=cfg.loss_scale_m,

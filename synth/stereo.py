@@ -450,24 +450,21 @@ def egl_plugin_path() -> str | None:
 class StereoRenderer:
     """Renders stereo pairs in a private pybullet client (EGL when available, else TinyRenderer).
 
-    Keep one for many renders (the EGL context is reused); use as a context manager.
-    ``backend``: "egl", "tiny" or "auto". The scene is rebuilt only when the pile (or the texture
-    config) changes. pybullet never frees textures on ``resetSimulation`` (measured with the
-    default 16-texture set: +23 MB per rebuilt scene with EGL), so after ``max_scenes`` scenes
-    the client is replaced by a fresh one (an EGL start costs ~1–2 s).
+    Keep one for many renders of a pile (the scene is kept while the pile and the texture config
+    stay the same); use as a context manager. ``backend``: "egl", "tiny" or "auto". Every other
+    pile gets a fresh client: each pile has its own textures (``synth.textures``), and pybullet
+    never frees textures on ``resetSimulation`` (+23 MB per rebuilt scene was measured with EGL)
+    and restarts texture ids there while the EGL plugin keeps its old images. Closing the client
+    frees them; an EGL start costs ~1 s.
     """
 
-    def __init__(self, backend: str = "auto", max_scenes: int = 8) -> None:
+    def __init__(self, backend: str = "auto") -> None:
         if backend not in RENDERERS:
             raise ValueError(f"backend must be one of {RENDERERS}, got {backend!r}")
-        if max_scenes < 1:
-            raise ValueError(f"max_scenes must be >= 1, got {max_scenes}")
         self.requested = backend
         self.backend: str | None = None  # resolved on first render
         self._world: "World | None" = None
         self._key: tuple | None = None
-        self.max_scenes = int(max_scenes)
-        self._scenes = 0  # scenes built in the current client
         self._closed = False
 
     # scene ----------------------------------------------------------------------------------
@@ -480,21 +477,15 @@ class StereoRenderer:
         key = (pile, textures)
         if self._world is not None and self._key == key:
             return self._world
-        if self._world is not None and self._scenes >= self.max_scenes:
-            self._world.close()  # bound the texture memory pybullet never frees
+        if self._world is not None:
+            self._world.close()  # frees the previous pile's textures
             self._world = None
-        if self._world is None:
-            self._scenes = 0
-            self._world = World(pile)
-            self.backend = self._attach_backend(self._world)
-            # EGL only draws bodies created after its plugin was loaded: rebuild once
-            if self.backend == "egl":
-                self._world._build()
-        else:
-            self._world.pile = pile
+        self._world = World(pile, ground_uv_m=textures.ground_uv_m)
+        self.backend = self._attach_backend(self._world)
+        # EGL only draws bodies created after its plugin was loaded: rebuild once
+        if self.backend == "egl":
             self._world._build()
         apply_textures(self._world, textures)
-        self._scenes += 1
         if self.backend == "egl":
             # the first EGL frame after a (re)build differs slightly from every later one
             # (measured: a sliver of ~1 % of pixels); a tiny warm-up frame makes renders repeatable

@@ -12,35 +12,45 @@ Texture coordinates of the bodies built by :class:`synth.world.World`:
 * stumps: the same, with ``uv_m = 0.3``, axis along local z.
 * rocks: planar projection of local x, y with ``uv_m = 0.5``.
 * terrain: the visual grid mesh from :func:`synth.meshes.grid_mesh` has metric UVs with
-  ``uv_m = 0.5`` (pile x, y divided by 0.5 m; checked in ``tests/synth/test_stereo.py``), so the
-  soil texture is a seamless 0.5 m tile. The tile repeats on the ground, which stereo tolerates:
-  at 3 m a repeat spans far more pixels than the disparity search range.
+  ``uv_m = TextureConfig.ground_uv_m`` (pile x, y divided by it; checked in
+  ``tests/synth/test_stereo.py``): one 4096 px soil texture spans the default 5 m patch, so
+  nothing on the ground repeats inside a scan. (A 0.5 m tile was harmless to stereo, whose search
+  range is far shorter, but pycolmap SfM matched features one tile over and joined handheld pairs
+  metres apart.)
 
-Files are PNGs (``cv2.imwrite``) in a per-user temporary cache, named by the SHA-1 of the recipe
-(kind, seed, size, :data:`TEXTURE_VERSION`) and written atomically; generation is deterministic, so
-the recipe determines the content. Arrays are RGB ``uint8`` ``(rows, cols, 3)``.
+Every pile gets its own textures (:func:`pile_texture_files`). Files are PNGs in a per-user
+temporary cache, named by the SHA-1 of the recipe (kind, seed, size, :data:`TEXTURE_VERSION`) and
+written atomically; generation is deterministic, so the recipe determines the content. The cache
+keeps at most :data:`CACHE_MAX_BYTES`, dropping the least recently used files. Arrays are RGB
+``uint8`` ``(rows, cols, 3)``.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import os
 import tempfile
 from dataclasses import dataclass
-from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 if TYPE_CHECKING:  # pragma: no cover
+    from synth.pile import PileSpec
     from synth.world import World
 
 #: Bump when any generator changes its output (part of every cache key).
-TEXTURE_VERSION = "2"
+TEXTURE_VERSION = "3"
 
 _CACHE = Path(tempfile.gettempdir()) / f"loggrasp-textures-{os.getuid() if hasattr(os, 'getuid') else 0}"
+
+#: Bound of the texture cache on disk; a 4096 px soil texture is ~25 MB [bytes].
+CACHE_MAX_BYTES = 2 * 1024**3
+#: Files younger than this are never pruned: another process may be about to load them [s].
+_PRUNE_MIN_AGE_S = 600.0
 
 KINDS = ("bark", "ground", "rock", "stump")
 
@@ -49,17 +59,15 @@ KINDS = ("bark", "ground", "rock", "stump")
 class TextureConfig:
     """How the bodies of a world are textured."""
 
-    seed: int = 0  # base seed; textures are deterministic in it [-]
-    variants: int = 4  # distinct bark / rock textures in use (logs cycle through them) [-]
+    seed: int = 0  # base seed; with each pile's own digest it fixes every texture [-]
     bark_px: int = 512  # side of a bark texture = one 0.5 m repeat (~1 mm / px) [px]
     rock_px: int = 512  # side of a rock / stump texture [px]
-    ground_px: int = 512  # side of the soil tile [px]
-    ground_uv_m: float = 0.5  # ground repeat length: the terrain mesh's UV scale (synth.meshes.grid_mesh) [m]
+    ground_px: int = 4096  # side of the soil texture [px] (1.2 mm / px over 5 m; 2048 px lost stereo detail)
+    ground_uv_m: float = 5.0  # terrain per soil-texture repeat (the terrain mesh's UVs) [m]: the default 5 m
+    #                           patch holds one copy, so nothing on the ground repeats inside a scan
     specular: float = 0.0  # specular colour of textured bodies (view-dependent highlights hurt stereo) [-]
 
     def __post_init__(self) -> None:
-        if not 1 <= self.variants <= 64:
-            raise ValueError(f"texture variants must be in [1, 64], got {self.variants}")
         for name in ("bark_px", "rock_px", "ground_px"):
             v = getattr(self, name)
             if not 32 <= v <= 8192:
@@ -164,28 +172,52 @@ def stump_texture(seed: int, size_px: int = 512) -> np.ndarray:
     return _to_uint8(rgb)
 
 
+def _smooth_noise(rng: np.random.Generator, n: int, beta: float, k_min: float, res: int) -> np.ndarray:
+    """:func:`spectral_noise` for a red spectrum, made at ``res`` px and upsampled to ``n`` px.
+
+    A spectrum falling as 1/k^beta (beta >= 1.8) holds almost nothing above ``res / 2`` cycles
+    (about 1 % of the amplitude at ``k_min``), so the small FFT loses nothing visible; the upsampling
+    pads by wrapping, which keeps the result tileable.
+    """
+    import cv2
+
+    if res >= n:
+        return spectral_noise(rng, n, n, beta=beta, k_min=k_min)
+    small = spectral_noise(rng, res, res, beta=beta, k_min=k_min)
+    pad = 4
+    f = n / res
+    big = cv2.resize(np.pad(small, pad, mode="wrap"), None, fx=f, fy=f, interpolation=cv2.INTER_CUBIC)
+    o = int(round(pad * f))
+    out = np.ascontiguousarray(big[o:o + n, o:o + n])
+    out -= out.mean()
+    return out / max(float(out.std()), 1e-12)
+
+
 def ground_texture(seed: int, size_px: int = 512, m_per_px: float = 0.5 / 512) -> np.ndarray:
     """Forest-floor soil: multi-scale noise, moss/litter patches, gravel and conifer needles.
 
-    Seamlessly tileable. ``m_per_px`` sets the physical size of gravel and needles.
+    Seamlessly tileable. ``m_per_px`` sets the physical size of gravel and needles. The smooth
+    fields are made at 1/4 (mid-scale: 1/2) resolution and upsampled (:func:`_smooth_noise`): a
+    4096 px texture then takes ~2 s instead of ~9 s.
     """
     import cv2
 
     rng = _rng("ground", seed)
     n = size_px
-    coarse = spectral_noise(rng, n, n, beta=2.6, k_min=1.0)
-    mid = spectral_noise(rng, n, n, beta=1.8, k_min=4.0)
+    low, mid_res = max(64, n // 4), max(64, n // 2)
+    coarse = _smooth_noise(rng, n, beta=2.6, k_min=1.0, res=low)
+    mid = _smooth_noise(rng, n, beta=1.8, k_min=4.0, res=mid_res)
     fine = spectral_noise(rng, n, n, beta=0.5, k_min=max(8.0, n / 64))
-    # weak tile-scale structure: the tile repeats every ground_uv_m on the terrain
     lum = 1.0 + 0.05 * coarse + 0.12 * mid + 0.10 * fine
     soil = _colourise(np.clip(lum, 0.3, 1.8), (0.40, 0.33, 0.24))
-    litter = np.clip(spectral_noise(rng, n, n, beta=2.0, k_min=3.0) * 0.8 - 0.2, 0.0, 1.0)[..., None]
+    litter = np.clip(_smooth_noise(rng, n, beta=2.0, k_min=3.0, res=low) * 0.8 - 0.2, 0.0, 1.0)[..., None]
     litter_rgb = np.array([0.50, 0.40, 0.25], dtype=np.float32) * (1.0 + 0.15 * mid[..., None])
-    moss = np.clip(spectral_noise(rng, n, n, beta=2.0, k_min=3.0) - 1.8, 0.0, 1.0)[..., None]
+    moss = np.clip(_smooth_noise(rng, n, beta=2.0, k_min=3.0, res=low) - 1.8, 0.0, 1.0)[..., None]
     moss_rgb = np.array([0.30, 0.38, 0.18], dtype=np.float32) * (1.0 + 0.2 * fine[..., None])
     rgb = soil * (1 - litter) + litter_rgb * litter
     rgb = rgb * (1 - moss) + moss_rgb * moss
     img = np.ascontiguousarray(_to_uint8(rgb)[..., ::-1])  # BGR for cv2 drawing
+    del coarse, mid, fine, soil, litter, litter_rgb, moss, moss_rgb, rgb
 
     px = 1.0 / m_per_px  # pixels per metre
     area_m2 = (n * m_per_px) ** 2
@@ -239,7 +271,6 @@ def make_texture(kind: str, seed: int, size_px: int, m_per_px: float | None = No
     return _GENERATORS[kind](seed, size_px)
 
 
-@lru_cache(maxsize=256)
 def texture_file(kind: str, seed: int, size_px: int, m_per_px: float | None = None) -> str:
     """Path of the PNG of a texture, generated on first use and cached on disk (atomic write)."""
     import cv2
@@ -249,7 +280,12 @@ def texture_file(kind: str, seed: int, size_px: int, m_per_px: float | None = No
     digest = hashlib.sha1(recipe.encode()).hexdigest()[:16]
     path = _CACHE / f"{kind}-{digest}.png"
     if path.exists():
-        return str(path)
+        try:
+            os.utime(path)  # recently used: pruned last
+        except OSError:  # pragma: no cover - pruned by another process just now
+            pass
+        else:
+            return str(path)
     rgb = make_texture(kind, seed, size_px, m_per_px)
     ok, buf = cv2.imencode(".png", rgb[..., ::-1])
     if not ok:  # pragma: no cover - cv2 failure
@@ -259,40 +295,84 @@ def texture_file(kind: str, seed: int, size_px: int, m_per_px: float | None = No
     from synth.pile import atomic_write_bytes
 
     atomic_write_bytes(path, buf.tobytes())
+    prune_cache(CACHE_MAX_BYTES)
     return str(path)
 
 
-def texture_set(config: TextureConfig) -> list[str]:
-    """Every texture file a world can use under ``config``, in a fixed order (generated if needed)."""
-    cfg = config
-    paths = []
-    for k in range(cfg.variants):
-        s = cfg.seed * cfg.variants + k
-        paths.append(texture_file("ground", s, cfg.ground_px, cfg.ground_uv_m / cfg.ground_px))
-        paths.append(texture_file("bark", s, cfg.bark_px))
-        paths.append(texture_file("stump", s, cfg.rock_px))
-        paths.append(texture_file("rock", s, cfg.rock_px))
-    return paths
+def prune_cache(max_bytes: int, min_age_s: float | None = None) -> int:
+    """Delete the least recently used cached textures until the cache holds at most ``max_bytes``.
+
+    Files used in the last ``min_age_s`` seconds (default :data:`_PRUNE_MIN_AGE_S`) are kept
+    whatever the size. Returns the number of files deleted.
+    """
+    import time
+
+    age = _PRUNE_MIN_AGE_S if min_age_s is None else min_age_s
+    try:
+        entries = [(e.stat().st_mtime, e.stat().st_size, e.path) for e in os.scandir(_CACHE)
+                   if e.is_file() and e.name.endswith(".png")]
+    except OSError:
+        return 0
+    total = sum(size for _, size, _ in entries)
+    now, gone = time.time(), 0
+    for mtime, size, path in sorted(entries):
+        if total <= max_bytes or now - mtime < age:
+            break
+        try:
+            os.unlink(path)
+        except OSError:
+            continue
+        total -= size
+        gone += 1
+    return gone
+
+
+def _digest_seed(*parts: object) -> int:
+    """A 32-bit seed from a stable digest of ``parts`` (JSON; never Python's salted ``hash``)."""
+    blob = json.dumps(parts, sort_keys=True, default=str).encode()
+    return int.from_bytes(hashlib.sha1(blob).digest()[:4], "little")
+
+
+def pile_texture_files(pile: "PileSpec", config: TextureConfig | None = None) -> dict[str, list[str]]:
+    """The texture files of one pile: ``{"ground": [path], "logs": [...], "obstacles": [...]}``.
+
+    Every place gets its own textures: the soil from a digest of the terrain, each log's bark and
+    each stump's or rock's surface from a digest of the whole pile and its index, all mixed with
+    ``config.seed``. Two piles therefore never share a surface (what a field site is like), which
+    matters to SfM: with textures shared between piles, or a soil tile repeating every 0.5 m, pycolmap
+    matched features one repeat over and joined handheld pairs metres apart. Generated if needed.
+    """
+    cfg = config or TextureConfig()
+    terrain = dataclasses.asdict(pile.terrain)
+    whole = pile.to_dict()
+    ground = texture_file("ground", _digest_seed(cfg.seed, "ground", terrain), cfg.ground_px,
+                          cfg.ground_uv_m / cfg.ground_px)
+    logs = [texture_file("bark", _digest_seed(cfg.seed, "log", i, whole), cfg.bark_px)
+            for i in range(len(pile.logs))]
+    n_stumps = len(pile.stumps)
+    obstacles = [texture_file("stump" if j < n_stumps else "rock", _digest_seed(cfg.seed, "obstacle", j, whole),
+                              cfg.rock_px) for j in range(n_stumps + len(pile.rocks))]
+    return {"ground": [ground], "logs": logs, "obstacles": obstacles}
 
 
 def apply_textures(world: "World", config: TextureConfig | None = None) -> dict[int, int]:
     """Texture every body of ``world`` (terrain, logs, stumps, rocks) in its own client.
 
-    The body colour is set to white so the texture shows unmodified, and the specular colour to
-    ``config.specular``. Log ``i`` gets bark variant ``(seed + i) % variants``, obstacle ``j``
-    stump/rock variant ``(seed + j) % variants``; the soil is variant ``terrain.seed % variants``.
+    The textures are the pile's own (:func:`pile_texture_files`). The body colour is set to white
+    so the texture shows unmodified, and the specular colour to ``config.specular``.
     Returns ``{body_id: texture_id}``.
 
-    The whole :func:`texture_set` is loaded, always in the same order: after
-    ``resetSimulation`` pybullet restarts texture ids while the EGL plugin keeps its old
-    textures, so a rebuilt scene only gets the right images if id k always names the same file
-    (measured; ``tests/synth/test_stereo.py`` checks rebuilt scenes against fresh ones).
-    pybullet never frees texture memory either (see ``StereoRenderer``'s ``max_scenes``).
+    Load textures into a fresh client only: after ``resetSimulation`` pybullet restarts texture
+    ids while the EGL plugin keeps its old textures (measured), and pybullet never frees texture
+    memory; :class:`synth.stereo.StereoRenderer` therefore builds a new client for every pile.
     """
     cfg = config or TextureConfig()
     c = world.client
+    files = pile_texture_files(world.pile, cfg)
     ids: dict[str, int] = {}
-    for path in texture_set(cfg):
+    for path in files["ground"] + files["logs"] + files["obstacles"]:
+        if path in ids:
+            continue
         tid = c.loadTexture(path)
         if tid < 0:
             from synth.errors import RenderError
@@ -300,21 +380,17 @@ def apply_textures(world: "World", config: TextureConfig | None = None) -> dict[
             raise RenderError(f"pybullet could not load the texture {path}; delete the file to regenerate it")
         ids[path] = tid
 
-    def tex(kind: str, variant: int, size: int, m_per_px: float | None = None) -> int:
-        return ids[texture_file(kind, cfg.seed * cfg.variants + variant % cfg.variants, size, m_per_px)]
-
     out: dict[int, int] = {}
     spec = [cfg.specular] * 3
 
-    def put(body: int, tid: int) -> None:
+    def put(body: int, path: str) -> None:
+        tid = ids[path]
         c.changeVisualShape(body, -1, textureUniqueId=tid, rgbaColor=[1, 1, 1, 1], specularColor=spec)
         out[body] = tid
 
-    t = world.pile.terrain
-    put(world.terrain_id, tex("ground", t.seed, cfg.ground_px, cfg.ground_uv_m / cfg.ground_px))
-    for i, body in enumerate(world.log_ids):
-        put(body, tex("bark", cfg.seed + i, cfg.bark_px))
-    n_stumps = len(world.pile.stumps)
-    for j, body in enumerate(world.obstacle_ids):
-        put(body, tex("stump" if j < n_stumps else "rock", cfg.seed + j, cfg.rock_px))
+    put(world.terrain_id, files["ground"][0])
+    for body, path in zip(world.log_ids, files["logs"]):
+        put(body, path)
+    for body, path in zip(world.obstacle_ids, files["obstacles"]):
+        put(body, path)
     return out

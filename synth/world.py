@@ -72,15 +72,19 @@ def _quiet_stdout():
 class World:
     """One pile in its own pybullet DIRECT client. Use as a context manager; ``close`` is idempotent."""
 
-    def __init__(self, pile: PileSpec, physics: PhysicsConfig | None = None, visuals: bool = True) -> None:
+    def __init__(self, pile: PileSpec, physics: PhysicsConfig | None = None, visuals: bool = True,
+                 ground_uv_m: float = 5.0) -> None:
         """``visuals=False`` builds collision shapes only (no meshes to parse): for worlds that are
-        never rendered, e.g. grasp trials; the physics is identical."""
+        never rendered, e.g. grasp trials; the physics is identical. ``ground_uv_m``: metres of
+        terrain per ground-texture repeat (the terrain mesh's UVs; see
+        :class:`synth.textures.TextureConfig`)."""
         import pybullet as p
         from pybullet_utils.bullet_client import BulletClient
 
         self.pile = pile
         self.physics = physics or PhysicsConfig()
         self.visuals = visuals
+        self.ground_uv_m = float(ground_uv_m)
         self.p = p
         with _quiet_stdout():  # pybullet's C code prints "argv[0]=" on every connect
             self.client = BulletClient(connection_mode=p.DIRECT)
@@ -129,7 +133,7 @@ class World:
         # TinyRenderer shades heightfields badly: render an OBJ of the same grid instead
         from synth.meshes import grid_mesh
 
-        vis = (c.createVisualShape(p.GEOM_MESH, fileName=grid_mesh(self.height_grid, t.extent_m, zc))
+        vis = (c.createVisualShape(p.GEOM_MESH, fileName=grid_mesh(self.height_grid, t.extent_m, zc, uv_m=self.ground_uv_m))
                if self.visuals else -1)
         body = c.createMultiBody(0, shape, vis, [0.0, 0.0, zc], [0, 0, 0, 1])
         c.changeDynamics(body, -1, lateralFriction=self.physics.terrain_friction)
