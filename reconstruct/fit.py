@@ -129,6 +129,10 @@ class FitConfig:
     #                                (robust, they see the flanks and the ground) [m]: from above, the top
     #                                strip alone hardly fixes the curvature, and one noisy scan let
     #                                the fit slide to 0.031 m for a 0.07 m log
+    suspect_shift_m: float = 0.08  # a first fit whose axis lies this far from a GNSS point (~3 sigma
+    #                                of RTK noise) took another surface, most likely (a log lying
+    #                                under another): the refit gets only points no other log
+    #                                explains, and a refit still astray the survey's axis [m]
     seed: int = 0  # subsampling seed [-]
 
     def __post_init__(self) -> None:
@@ -955,6 +959,46 @@ def separate_logs(pile: PileSpec, cfg: FitConfig | None = None) -> tuple[PileSpe
     raise FitError("could not separate the reconstructed logs; check the fits")
 
 
+def fit_radius_on_axis(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = None,
+                       log_id: str = "log") -> dict:
+    """Radius of a log whose axis is taken from its GNSS points, from the scan points on its
+    visible top (within ``max_angle_deg`` of straight up): for a log lying mostly under another,
+    whose free fit would wander onto the upper one. Returns :func:`fit_log`'s dict (the ends are
+    the GNSS points). Raises :class:`FitError` naming ``log_id`` when too few points show it."""
+    cfg = cfg or FitConfig()
+    a, b = np.asarray(end_a, dtype=np.float64), np.asarray(end_b, dtype=np.float64)
+    L = float(np.linalg.norm(b - a))
+    if L < 0.1:
+        raise FitError(f"log {log_id!r}: its two GNSS points are only {L * 100:.1f} cm apart")
+    u = (b - a) / L
+    P = np.asarray(points, dtype=np.float64)
+    rel = P - a
+    t = rel @ u
+    q = rel - np.outer(t, u)
+    r = np.linalg.norm(q, axis=1)
+    e1, e2 = _frame(u)  # e2: up-ish, perpendicular to the axis
+    ang = np.arctan2(np.abs(q @ e1), q @ e2)
+    on = ((t > cfg.end_margin_m) & (t < L - cfg.end_margin_m) & (r > cfg.min_radius_m)
+          & (r < cfg.max_radius_m) & (ang < math.radians(cfg.max_angle_deg)))
+    if on.sum() < cfg.min_points:
+        raise FitError(f"log {log_id!r}: only {int(on.sum())} scan points show its top near its GNSS axis; "
+                       "the log is hidden under others or outside the scanned area")
+    # the nearest surface seen from above: the lower half of the distances (points beyond are
+    # whatever lies on or beside it)
+    rad = float(np.percentile(r[on], 25))
+    band = np.abs(r - rad) < cfg.inlier_band_m
+    sel = np.flatnonzero(on & band)
+    tt = t[sel]
+    nb = max(1, int(round(L / 0.1)))
+    hist, _ = np.histogram(tt, bins=nb, range=(0.0, L))
+    rms = float(np.sqrt(np.mean((r[sel] - rad) ** 2))) if sel.size else math.nan
+    return {
+        "centre": 0.5 * (a + b), "axis": u, "ends": np.stack([a, b]), "radius_a_m": rad, "radius_b_m": rad,
+        "n_points": int(sel.size), "rms_m": rms, "coverage": float(np.mean(hist > 0)), "taper_significance": 0.0,
+        "end_source": ["gnss", "gnss"], "residual_a_m": 0.0, "residual_b_m": 0.0, "inliers": sel,
+    }
+
+
 def log_spec_from_fit(f: dict, cfg: FitConfig) -> tuple[LogSpec, bool]:
     """A :class:`LogSpec` from :func:`fit_log`'s result (butt = the thicker end) and whether
     end ``b`` became the butt."""
@@ -973,17 +1017,57 @@ def log_spec_from_fit(f: dict, cfg: FitConfig) -> tuple[LogSpec, bool]:
     return LogSpec.from_endpoints(butt, top, d_butt, d_top), swapped
 
 
-def _owners(P: np.ndarray, logs: Sequence[LogSpec], band_m: float) -> np.ndarray:
+def _owners(P: np.ndarray, logs: Sequence[LogSpec], band_m: float,
+            suspect: Sequence[bool] | None = None) -> np.ndarray:
     """Index of the log whose surface each point lies on (within ``band_m``, nearest wins);
-    -1 for points on no log."""
+    -1 for points on no log. A ``suspect`` log (its fit strayed from its GNSS axis) gets only the
+    points no other log's surface explains: it had most likely taken a neighbour's."""
     best = np.full(len(P), np.inf)
     owner = np.full(len(P), -1, dtype=np.int64)
-    for i, log in enumerate(logs):
-        d = np.abs(_distance_to_logs(P, [log], pad_m=0.0))
+    sus = list(suspect) if suspect is not None else [False] * len(logs)
+    claimed = np.zeros(len(P), dtype=bool)  # within the band of a trusted log
+    ds = [np.abs(_distance_to_logs(P, [log], pad_m=0.0)) for log in logs]
+    for i, d in enumerate(ds):
+        if not sus[i]:
+            claimed |= d < band_m
+    for i, d in enumerate(ds):
         closer = (d < best) & (d < band_m)
+        if sus[i]:
+            closer &= ~claimed
         owner[closer] = i
         best = np.where(closer, d, best)
     return owner
+
+
+def _segment_distance_3d(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.ndarray) -> float:
+    """Shortest distance between the 3-D segments p1q1 and p2q2 (both of non-zero length) [m]."""
+    d1, d2, r = q1 - p1, q2 - p2, p1 - p2
+    a, e, f = float(d1 @ d1), float(d2 @ d2), float(d2 @ r)
+    b, c = float(d1 @ d2), float(d1 @ r)
+    denom = a * e - b * b
+    s = float(np.clip((b * f - c * e) / denom, 0.0, 1.0)) if denom > 1e-12 * a * e else 0.0
+    t = (b * s + f) / e
+    if t < 0.0:
+        t, s = 0.0, float(np.clip(-c / a, 0.0, 1.0))
+    elif t > 1.0:
+        t, s = 1.0, float(np.clip((b - c) / a, 0.0, 1.0))
+    return float(np.linalg.norm(p1 + d1 * s - (p2 + d2 * t)))
+
+
+def _interpenetration(a: LogSpec, b: LogSpec) -> float:
+    """How deep two logs (as cylinders of their mean radius) interpenetrate [m]; <= 0: apart."""
+    return (a.mean_diameter_m + b.mean_diameter_m) / 2 - _segment_distance_3d(*a.endpoints_m(), *b.endpoints_m())
+
+
+def _axis_shift(log: LogSpec, end_a: Any, end_b: Any) -> float:
+    """Largest perpendicular distance of the two GNSS points from the log's axis line [m]."""
+    p0, p1 = log.endpoints_m()
+    u = (p1 - p0) / max(float(np.linalg.norm(p1 - p0)), 1e-9)
+    out = 0.0
+    for e in (end_a, end_b):
+        r = np.asarray(e, dtype=float) - p0
+        out = max(out, float(np.linalg.norm(r - (r @ u) * u)))
+    return out
 
 
 def _footprint_distance(xy: np.ndarray, logs: Sequence[LogSpec]) -> np.ndarray:
@@ -1071,14 +1155,39 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
         sa, sb = (sigmas or {}).get(log_id, (None, None))
         first.append(log_spec_from_fit(fit_log(P, *endpoints[log_id], cfg, log_id=log_id, rng=rng,
                                                sigma_a_m=sa, sigma_b_m=sb), cfg)[0])
-    owner = _owners(P, first, cfg.inlier_band_m)
+    # a first fit this far off its GNSS axis (several sigma of RTK noise) took another surface,
+    # most likely: a neighbour's (a log lying under another) or the ground beside it. Its refit
+    # gets only the points no other log explains
+    suspect = [_axis_shift(log, *endpoints[log_id]) > cfg.suspect_shift_m for log, log_id in zip(first, ids)]
+    owner = _owners(P, first, cfg.inlier_band_m, suspect)
+    fitted: dict[int, tuple[dict, LogSpec, bool]] = {}
+    for i in sorted(range(len(ids)), key=lambda k: suspect[k]):  # trusted logs first
+        log_id = ids[i]
+        a, b = endpoints[log_id]
+        sa, sb = (sigmas or {}).get(log_id, (None, None))
+        mine = P[(owner == i) | (owner < 0)]
+        f = fit_log(mine, a, b, cfg, log_id=log_id, rng=rng, sigma_a_m=sa, sigma_b_m=sb)
+        spec, swapped = log_spec_from_fit(f, cfg)
+        trusted = [fitted[j][1] for j in fitted if not suspect[j]]
+        if suspect[i] and (_axis_shift(spec, a, b) > cfg.suspect_shift_m
+                           or any(_interpenetration(spec, o) > cfg.penetration_tolerance_m for o in trusted)):
+            # still astray, or inside a trusted neighbour: the log is seen only in part (under
+            # another). Its axis is the survey's, its radius what the scan shows of its top, at
+            # most the room its trusted neighbours leave around that axis
+            f = fit_radius_on_axis(mine, a, b, cfg, log_id=log_id)
+            spec, swapped = log_spec_from_fit(f, cfg)
+            p0, p1 = spec.endpoints_m()
+            room = min((_segment_distance_3d(p0, p1, *o.endpoints_m()) - o.mean_diameter_m / 2 for o in trusted),
+                       default=math.inf)
+            if cfg.min_radius_m <= room < spec.mean_diameter_m / 2:
+                spec = LogSpec.from_endpoints(p0, p1, 2 * room)
+            say(f"log {log_id}: seen only in part; axis from GNSS, diameter {spec.diameter_m * 100:.1f} cm")
+        fitted[i] = (f, spec, swapped)
     fits: list[LogFit] = []
     logs: list[LogSpec] = []
     for i, log_id in enumerate(ids):
+        f, spec, swapped = fitted[i]
         a, b = endpoints[log_id]
-        sa, sb = (sigmas or {}).get(log_id, (None, None))
-        f = fit_log(P[(owner == i) | (owner < 0)], a, b, cfg, log_id=log_id, rng=rng, sigma_a_m=sa, sigma_b_m=sb)
-        spec, swapped = log_spec_from_fit(f, cfg)
         logs.append(spec)
         butt, top = spec.endpoints_m()
         p0, p1 = np.asarray(a, float), np.asarray(b, float)

@@ -158,3 +158,30 @@ def test_interpenetrating_logs_are_moved_out(truth):
         *(e - np.array([0, 0, 0.12]) for e in d.endpoints_m()), d.diameter_m),))
     with pytest.raises(FitError, match="would have to move"):
         separate_logs(too_deep, FitConfig(max_move_m=0.05))
+
+
+def test_a_log_lying_mostly_under_another_keeps_its_own_place():
+    """A log (d 12 cm) with another (d 17 cm) lying along it on top, 3.6-13 cm aside in plan: its
+    free fit takes the upper log's surface; it must keep its survey axis and a plausible diameter
+    (the twin's seed-103 scan failed this way: a 14.7 cm separating move)."""
+    n = 32
+    terrain = TerrainSpec(extent_m=5.0, resolution=n, amplitude_m=0.0,
+                          heights_m=tuple(tuple(0.0 for _ in range(n)) for _ in range(n)))
+    lower = LogSpec.from_endpoints((-1.3, 0.0, 0.06), (1.3, 0.0, 0.06), 0.12)
+
+    def resting_z(y_off: float) -> float:  # upper axis height touching the lower log, +2 cm
+        return 0.06 + math.sqrt(0.145 ** 2 - y_off ** 2) + 0.02
+
+    upper = LogSpec.from_endpoints((-1.2, 0.13, resting_z(0.13)), (1.2, 0.036, resting_z(0.036)), 0.17)
+    side = LogSpec.from_endpoints((-1.0, -0.8, 0.07), (1.0, -0.8, 0.07), 0.14)
+    truth = PileSpec(terrain=terrain, logs=(upper, lower, side))
+    pts = sample_top_view_points(truth, size_px=400, noise_m=0.003, rng=np.random.default_rng(0))
+    fit = fit_pile(pts, _survey(truth, seed=2), 5.0, FitConfig())
+    got = fit.pile.logs[1]
+    err = max(min(np.linalg.norm(p - q) for q in got.endpoints_m()) for p in lower.endpoints_m())
+    assert err < 0.05, (err, got)
+    assert abs(got.diameter_m - 0.12) < 0.03, got.diameter_m
+    assert max(fit.logs[k].moved_m for k in range(3)) < 0.05, [lf.moved_m for lf in fit.logs]
+    for k in (0, 2):  # the visible logs are untouched by it
+        e = max(min(np.linalg.norm(p - q) for q in fit.pile.logs[k].endpoints_m()) for p in truth.logs[k].endpoints_m())
+        assert e < 0.05, (k, e)
