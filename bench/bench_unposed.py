@@ -1,5 +1,5 @@
 """Unposed scans (no pair poses, no scan pose) against posed ones, on twin scans (``make bench``
-section "unposed" once registered in bench/run.py; run alone:
+section "unposed"; run alone:
 ``.venv/bin/python bench/bench_unposed.py --piles 3``).
 
 For each seed (100, 101, ...): a settled pile (5 logs, 2 obstacles) scanned by a 2x2 grid of
