@@ -983,7 +983,7 @@ def fit_radius_on_axis(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfi
     if on.sum() < cfg.min_points:
         raise FitError(f"log {log_id!r}: only {int(on.sum())} scan points show its top near its GNSS axis; "
                        "the log is hidden under others or outside the scanned area")
-    # the nearest surface seen from above: the lower half of the distances (points beyond are
+    # the nearest surface seen from above: the lower quartile of the distances (points beyond are
     # whatever lies on or beside it)
     rad = float(np.percentile(r[on], 25))
     band = np.abs(r - rad) < cfg.inlier_band_m
