@@ -73,7 +73,7 @@ class World:
     """One pile in its own pybullet DIRECT client. Use as a context manager; ``close`` is idempotent."""
 
     def __init__(self, pile: PileSpec, physics: PhysicsConfig | None = None, visuals: bool = True,
-                 ground_uv_m: float = 5.0) -> None:
+                 ground_uv_m: float | None = None) -> None:
         """``visuals=False`` builds collision shapes only (no meshes to parse): for worlds that are
         never rendered, e.g. grasp trials; the physics is identical. ``ground_uv_m``: metres of
         terrain per ground-texture repeat (the terrain mesh's UVs; see
@@ -84,6 +84,10 @@ class World:
         self.pile = pile
         self.physics = physics or PhysicsConfig()
         self.visuals = visuals
+        if ground_uv_m is None:
+            from synth.textures import TextureConfig
+
+            ground_uv_m = TextureConfig.ground_uv_m  # the one default, owned by the texture config
         self.ground_uv_m = float(ground_uv_m)
         self.p = p
         with _quiet_stdout():  # pybullet's C code prints "argv[0]=" on every connect

@@ -191,7 +191,7 @@ def test_ground_texture_has_metric_uvs():
         pair = r.render(pile, rig)
     cfg = rig.textures
     n = cfg.ground_px
-    tex = cv2.imread(pile_texture_files(pile, cfg)["ground"][0], cv2.IMREAD_GRAYSCALE).astype(float)
+    tex = cv2.imread(pile_texture_files(pile, cfg)["ground"], cv2.IMREAD_GRAYSCALE).astype(float)
     img = cv2.cvtColor(pair.left, cv2.COLOR_RGB2GRAY).astype(float)
     K, T = pair.calibration.K_left, pair.calibration.T_pile_cam
     v, u = np.mgrid[0:img.shape[0], 0:img.shape[1]]
