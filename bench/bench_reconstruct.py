@@ -169,13 +169,16 @@ def obstacle_piles(seeds=range(103, 109), n_obstacles: int = 3, clean_seeds=(110
     return {"rows": rows, "fps": fps, "n": n, "failures": failures}
 
 
-def real_test(n_piles: int = 24, model: str | None = None, workers: int = 2, out: Path | None = None) -> dict:
+def real_test(n_piles: int = 24, model: str | None = None, workers: int = 2, out: Path | None = None,
+              views: int = 1, work_dir: Path | None = None, view_spread_k: float = 0.0) -> dict:
     """The real test (:func:`field.real_test.run_real_test`); the record is kept in ``out`` when
-    given (written after every pile; a run of the same test and model there is resumed)."""
+    given (written after every pile; a run of the same test and model there is resumed); scans and
+    reconstructions kept in ``work_dir`` when given (reused by later runs)."""
     from field.real_test import RealTestConfig, run_real_test
 
-    return run_real_test(RealTestConfig(n_piles=n_piles, model=model, workers=workers), record_path=out,
-                         progress=lambda s: print(s, file=sys.stderr, flush=True))
+    cfg = RealTestConfig(n_piles=n_piles, model=model, workers=workers, views=views, view_spread_k=view_spread_k)
+    return run_real_test(cfg, record_path=out,
+                         work_dir=work_dir, progress=lambda s: print(s, file=sys.stderr, flush=True))
 
 
 def real_test_markdown(rec: dict) -> list[str]:
@@ -189,7 +192,9 @@ def real_test_markdown(rec: dict) -> list[str]:
         f"(`loggrasp synth scan` piles, seeds {cfg['seed']}..{cfg['seed'] + cfg['n_piles'] - 1}, "
         f"{cfg['logs'][0]}-{cfg['logs'][1]} logs, {cfg['obstacles'][0]}-{cfg['obstacles'][1]} obstacles, "
         f"{cfg['grid'][0]}x{cfg['grid'][1]} pairs, RTK fixed), reconstructed; model `{Path(rec['model']['path']).name}` "
-        f"(sha256 {rec['model']['sha256'][:12]}) plans on the reconstruction's re-render and on the truth's render; "
+        f"(sha256 {rec['model']['sha256'][:12]}, {cfg.get('views', 1)} view(s) averaged, U less "
+        f"{cfg.get('view_spread_k', 0.0):g} x their spread) plans on the reconstruction's "
+        "re-render and on the truth's render; "
         "the reconstruction's grasp is taken to the truth frame through both georeferences, its targets "
         "through the log matching; both grasps run on the TRUE pile (`TrialConfig.fast()`). "
         "Criterion (issue): the reconstruction-planned success rate within 3 percentage points of the "
@@ -296,12 +301,13 @@ def single_pair_speed(repeats: int = 3, workdir: Path | None = None) -> dict:
 
 
 def markdown(n_piles: int = 3, repeats: int = 3, real_piles: int = 24, model: str | None = None,
-             workers: int = 2, real_out: Path | None = None) -> str:
+             workers: int = 2, real_out: Path | None = None, views: int = 1, work_dir: Path | None = None,
+             view_spread_k: float = 0.0) -> str:
     load0 = _load()
     a = accuracy(n_piles)
     o = obstacle_piles()
     s = single_pair_speed(repeats)
-    rec = real_test(real_piles, model, workers, real_out) if real_piles > 0 else None
+    rec = real_test(real_piles, model, workers, real_out, views, work_dir, view_spread_k) if real_piles > 0 else None
     load1 = _load()
     lines = [
         "### Reconstruction (stereo scan + RTK ends -> PileSpec), twin scans",
@@ -344,8 +350,14 @@ if __name__ == "__main__":
     ap.add_argument("--real-out", type=Path, default=None,
                     help="keep the real-test record (JSON) here: written after every pile, resumed when re-run")
     ap.add_argument("--real-only", action="store_true", help="run only the real test")
+    ap.add_argument("--views", type=int, default=1, help="dihedral views the planner averages in the real test")
+    ap.add_argument("--view-spread", type=float, default=0.0, help="U lowered by K x its spread over the views")
+    ap.add_argument("--work-dir", type=Path, default=None,
+                    help="keep the real test's scans and reconstructions here (reused when re-run)")
     args = ap.parse_args()
     if args.real_only:
-        print("\n".join(real_test_markdown(real_test(args.real_piles, args.model, args.workers, args.real_out))))
+        print("\n".join(real_test_markdown(real_test(args.real_piles, args.model, args.workers, args.real_out,
+                                                      args.views, args.work_dir, args.view_spread))))
     else:
-        print(markdown(args.piles, args.repeats, args.real_piles, args.model, args.workers, args.real_out))
+        print(markdown(args.piles, args.repeats, args.real_piles, args.model, args.workers, args.real_out,
+                       args.views, args.work_dir, args.view_spread))

@@ -93,12 +93,12 @@ def crane_config(base_tm, max_reach: float, max_pile_age: float, journal: str | 
                             max_pile_age_s=max_pile_age, journal_path=journal)
 
 
-def _trial_options(objective, model, allow_float, max_pile_age, base, max_reach, capacity):
+def _trial_options(objective, model, allow_float, max_pile_age, base, max_reach, capacity, views=1, view_spread=0.0):
     from field.trial import TrialOptions
 
     return TrialOptions(objective=objective, model=model, allow_float=allow_float, max_pile_age_s=max_pile_age,
                         crane_base_tm=_parse_triple(base, "--base") if base else None, max_reach_m=max_reach,
-                        lift_capacity_kg=capacity)
+                        lift_capacity_kg=capacity, views=views, view_spread_k=view_spread)
 
 
 def _show_plan(prepared) -> None:
@@ -126,6 +126,8 @@ def trial_command(
     record: str = typer.Option(..., "--record", help="Trial record folder to create."),
     objective: str = typer.Option("f3", "--objective"),
     model: str = typer.Option(None, "--model", help="Checkpoint; default: the shipped model."),
+    views: int = typer.Option(1, "--views", help="Dihedral views the planner averages: 1, 2, 4 or 8 (slower, steadier)."),
+    view_spread: float = typer.Option(0.0, "--view-spread", help="Lower U by K x its spread over the views (needs --views > 1)."),
     yes: bool = typer.Option(False, "--yes", help="Do not ask for confirmation before sending."),
     allow_float: bool = typer.Option(False, "--allow-float", help="Accept RTK float endpoints."),
     max_pile_age: float = typer.Option(600.0, "--max-pile-age", help="Refuse pile data older than this [s]."),
@@ -145,7 +147,8 @@ def trial_command(
         return yes or typer.confirm("send this grasp to the crane?", default=False)
 
     try:
-        opts = _trial_options(objective, model, allow_float, max_pile_age, base, max_reach, capacity)
+        opts = _trial_options(objective, model, allow_float, max_pile_age, base, max_reach, capacity, views,
+                              view_spread)
         rec = run_trial_record(scan, gnss, link, record, opts, confirm=confirm, progress=typer.echo)
     except TrialAborted as exc:
         fail(f"{exc} (record: {record})", code=3)

@@ -61,6 +61,8 @@ class RealTestConfig:
     n_float: int = 0  # RTK float end points per survey (they need allow_float) [-]
     grid: tuple[int, int] = (2, 2)  # stereo pairs per scan [-]
     workers: int = 1  # processes (each loads the model once) [-]
+    views: int = 1  # dihedral views the planner averages (planner.inference.Planner.views) [-]
+    view_spread_k: float = 0.0  # U logit lowered by k x its spread over the views (Planner.view_spread_k) [-]
 
     def __post_init__(self) -> None:
         if self.n_piles < 1:
@@ -73,6 +75,17 @@ class RealTestConfig:
             raise ValueError(f"objectives must be a non-empty subset of {OBJECTIVES}, got {self.objectives}")
         if self.n_float < 0 or self.workers < 1:
             raise ValueError("n_float must be >= 0 and workers >= 1")
+        if self.views not in (1, 2, 4, 8):
+            raise ValueError(f"views must be 1, 2, 4 or 8 (dihedral views averaged), got {self.views}")
+        if not self.view_spread_k >= 0 or (self.view_spread_k > 0 and self.views == 1):
+            raise ValueError(f"view_spread_k must be >= 0 and needs views > 1, got {self.view_spread_k} "
+                             f"with views={self.views}")
+
+    def scan_key(self) -> dict:
+        """The settings a twin scan and its reconstruction depend on (a kept one is reused only
+        when they agree)."""
+        return {"logs": list(self.logs), "obstacles": list(self.obstacles), "n_float": self.n_float,
+                "grid": list(self.grid)}
 
 
 # -- frames ------------------------------------------------------------------------------------
@@ -128,33 +141,54 @@ def _execute(truth: Any, grasp: Any, targets: tuple[int, ...]) -> dict:
 
 def real_test_pile(seed: int, work_dir: str | Path, planner: Any, cfg: RealTestConfig) -> list[dict]:
     """The real test on one twin scan (``seed``): one row per objective (see the module
-    docstring). ``planner``: a loaded :class:`planner.inference.Planner`."""
+    docstring). ``planner``: a loaded :class:`planner.inference.Planner`.
+
+    The scan and its reconstruction stay in ``work_dir`` (``scan_SEED``, ``recon_SEED``, and
+    ``scan_SEED.key.json`` with the settings they were made with, written once both are done): a
+    later run with the same scan settings reuses them, so trying another planner on the same
+    scans costs only the planning and the trials."""
     from planner.errors import PlannerError
     from planner.inference import Objective, plan
     from reconstruct.compare import compare_piles
     from reconstruct.errors import ReconstructError
     from reconstruct.pipeline import ReconstructConfig, reconstruct
     from reconstruct.twin_scan import make_twin_scan
-    from synth.pile import read_pile
+    from synth.pile import atomic_write_bytes, read_pile
     from synth.render import OrthoObservation
 
     work = Path(work_dir)
     c0 = time.process_time()
-    scan_root = make_twin_scan(work / f"scan_{seed}", seed, logs=cfg.logs, obstacles=cfg.obstacles,
-                               n_float=cfg.n_float, grid=cfg.grid)
+    scan_root, recon_dir = work / f"scan_{seed}", work / f"recon_{seed}"
+    key_path, error_path = work / f"scan_{seed}.key.json", work / f"recon_{seed}.error.txt"
+    size = planner.config.size_px
+    key = {**cfg.scan_key(), "render_size_px": size}
+    kept = key_path.exists() and json.loads(key_path.read_text()) == key
+    if not kept:
+        for old in (scan_root, recon_dir):
+            shutil.rmtree(old, ignore_errors=True)
+        error_path.unlink(missing_ok=True)
+        make_twin_scan(scan_root, seed, logs=cfg.logs, obstacles=cfg.obstacles, n_float=cfg.n_float, grid=cfg.grid)
     truth = read_pile(scan_root / "truth" / "pile.json")
     cpu = {"scan_s": time.process_time() - c0}
     base = {"seed": seed, "n_logs": truth.n_logs, "n_obstacles": len(truth.stumps) + len(truth.rocks)}
     c0 = time.process_time()
     recon = obs_r = None
     recon_error = None
-    try:
-        res = reconstruct(scan_root / "scan", scan_root / "gnss.csv", work / f"recon_{seed}",
-                          ReconstructConfig(allow_float=cfg.n_float > 0, render_size_px=planner.config.size_px))
-        recon = res.pile
-        obs_r = OrthoObservation.load(res.files["ortho"])
-    except ReconstructError as exc:
-        recon_error = str(exc)
+    if kept and (recon_dir / "report.json").exists():  # the report is written last: a whole reconstruction
+        recon = read_pile(recon_dir / "pile.json")
+        obs_r = OrthoObservation.load(recon_dir / "ortho.npz")
+    elif kept and error_path.exists():
+        recon_error = error_path.read_text()
+    else:
+        try:
+            res = reconstruct(scan_root / "scan", scan_root / "gnss.csv", recon_dir,
+                              ReconstructConfig(allow_float=cfg.n_float > 0, render_size_px=size))
+            recon = res.pile
+            obs_r = OrthoObservation.load(res.files["ortho"])
+        except ReconstructError as exc:
+            recon_error = str(exc)
+            atomic_write_bytes(error_path, recon_error.encode())
+        atomic_write_bytes(key_path, json.dumps(key).encode())
     cpu["reconstruct_s"] = time.process_time() - c0
     match: dict[int, int] = {}
     if recon is not None:
@@ -219,14 +253,14 @@ def _model_path(cfg: RealTestConfig) -> Path:
     return Path(cfg.model or DEFAULT_MODEL)
 
 
-def _worker_init(model: str, threads: int | None) -> None:
+def _worker_init(model: str, threads: int | None, views: int = 1, view_spread_k: float = 0.0) -> None:
     from planner.inference import load_planner
 
     if threads is not None:
         import torch
 
         torch.set_num_threads(threads)
-    _WORKER["planner"] = load_planner(model, device="cpu")
+    _WORKER["planner"] = load_planner(model, device="cpu", views=views, view_spread_k=view_spread_k)
 
 
 def _worker_pile(seed: int, work_dir: str, cfg: RealTestConfig) -> list[dict]:
@@ -249,6 +283,8 @@ def _same_test(old: dict, cfg: RealTestConfig, model_sha: str) -> bool:
     """Whether a stored record ran the same test (all settings but n_piles and workers, same model)."""
     mine = {k: v for k, v in json.loads(json.dumps(asdict(cfg))).items() if k not in ("n_piles", "workers", "model")}
     theirs = {k: v for k, v in old.get("config", {}).items() if k not in ("n_piles", "workers", "model")}
+    theirs.setdefault("views", 1)  # records from before test-time views planned with one view
+    theirs.setdefault("view_spread_k", 0.0)
     return mine == theirs and old.get("model", {}).get("sha256") == model_sha
 
 
@@ -256,7 +292,8 @@ def run_real_test(cfg: RealTestConfig | None = None, work_dir: str | Path | None
                   progress: Callable[[str], None] | None = None, record_path: str | Path | None = None) -> dict:
     """Run the real test on ``cfg.n_piles`` twin scans; returns the record (rows + summary).
 
-    ``work_dir``: where scans and reconstructions go (a temporary folder, removed, when None).
+    ``work_dir``: where scans and reconstructions go (a temporary folder, removed, when None); kept
+    ones made with the same scan settings are reused (:func:`real_test_pile`).
     ``record_path``: the record is written there after every pile (an interrupted run keeps what
     it measured), and a record already there from the same test and the same model (by its
     sha256) is resumed: its piles are not run again."""
@@ -293,7 +330,7 @@ def run_real_test(cfg: RealTestConfig | None = None, work_dir: str | Path | None
     Path(work_dir).mkdir(parents=True, exist_ok=True)
     try:
         if cfg.workers == 1 and seeds:
-            _worker_init(str(model), None)
+            _worker_init(str(model), None, cfg.views, cfg.view_spread_k)
             for k, seed in enumerate(seeds):
                 say(f"pile {k + 1}/{len(seeds)} (seed {seed})")
                 try:
@@ -306,7 +343,7 @@ def run_real_test(cfg: RealTestConfig | None = None, work_dir: str | Path | None
             import multiprocessing as mp
 
             with ProcessPoolExecutor(cfg.workers, mp_context=mp.get_context("spawn"), initializer=_worker_init,
-                                     initargs=(str(model), 1)) as pool:
+                                     initargs=(str(model), 1, cfg.views, cfg.view_spread_k)) as pool:
                 futures = {pool.submit(_worker_pile, s, str(work_dir), cfg): s for s in seeds}
                 for k, fut in enumerate(as_completed(futures)):
                     seed = futures[fut]

@@ -49,6 +49,8 @@ class TrialAborted(FieldError):
 class TrialOptions:
     objective: str = "f3"  # f1, f2 or f3
     model: str | None = None  # checkpoint; None = the shipped default
+    views: int = 1  # dihedral views the planner averages (1, 2, 4, 8; planning time grows with it) [-]
+    view_spread_k: float = 0.0  # U logit lowered by k x its spread over the views (needs views > 1) [-]
     allow_float: bool = False  # accept RTK float endpoints (the operator's explicit choice)
     max_pile_age_s: float = 600.0  # refuse plans on pile data older than this [s]
     crane_base_tm: tuple[float, float, float] | None = None  # SWEREF 99 TM E, N [m], ellipsoidal h [m]
@@ -64,6 +66,11 @@ class TrialOptions:
             raise ValueError(f"objective must be f1, f2 or f3, got {self.objective!r}")
         if not self.max_pile_age_s > 0:
             raise ValueError("max_pile_age_s must be > 0")
+        if self.views not in (1, 2, 4, 8):
+            raise ValueError(f"views must be 1, 2, 4 or 8 (dihedral views the planner averages), got {self.views}")
+        if not self.view_spread_k >= 0 or (self.view_spread_k > 0 and self.views == 1):
+            raise ValueError(f"view_spread_k must be >= 0 and needs views > 1, got {self.view_spread_k} "
+                             f"with views={self.views}")
         if not 0 <= self.min_reach_m < self.max_reach_m:
             raise ValueError("need 0 <= min_reach_m < max_reach_m")
 
@@ -148,7 +155,8 @@ def prepare_trial(scan_dir: str | Path, gnss_path: str | Path, work_dir: str | P
                                   wood_density_kg_m3=options.wood_density_kg_m3)
     say("planning: every target subset through the network")
     try:
-        planner = load_planner(options.model or DEFAULT_MODEL)
+        planner = load_planner(options.model or DEFAULT_MODEL, views=options.views,
+                               view_spread_k=options.view_spread_k)
         if obs.depth.shape[0] != planner.config.size_px:
             raise TrialAborted(f"the reconstruction was rendered at {obs.depth.shape[0]} px but the model needs "
                                f"{planner.config.size_px} px")

@@ -105,6 +105,8 @@ def plan_command(
     as_json: bool = typer.Option(False, "--json", help="Print the plan as JSON."),
     png: Path = typer.Option(None, "--png", help="Draw the chosen grasp and targets over the render."),
     max_subsets: int = typer.Option(127, "--max-subsets", help="Network passes budget; larger piles are pruned."),
+    views: int = typer.Option(1, "--views", help="Dihedral views averaged: 1, 2, 4 or 8 (slower, steadier)."),
+    view_spread: float = typer.Option(0.0, "--view-spread", help="Lower U by K x its spread over the views (needs --views > 1)."),
 ) -> None:
     """Plan the best multi-log grasp on a pile: every target subset scored with Q = f(U, tau, B).
 
@@ -117,7 +119,7 @@ def plan_command(
 
     path = model or DEFAULT_MODEL
     try:
-        planner = load_planner(path)
+        planner = load_planner(path, views=views, view_spread_k=view_spread)
         obs, spec = load_observation(pile, planner.config.size_px)
         result = plan(obs, planner, Objective(kind=objective), top_k=top,
                       subsets=SubsetPolicy(max_subsets=max_subsets), pile=spec)

@@ -30,7 +30,7 @@ import numpy as np
 from planner.constraints import Constraints, polygon_raster
 from planner.data import make_inputs
 from planner.errors import ObservationError
-from planner.model import UNetConfig
+from planner.model import OUTPUT_NAMES, UNetConfig
 from planner.subsets import SubsetPolicy, choose_subsets
 from synth.frames import OrthoGrid, wrap_phi
 from synth.grasp import MAX_WIDTH_M, MIN_WIDTH_M, RECT_WIDTH_M, Grasp
@@ -78,6 +78,9 @@ class Planner:
     quality_smoothing_px: float = 1.0  # Gaussian sigma for U and B before scoring [px]; 0 = raw
     # (GG-CNN style: the argmax then favours a grasp zone over a single-pixel spike)
     candidates_per_subset: int = 64  # pixels tried per subset against keep-out zones [-]
+    views: int = 1  # dihedral views averaged at test time: 1 (none), 2 (+ mirror), 4 (quarter turns) or 8 (both) [-]
+    view_spread_k: float = 0.0  # U logit lowered by k x its standard deviation over the views [-]
+    # (a lower confidence bound: of two grasps the views rate alike on average, the one they agree on wins)
 
     def __post_init__(self) -> None:
         if self.precision not in ("fp32", "bf16"):
@@ -86,6 +89,11 @@ class Planner:
             raise ValueError("batch_size must be >= 1")
         if not (self.angle_smoothing_px >= 0 and self.quality_smoothing_px >= 0):
             raise ValueError("angle_smoothing_px and quality_smoothing_px must be >= 0 pixels")
+        if self.views not in VIEWS:
+            raise ValueError(f"views must be one of {VIEWS} (dihedral views averaged), got {self.views!r}")
+        if not self.view_spread_k >= 0 or (self.view_spread_k > 0 and self.views == 1):
+            raise ValueError(f"view_spread_k must be >= 0 and needs views > 1 (a spread over views), "
+                             f"got {self.view_spread_k} with views={self.views}")
         from planner.model import prepare_for_inference
 
         self._net = prepare_for_inference(self.model, self.precision, self.device)
@@ -104,7 +112,29 @@ class Planner:
 
     def predict(self, x: np.ndarray) -> np.ndarray:
         """Network output (N, 5, H, W) float32 for inputs (N, C, H, W) that share one image
-        (all channels but the last, the target mask), batched."""
+        (all channels but the last, the target mask), batched.
+
+        With ``views`` > 1 the output is the mean over that many dihedral views of the input
+        (mirrored and/or turned by quarter turns, run through the network and mapped back, the
+        angle maps turned with them): the network was trained on turned and mirrored piles but is
+        not exactly equivariant, and the mean over all 8 views is — the plan no longer depends on
+        which way north points in the picture. The U channel is averaged as logits, less
+        ``view_spread_k`` times their standard deviation over the views."""
+        if self.views == 1:
+            return self._predict_once(x)
+        acc = acc_u2 = None
+        for flip, k in _view_list(self.views):
+            y = _view_back(self._predict_once(_view(x, flip, k)), flip, k)
+            acc = y if acc is None else acc + y
+            u2 = np.square(y[:, _U_LOGIT], dtype=np.float64)
+            acc_u2 = u2 if acc_u2 is None else acc_u2 + u2
+        mean = acc / np.float32(self.views)
+        if self.view_spread_k > 0:
+            var = np.maximum(acc_u2 / self.views - np.square(mean[:, _U_LOGIT], dtype=np.float64), 0.0)
+            mean[:, _U_LOGIT] -= np.float32(self.view_spread_k) * np.sqrt(var).astype(np.float32)
+        return mean
+
+    def _predict_once(self, x: np.ndarray) -> np.ndarray:
         import torch
 
         outs = []
@@ -121,6 +151,40 @@ class Planner:
         return np.concatenate(outs) if outs else np.zeros((0, 5, *x.shape[2:]), np.float32)
 
 
+VIEWS = (1, 2, 4, 8)
+_U_LOGIT = OUTPUT_NAMES.index("U")  # the graspability logit in the network output
+
+
+def _view_list(views: int) -> list[tuple[bool, int]]:
+    """(mirror, quarter turns) of each dihedral view; the identity first."""
+    flips = (False, True) if views in (2, 8) else (False,)
+    turns = range(4) if views in (4, 8) else range(1)
+    return [(f, k) for f in flips for k in turns]
+
+
+def _view(x: np.ndarray, flip: bool, k: int) -> np.ndarray:
+    """Inputs (N, C, H, W) seen mirrored left-right (first), then turned ``k`` quarter turns
+    counter-clockwise on screen (the same geometry as :mod:`planner.augment`)."""
+    if flip:
+        x = x[..., ::-1]
+    return np.ascontiguousarray(np.rot90(x, k, axes=(-2, -1)))
+
+
+def _view_back(y: np.ndarray, flip: bool, k: int) -> np.ndarray:
+    """Outputs (N, 5, H, W) of a :func:`_view` mapped back to the original picture: turned back,
+    then mirrored back. (cos 2phi, sin 2phi) turn by 2 x the angle: a quarter turn flips both
+    signs; a mirror flips the sign of sin 2phi."""
+    y = np.rot90(y, -k, axes=(-2, -1))
+    if flip:
+        y = y[..., ::-1]
+    y = np.array(y, dtype=np.float32)
+    if k % 2:
+        y[:, 0:2] *= -1.0
+    if flip:
+        y[:, 1] *= -1.0
+    return y
+
+
 def default_device() -> str:
     import torch
 
@@ -128,13 +192,14 @@ def default_device() -> str:
 
 
 def load_planner(path: str | Path, device: str = "auto", precision: str = "bf16", batch_size: int = 64,
-                 quality_smoothing_px: float = 1.0) -> Planner:
-    """Load a checkpoint (:func:`planner.checkpoint.load_checkpoint`) as a :class:`Planner`."""
+                 quality_smoothing_px: float = 1.0, views: int = 1, view_spread_k: float = 0.0) -> Planner:
+    """Load a checkpoint (:func:`planner.checkpoint.load_checkpoint`) as a :class:`Planner`
+    (``views``, ``view_spread_k``: dihedral test-time views, see :meth:`Planner.predict`)."""
     from planner.checkpoint import load_checkpoint
 
     model, config, meta = load_checkpoint(path)
     return Planner(model, config, default_device() if device == "auto" else device, precision, batch_size, meta,
-                   quality_smoothing_px=quality_smoothing_px)
+                   quality_smoothing_px=quality_smoothing_px, views=views, view_spread_k=view_spread_k)
 
 
 def _gaussian(maps: np.ndarray, sigma_px: float) -> np.ndarray:

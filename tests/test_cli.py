@@ -1,5 +1,6 @@
 """Each command: --help works, bad input exits non-zero with a clear message, a tiny real run."""
 
+import json
 import subprocess
 import sys
 import time
@@ -68,3 +69,17 @@ def test_trial_refuses_an_existing_record(tmp_path):
     result = runner.invoke(app, ["trial", "--scan", str(tmp_path), "--gnss", str(tmp_path / "g.csv"),
                                  "--link", "twin://", "--record", str(tmp_path / "rec"), "--yes"])
     assert result.exit_code != 0 and "already exists" in result.output
+
+
+def test_plan_with_averaged_views_and_bad_views(tmp_path):
+    made = runner.invoke(app, ["synth", "piles", "--count", "1", "--logs", "3", "--renders", "1", "--size", "128",
+                               "--workers", "1", "--out", str(tmp_path / "p")])
+    assert made.exit_code == 0, made.output
+    pile = str(tmp_path / "p" / "pile_00000")
+    result = runner.invoke(app, ["plan", pile, "--objective", "f3", "--views", "8", "--view-spread", "1", "--json"])
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.output)["grasps"][0]["targets"]
+    bad = runner.invoke(app, ["plan", pile, "--views", "3"])
+    assert bad.exit_code != 0 and "views must be one of" in bad.output
+    bad = runner.invoke(app, ["plan", pile, "--view-spread", "1"])
+    assert bad.exit_code != 0 and "needs views > 1" in bad.output

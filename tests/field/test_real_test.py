@@ -5,12 +5,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from field.errors import FieldError
-from field.real_test import (REAL_TEST_FORMAT, RealTestConfig, grasp_to_truth_frame, read_real_test,
+from field.real_test import (REAL_TEST_FORMAT, RealTestConfig, grasp_to_truth_frame, read_real_test, real_test_pile,
                              run_real_test, summarize, write_real_test)
 from synth.frames import make_T, rot_z
 from synth.grasp import Grasp
@@ -95,7 +96,7 @@ def test_config_validation():
         RealTestConfig(logs=(5, 3))
 
 
-def test_one_twin_scan_end_to_end(tmp_path):
+def test_one_twin_scan_end_to_end(tmp_path, monkeypatch):
     cfg = RealTestConfig(n_piles=1, seed=700000, logs=(3, 3), obstacles=(0, 0), objectives=("f1",))
     rec = run_real_test(cfg, work_dir=tmp_path / "work", record_path=tmp_path / "real.json")
     assert rec["failures"] == [] and rec["piles_done"] == 1
@@ -110,3 +111,23 @@ def test_one_twin_scan_end_to_end(tmp_path):
     assert read_real_test(tmp_path / "real.json")["rows"] == rec["rows"]
     again = run_real_test(cfg, work_dir=tmp_path / "work2", record_path=tmp_path / "real.json")
     assert again["rows"] == rec["rows"] and not (tmp_path / "work2" / "scan_700000").exists()
+    # a new record on the same work folder reuses the scan and its reconstruction: same rows,
+    # no new scan, no new reconstruction
+    import reconstruct.pipeline
+    import reconstruct.twin_scan
+
+    def refuse(*a, **k):
+        raise AssertionError("the kept scan should have been reused")
+
+    monkeypatch.setattr(reconstruct.twin_scan, "make_twin_scan", refuse)
+    monkeypatch.setattr(reconstruct.pipeline, "reconstruct", refuse)
+    reused = run_real_test(cfg, work_dir=tmp_path / "work", record_path=tmp_path / "real2.json")
+    def strip(x):  # CPU times differ from run to run
+        if isinstance(x, dict):
+            return {k: strip(v) for k, v in x.items() if not k.endswith("cpu_s")}
+        return [strip(v) for v in x] if isinstance(x, list) else x
+
+    assert strip(reused["rows"]) == strip(rec["rows"])
+    # other scan settings are another scan: not reused
+    with pytest.raises(AssertionError, match="reused"):
+        real_test_pile(700000, tmp_path / "work", SimpleNamespace(config=SimpleNamespace(size_px=128)), RealTestConfig(logs=(3, 3), obstacles=(0, 0), grid=(1, 1)))

@@ -303,3 +303,60 @@ def test_no_depth_ablation_and_decoder_injection_plan():
     for cfg in (UNetConfig.tiny(in_channels=2), UNetConfig.tiny(mask_injection="decoder")):
         p = plan(observation(3), _planner(cfg, precision="bf16"))
         assert p.subsets_evaluated == 7 and len(p.grasps) == 7
+
+
+def test_eight_views_make_the_plan_independent_of_the_pictures_orientation():
+    """The mean over the 8 dihedral views is equivariant: turning (or mirroring) the picture turns
+    the maps and the decoded grasp with it, which one view alone does not do."""
+    from planner.inference import _view, _view_back
+    from planner.model import OUTPUT_NAMES
+
+    rng = np.random.default_rng(3)
+    x = rng.random((2, TINY.in_channels, TINY.size_px, TINY.size_px)).astype(np.float32)
+    for cfg in (TINY, UNetConfig.tiny(mask_injection="decoder")):
+        p1 = Planner(_planner(cfg).model, cfg, precision="fp32")
+        p8 = Planner(p1.model, cfg, precision="fp32", views=8)
+        y = p8.predict(x)
+        assert y.shape == (2, len(OUTPUT_NAMES), TINY.size_px, TINY.size_px)
+        for flip, k in ((False, 1), (True, 0), (True, 3)):
+            # the maps of the turned picture, brought back, equal the maps of the picture
+            back = _view_back(p8.predict(_view(x, flip, k)), flip, k)
+            np.testing.assert_allclose(back, y, atol=2e-4)
+            # one view is not equivariant (else the test could not fail)
+            back1 = _view_back(p1.predict(_view(x, flip, k)), flip, k)
+            assert np.abs(back1 - p1.predict(x)).max() > 1e-2
+    # a grasp decoded from a quarter-turned picture is the turned grasp
+    obs = observation(3, size=TINY.size_px)
+    turned = SimpleNamespace(intensity=np.rot90(obs.intensity, 1, axes=(-2, -1)).copy(),
+                             depth=np.rot90(obs.depth, 1).copy(), instance=np.rot90(obs.instance, 1).copy(),
+                             extent_m=obs.extent_m, camera_height_m=obs.camera_height_m)
+    p8 = Planner(_planner().model, TINY, precision="fp32", views=8)
+    a = plan(obs, p8, top_k=1).best.grasp
+    b = plan(turned, p8, top_k=1).best.grasp
+    # a quarter turn counter-clockwise seen from above: (x, y) -> (-y, x), phi -> phi + 90 deg
+    assert math.hypot(b.x_m + a.y_m, b.y_m - a.x_m) < 1e-6
+    assert abs(math.remainder(b.phi_rad - a.phi_rad - math.pi / 2, math.pi)) < 1e-3
+    assert abs(a.width_m - b.width_m) < 1e-4
+    with pytest.raises(ValueError, match="views"):
+        Planner(p8.model, TINY, views=3)
+
+
+def test_view_spread_lowers_u_where_the_views_disagree():
+    """``view_spread_k`` subtracts k x the standard deviation of the U logit over the views; the
+    other maps are the plain mean."""
+    from planner.inference import _view, _view_back, _view_list
+
+    rng = np.random.default_rng(5)
+    x = rng.random((2, TINY.in_channels, TINY.size_px, TINY.size_px)).astype(np.float32)
+    model = _planner().model
+    mean = Planner(model, TINY, precision="fp32", views=4).predict(x)
+    lcb = Planner(model, TINY, precision="fp32", views=4, view_spread_k=2.0).predict(x)
+    p1 = Planner(model, TINY, precision="fp32")
+    ys = np.stack([_view_back(p1.predict(_view(x, f, k)), f, k) for f, k in _view_list(4)])
+    np.testing.assert_allclose(mean, ys.mean(0), atol=1e-5)
+    np.testing.assert_allclose(np.delete(lcb, 3, axis=1), np.delete(mean, 3, axis=1), atol=1e-6)
+    np.testing.assert_allclose(lcb[:, 3], mean[:, 3] - 2.0 * ys[:, :, 3].std(0), atol=1e-4)
+    assert (ys[:, :, 3].std(0) > 1e-3).mean() > 0.5  # the views do disagree: the bound moves U
+    for bad in ({"views": 1, "view_spread_k": 1.0}, {"views": 8, "view_spread_k": -1.0}):
+        with pytest.raises(ValueError, match="view_spread_k"):
+            Planner(model, TINY, **bad)
