@@ -158,7 +158,8 @@ def _decompose_pile(seed: int, work_dir: str) -> dict | None:
 
 # -- runs -------------------------------------------------------------------------------------------
 def run(work_dir: Path, seeds: list[int], views: int, k: float, objectives: tuple[str, ...], workers: int,
-        decompose: bool = False) -> list[dict]:
+        decompose: bool = False, save=None) -> list[dict]:
+    """Rows of every pile; ``save(rows)`` is called after each pile (an interrupted run keeps them)."""
     from field.real_test import RealTestConfig, _model_path
 
     cfg = RealTestConfig(objectives=objectives, views=views, view_spread_k=k)
@@ -172,6 +173,8 @@ def run(work_dir: Path, seeds: list[int], views: int, k: float, objectives: tupl
             r = fut.result()
             if r:
                 rows += [r] if decompose else r
+                if save is not None:
+                    save(rows)
             if n % 20 == 0 or n == len(futures):
                 print(f"{n}/{len(futures)} piles, {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
     return rows
@@ -227,17 +230,22 @@ def main() -> None:
     if not seeds:
         raise SystemExit(f"{args.work_dir} keeps no scans with >= {args.min_logs} logs")
     rec: dict = {"work_dir": str(args.work_dir), "min_logs": args.min_logs, "seeds": seeds}
+    def write() -> None:
+        atomic_write_bytes(args.out, json.dumps(rec, default=float).encode())
+
     if args.decompose:
-        rec.update(decompose=True, rows=run(args.work_dir, seeds, 1, 0.0, ("f3",), args.workers, decompose=True))
+        rec.update(decompose=True, rows=[])
+        rec["rows"] = run(args.work_dir, seeds, 1, 0.0, ("f3",), args.workers, decompose=True,
+                          save=lambda rows: (rec.update(rows=rows), write()))
     else:
         rec["variants"] = []
         for spec in args.variants.split(","):
             views, k = spec.split(":")
-            objectives = tuple(args.objectives.split(","))
-            rows = run(args.work_dir, seeds, int(views), float(k), objectives, args.workers)
-            rec["variants"].append({"views": int(views), "k": float(k), "objectives": objectives, "rows": rows})
-            atomic_write_bytes(args.out, json.dumps(rec, default=float).encode())
-    atomic_write_bytes(args.out, json.dumps(rec, default=float).encode())
+            v = {"views": int(views), "k": float(k), "objectives": tuple(args.objectives.split(",")), "rows": []}
+            rec["variants"].append(v)
+            v["rows"] = run(args.work_dir, seeds, v["views"], v["k"], v["objectives"], args.workers,
+                            save=lambda rows, v=v: (v.update(rows=rows), write()))
+    write()
     print("\n".join(markdown(rec)))
 
 
