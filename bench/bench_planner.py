@@ -113,6 +113,30 @@ def planning_latency(n_logs=(4, 7, 12), repeats: int = 3,
     return rows
 
 
+def views_latency(n_logs=(4, 7), views=(1, 4, 8), repeats: int = 3) -> list[dict]:
+    """Planning time of the shipped model with 1, 4 and 8 averaged test-time views (f3, 2 threads)."""
+    import torch
+
+    from planner.inference import Objective, load_planner, plan
+
+    torch.set_num_threads(2)
+    obs = {n: _pile_observations(n, 1)[0][0] for n in n_logs}
+    rows = []
+    for v in views:
+        pl = load_planner(DEFAULT_MODEL, device="cpu", views=v, view_spread_k=2.0 if v > 1 else 0.0)
+        plan(obs[n_logs[0]], pl)  # warm-up
+        for n in n_logs:
+            walls = [plan(obs[n], pl, Objective(kind="f3")).elapsed_s for _ in range(repeats)]
+            rows.append({"views": v, "logs": n, "wall_s": statistics.median(walls)})
+    return rows
+
+
+def views_markdown(rows: list[dict]) -> list[str]:
+    lines = [f"Planning with averaged test-time views (`--views V --view-spread 2`), shipped model, f3, all subsets, "
+             f"2 threads, median of 3 ({_load()}):", "", "| views | logs | wall s |", "|---|---|---|"]
+    return lines + [f"| {r['views']} | {r['logs']} | {r['wall_s']:.2f} |" for r in rows]
+
+
 DEFAULT_MODEL = ROOT / "planner" / "weights" / "default.safetensors"
 
 
@@ -310,6 +334,7 @@ def markdown(repeats: int = 3) -> str:
     parts += [f"| {r['model']} | {r['injection']} | {r['logs']} | {r['subsets']} | {r['selection']}"
               f"{fit_note(r)} | "
               f"{r['wall_s']:.2f} | {r['cpu_s']:.2f} |" for r in lat]
+    parts += [""] + views_markdown(views_latency())
     parts += [""] + pruning_markdown(pruning_quality(
         os.environ.get("LOGGRASP_PLANNER_CKPT"), n_piles=int(os.environ.get("LOGGRASP_BENCH_PRUNING_PILES", "20"))))
     return "\n".join(parts)
@@ -326,8 +351,11 @@ if __name__ == "__main__":
     ap.add_argument("--piles", type=int, default=20, help="7-log piles for the pruning table")
     ap.add_argument("--cache", default=None, help="folder keeping each pile's pruning rows (resume a run)")
     ap.add_argument("--cached-only", action="store_true", help="tabulate the piles in --cache, compute nothing")
+    ap.add_argument("--views-only", action="store_true", help="only the planning time with averaged test-time views")
     args = ap.parse_args()
-    if args.pruning_only:
+    if args.views_only:
+        print("\n".join(views_markdown(views_latency())))
+    elif args.pruning_only:
         print("\n".join(pruning_markdown(pruning_quality(args.model, n_piles=args.piles, cache_dir=args.cache,
                                                                   only_cached=args.cached_only))))
     else:
