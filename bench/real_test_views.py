@@ -69,16 +69,11 @@ def _pile(seed: int, work_dir: str, cfg) -> list[dict]:
 
 
 # -- hybrids --------------------------------------------------------------------------------------
-def _qmul(a, b) -> tuple[float, float, float, float]:
-    x1, y1, z1, w1 = a
-    x2, y2, z2, w2 = b
-    return (w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2, w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2, w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2)
-
-
 def moved(pile, T_new_old: np.ndarray):
     """``pile`` expressed in another frame (``T_new_old``: a turn about z and a shift); the
     terrain is resampled on the new frame's grid (bilinear), outside the old patch clamped."""
+    from real_test_colours import _qmul  # this folder: a script's own folder is on sys.path
+
     from synth.pile import LogSpec
 
     T = np.asarray(T_new_old, dtype=float)

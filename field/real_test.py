@@ -75,11 +75,9 @@ class RealTestConfig:
             raise ValueError(f"objectives must be a non-empty subset of {OBJECTIVES}, got {self.objectives}")
         if self.n_float < 0 or self.workers < 1:
             raise ValueError("n_float must be >= 0 and workers >= 1")
-        if self.views not in (1, 2, 4, 8):
-            raise ValueError(f"views must be 1, 2, 4 or 8 (dihedral views averaged), got {self.views}")
-        if not self.view_spread_k >= 0 or (self.view_spread_k > 0 and self.views == 1):
-            raise ValueError(f"view_spread_k must be >= 0 and needs views > 1, got {self.view_spread_k} "
-                             f"with views={self.views}")
+        from planner.inference import check_views
+
+        check_views(self.views, self.view_spread_k)
 
     def scan_key(self) -> dict:
         """The settings a twin scan and its reconstruction depend on (a kept one is reused only

@@ -66,11 +66,9 @@ class TrialOptions:
             raise ValueError(f"objective must be f1, f2 or f3, got {self.objective!r}")
         if not self.max_pile_age_s > 0:
             raise ValueError("max_pile_age_s must be > 0")
-        if self.views not in (1, 2, 4, 8):
-            raise ValueError(f"views must be 1, 2, 4 or 8 (dihedral views the planner averages), got {self.views}")
-        if not self.view_spread_k >= 0 or (self.view_spread_k > 0 and self.views == 1):
-            raise ValueError(f"view_spread_k must be >= 0 and needs views > 1, got {self.view_spread_k} "
-                             f"with views={self.views}")
+        from planner.inference import check_views
+
+        check_views(self.views, self.view_spread_k)
         if not 0 <= self.min_reach_m < self.max_reach_m:
             raise ValueError("need 0 <= min_reach_m < max_reach_m")
 

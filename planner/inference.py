@@ -89,11 +89,7 @@ class Planner:
             raise ValueError("batch_size must be >= 1")
         if not (self.angle_smoothing_px >= 0 and self.quality_smoothing_px >= 0):
             raise ValueError("angle_smoothing_px and quality_smoothing_px must be >= 0 pixels")
-        if self.views not in VIEWS:
-            raise ValueError(f"views must be one of {VIEWS} (dihedral views averaged), got {self.views!r}")
-        if not self.view_spread_k >= 0 or (self.view_spread_k > 0 and self.views == 1):
-            raise ValueError(f"view_spread_k must be >= 0 and needs views > 1 (a spread over views), "
-                             f"got {self.view_spread_k} with views={self.views}")
+        check_views(self.views, self.view_spread_k)
         from planner.model import prepare_for_inference
 
         self._net = prepare_for_inference(self.model, self.precision, self.device)
@@ -153,6 +149,16 @@ class Planner:
 
 VIEWS = (1, 2, 4, 8)
 _U_LOGIT = OUTPUT_NAMES.index("U")  # the graspability logit in the network output
+
+
+def check_views(views: int, view_spread_k: float) -> None:
+    """``ValueError`` unless ``views`` is 1, 2, 4 or 8 and ``view_spread_k`` >= 0 (> 0 only with
+    more than one view: a spread over views)."""
+    if views not in VIEWS:
+        raise ValueError(f"views must be one of {VIEWS} (dihedral views averaged), got {views!r}")
+    if not view_spread_k >= 0 or (view_spread_k > 0 and views == 1):
+        raise ValueError(f"view_spread_k must be >= 0 and needs views > 1 (a spread over views), "
+                         f"got {view_spread_k} with views={views}")
 
 
 def _view_list(views: int) -> list[tuple[bool, int]]:
