@@ -12,7 +12,7 @@ views lowers the noise; lowering U by its spread over the views prefers grasps t
 
 Scans and reconstructions come from a real-test work folder (``bench_reconstruct.py --work-dir``;
 :func:`field.real_test.real_test_pile` reuses them), so a variant costs only planning and trials.
-Run (2 cores: ~25 s per 6-log pile for both objectives with 8 views):
+Run (2 cores, 2 workers: 178 piles of 5–6 logs took 65 min for f1 and f3 with 8 views, on a loaded CPU):
 
     .venv/bin/python bench/bench_reconstruct.py --real-only --real-piles 500 --work-dir runs/rt-work
     .venv/bin/python bench/real_test_views.py --work-dir runs/rt-work --min-logs 5 \\
