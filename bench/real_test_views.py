@@ -3,7 +3,7 @@
 
 Why: the real test (``bench/bench_reconstruct.py --real-only``) found reconstruction-planned f3
 grasps 5.8 points less successful than truth-planned ones, the gap growing with the pile (-14 pp on
-6 logs). Planning on hybrids of the truth in its own frame (:func:`decompose`: the reconstruction's
+6 logs). Planning on hybrids of the truth in its own frame (:func:`_decompose_pile`: the reconstruction's
 logs and terrain, its colours, its obstacles, or the truth turned into the reconstruction's frame)
 costs a few points each, and none explains the whole gap: f3 picks the best of up to 63 subsets
 from a network whose U is noisy, and the more the input departs from the one the grasp will meet,
@@ -16,7 +16,7 @@ Run (2 cores, 2 workers: 178 piles of 5–6 logs took 65 min for f1 and f3 with 
 
     .venv/bin/python bench/bench_reconstruct.py --real-only --real-piles 500 --work-dir runs/rt-work
     .venv/bin/python bench/real_test_views.py --work-dir runs/rt-work --min-logs 5 \\
-        --variants 8:1 --objectives f1,f3 --out runs/real_test_views.json
+        --variants 1:0,8:2 --objectives f1,f3 --out runs/real_test_views.json
     .venv/bin/python bench/real_test_views.py --work-dir runs/rt-work --min-logs 5 --decompose \\
         --out runs/real_test_decompose.json
 """
