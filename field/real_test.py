@@ -146,7 +146,8 @@ def real_test_pile(seed: int, work_dir: str | Path, planner: Any, cfg: RealTestC
     later run with the same scan settings reuses them, so trying another planner on the same
     scans costs only the planning and the trials."""
     from planner.errors import PlannerError
-    from planner.inference import Objective, plan
+    from planner.errors import ObservationError
+    from planner.inference import Objective, check_grid, plan
     from reconstruct.compare import compare_piles
     from reconstruct.errors import ReconstructError
     from reconstruct.pipeline import ReconstructConfig, reconstruct
@@ -159,8 +160,8 @@ def real_test_pile(seed: int, work_dir: str | Path, planner: Any, cfg: RealTestC
     scan_root, recon_dir = work / f"scan_{seed}", work / f"recon_{seed}"
     key_path, error_path = work / f"scan_{seed}.key.json", work / f"recon_{seed}.error.txt"
     size = planner.config.size_px
-    key = {**cfg.scan_key(), "render_size_px": size}
-    kept = key_path.exists() and json.loads(key_path.read_text()) == key
+    key = {**cfg.scan_key(), "render_size_px": size, "render_extent_m": planner.config.extent_m}
+    kept = key_path.exists() and {"render_extent_m": 5.0, **json.loads(key_path.read_text())} == key
     if not kept:
         for old in (scan_root, recon_dir):
             shutil.rmtree(old, ignore_errors=True)
@@ -173,14 +174,20 @@ def real_test_pile(seed: int, work_dir: str | Path, planner: Any, cfg: RealTestC
     recon = obs_r = None
     recon_error = None
     if kept and (recon_dir / "report.json").exists():  # the report is written last: a whole reconstruction
-        recon = read_pile(recon_dir / "pile.json")
         obs_r = OrthoObservation.load(recon_dir / "ortho.npz")
+        try:
+            check_grid(obs_r.depth.shape[0], obs_r.extent_m, planner.config)
+            recon = read_pile(recon_dir / "pile.json")
+        except ObservationError:  # kept from before re-renders kept the network's pitch: made again
+            obs_r = None
+            shutil.rmtree(recon_dir)
     elif kept and error_path.exists():
         recon_error = error_path.read_text()
-    else:
+    if recon is None and recon_error is None:
         try:
             res = reconstruct(scan_root / "scan", scan_root / "gnss.csv", recon_dir,
-                              ReconstructConfig(allow_float=cfg.n_float > 0, render_size_px=size))
+                              ReconstructConfig(allow_float=cfg.n_float > 0, render_size_px=size,
+                                                render_extent_m=planner.config.extent_m))
             recon = res.pile
             obs_r = OrthoObservation.load(res.files["ortho"])
         except ReconstructError as exc:

@@ -134,10 +134,16 @@ def prepare_trial(scan_dir: str | Path, gnss_path: str | Path, work_dir: str | P
     if age > options.max_pile_age_s:
         raise TrialAborted(f"the pile data is {age:.0f} s old (captured {time.ctime(captured)}), over the "
                            f"{options.max_pile_age_s:.0f} s limit: scan the pile again before grasping")
+    try:  # first: a model that cannot load stops the trial before the reconstruction's work
+        planner = load_planner(options.model or DEFAULT_MODEL, views=options.views,
+                               view_spread_k=options.view_spread_k)
+    except PlannerError as exc:
+        raise TrialAborted(f"planning failed: {exc}") from exc
     say("reconstructing the pile from the scan and the RTK endpoints")
-    try:
+    try:  # re-rendered at the network's pixel pitch
         result = reconstruct(scan_dir, gnss_path, work / "reconstruction",
-                             ReconstructConfig(allow_float=options.allow_float), progress=say)
+                             ReconstructConfig(allow_float=options.allow_float, render_size_px=planner.config.size_px,
+                                               render_extent_m=planner.config.extent_m), progress=say)
     except (ReconstructError, SynthError, ValueError) as exc:
         raise TrialAborted(f"reconstruction failed: {exc}") from exc
     pile = result.pile
@@ -153,11 +159,6 @@ def prepare_trial(scan_dir: str | Path, gnss_path: str | Path, work_dir: str | P
                                   wood_density_kg_m3=options.wood_density_kg_m3)
     say("planning: every target subset through the network")
     try:
-        planner = load_planner(options.model or DEFAULT_MODEL, views=options.views,
-                               view_spread_k=options.view_spread_k)
-        if obs.depth.shape[0] != planner.config.size_px:
-            raise TrialAborted(f"the reconstruction was rendered at {obs.depth.shape[0]} px but the model needs "
-                               f"{planner.config.size_px} px")
         the_plan = plan(obs, planner, Objective(kind=options.objective), constraints, top_k=10, pile=pile)
     except PlannerError as exc:
         raise TrialAborted(f"planning failed: {exc}") from exc

@@ -272,6 +272,24 @@ def _observation_arrays(observation) -> tuple[np.ndarray, np.ndarray, np.ndarray
     return inten, depth, inst, float(getattr(observation, "extent_m", 5.0)), float(getattr(observation, "camera_height_m", 5.0))
 
 
+def check_grid(size_px: int, extent_m: float, cfg) -> None:
+    """Raise :class:`ObservationError` unless an observation of ``size_px`` pixels over ``extent_m``
+    metres suits the network of ``cfg`` (a :class:`planner.model.UNetConfig`): the network knows
+    logs at its training images' pixel pitch (``cfg.pixel_m``), so the observation must have that
+    pitch (within 0.5 %); a larger patch is fine with more pixels, a multiple of ``2**cfg.depth``
+    (the U-Net's pooling)."""
+    pitch = extent_m / size_px
+    if abs(pitch / cfg.pixel_m - 1.0) > 0.005:
+        raise ObservationError(
+            f"the observation has {100 * pitch:.2f} cm pixels ({size_px} px over {extent_m:g} m) but the network was "
+            f"trained on {100 * cfg.pixel_m:.2f} cm pixels ({cfg.size_px} px over {cfg.extent_m:g} m): logs would look "
+            f"{'smaller' if pitch > cfg.pixel_m else 'larger'} than they are; render at the network's pitch "
+            f"({round(extent_m / cfg.pixel_m)} px over {extent_m:g} m)")
+    if size_px % (2 ** cfg.depth):
+        raise ObservationError(f"the observation is {size_px} px, not a multiple of {2 ** cfg.depth} (the network's "
+                               f"{cfg.depth} poolings); render a patch of a multiple of {2 ** cfg.depth} pixels")
+
+
 def _smoothed_at(img: np.ndarray, r: int, c: int, sigma: float) -> float:
     if sigma <= 0:
         return float(img[r, c])
@@ -294,9 +312,7 @@ def plan(observation, planner: Planner, objective: Objective = Objective(), cons
     t0 = time.perf_counter()
     inten, depth, inst, extent_m, cam_h = _observation_arrays(observation)
     cfg = planner.config
-    if depth.shape[0] != cfg.size_px:
-        raise ObservationError(f"the observation is {depth.shape[0]} px but the network was trained on {cfg.size_px} px; "
-                               "render at the checkpoint's size")
+    check_grid(depth.shape[0], extent_m, cfg)
     grid = OrthoGrid(depth.shape[0], extent_m)
     codes, counts = np.unique(inst[(inst > 0) & (inst < OBSTACLE_CODE_BASE)], return_counts=True)
     if len(codes) == 0:

@@ -39,6 +39,7 @@ class UNetConfig:
     in_channels: int = 3  # 3 = (I, D, M_T); 2 = (I, M_T) no-depth ablation [-]
     out_channels: int = 5  # (C, S, W, U-logit, B) [-]
     size_px: int = 128  # input image side the network was built/trained for [px]
+    extent_m: float = 5.0  # side of the training images [m]; extent_m / size_px is the pixel pitch it knows
     min_width_m: float = 0.30  # W output range low end [m]
     max_width_m: float = 1.55  # W output range high end [m]
     mask_injection: str = "input"  # "input": M_T is an input channel (paper); "decoder": see module doc
@@ -57,10 +58,17 @@ class UNetConfig:
                 f"size_px={self.size_px} must be >= 16 and divisible by 2**depth={2 ** self.depth}; "
                 "choose another image size or depth"
             )
+        if not 0.5 <= self.extent_m <= 100.0:
+            raise ValueError(f"extent_m must be in [0.5, 100] m (the training images' side), got {self.extent_m}")
         if self.mask_injection not in ("input", "decoder"):
             raise ValueError(f"mask_injection must be 'input' or 'decoder', got {self.mask_injection!r}")
         if not 0 < self.min_width_m < self.max_width_m:
             raise ValueError("need 0 < min_width_m < max_width_m")
+
+    @property
+    def pixel_m(self) -> float:
+        """The pixel pitch of the training images [m]: observations must have it."""
+        return self.extent_m / self.size_px
 
     @property
     def uses_depth(self) -> bool:

@@ -271,6 +271,9 @@ def train(data_dir: str | Path | list, out_dir: str | Path, config: TrainConfig 
     if size != config.model.size_px:
         raise DataError(f"the data set's images are {size} px but the model is configured for "
                         f"{config.model.size_px} px; set model.size_px={size}")
+    extent = float(grid.get("extent_m", config.model.extent_m))
+    if abs(extent - config.model.extent_m) > 1e-9:  # the pitch the network learns is the data set's
+        config = replace(config, model=replace(config.model, extent_m=extent))
     cam_h = float(grid.get("camera_height_m", config.data.camera_height_m))
     if abs(cam_h - config.data.camera_height_m) > 1e-9:
         config = replace(config, data=replace(config.data, camera_height_m=cam_h))

@@ -60,6 +60,8 @@ REPORT_FORMAT = "loggrasp.reconstruction-report"
 REPORT_VERSION = "1.0"
 PAIR_POSES = ("auto", "calibration", "sfm")
 GEOREGISTER = ("auto", "scan-pose", "gnss")
+RENDER_PX_MULTIPLE = 16  # re-render sides are a multiple of this (a depth-4 U-Net pools 4 times) [px]
+MAX_EXTENT_M = 100.0  # largest pile patch [m]
 
 
 # -- the scan pose sidecar ---------------------------------------------------------------------
@@ -145,7 +147,9 @@ class ReconstructConfig:
     max_correction_deg: float = 5.0  # larger refinement rotations are an error [deg]
     terrain_margin_m: float = 0.75  # terrain reaches this far beyond the outermost log end [m]
     min_extent_m: float = 5.0  # smallest terrain patch [m]
-    render_size_px: int = 128  # re-render size (the training format) [px]
+    render_size_px: int = 128  # re-render pixels over render_extent_m (the training format) [px]
+    render_extent_m: float = 5.0  # side of the training images [m]; a larger patch keeps their pixel pitch
+    # (render_extent_m / render_size_px) with more pixels, a multiple of RENDER_PX_MULTIPLE
     render_n: int = 3  # intensity renders [-]
     seed: int = 0  # render colours [-]
 
@@ -156,6 +160,11 @@ class ReconstructConfig:
             raise ValueError("max_correction_m, max_correction_deg and terrain_margin_m must be >= 0")
         if not 1.0 <= self.min_extent_m <= 100.0:
             raise ValueError("min_extent_m must be in [1, 100] m")
+        if not 16 <= self.render_size_px <= 2048 or self.render_size_px % RENDER_PX_MULTIPLE:
+            raise ValueError(f"render_size_px must be a multiple of {RENDER_PX_MULTIPLE} in [16, 2048], "
+                             f"got {self.render_size_px}")
+        if not 0.5 <= self.render_extent_m <= 100.0:
+            raise ValueError(f"render_extent_m must be in [0.5, 100] m, got {self.render_extent_m}")
         if self.refine_dof not in ("4dof", "6dof"):
             raise ValueError(f"refine_dof must be '4dof' or '6dof', got {self.refine_dof!r}")
         if self.pair_poses not in PAIR_POSES:
@@ -164,6 +173,20 @@ class ReconstructConfig:
             raise ValueError(f"georegister must be one of {GEOREGISTER}, got {self.georegister!r}")
         if self.refine_iterations < 1 or self.refine_rounds < 1:
             raise ValueError("refine_iterations and refine_rounds must be >= 1")
+
+
+def patch_extent(span_m: float, cfg: ReconstructConfig) -> tuple[float, int]:
+    """The side of the square pile patch [m] and its re-render size [px] for logs spanning
+    ``span_m`` (with margins): at least ``cfg.min_extent_m``, at the training images' pixel pitch
+    (``render_extent_m / render_size_px``), a whole multiple of ``RENDER_PX_MULTIPLE`` pixels, so the
+    planner sees logs at the size it learned them whatever the pile's spread."""
+    pitch = cfg.render_extent_m / cfg.render_size_px
+    step = RENDER_PX_MULTIPLE * pitch
+    n = RENDER_PX_MULTIPLE * max(math.ceil(cfg.min_extent_m / step - 1e-9), math.ceil(span_m / step - 1e-9), 1)
+    if n * pitch > MAX_EXTENT_M + 1e-9:
+        raise RegistrationError(f"the surveyed log ends span {span_m:.1f} m with margins; a pile patch is at most "
+                                f"{MAX_EXTENT_M:g} m: check the GNSS file for points of another pile")
+    return n * pitch, n
 
 
 @dataclass
@@ -717,7 +740,7 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
     all_ends = np.array([p for ends in ends_site.values() for p in ends])
     centre_xy = 0.5 * (all_ends[:, :2].min(0) + all_ends[:, :2].max(0))
     reach = float(np.max(np.abs(all_ends[:, :2] - centre_xy))) + cfg.terrain_margin_m
-    extent = min(100.0, max(cfg.min_extent_m, math.ceil(2 * reach / 0.5) * 0.5))
+    extent, render_px = patch_extent(2 * reach, cfg)
     near = np.all(np.abs(pts_site[:, :2] - centre_xy) < extent / 2, axis=1)
     if near.sum() < 100:
         raise RegistrationError(f"only {int(near.sum())} scan points lie on the {extent} m patch around the logs")
@@ -776,7 +799,7 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
     out_dir.mkdir(parents=True, exist_ok=True)
     files = {"pile": write_pile(fit.pile, out_dir / "pile.json")}
     with World(fit.pile) as world:
-        obs = render_ortho(world, OrthoRenderConfig(size_px=cfg.render_size_px, n_renders=cfg.render_n),
+        obs = render_ortho(world, OrthoRenderConfig(size_px=render_px, n_renders=cfg.render_n),
                            seed=cfg.seed)
     obs.meta["source"] = "reconstructed"
     files["ortho"] = obs.save(out_dir / "ortho.npz")

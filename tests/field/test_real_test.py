@@ -13,6 +13,7 @@ import pytest
 from field.errors import FieldError
 from field.real_test import (REAL_TEST_FORMAT, RealTestConfig, grasp_to_truth_frame, read_real_test, real_test_pile,
                              run_real_test, summarize, write_real_test)
+from planner.model import UNetConfig
 from synth.frames import make_T, rot_z
 from synth.grasp import Grasp
 from synth.pile import Georeference, LogSpec, PileSpec, TerrainSpec
@@ -130,4 +131,4 @@ def test_one_twin_scan_end_to_end(tmp_path, monkeypatch):
     assert strip(reused["rows"]) == strip(rec["rows"])
     # other scan settings are another scan: not reused
     with pytest.raises(AssertionError, match="reused"):
-        real_test_pile(700000, tmp_path / "work", SimpleNamespace(config=SimpleNamespace(size_px=128)), RealTestConfig(logs=(3, 3), obstacles=(0, 0), grid=(1, 1)))
+        real_test_pile(700000, tmp_path / "work", SimpleNamespace(config=UNetConfig()), RealTestConfig(logs=(3, 3), obstacles=(0, 0), grid=(1, 1)))

@@ -37,9 +37,9 @@ def bar_pile(n_logs: int, size: int = 32, extent: float = 5.0, seed: int = 0, sp
     return intensity, depth, inst, rows
 
 
-def observation(n_logs: int, size: int = 32, seed: int = 0, **kw) -> OrthoObservation:
-    inten, depth, inst, _ = bar_pile(n_logs, size, seed=seed, **kw)
-    return OrthoObservation(intensity=inten[None], depth=depth, instance=inst, extent_m=5.0, camera_height_m=5.0,
+def observation(n_logs: int, size: int = 32, seed: int = 0, extent: float = 5.0, **kw) -> OrthoObservation:
+    inten, depth, inst, _ = bar_pile(n_logs, size, extent=extent, seed=seed, **kw)
+    return OrthoObservation(intensity=inten[None], depth=depth, instance=inst, extent_m=extent, camera_height_m=5.0,
                             n_logs=n_logs, n_obstacles=int((inst >= 1000).any()))
 
 

@@ -276,8 +276,14 @@ def test_bad_observations_raise_clear_errors():
     nan.depth[3, 3] = np.nan
     with pytest.raises(ObservationError, match="NaN"):
         plan(nan, pl)
-    with pytest.raises(ObservationError, match="trained on 32 px"):
-        plan(observation(3, size=64), pl)
+    with pytest.raises(ObservationError, match=r"15.62 cm pixels \(32 px over 5 m\).*look larger"):
+        plan(observation(3, size=64), pl)  # 5 m at 64 px: another pitch than the network's
+    with pytest.raises(ObservationError, match=r"trained on 15.62 cm.*look smaller.*\(35 px over 5.5 m\)"):
+        plan(observation(3, size=32, extent=5.5), pl)
+    with pytest.raises(ObservationError, match="multiple of 4"):
+        plan(observation(3, size=34, extent=34 * 5.0 / 32), pl)
+    bigger = plan(observation(3, size=64, extent=10.0), pl)  # the network's pitch on a larger patch
+    assert bigger.best is not None and max(abs(bigger.best.grasp.x_m), abs(bigger.best.grasp.y_m)) <= 5.0
     many = observation(8)
     with pytest.raises(ObservationError, match="budget"):
         plan(many, pl, subsets=SubsetPolicy(mode="exhaustive"))

@@ -15,12 +15,13 @@ from reconstruct.compare import compare_piles, simulate_scan
 from reconstruct.errors import GnssFormatError, ReconstructError, RegistrationError, ScanError
 from reconstruct.fit import FitConfig, sample_top_view_points
 from reconstruct.pipeline import (
-    ReconstructConfig, ScanPose, read_report, read_scan_pose, reconstruct, refine_registration,
+    ReconstructConfig, ScanPose, patch_extent, read_report, read_scan_pose, reconstruct, refine_registration,
     write_scan_pose,
 )
 from reconstruct.stereo import find_pairs, read_pair, scan_cloud
 from synth.frames import apply_T, make_T, rot_z
 from synth.pile import LogSpec, PileSpec, TerrainSpec, read_pile
+from synth.render import OrthoObservation
 
 
 # -- scan folders ----------------------------------------------------------------------------
@@ -168,6 +169,22 @@ def test_reconstruct_a_single_pair(small_scan):
     assert s["abs_diameter_err_m"]["median"] < 0.015, c["logs"]
     assert s["endpoint_err_m"]["median"] < 0.05, c["logs"]
     assert s["mask_iou"]["median"] > 0.8, c["logs"]
+    obs = OrthoObservation.load(d / "out" / "ortho.npz")  # the training images' pitch
+    assert obs.extent_m / obs.depth.shape[0] == pytest.approx(5.0 / 128)
+
+
+def test_patch_keeps_the_training_pitch():
+    cfg = ReconstructConfig()  # 128 px over 5 m: 3.9 cm pixels
+    assert patch_extent(3.0, cfg) == (5.0, 128)  # at least min_extent_m
+    assert patch_extent(5.0, cfg) == (5.0, 128)
+    assert patch_extent(5.01, cfg) == (5.625, 144)  # a wider pile: more pixels, the same pitch, 16 px steps
+    assert patch_extent(7.3, cfg) == (7.5, 192)
+    extent, px = patch_extent(7.3, replace(cfg, render_size_px=64))  # a smaller network's coarser pitch
+    assert (extent, px) == (7.5, 96)
+    with pytest.raises(RegistrationError, match="at most 100 m"):
+        patch_extent(140.0, cfg)
+    with pytest.raises(ValueError, match="multiple of 16"):
+        ReconstructConfig(render_size_px=100)
 
 
 def _rows(path: Path) -> list[str]:
