@@ -169,14 +169,13 @@ def obstacle_piles(seeds=range(103, 109), n_obstacles: int = 3, clean_seeds=(110
     return {"rows": rows, "fps": fps, "n": n, "failures": failures}
 
 
-def real_test(n_piles: int = 24, model: str | None = None, workers: int = 2, out: Path | None = None,
-              views: int = 1, work_dir: Path | None = None, view_spread_k: float = 0.0) -> dict:
-    """The real test (:func:`field.real_test.run_real_test`); the record is kept in ``out`` when
-    given (written after every pile; a run of the same test and model there is resumed); scans and
-    reconstructions kept in ``work_dir`` when given (reused by later runs)."""
-    from field.real_test import RealTestConfig, run_real_test
+def real_test(cfg, out: Path | None = None, work_dir: Path | None = None) -> dict:
+    """The real test (:func:`field.real_test.run_real_test` with ``cfg``, a
+    :class:`field.real_test.RealTestConfig`); the record is kept in ``out`` when given (written
+    after every pile; a run of the same test and model there is resumed); scans and reconstructions
+    kept in ``work_dir`` when given (reused by later runs)."""
+    from field.real_test import run_real_test
 
-    cfg = RealTestConfig(n_piles=n_piles, model=model, workers=workers, views=views, view_spread_k=view_spread_k)
     return run_real_test(cfg, record_path=out,
                          work_dir=work_dir, progress=lambda s: print(s, file=sys.stderr, flush=True))
 
@@ -193,7 +192,9 @@ def real_test_markdown(rec: dict) -> list[str]:
         f"{cfg['logs'][0]}-{cfg['logs'][1]} logs, {cfg['obstacles'][0]}-{cfg['obstacles'][1]} obstacles, "
         f"{cfg['grid'][0]}x{cfg['grid'][1]} pairs, RTK fixed), reconstructed; model `{Path(rec['model']['path']).name}` "
         f"(sha256 {rec['model']['sha256'][:12]}, {cfg.get('views', 1)} view(s) averaged, U less "
-        f"{cfg.get('view_spread_k', 0.0):g} x their spread) plans on the reconstruction's "
+        f"{cfg.get('view_spread_k', 0.0):g} x their spread; reconstructed pile frames "
+        f"{'in site axes' if cfg.get('log_direction_deg') is None else 'turned so the logs lie at ' + format(cfg['log_direction_deg'], 'g') + ' deg'}) "
+        "plans on the reconstruction's "
         "re-render and on the truth's render; "
         "the reconstruction's grasp is taken to the truth frame through both georeferences, its targets "
         "through the log matching; both grasps run on the TRUE pile (`TrialConfig.fast()`). "
@@ -300,14 +301,19 @@ def single_pair_speed(repeats: int = 3, workdir: Path | None = None) -> dict:
     return {"walls": walls, "cpus": cpus, "stages": stages[-1]}
 
 
-def markdown(n_piles: int = 3, repeats: int = 3, real_piles: int = 24, model: str | None = None,
-             workers: int = 2, real_out: Path | None = None, views: int = 1, work_dir: Path | None = None,
-             view_spread_k: float = 0.0) -> str:
+def markdown(n_piles: int = 3, repeats: int = 3, real_cfg=None, real_out: Path | None = None,
+             work_dir: Path | None = None, real_piles: int = 24) -> str:
+    """The section; the real test runs with ``real_cfg`` (a :class:`field.real_test.RealTestConfig`),
+    or when it is None on ``real_piles`` scans with the defaults (0: skipped)."""
+    from field.real_test import RealTestConfig
+
+    if real_cfg is None and real_piles > 0:
+        real_cfg = RealTestConfig(n_piles=real_piles, workers=2)
     load0 = _load()
     a = accuracy(n_piles)
     o = obstacle_piles()
     s = single_pair_speed(repeats)
-    rec = real_test(real_piles, model, workers, real_out, views, work_dir, view_spread_k) if real_piles > 0 else None
+    rec = real_test(real_cfg, real_out, work_dir) if real_cfg is not None else None
     load1 = _load()
     lines = [
         "### Reconstruction (stereo scan + RTK ends -> PileSpec), twin scans",
@@ -352,12 +358,19 @@ if __name__ == "__main__":
     ap.add_argument("--real-only", action="store_true", help="run only the real test")
     ap.add_argument("--views", type=int, default=1, help="dihedral views the planner averages in the real test")
     ap.add_argument("--view-spread", type=float, default=0.0, help="U lowered by K x its spread over the views")
+    ap.add_argument("--log-direction", type=float, default=None,
+                    help="reconstructed pile frames turned so the logs lie at this angle [deg] (default: site axes)")
     ap.add_argument("--work-dir", type=Path, default=None,
                     help="keep the real test's scans and reconstructions here (reused when re-run)")
     args = ap.parse_args()
+    from field.real_test import RealTestConfig
+
+    real_cfg = None if args.real_piles <= 0 else RealTestConfig(
+        n_piles=args.real_piles, model=args.model, workers=args.workers, views=args.views,
+        view_spread_k=args.view_spread, log_direction_deg=args.log_direction)
     if args.real_only:
-        print("\n".join(real_test_markdown(real_test(args.real_piles, args.model, args.workers, args.real_out,
-                                                      args.views, args.work_dir, args.view_spread))))
+        if real_cfg is None:
+            raise SystemExit("--real-only needs --real-piles > 0")
+        print("\n".join(real_test_markdown(real_test(real_cfg, args.real_out, args.work_dir))))
     else:
-        print(markdown(args.piles, args.repeats, args.real_piles, args.model, args.workers, args.real_out,
-                       args.views, args.work_dir, args.view_spread))
+        print(markdown(args.piles, args.repeats, real_cfg, args.real_out, args.work_dir, real_piles=args.real_piles))

@@ -40,15 +40,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 _W: dict = {}
 
 
-def kept_seeds(work_dir: Path, min_logs: int = 1) -> list[int]:
-    """Seeds whose scan (and reconstruction or its error) the work folder keeps, with at least
-    ``min_logs`` logs."""
+def kept_seeds(work_dir: Path, min_logs: int = 1, max_logs: int = 1000) -> list[int]:
+    """Seeds whose scan (and reconstruction or its error) the work folder keeps, with
+    ``min_logs``..``max_logs`` logs."""
     from synth.pile import read_pile
 
     seeds = []
     for key in sorted(work_dir.glob("scan_*.key.json")):
         seed = int(key.name.split("_")[1].split(".")[0])
-        if read_pile(work_dir / f"scan_{seed}" / "truth" / "pile.json").n_logs >= min_logs:
+        if min_logs <= read_pile(work_dir / f"scan_{seed}" / "truth" / "pile.json").n_logs <= max_logs:
             seeds.append(seed)
     return seeds
 
@@ -153,11 +153,12 @@ def _decompose_pile(seed: int, work_dir: str) -> dict | None:
 
 # -- runs -------------------------------------------------------------------------------------------
 def run(work_dir: Path, seeds: list[int], views: int, k: float, objectives: tuple[str, ...], workers: int,
-        decompose: bool = False, save=None) -> list[dict]:
-    """Rows of every pile; ``save(rows)`` is called after each pile (an interrupted run keeps them)."""
+        decompose: bool = False, save=None, log_direction_deg: float | None = None) -> list[dict]:
+    """Rows of every pile; ``save(rows)`` is called after each pile (an interrupted run keeps them).
+    ``log_direction_deg``: the reconstructions' pile frame (kept ones made otherwise are made again)."""
     from field.real_test import RealTestConfig, _model_path
 
-    cfg = RealTestConfig(objectives=objectives, views=views, view_spread_k=k)
+    cfg = RealTestConfig(objectives=objectives, views=views, view_spread_k=k, log_direction_deg=log_direction_deg)
     rows: list[dict] = []
     t0 = time.perf_counter()
     with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=_init,
@@ -211,20 +212,32 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--work-dir", type=Path, required=True, help="a real-test work folder (scans kept)")
     ap.add_argument("--min-logs", type=int, default=1, help="only piles with at least this many logs")
+    ap.add_argument("--max-logs", type=int, default=1000, help="only piles with at most this many logs")
+    ap.add_argument("--seeds", default=None, help="only these seeds (comma-separated) of the kept ones")
     ap.add_argument("--variants", default="1:0,8:0,8:1", help="VIEWS:K,... (K: U less K x its spread over the views)")
     ap.add_argument("--objectives", default="f3")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--decompose", action="store_true", help="plan f3 on hybrids of truth and reconstruction")
+    ap.add_argument("--log-direction", type=float, default=None,
+                    help="reconstructions with pile frames turned so the logs lie at this angle [deg]; kept ones "
+                         "made otherwise are made again (give such runs their own work folder: cp -al)")
     ap.add_argument("--out", type=Path, required=True, help="JSON record (written atomically)")
     args = ap.parse_args()
     from synth.pile import atomic_write_bytes
 
     if not args.work_dir.is_dir():
         raise SystemExit(f"{args.work_dir} is not a folder; make one with bench_reconstruct.py --real-only --work-dir")
-    seeds = kept_seeds(args.work_dir, args.min_logs)
+    seeds = kept_seeds(args.work_dir, args.min_logs, args.max_logs)
+    if args.seeds:
+        wanted = {int(s) for s in args.seeds.split(",")}
+        if wanted - set(seeds):
+            raise SystemExit(f"seeds {sorted(wanted - set(seeds))} are not kept in {args.work_dir} with "
+                             f"{args.min_logs}..{args.max_logs} logs")
+        seeds = [s for s in seeds if s in wanted]
     if not seeds:
-        raise SystemExit(f"{args.work_dir} keeps no scans with >= {args.min_logs} logs")
-    rec: dict = {"work_dir": str(args.work_dir), "min_logs": args.min_logs, "seeds": seeds}
+        raise SystemExit(f"{args.work_dir} keeps no scans with {args.min_logs}..{args.max_logs} logs")
+    rec: dict = {"work_dir": str(args.work_dir), "min_logs": args.min_logs, "max_logs": args.max_logs, "seeds": seeds,
+                 "log_direction_deg": args.log_direction}
     def write() -> None:
         atomic_write_bytes(args.out, json.dumps(rec, default=float).encode())
 
@@ -239,7 +252,7 @@ def main() -> None:
             v = {"views": int(views), "k": float(k), "objectives": tuple(args.objectives.split(",")), "rows": []}
             rec["variants"].append(v)
             v["rows"] = run(args.work_dir, seeds, v["views"], v["k"], v["objectives"], args.workers,
-                            save=lambda rows, v=v: (v.update(rows=rows), write()))
+                            save=lambda rows, v=v: (v.update(rows=rows), write()), log_direction_deg=args.log_direction)
     write()
     print("\n".join(markdown(rec)))
 

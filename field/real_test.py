@@ -63,6 +63,8 @@ class RealTestConfig:
     workers: int = 1  # processes (each loads the model once) [-]
     views: int = 1  # dihedral views the planner averages (planner.inference.Planner.views) [-]
     view_spread_k: float = 0.0  # U logit lowered by k x its spread over the views (Planner.view_spread_k) [-]
+    log_direction_deg: float | None = None  # reconstructed pile frames turned so the logs lie at this angle
+    # (reconstruct.pipeline.ReconstructConfig.log_direction_deg) [deg]; None: site axes
 
     def __post_init__(self) -> None:
         if self.n_piles < 1:
@@ -78,12 +80,19 @@ class RealTestConfig:
         from planner.inference import check_views
 
         check_views(self.views, self.view_spread_k)
+        if self.log_direction_deg is not None and not -180.0 <= self.log_direction_deg <= 180.0:
+            raise ValueError(f"log_direction_deg must be in [-180, 180] deg or None, got {self.log_direction_deg}")
 
     def scan_key(self) -> dict:
-        """The settings a twin scan and its reconstruction depend on (a kept one is reused only
-        when they agree)."""
+        """The settings a twin scan depends on (a kept one is reused only when they agree)."""
         return {"logs": list(self.logs), "obstacles": list(self.obstacles), "n_float": self.n_float,
                 "grid": list(self.grid)}
+
+    def reconstruction_key(self, planner_config: Any) -> dict:
+        """The settings a kept scan's reconstruction depends on besides the scan: the re-render's
+        grid (the network's) and the pile frame's turn."""
+        return {"render_size_px": planner_config.size_px, "render_extent_m": planner_config.extent_m,
+                "log_direction_deg": self.log_direction_deg}
 
 
 # -- frames ------------------------------------------------------------------------------------
@@ -143,8 +152,9 @@ def real_test_pile(seed: int, work_dir: str | Path, planner: Any, cfg: RealTestC
 
     The scan and its reconstruction stay in ``work_dir`` (``scan_SEED``, ``recon_SEED``, and
     ``scan_SEED.key.json`` with the settings they were made with, written once both are done): a
-    later run with the same scan settings reuses them, so trying another planner on the same
-    scans costs only the planning and the trials."""
+    later run with the same scan settings reuses the scan, and with the same reconstruction
+    settings (:meth:`RealTestConfig.reconstruction_key`) the reconstruction, so trying another
+    planner on the same scans costs only the planning and the trials."""
     from planner.errors import PlannerError
     from planner.errors import ObservationError
     from planner.inference import Objective, check_grid, plan
@@ -160,12 +170,16 @@ def real_test_pile(seed: int, work_dir: str | Path, planner: Any, cfg: RealTestC
     scan_root, recon_dir = work / f"scan_{seed}", work / f"recon_{seed}"
     key_path, error_path = work / f"scan_{seed}.key.json", work / f"recon_{seed}.error.txt"
     size = planner.config.size_px
-    key = {**cfg.scan_key(), "render_size_px": size, "render_extent_m": planner.config.extent_m}
-    kept = key_path.exists() and {"render_extent_m": 5.0, **json.loads(key_path.read_text())} == key
+    scan_key, recon_key = cfg.scan_key(), cfg.reconstruction_key(planner.config)
+    old = json.loads(key_path.read_text()) if key_path.exists() else None
+    old = None if old is None else {"render_extent_m": 5.0, "log_direction_deg": None, **old}  # keys before them
+    kept_scan = old is not None and all(old.get(k) == v for k, v in scan_key.items())
+    kept = kept_scan and all(old.get(k) == v for k, v in recon_key.items())  # the reconstruction too
     if not kept:
-        for old in (scan_root, recon_dir):
-            shutil.rmtree(old, ignore_errors=True)
+        shutil.rmtree(recon_dir, ignore_errors=True)
         error_path.unlink(missing_ok=True)
+    if not kept_scan:
+        shutil.rmtree(scan_root, ignore_errors=True)
         make_twin_scan(scan_root, seed, logs=cfg.logs, obstacles=cfg.obstacles, n_float=cfg.n_float, grid=cfg.grid)
     truth = read_pile(scan_root / "truth" / "pile.json")
     cpu = {"scan_s": time.process_time() - c0}
@@ -187,13 +201,14 @@ def real_test_pile(seed: int, work_dir: str | Path, planner: Any, cfg: RealTestC
         try:
             res = reconstruct(scan_root / "scan", scan_root / "gnss.csv", recon_dir,
                               ReconstructConfig(allow_float=cfg.n_float > 0, render_size_px=size,
-                                                render_extent_m=planner.config.extent_m))
+                                                render_extent_m=planner.config.extent_m,
+                                                log_direction_deg=cfg.log_direction_deg))
             recon = res.pile
             obs_r = OrthoObservation.load(res.files["ortho"])
         except ReconstructError as exc:
             recon_error = str(exc)
             atomic_write_bytes(error_path, recon_error.encode())
-        atomic_write_bytes(key_path, json.dumps(key).encode())
+        atomic_write_bytes(key_path, json.dumps({**scan_key, **recon_key}).encode())
     cpu["reconstruct_s"] = time.process_time() - c0
     match: dict[int, int] = {}
     if recon is not None:
@@ -290,6 +305,7 @@ def _same_test(old: dict, cfg: RealTestConfig, model_sha: str) -> bool:
     theirs = {k: v for k, v in old.get("config", {}).items() if k not in ("n_piles", "workers", "model")}
     theirs.setdefault("views", 1)  # records from before test-time views planned with one view
     theirs.setdefault("view_spread_k", 0.0)
+    theirs.setdefault("log_direction_deg", None)  # and reconstructed in site axes
     return mine == theirs and old.get("model", {}).get("sha256") == model_sha
 
 

@@ -51,7 +51,7 @@ from reconstruct.errors import ReconstructError, RegistrationError, ScanError
 from reconstruct.fit import FitConfig, PileFit, fit_log, fit_pile, log_spec_from_fit, natural_key
 from reconstruct.sfm import SfmConfig
 from reconstruct.stereo import ScanCloud, StereoConfig, scan_cloud
-from synth.frames import apply_T, invert_T, make_T
+from synth.frames import apply_T, invert_T, make_T, rot_z
 from synth.pile import Georeference, PileSpec, atomic_write_bytes, write_pile
 
 SCAN_POSE_FORMAT = "loggrasp.scan-pose"
@@ -147,6 +147,8 @@ class ReconstructConfig:
     max_correction_deg: float = 5.0  # larger refinement rotations are an error [deg]
     terrain_margin_m: float = 0.75  # terrain reaches this far beyond the outermost log end [m]
     min_extent_m: float = 5.0  # smallest terrain patch [m]
+    log_direction_deg: float | None = None  # the pile frame is turned so the logs' mean direction lies at this
+    # angle from its +x axis [deg] (the same for every scan of a pile, whatever the site's axes); None: site axes
     render_size_px: int = 128  # re-render pixels over render_extent_m (the training format) [px]
     render_extent_m: float = 5.0  # side of the training images [m]; a larger patch keeps their pixel pitch
     # (render_extent_m / render_size_px) with more pixels, a multiple of RENDER_PX_MULTIPLE
@@ -160,6 +162,8 @@ class ReconstructConfig:
             raise ValueError("max_correction_m, max_correction_deg and terrain_margin_m must be >= 0")
         if not 1.0 <= self.min_extent_m <= 100.0:
             raise ValueError("min_extent_m must be in [1, 100] m")
+        if self.log_direction_deg is not None and not -180.0 <= self.log_direction_deg <= 180.0:
+            raise ValueError(f"log_direction_deg must be in [-180, 180] deg or None, got {self.log_direction_deg}")
         if not 16 <= self.render_size_px <= 2048 or self.render_size_px % RENDER_PX_MULTIPLE:
             raise ValueError(f"render_size_px must be a multiple of {RENDER_PX_MULTIPLE} in [16, 2048], "
                              f"got {self.render_size_px}")
@@ -173,6 +177,17 @@ class ReconstructConfig:
             raise ValueError(f"georegister must be one of {GEOREGISTER}, got {self.georegister!r}")
         if self.refine_iterations < 1 or self.refine_rounds < 1:
             raise ValueError("refine_iterations and refine_rounds must be >= 1")
+
+
+def logs_direction(ends: dict) -> float:
+    """The logs' mean direction [rad] in the horizontal plane of ``ends`` (``{log_id: (a, b)}`` end
+    points), in (-pi/2, pi/2]: the length-weighted mean of the axes' directions, which are
+    pi-periodic (which end was surveyed first does not matter), so taken on doubled angles."""
+    d = np.array([np.asarray(b, dtype=float)[:2] - np.asarray(a, dtype=float)[:2] for a, b in ends.values()])
+    length = np.linalg.norm(d, axis=1)
+    doubled = length * np.exp(2j * np.arctan2(d[:, 1], d[:, 0]))
+    direction = 0.5 * math.atan2(float(doubled.sum().imag), float(doubled.sum().real))
+    return direction if direction > -math.pi / 2 else direction + math.pi
 
 
 def patch_extent(span_m: float, cfg: ReconstructConfig) -> tuple[float, int]:
@@ -733,19 +748,23 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
                           max_correction_deg=cfg.coarse.max_correction_deg)
         timings["georegistration_s"] = time.perf_counter() - t
 
-    # site frame, then the pile frame: site shifted to the centre of the logs, at ground level
+    # site frame, then the pile frame: the site frame turned (log_direction_deg) and shifted to the
+    # centre of the logs, at ground level
     T_site_scan = pose.matrix()
     pts_site = apply_T(T_site_scan, cloud.points)
     coverage = _check_coverage(pts_site[:, :2], ends_site, cfg.max_endpoint_distance_m)
-    all_ends = np.array([p for ends in ends_site.values() for p in ends])
+    yaw = 0.0 if cfg.log_direction_deg is None else logs_direction(ends_site) - math.radians(cfg.log_direction_deg)
+    R_site_pile = rot_z(yaw)
+    all_ends = np.array([p for ends in ends_site.values() for p in ends]) @ R_site_pile  # turned site axes
     centre_xy = 0.5 * (all_ends[:, :2].min(0) + all_ends[:, :2].max(0))
     reach = float(np.max(np.abs(all_ends[:, :2] - centre_xy))) + cfg.terrain_margin_m
     extent, render_px = patch_extent(2 * reach, cfg)
-    near = np.all(np.abs(pts_site[:, :2] - centre_xy) < extent / 2, axis=1)
+    pts_turned = pts_site @ R_site_pile
+    near = np.all(np.abs(pts_turned[:, :2] - centre_xy) < extent / 2, axis=1)
     if near.sum() < 100:
         raise RegistrationError(f"only {int(near.sum())} scan points lie on the {extent} m patch around the logs")
     z0 = float(np.percentile(pts_site[near, 2], 10))
-    T_site_pile = make_T(t=(centre_xy[0], centre_xy[1], z0))
+    T_site_pile = make_T(R_site_pile, R_site_pile @ np.array([centre_xy[0], centre_xy[1], z0]))
     T_pile_site = invert_T(T_site_pile)
     pts = apply_T(T_pile_site, pts_site)
     ends = {k: (apply_T(T_pile_site, a), apply_T(T_pile_site, b)) for k, (a, b) in ends_site.items()}

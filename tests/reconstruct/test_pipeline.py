@@ -15,7 +15,7 @@ from reconstruct.compare import compare_piles, simulate_scan
 from reconstruct.errors import GnssFormatError, ReconstructError, RegistrationError, ScanError
 from reconstruct.fit import FitConfig, sample_top_view_points
 from reconstruct.pipeline import (
-    ReconstructConfig, ScanPose, patch_extent, read_report, read_scan_pose, reconstruct, refine_registration,
+    ReconstructConfig, ScanPose, logs_direction, patch_extent, read_report, read_scan_pose, reconstruct, refine_registration,
     write_scan_pose,
 )
 from reconstruct.stereo import find_pairs, read_pair, scan_cloud
@@ -171,6 +171,33 @@ def test_reconstruct_a_single_pair(small_scan):
     assert s["mask_iou"]["median"] > 0.8, c["logs"]
     obs = OrthoObservation.load(d / "out" / "ortho.npz")  # the training images' pitch
     assert obs.extent_m / obs.depth.shape[0] == pytest.approx(5.0 / 128)
+    # the pile frame turned so the logs lie at 45 deg: the same logs on Earth, the same errors
+    turned = reconstruct(scan, gnss, d / "turned", ReconstructConfig(log_direction_deg=45.0)).pile
+    ends = {i: lg.endpoints_m() for i, lg in enumerate(turned.logs)}
+    assert math.degrees(logs_direction(ends)) == pytest.approx(45.0, abs=2.0)  # fitted, not surveyed, ends
+    T_site_turned = np.asarray(turned.georef.T_site_pile)
+    assert abs(math.degrees(math.atan2(T_site_turned[1, 0], T_site_turned[0, 0]))) > 1.0  # really turned
+    for a, b in zip(res.pile.logs, turned.logs):
+        for p, q in zip(a.endpoints_m(), b.endpoints_m()):
+            site_p = apply_T(np.asarray(res.pile.georef.T_site_pile), p)
+            assert np.linalg.norm(site_p - apply_T(T_site_turned, q)) < 0.02
+    s2 = compare_piles(truth, turned)["summary"]
+    assert s2["n_matched"] == 3 and s2["endpoint_err_m"]["median"] < 0.05 and s2["mask_iou"]["median"] > 0.8
+
+
+def test_logs_direction_is_the_length_weighted_axial_mean():
+    deg = math.radians
+    one = {"a": ((0, 0, 0), (math.cos(deg(30)), math.sin(deg(30)), 0))}
+    assert math.degrees(logs_direction(one)) == pytest.approx(30.0)
+    flipped = {"a": (one["a"][1], one["a"][0])}  # which end was surveyed first does not matter
+    assert math.degrees(logs_direction(flipped)) == pytest.approx(30.0)
+    # 170 deg and 10 deg are 20 deg apart: their mean is 0 deg (mod 180), not 90
+    two = {"a": ((0, 0, 0), (math.cos(deg(170)), math.sin(deg(170)), 0)), "b": ((0, 0, 0), (math.cos(deg(10)), math.sin(deg(10)), 0))}
+    assert abs(math.degrees(logs_direction(two))) == pytest.approx(0.0, abs=1e-9)
+    long_short = {"a": ((0, 0, 0), (4, 0, 0)), "b": ((0, 0, 0), (0, 1, 0))}  # weighted by length
+    assert abs(math.degrees(logs_direction(long_short))) < 20
+    with pytest.raises(ValueError, match="log_direction_deg"):
+        ReconstructConfig(log_direction_deg=200.0)
 
 
 def test_patch_keeps_the_training_pitch():
