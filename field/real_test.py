@@ -173,7 +173,8 @@ def real_test_pile(seed: int, work_dir: str | Path, planner: Any, cfg: RealTestC
     scan_key, recon_key = cfg.scan_key(), cfg.reconstruction_key(planner.config)
     old = json.loads(key_path.read_text()) if key_path.exists() else None
     old = None if old is None else {"render_extent_m": 5.0, "log_direction_deg": None, **old}  # keys before them
-    kept_scan = old is not None and all(old.get(k) == v for k, v in scan_key.items())
+    kept_scan = (old is not None and all(old.get(k) == v for k, v in scan_key.items())
+                 and (scan_root / "scan").is_dir() and (scan_root / "gnss.csv").is_file())  # not only its truth
     kept = kept_scan and all(old.get(k) == v for k, v in recon_key.items())  # the reconstruction too
     if not kept:
         shutil.rmtree(recon_dir, ignore_errors=True)

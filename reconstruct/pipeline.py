@@ -27,8 +27,9 @@
    reported; a correction beyond ``max_correction_m`` / ``max_correction_deg`` is an error (the
    fits start from the GNSS axes, so the given pose must be right to a few centimetres).
 5. **Fit** (:mod:`reconstruct.fit`): logs, terrain and obstacles in the new *pile frame* (the
-   site frame shifted to the centre of the surveyed logs, at ground level), the pile checked
-   in the twin.
+   site frame turned about the vertical so the logs' mean direction lies at ``log_direction_deg``
+   when that is set, shifted to the centre of the surveyed logs, at ground level; a square patch
+   of the training images' pixel pitch, :func:`patch_extent`), the pile checked in the twin.
 6. **Outputs** in ``out_dir``: ``pile.json`` (with the site georeference), ``ortho.npz`` (the
    re-render in the training format, :func:`synth.render.render_ortho`), ``preview.png``,
    ``compare.png`` (scan seen from above beside the re-render) and ``report.json``

@@ -140,3 +140,9 @@ def test_one_twin_scan_end_to_end(tmp_path, monkeypatch):
     # other scan settings are another scan: not reused
     with pytest.raises(AssertionError, match="reused"):
         real_test_pile(700000, tmp_path / "work", SimpleNamespace(config=UNetConfig()), RealTestConfig(logs=(3, 3), obstacles=(0, 0), grid=(1, 1)))
+    # a folder that kept only the truth of a scan makes the scan again
+    import shutil
+
+    shutil.rmtree(tmp_path / "work" / "scan_700000" / "scan")
+    with pytest.raises(AssertionError, match="reused"):
+        real_test_pile(700000, tmp_path / "work", SimpleNamespace(config=UNetConfig()), replace(cfg, log_direction_deg=45.0))
