@@ -4,6 +4,7 @@ twin scan end to end (scan, reconstruction, two plans, two trials on the truth).
 from __future__ import annotations
 
 import math
+import shutil
 from dataclasses import replace
 from types import SimpleNamespace
 
@@ -137,12 +138,10 @@ def test_one_twin_scan_end_to_end(tmp_path, monkeypatch):
     with pytest.raises(AssertionError, match="reconstructed again"):
         real_test_pile(700000, tmp_path / "work", SimpleNamespace(config=UNetConfig()),
                        RealTestConfig(logs=(3, 3), obstacles=(0, 0), log_direction_deg=45.0))
-    # other scan settings are another scan: not reused
-    with pytest.raises(AssertionError, match="reused"):
-        real_test_pile(700000, tmp_path / "work", SimpleNamespace(config=UNetConfig()), RealTestConfig(logs=(3, 3), obstacles=(0, 0), grid=(1, 1)))
     # a folder that kept only the truth of a scan makes the scan again
-    import shutil
-
     shutil.rmtree(tmp_path / "work" / "scan_700000" / "scan")
     with pytest.raises(AssertionError, match="reused"):
         real_test_pile(700000, tmp_path / "work", SimpleNamespace(config=UNetConfig()), replace(cfg, log_direction_deg=45.0))
+    # other scan settings are another scan: not reused
+    with pytest.raises(AssertionError, match="reused"):
+        real_test_pile(700000, tmp_path / "work", SimpleNamespace(config=UNetConfig()), RealTestConfig(logs=(3, 3), obstacles=(0, 0), grid=(1, 1)))
