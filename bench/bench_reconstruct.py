@@ -358,16 +358,21 @@ if __name__ == "__main__":
     ap.add_argument("--real-only", action="store_true", help="run only the real test")
     ap.add_argument("--views", type=int, default=1, help="dihedral views the planner averages in the real test")
     ap.add_argument("--view-spread", type=float, default=0.0, help="U lowered by K x its spread over the views")
-    ap.add_argument("--log-direction", type=float, default=None,
-                    help="reconstructed pile frames turned so the logs lie at this angle [deg] (default: site axes)")
+    ap.add_argument("--log-direction", default="45",
+                    help="reconstructed pile frames turned so the logs lie at this angle [deg], or 'site' for the "
+                         "site's axes (default 45, ReconstructConfig's)")
     ap.add_argument("--work-dir", type=Path, default=None,
                     help="keep the real test's scans and reconstructions here (reused when re-run)")
     args = ap.parse_args()
+    try:
+        log_direction = None if args.log_direction == "site" else float(args.log_direction)
+    except ValueError:
+        raise SystemExit(f"--log-direction must be an angle in degrees or 'site', got {args.log_direction!r}") from None
     from field.real_test import RealTestConfig
 
     real_cfg = None if args.real_piles <= 0 else RealTestConfig(
         n_piles=args.real_piles, model=args.model, workers=args.workers, views=args.views,
-        view_spread_k=args.view_spread, log_direction_deg=args.log_direction)
+        view_spread_k=args.view_spread, log_direction_deg=log_direction)
     if args.real_only:
         if real_cfg is None:
             raise SystemExit("--real-only needs --real-piles > 0")

@@ -153,7 +153,7 @@ def _decompose_pile(seed: int, work_dir: str) -> dict | None:
 
 # -- runs -------------------------------------------------------------------------------------------
 def run(work_dir: Path, seeds: list[int], views: int, k: float, objectives: tuple[str, ...], workers: int,
-        decompose: bool = False, save=None, log_direction_deg: float | None = None) -> list[dict]:
+        decompose: bool = False, save=None, log_direction_deg: float | None = 45.0) -> list[dict]:
     """Rows of every pile; ``save(rows)`` is called after each pile (an interrupted run keeps them).
     ``log_direction_deg``: the reconstructions' pile frame (kept ones made otherwise are made again)."""
     from field.real_test import RealTestConfig, _model_path
@@ -218,11 +218,15 @@ def main() -> None:
     ap.add_argument("--objectives", default="f3")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--decompose", action="store_true", help="plan f3 on hybrids of truth and reconstruction")
-    ap.add_argument("--log-direction", type=float, default=None,
-                    help="reconstructions with pile frames turned so the logs lie at this angle [deg]; kept ones "
-                         "made otherwise are made again (give such runs their own work folder: cp -al)")
+    ap.add_argument("--log-direction", default="45",
+                    help="reconstructed pile frames turned so the logs lie at this angle [deg], or 'site' for the "
+                         "site's axes (default 45, ReconstructConfig's)")
     ap.add_argument("--out", type=Path, required=True, help="JSON record (written atomically)")
     args = ap.parse_args()
+    try:
+        log_direction = None if args.log_direction == "site" else float(args.log_direction)
+    except ValueError:
+        raise SystemExit(f"--log-direction must be an angle in degrees or 'site', got {args.log_direction!r}") from None
     from synth.pile import atomic_write_bytes
 
     if not args.work_dir.is_dir():
@@ -237,7 +241,7 @@ def main() -> None:
     if not seeds:
         raise SystemExit(f"{args.work_dir} keeps no scans with {args.min_logs}..{args.max_logs} logs")
     rec: dict = {"work_dir": str(args.work_dir), "min_logs": args.min_logs, "max_logs": args.max_logs, "seeds": seeds,
-                 "log_direction_deg": args.log_direction}
+                 "log_direction_deg": log_direction}
     def write() -> None:
         atomic_write_bytes(args.out, json.dumps(rec, default=float).encode())
 
@@ -252,7 +256,7 @@ def main() -> None:
             v = {"views": int(views), "k": float(k), "objectives": tuple(args.objectives.split(",")), "rows": []}
             rec["variants"].append(v)
             v["rows"] = run(args.work_dir, seeds, v["views"], v["k"], v["objectives"], args.workers,
-                            save=lambda rows, v=v: (v.update(rows=rows), write()), log_direction_deg=args.log_direction)
+                            save=lambda rows, v=v: (v.update(rows=rows), write()), log_direction_deg=log_direction)
     write()
     print("\n".join(markdown(rec)))
 

@@ -63,7 +63,7 @@ class RealTestConfig:
     workers: int = 1  # processes (each loads the model once) [-]
     views: int = 1  # dihedral views the planner averages (planner.inference.Planner.views) [-]
     view_spread_k: float = 0.0  # U logit lowered by k x its spread over the views (Planner.view_spread_k) [-]
-    log_direction_deg: float | None = None  # reconstructed pile frames turned so the logs lie at this angle
+    log_direction_deg: float | None = 45.0  # reconstructed pile frames turned so the logs lie at this angle
     # (reconstruct.pipeline.ReconstructConfig.log_direction_deg) [deg]; None: site axes
 
     def __post_init__(self) -> None:

@@ -63,6 +63,8 @@ def reconstruct_command(
                                    "calibrations' T_pile_cam, SfM when they have none), calibration, sfm (pycolmap)."),
     georegister: str = typer.Option("auto", "--georegister", help="How the scan is placed in the site frame: auto "
                                     "(scan_pose.json; from the GNSS ends for an unposed scan), scan-pose, gnss."),
+    log_direction: str = typer.Option("45", "--log-direction", help="Turn the pile frame so the logs' mean direction "
+                                      "lies at this angle [deg] from +x, or 'site' to keep the site's axes."),
 ) -> None:
     """Rebuild the scanned pile in the twin from a stereo scan and RTK GNSS log endpoints.
 
@@ -79,7 +81,12 @@ def reconstruct_command(
     console = Console()
     try:
         with console.status("reconstructing") as status:
-            cfg = ReconstructConfig(allow_float=allow_float, pair_poses=pair_poses, georegister=georegister)
+            try:
+                direction = None if log_direction == "site" else float(log_direction)
+            except ValueError:
+                raise ValueError(f"--log-direction must be an angle in degrees or 'site', got {log_direction!r}") from None
+            cfg = ReconstructConfig(allow_float=allow_float, pair_poses=pair_poses, georegister=georegister,
+                                    log_direction_deg=direction)
             result = reconstruct(scan, gnss, out, cfg, progress=lambda s: status.update(s))
     except (ReconstructError, SynthError, ValueError) as exc:
         fail(str(exc))

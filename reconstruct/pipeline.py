@@ -148,8 +148,9 @@ class ReconstructConfig:
     max_correction_deg: float = 5.0  # larger refinement rotations are an error [deg]
     terrain_margin_m: float = 0.75  # terrain reaches this far beyond the outermost log end [m]
     min_extent_m: float = 5.0  # smallest terrain patch [m]
-    log_direction_deg: float | None = None  # the pile frame is turned so the logs' mean direction lies at this
-    # angle from its +x axis [deg] (the same for every scan of a pile, whatever the site's axes); None: site axes
+    log_direction_deg: float | None = 45.0  # the pile frame is turned so the logs' mean direction lies at this
+    # angle from its +x axis [deg]: the render does not depend on the site's axes, and at 45 deg a long pile lies
+    # along the square patch's diagonal (more of them fit the training images' 5 m); None: site axes
     render_size_px: int = 128  # re-render pixels over render_extent_m (the training format) [px]
     render_extent_m: float = 5.0  # side of the training images [m]; a larger patch keeps their pixel pitch
     # (render_extent_m / render_size_px) with more pixels, a multiple of RENDER_PX_MULTIPLE

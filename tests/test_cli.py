@@ -83,3 +83,13 @@ def test_plan_with_averaged_views_and_bad_views(tmp_path):
     assert bad.exit_code != 0 and "views must be one of" in bad.output
     bad = runner.invoke(app, ["plan", pile, "--view-spread", "1"])
     assert bad.exit_code != 0 and "needs views > 1" in bad.output
+
+
+def test_reconstruct_names_a_bad_log_direction(tmp_path):
+    result = runner.invoke(app, ["reconstruct", str(tmp_path), "--gnss", str(tmp_path / "g.csv"), "--out",
+                                 str(tmp_path / "o"), "--log-direction", "north"])
+    assert result.exit_code != 0
+    assert "--log-direction must be an angle in degrees or 'site'" in result.output
+    result = runner.invoke(app, ["reconstruct", str(tmp_path), "--gnss", str(tmp_path / "g.csv"), "--out",
+                                 str(tmp_path / "o"), "--log-direction", "400"])
+    assert result.exit_code != 0 and "log_direction_deg must be in [-180, 180]" in result.output
