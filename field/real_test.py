@@ -155,8 +155,7 @@ def real_test_pile(seed: int, work_dir: str | Path, planner: Any, cfg: RealTestC
     later run with the same scan settings reuses the scan, and with the same reconstruction
     settings (:meth:`RealTestConfig.reconstruction_key`) the reconstruction, so trying another
     planner on the same scans costs only the planning and the trials."""
-    from planner.errors import PlannerError
-    from planner.errors import ObservationError
+    from planner.errors import ObservationError, PlannerError
     from planner.inference import Objective, check_grid, plan
     from reconstruct.compare import compare_piles
     from reconstruct.errors import ReconstructError

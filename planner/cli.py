@@ -75,9 +75,12 @@ def train_command(
     typer.echo(f"best checkpoint: {result.model_path}\ntraining curve: {result.curve_path}")
 
 
-def load_observation(path: Path, size_px: int):
-    """An observation from a pile folder (its ortho.npz when the size fits, else re-rendered) or a
-    pile.json (rendered). Returns (observation, pile or None)."""
+def load_observation(path: Path, cfg):
+    """An observation from a pile folder (its ortho.npz when it has the network's pixel pitch,
+    else re-rendered) or a pile.json (rendered at the pitch of ``cfg``, a
+    :class:`planner.model.UNetConfig`). Returns (observation, pile or None)."""
+    from planner.errors import ObservationError
+    from planner.inference import check_grid
     from synth.pile import read_pile
     from synth.render import OrthoObservation, OrthoRenderConfig, render_ortho
     from synth.world import World
@@ -89,12 +92,17 @@ def load_observation(path: Path, size_px: int):
     npz = folder / "ortho.npz"
     if npz.exists():
         obs = OrthoObservation.load(npz)
-        if obs.depth.shape[0] == size_px:
+        try:
+            check_grid(obs.depth.shape[0], obs.extent_m, cfg)
             return obs, pile
+        except ObservationError:
+            pass  # rendered from the pile below
     if pile is None:
-        raise FileNotFoundError(f"{path}: neither a pile.json nor an ortho.npz of {size_px} px")
+        raise FileNotFoundError(f"{path}: neither a pile.json nor an ortho.npz at the network's pixel pitch "
+                                f"({100 * cfg.pixel_m:.2f} cm)")
+    size = max(16, round(pile.terrain.extent_m / cfg.pixel_m))  # plan() names a patch that does not fit
     with World(pile) as world:
-        return render_ortho(world, OrthoRenderConfig(size_px=size_px, n_renders=1), seed=pile.seed or 0), pile
+        return render_ortho(world, OrthoRenderConfig(size_px=size, n_renders=1), seed=pile.seed or 0), pile
 
 
 def plan_command(
@@ -120,7 +128,7 @@ def plan_command(
     path = model or DEFAULT_MODEL
     try:
         planner = load_planner(path, views=views, view_spread_k=view_spread)
-        obs, spec = load_observation(pile, planner.config.size_px)
+        obs, spec = load_observation(pile, planner.config)
         result = plan(obs, planner, Objective(kind=objective), top_k=top,
                       subsets=SubsetPolicy(max_subsets=max_subsets), pile=spec)
     except (PlannerError, SynthError, ValueError, FileNotFoundError) as exc:

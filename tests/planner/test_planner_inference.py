@@ -366,3 +366,17 @@ def test_view_spread_lowers_u_where_the_views_disagree():
     for bad in ({"views": 1, "view_spread_k": 1.0}, {"views": 8, "view_spread_k": -1.0}):
         with pytest.raises(ValueError, match="view_spread_k"):
             Planner(model, TINY, **bad)
+
+
+def test_a_wider_pile_is_rendered_at_the_networks_pitch(tmp_path):
+    from planner.cli import load_observation
+    from synth.pile import LogSpec, PileSpec, TerrainSpec, write_pile
+
+    pile = PileSpec(terrain=TerrainSpec(seed=1, extent_m=10.0, resolution=32, amplitude_m=0.0),
+                    logs=(LogSpec.from_endpoints((-4.0, 0.0, 0.15), (4.0, 0.0, 0.15), 0.3),))
+    write_pile(pile, tmp_path / "pile.json")
+    cfg = TINY  # 32 px over 5 m
+    obs, spec = load_observation(tmp_path / "pile.json", cfg)
+    assert obs.depth.shape == (64, 64) and obs.extent_m == 10.0 and spec is not None
+    p = plan(obs, _planner(cfg))
+    assert p.best is not None and p.best.targets == (0,)
