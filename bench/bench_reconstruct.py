@@ -364,10 +364,12 @@ if __name__ == "__main__":
     ap.add_argument("--work-dir", type=Path, default=None,
                     help="keep the real test's scans and reconstructions here (reused when re-run)")
     args = ap.parse_args()
+    from reconstruct.pipeline import parse_log_direction
+
     try:
-        log_direction = None if args.log_direction == "site" else float(args.log_direction)
-    except ValueError:
-        raise SystemExit(f"--log-direction must be an angle in degrees or 'site', got {args.log_direction!r}") from None
+        log_direction = parse_log_direction(args.log_direction)
+    except ValueError as exc:
+        raise SystemExit(str(exc)) from None
     from field.real_test import RealTestConfig
 
     real_cfg = None if args.real_piles <= 0 else RealTestConfig(

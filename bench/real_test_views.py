@@ -223,10 +223,12 @@ def main() -> None:
                          "site's axes (default 45, ReconstructConfig's)")
     ap.add_argument("--out", type=Path, required=True, help="JSON record (written atomically)")
     args = ap.parse_args()
+    from reconstruct.pipeline import parse_log_direction
+
     try:
-        log_direction = None if args.log_direction == "site" else float(args.log_direction)
-    except ValueError:
-        raise SystemExit(f"--log-direction must be an angle in degrees or 'site', got {args.log_direction!r}") from None
+        log_direction = parse_log_direction(args.log_direction)
+    except ValueError as exc:
+        raise SystemExit(str(exc)) from None
     from synth.pile import atomic_write_bytes
 
     if not args.work_dir.is_dir():

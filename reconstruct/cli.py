@@ -75,18 +75,14 @@ def reconstruct_command(
     from rich.table import Table
 
     from reconstruct.errors import ReconstructError
-    from reconstruct.pipeline import ReconstructConfig, reconstruct
+    from reconstruct.pipeline import ReconstructConfig, parse_log_direction, reconstruct
     from synth.errors import SynthError
 
     console = Console()
     try:
         with console.status("reconstructing") as status:
-            try:
-                direction = None if log_direction == "site" else float(log_direction)
-            except ValueError:
-                raise ValueError(f"--log-direction must be an angle in degrees or 'site', got {log_direction!r}") from None
             cfg = ReconstructConfig(allow_float=allow_float, pair_poses=pair_poses, georegister=georegister,
-                                    log_direction_deg=direction)
+                                    log_direction_deg=parse_log_direction(log_direction))
             result = reconstruct(scan, gnss, out, cfg, progress=lambda s: status.update(s))
     except (ReconstructError, SynthError, ValueError) as exc:
         fail(str(exc))

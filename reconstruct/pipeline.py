@@ -181,6 +181,16 @@ class ReconstructConfig:
             raise ValueError("refine_iterations and refine_rounds must be >= 1")
 
 
+def parse_log_direction(text: str) -> float | None:
+    """A command line's ``--log-direction``: an angle [deg], or ``site`` for the site's axes (None)."""
+    if text.strip().lower() == "site":
+        return None
+    try:
+        return float(text)
+    except ValueError:
+        raise ValueError(f"--log-direction must be an angle in degrees or 'site', got {text!r}") from None
+
+
 def logs_direction(ends: dict) -> float:
     """The logs' mean direction [rad] in the horizontal plane of ``ends`` (``{log_id: (a, b)}`` end
     points), in (-pi/2, pi/2]: the length-weighted mean of the axes' directions, which are
