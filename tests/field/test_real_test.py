@@ -130,18 +130,18 @@ def test_one_twin_scan_end_to_end(tmp_path, monkeypatch):
         return [strip(v) for v in x] if isinstance(x, list) else x
 
     assert strip(reused["rows"]) == strip(rec["rows"])
-    # another pile frame: the scan is reused, the reconstruction made again
+    # another pile frame (site axes, not the default 45 deg): the scan is reused, the reconstruction made again
     def reconstructed_again(*a, **k):
         raise AssertionError("reconstructed again")
 
     monkeypatch.setattr(reconstruct.pipeline, "reconstruct", reconstructed_again)
     with pytest.raises(AssertionError, match="reconstructed again"):
         real_test_pile(700000, tmp_path / "work", SimpleNamespace(config=UNetConfig()),
-                       RealTestConfig(logs=(3, 3), obstacles=(0, 0), log_direction_deg=45.0))
+                       RealTestConfig(logs=(3, 3), obstacles=(0, 0), log_direction_deg=None))
     # a folder that kept only the truth of a scan makes the scan again
     shutil.rmtree(tmp_path / "work" / "scan_700000" / "scan")
     with pytest.raises(AssertionError, match="reused"):
-        real_test_pile(700000, tmp_path / "work", SimpleNamespace(config=UNetConfig()), replace(cfg, log_direction_deg=45.0))
+        real_test_pile(700000, tmp_path / "work", SimpleNamespace(config=UNetConfig()), replace(cfg, log_direction_deg=None))
     # other scan settings are another scan: not reused
     with pytest.raises(AssertionError, match="reused"):
         real_test_pile(700000, tmp_path / "work", SimpleNamespace(config=UNetConfig()), RealTestConfig(logs=(3, 3), obstacles=(0, 0), grid=(1, 1)))
