@@ -42,6 +42,7 @@ from typing import Any, Callable
 import numpy as np
 
 from field.errors import FieldError
+from reconstruct.fit import FIT_REVISION
 
 REAL_TEST_FORMAT = "loggrasp.real-test"
 REAL_TEST_VERSION = "1.0"
@@ -90,9 +91,9 @@ class RealTestConfig:
 
     def reconstruction_key(self, planner_config: Any) -> dict:
         """The settings a kept scan's reconstruction depends on besides the scan: the re-render's
-        grid (the network's) and the pile frame's turn."""
+        grid (the network's), the pile frame's turn and the fitting's revision."""
         return {"render_size_px": planner_config.size_px, "render_extent_m": planner_config.extent_m,
-                "log_direction_deg": self.log_direction_deg}
+                "log_direction_deg": self.log_direction_deg, "fit_revision": FIT_REVISION}
 
 
 # -- frames ------------------------------------------------------------------------------------
@@ -171,7 +172,8 @@ def real_test_pile(seed: int, work_dir: str | Path, planner: Any, cfg: RealTestC
     size = planner.config.size_px
     scan_key, recon_key = cfg.scan_key(), cfg.reconstruction_key(planner.config)
     old = json.loads(key_path.read_text()) if key_path.exists() else None
-    old = None if old is None else {"render_extent_m": 5.0, "log_direction_deg": None, **old}  # keys before them
+    old = None if old is None else {"render_extent_m": 5.0, "log_direction_deg": None, "fit_revision": 1,
+                                    **old}  # keys before them
     kept_scan = (old is not None and all(old.get(k) == v for k, v in scan_key.items())
                  and (scan_root / "scan").is_dir() and (scan_root / "gnss.csv").is_file())  # not only its truth
     kept = kept_scan and all(old.get(k) == v for k, v in recon_key.items())  # the reconstruction too
@@ -293,7 +295,8 @@ def _record(cfg: RealTestConfig, model: Path, model_sha: str, rows: list[dict], 
     return {
         "format": REAL_TEST_FORMAT, "format_version": REAL_TEST_VERSION,
         "config": asdict(cfg), "model": {"path": str(model), "sha256": model_sha},
-        "rows": rows, "failures": failures, "piles_done": len({r["seed"] for r in rows}),
+        "fit_revision": FIT_REVISION, "rows": rows, "failures": failures,
+        "piles_done": len({r["seed"] for r in rows}),
         "summary": {kind: summarize([r for r in rows if r["objective"] == kind]) for kind in cfg.objectives},
         "wall_s": wall_s, "cpu_s_main_process": cpu_s,
     }
@@ -306,7 +309,8 @@ def _same_test(old: dict, cfg: RealTestConfig, model_sha: str) -> bool:
     theirs.setdefault("views", 1)  # records from before test-time views planned with one view
     theirs.setdefault("view_spread_k", 0.0)
     theirs.setdefault("log_direction_deg", None)  # and reconstructed in site axes
-    return mine == theirs and old.get("model", {}).get("sha256") == model_sha
+    return (mine == theirs and old.get("model", {}).get("sha256") == model_sha
+            and old.get("fit_revision", 1) == FIT_REVISION)  # and the piles were fitted alike
 
 
 def run_real_test(cfg: RealTestConfig | None = None, work_dir: str | Path | None = None,

@@ -70,6 +70,11 @@ from synth.pile import LogSpec, PileSpec, RockSpec, StumpSpec, TerrainSpec
 ENDPOINT_REFS = ("end_centre", "top_surface")
 AXIS_SOURCES = ("fit", "gnss")
 
+#: Revision of the fitting: raised whenever a change here makes different piles from the same
+#: scan, so that kept reconstructions (``field.real_test``) are made again. 2: the terrain under a
+#: log is held under its round underside between the grid samples too (:func:`_clamp_under_logs`).
+FIT_REVISION = 2
+
 
 @dataclass(frozen=True)
 class FitConfig:
@@ -1086,10 +1091,18 @@ def _footprint_distance(xy: np.ndarray, logs: Sequence[LogSpec]) -> np.ndarray:
 
 
 def _clamp_under_logs(terrain: TerrainSpec, logs: Sequence[LogSpec], gap_m: float = 0.003) -> TerrainSpec:
-    """Lower the (unseen, interpolated) ground under each log to at most its underside: the
-    ground cannot be above a log lying on it. Returns a new :class:`TerrainSpec`."""
+    """Lower the (unseen, interpolated) ground under each log so that the twin's terrain, the
+    surface *between* the samples included, stays under the log: the ground cannot be above a
+    log lying on it. Returns a new :class:`TerrainSpec`.
+
+    The physics interpolates the heights linearly over triangles of one grid cell, and a chord
+    under the log's round underside rises above it (by ~1.4 cm for a 24 cm log across a cell
+    diagonal of 11 cm, the case of logs diagonal to the grid). So every sample is held under the
+    lowest point of the underside within one cell diagonal of it (less the axis' rise over that
+    reach), which bounds each triangle, whose vertices are all that close to its points."""
     h = terrain.height_grid().copy()
     xs, ys = terrain.grid_xy()
+    reach = math.sqrt(2.0) * float(xs[1] - xs[0])  # one cell diagonal [m]
     X, Y = np.meshgrid(xs, ys)
     pts = np.column_stack([X.ravel(), Y.ravel()])
     flat = h.ravel()
@@ -1101,11 +1114,13 @@ def _clamp_under_logs(terrain: TerrainSpec, logs: Sequence[LogSpec], gap_m: floa
         t = np.clip((pts - p0[:2]) @ d2 / L2, 0.0, 1.0)
         lat = np.linalg.norm(pts - (p0[:2] + np.outer(t, d2)), axis=1)
         r = log.diameter_m / 2 + (log.top_d_m - log.diameter_m) / 2 * t
-        inside = lat < r
+        near = np.maximum(lat - reach, 0.0)  # the underside's lowest point within reach
+        inside = near < r
         if not inside.any():
             continue
-        z_axis = p0[2] + t[inside] * d[2]
-        under = z_axis - np.sqrt(np.clip(r[inside] ** 2 - lat[inside] ** 2, 0.0, None)) - gap_m
+        slope = abs(float(d[2])) / math.sqrt(L2)  # axis rise per metre of run [-]
+        z_axis = p0[2] + t[inside] * d[2] - slope * reach
+        under = z_axis - np.sqrt(np.clip(r[inside] ** 2 - near[inside] ** 2, 0.0, None)) - gap_m
         flat[inside] = np.minimum(flat[inside], under)
     h = flat.reshape(h.shape)
     return replace(terrain, heights_m=tuple(tuple(float(v) for v in row) for row in h))

@@ -138,6 +138,16 @@ def test_one_twin_scan_end_to_end(tmp_path, monkeypatch):
     with pytest.raises(AssertionError, match="reconstructed again"):
         real_test_pile(700000, tmp_path / "work", SimpleNamespace(config=UNetConfig()),
                        RealTestConfig(logs=(3, 3), obstacles=(0, 0), log_direction_deg=None))
+    # a later fitting revision makes kept reconstructions again, and does not resume older records
+    import field.real_test as rt
+
+    monkeypatch.setattr(rt, "FIT_REVISION", rt.FIT_REVISION + 1)
+    with pytest.raises(AssertionError, match="reconstructed again"):
+        real_test_pile(700000, tmp_path / "work", SimpleNamespace(config=UNetConfig()), cfg)
+    assert not rt._same_test(rec, cfg, rec["model"]["sha256"])
+    monkeypatch.undo()
+    monkeypatch.setattr(reconstruct.twin_scan, "make_twin_scan", refuse)
+    monkeypatch.setattr(reconstruct.pipeline, "reconstruct", reconstructed_again)
     # a folder that kept only the truth of a scan makes the scan again
     shutil.rmtree(tmp_path / "work" / "scan_700000" / "scan")
     with pytest.raises(AssertionError, match="reused"):

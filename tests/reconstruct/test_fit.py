@@ -185,3 +185,28 @@ def test_a_log_lying_mostly_under_another_keeps_its_own_place():
     for k in (0, 2):  # the visible logs are untouched by it
         e = max(min(np.linalg.norm(p - q) for q in fit.pile.logs[k].endpoints_m()) for p in truth.logs[k].endpoints_m())
         assert e < 0.05, (k, e)
+
+
+@pytest.mark.parametrize("angle_deg", [0.0, 30.0, 45.0])
+def test_ground_under_a_log_stays_under_it_between_samples(angle_deg):
+    """Filled ground standing higher than a log's underside is lowered so that the twin's
+    terrain (linear over grid triangles) does not cut into the log anywhere, whichever way the
+    log lies across the grid: at 45 deg the triangles span a cell diagonal under its round
+    underside, where holding only the samples under it left the surface 1-2 cm inside."""
+    from reconstruct.fit import _clamp_under_logs
+    from synth.world import World
+
+    n, extent = 64, 5.0
+    a = math.radians(angle_deg)
+    u = np.array([math.cos(a), math.sin(a), 0.0])
+    d = 0.24
+    log = LogSpec.from_endpoints(-1.5 * u + [0.0, 0.0, d / 2], 1.5 * u + [0.0, 0.0, d / 2], d)
+    # unseen ground filled 3 cm above the log's underside around and under it
+    terrain = TerrainSpec(extent_m=extent, resolution=n, amplitude_m=0.0,
+                          heights_m=tuple(tuple(0.03 for _ in range(n)) for _ in range(n)))
+    clamped = _clamp_under_logs(terrain, [log])
+    h = clamped.height_grid()
+    assert h.max() == pytest.approx(0.03)  # the ground away from the log is kept
+    assert h.min() < 0.0  # under the log it is lowered below its underside
+    with World(PileSpec(terrain=clamped, logs=(log,))) as world:
+        assert world.penetrations(0.002) == []

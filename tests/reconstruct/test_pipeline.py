@@ -272,16 +272,17 @@ def test_end_to_end_generated_pile(tmp_path):
     assert s["mask_iou"]["median"] >= 0.9, c["logs"]
     assert s["endpoint_err_m"]["median"] < 0.04, c["logs"]
     assert s["obstacles_detected"] >= 1
-    # the default pile frame (logs at 45 deg, what the planner is given): the terrain grid lies
-    # diagonal to the logs and its filled holes lift three logs of this pile 1-2 cm (IoU 0.887, end
-    # error 3.2 cm; docs/reconstruction.md "The pile frame"): close, and no worse than that
+    # the default pile frame (logs at 45 deg, what the planner is given; the terrain grid lies
+    # diagonal to the logs): the same targets. Before the ground under a log was held under its
+    # underside between the grid samples too, this frame lifted three logs 1-2 cm (IoU 0.887)
     turned = reconstruct(scan, gnss, tmp_path / "turned", ReconstructConfig(fit=FitConfig()))
     c = compare_piles(truth, turned.pile)
     s = c["summary"]
     assert s["n_matched"] == 5 and s["obstacles_detected"] >= 1
     assert s["abs_diameter_err_m"]["median"] <= 0.01, c["logs"]
-    assert s["mask_iou"]["median"] >= 0.88, c["logs"]
+    assert s["mask_iou"]["median"] >= 0.9, c["logs"]
     assert s["endpoint_err_m"]["median"] < 0.04, c["logs"]
+    assert not any("terrain" in m for m in turned.fit.moves), turned.fit.moves  # nothing lifted off the ground
 
 
 def test_compare_across_site_origins(crossed):
