@@ -87,14 +87,15 @@ def reconstruct_command(
     except (ReconstructError, SynthError, ValueError) as exc:
         fail(str(exc))
     table = Table(title=f"{result.pile.n_logs} logs, {result.pile.n_obstacles} obstacles in {result.time_s:.1f} s")
-    logs = result.report.get("logs", [])
-    keys = [k for k in ("id", "length_m", "diameter_m", "top_diameter_m", "gnss_residual_m", "fit_rms_m", "n_points")
-            if logs and k in logs[0]]
-    for k in keys:
-        table.add_column(k, justify="right")
-    for row in logs:
-        table.add_row(*[f"{row[k]:.3f}" if isinstance(row[k], float) else str(row[k]) for k in keys])
+    for title in LOG_TABLE.values():
+        table.add_column(title, justify="right")
+    for row in result.report.get("logs", []):
+        table.add_row(*log_table_row(row))
     console.print(table)
+    for log in result.report.get("logs", []):
+        if log.get("fit") == "hidden":
+            typer.echo(f"log {log['log_id']}: hidden under other logs (no scan points on it): placed on its GNSS "
+                       "axis, its diameter estimated; check it before trusting grasps that take it")
     rep = result.report
     reg = rep.get("registration", {})
     line = f"scan pose: {rep.get('scan_pose_source')}; pair poses: {rep.get('pair_poses_source')}"
@@ -103,6 +104,24 @@ def reconstruct_command(
                  f"{reg['residual_rms_after_m']:.3f} m")
     typer.echo(line)
     typer.echo(f"wrote {out}/pile.json, ortho.npz, preview.png, compare.png, report.json")
+
+
+#: the per-log report's columns: report key -> column title
+LOG_TABLE = {"log_id": "log", "fit": "fit", "length_m": "length m", "diameter_m": "diam. m",
+             "top_diameter_m": "top diam. m", "gnss_residual_a_m": "GNSS res. a m", "gnss_residual_b_m": "GNSS res. b m",
+             "rms_m": "fit rms m", "coverage": "coverage", "n_points": "points", "moved_m": "moved m"}
+
+
+def log_table_row(log: dict) -> list[str]:
+    """One fitted log (``report.json`` ``logs`` entry) as the per-log table's cells."""
+    def cell(v) -> str:
+        if v is None:
+            return "-"
+        if isinstance(v, float):
+            return "-" if v != v else f"{v:.3f}"
+        return str(v)
+
+    return [cell(log.get(k)) for k in LOG_TABLE]
 
 
 def compare_command(

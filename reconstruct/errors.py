@@ -50,6 +50,12 @@ class FitError(ReconstructError):
     axis (outside the scanned area, or wrong endpoints), or a fit that failed."""
 
 
+class LogNotSeenError(FitError):
+    """(Almost) no scan points lie on a log around its GNSS axis: it is hidden under other logs,
+    outside the scanned area, or its end points are wrong. :func:`reconstruct.fit.fit_pile`
+    places a log hidden under others from its survey alone; any other case is an error."""
+
+
 class RegistrationError(ReconstructError):
     """The scan could not be aligned to the site frame (endpoints far from the scanned area,
     residuals too large, too few logs to constrain the transform)."""

@@ -32,6 +32,13 @@ wanted (1 cm), so the GNSS axis is only the *start* of the fit:
    or the GNSS axis itself (``axis_source="gnss"``). The distance between each GNSS point and
    the fitted axis is reported as that point's residual.
 
+A log seen only in part (its fits stray from its GNSS axis, or lie inside a neighbour) keeps the
+survey's axis and takes its radius from its visible top, at most the room its neighbours leave
+(``LogFit.fit == "partial"``). A log with no scan points on it but scan points standing over it
+lies hidden under others: it is placed on its survey axis, as thick as the gap between the
+ground and the logs over it (or the pile's typical diameter within the room left), and reported
+as ``"hidden"``. A log with no points and nothing over it is an error (:class:`LogNotSeenError`).
+
 Logs are indexed by the natural order of their ids (``log2`` before ``log10``), whatever the
 order of the survey rows.
 
@@ -41,10 +48,13 @@ Points not explained by a log (farther than ``log_clearance_m`` from every fitte
 are ground or obstacles. The ground is the grey-scale *opening* of the per-cell lowest points
 (window ``ground_window_m``, wider than the obstacles) followed by the median of the points near
 that surface, on the :class:`TerrainSpec` grid; holes are filled (OpenCV ``inpaint``, Telea);
-the unseen ground under a log is lowered to the log's underside where needed. Points more than
+the unseen ground under a log is lowered to the log's underside where needed (between the grid
+samples too: the twin's terrain is linear over each cell). Points more than
 ``obstacle_min_height_m`` above the ground are clustered with open3d's DBSCAN; each cluster then
 takes in the lower points (``obstacle_flank_height_m`` and up) connected to it, so a half-buried
-rock is sized by its footprint and not only by the cap above the threshold. A cluster with a
+rock is sized by its footprint and not only by the cap above the threshold. Cluster points over
+a log's footprint higher than its underside are the log's (stereo smear at a stack of log ends)
+and are dropped, and a stump is no taller than the lowest log underside over it. A cluster with a
 flat, circular top at least its radius high, covering the cluster, is a stump (:class:`StumpSpec`, no roots: they are
 not visible), any other a rock (:class:`RockSpec`, the convex hull of its points extended down
 into the ground).
@@ -64,7 +74,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from reconstruct.errors import FitError
+from reconstruct.errors import FitError, LogNotSeenError
 from synth.pile import LogSpec, PileSpec, RockSpec, StumpSpec, TerrainSpec
 
 ENDPOINT_REFS = ("end_centre", "top_surface")
@@ -73,7 +83,9 @@ AXIS_SOURCES = ("fit", "gnss")
 #: Revision of the fitting: raised whenever a change here makes different piles from the same
 #: scan, so that kept reconstructions (``field.real_test``) are made again. 2: the terrain under a
 #: log is held under its round underside between the grid samples too (:func:`_clamp_under_logs`).
-FIT_REVISION = 2
+#: 3: obstacle points over a log's footprint above its underside are the log's; a refit that
+#: strays keeps the first fit; logs hidden under others are placed from their survey.
+FIT_REVISION = 3
 
 
 @dataclass(frozen=True)
@@ -189,6 +201,9 @@ class LogFit:
     swapped: bool  # True when end "b" turned out to be the butt (the thicker end)
     moved_m: float = 0.0  # how far it was moved to separate it from other bodies [m]
     end_source: tuple[str, str] = ("gnss", "gnss")  # butt, top: "gnss" point or "scan" extent
+    fit: str = "scan"  # "scan": fitted to its points; "partial": seen only in part, axis from GNSS and
+    #                    radius from its visible top; "hidden": no points on it (under other logs),
+    #                    axis from GNSS and the pile's typical diameter within the room left
 
     @property
     def mean_diameter_m(self) -> float:
@@ -451,8 +466,8 @@ def fit_log(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = 
 
     sel = select(x_init)
     if sel.size < cfg.min_points:
-        raise FitError(f"log {log_id!r}: only {sel.size} scan points lie on a cylinder around its "
-                       "GNSS axis; the log is hidden or outside the scanned area")
+        raise LogNotSeenError(f"log {log_id!r}: only {sel.size} scan points lie on a cylinder around its "
+                              "GNSS axis; the log is hidden or outside the scanned area")
     Pm = P[sel] - mid
 
     def residuals(x):
@@ -696,6 +711,9 @@ def find_obstacles(points: np.ndarray, terrain: TerrainSpec, cfg: FitConfig | No
         clusters = _grow_into_flanks(clusters, np.asarray(flank_points, dtype=np.float64), cfg)
     if logs:
         clusters = [_clip_log_smear(C, terrain, logs, cfg) for C in clusters]
+        # nothing on the ground stands above a log's underside inside its footprint: points
+        # there are the log's (stereo smear at stacked log ends, end faces) and go
+        clusters = [C[C[:, 2] < _underside_z(logs, C[:, :2])] for C in clusters]
     stumps: list[StumpSpec] = []
     rocks: list[RockSpec] = []
     info: list[dict] = []
@@ -720,6 +738,16 @@ def find_obstacles(points: np.ndarray, terrain: TerrainSpec, cfg: FitConfig | No
                     and rms <= cfg.stump_max_circle_rms * r and 0.05 <= top <= 2.0
                     and top >= cfg.stump_min_aspect * r and abs(cx) < half and abs(cy) < half
                     and r >= cfg.stump_min_cover * 0.5 * float(ext.max()))
+        if is_stump and logs:
+            # a stump is solid over its whole disc: no higher than the lowest log underside over
+            # it (its foot as the twin sets it: the lowest ground under its rim and centre)
+            rb = min(1.0, r * 1.1)
+            foot = float(np.min(terrain.height_at(np.array([cx - rb, cx, cx + rb, cx, cx]),
+                                                  np.array([cy, cy - rb, cy, cy + rb, cy]))))
+            room = float(_underside_z(logs, np.array([[cx, cy]]), rb)[0]) - 0.003 - foot
+            if room < cfg.obstacle_min_height_m:
+                continue  # under a log all over: the log's own points
+            top = min(top, room)
         if is_stump:
             stumps.append(StumpSpec(position_m=(float(cx), float(cy)), height_m=float(np.clip(top, 0.05, 2.0)),
                                     bottom_radius_m=float(min(1.0, r * 1.1)), top_radius_m=float(r)))
@@ -986,8 +1014,8 @@ def fit_radius_on_axis(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfi
     on = ((t > cfg.end_margin_m) & (t < L - cfg.end_margin_m) & (r > cfg.min_radius_m)
           & (r < cfg.max_radius_m) & (ang < math.radians(cfg.max_angle_deg)))
     if on.sum() < cfg.min_points:
-        raise FitError(f"log {log_id!r}: only {int(on.sum())} scan points show its top near its GNSS axis; "
-                       "the log is hidden under others or outside the scanned area")
+        raise LogNotSeenError(f"log {log_id!r}: only {int(on.sum())} scan points show its top near its GNSS axis; "
+                              "the log is hidden under others or outside the scanned area")
     # the nearest surface seen from above: the lower quartile of the distances (points beyond are
     # whatever lies on or beside it)
     rad = float(np.percentile(r[on], 25))
@@ -1090,6 +1118,61 @@ def _footprint_distance(xy: np.ndarray, logs: Sequence[LogSpec]) -> np.ndarray:
     return best
 
 
+def _survey_log(end_a: Any, end_b: Any, diameter_m: float, cfg: FitConfig) -> LogSpec:
+    """A log from its GNSS points alone, of ``diameter_m`` (the axis one radius under
+    ``top_surface`` points)."""
+    a, b = np.asarray(end_a, dtype=float), np.asarray(end_b, dtype=float)
+    if cfg.endpoint_ref == "top_surface":
+        a, b = a - [0.0, 0.0, diameter_m / 2], b - [0.0, 0.0, diameter_m / 2]
+    return LogSpec.from_endpoints(a, b, diameter_m)
+
+
+def _sandwiched_log(P: np.ndarray, end_a: Any, end_b: Any, over: Sequence[LogSpec], cfg: FitConfig,
+                    ground_radius_m: float = 0.4) -> LogSpec | None:
+    """A hidden log lying on the ground under logs ``over``: its radius is half the gap between
+    the ground (the low tenth of the scan points within ``ground_radius_m`` of each GNSS end) and
+    the lowest underside over its axis; its axis one radius above the ground, under the GNSS
+    points. ``None`` when nothing lies over it or the result disagrees with the surveyed heights
+    by more than three ``gnss_sigma_m`` (then the survey's heights stand)."""
+    a, b = np.asarray(end_a, dtype=float), np.asarray(end_b, dtype=float)
+    ground = []
+    for e in (a, b):
+        near = np.linalg.norm(P[:, :2] - e[:2], axis=1) < ground_radius_m
+        if near.sum() < 10:
+            return None
+        ground.append(float(np.percentile(P[near, 2], 10)))
+    t = np.linspace(0.0, 1.0, max(2, int(np.linalg.norm(b[:2] - a[:2]) / 0.05) + 1))
+    xy = a[:2] + np.outer(t, b[:2] - a[:2])
+    gap = _underside_z(over, xy) - (ground[0] + t * (ground[1] - ground[0]))
+    gap = gap[np.isfinite(gap)]
+    if not gap.size or float(gap.min()) < 2 * cfg.min_radius_m:
+        return None
+    r = float(min(gap.min() / 2, cfg.max_radius_m))
+    if cfg.endpoint_ref == "top_surface":
+        z_a, z_b = a[2] - r, b[2] - r
+    else:
+        z_a, z_b = a[2], b[2]
+    if abs(ground[0] + r - z_a) > 3 * cfg.gnss_sigma_m or abs(ground[1] + r - z_b) > 3 * cfg.gnss_sigma_m:
+        return None
+    return LogSpec.from_endpoints((a[0], a[1], ground[0] + r), (b[0], b[1], ground[1] + r), 2 * r)
+
+
+def _covered_by_others(P: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig, lateral_m: float = 0.10,
+                       above_m: float = 0.05, share: float = 0.5) -> bool:
+    """Whether scan points stand over the GNSS axis ``end_a`` → ``end_b`` (within ``lateral_m``
+    of it seen from above, ``above_m`` or more over it) along at least ``share`` of its length
+    (10 cm bins): something lies on the log. Else a log without points on it is not in the scan."""
+    a, b = np.asarray(end_a, dtype=float), np.asarray(end_b, dtype=float)
+    d = b - a
+    L2 = max(float(d[:2] @ d[:2]), 1e-12)
+    t = (P[:, :2] - a[:2]) @ d[:2] / L2
+    lat = np.linalg.norm(P[:, :2] - (a[:2] + np.outer(np.clip(t, 0.0, 1.0), d[:2])), axis=1)
+    over = (t > 0.0) & (t < 1.0) & (lat < lateral_m) & (P[:, 2] > a[2] + t * d[2] + above_m)
+    nb = max(1, int(round(math.sqrt(L2) / 0.1)))
+    hist, _ = np.histogram(t[over], bins=nb, range=(0.0, 1.0))
+    return bool((hist > 0).mean() >= share)
+
+
 def _clamp_under_logs(terrain: TerrainSpec, logs: Sequence[LogSpec], gap_m: float = 0.003) -> TerrainSpec:
     """Lower the (unseen, interpolated) ground under each log so that the twin's terrain, the
     surface *between* the samples included, stays under the log: the ground cannot be above a
@@ -1104,26 +1187,34 @@ def _clamp_under_logs(terrain: TerrainSpec, logs: Sequence[LogSpec], gap_m: floa
     xs, ys = terrain.grid_xy()
     reach = math.sqrt(2.0) * float(xs[1] - xs[0])  # one cell diagonal [m]
     X, Y = np.meshgrid(xs, ys)
-    pts = np.column_stack([X.ravel(), Y.ravel()])
-    flat = h.ravel()
+    flat = np.minimum(h.ravel(), _underside_z(logs, np.column_stack([X.ravel(), Y.ravel()]), reach) - gap_m)
+    h = flat.reshape(h.shape)
+    return replace(terrain, heights_m=tuple(tuple(float(v) for v in row) for row in h))
+
+
+def _underside_z(logs: Sequence[LogSpec], xy: np.ndarray, reach_m: float = 0.0) -> np.ndarray:
+    """Lowest height [m] of any of ``logs``' round undersides within ``reach_m`` (horizontally)
+    of each point ``xy`` ((N, 2), pile frame), less the axis' rise over that reach; ``+inf`` where
+    no log is that close. Nothing lying on the ground can stand above it there."""
+    xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+    out = np.full(len(xy), np.inf)
     for log in logs:
         p0, p1 = log.endpoints_m()
         d = p1 - p0
         d2 = d[:2]
         L2 = max(float(d2 @ d2), 1e-12)
-        t = np.clip((pts - p0[:2]) @ d2 / L2, 0.0, 1.0)
-        lat = np.linalg.norm(pts - (p0[:2] + np.outer(t, d2)), axis=1)
+        t = np.clip((xy - p0[:2]) @ d2 / L2, 0.0, 1.0)
+        lat = np.linalg.norm(xy - (p0[:2] + np.outer(t, d2)), axis=1)
         r = log.diameter_m / 2 + (log.top_d_m - log.diameter_m) / 2 * t
-        near = np.maximum(lat - reach, 0.0)  # the underside's lowest point within reach
+        near = np.maximum(lat - reach_m, 0.0)  # the underside's lowest point within reach
         inside = near < r
         if not inside.any():
             continue
         slope = abs(float(d[2])) / math.sqrt(L2)  # axis rise per metre of run [-]
-        z_axis = p0[2] + t[inside] * d[2] - slope * reach
-        under = z_axis - np.sqrt(np.clip(r[inside] ** 2 - near[inside] ** 2, 0.0, None)) - gap_m
-        flat[inside] = np.minimum(flat[inside], under)
-    h = flat.reshape(h.shape)
-    return replace(terrain, heights_m=tuple(tuple(float(v) for v in row) for row in h))
+        z_axis = p0[2] + t[inside] * d[2] - slope * reach_m
+        z = z_axis - np.sqrt(np.clip(r[inside] ** 2 - near[inside] ** 2, 0.0, None))
+        out[inside] = np.minimum(out[inside], z)
+    return out
 
 
 # -- the whole pile --------------------------------------------------------------------------
@@ -1161,43 +1252,108 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
                                f"the {extent_m:g} m terrain patch; enlarge extent_m or check the point")
     # pass 1: each log on its own; pass 2: each scan point belongs to the log whose fitted
     # surface it lies on (so a neighbour's flank never bends this log's fit), then refit
-    first: list[LogSpec] = []
-    for log_id in ids:
+    first: list[LogSpec | None] = []
+    first_fits: dict[int, dict] = {}
+    hidden: dict[int, LogNotSeenError] = {}  # logs with no scan points on them, under others
+    for i, log_id in enumerate(ids):
         if first_pass is not None and log_id in first_pass:
             first.append(first_pass[log_id])
             continue
         say(f"fitting log {log_id}")
         sa, sb = (sigmas or {}).get(log_id, (None, None))
-        first.append(log_spec_from_fit(fit_log(P, *endpoints[log_id], cfg, log_id=log_id, rng=rng,
-                                               sigma_a_m=sa, sigma_b_m=sb), cfg)[0])
+        try:
+            first_fits[i] = fit_log(P, *endpoints[log_id], cfg, log_id=log_id, rng=rng, sigma_a_m=sa, sigma_b_m=sb)
+            first.append(log_spec_from_fit(first_fits[i], cfg)[0])
+        except LogNotSeenError as exc:
+            if not _covered_by_others(P, *endpoints[log_id], cfg):
+                raise  # nothing over it either: outside the scan, or wrong end points
+            hidden[i] = exc
+            first.append(None)
+    if hidden and len(hidden) == len(ids):
+        raise next(iter(hidden.values()))
+    # a hidden log's diameter is the pile's typical one, at most the room its neighbours leave
+    typical_d = float(np.median([log.mean_diameter_m for log in first if log is not None]))
+    for i in hidden:
+        first[i] = _survey_log(*endpoints[ids[i]], typical_d, cfg)
     # a first fit this far off its GNSS axis (several sigma of RTK noise) took another surface,
     # most likely: a neighbour's (a log lying under another) or the ground beside it. Its refit
     # gets only the points no other log explains
-    suspect = [_axis_shift(log, *endpoints[log_id]) > cfg.suspect_shift_m for log, log_id in zip(first, ids)]
+    suspect = [i in hidden or _axis_shift(log, *endpoints[log_id]) > cfg.suspect_shift_m
+               for i, (log, log_id) in enumerate(zip(first, ids))]
     owner = _owners(P, first, cfg.inlier_band_m, suspect)
     fitted: dict[int, tuple[dict, LogSpec, bool]] = {}
+    how: dict[int, str] = {}
+
+    def neighbours(i: int) -> list[LogSpec]:
+        """The other logs placed so far."""
+        return [fitted[j][1] for j in fitted if j != i]
+
+    def room_m(p0: np.ndarray, p1: np.ndarray, i: int) -> float:
+        """The largest radius a log on axis p0 -> p1 has between the others placed so far [m]."""
+        return min((_segment_distance_3d(p0, p1, *o.endpoints_m()) - o.mean_diameter_m / 2 for o in neighbours(i)),
+                   default=math.inf)
+
+    def within_room(spec: LogSpec, i: int) -> LogSpec:
+        p0, p1 = spec.endpoints_m()
+        room = room_m(p0, p1, i)
+        return LogSpec.from_endpoints(p0, p1, 2 * room) if cfg.min_radius_m <= room < spec.mean_diameter_m / 2 else spec
+
+    def place_hidden(i: int, why: LogNotSeenError) -> None:
+        a, b = endpoints[ids[i]]
+        if not _covered_by_others(P, a, b, cfg):
+            raise why  # nothing over it either: outside the scan, or wrong end points
+        spec = _sandwiched_log(P, a, b, neighbours(i), cfg)
+        whence = "as thick as the gap between the ground and the logs over it"
+        if spec is None:  # not lying between the ground and logs over it: the survey's axis
+            spec = within_room(_survey_log(a, b, typical_d, cfg), i)
+            whence = f"the pile's typical {typical_d * 100:.1f} cm within the room left; heights surveyed"
+        f = {"n_points": 0, "rms_m": math.nan, "coverage": 0.0, "residual_a_m": 0.0, "residual_b_m": 0.0,
+             "ends": np.array([a, b], dtype=float), "end_source": ("gnss", "gnss")}
+        fitted[i], how[i] = (f, spec, False), "hidden"
+        say(f"log {ids[i]}: hidden under others ({why}); axis from GNSS, diameter {spec.diameter_m * 100:.1f} cm "
+            f"({whence})")
+
+    on_axis: list[int] = []  # logs seen only in part: placed once the others are fitted
     for i in sorted(range(len(ids)), key=lambda k: suspect[k]):  # trusted logs first
+        if i in hidden:
+            continue
         log_id = ids[i]
         a, b = endpoints[log_id]
         sa, sb = (sigmas or {}).get(log_id, (None, None))
         mine = P[(owner == i) | (owner < 0)]
-        f = fit_log(mine, a, b, cfg, log_id=log_id, rng=rng, sigma_a_m=sa, sigma_b_m=sb)
-        spec, swapped = log_spec_from_fit(f, cfg)
         trusted = [fitted[j][1] for j in fitted if not suspect[j]]
-        if suspect[i] and (_axis_shift(spec, a, b) > cfg.suspect_shift_m
-                           or any(_interpenetration(spec, o) > cfg.penetration_tolerance_m for o in trusted)):
-            # still astray, or inside a trusted neighbour: the log is seen only in part (under
-            # another). Its axis is the survey's, its radius what the scan shows of its top, at
-            # most the room its trusted neighbours leave around that axis
-            f = fit_radius_on_axis(mine, a, b, cfg, log_id=log_id)
+        try:
+            f = fit_log(mine, a, b, cfg, log_id=log_id, rng=rng, sigma_a_m=sa, sigma_b_m=sb)
             spec, swapped = log_spec_from_fit(f, cfg)
-            p0, p1 = spec.endpoints_m()
-            room = min((_segment_distance_3d(p0, p1, *o.endpoints_m()) - o.mean_diameter_m / 2 for o in trusted),
-                       default=math.inf)
-            if cfg.min_radius_m <= room < spec.mean_diameter_m / 2:
-                spec = LogSpec.from_endpoints(p0, p1, 2 * room)
-            say(f"log {log_id}: seen only in part; axis from GNSS, diameter {spec.diameter_m * 100:.1f} cm")
-        fitted[i] = (f, spec, swapped)
+            astray = _axis_shift(spec, a, b) > cfg.suspect_shift_m
+        except LogNotSeenError:  # its first fit took a neighbour's points: none are left to it
+            astray = True
+        if astray and not suspect[i] and i in first_fits:
+            # the refit on the points left to it strayed where its first fit had not (a log
+            # mostly hidden: its few points let the refit tilt): the first fit stands
+            f = first_fits[i]
+            spec, swapped = log_spec_from_fit(f, cfg)
+            astray = False
+        if astray or suspect[i] and any(_interpenetration(spec, o) > cfg.penetration_tolerance_m for o in trusted):
+            # still astray, or inside a trusted neighbour: the log is seen only in part (under another)
+            on_axis.append(i)
+            continue
+        fitted[i], how[i] = (f, spec, swapped), "scan"
+    for i in on_axis:
+        # its axis is the survey's, its radius what the scan shows of its top, at most the room
+        # its neighbours leave around that axis
+        log_id = ids[i]
+        a, b = endpoints[log_id]
+        try:
+            f = fit_radius_on_axis(P[(owner == i) | (owner < 0)], a, b, cfg, log_id=log_id)
+        except LogNotSeenError as exc:
+            hidden[i] = exc
+            continue
+        spec, swapped = log_spec_from_fit(f, cfg)
+        fitted[i], how[i] = (f, within_room(spec, i), swapped), "partial"
+        say(f"log {log_id}: seen only in part; axis from GNSS, diameter {fitted[i][1].diameter_m * 100:.1f} cm")
+    for i in sorted(hidden):
+        place_hidden(i, hidden[i])
     fits: list[LogFit] = []
     logs: list[LogSpec] = []
     for i, log_id in enumerate(ids):
@@ -1214,6 +1370,7 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
             gnss_residual_a_m=f["residual_a_m"], gnss_residual_b_m=f["residual_b_m"],
             axis_shift_m=float(max(np.linalg.norm(ends[0] - p0), np.linalg.norm(ends[1] - p1))),
             swapped=bool(swapped), end_source=tuple(reversed(f["end_source"])) if swapped else tuple(f["end_source"]),
+            fit=how[i],
         ))
     timings["logs_s"] = time.perf_counter() - t0
     t1 = time.perf_counter()

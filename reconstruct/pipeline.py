@@ -48,7 +48,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from reconstruct.errors import ReconstructError, RegistrationError, ScanError
+from reconstruct.errors import FitError, ReconstructError, RegistrationError, ScanError
 from reconstruct.fit import FitConfig, PileFit, fit_log, fit_pile, log_spec_from_fit, natural_key
 from reconstruct.sfm import SfmConfig
 from reconstruct.stereo import ScanCloud, StereoConfig, scan_cloud
@@ -58,7 +58,7 @@ from synth.pile import Georeference, PileSpec, atomic_write_bytes, write_pile
 SCAN_POSE_FORMAT = "loggrasp.scan-pose"
 SCAN_POSE_VERSION = "1.0"
 REPORT_FORMAT = "loggrasp.reconstruction-report"
-REPORT_VERSION = "1.0"
+REPORT_VERSION = "1.1"  # 1.1: per-log "fit" (scan, partial, hidden)
 PAIR_POSES = ("auto", "calibration", "sfm")
 GEOREGISTER = ("auto", "scan-pose", "gnss")
 RENDER_PX_MULTIPLE = 16  # re-render sides are a multiple of this (a depth-4 U-Net pools 4 times) [px]
@@ -722,6 +722,7 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
     from reconstruct.gnss import read_gnss
     from reconstruct.sfm import pair_has_pose
     from reconstruct.stereo import find_pairs
+    from synth.errors import SynthError
     from synth.render import OrthoRenderConfig, render_ortho
     from synth.preview import preview_image, write_png
     from synth.world import World
@@ -828,10 +829,14 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
     t = time.perf_counter()
     say(f"writing {out_dir}")
     out_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        with World(fit.pile) as world:
+            obs = render_ortho(world, OrthoRenderConfig(size_px=render_px, n_renders=cfg.render_n),
+                               seed=cfg.seed)
+    except SynthError as exc:  # nothing written: no pile that the twin cannot show
+        raise FitError(f"the reconstructed pile cannot be re-rendered ({exc}); check the per-log fits "
+                       "(a log seen only in part may have been fitted astray) and the GNSS end points") from exc
     files = {"pile": write_pile(fit.pile, out_dir / "pile.json")}
-    with World(fit.pile) as world:
-        obs = render_ortho(world, OrthoRenderConfig(size_px=render_px, n_renders=cfg.render_n),
-                           seed=cfg.seed)
     obs.meta["source"] = "reconstructed"
     files["ortho"] = obs.save(out_dir / "ortho.npz")
     files["preview"] = write_png(out_dir / "preview.png", preview_image(obs))

@@ -93,3 +93,22 @@ def test_reconstruct_names_a_bad_log_direction(tmp_path):
     result = runner.invoke(app, ["reconstruct", str(tmp_path), "--gnss", str(tmp_path / "g.csv"), "--out",
                                  str(tmp_path / "o"), "--log-direction", "400"])
     assert result.exit_code != 0 and "log_direction_deg must be in [-180, 180]" in result.output
+
+
+def test_reconstruct_prints_the_per_log_report(tmp_path):
+    """The per-log table names each log, how it was fitted, its length, diameter, GNSS residuals,
+    fit RMS and coverage (the report keys, not stale names)."""
+    from field.cli import DEMO_DATA
+
+    result = runner.invoke(app, ["reconstruct", str(DEMO_DATA / "scan"), "--gnss", str(DEMO_DATA / "gnss.csv"),
+                                 "--out", str(tmp_path / "o")], env={"COLUMNS": "200"})
+    assert result.exit_code == 0, result.output
+    for title in ("log", "fit", "length m", "diam. m", "GNSS res. a m", "GNSS res. b m", "fit rms m", "coverage"):
+        assert title in result.output, result.output
+    report = json.loads((tmp_path / "o" / "report.json").read_text())
+    for log in report["logs"]:
+        assert log["log_id"] in result.output and log["fit"] in ("scan", "partial", "hidden")
+    from reconstruct.cli import log_table_row
+
+    row = log_table_row({**report["logs"][0], "rms_m": float("nan"), "top_diameter_m": None})
+    assert row[1] in ("scan", "partial", "hidden") and "-" in row

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from reconstruct.errors import FitError, ReconstructError
+from reconstruct.errors import FitError, LogNotSeenError, ReconstructError
 from reconstruct.fit import FitConfig, fit_log, fit_pile, natural_key, sample_top_view_points, separate_logs
 from synth.pile import LogSpec, PileSpec, RockSpec, StumpSpec, TerrainSpec, quat_from_euler
 
@@ -210,3 +210,63 @@ def test_ground_under_a_log_stays_under_it_between_samples(angle_deg):
     assert h.min() < 0.0  # under the log it is lowered below its underside
     with World(PileSpec(terrain=clamped, logs=(log,))) as world:
         assert world.penetrations(0.002) == []
+
+
+def _flat(n: int = 32, extent: float = 5.0) -> TerrainSpec:
+    return TerrainSpec(extent_m=extent, resolution=n, amplitude_m=0.0,
+                       heights_m=tuple(tuple(0.0 for _ in range(n)) for _ in range(n)))
+
+
+def test_a_log_hidden_under_another_is_placed_from_its_survey():
+    """A thin log (d 10 cm) with a thick one (d 30 cm) lying right on top of it: the scan sees no
+    point of it. Its two RTK ends say where it is; it is placed on that axis with the pile's
+    typical diameter cut to the room the log above leaves (here: exactly its own), and the report
+    says so. A log without points and nothing over it stays an error."""
+    lower = LogSpec.from_endpoints((-1.2, 0.0, 0.05), (1.2, 0.0, 0.05), 0.10)
+    upper = LogSpec.from_endpoints((-1.3, 0.0, 0.25), (1.3, 0.0, 0.25), 0.30)
+    side = LogSpec.from_endpoints((-1.0, -1.0, 0.14), (1.0, -1.0, 0.14), 0.28)
+    truth = PileSpec(terrain=_flat(), logs=(upper, lower, side))
+    pts = sample_top_view_points(truth, size_px=400, noise_m=0.003, rng=np.random.default_rng(0))
+    said: list[str] = []
+    fit = fit_pile(pts, _survey(truth, seed=4), 5.0, FitConfig(), progress=said.append)
+    assert [lf.fit for lf in fit.logs] == ["scan", "hidden", "scan"]
+    got = fit.pile.logs[1]
+    err = max(min(np.linalg.norm(p - q) for q in got.endpoints_m()) for p in lower.endpoints_m())
+    assert err < 0.05, (err, got)
+    assert abs(got.diameter_m - 0.10) < 0.03, got.diameter_m
+    assert fit.logs[1].n_points == 0 and math.isnan(fit.logs[1].rms_m)
+    assert any("log1: hidden under others" in s for s in said), said
+    assert max(lf.moved_m for lf in fit.logs) < 0.03, [lf.moved_m for lf in fit.logs]
+    assert fit.logs[0].to_dict()["fit"] == "scan"
+    # the same log with nothing over it (the upper one gone): not in the scan, an error naming it
+    bare = PileSpec(terrain=_flat(), logs=(side,))
+    pts = sample_top_view_points(bare, size_px=400, noise_m=0.003, rng=np.random.default_rng(0))
+    survey = {"log0": _survey(bare, seed=4)["log0"], "log1": _survey(truth, seed=4)["log1"]}
+    with pytest.raises(LogNotSeenError, match="log 'log1'"):
+        fit_pile(pts, survey, 5.0, FitConfig())
+
+
+def test_obstacle_points_over_a_log_are_the_logs():
+    """Points standing over a log's footprint higher than its underside (stereo smear at a stack
+    of log ends) are not an obstacle; a stump beside the log stays, and a stump reaching under a
+    log stands no higher than the log's underside over it."""
+    from reconstruct.fit import _underside_z, find_obstacles
+
+    terrain = _flat(64)
+    log = LogSpec.from_endpoints((-1.0, 0.0, 0.4), (1.0, 0.0, 0.4), 0.2)  # resting on something
+    rng = np.random.default_rng(1)
+    # a 30 cm blob of points inside the log's footprint, between its underside and its top
+    smear = np.column_stack([rng.uniform(-0.9, -0.6, 400), rng.uniform(-0.08, 0.08, 400), rng.uniform(0.32, 0.48, 400)])
+    # a stump beside the log: a 40 cm tall disc top of radius 0.15 m, and its flank
+    ang, rad = rng.uniform(0, 2 * np.pi, 800), 0.15 * np.sqrt(rng.uniform(0, 1, 800))
+    top = np.column_stack([0.2 + rad * np.cos(ang), -0.8 + rad * np.sin(ang), np.full(800, 0.4)])
+    stumps, rocks, _ = find_obstacles(np.vstack([smear, top]), terrain, FitConfig(), logs=[log])
+    assert not rocks and len(stumps) == 1, (stumps, rocks)
+    assert abs(stumps[0].position_m[1] + 0.8) < 0.05
+    # the same stump under the log's end (its top partly hidden by it): no higher than the log
+    under = top + [0.0, 0.75, 0.0]
+    under = under[under[:, 1] < -0.11]  # the scan sees the part beside the log
+    stumps, _, _ = find_obstacles(under, terrain, FitConfig(), logs=[log])
+    for s in stumps:
+        xy = np.array([s.position_m])
+        assert s.height_m <= float(_underside_z([log], xy, s.bottom_radius_m)[0]) + 1e-9
