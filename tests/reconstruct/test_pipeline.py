@@ -218,6 +218,23 @@ def _rows(path: Path) -> list[str]:
     return path.read_text().splitlines()
 
 
+def test_a_pile_the_twin_cannot_render_is_a_fit_error(small_scan, tmp_path, monkeypatch):
+    """A reconstructed pile the twin cannot re-render (a render with holes) is a FitError naming
+    the cause, and nothing is written: no pile.json that the planner could not use."""
+    import synth.render
+    from reconstruct.errors import FitError
+    from synth.errors import RenderError
+
+    def holes(*a, **k):
+        raise RenderError("the orthographic render has holes (pixels that see nothing)")
+
+    monkeypatch.setattr(synth.render, "render_ortho", holes)
+    scan, gnss, truth, d = small_scan
+    with pytest.raises(FitError, match="cannot be re-rendered .*holes"):
+        reconstruct(scan, gnss, tmp_path / "o")
+    assert not (tmp_path / "o" / "pile.json").exists()
+
+
 def test_survey_problems_are_named(small_scan, tmp_path):
     scan, gnss, truth, d = small_scan
     lines = _rows(gnss)
