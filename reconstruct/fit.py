@@ -32,8 +32,9 @@ wanted (1 cm), so the GNSS axis is only the *start* of the fit:
    or the GNSS axis itself (``axis_source="gnss"``). The distance between each GNSS point and
    the fitted axis is reported as that point's residual.
 
-A log seen only in part (its fits stray from its GNSS axis, or lie inside a neighbour) keeps the
-survey's axis and takes its radius from its visible top, at most the room its neighbours leave
+A log seen only in part (its fits stray from its GNSS axis, or lie inside a neighbour) gets a
+circle through its visible top arc whose centre stays within two ``gnss_sigma_m`` of the survey's
+axis (a shift and a tilt), its radius at most the room its neighbours leave plus one sigma
 (``LogFit.fit == "partial"``). A log with no scan points on it but scan points standing over it
 lies hidden under others: it is placed on its survey axis, as thick as the gap between the
 ground and the logs over it (or the pile's typical diameter within the room left), and reported
@@ -84,8 +85,10 @@ AXIS_SOURCES = ("fit", "gnss")
 #: scan, so that kept reconstructions (``field.real_test``) are made again. 2: the terrain under a
 #: log is held under its round underside between the grid samples too (:func:`_clamp_under_logs`).
 #: 3: obstacle points over a log's footprint above its underside are the log's; a refit that
-#: strays keeps the first fit; logs hidden under others are placed from their survey.
-FIT_REVISION = 3
+#: strays keeps the first fit; logs hidden under others are placed from their survey. 4: a log
+#: seen only in part gets a circle through its top arc (axis within two sigma of the survey's)
+#: instead of the lower quartile of distances from the survey's axis (diameters 7.5 cm too small).
+FIT_REVISION = 4
 
 
 @dataclass(frozen=True)
@@ -1019,14 +1022,34 @@ def fit_radius_on_axis(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfi
     # the nearest surface seen from above: the lower quartile of the distances (points beyond are
     # whatever lies on or beside it)
     rad = float(np.percentile(r[on], 25))
-    band = np.abs(r - rad) < cfg.inlier_band_m
-    sel = np.flatnonzero(on & band)
+    # the survey's axis is a few cm off (RTK noise), which spreads the top's distances by as
+    # much: a circle through the top arc, its centre within two sigma of the axis (a shift and a
+    # tilt), finds the radius unbiased. Points a few cm beyond the nearest surface are on it
+    # still; a log lying on this one is a whole diameter farther
+    from scipy.optimize import least_squares
+
+    arc = np.flatnonzero(on & (r > rad - 0.03) & (r < rad + 0.06))
+    q1, q2, tau = q[arc] @ e1, q[arc] @ e2, t[arc] / L - 0.5
+    lim = 2 * cfg.gnss_sigma_m
+
+    def off_circle(x):
+        return np.hypot(q1 - x[0] - x[2] * tau, q2 - x[1] - x[3] * tau) - x[4]
+
+    x = least_squares(off_circle, [0.0, 0.0, 0.0, 0.0, float(np.clip(rad, cfg.min_radius_m * 1.01, cfg.max_radius_m * 0.99))],
+                      bounds=([-lim, -lim, -lim, -lim, cfg.min_radius_m], [lim, lim, lim, lim, cfg.max_radius_m]),
+                      loss="soft_l1", f_scale=0.005).x
+    a = a + (x[0] - x[2] / 2) * e1 + (x[1] - x[3] / 2) * e2
+    b = b + (x[0] + x[2] / 2) * e1 + (x[1] + x[3] / 2) * e2
+    rad = float(x[4])
+    res = np.abs(off_circle(x))
+    sel = arc[res < cfg.inlier_band_m]
     tt = t[sel]
     nb = max(1, int(round(L / 0.1)))
     hist, _ = np.histogram(tt, bins=nb, range=(0.0, L))
-    rms = float(np.sqrt(np.mean((r[sel] - rad) ** 2))) if sel.size else math.nan
+    rms = float(np.sqrt(np.mean(res[res < cfg.inlier_band_m] ** 2))) if sel.size else math.nan
     return {
-        "centre": 0.5 * (a + b), "axis": u, "ends": np.stack([a, b]), "radius_a_m": rad, "radius_b_m": rad,
+        "centre": 0.5 * (a + b), "axis": (b - a) / np.linalg.norm(b - a), "ends": np.stack([a, b]),
+        "radius_a_m": rad, "radius_b_m": rad,
         "n_points": int(sel.size), "rms_m": rms, "coverage": float(np.mean(hist > 0)), "taper_significance": 0.0,
         "end_source": ["gnss", "gnss"], "residual_a_m": 0.0, "residual_b_m": 0.0, "inliers": sel,
     }
@@ -1293,9 +1316,11 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
         return min((_segment_distance_3d(p0, p1, *o.endpoints_m()) - o.mean_diameter_m / 2 for o in neighbours(i)),
                    default=math.inf)
 
-    def within_room(spec: LogSpec, i: int) -> LogSpec:
+    def within_room(spec: LogSpec, i: int, slack_m: float = 0.0) -> LogSpec:
+        """``spec`` thinned to the room its neighbours leave, plus ``slack_m`` (their surfaces
+        and its axis are surveyed to a few cm: a little overlap is for the twin check to lift)."""
         p0, p1 = spec.endpoints_m()
-        room = room_m(p0, p1, i)
+        room = room_m(p0, p1, i) + slack_m
         return LogSpec.from_endpoints(p0, p1, 2 * room) if cfg.min_radius_m <= room < spec.mean_diameter_m / 2 else spec
 
     def place_hidden(i: int, why: LogNotSeenError) -> None:
@@ -1350,7 +1375,7 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
             hidden[i] = exc
             continue
         spec, swapped = log_spec_from_fit(f, cfg)
-        fitted[i], how[i] = (f, within_room(spec, i), swapped), "partial"
+        fitted[i], how[i] = (f, within_room(spec, i, slack_m=cfg.gnss_sigma_m), swapped), "partial"
         say(f"log {log_id}: seen only in part; axis from GNSS, diameter {fitted[i][1].diameter_m * 100:.1f} cm")
     for i in sorted(hidden):
         place_hidden(i, hidden[i])
