@@ -57,7 +57,9 @@ def _init(model: str, views: int, k: float) -> None:
     import torch
 
     from planner.inference import load_planner
+    from synth.jobs import exit_with_parent
 
+    exit_with_parent()
     torch.set_num_threads(1)
     _W["planner"] = load_planner(model, device="cpu", views=views, view_spread_k=k)
 

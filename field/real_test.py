@@ -277,7 +277,9 @@ def _model_path(cfg: RealTestConfig) -> Path:
 
 def _worker_init(model: str, threads: int | None, views: int = 1, view_spread_k: float = 0.0) -> None:
     from planner.inference import load_planner
+    from synth.jobs import exit_with_parent
 
+    exit_with_parent()  # a killed run's workers must not go on writing into its work folder
     if threads is not None:
         import torch
 

@@ -363,7 +363,10 @@ def run_evaluation(specs: list[PlannerSpec], cfg: EvalConfig, out_dir: str | Pat
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor, as_completed
 
-        with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
+        from synth.jobs import exit_with_parent
+
+        with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
+                                 initializer=exit_with_parent) as pool:
             futs = {pool.submit(evaluate_pile, t, sp, cfg): t for t, sp in todo}
             for f in as_completed(futs):
                 finish(futs[f], f.result())

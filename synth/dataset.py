@@ -856,7 +856,10 @@ def _run_pool(todo, args, workers, finished, simulate_factory) -> None:
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
+    from synth.jobs import exit_with_parent
+
+    with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
+                             initializer=exit_with_parent) as pool:
         futures = [pool.submit(build_chunk, *args, c, None, simulate_factory) for c in todo]
         try:
             for f in as_completed(futures):

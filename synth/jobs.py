@@ -30,6 +30,26 @@ from synth.pile import atomic_write_bytes
 JOB_FORMAT_VERSION = "1.0"
 
 
+def exit_with_parent(poll_s: float = 1.0) -> None:
+    """Worker-process initializer: end this process when the process that started it dies.
+
+    A killed job's ``ProcessPoolExecutor`` workers otherwise live on (they are not its process
+    group's when it was started in the background) and keep writing into its output folder,
+    racing the next run. A daemon thread notices the parent going (this process re-parented)
+    within ``poll_s`` and exits at once."""
+    import threading
+    import time
+
+    parent = os.getppid()
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(poll_s)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
+
+
 @dataclass(frozen=True)
 class PileJob:
     count: int  # number of piles [-]
@@ -154,7 +174,8 @@ def run_pile_job(out: str | Path, job: PileJob, workers: int = 0,
         return stats
     import multiprocessing as mp
 
-    with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
+    with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
+                             initializer=exit_with_parent) as pool:
         futures = [pool.submit(build_one, str(out), job, k) for k in todo]
         for f in as_completed(futures):
             r = f.result()

@@ -55,3 +55,65 @@ def test_bad_ranges(text):
 def test_bad_jobs(kwargs):
     with pytest.raises(ValueError):
         PileJob(**kwargs)
+
+
+_POOL_SCRIPT = """
+import multiprocessing as mp, sys, time
+from concurrent.futures import ProcessPoolExecutor
+sys.path.insert(0, {root!r})
+from synth.jobs import exit_with_parent
+from tests.synth.test_jobs import _sleeper
+
+if __name__ == "__main__":
+    with ProcessPoolExecutor(1, mp_context=mp.get_context("spawn"), initializer=exit_with_parent,
+                             initargs=(0.1,)) as pool:
+        pool.submit(_sleeper, {pid_file!r}).result()
+"""
+
+
+def _sleeper(pid_file: str) -> None:
+    import os
+    import time
+
+    with open(pid_file + ".tmp", "w") as f:
+        f.write(str(os.getpid()))
+    os.replace(pid_file + ".tmp", pid_file)
+    time.sleep(60)
+
+
+def test_pool_workers_end_with_a_killed_job(tmp_path):
+    """A job killed outright (SIGKILL: no clean-up runs) takes its pool workers with it: none is
+    left writing into its output folder while the next run starts."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    root = str(Path(__file__).resolve().parents[2])
+    pid_file = str(tmp_path / "worker.pid")
+    script = tmp_path / "job.py"
+    script.write_text(_POOL_SCRIPT.format(root=root, pid_file=pid_file))
+    job = subprocess.Popen([sys.executable, str(script)], cwd=root)
+    try:
+        t0 = time.monotonic()
+        while not os.path.exists(pid_file):
+            assert time.monotonic() - t0 < 60, "the worker never started"
+            time.sleep(0.1)
+        worker = int(Path(pid_file).read_text())
+        os.kill(job.pid, signal.SIGKILL)
+        job.wait()
+        t0 = time.monotonic()
+        while True:
+            try:
+                os.kill(worker, 0)
+            except ProcessLookupError:
+                break
+            if time.monotonic() - t0 > 10:
+                os.kill(worker, signal.SIGKILL)
+                pytest.fail("the pool worker outlived its killed job by 10 s")
+            time.sleep(0.1)
+    finally:
+        if job.poll() is None:
+            job.kill()
