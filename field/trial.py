@@ -92,7 +92,15 @@ class PreparedTrial:
             f"SWEREF 99 TM  E {g.easting_m:.3f}  N {g.northing_m:.3f}  h {g.h_ell_m:.3f} m (ellipsoidal)",
             f"heading (closing axis) {g.heading_grid_deg:.2f}° from grid north, {g.heading_true_deg:.2f}° from true north",
             f"opening width {g.width_m:.3f} m",
-        ]
+        ] + [f"WARNING: target log {i} was {how} (the reconstruction's report says how it was placed); "
+             "check it on the pile before confirming" for i, how in self.doubtful_targets()]
+
+    def doubtful_targets(self) -> list[tuple[int, str]]:
+        """Target logs the scan showed only in part or not at all: (index, how it was placed)."""
+        fits = self.report.get("log_fits", [])
+        words = {"partial": "seen only in part (radius from its visible top)",
+                 "hidden": "hidden under other logs (diameter estimated, no scan points on it)"}
+        return [(i, words[fits[i]]) for i in self.plan.best.targets if i < len(fits) and fits[i] in words]
 
 
 def captured_time(scan_dir: Path, gnss_path: Path) -> float:
@@ -186,7 +194,9 @@ def prepare_trial(scan_dir: str | Path, gnss_path: str | Path, work_dir: str | P
     write_geojson_pair(pile, plan_dir, grasp=best.grasp, plan_extra={"target_logs": list(best.targets)})
     draw_grasp_map(pile, best.grasp, plan_dir / "grasp_map.png", target_logs=best.targets)
     return PreparedTrial(pile=pile, plan=the_plan, geo=geo, command_fields=command_fields,
-                         captured_utc_s=captured, work_dir=work, report={"pile_age_s": age})
+                         captured_utc_s=captured, work_dir=work,
+                         report={"pile_age_s": age,
+                                 "log_fits": [log.get("fit", "scan") for log in result.report.get("logs", [])]})
 
 
 @dataclass

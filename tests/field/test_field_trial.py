@@ -140,3 +140,25 @@ def test_out_of_reach_and_declined_are_not_sent(tmp_path):
                              confirm=lambda prepared: False)
     assert crane.calls == 0
     assert json.loads((tmp_path / "no" / "record.json").read_text())["final_state"] == "NOT SENT"
+
+
+def test_summary_warns_about_targets_the_scan_hardly_showed(tmp_path):
+    """The operator's confirmation names target logs that were placed from the survey (seen only
+    in part, or hidden under others), and says nothing for fitted ones."""
+    from types import SimpleNamespace
+
+    from field.trial import PreparedTrial
+
+    best = SimpleNamespace(targets=(0, 2), quality=0.9, graspability=0.95, balance=0.9)
+    geo = SimpleNamespace(easting_m=1.0, northing_m=2.0, h_ell_m=3.0, heading_grid_deg=10.0, heading_true_deg=9.0,
+                          width_m=1.2)
+
+    def prepared(fits):
+        return PreparedTrial(pile=SimpleNamespace(n_logs=3), plan=SimpleNamespace(best=best), geo=geo,
+                             command_fields={}, captured_utc_s=0.0, work_dir=tmp_path, report={"log_fits": fits})
+
+    lines = prepared(["scan", "hidden", "hidden"]).summary_lines()
+    warn = [s for s in lines if s.startswith("WARNING")]
+    assert len(warn) == 1 and "target log 2" in warn[0] and "hidden under other logs" in warn[0]
+    assert prepared(["partial", "scan", "scan"]).doubtful_targets()[0][0] == 0
+    assert not any(s.startswith("WARNING") for s in prepared(["scan"] * 3).summary_lines())
