@@ -98,7 +98,7 @@ class PreparedTrial:
     def doubtful_targets(self) -> list[tuple[int, str]]:
         """Target logs the scan showed only in part or not at all: (index, how it was placed)."""
         fits = self.report.get("log_fits", [])
-        words = {"partial": "seen only in part (radius from its visible top)",
+        words = {"partial": "seen only in part (its radius from the visible top)",
                  "hidden": "hidden under other logs (diameter estimated, no scan points on it)"}
         return [(i, words[fits[i]]) for i in self.plan.best.targets if i < len(fits) and fits[i] in words]
 

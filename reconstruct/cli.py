@@ -108,8 +108,9 @@ def reconstruct_command(
 
 #: the per-log report's columns: report key -> column title
 LOG_TABLE = {"log_id": "log", "fit": "fit", "length_m": "length m", "diameter_m": "diam. m",
-             "top_diameter_m": "top diam. m", "gnss_residual_a_m": "GNSS res. a m", "gnss_residual_b_m": "GNSS res. b m",
-             "rms_m": "fit rms m", "coverage": "coverage", "n_points": "points", "moved_m": "moved m"}
+             "top_diameter_m": "top diam. m", "gnss_residual_a_m": "GNSS res. a m",
+             "gnss_residual_b_m": "GNSS res. b m", "rms_m": "fit rms m", "coverage": "coverage",
+             "n_points": "points", "moved_m": "moved m"}
 
 
 def log_table_row(log: dict) -> list[str]:

@@ -204,9 +204,9 @@ class LogFit:
     swapped: bool  # True when end "b" turned out to be the butt (the thicker end)
     moved_m: float = 0.0  # how far it was moved to separate it from other bodies [m]
     end_source: tuple[str, str] = ("gnss", "gnss")  # butt, top: "gnss" point or "scan" extent
-    fit: str = "scan"  # "scan": fitted to its points; "partial": seen only in part, axis from GNSS and
-    #                    radius from its visible top; "hidden": no points on it (under other logs),
-    #                    axis from GNSS and the pile's typical diameter within the room left
+    fit: str = "scan"  # "scan": fitted to its points; "partial": seen only in part, a circle through its
+    #                    visible top near the survey's axis; "hidden": no points on it (under other logs),
+    #                    the survey's axis, as thick as the gap between the ground and the logs over it
 
     @property
     def mean_diameter_m(self) -> float:
@@ -1035,7 +1035,8 @@ def fit_radius_on_axis(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfi
     def off_circle(x):
         return np.hypot(q1 - x[0] - x[2] * tau, q2 - x[1] - x[3] * tau) - x[4]
 
-    x = least_squares(off_circle, [0.0, 0.0, 0.0, 0.0, float(np.clip(rad, cfg.min_radius_m * 1.01, cfg.max_radius_m * 0.99))],
+    r0 = float(np.clip(rad, cfg.min_radius_m * 1.01, cfg.max_radius_m * 0.99))
+    x = least_squares(off_circle, [0.0, 0.0, 0.0, 0.0, r0],
                       bounds=([-lim, -lim, -lim, -lim, cfg.min_radius_m], [lim, lim, lim, lim, cfg.max_radius_m]),
                       loss="soft_l1", f_scale=0.005).x
     a = a + (x[0] - x[2] / 2) * e1 + (x[1] - x[3] / 2) * e2
@@ -1294,7 +1295,7 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
             first.append(None)
     if hidden and len(hidden) == len(ids):
         raise next(iter(hidden.values()))
-    # a hidden log's diameter is the pile's typical one, at most the room its neighbours leave
+    # until it is placed (place_hidden), a hidden log is the pile's typical one on its survey axis
     typical_d = float(np.median([log.mean_diameter_m for log in first if log is not None]))
     for i in hidden:
         first[i] = _survey_log(*endpoints[ids[i]], typical_d, cfg)
