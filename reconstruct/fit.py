@@ -1127,16 +1127,21 @@ def _axis_shift(log: LogSpec, end_a: Any, end_b: Any) -> float:
     return out
 
 
+def _along_across(xy: np.ndarray, p0: np.ndarray, p1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Seen from above, each point ``xy`` ((N, 2)) against the segment ``p0`` → ``p1`` (their x, y
+    are used): where along it (0 at p0, 1 at p1, not clipped) and how far from it [m]."""
+    a, d = np.asarray(p0, dtype=float)[:2], np.asarray(p1, dtype=float)[:2] - np.asarray(p0, dtype=float)[:2]
+    t = (xy - a) @ d / max(float(d @ d), 1e-12)
+    return t, np.linalg.norm(xy - (a + np.outer(np.clip(t, 0.0, 1.0), d)), axis=1)
+
+
 def _footprint_distance(xy: np.ndarray, logs: Sequence[LogSpec]) -> np.ndarray:
     """Horizontal distance [m] of points outside the nearest log's top-view footprint
     (negative inside)."""
     best = np.full(len(xy), np.inf)
     for log in logs:
-        p0, p1 = (e[:2] for e in log.endpoints_m())
-        d = p1 - p0
-        L2 = max(float(d @ d), 1e-12)
-        t = np.clip((xy - p0) @ d / L2, 0.0, 1.0)
-        dist = np.linalg.norm(xy - (p0 + np.outer(t, d)), axis=1)
+        t, dist = _along_across(xy, *log.endpoints_m())
+        t = np.clip(t, 0.0, 1.0)
         r = log.diameter_m / 2 + (log.top_d_m - log.diameter_m) / 2 * t
         best = np.minimum(best, dist - r)
     return best
@@ -1187,12 +1192,9 @@ def _covered_by_others(P: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig, la
     of it seen from above, ``above_m`` or more over it) along at least ``share`` of its length
     (10 cm bins): something lies on the log. Else a log without points on it is not in the scan."""
     a, b = np.asarray(end_a, dtype=float), np.asarray(end_b, dtype=float)
-    d = b - a
-    L2 = max(float(d[:2] @ d[:2]), 1e-12)
-    t = (P[:, :2] - a[:2]) @ d[:2] / L2
-    lat = np.linalg.norm(P[:, :2] - (a[:2] + np.outer(np.clip(t, 0.0, 1.0), d[:2])), axis=1)
-    over = (t > 0.0) & (t < 1.0) & (lat < lateral_m) & (P[:, 2] > a[2] + t * d[2] + above_m)
-    nb = max(1, int(round(math.sqrt(L2) / 0.1)))
+    t, lat = _along_across(P[:, :2], a, b)
+    over = (t > 0.0) & (t < 1.0) & (lat < lateral_m) & (P[:, 2] > a[2] + t * (b[2] - a[2]) + above_m)
+    nb = max(1, int(round(float(np.linalg.norm(b[:2] - a[:2])) / 0.1)))
     hist, _ = np.histogram(t[over], bins=nb, range=(0.0, 1.0))
     return bool((hist > 0).mean() >= share)
 
@@ -1225,16 +1227,14 @@ def _underside_z(logs: Sequence[LogSpec], xy: np.ndarray, reach_m: float = 0.0) 
     for log in logs:
         p0, p1 = log.endpoints_m()
         d = p1 - p0
-        d2 = d[:2]
-        L2 = max(float(d2 @ d2), 1e-12)
-        t = np.clip((xy - p0[:2]) @ d2 / L2, 0.0, 1.0)
-        lat = np.linalg.norm(xy - (p0[:2] + np.outer(t, d2)), axis=1)
+        t, lat = _along_across(xy, p0, p1)
+        t = np.clip(t, 0.0, 1.0)
         r = log.diameter_m / 2 + (log.top_d_m - log.diameter_m) / 2 * t
         near = np.maximum(lat - reach_m, 0.0)  # the underside's lowest point within reach
         inside = near < r
         if not inside.any():
             continue
-        slope = abs(float(d[2])) / math.sqrt(L2)  # axis rise per metre of run [-]
+        slope = abs(float(d[2])) / max(float(np.linalg.norm(d[:2])), 1e-6)  # axis rise per metre of run [-]
         z_axis = p0[2] + t[inside] * d[2] - slope * reach_m
         z = z_axis - np.sqrt(np.clip(r[inside] ** 2 - near[inside] ** 2, 0.0, None))
         out[inside] = np.minimum(out[inside], z)

@@ -828,7 +828,6 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
 
     t = time.perf_counter()
     say(f"writing {out_dir}")
-    out_dir.mkdir(parents=True, exist_ok=True)
     try:
         with World(fit.pile) as world:
             obs = render_ortho(world, OrthoRenderConfig(size_px=render_px, n_renders=cfg.render_n),
@@ -836,6 +835,7 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
     except SynthError as exc:  # nothing written: no pile that the twin cannot show
         raise FitError(f"the reconstructed pile cannot be re-rendered ({exc}); check the per-log fits "
                        "(a log seen only in part may have been fitted astray) and the GNSS end points") from exc
+    out_dir.mkdir(parents=True, exist_ok=True)
     files = {"pile": write_pile(fit.pile, out_dir / "pile.json")}
     obs.meta["source"] = "reconstructed"
     files["ortho"] = obs.save(out_dir / "ortho.npz")

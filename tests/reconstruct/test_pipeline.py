@@ -232,7 +232,7 @@ def test_a_pile_the_twin_cannot_render_is_a_fit_error(small_scan, tmp_path, monk
     scan, gnss, truth, d = small_scan
     with pytest.raises(FitError, match="cannot be re-rendered .*holes"):
         reconstruct(scan, gnss, tmp_path / "o")
-    assert not (tmp_path / "o" / "pile.json").exists()
+    assert not (tmp_path / "o").exists()
 
 
 def test_survey_problems_are_named(small_scan, tmp_path):
