@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import json
+import os
+
 from pathlib import Path
 
 import typer
@@ -98,8 +101,14 @@ def dataset(
     trial: str = typer.Option("fast", "--trial", help="Trial settings preset: fast or careful."),
     max_trials_per_subset: int = typer.Option(16, "--max-trials-per-subset"),
     piles_dir: Path = typer.Option(None, "--piles-dir", help="Use the piles of a `synth piles` job."),
+    store: bool = typer.Option(False, "--store", help="Write the compact form that is committed to git "
+                               "(store.json + chunks/: piles, grasps, trials; renders are re-made on load) "
+                               "and resumes from any clone; local engine only."),
 ) -> None:
     """Try rule-based candidate grasps in physics (Algorithm 1) and write the grasp-map data set.
+
+    With --store (e.g. --out data/paper-v3) the folder holds only what the simulation found and
+    `loggrasp train --data data/paper-v3` renders the training images from it on first use.
 
     Example: loggrasp synth dataset --piles 604 --logs 4 --obstacles-fraction 0.33 --out data/
     Re-running resumes: finished shards are kept, partial ones redone. With --engine dask
@@ -119,6 +128,18 @@ def dataset(
                        info=f"{p.samples} samples, {p.trials} trials, {p.trials_per_s:.1f} trials/s")
 
         try:
+            if store:
+                if engine != "local" or piles_dir is not None:
+                    fail("--store runs with --engine local and generates its own piles (drop --piles-dir)")
+                from synth.dataset import DatasetJob
+                from synth.datastore import build_store
+
+                job = DatasetJob(n_piles=piles, n_logs=logs, obstacles_fraction=obstacles_fraction, seed=seed,
+                                 size_px=size, n_renders=renders, trial_preset=trial,
+                                 max_trials_per_subset=max_trials_per_subset)
+                rec = build_store(out, job, workers=workers or (os.cpu_count() or 1), progress=progress)
+                typer.echo(json.dumps(rec["summary"], indent=1))
+                return
             manifest = build_dataset(out, n_piles=piles, n_logs=logs, obstacles_fraction=obstacles_fraction,
                                      seed=seed, workers=workers, engine=engine, address=address, size_px=size,
                                      n_renders=renders, trial_config=trial,
@@ -126,6 +147,4 @@ def dataset(
                                      progress=progress)
         except (SynthError, ValueError) as exc:
             fail(str(exc))
-    import json
-
     typer.echo(json.dumps(manifest.summary, indent=1))

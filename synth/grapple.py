@@ -81,6 +81,7 @@ class GrappleConfig:
     # actuators
     claw_torque_limit_nm: float = 4000.0  # per claw [N·m]
     closing_speed_rad_s: float = 1.0  # claw angular speed limit [rad/s]
+    closed_overlap_m: float = 0.60  # the claws interleave: closing drives the tips this far past each other [m]
     hinge_damping_nms: float = 1300.0  # viscous damping of each unactuated swing hinge [N·m·s/rad]
     hinge_friction_nm: float = 5.0  # residual (seal) friction of each swing hinge [N·m]
     rotator_torque_limit_nm: float = 2500.0  # yaw motor [N·m]
@@ -102,7 +103,7 @@ class GrappleConfig:
                      "rotator_torque_limit_nm", "boom_force_limit_n"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"grapple {name} must be > 0, got {getattr(self, name)}")
-        if self.yaw_drop_m < 0 or self.hinge_friction_nm < 0 or self.hinge_damping_nms < 0:
+        if self.yaw_drop_m < 0 or self.hinge_friction_nm < 0 or self.hinge_damping_nms < 0 or self.closed_overlap_m < 0:
             raise ValueError("grapple yaw_drop_m, hinge_friction_nm and hinge_damping_nms must be >= 0")
         if not MAX_WIDTH_M <= self.max_opening_m <= 3.0:
             raise ValueError(
@@ -129,6 +130,15 @@ class GrappleConfig:
 
     def closed_gap_m(self) -> float:
         return float(self.gap_at(0.0))
+
+    def close_angle_rad(self) -> float:
+        """Claw angle [rad] (<= 0) the closing drives towards: tips ``closed_overlap_m`` past each other."""
+        qs = np.linspace(-0.8, 0.0, 801)
+        gaps = self.gap_at(qs)
+        target = self.closed_gap_m() - self.closed_overlap_m
+        if not gaps[0] <= target:
+            raise ValueError(f"closed_overlap_m {self.closed_overlap_m} m is beyond the claws' reach")
+        return float(np.interp(target, gaps, qs))
 
     def max_angle_rad(self) -> float:
         return float(self.angle_for_gap(self.max_opening_m))
@@ -308,8 +318,9 @@ class Grapple:
             )
 
     def close(self) -> None:
-        """Close both claws as far as the torque limit allows."""
-        self.set_claws(0.0)
+        """Close both claws as far as the torque limit allows (the tips may pass each other, so a
+        small load is squeezed rather than left loose in the claws' bowl)."""
+        self.set_claws(self.config.close_angle_rad())
 
     # -- state -------------------------------------------------------------------------------
     def boom_z(self) -> float:

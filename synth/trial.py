@@ -44,6 +44,10 @@ from synth.pile import PileSpec
 from synth.world import PhysicsConfig, World
 
 TRIAL_FORMAT_VERSION = "1.0"
+# Revision of the trial's code (not its parameters, which TrialConfig records): data sets and
+# stores record it, and a resumed job refuses another. 2: swing dampers, interleaving claws,
+# a lift that goes on until the load hangs free.
+TRIAL_REVISION = 2
 
 
 class Outcome(enum.Enum):
