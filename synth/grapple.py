@@ -16,8 +16,9 @@ link  name            joint (parent)               role
  7    claw_pos        revolute, actuated (5)       claw on the +u side
 ====  ==============  ===========================  ===========================================
 
-The two swing hinges carry only a small friction motor, so the grapple hangs plumb, folds when
-pressed against a log or an obstacle, and bounces off hard hits (the paper's compliance). The
+The two swing hinges are viscous dampers (a dual swing damper), so the grapple hangs plumb when
+empty, folds when pressed against a log or an obstacle, bounces off hard hits (the paper's
+compliance) and, holding a load, swings until the load's centre of mass hangs under the hinges. The
 claws close symmetrically under position motors whose torque is limited to a real grapple's
 closing strength (see :class:`GrappleConfig`). Collision geometry is cuboids only; the carriage
 and swing links have none. Grapple–terrain contacts are disabled, as in the paper, to reduce the
