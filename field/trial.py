@@ -35,6 +35,7 @@ from typing import Callable
 import numpy as np
 
 from field.errors import FieldError
+from field.link.messages import DEFAULT_MAX_PILE_AGE_S
 from synth.dataset import sha256_file as sha256_of
 
 RECORD_FORMAT = "loggrasp.trial-record"
@@ -52,7 +53,7 @@ class TrialOptions:
     views: int = 1  # dihedral views the planner averages (1, 2, 4, 8; planning time grows with it) [-]
     view_spread_k: float = 0.0  # U logit lowered by k x its spread over the views (needs views > 1) [-]
     allow_float: bool = False  # accept RTK float endpoints (the operator's explicit choice)
-    max_pile_age_s: float = 600.0  # refuse plans on pile data older than this [s]
+    max_pile_age_s: float = DEFAULT_MAX_PILE_AGE_S  # refuse plans on pile data older than this [s]
     crane_base_tm: tuple[float, float, float] | None = None  # SWEREF 99 TM E, N [m], ellipsoidal h [m]
     min_reach_m: float = 2.0  # [m]
     max_reach_m: float = 10.0  # [m]

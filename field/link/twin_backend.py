@@ -14,6 +14,7 @@ crane's own reach envelope and staleness limit), ``executor=NAME`` (registered e
 from __future__ import annotations
 
 import uuid
+from dataclasses import replace
 from typing import Any
 
 import can
@@ -26,9 +27,12 @@ class TwinLink(CanLink):
     backend_name = "twin"
 
     def __init__(self, config: LinkConfig | None = None, *, controller_config: Any = None, executor: Any = None):
-        from field.controller import CraneController, FixedOutcomeExecutor
+        from field.controller import ControllerConfig, CraneController, FixedOutcomeExecutor
 
         self.channel = f"loggrasp-twin-{uuid.uuid4().hex[:12]}"
+        key = (config or LinkConfig()).secoc_key_path
+        if key is not None:  # the twin crane holds the same key as the laptop
+            controller_config = replace(controller_config or ControllerConfig(), secoc_key_path=key)
         self.controller = CraneController(controller_config, executor if executor is not None else FixedOutcomeExecutor())
         self.transport = CanControllerTransport(
             bus=can.Bus(interface="virtual", channel=self.channel, fd=True),

@@ -242,9 +242,10 @@ class ZenohLink(CraneLink):
     def _transmit(self, kind: str, data: bytes) -> None:
         z = self._zenoh
         self._record(kind, data, False)
-        if kind == "GraspCommand":
+        if kind == "GraspCommand":  # the attachment names this laptop: the controller's commanding peer
             self._session.get(self.keys.cmd, self._reply_to("Ack"), payload=data, timeout=self.query_timeout_s,
-                              priority=z.Priority.INTERACTIVE_HIGH, congestion_control=z.CongestionControl.BLOCK)
+                              priority=z.Priority.INTERACTIVE_HIGH, congestion_control=z.CongestionControl.BLOCK,
+                              attachment=str(self._session.zid()).encode())
         elif kind == "StatusRequest":
             self._session.get(self.keys.status, self._reply_to("Status"), payload=data, timeout=self.query_timeout_s)
         elif kind == "EStop":
@@ -275,8 +276,6 @@ class ZenohControllerTransport:
         self.heartbeat_period_s = heartbeat_period_s
         self.controller: Any = None
         self._session: Any = None
-        self._laptop_present = False
-        self._laptops: set[str] = set()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._closed = False
@@ -314,27 +313,23 @@ class ZenohControllerTransport:
                 query.reply(query.key_expr, data)
             self.send(kind, data)
 
-        self.controller.on_frame("GraspCommand", _payload(query), reply)
+        att = query.attachment
+        peer = f"zenoh:{att.to_bytes().decode(errors='replace')}" if att is not None else None
+        self.controller.on_frame("GraspCommand", _payload(query), reply, peer=peer)
 
     def _on_status_query(self, query: Any) -> None:
         self.controller.on_frame("StatusRequest", _payload(query), lambda kind, data: query.reply(query.key_expr, data))
 
     def _on_laptop(self, sample: Any) -> None:
-        key = str(sample.key_expr)
+        """A laptop's liveliness token came or went: ``alive/laptop/<zid>`` is peer ``zenoh:<zid>``."""
+        peer = f"zenoh:{str(sample.key_expr).rsplit('/', 1)[-1]}"
         if sample.kind == self._zenoh.SampleKind.PUT:
-            self._laptops.add(key)
-            self._laptop_present = True
-            self.controller.laptop_seen()
+            self.controller.peer_present(peer)
         else:
-            self._laptops.discard(key)
-            if not self._laptops:
-                self._laptop_present = False
-                self.controller.laptop_lost("laptop liveliness token gone")
+            self.controller.peer_gone(peer)
 
     def _heartbeat_loop(self) -> None:
         while not self._stop.wait(self.heartbeat_period_s):
-            if self._laptop_present:
-                self.controller.laptop_seen()
             try:
                 self._session.put(self.keys.heartbeat, self.controller.heartbeat_frame())
             except Exception:
