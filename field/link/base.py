@@ -44,6 +44,10 @@ from field.link.safety import CommandGuard, SafetyConfig
 
 log = logging.getLogger(__name__)
 
+#: target log count of a revocation: a command the controller refuses by definition (MALFORMED),
+#: sent under the id of a command whose acknowledgement never came, to burn that id
+REVOKE_TARGET_LOGS = 0
+
 #: link backends, name -> "module:Class" (imported only when chosen)
 BACKENDS: dict[str, str] = {
     "can": "field.link.can_backend:CanLink",
@@ -340,8 +344,7 @@ class CraneLink(abc.ABC):
                 sent = self._told.get(cid) != "not sent"
                 return CommandFate(cid, None if sent else False, local=not sent, summary=str(exc), notes=self._notes(cid))
             if not _runs_or_ran(cid, exc.status):
-                self._tell(cid, "not executed")
-                return CommandFate(cid, False, summary=str(exc), notes=self._notes(cid))
+                return self._settle_unanswered(cmd, outcome_timeout_s)
             self._note(cid, "its acknowledgement was lost; the controller reports it running")
         return self._follow(cid, outcome_timeout_s)
 
@@ -679,6 +682,38 @@ class CraneLink(abc.ABC):
             return Ack(command_id, True)
         return ack
 
+    def _settle_unanswered(self, cmd: GraspCommand, outcome_timeout_s: float) -> CommandFate:
+        """No answer, and the controller is not running the command: revoke its id, so that a
+        copy delayed on the way can never run after the operator was told it did not."""
+        cid = cmd.command_id
+        ack = self._revoke(cmd)
+        if ack is None:
+            self._tell(cid, "no answer")
+            return CommandFate(cid, None, summary=(
+                f"no acknowledgement for command {cid}; the controller is not executing it, but its id could not "
+                f"be revoked (no answer): a delayed copy could still run - watch the crane"), notes=self._notes(cid))
+        if ack.accepted or ack.reason is RejectReason.DUPLICATE_ID:  # the original got there after all
+            status = self._status_or_none()
+            if ack.accepted or (status is not None and _runs_or_ran(cid, status)):
+                self._note(cid, "its acknowledgement was lost; the frame reached the controller late")
+                return self._follow(cid, outcome_timeout_s)
+        self._tell(cid, "not executed")
+        return CommandFate(cid, False, summary=(
+            f"no acknowledgement for command {cid}; the controller is not executing it and its id is revoked: "
+            f"it can never run. Send a new command"), notes=self._notes(cid))
+
+    def _revoke(self, cmd: GraspCommand, attempts: int = 3) -> Ack | None:
+        """Send the revocation of ``cmd``'s id (the same command with zero target logs, which the
+        controller refuses by definition and so burns the id); the controller's first answer
+        naming the id, or None."""
+        revoke = replace(cmd, target_log_count=REVOKE_TARGET_LOGS)
+        for _ in range(attempts):
+            self._send(*self._wire(revoke))
+            ack = self._await_decision(cmd.command_id, self.config.status_timeout_s)
+            if ack is not None:
+                return ack
+        return None
+
     def _confirm_rejection(self, command_id: int, exc: CommandRejected) -> CommandFate:
         """A rejection, checked against the controller's status: it must not be running it."""
         status = self._status_or_none()
@@ -801,11 +836,17 @@ class CraneLink(abc.ABC):
             ) from exc
         self.stats.frames_sent += 1
 
-    def _status_or_none(self) -> ControllerStatus | None:
-        try:
-            return self.status()
-        except LinkError:
-            return None
+    def _status_or_none(self, attempts: int = 3) -> ControllerStatus | None:
+        """The controller's status, asked up to ``attempts`` times (one lost frame is no reason
+        to call its state UNKNOWN); None when it never answers."""
+        for _ in range(attempts):
+            try:
+                return self.status()
+            except LinkTimeout:
+                continue
+            except LinkError:
+                return None
+        return None
 
     def _check_usable(self) -> None:
         if self._closed:

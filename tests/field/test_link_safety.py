@@ -315,6 +315,20 @@ def _wait_for_frame(bus: can.BusABC, kind: str, timeout_s: float = 10.0) -> can.
     raise AssertionError(f"no {kind} frame seen")
 
 
+def test_a_command_delayed_past_its_timeout_never_runs_after_the_operator_was_told_it_did_not(pair, make_cmd):
+    """The command frame is held on the way past the acknowledgement timeout: the operator is
+    told it does not run, and when the frame finally arrives it must not run (its id was revoked)."""
+    p = pair()
+    p.lbus.arm("hold", "GraspCommand")
+    cmd = make_cmd(p.link.new_command_id())
+    fate = p.link.execute(cmd, ack_timeout_s=1.0)
+    assert fate.executed is False and "revoked" in fate.summary
+    assert p.lbus.release() == 1  # the late frame arrives
+    assert wait_until(lambda: (cmd.command_id, RejectReason.DUPLICATE_ID) in p.controller.rejections)
+    assert p.executor.executed == []
+    assert p.link.fate(cmd.command_id).executed is False
+
+
 class NullLink(CraneLink):  # no transport: frames are fed by hand
     def _transmit(self, kind, data):
         pass
