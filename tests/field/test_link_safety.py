@@ -191,6 +191,28 @@ def test_estop_racing_a_command_is_never_lost_on_zenoh(port, make_cmd):
     assert set(fates) <= {"ABORTED", "ESTOP"}, fates
 
 
+def test_pybullet_twin_stops_at_once_and_reports_the_log_it_holds():
+    """The twin's executor asks should_abort every simulation step: an abort in the hold phase
+    stops the trial there and reports ABORTED with the one log in the air (never 0 logs)."""
+    import itertools
+
+    from field.executor import PybulletTrialExecutor
+    from synth.grasp import Grasp
+    from synth.pile import Georeference
+    from tests.synth.test_trial_abort import one_log_pile
+
+    geo = Georeference(64.1, 20.0, 50.0)
+    ex = PybulletTrialExecutor(replace(one_log_pile(), georef=geo))
+    cmd = GraspCommand.from_pile_grasp(3, Grasp(0.0, 0.0, 0.0, 0.6), 0.0, geo, 1, time.time())
+    assert ex.execute(cmd, lambda: False).outcome_class is OutcomeClass.SUCCESS
+    full = ex.last_result
+    steps = round((full.sim_time_s - full.phase_s["hold"] / 2) / ex.config.physics.dt_s)
+    calls = itertools.count(1)
+    out = ex.execute(cmd, lambda: next(calls) >= steps)
+    assert out.outcome_class is OutcomeClass.ABORTED and out.logs_grasped == 1
+    assert ex.last_result.aborted_in == "hold" and ex.last_result.sim_time_s < full.sim_time_s
+
+
 # --- 2: a frozen laptop heartbeat -----------------------------------------------------------
 
 
