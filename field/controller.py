@@ -492,6 +492,7 @@ class CraneController:
         self._journal = self._open_journal()
         self.rejections: list[tuple[int, RejectReason]] = []  # diagnostics
         self.auth_failures = 0  # frames dropped by the SecOC check
+        self._auth_warned_s: dict[str, float] = {}
         self._stop = threading.Event()
         self._supervisor: threading.Thread | None = None
 
@@ -643,7 +644,10 @@ class CraneController:
             return self._secoc.verify(kind, data)
         except AuthenticationError as exc:
             self.auth_failures += 1
-            log.warning("dropped a %s frame: %s", kind, exc)
+            now = time.monotonic()
+            if now - self._auth_warned_s.get(kind, -1e9) > 1.0:  # at most one warning per kind and second
+                self._auth_warned_s[kind] = now
+                log.warning("dropped a %s frame that failed authentication (%d so far): %s", kind, self.auth_failures, exc)
             return None
 
     def _on_status_request(self, data: bytes, reply: Reply) -> None:

@@ -8,7 +8,7 @@ URL parameters: ``crane_base=E,N,H`` / ``crane_max_reach_m`` / ``crane_max_pile_
 crane's own reach envelope and staleness limit), ``executor=NAME`` (registered executor, default ``fixed``), ``delay_ms`` and
 ``outcome`` (for ``fixed``); other parameters go to the executor as strings
 (``twin://?executor=pybullet&pile=runs/pile.json&trial=fast``); plus the common link options
-(``record=...`` etc.).
+(``record=...``; ``secoc_key=PATH`` keys the laptop and the twin crane alike).
 """
 
 from __future__ import annotations

@@ -29,6 +29,7 @@ writes every payload as the CAN FD frame it is, so CAN and Zenoh sessions read b
 from __future__ import annotations
 
 import json
+import re
 import threading
 from dataclasses import dataclass
 from typing import Any
@@ -155,6 +156,13 @@ def _close_session(session: Any) -> None:
         pass  # close after a hang can time out; the session is gone either way
     finally:
         untrack_resource(session)
+
+
+def _sender(query: Any) -> str | None:
+    """The commanding laptop a query names in its attachment (its session id), or None."""
+    att = query.attachment
+    zid = att.to_bytes().decode("ascii", errors="replace") if att is not None else ""
+    return f"zenoh:{zid}" if re.fullmatch(r"[0-9a-f]{1,64}", zid) else None
 
 
 def _payload(sample_or_query: Any) -> bytes:
@@ -313,9 +321,7 @@ class ZenohControllerTransport:
                 query.reply(query.key_expr, data)
             self.send(kind, data)
 
-        att = query.attachment
-        peer = f"zenoh:{att.to_bytes().decode(errors='replace')}" if att is not None else None
-        self.controller.on_frame("GraspCommand", _payload(query), reply, peer=peer)
+        self.controller.on_frame("GraspCommand", _payload(query), reply, peer=_sender(query))
 
     def _on_status_query(self, query: Any) -> None:
         self.controller.on_frame("StatusRequest", _payload(query), lambda kind, data: query.reply(query.key_expr, data))
