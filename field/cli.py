@@ -7,6 +7,7 @@ from pathlib import Path
 
 import typer
 
+from field.link.messages import DEFAULT_MAX_PILE_AGE_S
 from planner.cli import eval_command, plan_command, train_command
 from reconstruct.cli import compare_command, reconstruct_command, scan_command
 from synth.cli import app as synth_app
@@ -39,23 +40,29 @@ def crane_sim(
     base: str = typer.Option(None, "--base", help="Crane base E,N,H (SWEREF 99 TM, ellipsoidal h); default: 5 m "
                                                   "south of the pile."),
     max_reach: float = typer.Option(10.0, "--max-reach", help="Boom reach [m]."),
-    max_pile_age: float = typer.Option(600.0, "--max-pile-age", help="Refuse plans on older pile data [s]."),
-    journal: str = typer.Option(None, "--journal", help="Persist executed command ids here (never twice, across restarts)."),
+    max_pile_age: float = typer.Option(DEFAULT_MAX_PILE_AGE_S, "--max-pile-age", help="Refuse plans on older pile data [s]."),
+    journal: str = typer.Option(None, "--journal", help="Burn every seen command id here (never run twice, across "
+                                                        "restarts); default: a file per link under ~/.local/state/loggrasp."),
+    no_journal: bool = typer.Option(False, "--no-journal", help="Remember ids in memory only (a restart forgets them)."),
     trial: str = typer.Option("fast", "--trial", help="Trial preset: fast or careful."),
 ) -> None:
     """Run the crane controller twin: validates commands like a real controller and executes
-    accepted grasps in pybullet on the given pile. Stops on Ctrl-C / SIGTERM.
+    accepted grasps in pybullet on the given pile. Stops on Ctrl-C / SIGTERM. Authenticated
+    frames: add ?secoc_key=KEYFILE to --link (the laptop uses the same key; see `loggrasp link-key`).
 
     Example: loggrasp crane-sim --link zenoh://127.0.0.1:7447/crane1 --pile scans/s3/truth/pile.json
     """
     import signal
     import threading
 
-    from field.controller import run_controller
+    import field.controller
     from field.errors import FieldError
     from field.executor import PybulletTrialExecutor
     from synth.errors import SynthError
 
+    if no_journal and journal:
+        fail("give --journal PATH or --no-journal, not both")
+    journal = None if no_journal else (journal or str(field.controller.default_journal_path(link)))
     try:
         executor = PybulletTrialExecutor(pile, trial=trial)
         base_tm = _parse_triple(base, "--base") if base else default_crane_base(executor.pile)
@@ -65,12 +72,37 @@ def crane_sim(
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    typer.echo(f"crane controller twin serving {link} (base E {base_tm[0]:.3f} N {base_tm[1]:.3f}); Ctrl-C stops")
+    typer.echo(f"crane controller twin serving {link} (base E {base_tm[0]:.3f} N {base_tm[1]:.3f}); "
+               f"journal {journal or 'OFF (ids forgotten on restart)'}; Ctrl-C stops")
     try:
-        final = run_controller(link, executor, stop, config)
+        final = field.controller.run_controller(link, executor, stop, config)
     except (FieldError, ValueError) as exc:
         fail(str(exc))
     typer.echo(f"stopped in state {final.state.name}")
+
+
+@app.command("link-key")
+def link_key_command(path: str = typer.Argument(..., help="Key file to create (mode 0600; never overwritten).")) -> None:
+    """Create a pre-shared key for authenticated crane-link frames (SecOC style).
+
+    Give the same file to both ends, e.g. --link 'can://socketcan/can0?secoc_key=PATH' on the
+    laptop and on the crane (crane-sim). The key is never printed.
+
+    Example: loggrasp link-key ~/.config/loggrasp/crane1.key
+    """
+    from field.errors import KeyFileError
+    from field.link.secoc import generate_key_file
+
+    try:
+        written = generate_key_file(path)
+    except KeyFileError as exc:
+        fail(str(exc))
+    typer.echo(f"wrote a new key to {written} (mode 0600); copy it to the crane over a secure channel")
+
+
+def with_secoc_key(link: str, key: Path) -> str:
+    """``link`` with ``secoc_key=KEY`` added to its query."""
+    return f"{link}{'&' if '?' in link else '?'}secoc_key={key}"
 
 
 def default_crane_base(pile) -> tuple[float, float, float]:
@@ -130,7 +162,7 @@ def trial_command(
     view_spread: float = typer.Option(0.0, "--view-spread", help="Lower U by K x its spread over the views (needs --views > 1)."),
     yes: bool = typer.Option(False, "--yes", help="Do not ask for confirmation before sending."),
     allow_float: bool = typer.Option(False, "--allow-float", help="Accept RTK float endpoints."),
-    max_pile_age: float = typer.Option(600.0, "--max-pile-age", help="Refuse pile data older than this [s]."),
+    max_pile_age: float = typer.Option(DEFAULT_MAX_PILE_AGE_S, "--max-pile-age", help="Refuse pile data older than this [s]."),
     base: str = typer.Option(None, "--base", help="Crane base E,N,H (SWEREF 99 TM) for the reach check."),
     max_reach: float = typer.Option(10.0, "--max-reach", help="[m]"),
     capacity: float = typer.Option(1500.0, "--capacity", help="Lift capacity [kg]."),
@@ -253,10 +285,17 @@ def demo(
     record = out_dir / "trial"
     if record.exists():
         shutil.rmtree(record)
+    from field.link.secoc import generate_key_file
+
+    key = out_dir / "link.key"
+    if not key.exists():
+        generate_key_file(key)
+    link = with_secoc_key(link, key)
+    typer.echo(f"authenticated frames on (SecOC-style MACs, key {key}); crane journal {out_dir / 'crane-journal.jsonl'}")
     stop, ready = threading.Event(), threading.Event()
+    config = crane_config(base, 10.0, max_age, str(out_dir / "crane-journal.jsonl"))
     crane = threading.Thread(target=run_controller, daemon=True, name="crane-twin",
-                             args=(link, PybulletTrialExecutor(truth), stop, crane_config(base, 10.0, max_age)),
-                             kwargs={"ready_event": ready})
+                             args=(link, PybulletTrialExecutor(truth), stop, config), kwargs={"ready_event": ready})
     crane.start()
     if not ready.wait(20):
         fail("the crane controller twin did not start")

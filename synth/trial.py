@@ -152,8 +152,9 @@ class TrialResult:
     sim_time_s: float  # total simulated time [s]
     wall_time_s: float  # wall-clock time of the whole call [s]
     cpu_time_s: float  # CPU time of the whole call (this process) [s]
-    stop_reason: str  # why lowering stopped: "inside", "force", "ground", "timeout"
+    stop_reason: str  # why lowering stopped: "inside", "force", "ground", "timeout"; "aborted" (should_abort)
     final_poses: tuple[tuple[float, ...], ...]  # per log: x, y, z [m], quaternion x, y, z, w at the end
+    aborted_in: str | None = None  # the phase an aborted trial stopped in ("lower", "close", ...); None = ran to the end
 
     @property
     def success(self) -> bool:
@@ -171,7 +172,7 @@ class TrialResult:
             "phase_s": dict(self.phase_s), "sim_time_s": self.sim_time_s,
             "wall_time_s": self.wall_time_s, "cpu_time_s": self.cpu_time_s,
             "stop_reason": self.stop_reason, "final_poses": [list(p) for p in self.final_poses],
-        }
+        } | ({} if self.aborted_in is None else {"aborted_in": self.aborted_in})
 
 
 class _Mean:
@@ -271,6 +272,7 @@ def run_trial(
     targets: int | Iterable[int],
     config: TrialConfig | None = None,
     on_phase: Callable[[str, World, Grapple], None] | None = None,
+    should_abort: Callable[[], bool] | None = None,
 ) -> TrialResult:
     """Run one grasp trial on a settled pile and classify it.
 
@@ -279,6 +281,12 @@ def run_trial(
     is called at "start", "lowered", "closed" and "end" (e.g. to render pictures); it must not
     step the simulation. Deterministic: the same arguments give the same result in any process
     and after any other trials.
+
+    ``should_abort()`` is asked after every simulation step; once it returns True the boom and
+    the claws are held where they are and the trial returns at once with ``stop_reason``
+    "aborted", ``aborted_in`` the phase, ``grasped`` the logs held (risen, inside) and
+    ``enclosed`` the logs between the claws at that moment (``outcome`` is FEWER_OR_OTHER: the
+    trial did not finish). Without it the trial is exactly as before.
     """
     t_wall, t_cpu = time.perf_counter(), time.process_time()
     cfg = config or TrialConfig.fast()
@@ -291,7 +299,8 @@ def run_trial(
     start_z = top + cfg.start_clearance_m + g.hang_height_m(q_open)
 
     # no visual meshes unless someone will look (pictures): ~25-30 ms less per trial
-    with World(trial_pile(pile, cfg.terrain_resolution), cfg.physics, visuals=on_phase is not None) as world:
+    with World(trial_pile(pile, cfg.terrain_resolution), cfg.physics, visuals=on_phase is not None) as world, \
+            _AbortCatcher() as aborted:
         c = world.client
         grapple = Grapple(c, g, grasp, start_z, terrain_id=world.terrain_id)
         log_ids = world.log_ids
@@ -323,6 +332,8 @@ def run_trial(
             nonlocal steps
             c.stepSimulation()
             steps += 1
+            if should_abort is not None and should_abort():
+                raise _Aborted(stopped_now())
             total = coll = pen = 0.0
             coll_set = coll_lowering if lowering else obstacle_set
             for cp in c.getContactPoints(bodyA=grapple.body):
@@ -401,6 +412,24 @@ def run_trial(
                 v = c.getBaseVelocity(b)[0]
                 best = max(best, math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]))
             return best
+
+        def stopped_now() -> TrialResult:
+            """Abort: hold the boom where it is, stop the claws; the true state at this moment."""
+            grapple.hold_xyz(grasp.x_m, grasp.y_m, grapple.boom_z())
+            grapple.set_claws(float(np.mean(grapple.claw_angles())))
+            cen, _ = log_axes()
+            risen = cen[:, 2] - start_centres[:, 2] >= cfg.held_rise_m
+            held = tuple(int(i) for i in np.flatnonzero(risen & inside(-g.claw_thickness_m)))
+            between = tuple(int(i) for i in np.flatnonzero(inside(-0.5 * g.claw_thickness_m)))
+            return TrialResult(
+                outcome=Outcome.FEWER_OR_OTHER, grasp=grasp, targets=target_idx, n_targets=n_targets, grasped=held,
+                enclosed=between, cos_beta=grapple.cos_beta(), final_gap_m=grapple.gap_m(),
+                max_force_n=stats["max_force"], max_collision_force_n=stats["max_coll"],
+                max_penetration_m=stats["pen"], max_log_speed_m_s=stats["speed"], phase_s=dict(phase_s),
+                sim_time_s=steps * dt, wall_time_s=time.perf_counter() - t_wall,
+                cpu_time_s=time.process_time() - t_cpu, stop_reason="aborted",
+                final_poses=tuple(tuple(float(v) for v in row) for row in world.log_poses()),
+                aborted_in=next((ph for ph in _PHASES if ph not in phase_s), "end"))
 
         if on_phase:
             on_phase("start", world, grapple)
@@ -486,6 +515,8 @@ def run_trial(
         sim_time = steps * dt
         final_poses = tuple(tuple(float(v) for v in row) for row in world.log_poses())
 
+    if aborted.result is not None:
+        return aborted.result
     enclosed_t = tuple(int(i) for i in enclosed)
     held = set(grasped)
     wanted_ok = (held == set(target_idx)) if target_idx is not None else (len(held) == n_targets)
@@ -509,6 +540,34 @@ def run_trial(
         wall_time_s=time.perf_counter() - t_wall, cpu_time_s=time.process_time() - t_cpu,
         stop_reason=stop_reason, final_poses=final_poses,
     )
+
+
+#: the phases of a trial in order (``phase_s`` keys); an aborted trial stopped in the first one
+#: that has no time recorded yet
+_PHASES = ("lower", "close", "lift", "hold")
+
+
+class _Aborted(Exception):
+    """Raised inside a trial when ``should_abort()`` turned True; carries the result."""
+
+    def __init__(self, result: TrialResult):
+        super().__init__("trial aborted")
+        self.result = result
+
+
+class _AbortCatcher:
+    """Context manager ending an aborted trial quietly (the world still closes after it)."""
+
+    result: TrialResult | None = None
+
+    def __enter__(self) -> "_AbortCatcher":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> bool:
+        if isinstance(exc, _Aborted):
+            self.result = exc.result
+            return True
+        return False
 
 
 def render_view(world: World, look_at_m, distance_m: float = 3.2, yaw_deg: float = 35.0,
