@@ -131,10 +131,11 @@ MUTATIONS: tuple[Mutation, ...] = (
 # environments: what the machine the tests run on has installed
 # ------------------------------------------------------------------------------------------------
 def _geoid_grid_env(copy: Path, scratch: Path) -> dict[str, str]:
-    """A machine with the SWEN17_RH2000 geoid grid: a stand-in grid in PROJ's user folder."""
+    """A machine with the SWEN17_RH2000 geoid grid: a stand-in grid in PROJ's user folder (written
+    by the working tree's tests/synth/geoid_stand_in.py, whatever tests the copy has)."""
     import importlib.util
 
-    spec = importlib.util.spec_from_file_location("geoid_stand_in", copy / "tests/synth/geoid_stand_in.py")
+    spec = importlib.util.spec_from_file_location("geoid_stand_in", REPO / "tests/synth/geoid_stand_in.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     folder = scratch / "proj-user"
