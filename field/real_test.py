@@ -139,28 +139,62 @@ def _render_truth(truth: Any, size_px: int) -> Any:
         return render_ortho(world, OrthoRenderConfig(size_px=size_px, n_renders=3), seed=0)
 
 
-def _execute(truth: Any, grasp: Any, targets: tuple[int, ...]) -> dict:
+def execute_on_truth(truth: Any, grasp: Any, targets: tuple[int, ...]) -> dict:
+    """Run ``grasp`` (truth frame) for ``targets`` (true log indices) on the TRUE pile
+    (:func:`synth.trial.run_trial`, ``TrialConfig.fast()``): success, outcome, logs held, cos beta, CPU."""
     from synth.trial import TrialConfig, run_trial
 
     res = run_trial(truth, grasp, targets, TrialConfig.fast())
     return {"success": res.success, "outcome": res.outcome.value, "grasped": list(res.grasped),
-            "cpu_s": res.cpu_time_s}
+            "cos_beta": res.cos_beta, "cpu_s": res.cpu_time_s}
 
 
-def real_test_pile(seed: int, work_dir: str | Path, planner: Any, cfg: RealTestConfig) -> list[dict]:
-    """The real test on one twin scan (``seed``): one row per objective (see the module
-    docstring). ``planner``: a loaded :class:`planner.inference.Planner`.
+_execute = execute_on_truth  # the name the diagnostics in bench/ use
+
+
+@dataclass
+class RealTestCase:
+    """One twin scan, ready to plan on: the truth and its render, the reconstruction (None when it
+    failed: ``recon_error`` says why) with its re-render and report, and the log matching."""
+
+    seed: int
+    truth: Any  # PileSpec
+    obs_truth: Any  # OrthoObservation of the truth (the reconstruction's render settings)
+    recon: Any | None  # PileSpec
+    obs_recon: Any | None  # OrthoObservation (ortho.npz of the reconstruction)
+    report: dict | None  # the reconstruction's report.json
+    match: dict  # reconstructed log index -> true log index
+    recon_error: str | None
+    cpu_s: dict  # scan_s, reconstruct_s, render_s [s]
+
+    def base_row(self) -> dict:
+        row = {"seed": self.seed, "n_logs": self.truth.n_logs,
+               "n_obstacles": len(self.truth.stumps) + len(self.truth.rocks)}
+        if self.recon is not None:
+            row.update({"n_matched_logs": len(self.match), "recon_extent_m": float(self.obs_recon.extent_m),
+                        "recon_obstacles": len(self.recon.stumps) + len(self.recon.rocks)})
+        return row
+
+    def recon_to_truth(self, grasp: Any, targets) -> tuple[Any, list[int | None]]:
+        """A grasp planned on the reconstruction in the truth's frame, and its targets as true log
+        indices (None: a log without a true match)."""
+        return grasp_to_truth_frame(grasp, self.recon, self.truth), [self.match.get(i) for i in targets]
+
+
+def prepare_case(seed: int, work_dir: str | Path, planner_config: Any, cfg: RealTestConfig) -> RealTestCase:
+    """Make (or reuse) twin scan ``seed`` and its reconstruction in ``work_dir`` and render the truth.
+    ``planner_config``: the network's :class:`planner.model.UNetConfig` (the re-render's grid).
 
     The scan and its reconstruction stay in ``work_dir`` (``scan_SEED``, ``recon_SEED``, and
     ``scan_SEED.key.json`` with the settings they were made with, written once both are done): a
     later run with the same scan settings reuses the scan, and with the same reconstruction
     settings (:meth:`RealTestConfig.reconstruction_key`) the reconstruction, so trying another
     planner on the same scans costs only the planning and the trials."""
-    from planner.errors import ObservationError, PlannerError
-    from planner.inference import Objective, check_grid, plan
+    from planner.errors import ObservationError
+    from planner.inference import check_grid
     from reconstruct.compare import compare_piles
     from reconstruct.errors import ReconstructError
-    from reconstruct.pipeline import ReconstructConfig, reconstruct
+    from reconstruct.pipeline import ReconstructConfig, read_report, reconstruct
     from reconstruct.twin_scan import make_twin_scan
     from synth.pile import atomic_write_bytes, read_pile
     from synth.render import OrthoObservation
@@ -169,8 +203,8 @@ def real_test_pile(seed: int, work_dir: str | Path, planner: Any, cfg: RealTestC
     c0 = time.process_time()
     scan_root, recon_dir = work / f"scan_{seed}", work / f"recon_{seed}"
     key_path, error_path = work / f"scan_{seed}.key.json", work / f"recon_{seed}.error.txt"
-    size = planner.config.size_px
-    scan_key, recon_key = cfg.scan_key(), cfg.reconstruction_key(planner.config)
+    size = planner_config.size_px
+    scan_key, recon_key = cfg.scan_key(), cfg.reconstruction_key(planner_config)
     old = json.loads(key_path.read_text()) if key_path.exists() else None
     old = None if old is None else {"render_extent_m": 5.0, "log_direction_deg": None, "fit_revision": 1,
                                     **old}  # keys before them
@@ -185,15 +219,15 @@ def real_test_pile(seed: int, work_dir: str | Path, planner: Any, cfg: RealTestC
         make_twin_scan(scan_root, seed, logs=cfg.logs, obstacles=cfg.obstacles, n_float=cfg.n_float, grid=cfg.grid)
     truth = read_pile(scan_root / "truth" / "pile.json")
     cpu = {"scan_s": time.process_time() - c0}
-    base = {"seed": seed, "n_logs": truth.n_logs, "n_obstacles": len(truth.stumps) + len(truth.rocks)}
     c0 = time.process_time()
-    recon = obs_r = None
+    recon = obs_r = report = None
     recon_error = None
     if kept and (recon_dir / "report.json").exists():  # the report is written last: a whole reconstruction
         obs_r = OrthoObservation.load(recon_dir / "ortho.npz")
         try:
-            check_grid(obs_r.depth.shape[0], obs_r.extent_m, planner.config)
+            check_grid(obs_r.depth.shape[0], obs_r.extent_m, planner_config)
             recon = read_pile(recon_dir / "pile.json")
+            report = read_report(recon_dir)
         except ObservationError:  # kept from before re-renders kept the network's pitch: made again
             obs_r = None
             shutil.rmtree(recon_dir)
@@ -203,9 +237,9 @@ def real_test_pile(seed: int, work_dir: str | Path, planner: Any, cfg: RealTestC
         try:
             res = reconstruct(scan_root / "scan", scan_root / "gnss.csv", recon_dir,
                               ReconstructConfig(allow_float=cfg.n_float > 0, render_size_px=size,
-                                                render_extent_m=planner.config.extent_m,
+                                                render_extent_m=planner_config.extent_m,
                                                 log_direction_deg=cfg.log_direction_deg))
-            recon = res.pile
+            recon, report = res.pile, res.report
             obs_r = OrthoObservation.load(res.files["ortho"])
         except ReconstructError as exc:
             recon_error = str(exc)
@@ -216,14 +250,25 @@ def real_test_pile(seed: int, work_dir: str | Path, planner: Any, cfg: RealTestC
     if recon is not None:
         cmp = compare_piles(truth, recon, render=False)
         match = {e["recon_index"]: e["truth_index"] for e in cmp["logs"]}
-        base.update({"n_matched_logs": len(match), "recon_extent_m": float(obs_r.extent_m),
-                     "recon_obstacles": len(recon.stumps) + len(recon.rocks)})
     c0 = time.process_time()
-    obs_t = _render_truth(truth, planner.config.size_px)
+    obs_t = _render_truth(truth, planner_config.size_px)
     cpu["render_s"] = time.process_time() - c0
+    return RealTestCase(seed, truth, obs_t, recon, obs_r, report, match, recon_error, cpu)
+
+
+def real_test_pile(seed: int, work_dir: str | Path, planner: Any, cfg: RealTestConfig) -> list[dict]:
+    """The real test on one twin scan (``seed``): one row per objective (see the module
+    docstring). ``planner``: a loaded :class:`planner.inference.Planner`. Scans and
+    reconstructions are kept in ``work_dir`` and reused (:func:`prepare_case`)."""
+    from planner.errors import PlannerError
+    from planner.inference import Objective, plan
+
+    case = prepare_case(seed, work_dir, planner.config, cfg)
+    truth, obs_t, recon, obs_r = case.truth, case.obs_truth, case.recon, case.obs_recon
+    base = case.base_row()
     rows = []
     for kind in cfg.objectives:
-        row: dict[str, Any] = {**base, "objective": kind, "recon_error": recon_error}
+        row: dict[str, Any] = {**base, "objective": kind, "recon_error": case.recon_error}
         c0 = time.process_time()
         try:
             best_t = plan(obs_t, planner, Objective(kind=kind), top_k=1, pile=truth).best
@@ -239,16 +284,15 @@ def real_test_pile(seed: int, work_dir: str | Path, planner: Any, cfg: RealTestC
         c0 = time.process_time()
         if best_t is not None:
             row["truth"] = {"grasp": best_t.grasp.to_dict(), "targets": list(best_t.targets),
-                            **_execute(truth, best_t.grasp, best_t.targets)}
+                            **_execute_row(truth, best_t.grasp, best_t.targets)}
         if best_r is not None:
-            g = grasp_to_truth_frame(best_r.grasp, recon, truth)
-            targets = [match.get(i) for i in best_r.targets]
+            g, targets = case.recon_to_truth(best_r.grasp, best_r.targets)
             entry = {"grasp": g.to_dict(), "grasp_recon_frame": best_r.grasp.to_dict(),
                      "recon_targets": list(best_r.targets), "targets": targets}
             if any(t is None for t in targets):
                 entry.update({"success": False, "outcome": "unmatched_target", "grasped": []})
             else:
-                entry.update(_execute(truth, g, tuple(targets)))
+                entry.update(_execute_row(truth, g, tuple(targets)))
             row["recon"] = entry
         row["trial_cpu_s"] = time.process_time() - c0
         if best_t is not None and best_r is not None:
@@ -260,9 +304,16 @@ def real_test_pile(seed: int, work_dir: str | Path, planner: Any, cfg: RealTestC
                 "same_targets": sorted(row["truth"]["targets"]) == sorted(t for t in row["recon"]["targets"] if t is not None)
                 and None not in row["recon"]["targets"],
             }
-        row["cpu_s"] = dict(cpu)
+        row["cpu_s"] = dict(case.cpu_s)
         rows.append(row)
     return rows
+
+
+def _execute_row(truth: Any, grasp: Any, targets) -> dict:
+    """:func:`execute_on_truth` as the real test's rows have stored it (no cos beta)."""
+    r = execute_on_truth(truth, grasp, tuple(targets))
+    r.pop("cos_beta")
+    return r
 
 
 # -- many piles ----------------------------------------------------------------------------------
