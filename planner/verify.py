@@ -125,6 +125,20 @@ class PerturbationConfig:
             raise ValueError("max_lift_rounds must be >= 1")
 
 
+#: Per-log uncertainty by how the reconstruction placed the log (its report's ``fit``): (end sigma
+#: per axis, diameter sigma) [m]. "scan" and "partial" from the reconstruction's errors on 500 twin
+#: scans (docs/benchmarks.md, session 8: partial logs 3.3 cm median end error, 1.57 cm median
+#: diameter error); "hidden" (no scan points on the log) has no measurement: assumed.
+FIT_SIGMAS_M = {"scan": (0.011, 0.007), "partial": (0.021, 0.023), "hidden": (0.03, 0.04)}
+
+
+def perturbation_for_fits(fits: Sequence[str], base: PerturbationConfig | None = None) -> PerturbationConfig:
+    """``base`` (default :class:`PerturbationConfig`) with per-log sigmas from how each log was
+    placed (``FIT_SIGMAS_M``; an unknown class counts as "hidden", the least certain)."""
+    base = base or PerturbationConfig()
+    return replace(base, log_sigmas_m=tuple(FIT_SIGMAS_M.get(f, FIT_SIGMAS_M["hidden"]) for f in fits))
+
+
 @dataclass(frozen=True)
 class VerifyConfig:
     """How many grasps the twin tries, for how long, on how many cores."""
@@ -428,25 +442,28 @@ def _jitter_obstacles(pile: PileSpec, rng: np.random.Generator, sigma: float, sc
 
 def _lift_out(pile: PileSpec, cfg: PerturbationConfig, physics) -> PileSpec | None:
     """Lift logs out of the bodies they were pushed into (the higher of two logs, a log out of the
-    terrain or an obstacle), a few rounds; None if still interpenetrating."""
+    terrain or an obstacle), a few rounds in one world; None if still interpenetrating."""
     from synth.world import World
 
-    for _ in range(cfg.max_lift_rounds):
-        with World(pile, physics, visuals=False) as world:
+    with World(pile, physics, visuals=False) as world:
+        c = world.client
+        names = {f"log {i}": i for i in range(pile.n_logs)}
+        for _ in range(cfg.max_lift_rounds):
             bad = world.penetrations(cfg.penetration_tolerance_m)
-            names = {f"log {i}": i for i in range(pile.n_logs)}
-            z = [lg.centre_m[2] for lg in pile.logs]
-        if not bad:
-            return pile
-        lift = np.zeros(pile.n_logs)
-        for a, b, depth in bad:
-            ia, ib = names.get(a), names.get(b)
-            i = ib if ia is None else ia if ib is None else (ia if z[ia] >= z[ib] else ib)
-            if i is not None:
-                lift[i] = max(lift[i], depth + cfg.penetration_tolerance_m / 2)
-        logs = tuple(replace(lg, centre_m=(lg.centre_m[0], lg.centre_m[1], lg.centre_m[2] + float(dz)))
-                     for lg, dz in zip(pile.logs, lift))
-        pile = pile.with_logs(logs)
+            if not bad:
+                poses = world.log_poses()
+                return pile.with_logs(tuple(replace(lg, centre_m=tuple(float(v) for v in pose[:3]))
+                                            for lg, pose in zip(pile.logs, poses)))
+            z = world.log_poses()[:, 2]
+            lift = np.zeros(pile.n_logs)
+            for a, b, depth in bad:
+                ia, ib = names.get(a), names.get(b)
+                i = ib if ia is None else ia if ib is None else (ia if z[ia] >= z[ib] else ib)
+                if i is not None:
+                    lift[i] = max(lift[i], depth + cfg.penetration_tolerance_m / 2)
+            for i in np.flatnonzero(lift):
+                pos, orn = c.getBasePositionAndOrientation(world.log_ids[i])
+                c.resetBasePositionAndOrientation(world.log_ids[i], (pos[0], pos[1], pos[2] + float(lift[i])), orn)
     return None
 
 
