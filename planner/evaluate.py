@@ -8,7 +8,11 @@ same piles, the same trials and the same tables:
 * ``random``: a random target subset, a random pixel of its mask, random angle and width;
 * ``geometric``: a rule-based planner that sees only the render and the log masks (PCA axes);
 * ``oracle``: the data generator's ground-truth candidates (exact geometry) verified in
-  simulation before the graded trial — an upper bound.
+  simulation before the graded trial — an upper bound;
+* ``unet`` with ``verify_k`` > 0: the U-Net's plan checked by :mod:`planner.verify` — its ``k``
+  best grasps tried in the twin on a *perturbed copy* of the test pile (the reconstruction's
+  measured errors, :class:`planner.verify.PerturbationConfig`), never on the test pile itself
+  (that would be the oracle); the graded trial then runs on the test pile.
 
 Test piles are drawn from seeds ``seed_base + cell * 100_000 + k`` with ``seed_base`` far from the
 training data's seeds. Planners are named by picklable specs so that workers (local processes or a
@@ -41,12 +45,18 @@ class PlannerSpec:
     model: str | None = None  # checkpoint path for "unet"
     objective: str = "f1"  # for "unet"
     label: str = ""
+    verify_k: int = 0  # for "unet": grasps the twin tries on a perturbed copy of the pile (0 = no verification)
+    verify_copies: int = 0  # ... and on this many further perturbed copies of that copy [-]
 
     @property
     def name(self) -> str:
         if self.label:
             return self.label
-        return f"unet-{self.objective}" if self.kind == "unet" else self.kind
+        if self.kind != "unet":
+            return self.kind
+        if self.verify_k:
+            return f"unet-{self.objective}-verify{self.verify_k}" + (f"x{self.verify_copies}" if self.verify_copies else "")
+        return f"unet-{self.objective}"
 
 
 @dataclass(frozen=True)
@@ -206,6 +216,45 @@ def unet_planner(model: str, objective: str) -> PlanFn:
     return plan_fn
 
 
+def verified_planner(plan_all: Callable[[object, object], object], objective: str, k: int, copies: int = 0,
+                     trial_preset: str = "fast", trial_fn=None) -> PlanFn:
+    """``plan_all(obs, pile) -> planner.inference.Plan`` (every subset's best grasp) checked by the
+    verifier: its ``k`` best grasps are tried on a perturbed copy of the test pile (copy 1 of
+    :func:`planner.verify.perturb_pile` with the default sigmas, seeded by the pile's seed) and, with
+    ``copies``, on that many perturbed copies of it; the chosen grasp, or None (declined) when none
+    succeeded. Sequential and without a time budget, so that the evaluation is repeatable.
+    ``trial_fn``: the twin trial (default :func:`synth.trial.run_trial`)."""
+    from planner.inference import Objective
+    from planner.verify import PerturbationConfig, Verifier, VerifyConfig, perturb_pile
+    from synth.trial import TrialConfig, run_trial
+
+    obj = Objective(kind=objective)
+    trial = TrialConfig.fast() if trial_preset == "fast" else TrialConfig.careful()
+
+    def plan_fn(obs, pile):
+        result = plan_all(obs, pile)
+        if not result.grasps:
+            return None
+        seed = int(pile.seed or 0)
+        stand_in = perturb_pile(pile, PerturbationConfig(seed=2 * seed), 1, trial.physics)  # never the pile itself
+        cfg = VerifyConfig(k=k, workers=1, time_budget_s=None, trial=trial,
+                           perturbation=PerturbationConfig(copies=copies, seed=2 * seed + 1))
+        v = Verifier(cfg, trial_fn or run_trial).verify(result, stand_in, obj)
+        return None if v.grasp is None else (v.grasp.grasp, tuple(v.grasp.targets))
+    return plan_fn
+
+
+def verified_unet_planner(model: str, objective: str, k: int, copies: int = 0, trial_preset: str = "fast") -> PlanFn:
+    import torch
+
+    from planner.inference import Objective, load_planner, plan
+
+    torch.set_num_threads(1)
+    net = load_planner(model)
+    obj = Objective(kind=objective)
+    return verified_planner(lambda obs, pile: plan(obs, net, obj, pile=pile), objective, k, copies, trial_preset)
+
+
 _CACHE: dict[PlannerSpec, PlanFn] = {}
 
 
@@ -214,7 +263,11 @@ def build_planner(spec: PlannerSpec, trial_preset: str = "fast", oracle_max_tria
         if spec.kind == "unet":
             if not spec.model:
                 raise ValueError("a 'unet' planner needs a model checkpoint")
-            _CACHE[spec] = unet_planner(spec.model, spec.objective)
+            if spec.verify_k < 0 or spec.verify_copies < 0:
+                raise ValueError(f"verify_k and verify_copies must be >= 0, got {spec.verify_k}, {spec.verify_copies}")
+            _CACHE[spec] = (verified_unet_planner(spec.model, spec.objective, spec.verify_k, spec.verify_copies,
+                                                  trial_preset) if spec.verify_k
+                            else unet_planner(spec.model, spec.objective))
         elif spec.kind == "random":
             _CACHE[spec] = random_planner()
         elif spec.kind == "geometric":
@@ -389,7 +442,12 @@ def _fingerprint(spec: PlannerSpec) -> str:
     from synth.dataset import sha256_file
 
     try:
-        return sha256_file(Path(spec.model))
+        sha = sha256_file(Path(spec.model))
+        if spec.verify_k:  # the verifier's version too: a record of another verifier is made again
+            from planner.verify import VERIFY_VERSION
+
+            return f"{sha}+verify-{VERIFY_VERSION}"
+        return sha
     except OSError as exc:
         raise ValueError(f"cannot read the checkpoint {spec.model} of planner {spec.name!r}: {exc}") from exc
 

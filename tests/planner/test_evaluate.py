@@ -1,6 +1,7 @@
 """The evaluation loop: planners as functions, same piles, same trials, tables and resume."""
 
 import json
+import math
 
 import pytest
 
@@ -106,3 +107,43 @@ def test_resume_adds_planners_and_reruns_records_of_another_checkpoint(tmp_path)
     rec_file.write_text("{not json")
     with pytest.raises(ValueError, match="corrupt.*delete it"):
         run_evaluation([PlannerSpec("random")], cfg, out, workers=1)
+
+
+def test_the_verified_row_checks_on_a_perturbed_copy_never_on_the_test_pile():
+    """The verifier in the evaluation tries the plan's grasps on a perturbed copy of the test pile
+    (on the pile itself it would be the oracle) and returns the grasp that succeeded there."""
+    from planner.evaluate import verified_planner
+    from planner.inference import Objective, Plan, PlannedGrasp
+    from synth.trial import Outcome, TrialResult
+
+    from synth.pile import LogSpec, PileSpec, TerrainSpec, quat_from_x_axis
+
+    flat = tuple(tuple(0.0 for _ in range(32)) for _ in range(32))
+    pile = PileSpec(terrain=TerrainSpec(resolution=32, heights_m=flat), seed=5,
+                    logs=tuple(LogSpec((-1.0 + 0.8 * i, 0.0, 0.066), quat_from_x_axis((0, 1, 0)), 2.5, 0.16)
+                               for i in range(3)))
+    grasps = [PlannedGrasp(Grasp(0.1 * i, 0.0, 0.0, 0.8), 0.9 - 0.1 * i, 0.9, 1.0, (i,), (0, i)) for i in range(3)]
+    seen = []
+
+    def twin(p, grasp, targets, cfg):
+        seen.append(p)
+        ok = targets == (1,)
+        held = targets if ok else ()
+        return TrialResult(Outcome.SUCCESS if ok else Outcome.COLLISION, grasp, targets, len(targets), held, held,
+                           1.0, 0.0, 0.0, 0.0, 0.0, 0.0, {}, 0.0, 0.0, 0.0, "inside", ())
+
+    fn = verified_planner(lambda obs, p: Plan(list(grasps), 3, 0.0), "f1", k=3, trial_fn=twin)
+    assert fn(None, pile) == (grasps[1].grasp, (1,))
+    assert len(seen) == 2 and all(p != pile and p.n_logs == pile.n_logs for p in seen)
+    assert all(p == seen[0] for p in seen)  # one stand-in for the reconstruction, the same for every candidate
+    moved = [math.dist(a.centre_m, b.centre_m) for a, b in zip(seen[0].logs, pile.logs)]
+    assert 0.0 < max(moved) < 0.1
+    assert fn(None, pile) == (grasps[1].grasp, (1,)) and seen[2] == seen[0]  # repeatable
+    declines = verified_planner(lambda obs, p: Plan(list(grasps), 3, 0.0), "f1", k=1, trial_fn=twin)
+    assert declines(None, pile) is None  # the only grasp tried failed: no grasp, counted as a failure
+    assert PlannerSpec("unet", model="m", objective="f3", verify_k=8).name == "unet-f3-verify8"
+    assert PlannerSpec("unet", model="m", objective="f3", verify_k=8, verify_copies=3).name == "unet-f3-verify8x3"
+    with pytest.raises(ValueError, match="verify_k"):
+        from planner.evaluate import build_planner
+
+        build_planner(PlannerSpec("unet", model="m", objective="f3", verify_k=-1))
