@@ -226,7 +226,7 @@ def verified_planner(plan_all: Callable[[object, object], object], objective: st
     ``trial_fn``: the twin trial (default :func:`synth.trial.run_trial`)."""
     from planner.inference import Objective
     from planner.verify import PerturbationConfig, Verifier, VerifyConfig, perturb_pile
-    from synth.trial import TrialConfig, run_trial
+    from synth.trial import TrialConfig
 
     obj = Objective(kind=objective)
     trial = TrialConfig.fast() if trial_preset == "fast" else TrialConfig.careful()
@@ -239,7 +239,7 @@ def verified_planner(plan_all: Callable[[object, object], object], objective: st
         stand_in = perturb_pile(pile, PerturbationConfig(seed=2 * seed), 1, trial.physics)  # never the pile itself
         cfg = VerifyConfig(k=k, workers=1, time_budget_s=None, trial=trial,
                            perturbation=PerturbationConfig(copies=copies, seed=2 * seed + 1))
-        v = Verifier(cfg, trial_fn or run_trial).verify(result, stand_in, obj)
+        v = Verifier(cfg, trial_fn).verify(result, stand_in, obj)
         return None if v.grasp is None else (v.grasp.grasp, tuple(v.grasp.targets))
     return plan_fn
 

@@ -32,6 +32,7 @@ parent, :func:`synth.jobs.exit_with_parent`).
 from __future__ import annotations
 
 import heapq
+import json
 import logging
 import math
 import os
@@ -144,8 +145,9 @@ class VerifyConfig:
     """How many grasps the twin tries, for how long, on how many cores."""
 
     k: int = 8  # candidates tried at most [-] (the plan's best, distinct subsets or positions)
-    time_budget_s: float | None = 10.0  # wall time for all trials [s]; None = no limit. No trial
-    # starts after it; the ones running finish (a forwarder's grasp cycle is 10-20 s)
+    time_budget_s: float | None = 10.0  # wall time for the trials [s]; None = no limit. No trial
+    # starts after it; the ones running finish (a forwarder's grasp cycle is 10-20 s). Loading the
+    # pile and making its perturbed copies (~0.1 s each) come before it
     workers: int = 0  # processes; 0 = all cores, 1 = in this process [-]
     trial: TrialConfig = field(default_factory=TrialConfig.fast)  # the twin trial's settings
     perturbation: PerturbationConfig = field(default_factory=PerturbationConfig)
@@ -600,9 +602,10 @@ class Verifier:
     """Verified planning with worker processes kept between plans. Use as a context manager
     (``close`` is safe twice); :meth:`verify` is the verification of one plan."""
 
-    def __init__(self, config: VerifyConfig | None = None, trial_fn: TrialFn = run_trial) -> None:
+    def __init__(self, config: VerifyConfig | None = None, trial_fn: TrialFn | None = None) -> None:
+        """``trial_fn``: the twin trial, :func:`synth.trial.run_trial` when None."""
         self.config = config or VerifyConfig()
-        self.trial_fn = trial_fn
+        self.trial_fn = trial_fn or run_trial
         self._pool = None
 
     def _executor(self):
@@ -647,7 +650,8 @@ class Verifier:
         piles = list(piles) if piles is not None else self.piles(pile)
         if len(piles) != cfg.perturbation.copies + 1:
             raise VerificationError(f"got {len(piles)} piles for {cfg.perturbation.copies} perturbed copies")
-        deadline = math.inf if cfg.time_budget_s is None else t0 + cfg.time_budget_s
+        # the budget is the trials' (loading the pile and making its copies come before it)
+        deadline = math.inf if cfg.time_budget_s is None else time.perf_counter() + cfg.time_budget_s
         sched = _Schedule(cands, cfg.perturbation.copies, objective, cfg.prune)
         cpu = 0.0
         timed_out = False
@@ -712,8 +716,37 @@ class Verifier:
         return result
 
 
+_TIMES = ("wall_time_s", "cpu_time_s")  # what differs from run to run in a trial's record
+
+
+def trial_differences(recorded: dict, replayed: dict) -> list[str]:
+    """Every trial of the ``recorded`` verification (:meth:`Verification.to_dict`) that the
+    ``replayed`` one does not reproduce bit for bit (all fields but the wall and CPU times), named
+    ``"rank R copy C: why"``; ``[]`` when each is identical. The replay may have checked more
+    candidates (e.g. without the time budget the record ran under)."""
+
+    def trials(v: dict) -> dict:
+        out = {}
+        for c in v.get("candidates", []):
+            for t in c.get("trials", []):
+                d = dict(t)
+                if d.get("trial") is not None:
+                    d["trial"] = {k: x for k, x in d["trial"].items() if k not in _TIMES}
+                out[(c["rank"], t["copy"])] = json.dumps(d, sort_keys=True)
+        return out
+
+    old, new = trials(recorded), trials(json.loads(json.dumps(replayed)))
+    diffs = []
+    for key in sorted(old):
+        if key not in new:
+            diffs.append(f"rank {key[0] + 1} copy {key[1]}: not run again")
+        elif new[key] != old[key]:
+            diffs.append(f"rank {key[0] + 1} copy {key[1]}: another result")
+    return diffs
+
+
 def verify_plan(plan: Plan, pile: PileSpec | None, objective: Objective, config: VerifyConfig | None = None,
-                trial_fn: TrialFn = run_trial) -> Verification:
+                trial_fn: TrialFn | None = None) -> Verification:
     """One verification (:meth:`Verifier.verify`) with its own workers, closed afterwards."""
     with Verifier(config, trial_fn) as v:
         return v.verify(plan, pile, objective)
