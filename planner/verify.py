@@ -573,6 +573,13 @@ class _Schedule:
             return j, c
         return None
 
+    def settle(self) -> None:
+        """Mark every candidate left that cannot beat the best verified one as pruned (the rest stay
+        not checked): for a verification stopped by its time budget."""
+        for j, _ in self.heap:
+            if j not in self.pruned and self._prunable(j):
+                self.pruned.add(j)
+
     def has_work(self) -> bool:
         """Whether a trial is still worth running (without taking it)."""
         return any(j not in self.pruned and not self._prunable(j) for j, _ in self.heap)
@@ -707,6 +714,7 @@ class Verifier:
                         raise VerificationError(f"a twin worker process failed ({type(exc).__name__}: {exc}); "
                                                 "run with workers=1 to see the cause") from exc
                     take(j, c, trial)
+        sched.settle()
         checks = sched.checks()
         chosen = choose(checks, objective)
         q = math.nan if chosen is None else measured_quality(objective, chosen.nominal.result)

@@ -275,3 +275,12 @@ def test_replayed_trials_are_compared_bit_for_bit_but_for_their_times():
     fewer = run(plan_of(((0, 1), 0.9)), {"0": "collision"}).to_dict()
     assert trial_differences(rec, fewer) == ["rank 2 copy 0: not run again"]
     assert trial_differences(fewer, rec) == []  # the replay may check more than the record did
+
+
+def test_after_the_budget_what_could_not_win_anyway_is_pruned_not_unchecked():
+    plan = plan_of(((0, 1, 2), 0.9), ((0, 1), 0.8), ((1, 2, 3, 0), 0.7))
+    v = run(plan, {"0": "success", "1": "success", "2": "success"}, "f3", time_budget_s=0.3,
+            extra={"sleep": {"0": 0.4}})
+    assert v.ok and v.chosen.rank == 0
+    assert [c.status for c in v.candidates] == ["checked", PRUNED, NOT_CHECKED]  # the 4-log one could have won
+    assert v.timed_out and "time budget" in v.reason
