@@ -55,7 +55,8 @@ class PlannerSpec:
         if self.kind != "unet":
             return self.kind
         if self.verify_k:
-            return f"unet-{self.objective}-verify{self.verify_k}" + (f"x{self.verify_copies}" if self.verify_copies else "")
+            copies = f"x{self.verify_copies}" if self.verify_copies else ""
+            return f"unet-{self.objective}-verify{self.verify_k}{copies}"
         return f"unet-{self.objective}"
 
 

@@ -6,11 +6,12 @@ worker processes between plans) takes the ``k`` best of them that are worth tryi
 subsets or positions, :func:`select_candidates`), runs each as a twin trial on the pile the plan was
 made on (:func:`synth.trial.run_trial`, the same trial code as data generation and evaluation) and
 chooses, among those whose trial succeeded, the best by the objective computed from what the trial
-*measured* (:func:`measured_quality`: the logs actually held for tau, the measured cos beta for b,
-u = 1). In the field that pile is the reconstruction; its errors are what the optional perturbed
-copies (:class:`PerturbationConfig`, :func:`perturb_pile`) are for: each candidate whose trial on the
-pile as given succeeded is tried on the same few jittered copies too, and the grasp that succeeds
-most often wins (then the measured objective, then the network's rank: :func:`choose`).
+*measured* (:func:`measured_quality`: the logs actually held for tau, the measured cos beta, rounded
+to ``BALANCE_STEP``, for b, u = 1). In the field that pile is the reconstruction; its errors are
+what the optional perturbed copies (:class:`PerturbationConfig`, :func:`perturb_pile`) are for:
+each candidate whose trial on the pile as given succeeded is tried on the same few jittered copies
+too, and the grasp that succeeds most often wins (then the measured objective, then the network's
+rank: :func:`choose`).
 
 Guarantees:
 
@@ -45,7 +46,7 @@ import numpy as np
 from planner.errors import PlannerError
 from planner.inference import Objective, Plan, PlannedGrasp
 from synth.grasp import Grasp
-from synth.pile import LogSpec, PileSpec, RockSpec, StumpSpec, rotate
+from synth.pile import LogSpec, PileSpec, rotate
 from synth.trial import TrialConfig, TrialResult, run_trial
 
 log = logging.getLogger(__name__)
@@ -428,7 +429,8 @@ def _jitter_obstacles(pile: PileSpec, rng: np.random.Generator, sigma: float, sc
         stumps.append(replace(s, position_m=(s.position_m[0] + float(dx), s.position_m[1] + float(dy)),
                               height_m=float(np.clip(s.height_m * k, 0.05, 2.0)), top_radius_m=top,
                               bottom_radius_m=float(np.clip(s.bottom_radius_m * k, top, 1.0)),
-                              roots=tuple(replace(r, length_m=r.length_m * k, radius_m=r.radius_m * k) for r in s.roots)))
+                              roots=tuple(replace(r, length_m=r.length_m * k, radius_m=r.radius_m * k)
+                                          for r in s.roots)))
     rocks = []
     for r in pile.rocks:
         dx, dy = rng.normal(0.0, sigma, 2)
