@@ -726,6 +726,24 @@ class Verifier:
         return result
 
 
+def read_verification(path) -> dict:
+    """A verification as written from :meth:`Verification.to_dict` (e.g. a trial record's
+    ``plan/verification.json``); format and major version checked."""
+    from pathlib import Path
+
+    path = Path(path)
+    try:
+        d = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise VerificationError(f"{path} is not a readable verification: {exc}") from exc
+    if not isinstance(d, dict) or d.get("format") != VERIFY_FORMAT:
+        raise VerificationError(f"{path} is not a {VERIFY_FORMAT} file")
+    if str(d.get("format_version", "")).split(".")[0] != VERIFY_VERSION.split(".")[0]:
+        raise VerificationError(f"{path}: verification version {d.get('format_version')!r} is newer than this "
+                                f"loggrasp reads ({VERIFY_VERSION.split('.')[0]}.x); update loggrasp")
+    return d
+
+
 _TIMES = ("wall_time_s", "cpu_time_s")  # what differs from run to run in a trial's record
 
 

@@ -284,3 +284,16 @@ def test_after_the_budget_what_could_not_win_anyway_is_pruned_not_unchecked():
     assert v.ok and v.chosen.rank == 0
     assert [c.status for c in v.candidates] == ["checked", PRUNED, NOT_CHECKED]  # the 4-log one could have won
     assert v.timed_out and "time budget" in v.reason
+
+
+def test_a_written_verification_reads_back_and_a_newer_major_version_is_refused(tmp_path):
+    from planner.verify import read_verification
+
+    v = run(plan_of(((0, 1), 0.9)), {"0": "success"})
+    path = tmp_path / "verification.json"
+    path.write_text(json.dumps(v.to_dict()))
+    d = read_verification(path)
+    assert d["ok"] and d["chosen_rank"] == 0 and d["candidates"][0]["trials"][0]["outcome"] == "success"
+    path.write_text(json.dumps({**v.to_dict(), "format_version": "2.0"}))
+    with pytest.raises(VerificationError, match="newer"):
+        read_verification(path)
