@@ -18,10 +18,12 @@ first of the K=16 ones; a trial is deterministic), so each is simulated once; a 
 needed (as each was timed when it ran, one worker) plus making its perturbed copies - what one core
 would spend. ``--timing`` measures real verification wall times with ``--workers`` processes instead.
 
-The record (JSON) is written after every pile; re-running the same command resumes it. Run:
+The record (JSON) is written after every pile; re-running the same command resumes it (with more
+``--piles`` it extends it). The full run (~1 CPU-minute a pile with f1 and f3; ``--workers`` piles at
+once, each in its own process):
 
-    .venv/bin/python bench/bench_verify.py --piles 500 --work-dir runs/verify-work \\
-        --out runs/verify_real_test.json --md docs/results/verify/README.md --fig docs/results/verify/figure.png
+    .venv/bin/python bench/bench_verify.py --piles 500 --workers 2 --work-dir runs/verify-work \\
+        --out runs/verify_real_test.json --md docs/results/verify/results.md --fig docs/results/verify/figure.png
 """
 
 from __future__ import annotations
@@ -148,6 +150,33 @@ def pile_rows(case, net, objectives, ks, copies) -> list[dict]:
     return rows
 
 
+# -- piles in worker processes -------------------------------------------------------------------
+_NET: dict = {}
+
+
+def _init(model: str) -> None:
+    import torch
+
+    from planner.inference import load_planner
+    from synth.jobs import exit_with_parent
+
+    exit_with_parent()
+    torch.set_num_threads(1)
+    _NET["net"] = load_planner(model, device="cpu")
+
+
+def one_pile(seed: int, work_dir: str, logs, obstacles, objectives, ks, copies) -> list[dict]:
+    """Every variant on twin scan ``seed`` (made or reused in ``work_dir``); a failure is a row saying so."""
+    from field.real_test import RealTestConfig, prepare_case
+
+    net = _NET["net"]
+    try:
+        case = prepare_case(seed, work_dir, net.config, RealTestConfig(logs=tuple(logs), obstacles=tuple(obstacles)))
+        return pile_rows(case, net, objectives, ks, copies)
+    except Exception as exc:  # a pile the generator or the twin could not make: said, not hidden
+        return [{"seed": seed, "failure": f"{type(exc).__name__}: {exc}"}]
+
+
 # -- the record ---------------------------------------------------------------------------------
 def _write(path: Path, rec: dict) -> None:
     from synth.pile import atomic_write_bytes
@@ -157,14 +186,9 @@ def _write(path: Path, rec: dict) -> None:
 
 
 def run(args) -> dict:
-    import torch
-
-    from field.real_test import RealTestConfig, prepare_case
     from planner.cli import DEFAULT_MODEL
-    from planner.inference import load_planner
     from synth.dataset import sha256_file
 
-    torch.set_num_threads(1)
     model = Path(args.model or DEFAULT_MODEL)
     config = {"piles": args.piles, "seed": args.seed, "logs": list(args.logs), "obstacles": list(args.obstacles),
               "objectives": list(args.objectives), "ks": list(args.ks), "copies": args.copies,
@@ -177,24 +201,34 @@ def run(args) -> dict:
             raise SystemExit(f"{args.out} holds another measurement (settings differ); choose another --out")
         rec["rows"], rec["loads"] = old["rows"], old.get("loads", [])
     done = {r["seed"] for r in rec["rows"]}
-    net = load_planner(model, device="cpu")
-    cfg = RealTestConfig(logs=tuple(args.logs), obstacles=tuple(args.obstacles))
     args.work_dir.mkdir(parents=True, exist_ok=True)
     todo = [args.seed + k for k in range(args.piles) if args.seed + k not in done]
     print(f"{len(done)} piles done, {len(todo)} to go; load {_load()}", file=sys.stderr, flush=True)
-    for n, seed in enumerate(todo, 1):
-        t0 = time.perf_counter()
-        try:
-            case = prepare_case(seed, args.work_dir, net.config, cfg)
-            rows = pile_rows(case, net, args.objectives, args.ks, args.copies)
-        except Exception as exc:  # a pile the generator or the twin could not make: said, not hidden
-            rows = [{"seed": seed, "failure": f"{type(exc).__name__}: {exc}"}]
+    job = (str(args.work_dir), args.logs, args.obstacles, args.objectives, args.ks, args.copies)
+    t0 = time.perf_counter()
+
+    def keep(n: int, seed: int, rows: list[dict]) -> None:
         rec["rows"] += rows
-        rec["loads"].append({"seed": seed, "load": _load(), "wall_s": time.perf_counter() - t0})
+        rec["loads"].append({"seed": seed, "load": _load(), "since_start_s": time.perf_counter() - t0,
+                             "workers": args.workers})
         rec["config"]["piles"] = max(args.piles, rec["config"].get("piles", 0))
         _write(args.out, rec)
-        print(f"pile {n}/{len(todo)} seed {seed}: {time.perf_counter() - t0:.0f} s, load {_load()}",
+        print(f"pile {n}/{len(todo)} seed {seed}: {time.perf_counter() - t0:.0f} s so far, load {_load()}",
               file=sys.stderr, flush=True)
+
+    if args.workers == 1:
+        _init(str(model))
+        for n, seed in enumerate(todo, 1):
+            keep(n, seed, one_pile(seed, *job))
+    elif todo:
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        with ProcessPoolExecutor(args.workers, mp_context=mp.get_context("spawn"), initializer=_init,
+                                 initargs=(str(model),)) as pool:
+            futures = {pool.submit(one_pile, seed, *job): seed for seed in todo}
+            for n, f in enumerate(as_completed(futures), 1):
+                keep(n, futures[f], f.result())
     return rec
 
 
@@ -374,7 +408,7 @@ def main() -> None:
     ap.add_argument("--fig", type=Path, default=None, help="draw success and time vs K here")
     ap.add_argument("--report-only", action="store_true", help="tables and figure from --out, nothing run")
     ap.add_argument("--timing", type=int, default=0, help="instead: real wall times on this many 7-log piles")
-    ap.add_argument("--workers", type=int, default=2, help="processes for --timing")
+    ap.add_argument("--workers", type=int, default=1, help="processes (piles at once; with --timing: the verifier's)")
     args = ap.parse_args()
     args.logs, args.obstacles = parse_range(args.logs, "--logs"), parse_range(args.obstacles, "--obstacles")
     args.objectives = tuple(o.strip() for o in args.objectives.split(",") if o.strip())
