@@ -35,6 +35,14 @@ def store(tmp_path_factory):
     return d
 
 
+@pytest.fixture
+def clone(store, tmp_path):
+    """A copy of the store, as another machine's clone of the repository holds it."""
+    d = tmp_path / "clone"
+    shutil.copytree(store, d)
+    return d
+
+
 def test_store_records_piles_subsets_and_trials(store):
     rec = read_store(store)
     assert rec["summary"]["chunks_done"] == 2 and rec["summary"]["complete"]
@@ -59,9 +67,7 @@ def test_materialized_samples_equal_the_direct_data_set(store, tmp_path):
             np.testing.assert_array_equal(getattr(x, name), getattr(y, name), err_msg=name)
 
 
-def test_resume_in_a_fresh_clone_simulates_only_missing_chunks(store, tmp_path):
-    clone = tmp_path / "clone"
-    shutil.copytree(store, clone)
+def test_resume_in_a_fresh_clone_simulates_only_missing_chunks(store, clone):
     calls = []
 
     def counting(pile, targets):
@@ -73,38 +79,30 @@ def test_resume_in_a_fresh_clone_simulates_only_missing_chunks(store, tmp_path):
     assert chunk_path(clone, 0).read_bytes() == chunk_path(store, 0).read_bytes()
 
 
-def test_resume_with_other_parameters_is_refused(store, tmp_path):
-    clone = tmp_path / "clone"
-    shutil.copytree(store, clone)
+def test_resume_with_other_parameters_is_refused(clone):
     with pytest.raises(DatasetJobError, match="seed"):
         build_store(clone, _job(2, seed=4), simulate_factory=_fake_factory)
 
 
-def test_chunk_from_another_trial_revision_is_not_mixed_in(store, tmp_path, monkeypatch):
+def test_chunk_from_another_trial_revision_is_not_mixed_in(clone, tmp_path, monkeypatch):
     other = tmp_path / "other"
     import synth.trial
 
     monkeypatch.setattr(synth.trial, "TRIAL_REVISION", synth.trial.TRIAL_REVISION + 1)
     build_store(other, _job(3), simulate_factory=_fake_factory)
     monkeypatch.undo()
-    clone = tmp_path / "clone"
-    shutil.copytree(store, clone)
     shutil.copy(chunk_path(other, 2), chunk_path(clone, 2))
     with pytest.raises(DatasetFormatError, match="trial-code revision"):
         open_store(clone)
 
 
-def test_chunk_that_disagrees_with_the_store_listing(store, tmp_path):
-    clone = tmp_path / "clone"
-    shutil.copytree(store, clone)
+def test_chunk_that_disagrees_with_the_store_listing(clone):
     shutil.copy(chunk_path(clone, 1), chunk_path(clone, 0))
     with pytest.raises(DatasetIntegrityError, match="differs from its entry"):
         open_store(clone)
 
 
-def test_truncated_chunk_is_a_clear_error(store, tmp_path):
-    clone = tmp_path / "clone"
-    shutil.copytree(store, clone)
+def test_truncated_chunk_is_a_clear_error(clone):
     p = chunk_path(clone, 1)
     p.write_bytes(p.read_bytes()[:40])
     rec = json.loads((clone / "store.json").read_text())
@@ -114,9 +112,7 @@ def test_truncated_chunk_is_a_clear_error(store, tmp_path):
         open_store(clone)
 
 
-def test_missing_listed_chunk(store, tmp_path):
-    clone = tmp_path / "clone"
-    shutil.copytree(store, clone)
+def test_missing_listed_chunk(clone):
     chunk_path(clone, 1).unlink()
     with pytest.raises(DatasetIntegrityError, match="missing"):
         open_store(clone)
