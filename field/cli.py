@@ -13,6 +13,7 @@ import os
 import re
 import sys
 from pathlib import Path
+from typing import Literal
 
 import typer
 
@@ -228,6 +229,20 @@ def show_plan(prepared) -> None:
     print("  look before sending: " + ", ".join(str(p) for p in pictures), file=sys.stderr, flush=True)
 
 
+def ask_yes_no(question: str) -> bool | None:
+    """Ask on standard error, read a line from standard input: True for y/yes, False for anything
+    else, None when there is no answer (end of input, Ctrl-C). Standard output is left alone."""
+    print(f"{question} [y/N]: ", end="", file=sys.stderr, flush=True)
+    try:
+        line = sys.stdin.readline() if sys.stdin is not None else ""
+    except (KeyboardInterrupt, OSError, ValueError):
+        line = ""
+    if not line:
+        print(file=sys.stderr, flush=True)
+        return None
+    return line.strip().lower() in ("y", "yes")
+
+
 # -- crane-sim ----------------------------------------------------------------------------------
 class _Announcing:
     """An executor that says, per command, what the crane does and how it ended."""
@@ -262,8 +277,8 @@ def crane_sim(
                                  field=(TrialOptions, "max_pile_age_s"), min=0.001),
     journal: Path = option("--journal", "Persist executed command ids here (never twice, across restarts).",
                            default=None, metavar="FILE"),
-    trial: str = option("--trial", "Trial preset of the grasps it executes: fast or careful.", default="fast",
-                        metavar="fast|careful"),
+    trial: Literal["fast", "careful"] = option("--trial", "Trial preset of the grasps it executes.", default="fast",
+                                                metavar="fast|careful"),
 ) -> None:
     """Run the crane controller twin: validates commands like a real controller and executes
     accepted grasps in pybullet on the given pile; says what it does with each command. Stops on
@@ -283,8 +298,6 @@ def crane_sim(
     o = Output()
     check_link(link, serve=True)
     check_input(pile, "--pile", "file")
-    if trial not in ("fast", "careful"):
-        raise CliError(f"--trial must be fast or careful, got {trial!r}")
     base_tm = parse_base(base)
     if journal is not None:
         check_input(journal.parent if str(journal.parent) else Path("."), "--journal", "dir")
@@ -327,8 +340,21 @@ def _run_trial(o: Output, scan: Path, gnss: Path, link: str, record: Path, opts:
     try:
         return run_trial_record(scan, gnss, link, record, opts, confirm=confirm, progress=o.progress)
     except TrialAborted as exc:
-        where = f"; record: {record}" if (Path(record) / "record.json").exists() else "; nothing was recorded"
+        recorded = (Path(record) / "record.json").is_file()
+        if recorded:
+            import json
+
+            _result(o, json.loads((Path(record) / "record.json").read_text()), record)
+        where = f"; record: {record}" if recorded else "; nothing was recorded"
         raise CliError(f"{exc}{where}", _TRIAL_CODES.get(exc.kind, EXIT_TRIAL)) from exc
+
+
+def _result(o: Output, rec: dict, record: Path) -> None:
+    o.result("loggrasp.trial-result", {
+        "record": str(record), "final_state": rec.get("final_state"), "command_id": rec.get("command_id"),
+        "accepted": rec.get("accepted"), "reject_reason": rec.get("reject_reason"), "reason": rec.get("reason"),
+        "outcome": rec.get("outcome"), "command": rec.get("command"), "geo": rec.get("geo"),
+        "warnings": rec.get("warnings", [])})
 
 
 def _finish_trial(o: Output, rec: dict, record: Path) -> None:
@@ -337,11 +363,7 @@ def _finish_trial(o: Output, rec: dict, record: Path) -> None:
 
     state = rec.get("final_state")
     targets = (rec.get("command") or {}).get("target_log_count")
-    o.result("loggrasp.trial-result", {
-        "record": str(record), "final_state": state, "command_id": rec.get("command_id"),
-        "accepted": rec.get("accepted"), "reject_reason": rec.get("reject_reason"), "reason": rec.get("reason"),
-        "outcome": rec.get("outcome"), "command": rec.get("command"), "geo": rec.get("geo"),
-        "warnings": rec.get("warnings", [])})
+    _result(o, rec, record)
     if state == "SUCCESS":
         o.say(f"trial {record}: {outcome_words(rec.get('outcome'), targets)}")
         return
@@ -361,7 +383,8 @@ def trial_command(
     gnss: Path = option("--gnss", "RTK endpoint survey CSV.", default=..., metavar="FILE"),
     link: str = link_option(),
     record: Path = option("--record", "Trial record folder to create (must not exist).", default=..., metavar="DIR"),
-    objective: str = option("--objective", OBJECTIVE_HELP, field=(TrialOptions, "objective"), metavar="f1|f2|f3"),
+    objective: Literal["f1", "f2", "f3"] = option("--objective", OBJECTIVE_HELP, field=(TrialOptions, "objective"),
+                                                  metavar="f1|f2|f3"),
     model: Path = MODEL,
     views: int = VIEWS,
     view_spread: float = VIEW_SPREAD,
@@ -416,11 +439,11 @@ def trial_command(
         from field.trial import TrialAborted
 
         show_plan(prepared)
-        try:
-            return typer.confirm("send this grasp to the crane?", default=False, err=True)
-        except (typer.Abort, EOFError) as exc:
+        answer = ask_yes_no("send this grasp to the crane?")
+        if answer is None:
             raise TrialAborted("no answer at the confirmation prompt (standard input closed or interrupted): nothing "
-                               "was sent; answer y at the prompt, or pass --yes", kind="declined") from exc
+                               "was sent; answer y at the prompt, or pass --yes", kind="declined")
+        return answer
 
     rec = _run_trial(o, scan, gnss, link, record, opts, None if yes else ask)
     _finish_trial(o, rec, record)
@@ -603,7 +626,7 @@ _RUST_PATH = re.compile(r"\s*(?:\bat\s+)?\(?/[^\s()]*\.rs:\d+(?::\d+)?\)?\.?")
 
 def clean_message(text: str) -> str:
     """One line: flags for Python names, no Rust source paths (Zenoh), no line breaks."""
-    text = _RUST_PATH.sub("", str(text))
+    text = _RUST_PATH.sub("", str(text)).replace("Value error, ", "")
     text = " ".join(part.strip() for part in text.splitlines() if part.strip())
     return to_flags(text)
 
@@ -660,10 +683,10 @@ def run(argv: list[str] | None = None) -> int:
     except click.exceptions.UsageError as exc:
         where = exc.ctx.command_path if exc.ctx else "loggrasp"
         code, message = EXIT_INPUT, f"{clean_message(exc.format_message())} (see `{where} --help`)"
-    except (click.exceptions.Abort, KeyboardInterrupt):
+    except click.exceptions.ClickException as exc:  # e.g. a file typer could not open
+        code, message = EXIT_INPUT, clean_message(exc.format_message())
+    except (typer.Abort, KeyboardInterrupt):
         code, message = EXIT_INTERRUPTED, "interrupted"
-    except click.exceptions.Exit as exc:
-        return exc.exit_code
     except typer.Exit as exc:
         return exc.exit_code
     except BaseException as exc:  # the one place errors are printed

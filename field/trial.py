@@ -374,6 +374,8 @@ def run_trial_record(scan_dir: str | Path, gnss_path: str | Path, link_url: str,
         say(f"crane link {link_url}: controller {probe_link(link_url, options)}")
     tmp = _stage_record(record_dir)
     where = tmp  # the record's folder now (tmp until renamed)
+    outer_say = say
+    say = lambda text: outer_say(str(text).replace(str(tmp), str(record_dir)))  # noqa: E731 - where it will be
     record: dict = {"format": RECORD_FORMAT, "format_version": RECORD_VERSION, "versions": _versions(),
                     "started_utc_s": time.time(), "link": link_url, "options": asdict(options),
                     "final_state": "PREPARING"}

@@ -17,7 +17,8 @@ from planner.loss import LossWeights
 from planner.model import UNetConfig
 from planner.subsets import SubsetPolicy
 from planner.train import TrainConfig
-from synth.cli import JSON, WORKERS, progress_bar
+from synth.cli import JSON, WORKERS
+from synth.cli_common import progress_bar
 from synth.cli_common import CliError, Output, check_input, check_output_dir, check_output_file, option
 
 #: The trained default model shipped with loggrasp (safetensors + config in its header).
@@ -171,6 +172,11 @@ def plan_command(
     check_input(path, "--model", "file")
     if png is not None:
         check_output_file(png, "--png", ".png")
+    pile_json = pile if pile.suffix == ".json" else pile / "pile.json"
+    if pile_json.is_file():
+        from synth.pile import read_pile
+
+        read_pile(pile_json)  # a bad pile file stops the command before the network loads
     planner = load_planner(path, views=views, view_spread_k=view_spread)
     obs, spec = load_observation(pile, planner.config, warn=o.warn)
     obj = Objective(kind=objective)

@@ -231,7 +231,7 @@ def _north_arrow(ax, frame: MapFrame) -> None:
                 bbox={"boxstyle": "round,pad=0.2", "fc": "white", "ec": "0.5", "alpha": 0.85})
 
 
-def _legend_handles(targets: bool = True, alternatives: bool = True, obstacles: bool = True):
+def _legend_handles(targets: bool = True, alternatives: bool = True, obstacles: bool = True, others: bool = True):
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
@@ -242,7 +242,9 @@ def _legend_handles(targets: bool = True, alternatives: bool = True, obstacles: 
         h.append(Line2D([], [], color=OTHER, lw=1.4, label="next-best grasps (#2, #3, …)"))
     if targets:
         h.append(Patch(fc=TARGET_FILL, ec=TARGET_EDGE, alpha=0.7, label="target logs of the chosen grasp"))
-    h.append(Patch(fc="none", ec=LOG_EDGE, label="other logs (number = log index)"))
+    if others:
+        h.append(Patch(fc="none", ec=LOG_EDGE, label="other logs"))
+    h.append(Line2D([], [], ls="none", marker="o", mfc="white", mec="k", ms=9, label="log number (index)"))
     if obstacles:
         h.append(Line2D([], [], color=OBSTACLE, ls="--", lw=1.0, label="stump / rock"))
     return h
@@ -274,7 +276,9 @@ def draw_plan(obs, plan, path: str | Path, *, pile: Any = None, objective: Any =
                            f"({len(best_targets)} of {n_logs}) — {where}" if grasps else
                            f"No grasp found ({n_logs} logs) — {where}"), fontsize=10.5, loc="left")
     # right: legend, ranked table, the score explained
-    fig.legend(handles=_legend_handles(bool(best_targets), len(grasps) > 1, bool((np.asarray(obs.instance) >= 1000).any())),
+    shown = {int(c) - 1 for c in np.unique(np.asarray(obs.instance)) if 0 < c < 1000}
+    fig.legend(handles=_legend_handles(bool(best_targets), len(grasps) > 1, bool((np.asarray(obs.instance) >= 1000).any()),
+                                       bool(shown - set(best_targets))),
                loc="upper left", bbox_to_anchor=(0.61, 0.91), fontsize=8, frameon=True, title="legend",
                title_fontsize=8.5)
     head = f"{'#':>2}  {'target logs':<14}{'Q':>6}{'U':>7}{'B':>7}{'width m':>9}"
@@ -302,12 +306,12 @@ def draw_examples(records: list[dict], cfg: Any, path: str | Path, planner: str,
     mine = [r for r in records if r["planner"] == planner and r.get("grasp")]
     rows = [("successes", [r for r in mine if r["outcome"] == "success"][:n]),
             ("failures", [r for r in mine if r["outcome"] != "success"][:n])]
-    cols = max(1, max(len(r) for _, r in rows))
+    cols = max(2, max(len(r) for _, r in rows))  # at least two panels wide: the titles and legend fit
     fig = _figure((3.2 * cols + 0.4, 7.4), dpi)
     render = render_pile or (lambda r: _eval_observation(r, cfg))
     for ri, (what, recs) in enumerate(rows):
         if not recs:
-            ax = fig.add_axes((0.02, 0.53 - 0.45 * ri, 0.96, 0.36))
+            ax = fig.add_axes((0.02, 0.49 - 0.41 * ri, 0.96, 0.34))
             ax.axis("off")
             total = sum(1 for r in records if r["planner"] == planner)
             ax.text(0.5, 0.5, f"no {what} of {planner} among its {total} pile(s)", ha="center", va="center",
@@ -316,7 +320,7 @@ def draw_examples(records: list[dict], cfg: Any, path: str | Path, planner: str,
         for ci, r in enumerate(recs):
             from synth.grasp import Grasp
 
-            ax = fig.add_axes((0.02 + ci * (0.96 / cols), 0.50 - 0.45 * ri, 0.96 / cols - 0.01, 0.38))
+            ax = fig.add_axes((0.02 + ci * (0.96 / cols), 0.49 - 0.41 * ri, 0.96 / cols - 0.01, 0.34))
             obs = render(r)
             g = Grasp(**r["grasp"])
             frame = MapFrame(None)
@@ -327,9 +331,10 @@ def draw_examples(records: list[dict], cfg: Any, path: str | Path, planner: str,
                          f"held {held} of {len(r['targets'])} target log(s); {r['n_logs']} logs, "
                          f"{'obstacles' if r['obstacles'] else 'no obstacles'}", fontsize=8)
     trial = getattr(cfg, "trial", "")
-    fig.suptitle(f"Evaluation examples of planner {planner} (trial preset {trial}): successes (top), "
-                 "failures (bottom); pile frame, 1 m scale", fontsize=10)
-    fig.legend(handles=_legend_handles(True, False, True), loc="lower center", ncol=5, fontsize=7.5, frameon=False)
+    fig.suptitle(f"Evaluation examples of planner {planner} (trial preset {trial})\nsuccesses (top row), "
+                 "failures (bottom row); each pile in its own frame, 1 m scale bar", fontsize=10)
+    fig.legend(handles=_legend_handles(True, False, True), loc="lower center", ncol=3 if cols < 4 else 6,
+               fontsize=7.5, frameon=False)
     return _png(fig, path, dpi, f"loggrasp evaluation examples of {planner}")
 
 

@@ -204,6 +204,8 @@ def compare_command(
 def _cell(v) -> str:
     if isinstance(v, float):
         return "-" if v != v else f"{v:.4g}"
+    if isinstance(v, dict):
+        return ", ".join(f"{k} {_cell(x)}" for k, x in v.items())
     if isinstance(v, (list, tuple)):
         return ",".join(_cell(x) for x in v)
-    return str(v)
+    return "-" if v is None else str(v)

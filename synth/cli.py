@@ -10,7 +10,7 @@ from typing import Literal
 
 import typer
 
-from synth.cli_common import CliError, Output, check_input, check_output_dir, option, plural
+from synth.cli_common import CliError, Output, check_input, check_output_dir, option, plural, progress_bar
 from synth.dataset import DatasetJob
 from synth.jobs import PileJob
 
@@ -24,15 +24,6 @@ app = typer.Typer(help="The simulator twin: generate and render log piles, build
 JSON = option("--json", "Print the result as one JSON document on standard output (progress stays on "
                         "standard error).", default=False)
 WORKERS = option("--workers", "Worker processes (0 = all cores) or Dask workers.", default=0, min=0)
-
-
-def progress_bar():
-    """A progress bar on standard error (a line at the end when standard error is not a terminal)."""
-    from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
-
-    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[info]}"),
-                    TimeElapsedColumn(), TimeRemainingColumn(), console=Console(stderr=True), transient=False)
 
 
 @app.command("piles")
@@ -158,6 +149,10 @@ def dataset(
                                  n_renders=renders, trial_config=trial, max_trials_per_subset=max_trials_per_subset,
                                  piles_dir=piles_dir, progress=progress)
     s = manifest.summary
-    o.say("data set " + str(out) + ": " + ", ".join(f"{k} {v}" for k, v in s.items() if not isinstance(v, (dict, list))))
+    rate = s.get("success_rate")
+    o.say(f"data set {out}: {plural(int(s.get('samples', 0)), 'sample')} from {plural(int(s.get('piles', 0)), 'pile')}, "
+          f"{plural(int(s.get('trials', 0)), 'trial')}"
+          + (f" ({100 * rate:.0f} % successful)" if isinstance(rate, float) else "")
+          + ("" if s.get("complete", True) else f"; {s.get('chunks_done')} of {s.get('chunks_total')} chunks done"))
     o.result("loggrasp.synth-dataset", {"out": str(out), "summary": s})
 

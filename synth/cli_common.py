@@ -123,8 +123,8 @@ def to_flags(message: str, flags: dict[str, str] | None = None) -> str:
     ``pass allow_float=True`` -> ``pass --allow-float``, ``set model.size_px=64`` ->
     ``set --size 64``, ``per_cell must be >= 1`` -> ``--per-cell must be >= 1``.
 
-    Only names with an underscore, or written ``name=value``, are replaced (a plain word such as
-    ``logs`` in prose stays as it is)."""
+    Only names with an underscore, names written ``name=value`` and a name that starts a clause
+    (``views must be one of …``) are replaced; a plain word such as ``logs`` in prose stays."""
     flags = FLAG_OF_FIELD if flags is None else flags
     if not flags:
         return message
@@ -138,7 +138,8 @@ def to_flags(message: str, flags: dict[str, str] | None = None) -> str:
 
     def sub(m: re.Match) -> str:
         name, value = m.group(1), m.group(2)
-        if "_" not in name and value is None:
+        starts = m.start() == 0 or message[max(0, m.start() - 2):m.start()] in ("; ", ": ")
+        if "_" not in name and value is None and not (starts and message.startswith(" must", m.end())):
             return m.group(0)
         flag = flags[name]
         if value in (None, "True"):
@@ -277,6 +278,67 @@ class Output:
         if self.as_json:
             sys.stdout.write(dumps_json(versioned(fmt, obj, version)) + "\n")
             sys.stdout.flush()
+
+
+class LineProgress:
+    """Progress for logs and pipes (standard error not a terminal): one line when a task starts,
+    at most one every ``every_s`` seconds, and one when it ends. The subset of rich's ``Progress``
+    API the commands use (``add_task``, ``update``, a context manager)."""
+
+    def __init__(self, every_s: float = 10.0):
+        import time
+
+        self._time = time.monotonic
+        self.every_s = every_s
+        self.tasks: dict[int, dict] = {}
+
+    def __enter__(self) -> "LineProgress":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if exc[0] is None:
+            for t in self.tasks.values():
+                self._line(t)
+
+    def add_task(self, description: str, total: float | None = None, info: str = "", **_: Any) -> int:
+        k = len(self.tasks)
+        self.tasks[k] = {"description": description, "total": total, "completed": 0, "info": info,
+                         "t0": self._time(), "last": self._time()}
+        return k
+
+    def update(self, task: int, total: float | None = None, completed: float | None = None,
+               info: str | None = None, **_: Any) -> None:
+        t = self.tasks[task]
+        if total is not None:
+            t["total"] = total
+        if completed is not None:
+            t["completed"] = completed
+        if info is not None:
+            t["info"] = info
+        if self._time() - t["last"] >= self.every_s:
+            self._line(t)
+
+    def _line(self, t: dict) -> None:
+        state = (t["completed"], t["total"], t["info"])
+        if t.get("printed") == state:
+            return
+        t["printed"] = state
+        t["last"] = self._time()
+        done = f"{t['completed']:g}" + (f"/{t['total']:g}" if t["total"] else "")
+        info = f", {t['info']}" if t["info"] else ""
+        print(f"{t['description']}: {done}{info} ({t['last'] - t['t0']:.0f} s)", file=sys.stderr, flush=True)
+
+
+def progress_bar():
+    """A progress display on standard error: rich's bar on a terminal, :class:`LineProgress` lines
+    otherwise (logs, pipes)."""
+    if not sys.stderr.isatty():
+        return LineProgress()
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[info]}"),
+                    TimeElapsedColumn(), TimeRemainingColumn(), console=Console(stderr=True), transient=False)
 
 
 def format_table(title: str, columns: list[str], rows: list[list[str]]) -> str:
