@@ -289,7 +289,6 @@ def crane_sim(
     """
     import signal
     import threading
-    import time
 
     from field.controller import run_controller
     from field.executor import PybulletTrialExecutor
@@ -308,22 +307,31 @@ def crane_sim(
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
 
+    served: list = []
+    lock = threading.Lock()
+    seen = [0]
+
+    def report_rejections() -> None:
+        with lock:
+            rejections = served[0].rejections if served else []
+            while seen[0] < len(rejections):
+                cid, reason = rejections[seen[0]]
+                seen[0] += 1
+                o.say(f"command {cid}: REJECTED ({reason.name}): {REJECT_EXPLANATIONS.get(reason.name, '')}".rstrip(": "))
+
     def watch(controller) -> None:
+        served.append(controller)
+
         def loop() -> None:
-            seen = 0
-            while not stop.is_set():
-                while seen < len(controller.rejections):
-                    cid, reason = controller.rejections[seen]
-                    seen += 1
-                    o.say(f"command {cid}: REJECTED ({reason.name}): {REJECT_EXPLANATIONS.get(reason.name, '')}"
-                          .rstrip(": "))
-                time.sleep(0.05)
+            while not stop.wait(0.05):
+                report_rejections()
 
         threading.Thread(target=loop, name="crane-sim-watch", daemon=True).start()
 
     o.say(f"crane controller twin serving {link}: base E {base_tm[0]:.3f} N {base_tm[1]:.3f} h {base_tm[2]:.3f} m, "
           f"reach {max_reach:g} m, pile age limit {max_pile_age:g} s; Ctrl-C stops")
     final = run_controller(link, _Announcing(executor, o.say), stop, config, on_serve=watch)
+    report_rejections()  # the last ones, seen just before the stop
     o.say(f"stopped in state {final.state.name}")
 
 
@@ -347,6 +355,9 @@ def _run_trial(o: Output, scan: Path, gnss: Path, link: str, record: Path, opts:
             _result(o, json.loads((Path(record) / "record.json").read_text()), record)
         where = f"; record: {record}" if recorded else "; nothing was recorded"
         raise CliError(f"{exc}{where}", _TRIAL_CODES.get(exc.kind, EXIT_TRIAL)) from exc
+    except KeyboardInterrupt as exc:
+        where = f"; record: {record}" if (Path(record) / "record.json").is_file() else "; nothing was recorded"
+        raise CliError(f"interrupted (Ctrl-C){where}", EXIT_INTERRUPTED) from exc
 
 
 def _result(o: Output, rec: dict, record: Path) -> None:

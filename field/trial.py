@@ -2,10 +2,13 @@
 
 :func:`prepare_trial` does everything up to the command (reconstruction, planning, the grasp in
 SWEREF 99 TM, the safety checks, pictures and GeoJSON); :func:`execute_trial` sends it over a
-crane link and waits for the acknowledgement and the outcome; :func:`run_trial_record` does both
-and writes the *trial record* atomically (built in a temporary sibling folder, renamed when
-complete: a crash leaves either nothing or a whole record). :func:`replay_record` re-runs
-reconstruction and planning from a record and says whether the command is bit-identical.
+crane link and waits for the acknowledgement and the outcome; :func:`run_trial_record` probes the
+link first, then does both and writes the *trial record*: built in a temporary sibling folder until
+the plan is ready, then renamed into place, after which ``record.json`` (replaced atomically) always
+says how far the trial got (``AWAITING CONFIRMATION``, ``SENDING``, the final state; ``NOT SENT``
+with the reason for a trial that was refused, declined, not answered or interrupted).
+:func:`replay_record` checks the recorded inputs' sha256, re-runs reconstruction and planning from
+them and says whether the command is bit-identical.
 
 Trial record (``loggrasp.trial-record`` 1.0)::
 
@@ -506,7 +509,8 @@ def replay_record(record_dir: str | Path, work_dir: str | Path, progress=None) -
 
     The recorded inputs are checked against their sha256 first (:class:`RecordError` naming the
     changed file). Returns ``{"identical": bool, "command_sent", "command_replayed",
-    "plan_identical", "differences", "model_changed"}``. The staleness check is judged against
+    "plan_identical", "differences"}``; a model whose sha256 differs from the record's is a
+    :class:`RecordError` too. The staleness check is judged against
     the record's own time (the data was fresh then)."""
     rec = read_record(record_dir)
     if not rec.get("inputs", {}).get("hashes"):

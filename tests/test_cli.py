@@ -295,14 +295,31 @@ def test_eval_bad_input(capsys, work, a_file):
 
 
 # -- reconstruct, compare-piles --------------------------------------------------------------------------
+def run_captured(*args) -> Result:
+    """:func:`run` for a module-scoped fixture (no capsys there)."""
+    import contextlib
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = run([str(a) for a in args])
+    r = Result(code, out.getvalue(), err.getvalue())
+    assert "Traceback" not in r.out + r.err, r.err
+    return r
+
+
 @pytest.fixture(scope="module")
-def recon(work) -> Path:
-    assert run(["reconstruct", str(SCAN), "--gnss", str(GNSS), "--out", str(work / "recon")]) == 0
-    return work / "recon"
+def recon_run(work) -> tuple[Path, Result]:
+    return work / "recon", run_captured("reconstruct", SCAN, "--gnss", GNSS, "--out", work / "recon", "--json")
 
 
-def test_reconstruct_prints_the_per_log_report(capsys, work):
-    r = cli(capsys, "reconstruct", SCAN, "--gnss", GNSS, "--out", work / "recon_json", "--json")
+@pytest.fixture(scope="module")
+def recon(recon_run) -> Path:
+    assert recon_run[1].code == 0, recon_run[1].err
+    return recon_run[0]
+
+
+def test_reconstruct_prints_the_per_log_report(recon_run):
+    r = recon_run[1]
     rep = r.json()
     assert r.code == 0 and rep["format"] == "loggrasp.reconstruction-report"
     for title in ("log", "fit", "length m", "diam. m", "GNSS res. a m", "GNSS res. b m", "fit rms m", "coverage"):
@@ -355,12 +372,9 @@ def test_gnss_without_a_crs_line_warns():
 # -- field: demo, trial, replay, crane-sim ----------------------------------------------------------------
 @pytest.fixture(scope="module")
 def demo_record(work) -> Path:
-    import contextlib
-
-    out = io.StringIO()
-    with contextlib.redirect_stdout(out):
-        assert run(["demo", "--out", str(work / "demo"), "--json"]) == 0
-    d = json.loads(out.getvalue())
+    r = run_captured("demo", "--out", work / "demo", "--json")
+    assert r.code == 0, r.err
+    d = r.json()
     assert d["format"] == "loggrasp.trial-result" and d["final_state"] == "SUCCESS"
     return work / "demo" / "trial"
 
@@ -388,9 +402,10 @@ def _replay_temp_dirs() -> set[str]:
 
 def test_replay_identical_json_and_no_leaks(capsys, demo_record):
     before = _replay_temp_dirs()
-    r = cli(capsys, "replay", demo_record, "--json")
+    r = cli(capsys, "replay", demo_record, "--json", "--link", "twin://")  # the README's example
     d = r.json()
     assert r.code == 0 and d["format"] == "loggrasp.replay" and d["identical"] is True
+    assert d["resent"]["outcome"]["class"] == "SUCCESS"  # a plain twin:// takes the old record's command
     assert "replay of" in r.err and "replay of" not in r.out  # progress and words on stderr only
     assert _replay_temp_dirs() <= before, "replay left its temporary folder"
 
@@ -413,14 +428,9 @@ def test_replay_names_the_changed_input(capsys, work, demo_record, a_file):
 @pytest.fixture(scope="module")
 def twin_trial(work) -> tuple[Path, Result]:
     """A plain twin:// trial: the twin crane stands where the laptop thinks (in reach)."""
-    import contextlib
-
-    out, err = io.StringIO(), io.StringIO()
     rec = work / "t_twin"
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = run(["trial", "--scan", str(SCAN), "--gnss", str(GNSS), "--link", "twin://", "--record", str(rec),
-                    "--yes", "--max-pile-age", OLD, "--json"])
-    return rec, Result(code, out.getvalue(), err.getvalue())
+    return rec, run_captured("trial", "--scan", SCAN, "--gnss", GNSS, "--link", "twin://", "--record", rec, "--yes",
+                             "--max-pile-age", OLD, "--json")
 
 
 def test_trial_over_plain_twin_succeeds(twin_trial):
