@@ -272,9 +272,13 @@ def test_plan_beside_a_truncated_render(capsys, work, pile_dir):
 # -- eval ---------------------------------------------------------------------------------------------
 def test_eval_tiny_strict_json_and_examples(capsys, work, a_file):
     out = work / "eval"
+    # on this pile the random baseline fails: a planner without successes has no beta_avg (NaN), which
+    # must reach stdout and results.json as null
     r = cli(capsys, "eval", "--per-cell", "1", "--logs", "2", "--obstacles", "no", "--objectives", "f1",
-            "--baselines", "", "--workers", "1", "--out", out, "--json")
-    assert r.code == 0 and r.json()["format"] == "loggrasp.eval-results"
+            "--baselines", "random", "--seed-base", "900000001", "--workers", "1", "--out", out, "--json")
+    d = r.json()
+    assert r.code == 0 and d["format"] == "loggrasp.eval-results" and set(d["planners"]) == {"unet-f1", "random"}
+    assert d["planners"]["random"]["total"]["success_rate"] == 0.0 and d["planners"]["random"]["total"]["beta_avg_deg"] is None
     Result(0, (out / "results.json").read_text(), "").json()  # no NaN in the file either
     assert (out / "examples.png").exists() and "1 pile per cell" in (out / "results.md").read_text()
     md = (out / "results.md").read_text().splitlines()
