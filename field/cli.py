@@ -94,10 +94,9 @@ def link_option(help: str = f"Crane link URL: {LINK_FORMS}."):
 
 
 BASE_HELP = "Crane base E,N,H (SWEREF 99 TM easting, northing [m], ellipsoidal height [m])"
-MAX_REACH = option("--max-reach", "Boom reach.", field=(ReachEnvelope, "max_reach_m"), min=0.1,
-                   names=["crane_max_reach_m"])
+MAX_REACH = option("--max-reach", "Boom reach.", field=(ReachEnvelope, "max_reach_m"), min=0.1)
 MAX_PILE_AGE = option("--max-pile-age", "Refuse plans on pile data older than this.",
-                      field=(TrialOptions, "max_pile_age_s"), min=0.001, names=["crane_max_pile_age_s"])
+                      field=(TrialOptions, "max_pile_age_s"), min=0.001)
 
 
 def parse_base(text: str | None, flag: str = "--base") -> tuple[float, float, float] | None:
@@ -304,8 +303,7 @@ def crane_sim(
     base_tm = base_tm or default_crane_base(executor.pile)
     config = crane_config(base_tm, max_reach, max_pile_age, None if journal is None else str(journal))
     stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
 
     served: list = []
     lock = threading.Lock()
@@ -330,7 +328,12 @@ def crane_sim(
 
     o.say(f"crane controller twin serving {link}: base E {base_tm[0]:.3f} N {base_tm[1]:.3f} h {base_tm[2]:.3f} m, "
           f"reach {max_reach:g} m, pile age limit {max_pile_age:g} s; Ctrl-C stops")
-    final = run_controller(link, _Announcing(executor, o.say), stop, config, on_serve=watch)
+    try:
+        final = run_controller(link, _Announcing(executor, o.say), stop, config, on_serve=watch)
+    finally:
+        stop.set()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
     report_rejections()  # the last ones, seen just before the stop
     o.say(f"stopped in state {final.state.name}")
 

@@ -132,7 +132,7 @@ def to_flags(message: str, flags: dict[str, str] | None = None) -> str:
     pattern = _NAME_RE_CACHE.get(key)
     if pattern is None:
         alternatives = "|".join(re.escape(n) for n in sorted(flags, key=len, reverse=True))
-        pattern = re.compile(rf"(?<![\w.\-/])(?:[a-z_]+\.)?({alternatives})(?:=(True|False|[^\s,;)]+))?(?![\w])")
+        pattern = re.compile(rf"(?<![\w.\-/?&=])(?:[a-z_]+\.)?({alternatives})(?:=(True|False|[^\s,;)]+))?(?![\w])")
         _NAME_RE_CACHE.clear()
         _NAME_RE_CACHE[key] = pattern
 

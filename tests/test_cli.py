@@ -490,7 +490,7 @@ def _free_port() -> int:
 
 def _loggrasp(*args: str, **kw) -> subprocess.Popen:
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    return subprocess.Popen([sys.executable, "-m", "field.cli", *args], stdout=subprocess.PIPE,
+    return subprocess.Popen([sys.executable, "-m", "field.cli", *args], stdout=subprocess.PIPE, cwd=ROOT,
                             stderr=subprocess.PIPE, text=True, env=env, **kw)
 
 
@@ -526,6 +526,29 @@ def test_crane_sim_says_why_it_rejects(capsys, work):
     assert crane.returncode == 0, err
     assert re.search(r"command \d+: REJECTED \(STALE\)", out), out
     assert "stopped in state" in out and "Traceback" not in err and "pybullet build time" not in out + err
+
+
+def test_crane_sim_on_a_busy_port_says_so_in_one_line(capsys):
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        port = s.getsockname()[1]
+        r = cli(capsys, "crane-sim", "--link", f"zenoh://127.0.0.1:{port}/c", "--pile", DEMO_DATA / "truth" / "pile.json")
+    line = fails(r, 3, str(port))
+    assert ".rs:" not in line and "cargo" not in line
+
+
+def test_messages_lose_rust_source_paths_and_python_names():
+    from field.cli import clean_message
+
+    zenoh = ("Can not create a new TCP listener bound to tcp/127.0.0.1:7471: [127.0.0.1:7471: Address already in "
+             "use (os error 98) at /root/.cargo/git/checkouts/zenoh-9c5/cc8/io/zenoh-link-commons/src/tcp.rs:61.] at "
+             "/root/.cargo/git/checkouts/zenoh-9c5/cc8/io/zenoh-links/zenoh-link-tcp/src/unicast.rs:338.. Check it")
+    assert clean_message(zenoh) == ("Can not create a new TCP listener bound to tcp/127.0.0.1:7471: [127.0.0.1:7471: "
+                                    "Address already in use (os error 98)]. Check it")
+    assert clean_message("pass allow_float=True, or per_cell must be >= 1\nsecond line") == \
+        "pass --allow-float, or --per-cell must be >= 1 second line"
+    assert clean_message("twin://?crane_max_pile_age_s=S and the logs must") == "twin://?crane_max_pile_age_s=S and the logs must"
 
 
 def test_crane_sim_bad_input(capsys, work, a_file):
