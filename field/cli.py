@@ -26,7 +26,7 @@ from synth.cli import APP_SETTINGS, JSON
 from synth.cli import app as synth_app
 from synth.cli_common import (EXIT_CODES, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_LINK,
                               EXIT_REPLAY_DIFFERS, EXIT_TRIAL, CliError, Output, check_input, check_output_dir,
-                              flag_of_path, option, to_flags)
+                              field_default, flag_of_path, option, to_flags)
 
 LINK_FORMS = ("can://virtual/CH, can://socketcan/can0, can://remote/127.0.0.1:PORT/CH, can://, "
               "zenoh://HOST:PORT/CRANE, zenoh://CRANE?config=PATH.json5, twin://")
@@ -600,8 +600,8 @@ def demo(
 
     def crane() -> None:
         try:
-            run_controller(link, PybulletTrialExecutor(truth), stop, crane_config(base, 10.0, max_age),
-                           ready_event=ready)
+            run_controller(link, PybulletTrialExecutor(truth), stop,
+                           crane_config(base, field_default(ReachEnvelope, "max_reach_m"), max_age), ready_event=ready)
         except BaseException as exc:  # reported by the main thread, as one line
             failure.append(exc)
             ready.set()
@@ -614,7 +614,8 @@ def demo(
             raise CliError(f"the crane controller twin could not serve {link}: {failure[0]}", EXIT_LINK) from failure[0]
         raise CliError(f"the crane controller twin did not start on {link} within 30 s", EXIT_LINK)
     try:
-        opts = _trial_options("f3", model, False, max_age, base, 10.0, field_default_capacity())
+        opts = _trial_options("f3", model, False, max_age, base, field_default(ReachEnvelope, "max_reach_m"),
+                              field_default(TrialOptions, "lift_capacity_kg"))
 
         def show(prepared) -> bool:
             show_plan(prepared)
@@ -626,12 +627,6 @@ def demo(
         thread.join(10)
     o.progress(f"record: {record} (plan pictures in {record / 'plan'}); whole chain {_time.perf_counter() - t0:.1f} s")
     _finish_trial(o, rec, record)
-
-
-def field_default_capacity() -> float:
-    from synth.cli_common import field_default
-
-    return field_default(TrialOptions, "lift_capacity_kg")
 
 
 # -- the one error handler ------------------------------------------------------------------------

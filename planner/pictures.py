@@ -187,7 +187,7 @@ def _draw_scene(ax, obs, frame: MapFrame, targets: Sequence[int], grasps: Sequen
 
 
 def _frame_axes(ax, frame: MapFrame, pts: np.ndarray, min_half_m: float = 1.5, margin_m: float = 0.5,
-                ticks: bool = True) -> None:
+                ticks: bool = True, compact: bool = False) -> None:
     from matplotlib.ticker import MultipleLocator, ScalarFormatter
     from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
 
@@ -216,19 +216,22 @@ def _frame_axes(ax, frame: MapFrame, pts: np.ndarray, min_half_m: float = 1.5, m
         ax.set_yticks([])
     ax.add_artist(AnchoredSizeBar(ax.transData, 1.0, "1 m", "lower left", pad=0.4, sep=3, frameon=True,
                                   size_vertical=half * 0.012, fontproperties={"size": 8}))
-    _north_arrow(ax, frame)
+    _north_arrow(ax, frame, compact)
 
 
-def _north_arrow(ax, frame: MapFrame) -> None:
-    """Grid north (up) for a georeferenced map, with true north's offset; else the pile's +y."""
+def _north_arrow(ax, frame: MapFrame, compact: bool = False) -> None:
+    """Grid north (up) for a georeferenced map, with true north's offset; else the pile's +y
+    (``compact``: the arrow and its letter only)."""
     if frame.georeferenced:
         side = "W" if frame.gamma_deg > 0 else "E"
-        text = f"N\n(grid; true N\n{abs(frame.gamma_deg):.1f}° {side})"
+        head, note = "N", f"grid north\n(true north\n{abs(frame.gamma_deg):.1f}° {side} of it)"
     else:
-        text = "+y\n(no north:\nnot georeferenced)"
-    ax.annotate(text, xy=(0.93, 0.97), xytext=(0.93, 0.80), xycoords="axes fraction", ha="center", va="top",
-                fontsize=7, weight="bold", arrowprops={"arrowstyle": "-|>", "lw": 2.0, "color": "k"},
-                bbox={"boxstyle": "round,pad=0.2", "fc": "white", "ec": "0.5", "alpha": 0.85})
+        head, note = "+y", "no north:\nnot georeferenced"
+    box = {"boxstyle": "round,pad=0.15", "fc": "white", "ec": "0.5", "alpha": 0.85}
+    ax.annotate(head, xy=(0.94, 0.97), xytext=(0.94, 0.86), xycoords="axes fraction", ha="center", va="top",
+                fontsize=8, weight="bold", arrowprops={"arrowstyle": "-|>", "lw": 1.8, "color": "k"}, bbox=box)
+    if not compact:
+        ax.text(0.94, 0.80, note, transform=ax.transAxes, ha="center", va="top", fontsize=6.5, bbox=box)
 
 
 def _legend_handles(targets: bool = True, alternatives: bool = True, obstacles: bool = True, others: bool = True):
@@ -236,8 +239,8 @@ def _legend_handles(targets: bool = True, alternatives: bool = True, obstacles: 
     from matplotlib.patches import Patch
 
     h = [Line2D([], [], color=CHOSEN, lw=2.2, label="chosen grasp (#1)"),
-         Line2D([], [], color="k", lw=5, solid_capstyle="butt", label="claws (short sides; they close\n"
-                                                                          "across the long side)")]
+         Line2D([], [], color="0.35", lw=5, solid_capstyle="butt", label="claws: the thick short sides\n"
+                                                                             "(they close across the long side)")]
     if alternatives:
         h.append(Line2D([], [], color=OTHER, lw=1.4, label="next-best grasps (#2, #3, …)"))
     if targets:
@@ -325,14 +328,15 @@ def draw_examples(records: list[dict], cfg: Any, path: str | Path, planner: str,
             g = Grasp(**r["grasp"])
             frame = MapFrame(None)
             pts = _draw_scene(ax, obs, frame, r["targets"], [(g, CHOSEN, "", 2.0)])
-            _frame_axes(ax, frame, pts, min_half_m=1.2, ticks=False)
+            _frame_axes(ax, frame, pts, min_half_m=1.2, ticks=False, compact=True)
             held = len(r.get("grasped") or [])
             ax.set_title(f"{planner}: {r['outcome'].replace('_', ' ')}\n"
                          f"held {held} of {len(r['targets'])} target log(s); {r['n_logs']} logs, "
                          f"{'obstacles' if r['obstacles'] else 'no obstacles'}", fontsize=8)
     trial = getattr(cfg, "trial", "")
     fig.suptitle(f"Evaluation examples of planner {planner} (trial preset {trial})\nsuccesses (top row), "
-                 "failures (bottom row); each pile in its own frame, 1 m scale bar", fontsize=10)
+                 "failures (bottom row); each pile in its own frame (+y up, not georeferenced), 1 m scale bar",
+                 fontsize=10)
     fig.legend(handles=_legend_handles(True, False, True), loc="lower center", ncol=3 if cols < 4 else 6,
                fontsize=7.5, frameon=False)
     return _png(fig, path, dpi, f"loggrasp evaluation examples of {planner}")

@@ -130,14 +130,14 @@ def test_help_is_fast_and_imports_nothing_heavy():
 
 def test_readme_command_list_matches_help():
     """Every `loggrasp ...` line of the README's command list names a command and flags that
-    exist, and every command is listed."""
+    exist, every command is listed, and with all its flags."""
     from typer.main import get_command
 
     root = get_command(app)
     text = (ROOT / "README.md").read_text()
     block = text[text.index("## Commands"):]
     block = block[block.index("```sh") + 5:block.index("```", block.index("```sh") + 5)]
-    listed = set()
+    listed: dict[str, set[str]] = {}
     for line in block.splitlines():
         line = line.split("#")[0].strip()
         if not line.startswith("loggrasp "):
@@ -147,12 +147,18 @@ def test_readme_command_list_matches_help():
         while words and hasattr(cmd, "commands") and words[0] in cmd.commands:
             cmd = cmd.commands[words[0]]
             path.append(words.pop(0))
-        listed.add(" ".join(path))
         flags = {o for p in cmd.params for o in (*p.opts, *p.secondary_opts)}
-        for flag in re.findall(r"(?<![\w-])--[a-z][a-z-]*", line):
-            assert flag in flags, f"README: `loggrasp {' '.join(path)}` has no {flag}"
-    every = {" ".join(p) for p in COMMANDS[1:] if p != ["synth"]}
-    assert every <= listed, f"README lists no {sorted(every - listed)}"
+        named = set(re.findall(r"(?<![\w-])--[a-z][a-z-]*", line))
+        assert named <= flags, f"README: `loggrasp {' '.join(path)}` has no {sorted(named - flags)}"
+        listed.setdefault(" ".join(path), set()).update(named)
+    every = {" ".join(p) for p in COMMANDS if p != ["synth"]}
+    assert every <= set(listed), f"README lists no {sorted(every - set(listed))}"
+    for name in every:
+        cmd = root
+        for word in name.split():
+            cmd = cmd.commands[word]
+        flags = {o for p in cmd.params for o in p.opts if o.startswith("--")} - {"--help"}
+        assert flags <= listed[name], f"README: `loggrasp {name}` lacks {sorted(flags - listed[name])}"
 
 
 # -- synth --------------------------------------------------------------------------------------------
