@@ -20,7 +20,6 @@ import typer
 from field.controller import ReachEnvelope
 from field.trial import TrialOptions
 from planner.cli import MODEL, OBJECTIVE_HELP, VIEW_SPREAD, VIEWS, eval_command, plan_command, train_command
-from planner.inference import Objective
 from reconstruct.cli import compare_command, gnss_crs_warning, reconstruct_command, scan_command
 from synth.cli import APP_SETTINGS, JSON
 from synth.cli import app as synth_app
@@ -315,7 +314,8 @@ def crane_sim(
             while seen[0] < len(rejections):
                 cid, reason = rejections[seen[0]]
                 seen[0] += 1
-                o.say(f"command {cid}: REJECTED ({reason.name}): {REJECT_EXPLANATIONS.get(reason.name, '')}".rstrip(": "))
+                why = REJECT_EXPLANATIONS.get(reason.name, "")
+                o.say(f"command {cid}: REJECTED ({reason.name})" + (f": {why}" if why else ""))
 
     def watch(controller) -> None:
         served.append(controller)
@@ -556,8 +556,8 @@ DEMO_DATA = Path(__file__).resolve().parent / "demo_data"
 
 @app.command("demo")
 def demo(
-    out: Path = option("--out", "Output folder (trial record, pictures); its trial/ is replaced.", default=Path("out/demo"),
-                       metavar="DIR"),
+    out: Path = option("--out", "Output folder (trial record, pictures); its trial/ is replaced.",
+                       default=Path("out/demo"), metavar="DIR"),
     link: str = option("--link", "Link to the in-process crane twin: can://virtual/CH or zenoh://127.0.0.1:PORT/CRANE.",
                        default="can://virtual/loggrasp-demo", metavar="URL"),
     model: Path = MODEL,
@@ -591,7 +591,8 @@ def demo(
     # the bundled scan was recorded earlier: its staleness limit is set past its age, and said so
     age = _time.time() - captured_time(data / "scan", data / "gnss.csv")
     max_age = age + 3600.0
-    o.progress(f"bundled scan recorded {age / 86400:.1f} days ago: staleness limit raised to {max_age:.0f} s for the demo")
+    o.progress(f"bundled scan recorded {age / 86400:.1f} days ago: staleness limit raised to {max_age:.0f} s "
+               "for the demo")
     record = Path(out) / "trial"
     if record.exists():
         shutil.rmtree(record)

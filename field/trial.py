@@ -123,7 +123,8 @@ class PreparedTrial:
             f"targets: logs {list(best.targets)} ({len(best.targets)} of {self.pile.n_logs})",
             f"quality q={best.quality:.3f}  graspability u={best.graspability:.3f}  balance b={best.balance:.3f}",
             f"SWEREF 99 TM  E {g.easting_m:.3f}  N {g.northing_m:.3f}  h {g.h_ell_m:.3f} m (ellipsoidal)",
-            f"heading (closing axis) {g.heading_grid_deg:.2f}° from grid north, {g.heading_true_deg:.2f}° from true north",
+            f"heading (closing axis) {g.heading_grid_deg:.2f}° from grid north, "
+            f"{g.heading_true_deg:.2f}° from true north",
             f"opening width {g.width_m:.3f} m",
         ] + [f"WARNING: {w}" for w in self.warnings()]
 
@@ -184,7 +185,8 @@ def prepare_trial(scan_dir: str | Path, gnss_path: str | Path, work_dir: str | P
     age = now - captured
     if age > options.max_pile_age_s:
         raise TrialAborted(f"the pile data is {age:.0f} s old (captured {time.ctime(captured)}), over the "
-                           f"{options.max_pile_age_s:.0f} s limit (--max-pile-age): scan the pile again before grasping",
+                           f"{options.max_pile_age_s:.0f} s limit (--max-pile-age): scan the pile again before "
+                           "grasping",
                            kind="refused")
     try:  # first: a model that cannot load stops the trial before the reconstruction's work
         planner = load_planner(options.model or DEFAULT_MODEL, views=options.views,
@@ -517,7 +519,8 @@ def replay_record(record_dir: str | Path, work_dir: str | Path, progress=None) -
         raise RecordError(f"{record_dir}/record.json lists no input hashes: this record cannot be replayed")
     changed = changed_inputs(record_dir, rec)
     if changed:
-        raise RecordError(f"{record_dir}: {changed[0]}" + (f" (and {len(changed) - 1} more)" if len(changed) > 1 else "")
+        more = f" (and {len(changed) - 1} more)" if len(changed) > 1 else ""
+        raise RecordError(f"{record_dir}: {changed[0]}{more}"
                           + "; a replay re-runs the recorded inputs: restore them from the original record")
     if rec.get("command") is None:
         raise RecordError(f"{record_dir}: the trial never got to a command ({rec.get('final_state')}: "

@@ -140,7 +140,8 @@ def load_observation(path: Path, cfg, warn=None):
 
 
 def plan_command(
-    pile: Path = typer.Argument(..., metavar="PILE", help="A pile folder (pile.json and/or ortho.npz), a pile.json or an ortho.npz."),
+    pile: Path = typer.Argument(..., metavar="PILE",
+                                help="A pile folder (pile.json and/or ortho.npz), a pile.json or an ortho.npz."),
     model: Path = MODEL,
     objective: Literal["f1", "f2", "f3"] = option("--objective", OBJECTIVE_HELP, field=(Objective, "kind"),
                                                   metavar="f1|f2|f3", names=["objective"]),

@@ -434,7 +434,8 @@ def summarise(records: list[dict], cfg: EvalConfig, names: list[str]) -> dict:
 
 
 def tables_markdown(tables: dict, cfg: EvalConfig) -> str:
-    lines = [f"# Evaluation in the twin\n\n{cfg.per_cell} pile{'' if cfg.per_cell == 1 else 's'} per cell, one grasp per pile, trial preset "
+    piles = f"{cfg.per_cell} pile{'' if cfg.per_cell == 1 else 's'}"
+    lines = [f"# Evaluation in the twin\n\n{piles} per cell, one grasp per pile, trial preset "
              f"`{cfg.trial}`, seeds from {cfg.seed_base}. Avg. logs = logs held in successful grasps "
              "(the paper's 'average number of grasped logs'); β_avg over successful grasps.\n"]
     for name, t in tables["planners"].items():

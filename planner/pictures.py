@@ -280,8 +280,8 @@ def draw_plan(obs, plan, path: str | Path, *, pile: Any = None, objective: Any =
                            f"No grasp found ({n_logs} logs) — {where}"), fontsize=10.5, loc="left")
     # right: legend, ranked table, the score explained
     shown = {int(c) - 1 for c in np.unique(np.asarray(obs.instance)) if 0 < c < 1000}
-    fig.legend(handles=_legend_handles(bool(best_targets), len(grasps) > 1, bool((np.asarray(obs.instance) >= 1000).any()),
-                                       bool(shown - set(best_targets))),
+    obstacles = bool((np.asarray(obs.instance) >= 1000).any())
+    fig.legend(handles=_legend_handles(bool(best_targets), len(grasps) > 1, obstacles, bool(shown - set(best_targets))),
                loc="upper left", bbox_to_anchor=(0.61, 0.91), fontsize=8, frameon=True, title="legend",
                title_fontsize=8.5)
     head = f"{'#':>2}  {'target logs':<14}{'Q':>6}{'U':>7}{'B':>7}{'width m':>9}"

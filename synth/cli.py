@@ -150,8 +150,8 @@ def dataset(
                                  piles_dir=piles_dir, progress=progress)
     s = manifest.summary
     rate = s.get("success_rate")
-    o.say(f"data set {out}: {plural(int(s.get('samples', 0)), 'sample')} from {plural(int(s.get('piles', 0)), 'pile')}, "
-          f"{plural(int(s.get('trials', 0)), 'trial')}"
+    o.say(f"data set {out}: {plural(int(s.get('samples', 0)), 'sample')} from "
+          f"{plural(int(s.get('piles', 0)), 'pile')}, {plural(int(s.get('trials', 0)), 'trial')}"
           + (f" ({100 * rate:.0f} % successful)" if isinstance(rate, float) else "")
           + ("" if s.get("complete", True) else f"; {s.get('chunks_done')} of {s.get('chunks_total')} chunks done"))
     o.result("loggrasp.synth-dataset", {"out": str(out), "summary": s})

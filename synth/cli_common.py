@@ -23,8 +23,6 @@ Only the standard library and typer are imported here, so ``loggrasp --help`` st
 from __future__ import annotations
 
 import dataclasses
-import json
-import math
 import os
 import re
 import sys
@@ -335,10 +333,12 @@ def progress_bar():
     if not sys.stderr.isatty():
         return LineProgress()
     from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+    from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
+                               TimeRemainingColumn)
 
-    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[info]}"),
-                    TimeElapsedColumn(), TimeRemainingColumn(), console=Console(stderr=True), transient=False)
+    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                    TextColumn("{task.fields[info]}"), TimeElapsedColumn(), TimeRemainingColumn(),
+                    console=Console(stderr=True), transient=False)
 
 
 def format_table(title: str, columns: list[str], rows: list[list[str]]) -> str:

@@ -221,6 +221,7 @@ def test_synth_scan_bad_site_and_paths(capsys, work, a_file):
     assert not (work / "s").exists()
 
 
+@pytest.mark.slow
 def test_synth_dataset_and_train_a_64px_network(capsys, work, a_file):
     """A 64 px data set trains from the command line (the network takes the data set's size)."""
     fails(cli(capsys, "synth", "dataset", "--piles", "1", "--engine", "spark", "--out", work / "d"), 2, "--engine")
@@ -276,6 +277,7 @@ def test_plan_beside_a_truncated_render(capsys, work, pile_dir):
 
 
 # -- eval ---------------------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_eval_tiny_strict_json_and_examples(capsys, work, a_file):
     out = work / "eval"
     # on this pile the random baseline fails: a planner without successes has no beta_avg (NaN), which
@@ -284,7 +286,8 @@ def test_eval_tiny_strict_json_and_examples(capsys, work, a_file):
             "--baselines", "random", "--seed-base", "900000001", "--workers", "1", "--out", out, "--json")
     d = r.json()
     assert r.code == 0 and d["format"] == "loggrasp.eval-results" and set(d["planners"]) == {"unet-f1", "random"}
-    assert d["planners"]["random"]["total"]["success_rate"] == 0.0 and d["planners"]["random"]["total"]["beta_avg_deg"] is None
+    random_total = d["planners"]["random"]["total"]
+    assert random_total["success_rate"] == 0.0 and random_total["beta_avg_deg"] is None
     Result(0, (out / "results.json").read_text(), "").json()  # no NaN in the file either
     assert (out / "examples.png").exists() and "1 pile per cell" in (out / "results.md").read_text()
     md = (out / "results.md").read_text().splitlines()
@@ -328,6 +331,7 @@ def recon(recon_run) -> Path:
     return recon_run[0]
 
 
+@pytest.mark.slow
 def test_reconstruct_prints_the_per_log_report(recon_run):
     r = recon_run[1]
     rep = r.json()
@@ -342,6 +346,7 @@ def test_reconstruct_prints_the_per_log_report(recon_run):
     assert row[1] in ("scan", "partial", "hidden") and "-" in row
 
 
+@pytest.mark.slow
 def test_compare_piles(capsys, recon, work):
     r = cli(capsys, "compare-piles", DEMO_DATA / "truth", recon, "--json")
     assert r.code == 0 and r.json()["format"] == "loggrasp.pile-comparison" and r.json()["summary"]["n_matched"] == 4
@@ -389,6 +394,7 @@ def demo_record(work) -> Path:
     return work / "demo" / "trial"
 
 
+@pytest.mark.slow
 def test_demo_record_is_complete(demo_record):
     rec = json.loads((demo_record / "record.json").read_text())
     assert rec["final_state"] == "SUCCESS" and rec["outcome"]["class"] == "SUCCESS"
@@ -410,6 +416,7 @@ def _replay_temp_dirs() -> set[str]:
     return {p.name for p in Path(tempfile.gettempdir()).glob("loggrasp-replay-*")}
 
 
+@pytest.mark.slow
 def test_replay_identical_json_and_no_leaks(capsys, demo_record):
     before = _replay_temp_dirs()
     r = cli(capsys, "replay", demo_record, "--json", "--link", "twin://")  # the README's example
@@ -420,6 +427,7 @@ def test_replay_identical_json_and_no_leaks(capsys, demo_record):
     assert _replay_temp_dirs() <= before, "replay left its temporary folder"
 
 
+@pytest.mark.slow
 def test_replay_names_the_changed_input(capsys, work, demo_record, a_file):
     edited = work / "edited"
     shutil.copytree(demo_record, edited)
@@ -443,6 +451,7 @@ def twin_trial(work) -> tuple[Path, Result]:
                              "--max-pile-age", OLD, "--json")
 
 
+@pytest.mark.slow
 def test_trial_over_plain_twin_succeeds(twin_trial):
     rec, r = twin_trial
     assert r.code == 0, r.err
@@ -454,6 +463,7 @@ def test_trial_over_plain_twin_succeeds(twin_trial):
     assert ".tmp" not in r.err  # progress names the record's own folder
 
 
+@pytest.mark.slow
 def test_trial_with_standard_input_closed_leaves_a_record(capsys, monkeypatch, work):
     rec = work / "t_closed"
     r = cli(capsys, "trial", "--scan", SCAN, "--gnss", GNSS, "--link", "twin://", "--record", rec,
@@ -509,6 +519,7 @@ def test_unreachable_zenoh_crane_fails_fast_without_rust_paths(capsys, work):
     assert ".rs:" not in line and time.perf_counter() - t < 20 and not rec.exists()
 
 
+@pytest.mark.slow
 def test_crane_sim_says_why_it_rejects(capsys, work):
     """A crane in its own process with its own staleness limit rejects the trial's command
     (STALE) although the laptop's --max-pile-age lets it through; both sides say why."""
@@ -539,7 +550,8 @@ def test_crane_sim_on_a_busy_port_says_so_in_one_line(capsys):
         s.bind(("127.0.0.1", 0))
         s.listen()
         port = s.getsockname()[1]
-        r = cli(capsys, "crane-sim", "--link", f"zenoh://127.0.0.1:{port}/c", "--pile", DEMO_DATA / "truth" / "pile.json")
+        r = cli(capsys, "crane-sim", "--link", f"zenoh://127.0.0.1:{port}/c", "--pile",
+                DEMO_DATA / "truth" / "pile.json")
     line = fails(r, 3, str(port))
     assert ".rs:" not in line and "cargo" not in line
 
@@ -554,7 +566,8 @@ def test_messages_lose_rust_source_paths_and_python_names():
                                     "Address already in use (os error 98)]. Check it")
     assert clean_message("pass allow_float=True, or per_cell must be >= 1\nsecond line") == \
         "pass --allow-float, or --per-cell must be >= 1 second line"
-    assert clean_message("twin://?crane_max_pile_age_s=S and the logs must") == "twin://?crane_max_pile_age_s=S and the logs must"
+    kept = "twin://?crane_max_pile_age_s=S and the logs must"
+    assert clean_message(kept) == kept
 
 
 def test_crane_sim_bad_input(capsys, work, a_file):
@@ -581,11 +594,12 @@ def test_c_libraries_stay_quiet_unless_verbose(work, pile_dir):
     assert p.returncode == 0 and "pybullet build time" in out + err
 
 
+@pytest.mark.slow
 def test_synth_scan_json_is_pure_and_errors_are_one_line(work):
     """synth scan renders through EGL/OpenGL: stdout is still one JSON document; a broken image
     gives one error line and no libpng chatter."""
-    p = _loggrasp("synth", "scan", "--seed", "1", "--logs", "2", "--obstacles", "0", "--pairs", "1x1", "--float-fixes", "0",
-                  "--out", str(work / "scan"), "--json")
+    p = _loggrasp("synth", "scan", "--seed", "1", "--logs", "2", "--obstacles", "0", "--pairs", "1x1",
+                  "--float-fixes", "0", "--out", str(work / "scan"), "--json")
     out, err = p.communicate(timeout=600)
     assert p.returncode == 0, err
     d = json.loads(out)
