@@ -1,5 +1,5 @@
 # loggrasp — the two commands of the README, plus benchmarks.
-.PHONY: setup demo test bench clean
+.PHONY: setup demo test soak bench clean
 
 setup:
 	./scripts/setup.sh
@@ -9,6 +9,10 @@ demo: setup
 
 test: setup
 	.venv/bin/python -m pytest -q -p no:cacheprovider
+
+# the link soak at full size on every backend (the default suite runs 10,000 on CAN, 2,000 on Zenoh)
+soak: setup
+	LOGGRASP_SOAK_CAN_N=10000 LOGGRASP_SOAK_ZENOH_N=10000 .venv/bin/python -m pytest -q -s -p no:cacheprovider tests/field/test_link_soak.py
 
 bench: setup
 	.venv/bin/python bench/run.py --out docs/benchmarks.md

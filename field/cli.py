@@ -25,7 +25,7 @@ from synth.cli import APP_SETTINGS, JSON
 from synth.cli import app as synth_app
 from synth.cli_common import (EXIT_CODES, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_LINK,
                               EXIT_REPLAY_DIFFERS, EXIT_TRIAL, CliError, Output, check_input, check_output_dir,
-                              field_default, flag_of_path, option, to_flags)
+                              check_output_file, field_default, flag_of_path, option, to_flags)
 
 LINK_FORMS = ("can://virtual/CH, can://socketcan/can0, can://remote/127.0.0.1:PORT/CH, can://, "
               "zenoh://HOST:PORT/CRANE, zenoh://CRANE?config=PATH.json5, twin://")
@@ -37,7 +37,8 @@ TWIN_PARAMETERS = (
     "(the twin crane's own staleness limit; trial: --max-pile-age, replay: the record's age), "
     "executor=fixed|pybullet (fixed: always the outcome=SUCCESS|COLLISION|... after delay_ms=MS; "
     "pybullet: a grasp trial on pile=PILE.json with trial=fast|careful), and the link options "
-    "record=PATH.blf, heartbeat_ms, heartbeat_timeout_ms, connect_timeout_s, max_pile_age_s.")
+    "record=PATH.blf, heartbeat_ms, heartbeat_timeout_ms, connect_timeout_s, max_pile_age_s, secoc_key=KEYFILE "
+    "(authenticated frames, SecOC style: both ends use the key; see `loggrasp link-key`).")
 ROOT_HELP = f"""loggrasp — multi-log grasp planning for forestry cranes, from simulator twin to field.
 
 \b
@@ -171,6 +172,35 @@ def base_from_survey(gnss: Path) -> tuple[float, float, float]:
     return float(np.ravel(e)[0]), float(np.ravel(n)[0]), float(np.ravel(h)[0])
 
 
+@app.command("link-key")
+def link_key_command(path: Path = typer.Argument(..., metavar="KEYFILE",
+                                                 help="Key file to create (mode 0600; never overwritten).")) -> None:
+    """Create a pre-shared key for authenticated crane-link frames (SecOC style).
+
+    Give the same file to both ends, e.g. --link 'can://socketcan/can0?secoc_key=PATH' on the
+    laptop and on the crane (crane-sim). The key is never printed.
+
+    \b
+    Example: loggrasp link-key ~/.config/loggrasp/crane1.key
+    """
+    from field.errors import KeyFileError
+    from field.link.secoc import generate_key_file
+
+    if path.exists():
+        raise CliError(f"KEYFILE {path} exists; a key is never overwritten - remove it first or choose another path")
+    check_output_file(path, "KEYFILE")
+    try:
+        written = generate_key_file(path)
+    except KeyFileError as exc:
+        raise CliError(str(exc)) from exc
+    Output().say(f"wrote a new key to {written} (mode 0600); copy it to the crane over a secure channel")
+
+
+def with_secoc_key(link: str, key: Path) -> str:
+    """``link`` with ``secoc_key=KEY`` added to its query."""
+    return f"{link}{'&' if '?' in link else '?'}secoc_key={key}"
+
+
 def default_crane_base(pile) -> tuple[float, float, float]:
     """A crane base 5 m south (site frame) of the pile centre, at ground height."""
     import numpy as np
@@ -243,23 +273,22 @@ def ask_yes_no(question: str) -> bool | None:
 
 # -- crane-sim ----------------------------------------------------------------------------------
 class _Announcing:
-    """An executor that says, per command, what the crane does and how it ended."""
+    """An executor that says, per command, what the crane does and how it ended. It wraps the
+    executor API ``execute(cmd, should_abort) -> Outcome`` (:mod:`field.executor`), passing the
+    controller's abort request through to the inner executor."""
 
     def __init__(self, inner, say):
         self.inner, self.say = inner, say
 
-    def __call__(self, cmd):
+    def execute(self, cmd, should_abort):
         self.say(f"command {cmd.command_id}: accepted; grasping at E {cmd.easting_mm / 1000:.3f} N "
                  f"{cmd.northing_mm / 1000:.3f} h {cmd.height_mm / 1000:.3f} m, heading {cmd.heading_cdeg / 100:.2f}° "
                  f"(grid), opening {cmd.opening_width_mm / 1000:.2f} m, {cmd.target_log_count} target log(s)")
-        out = self.inner(cmd)
+        execute = getattr(self.inner, "execute", None)
+        out = execute(cmd, should_abort) if callable(execute) else self.inner(cmd)
         self.say(f"command {cmd.command_id}: {out.outcome_class.name}, {out.logs_grasped} log(s) held, "
                  f"balance cos β {out.balance_cos_milli / 1000:.3f}")
         return out
-
-    def abort(self) -> None:
-        if hasattr(self.inner, "abort"):
-            self.inner.abort()
 
 
 @app.command("crane-sim")
@@ -273,14 +302,18 @@ def crane_sim(
     max_pile_age: float = option("--max-pile-age", "This crane's own staleness limit: it rejects (STALE) commands "
                                  "planned on older pile data, whatever the laptop's --max-pile-age.",
                                  field=(TrialOptions, "max_pile_age_s"), min=0.001),
-    journal: Path = option("--journal", "Persist executed command ids here (never twice, across restarts).",
+    journal: Path = option("--journal", "Burn every seen command id here (never run twice, across restarts); "
+                           "default: a file per link under $XDG_STATE_HOME/loggrasp (~/.local/state/loggrasp).",
                            default=None, metavar="FILE"),
+    no_journal: bool = option("--no-journal", "Remember command ids in memory only (a restart forgets them).",
+                              default=False),
     trial: Literal["fast", "careful"] = option("--trial", "Trial preset of the grasps it executes.", default="fast",
                                                 metavar="fast|careful"),
 ) -> None:
     """Run the crane controller twin: validates commands like a real controller and executes
     accepted grasps in pybullet on the given pile; says what it does with each command. Stops on
-    Ctrl-C / SIGTERM.
+    Ctrl-C / SIGTERM. Authenticated frames: add ?secoc_key=KEYFILE to --link (the laptop uses the
+    same key; see `loggrasp link-key`).
 
     \b
     Example: loggrasp crane-sim --link zenoh://127.0.0.1:7447/crane1 --pile scans/s3/truth/pile.json
@@ -288,7 +321,7 @@ def crane_sim(
     import signal
     import threading
 
-    from field.controller import run_controller
+    import field.controller
     from field.executor import PybulletTrialExecutor
     from field.trial import REJECT_EXPLANATIONS
 
@@ -296,8 +329,12 @@ def crane_sim(
     check_link(link, serve=True)
     check_input(pile, "--pile", "file")
     base_tm = parse_base(base)
+    if no_journal and journal is not None:
+        raise CliError("give --journal PATH or --no-journal, not both")
     if journal is not None:
         check_input(journal.parent if str(journal.parent) else Path("."), "--journal", "dir")
+    elif not no_journal:
+        journal = field.controller.default_journal_path(link)
     executor = PybulletTrialExecutor(pile, trial=trial)
     base_tm = base_tm or default_crane_base(executor.pile)
     config = crane_config(base_tm, max_reach, max_pile_age, None if journal is None else str(journal))
@@ -317,8 +354,11 @@ def crane_sim(
                 why = REJECT_EXPLANATIONS.get(reason.name, "")
                 o.say(f"command {cid}: REJECTED ({reason.name})" + (f": {why}" if why else ""))
 
-    def watch(controller) -> None:
+    def watch(controller) -> None:  # called once the transport is up: only then say "serving"
         served.append(controller)
+        o.say(f"crane controller twin serving {link}: base E {base_tm[0]:.3f} N {base_tm[1]:.3f} "
+              f"h {base_tm[2]:.3f} m, reach {max_reach:g} m, pile age limit {max_pile_age:g} s; "
+              f"journal {journal or 'OFF (ids forgotten on restart)'}; Ctrl-C stops")
 
         def loop() -> None:
             while not stop.wait(0.05):
@@ -326,10 +366,8 @@ def crane_sim(
 
         threading.Thread(target=loop, name="crane-sim-watch", daemon=True).start()
 
-    o.say(f"crane controller twin serving {link}: base E {base_tm[0]:.3f} N {base_tm[1]:.3f} h {base_tm[2]:.3f} m, "
-          f"reach {max_reach:g} m, pile age limit {max_pile_age:g} s; Ctrl-C stops")
     try:
-        final = run_controller(link, _Announcing(executor, o.say), stop, config, on_serve=watch)
+        final = field.controller.run_controller(link, _Announcing(executor, o.say), stop, config, on_serve=watch)
     finally:
         stop.set()
         for sig, handler in previous.items():
@@ -596,13 +634,22 @@ def demo(
     record = Path(out) / "trial"
     if record.exists():
         shutil.rmtree(record)
+    from field.link.secoc import generate_key_file
+
+    key = Path(out) / "link.key"
+    if not key.exists():
+        generate_key_file(key)
+    link = with_secoc_key(link, key)
+    journal = Path(out) / "crane-journal.jsonl"
+    o.progress(f"authenticated frames on (SecOC-style MACs, key {key}); crane journal {journal}")
     stop, ready = threading.Event(), threading.Event()
     failure: list[BaseException] = []
 
     def crane() -> None:
         try:
             run_controller(link, PybulletTrialExecutor(truth), stop,
-                           crane_config(base, field_default(ReachEnvelope, "max_reach_m"), max_age), ready_event=ready)
+                           crane_config(base, field_default(ReachEnvelope, "max_reach_m"), max_age, str(journal)),
+                           ready_event=ready)
         except BaseException as exc:  # reported by the main thread, as one line
             failure.append(exc)
             ready.set()

@@ -5,21 +5,37 @@ session, :data:`field.link.base.CONTROLLER_TRANSPORTS`) feeds it frames with
 :meth:`CraneController.on_frame` and sends what it answers / publishes. For every grasp command
 it checks, in this order, and rejects with the first failing reason:
 
-1. end-to-end CRC (CRC), frame length / version / field sanity (MALFORMED);
+0. with a SecOC key: the frame's MAC and freshness (a failing frame is dropped unanswered);
+1. end-to-end CRC (CRC), frame length / reserved bits / version / field sanity (MALFORMED). A
+   reply names the command id only when the frame passed its E2E check; otherwise it carries
+   id 0, so no laptop ever takes the answer to a corrupted frame for the answer to its command;
 2. rolling counter (a repeated counter = duplicated frame: dropped silently; a jump larger than
    ``counter_max_delta`` or backwards = COUNTER);
-3. command id seen before (DUPLICATE_ID) — an id is never executed twice, also across controller
-   restarts when ``journal_path`` is set (the id is journaled *before* execution starts);
+3. command id seen before — every id the controller has seen, accepted or rejected, is burned
+   and never executed again; with ``journal_path`` also across restarts (the id is journaled
+   *before* the answer goes out and before execution starts). An identical copy of a command
+   it has decided on (a duplicated or late frame) gets that same decision again, never a second
+   execution; another command under a used id gets DUPLICATE_ID. So the first answer a laptop
+   gets for its command is always the controller's decision about it;
 4. ESTOP / FAULT / BUSY state;
-5. pile data age (STALE), opening width (WIDTH_RANGE), heading (HEADING_RANGE), target log count
-   (MALFORMED), reach envelope around the crane base in SWEREF 99 TM (OUT_OF_REACH).
+5. :func:`check_command`: pile data age (STALE), opening width (WIDTH_RANGE), heading
+   (HEADING_RANGE), target log count (MALFORMED), reach envelope around the crane base in
+   SWEREF 99 TM (OUT_OF_REACH: horizontal reach and height window).
 
-Accepted commands run on a worker thread through an injected executor
-(``Callable[[GraspCommand], Outcome]``, see :class:`GraspExecutor`); the outcome is published
-and remembered in the status (``last_outcome``). The controller sends a heartbeat (CAN:
-``send_periodic``; Zenoh: a liveliness token), watches the laptop's (abort on loss when
-``abort_on_laptop_loss``), and latches ESTOP on an e-stop frame — fail-safe: any frame on the
-e-stop identifier stops, even one that fails its CRC. Only a local :meth:`reset_estop` clears it.
+Accepted commands run on a worker thread through an injected executor (see
+:class:`GraspExecutor`), started under the same lock that accepted them, so an e-stop is either
+before the acceptance (the command is refused ESTOP) or after it (the grasp is aborted, or never
+starts): no e-stop is ever lost. The outcome is published and remembered in the status
+(``last_outcome``).
+
+Supervision: the controller sends a heartbeat (CAN: ``send_periodic``; Zenoh: a liveliness
+token) and follows the laptops (:mod:`field.link.supervision`): on CAN a laptop is alive only
+while its heartbeats are fresh and in sequence; on Zenoh while its liveliness token exists. The
+laptop that was live when a command was accepted (on Zenoh: the one that sent it) is its
+*commanding peer*; losing it aborts the grasp (``abort_on_laptop_loss``), whoever else is
+connected. A second laptop is reported (log warning, ``ControllerStatus.laptops``). An e-stop
+frame latches ESTOP — fail-safe: any frame on the e-stop identifier stops, even one that fails
+its CRC or MAC. Only a local :meth:`reset_estop` clears it.
 
 Executors are registered by name in :data:`EXECUTORS` (imported when chosen): ``"fixed"``
 (deterministic, here, for tests) and ``"pybullet"`` (:mod:`field.executor`, grasp trials on the
@@ -32,16 +48,20 @@ from __future__ import annotations
 
 import importlib
 import json
+import logging
 import math
+import os
 import secrets
 import threading
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Protocol, runtime_checkable
 
 from field.errors import ControllerError, ProtocolError
 from field.link.messages import (
+    DEFAULT_MAX_FUTURE_SKEW_S,
+    DEFAULT_MAX_PILE_AGE_S,
     Ack,
     ControllerState,
     ControllerStatus,
@@ -51,8 +71,10 @@ from field.link.messages import (
     RejectReason,
 )
 
+log = logging.getLogger(__name__)
+
 JOURNAL_FORMAT = "loggrasp.controller_journal"
-JOURNAL_VERSION = "1.0"
+JOURNAL_VERSION = "2.0"
 EXECUTION_LOG_FORMAT = "loggrasp.execution_log"
 EXECUTION_LOG_VERSION = "1.0"
 
@@ -86,19 +108,25 @@ class ReachEnvelope:
         if not self.min_dz_m < self.max_dz_m:
             raise ValueError(f"min_dz_m ({self.min_dz_m}) must be < max_dz_m ({self.max_dz_m})")
 
-    def contains(self, cmd: GraspCommand) -> bool:
+    def horizontal_ok(self, cmd: GraspCommand) -> bool:
+        """The grasp point lies in the annulus around the slewing axis."""
         de = cmd.easting_mm / 1000.0 - self.base_easting_m
         dn = cmd.northing_mm / 1000.0 - self.base_northing_m
-        dz = cmd.height_mm / 1000.0 - self.base_height_m
-        r = math.hypot(de, dn)
-        return self.min_reach_m <= r <= self.max_reach_m and self.min_dz_m <= dz <= self.max_dz_m
+        return self.min_reach_m <= math.hypot(de, dn) <= self.max_reach_m
+
+    def height_ok(self, cmd: GraspCommand) -> bool:
+        """The grasp point lies in the height window around the base."""
+        return self.min_dz_m <= cmd.height_mm / 1000.0 - self.base_height_m <= self.max_dz_m
+
+    def contains(self, cmd: GraspCommand) -> bool:
+        return self.horizontal_ok(cmd) and self.height_ok(cmd)
 
 
 @dataclass(frozen=True)
 class ControllerConfig:
     reach: ReachEnvelope = field(default_factory=ReachEnvelope)
-    max_pile_age_s: float = 30.0  # oldest pile data a command may be based on [s]
-    max_future_skew_s: float = 2.0  # plan timestamps ahead of the crane clock by more are STALE [s]
+    max_pile_age_s: float = DEFAULT_MAX_PILE_AGE_S  # oldest pile data a command may be based on [s]
+    max_future_skew_s: float = DEFAULT_MAX_FUTURE_SKEW_S  # plan timestamps ahead of the crane clock by more are STALE [s]
     min_width_mm: int = 300  # grapple opening range [mm]
     max_width_mm: int = 1550  # [mm]
     min_heading_cdeg: int = 0  # accepted closing-axis headings [0.01 deg]; pi-periodic axis
@@ -106,10 +134,13 @@ class ControllerConfig:
     max_target_logs: int = 12  # more target logs than this is MALFORMED [-]
     counter_max_delta: int = 2  # rolling-counter jump tolerated on commands (lost frames) [-]
     heartbeat_period_s: float = 0.05  # crane heartbeat period [s]
-    laptop_timeout_s: float = 1.0  # laptop counts as lost after this long without a frame [s]
-    abort_on_laptop_loss: bool = True  # abort the running grasp when the laptop is lost [-]
-    journal_path: str | None = None  # persist seen ids / outcomes here (survives restarts)
-    journal_keep: int = 10_000  # journal entries kept [-]
+    laptop_timeout_s: float = 1.0  # laptop counts as lost after this long without a fresh heartbeat [s]
+    abort_on_laptop_loss: bool = True  # abort the running grasp when its commanding laptop is lost [-]
+    journal_path: str | None = None  # burn seen ids / outcomes here (survives restarts); crane-sim: on
+    journal_keep: int = 10_000  # journal entries kept on compaction [-]
+    journal_fsync: bool = True  # fsync every journal line (off only for throw-away twins in tests) [-]
+    secoc_key_path: str | None = None  # pre-shared key file: accept authenticated frames only
+    secoc_window_s: float = 2.0  # SecOC freshness window [s]
 
     def __post_init__(self) -> None:
         if not self.max_pile_age_s > 0:
@@ -123,9 +154,48 @@ class ControllerConfig:
             )
         if not 1 <= self.max_target_logs <= 255:
             raise ValueError(f"max_target_logs must be in [1, 255], got {self.max_target_logs}")
-        for name in ("heartbeat_period_s", "laptop_timeout_s"):
+        for name in ("heartbeat_period_s", "laptop_timeout_s", "secoc_window_s"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0 s, got {getattr(self, name)}")
+
+
+# --- the command checks (pure: unit-testable without a link) --------------------------------
+
+
+def check_age(cmd: GraspCommand, config: ControllerConfig, now_s: float) -> RejectReason:
+    """STALE when the pile data is older than ``max_pile_age_s`` or from the future beyond
+    ``max_future_skew_s`` (by the crane's clock ``now_s``)."""
+    age = cmd.age_s(now_s)
+    ok = -config.max_future_skew_s <= age <= config.max_pile_age_s
+    return RejectReason.NONE if ok else RejectReason.STALE
+
+
+def check_width(cmd: GraspCommand, config: ControllerConfig) -> RejectReason:
+    ok = config.min_width_mm <= cmd.opening_width_mm <= config.max_width_mm
+    return RejectReason.NONE if ok else RejectReason.WIDTH_RANGE
+
+
+def check_heading(cmd: GraspCommand, config: ControllerConfig) -> RejectReason:
+    ok = config.min_heading_cdeg <= cmd.heading_cdeg <= config.max_heading_cdeg
+    return RejectReason.NONE if ok else RejectReason.HEADING_RANGE
+
+
+def check_target_count(cmd: GraspCommand, config: ControllerConfig) -> RejectReason:
+    ok = 1 <= cmd.target_log_count <= config.max_target_logs
+    return RejectReason.NONE if ok else RejectReason.MALFORMED
+
+
+def check_reach(cmd: GraspCommand, config: ControllerConfig) -> RejectReason:
+    return RejectReason.NONE if config.reach.contains(cmd) else RejectReason.OUT_OF_REACH
+
+
+def check_command(cmd: GraspCommand, config: ControllerConfig, now_s: float) -> RejectReason:
+    """The payload checks of one command, first failing reason (or NONE)."""
+    for reason in (check_age(cmd, config, now_s), check_width(cmd, config), check_heading(cmd, config),
+                   check_target_count(cmd, config), check_reach(cmd, config)):
+        if reason is not RejectReason.NONE:
+            return reason
+    return RejectReason.NONE
 
 
 # --- executors ------------------------------------------------------------------------------
@@ -135,14 +205,18 @@ class ControllerConfig:
 class GraspExecutor(Protocol):
     """What the controller runs for an accepted command.
 
-    ``__call__(cmd) -> Outcome`` executes the grasp (blocking; called on a worker thread, one
-    command at a time) and returns its outcome for ``cmd.command_id``. An executor MAY define
-    ``abort()`` (called from another thread on e-stop / laptop loss) to cut the grasp short; the
-    controller reports ``ABORTED`` whatever it returns afterwards. Raising marks the controller
-    FAULT (outcome ABORTED).
+    ``execute(cmd, should_abort) -> Outcome`` executes the grasp (blocking; called on a worker
+    thread, one command at a time) and returns its outcome for ``cmd.command_id``.
+    ``should_abort()`` turns True once the grasp must stop (e-stop, commanding laptop lost,
+    shutdown): the executor polls it, stops promptly and returns the true state (logs held at
+    that moment). The controller reports ``ABORTED`` whatever class it returns then. Raising
+    marks the controller FAULT (outcome ABORTED).
+
+    A plain callable ``cmd -> Outcome`` is accepted too; it cannot be stopped (an ``abort()``
+    method on it is called on abort).
     """
 
-    def __call__(self, cmd: GraspCommand) -> Outcome: ...
+    def execute(self, cmd: GraspCommand, should_abort: Callable[[], bool]) -> Outcome: ...
 
 
 #: executor name -> "module:Class" (imported when chosen, so pybullet loads only for "pybullet").
@@ -171,8 +245,10 @@ class FixedOutcomeExecutor:
 
     ``logs_grasped`` defaults to the command's target count. Every execution start is appended
     to ``log_path`` (when given; read it with :func:`read_execution_log`) so tests in another
-    process can prove a command never ran twice. ``abort()`` cuts the delay short.
+    process can prove a command never ran twice. ``should_abort`` cuts the delay short.
     """
+
+    poll_s = 0.005  # how often should_abort is looked at while "moving" [s]
 
     def __init__(
         self,
@@ -195,28 +271,34 @@ class FixedOutcomeExecutor:
         # per-target-count delay overrides [s] (lets a test make one command slow)
         self.delay_by_target_logs = {int(k): float(v) for k, v in (delay_by_target_logs or {}).items()}
         self.executed: list[int] = []
-        self._abort = threading.Event()
+        self.aborted: list[int] = []  # ids whose delay was cut short by should_abort
         if log_path is not None and not Path(log_path).exists():
             Path(log_path).parent.mkdir(parents=True, exist_ok=True)
             with open(log_path, "w") as f:
                 f.write(json.dumps({"format": EXECUTION_LOG_FORMAT, "version": EXECUTION_LOG_VERSION}) + "\n")
 
-    def __call__(self, cmd: GraspCommand) -> Outcome:
-        self._abort.clear()
+    def execute(self, cmd: GraspCommand, should_abort: Callable[[], bool]) -> Outcome:
         self.executed.append(cmd.command_id)
-        if self.log_path is not None:
-            import os
-
-            with open(self.log_path, "a") as f:
-                f.write(json.dumps({"command_id": cmd.command_id, "t": time.time()}) + "\n")
-                f.flush()
-                os.fsync(f.fileno())
-        self._abort.wait(self.delay_by_target_logs.get(cmd.target_log_count, self.delay_s))
+        self._log_start(cmd.command_id)
+        end = time.monotonic() + self.delay_by_target_logs.get(cmd.target_log_count, self.delay_s)
+        while (left := end - time.monotonic()) > 0:
+            if should_abort():
+                self.aborted.append(cmd.command_id)
+                break
+            time.sleep(min(left, self.poll_s))
         n = cmd.target_log_count if self.logs_grasped is None else self.logs_grasped
         return Outcome(cmd.command_id, self.outcome_class, n, self.balance_cos_milli)
 
-    def abort(self) -> None:
-        self._abort.set()
+    def __call__(self, cmd: GraspCommand) -> Outcome:
+        return self.execute(cmd, lambda: False)
+
+    def _log_start(self, command_id: int) -> None:
+        if self.log_path is None:
+            return
+        with open(self.log_path, "a") as f:
+            f.write(json.dumps({"command_id": command_id, "t": time.time()}) + "\n")
+            f.flush()
+            os.fsync(f.fileno())
 
 
 def read_execution_log(path: str | Path) -> list[int]:
@@ -233,80 +315,145 @@ def read_execution_log(path: str | Path) -> list[int]:
 # --- journal --------------------------------------------------------------------------------
 
 
-class ControllerJournal:
-    """Persistent memory of command ids and outcomes (atomic JSON rewrite per change).
+def _outcome_doc(out: Outcome) -> dict[str, Any]:
+    return {"outcome_class": out.outcome_class.name, "logs_grasped": out.logs_grasped,
+            "balance_cos_milli": out.balance_cos_milli}
 
-    Entries: ``{"command_id", "status": "accepted"|"done", "outcome": {...}|null}``. An id
-    accepted but never finished (controller crashed mid-command) is reported ABORTED on load.
+
+class ControllerJournal:
+    """Persistent memory of every command id seen, and of outcomes (append-only JSON lines).
+
+    First line ``{"format", "version"}``, then one entry per line: ``{"command_id", "status":
+    "accepted"|"rejected"|"done", "reason": NAME (rejected), "outcome": {...} (done)}``; a later
+    line about an id supersedes an earlier one. Each line is flushed (and fsynced) before the
+    controller answers. An id accepted but never finished (controller crashed mid-command) is
+    reported ABORTED on load. A version-1 journal (one JSON document) is read and rewritten as
+    version 2; a journal with more than ``2 * keep`` lines is compacted to its last ``keep`` ids
+    on load (an id older than that is long past any staleness limit).
     """
 
-    def __init__(self, path: str | Path, keep: int = 10_000):
+    def __init__(self, path: str | Path, keep: int = 10_000, fsync: bool = True):
         self.path = Path(path)
         self.keep = keep
+        self.fsync = fsync
         self.entries: dict[int, dict[str, Any]] = {}
+        self._lines = 0
         if self.path.exists():
             self._load()
+        if not self.path.exists() or self._lines > 2 * keep:
+            self._rewrite()
 
     def _load(self) -> None:
         try:
-            doc = json.loads(self.path.read_text())
-        except (OSError, json.JSONDecodeError) as exc:
+            lines = self.path.read_text().splitlines()
+            head = json.loads(lines[0]) if lines else {}
+        except (OSError, ValueError) as exc:
             raise ControllerError(f"controller journal {self.path} is unreadable ({exc}); move it away") from exc
-        if doc.get("format") != JOURNAL_FORMAT:
-            raise ControllerError(f"{self.path} is not a {JOURNAL_FORMAT} file")
-        major = str(doc.get("version", "")).split(".")[0]
+        if head.get("format") != JOURNAL_FORMAT:
+            raise ControllerError(f"{self.path} is not a {JOURNAL_FORMAT} file; move it away or fix --journal")
+        major = str(head.get("version", "")).split(".")[0]
+        if major == "1":
+            for e in head.get("entries", []):
+                self._put(e)
+            self._lines = 10 ** 9  # rewrite as version 2
+            return
         if major != JOURNAL_VERSION.split(".")[0]:
-            raise ControllerError(
-                f"{self.path} has journal version {doc.get('version')}, this code reads "
-                f"{JOURNAL_VERSION.split('.')[0]}.x; update loggrasp"
-            )
-        for e in doc.get("entries", []):
-            self.entries[int(e["command_id"])] = e
+            raise ControllerError(f"{self.path} has journal version {head.get('version')}, this code reads "
+                                  f"1.x and {JOURNAL_VERSION.split('.')[0]}.x; update loggrasp")
+        self._read_entries(lines[1:])
 
-    def save(self) -> None:
+    def _read_entries(self, lines: list[str]) -> None:
+        for i, line in enumerate(lines):
+            try:
+                self._put(json.loads(line))
+            except (ValueError, KeyError, TypeError) as exc:
+                if i == len(lines) - 1:  # a torn last line: the controller died while writing it
+                    log.warning("journal %s: ignoring its torn last line", self.path)
+                    break
+                raise ControllerError(f"controller journal {self.path} line {i + 2} is corrupt ({exc}); "
+                                      f"move the file away") from exc
+        self._lines = len(lines)
+
+    def _put(self, entry: dict[str, Any]) -> None:
+        cid = int(entry["command_id"])
+        self.entries.pop(cid, None)  # re-insert: dict order = order of the latest line
+        self.entries[cid] = entry
+
+    def _rewrite(self) -> None:
         from synth.pile import atomic_write_bytes
 
-        items = list(self.entries.values())[-self.keep :]
-        doc = {"format": JOURNAL_FORMAT, "version": JOURNAL_VERSION, "entries": items}
-        atomic_write_bytes(self.path, json.dumps(doc).encode())
+        items = list(self.entries.values())[-self.keep:]
+        self.entries = {int(e["command_id"]): e for e in items}
+        head = json.dumps({"format": JOURNAL_FORMAT, "version": JOURNAL_VERSION})
+        atomic_write_bytes(self.path, ("\n".join([head, *map(json.dumps, items)]) + "\n").encode())
+        self._lines = len(items)
 
-    def record_accepted(self, command_id: int) -> None:
-        self.entries[command_id] = {"command_id": command_id, "status": "accepted", "outcome": None}
-        self.save()
+    def _append(self, entry: dict[str, Any]) -> None:
+        self._put(entry)
+        with open(self.path, "a") as f:
+            f.write(json.dumps(entry) + "\n")
+            f.flush()
+            if self.fsync:
+                os.fsync(f.fileno())
+        self._lines += 1
+
+    def record_accepted(self, command_id: int, digest: str | None = None) -> None:
+        self._append({"command_id": command_id, "status": "accepted", "digest": digest})
+
+    def record_rejected(self, command_id: int, reason: RejectReason, digest: str | None = None) -> None:
+        self._append({"command_id": command_id, "status": "rejected", "reason": reason.name, "digest": digest})
 
     def record_outcome(self, outcome: Outcome) -> None:
-        self.entries[outcome.command_id] = {
-            "command_id": outcome.command_id,
-            "status": "done",
-            "outcome": {
-                "outcome_class": outcome.outcome_class.name,
-                "logs_grasped": outcome.logs_grasped,
-                "balance_cos_milli": outcome.balance_cos_milli,
-            },
-        }
-        self.save()
+        digest = self.entries.get(outcome.command_id, {}).get("digest")
+        self._append({"command_id": outcome.command_id, "status": "done", "digest": digest,
+                      "outcome": _outcome_doc(outcome)})
 
-    def recover(self) -> tuple[set[int], Outcome | None]:
-        """(all ids seen, last outcome); interrupted commands become ABORTED (and are saved)."""
+    def recover(self) -> tuple[dict[int, tuple[str | None, RejectReason]], Outcome | None]:
+        """(decision per id seen: (command digest, reason; NONE = accepted), last outcome);
+        interrupted commands become ABORTED (and are journaled)."""
         last: Outcome | None = None
-        changed = False
-        for cid, e in self.entries.items():
+        decisions: dict[int, tuple[str | None, RejectReason]] = {}
+        for cid, e in list(self.entries.items()):
+            reason = RejectReason[e["reason"]] if e["status"] == "rejected" else RejectReason.NONE
+            decisions[cid] = (e.get("digest"), reason)
             if e["status"] == "accepted":
-                out = Outcome(cid, OutcomeClass.ABORTED, 0, 0)
-                e.update(status="done", outcome={"outcome_class": "ABORTED", "logs_grasped": 0, "balance_cos_milli": 0})
-                changed = True
-            else:
+                last = Outcome(cid, OutcomeClass.ABORTED, 0, 0)
+                self.record_outcome(last)
+            elif e["status"] == "done":
                 o = e["outcome"]
-                out = Outcome(cid, OutcomeClass[o["outcome_class"]], int(o["logs_grasped"]), int(o["balance_cos_milli"]))
-            last = out
-        if changed:
-            self.save()
-        return set(self.entries), last
+                last = Outcome(cid, OutcomeClass[o["outcome_class"]], int(o["logs_grasped"]), int(o["balance_cos_milli"]))
+        return decisions, last
 
 
 # --- the controller -------------------------------------------------------------------------
 
 Reply = Callable[[str, bytes], None]
+_CAN = "can"  # the command channel of a bus without source addresses (one counter session)
+
+
+@dataclass
+class _Run:
+    """One accepted command on its way through the executor."""
+
+    cmd: GraspCommand
+    peer: str | None  # the commanding laptop (None: none was live yet; adopted when one is)
+    accepted_s: float  # monotonic time of the acceptance [s]
+    abort: threading.Event = field(default_factory=threading.Event)
+    acked: threading.Event = field(default_factory=threading.Event)
+    reason: str | None = None  # why it was aborted
+    worker: threading.Thread | None = None
+    peer_seen: bool = False  # the commanding laptop was live at some point since the acceptance
+
+
+def _raw_command_id(data: bytes) -> int:
+    return int.from_bytes(bytes(data[4:8]), "little") if len(data) >= 8 else 0
+
+
+def command_digest(cmd: GraspCommand) -> str:
+    """A short digest of a command's content: tells a copy of a frame from another command."""
+    import hashlib
+
+    return hashlib.sha256(repr(asdict(cmd)).encode()).hexdigest()[:16]
 
 
 class CraneController:
@@ -319,32 +466,49 @@ class CraneController:
         *,
         clock: Callable[[], float] = time.time,
     ):
-        from field.link.codec import CounterMonitor, Encoder
+        from field.link.codec import Encoder
+        from field.link.supervision import HeartbeatStreams, PeerTracker
 
         self.config = config or ControllerConfig()
         self.executor = executor if executor is not None else FixedOutcomeExecutor()
-        if not callable(self.executor):
-            raise ValueError(f"executor must be callable (GraspCommand -> Outcome), got {self.executor!r}")
+        if not (callable(self.executor) or callable(getattr(self.executor, "execute", None))):
+            raise ValueError(f"executor must have execute(cmd, should_abort) or be callable, got {self.executor!r}")
         self._clock = clock
         self._encoder = Encoder(first_counter=secrets.randbits(8))  # a restart is a new counter session
-        self._counters = CounterMonitor(self.config.counter_max_delta)
+        self._secoc = self._load_secoc()
+        self._counters: dict[str, Any] = {}  # command channel -> CounterMonitor
+        self._streams = HeartbeatStreams(self.config.laptop_timeout_s)
+        self._peers = PeerTracker(self.config.laptop_timeout_s)
         self._lock = threading.RLock()
         self._state = ControllerState.IDLE
         self._current = 0
         self._heartbeat = 0
         self._last_outcome: Outcome | None = None
-        self._seen: set[int] = set()
+        self._decisions: dict[int, tuple[str | None, RejectReason]] = {}  # id -> (digest, decision)
         self._outcomes: dict[int, Outcome] = {}
-        self._abort_reason: str | None = None
-        self._worker: threading.Thread | None = None
-        self._laptop_last_seen: float | None = None
+        self._run: _Run | None = None
+        self._last_run: _Run | None = None
         self._publish: Reply | None = None
-        self._journal = ControllerJournal(self.config.journal_path, self.config.journal_keep) if self.config.journal_path else None
-        if self._journal is not None:
-            self._seen, self._last_outcome = self._journal.recover()
+        self._journal = self._open_journal()
         self.rejections: list[tuple[int, RejectReason]] = []  # diagnostics
+        self.auth_failures = 0  # frames dropped by the SecOC check
+        self._auth_warned_s: dict[str, float] = {}
         self._stop = threading.Event()
         self._supervisor: threading.Thread | None = None
+
+    def _load_secoc(self) -> Any:
+        if self.config.secoc_key_path is None:
+            return None
+        from field.link.secoc import SecOC
+
+        return SecOC.from_key_file(self.config.secoc_key_path, window_s=self.config.secoc_window_s, clock=self._clock)
+
+    def _open_journal(self) -> ControllerJournal | None:
+        if self.config.journal_path is None:
+            return None
+        journal = ControllerJournal(self.config.journal_path, self.config.journal_keep, self.config.journal_fsync)
+        self._decisions, self._last_outcome = journal.recover()
+        return journal
 
     # ---- wiring --------------------------------------------------------------------------
 
@@ -353,7 +517,7 @@ class CraneController:
         self._publish = publish
 
     def start(self) -> None:
-        """Start laptop-loss supervision."""
+        """Start laptop supervision."""
         if self._supervisor is None:
             self._supervisor = threading.Thread(target=self._supervise, name="controller-supervisor", daemon=True)
             self._supervisor.start()
@@ -362,12 +526,11 @@ class CraneController:
         """Abort a running grasp and stop supervision."""
         self._stop.set()
         with self._lock:
-            worker = self._worker
-            if worker is not None and worker.is_alive():
-                self._abort_reason = "controller shutdown"
-                self._abort_executor()
-        if worker is not None:
-            worker.join(timeout_s)
+            run = self._run
+            if run is not None:
+                self._abort_run(run, "controller shutdown")
+        if run is not None and run.worker is not None:
+            run.worker.join(timeout_s)
         if self._supervisor is not None:
             self._supervisor.join(timeout_s)
 
@@ -377,17 +540,29 @@ class CraneController:
     def state(self) -> ControllerState:
         return self._state
 
+    @property
+    def _worker(self) -> threading.Thread | None:
+        """The running (or last) grasp's worker thread (tests join it)."""
+        run = self._run or self._last_run
+        return None if run is None else run.worker
+
     def status(self, request_id: int = 0) -> ControllerStatus:
         with self._lock:
-            return ControllerStatus(self._state, self._current, self._heartbeat, self._last_outcome, request_id)
+            return ControllerStatus(self._state, self._current, self._heartbeat, self._last_outcome, request_id,
+                                    laptops=len(self._peers.live()))
 
     def outcome_of(self, command_id: int) -> Outcome | None:
         return self._outcomes.get(command_id)
 
+    def seen(self, command_id: int) -> bool:
+        """Whether ``command_id`` is burned (seen before, accepted or rejected)."""
+        with self._lock:
+            return command_id in self._decisions
+
     def reset_estop(self) -> None:
         """Local reset on the crane (not reachable over the link): ESTOP/FAULT -> IDLE."""
         with self._lock:
-            if self._worker is not None and self._worker.is_alive():
+            if self._run is not None:
                 raise ControllerError("cannot reset while the aborted grasp is still winding down; retry")
             if self._state in (ControllerState.ESTOP, ControllerState.FAULT):
                 self._state = ControllerState.IDLE
@@ -402,178 +577,299 @@ class CraneController:
         with self._lock:
             self._heartbeat = (self._heartbeat + 1) & 0xFFFFFFFF
             msg = CraneHeartbeat(self._heartbeat, self._state)
-        return self._encoder.encode(msg)[1]
+        return self._wire(msg)
 
-    def laptop_seen(self) -> None:
-        """A transport saw the laptop alive (heartbeat frame, liveliness token)."""
-        now = time.monotonic()
-        with self._lock:
-            last = self._laptop_last_seen
-            if last is None or now - last > self.config.laptop_timeout_s:
-                self._counters.reset()  # a new laptop session: re-synchronise counters
-            self._laptop_last_seen = now
+    # ---- laptops -------------------------------------------------------------------------
 
-    def laptop_lost(self, why: str = "laptop heartbeat lost") -> None:
+    def peer_present(self, peer: str) -> None:
+        """A transport saw laptop ``peer`` appear (Zenoh: its liveliness token)."""
+        if self._peers.present(peer):
+            self._new_peer(peer)
+
+    def peer_gone(self, peer: str, why: str = "laptop liveliness token gone") -> None:
+        """Laptop ``peer`` left; aborts the grasp it commands."""
+        self._peers.gone(peer)
+        self._counters.pop(peer, None)
         with self._lock:
-            self._laptop_last_seen = None
-            self._counters.reset()
-            running = self._worker is not None and self._worker.is_alive()
-            if running and self.config.abort_on_laptop_loss and self._abort_reason is None:
-                self._abort_reason = why
-                self._abort_executor()
+            run = self._run
+            if run is not None and run.peer == peer and self.config.abort_on_laptop_loss:
+                self._abort_run(run, f"commanding laptop lost: {why}")
+        self._publish_status()
+
+    def _new_peer(self, peer: str) -> None:
+        live = self._peers.live()
+        if live == [peer] and peer.startswith(_CAN + ":"):
+            self._counters.pop(_CAN, None)  # a new laptop session on the bus: re-synchronise counters
+        if len(live) > 1:
+            self._publish_status()  # every laptop learns that a second one is on the link
+
+    def _on_heartbeat(self, data: bytes) -> None:
+        from field.link.codec import decode
+
+        try:
+            d = decode("LaptopHeartbeat", data)
+        except ProtocolError:
+            return
+        sid = self._streams.feed(d.message.heartbeat_counter, d.counter)
+        if sid is not None and self._peers.refresh(f"{_CAN}:{sid}"):
+            self._new_peer(f"{_CAN}:{sid}")
 
     # ---- frames --------------------------------------------------------------------------
 
-    def on_frame(self, kind: str, data: bytes, reply: Reply) -> None:
-        """Handle one laptop -> crane frame; answers go through ``reply(kind, bytes)``."""
-        from field.link.codec import decode
+    def on_frame(self, kind: str, data: bytes, reply: Reply, peer: str | None = None) -> None:
+        """Handle one laptop -> crane frame; answers go through ``reply(kind, bytes)``.
 
+        ``peer`` names the sending laptop when the transport knows it (Zenoh)."""
         if kind == "EStop":
-            # fail-safe: any frame on the e-stop identifier stops the crane
-            self.laptop_seen()
-            self.estop("e-stop frame")  # publishes the new status
+            self.estop("e-stop frame")  # fail-safe: any frame on the e-stop identifier stops the crane
+            return
+        plain = self._unwrap(kind, data)
+        if plain is None:
             return
         if kind == "GraspCommand":
-            self._on_command(data, reply)
-            return
-        if kind in ("StatusRequest", "LaptopHeartbeat"):
-            try:
-                d = decode(kind, data)
-            except ProtocolError:
-                return  # corrupted query / heartbeat: ignore (the laptop retries / times out)
-            self.laptop_seen()
-            if kind == "StatusRequest":
-                reply("Status", self._status_frame(d.message.request_id))
-            return
+            self._on_command(plain, reply, peer)
+        elif kind == "LaptopHeartbeat":
+            self._on_heartbeat(plain)
+        elif kind == "StatusRequest":
+            self._on_status_request(plain, reply)
         # anything else (our own frames echoed, foreign frames): ignore
+
+    def _unwrap(self, kind: str, data: bytes) -> bytes | None:
+        """The plain frame, after the SecOC check when a key is configured (None: dropped)."""
+        if self._secoc is None:
+            return data
+        from field.errors import AuthenticationError
+
+        try:
+            return self._secoc.verify(kind, data)
+        except AuthenticationError as exc:
+            self.auth_failures += 1
+            now = time.monotonic()
+            if now - self._auth_warned_s.get(kind, -1e9) > 1.0:  # at most one warning per kind and second
+                self._auth_warned_s[kind] = now
+                log.warning("dropped a %s frame that failed authentication (%d so far): %s", kind, self.auth_failures, exc)
+            return None
+
+    def _on_status_request(self, data: bytes, reply: Reply) -> None:
+        from field.link.codec import decode
+
+        try:
+            d = decode("StatusRequest", data)
+        except ProtocolError:
+            return  # corrupted query: ignore (the laptop times out)
+        reply("Status", self._wire(self.status(d.message.request_id)))
 
     def estop(self, why: str = "e-stop") -> None:
         with self._lock:
             self._state = ControllerState.ESTOP
-            if self._worker is not None and self._worker.is_alive() and self._abort_reason is None:
-                self._abort_reason = why
-                self._abort_executor()
+            if self._run is not None:
+                self._abort_run(self._run, why)
         self._publish_status()
 
-    def _on_command(self, data: bytes, reply: Reply) -> None:
+    # ---- commands ------------------------------------------------------------------------
+
+    def _on_command(self, data: bytes, reply: Reply, peer: str | None) -> None:
         from field.link.codec import CounterCheck, decode
 
-        raw_id = int.from_bytes(bytes(data[4:8]), "little") if len(data) >= 8 else 0
         try:
             d = decode("GraspCommand", data)
         except ProtocolError as exc:
-            self._reject(raw_id, exc.reason or RejectReason.MALFORMED, reply)
+            self._refuse_frame(data, exc, reply)
             return
-        cmd: GraspCommand = d.message
-        self.laptop_seen()
-        check = self._counters.check("GraspCommand", d.counter)
+        channel, peer = self._channel(peer)
+        check = self._counter(channel).check("GraspCommand", d.counter)
         if check is CounterCheck.REPEATED:
             return  # a duplicated frame: the original was answered already
+        cmd: GraspCommand = d.message
+        digest = command_digest(cmd)
         with self._lock:
-            if cmd.command_id == 0:
-                reason = RejectReason.MALFORMED
-            elif cmd.command_id in self._seen:
-                reason = RejectReason.DUPLICATE_ID
-            elif check is CounterCheck.WRONG_SEQUENCE:
-                reason = RejectReason.COUNTER
-            else:
-                reason = self._validate(cmd)
-            if cmd.command_id != 0:
-                self._seen.add(cmd.command_id)
-            if reason is not RejectReason.NONE:
-                self.rejections.append((cmd.command_id, reason))
-            else:
-                if self._journal is not None:
-                    self._journal.record_accepted(cmd.command_id)  # write-ahead: never twice
-                self._state = ControllerState.EXECUTING
-                self._current = cmd.command_id
-                self._abort_reason = None
+            known = self._known_decision(cmd.command_id, digest)
+            reason = known if known is not None else self._decide(cmd, check is CounterCheck.WRONG_SEQUENCE)
+            if known is None:
+                self._burn(cmd.command_id, reason, digest)
+            run = self._accept(cmd, peer) if known is None and reason is RejectReason.NONE else None
         if reason is not RejectReason.NONE:
+            self.rejections.append((cmd.command_id, reason))
             self._reject(cmd.command_id, reason, reply)
             return
-        reply("Ack", self._encoder.encode(Ack(cmd.command_id, True))[1])
-        worker = threading.Thread(target=self._execute, args=(cmd,), name=f"grasp-{cmd.command_id}", daemon=True)
-        with self._lock:
-            self._worker = worker
-        worker.start()
+        try:  # accepted now, or an identical copy of an accepted command: the same answer, no run
+            reply("Ack", self._wire(Ack(cmd.command_id, True)))
+        finally:
+            if run is not None:
+                run.acked.set()
 
-    def _validate(self, cmd: GraspCommand) -> RejectReason:
-        c = self.config
-        if self._state is ControllerState.ESTOP:
-            return RejectReason.ESTOP
-        if self._state is ControllerState.FAULT:
-            return RejectReason.FAULT
-        if self._state is ControllerState.EXECUTING:
-            return RejectReason.BUSY
-        age = cmd.age_s(self._clock())
-        if age > c.max_pile_age_s or age < -c.max_future_skew_s:
-            return RejectReason.STALE
-        if not c.min_width_mm <= cmd.opening_width_mm <= c.max_width_mm:
-            return RejectReason.WIDTH_RANGE
-        if not c.min_heading_cdeg <= cmd.heading_cdeg <= c.max_heading_cdeg:
-            return RejectReason.HEADING_RANGE
-        if not 1 <= cmd.target_log_count <= c.max_target_logs:
+    def _refuse_frame(self, data: bytes, exc: ProtocolError, reply: Reply) -> None:
+        """A command frame that failed decoding: name its id only if it passed its E2E check."""
+        cid = _raw_command_id(data) if exc.integrity_ok else 0
+        reason = exc.reason or RejectReason.MALFORMED
+        if cid:
+            with self._lock:
+                if cid in self._decisions:
+                    reason = RejectReason.DUPLICATE_ID
+                else:
+                    self._burn(cid, reason, None)
+        self.rejections.append((cid, reason))
+        self._reject(cid, reason, reply)
+
+    def _channel(self, peer: str | None) -> tuple[str, str | None]:
+        """(command counter channel, commanding peer) of a command from ``peer``."""
+        if peer is not None:
+            return peer, peer
+        return _CAN, self._peers.primary()
+
+    def _counter(self, channel: str) -> Any:
+        from field.link.codec import CounterMonitor
+
+        with self._lock:
+            if channel not in self._counters:
+                self._counters[channel] = CounterMonitor(self.config.counter_max_delta)
+            return self._counters[channel]
+
+    def _known_decision(self, command_id: int, digest: str) -> RejectReason | None:
+        """The decision already taken on ``command_id`` (its own decision for an identical copy,
+        DUPLICATE_ID for another command under a used id), or None when the id is new."""
+        if command_id not in self._decisions:
+            return None
+        seen_digest, reason = self._decisions[command_id]
+        return reason if seen_digest == digest else RejectReason.DUPLICATE_ID
+
+    def _decide(self, cmd: GraspCommand, out_of_sequence: bool) -> RejectReason:
+        if cmd.command_id == 0:
             return RejectReason.MALFORMED
-        if not c.reach.contains(cmd):
-            return RejectReason.OUT_OF_REACH
-        return RejectReason.NONE
+        if out_of_sequence:
+            return RejectReason.COUNTER
+        state = {ControllerState.ESTOP: RejectReason.ESTOP, ControllerState.FAULT: RejectReason.FAULT,
+                 ControllerState.EXECUTING: RejectReason.BUSY}.get(self._state)
+        return state or check_command(cmd, self.config, self._clock())
+
+    def _burn(self, command_id: int, reason: RejectReason, digest: str | None) -> None:
+        """Remember the decision on ``command_id`` for ever (journal first); under the lock."""
+        if command_id == 0:
+            return
+        self._decisions[command_id] = (digest, reason)
+        if self._journal is None:
+            return
+        if reason is RejectReason.NONE:
+            self._journal.record_accepted(command_id, digest)  # write-ahead: never twice
+        else:
+            self._journal.record_rejected(command_id, reason, digest)
+
+    def _accept(self, cmd: GraspCommand, peer: str | None) -> _Run:
+        """EXECUTING, and the worker started - under the lock, so no e-stop falls in between."""
+        run = _Run(cmd, peer, time.monotonic(), peer_seen=peer is not None and self._peers.is_live(peer))
+        self._state = ControllerState.EXECUTING
+        self._current = cmd.command_id
+        self._run = run
+        run.worker = threading.Thread(target=self._execute, args=(run,), name=f"grasp-{cmd.command_id}", daemon=True)
+        run.worker.start()
+        return run
 
     def _reject(self, command_id: int, reason: RejectReason, reply: Reply) -> None:
-        reply("Ack", self._encoder.encode(Ack(command_id & 0xFFFFFFFF, False, reason))[1])
+        reply("Ack", self._wire(Ack(command_id & 0xFFFFFFFF, False, reason)))
 
-    def _execute(self, cmd: GraspCommand) -> None:
-        fault = False
-        try:
-            out = self.executor(cmd)
-            if not isinstance(out, Outcome):
-                raise TypeError(f"executor returned {type(out).__name__}, not Outcome")
-        except Exception:
-            fault = True
-            out = Outcome(cmd.command_id, OutcomeClass.ABORTED, 0, 0)
+    # ---- execution -----------------------------------------------------------------------
+
+    def _execute(self, run: _Run) -> None:
+        out, fault = self._call_executor(run)
+        run.acked.wait(1.0)  # the Ack goes out before the Outcome
         with self._lock:
-            if self._abort_reason is not None and out.outcome_class is not OutcomeClass.ABORTED:
-                out = Outcome(cmd.command_id, OutcomeClass.ABORTED, out.logs_grasped, out.balance_cos_milli)
-            if out.command_id != cmd.command_id:
-                out = Outcome(cmd.command_id, out.outcome_class, out.logs_grasped, out.balance_cos_milli)
+            out = self._final_outcome(run, out)
             self._last_outcome = out
-            self._outcomes[cmd.command_id] = out
+            self._outcomes[run.cmd.command_id] = out
             self._current = 0
+            self._last_run, self._run = run, None
             if fault:
                 self._state = ControllerState.FAULT
             elif self._state is ControllerState.EXECUTING:
                 self._state = ControllerState.DONE
             if self._journal is not None:
                 self._journal.record_outcome(out)
-        self._publish_frame("Outcome", self._encoder.encode(out)[1])
+        self._publish_frame("Outcome", self._wire(out))
         self._publish_status()
 
-    def _abort_executor(self) -> None:
+    def _call_executor(self, run: _Run) -> tuple[Outcome, bool]:
+        """(outcome, executor failed); an already aborted command never starts."""
+        cmd = run.cmd
+        if run.abort.is_set():
+            return Outcome(cmd.command_id, OutcomeClass.ABORTED, 0, 0), False
+        try:
+            execute = getattr(self.executor, "execute", None)
+            out = execute(cmd, run.abort.is_set) if callable(execute) else self.executor(cmd)
+            if not isinstance(out, Outcome):
+                raise TypeError(f"executor returned {type(out).__name__}, not Outcome")
+            return out, False
+        except Exception:
+            log.exception("executor failed on command %d: controller FAULT", cmd.command_id)
+            return Outcome(cmd.command_id, OutcomeClass.ABORTED, 0, 0), True
+
+    @staticmethod
+    def _final_outcome(run: _Run, out: Outcome) -> Outcome:
+        cls = OutcomeClass.ABORTED if run.reason is not None else out.outcome_class
+        return Outcome(run.cmd.command_id, cls, out.logs_grasped, out.balance_cos_milli)
+
+    def _abort_run(self, run: _Run, why: str) -> None:
+        """Stop ``run`` (under the lock): the flag the executor polls, and ``abort()`` if any."""
+        if run.reason is not None:
+            return
+        run.reason = why
+        run.abort.set()
+        log.warning("aborting command %d: %s", run.cmd.command_id, why)
         abort = getattr(self.executor, "abort", None)
-        if callable(abort):
+        if callable(abort) and not callable(getattr(self.executor, "execute", None)):
             try:
                 abort()
             except Exception:
-                pass  # the outcome is ABORTED regardless
+                log.exception("executor abort() failed; the outcome is ABORTED regardless")
 
-    def _status_frame(self, request_id: int) -> bytes:
-        return self._encoder.encode(self.status(request_id))[1]
+    # ---- output --------------------------------------------------------------------------
+
+    def _wire(self, msg: Any) -> bytes:
+        """``msg`` as frame bytes: E2E, then SecOC when a key is configured."""
+        kind, data = self._encoder.encode(msg)
+        return data if self._secoc is None else self._secoc.secure(kind, data)
 
     def _publish_status(self) -> None:
-        self._publish_frame("Status", self._status_frame(0))
+        self._publish_frame("Status", self._wire(self.status(0)))
 
     def _publish_frame(self, kind: str, data: bytes) -> None:
         if self._publish is not None:
             try:
                 self._publish(kind, data)
             except Exception:
-                pass  # the status query recovers what a lost publication carried
+                log.debug("publishing %s failed; a status query recovers what it carried", kind, exc_info=True)
+
+    # ---- supervision ---------------------------------------------------------------------
 
     def _supervise(self) -> None:
         period = min(0.05, self.config.laptop_timeout_s / 4)
         while not self._stop.wait(period):
-            last = self._laptop_last_seen
-            if last is not None and time.monotonic() - last > self.config.laptop_timeout_s:
-                self.laptop_lost()
+            self._check_commanding_peer()
+
+    def _check_commanding_peer(self) -> None:
+        with self._lock:
+            run = self._run
+            if run is None or run.reason is not None or not self.config.abort_on_laptop_loss:
+                return
+            why = self._peer_loss(run)
+            if why is not None:
+                self._abort_run(run, why)
+
+    def _peer_loss(self, run: _Run) -> str | None:
+        """Why ``run``'s commanding laptop counts as lost, or None (under the lock).
+
+        A command accepted before its laptop counted as live (no laptop yet, or a Zenoh token
+        not seen yet) adopts the first live one and gets one laptop timeout of grace."""
+        if run.peer is None:
+            run.peer = self._peers.primary()
+        if run.peer is not None and self._peers.is_live(run.peer):
+            run.peer_seen = True
+            return None
+        if run.peer_seen:
+            return f"commanding laptop {run.peer} lost (no fresh heartbeat for {self.config.laptop_timeout_s:.2f} s)"
+        late = time.monotonic() - run.accepted_s > self.config.laptop_timeout_s
+        if late and self._peers.ever_seen:
+            return "no live laptop since the command was accepted"
+        return None
 
 
 # --- running as a process -------------------------------------------------------------------
@@ -595,13 +891,18 @@ def run_controller(
     of :func:`field.link.open_link` (``can://virtual/ch0``, ``can://remote/127.0.0.1:PORT/ch0``,
     ``zenoh://127.0.0.1:7447/crane1`` — the controller LISTENS on that endpoint — ...).
     ``ready_event`` is set once the controller serves; ``on_serve(controller)`` is called just
-    before (e.g. to watch its ``rejections``).
+    before (e.g. to watch its ``rejections``). A ``secoc_key=PATH`` in the URL is the
+    controller's key when ``config`` names none.
     """
-    from field.link.base import open_controller_transport
+    from field.link.base import LinkURL, open_controller_transport
 
     if isinstance(executor, str):
         executor = make_executor(executor)
     stop_event = stop_event or threading.Event()
+    config = config or ControllerConfig()
+    url_key = LinkURL.parse(link_url).pop_link_config()[0].secoc_key_path
+    if url_key is not None and config.secoc_key_path is None:
+        config = replace(config, secoc_key_path=url_key)
     controller = CraneController(config, executor)
     transport = open_controller_transport(link_url, heartbeat_period_s=controller.config.heartbeat_period_s, **transport_kwargs)
     try:
@@ -619,6 +920,16 @@ def run_controller(
         controller.close()
         transport.close()
     return controller.status()
+
+
+def default_journal_path(link_url: str) -> Path:
+    """Where a controller serving ``link_url`` burns its command ids by default:
+    ``$XDG_STATE_HOME/loggrasp/journal-<link>.jsonl`` (``~/.local/state`` without the variable)."""
+    import re
+
+    state = Path(os.environ.get("XDG_STATE_HOME") or Path.home() / ".local" / "state")
+    slug = re.sub(r"[^A-Za-z0-9.-]+", "_", link_url.split("?", 1)[0]).strip("_")[:80]
+    return state / "loggrasp" / f"journal-{slug}.jsonl"
 
 
 def controller_config_from_dict(d: dict[str, Any]) -> ControllerConfig:

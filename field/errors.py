@@ -59,9 +59,22 @@ class ProtocolError(LinkError):
     a failed end-to-end check or an unknown protocol version. ``reason`` (a
     :class:`field.link.messages.RejectReason` or ``None``) names the check that failed."""
 
-    def __init__(self, message: str, *, reason: Any = None):
+    def __init__(self, message: str, *, reason: Any = None, integrity_ok: bool = False):
         super().__init__(message)
         self.reason = reason
+        #: the frame passed its end-to-end (and, when on, authentication) check, so the ids in
+        #: it are what the sender put there; a reply may name them. False: nothing in it counts.
+        self.integrity_ok = integrity_ok
+
+
+class AuthenticationError(ProtocolError):
+    """An authenticated (SecOC-style) frame failed its check: wrong MAC, wrong length, or a
+    freshness value that is stale or seen before (a replay). The frame is dropped."""
+
+
+class KeyFileError(LinkError):
+    """The pre-shared key for authenticated frames could not be used: missing, unreadable, too
+    short, or readable by group/others. The message names the file and how to fix it."""
 
 
 # --- crane controller twin ------------------------------------------------------------------

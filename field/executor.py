@@ -3,14 +3,15 @@
 A :class:`PybulletTrialExecutor` holds the (true, georeferenced) pile the crane stands at. For a
 command it converts the SWEREF 99 TM position and the grid heading back into the pile frame,
 runs :func:`synth.trial.run_trial` from the settled pile and reports the outcome the way a real
-controller would (class, logs held, balance). Registered in
+controller would (class, logs held, balance). An abort (e-stop, commanding laptop lost) stops
+the trial within one simulation step and reports the logs the grapple holds at that moment. Registered in
 :data:`field.controller.EXECUTORS` as ``"pybullet"``.
 """
 
 from __future__ import annotations
 
-import threading
 from pathlib import Path
+from typing import Callable
 
 from field.errors import ControllerError
 from field.link.messages import GraspCommand, Outcome, OutcomeClass
@@ -52,21 +53,23 @@ class PybulletTrialExecutor:
         if trial not in ("fast", "careful"):
             raise ControllerError(f"trial preset must be 'fast' or 'careful', got {trial!r}")
         self.config = TrialConfig.fast() if trial == "fast" else TrialConfig.careful()
-        self._aborted = threading.Event()
         self.last_result = None
 
-    def __call__(self, cmd: GraspCommand) -> Outcome:
+    def execute(self, cmd: GraspCommand, should_abort: Callable[[], bool]) -> Outcome:
+        """Run the trial; ``should_abort`` is asked every simulation step. An aborted trial stops
+        at once (boom and claws held) and reports ABORTED with the logs between the claws at
+        that moment (held or enclosed: what the operator must know before opening the grapple)."""
         from synth.trial import run_trial
 
-        self._aborted.clear()
         grasp, _ = command_to_grasp(cmd, self.pile.georef)
-        result = run_trial(self.pile, grasp, int(cmd.target_log_count), self.config)
+        result = run_trial(self.pile, grasp, int(cmd.target_log_count), self.config, should_abort=should_abort)
         self.last_result = result
-        if self._aborted.is_set():
-            return Outcome(cmd.command_id, OutcomeClass.ABORTED, 0, 0)
         cos_b = result.cos_beta if result.cos_beta == result.cos_beta else 1.0
-        return Outcome(cmd.command_id, _CLASS[result.outcome.value], len(result.grasped),
-                       int(round(max(-1.0, min(1.0, cos_b)) * 1000)))
+        balance = int(round(max(-1.0, min(1.0, cos_b)) * 1000))
+        if result.stop_reason == "aborted":
+            in_grapple = set(result.grasped) | set(result.enclosed)
+            return Outcome(cmd.command_id, OutcomeClass.ABORTED, len(in_grapple), balance)
+        return Outcome(cmd.command_id, _CLASS[result.outcome.value], len(result.grasped), balance)
 
-    def abort(self) -> None:
-        self._aborted.set()
+    def __call__(self, cmd: GraspCommand) -> Outcome:
+        return self.execute(cmd, lambda: False)

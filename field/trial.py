@@ -38,6 +38,7 @@ from typing import Callable
 import numpy as np
 
 from field.errors import FieldError
+from field.link.messages import DEFAULT_MAX_PILE_AGE_S
 from synth.dataset import sha256_file as sha256_of
 
 RECORD_FORMAT = "loggrasp.trial-record"
@@ -85,7 +86,7 @@ class TrialOptions:
     views: int = 1  # dihedral views the planner averages (1, 2, 4, 8; planning time grows with it) [-]
     view_spread_k: float = 0.0  # U logit lowered by k x its spread over the views (needs views > 1) [-]
     allow_float: bool = False  # accept RTK float endpoints (the operator's explicit choice)
-    max_pile_age_s: float = 600.0  # refuse plans on pile data older than this [s]
+    max_pile_age_s: float = DEFAULT_MAX_PILE_AGE_S  # refuse plans on pile data older than this [s]
     crane_base_tm: tuple[float, float, float] | None = None  # SWEREF 99 TM E, N [m], ellipsoidal h [m]
     min_reach_m: float = 2.0  # [m]
     max_reach_m: float = 10.0  # [m]
@@ -258,9 +259,9 @@ class TrialOutcome:
 def execute_trial(prepared: PreparedTrial, link_url: str, options: TrialOptions,
                   record_traffic: Path | None = None, say: Callable[[str], None] | None = None) -> TrialOutcome:
     """Send the prepared command over ``link_url`` and follow it to its final state."""
+    from field.errors import LinkError
     from field.link import open_link
     from field.link.base import LinkConfig
-    from field.errors import CommandRejected, LinkError, LinkTimeout
     from field.link.messages import GraspCommand
     from field.link.safety import SafetyConfig
 
@@ -281,27 +282,34 @@ def execute_trial(prepared: PreparedTrial, link_url: str, options: TrialOptions,
         cmd = GraspCommand(command_id=cid, **prepared.command_fields)
         log("command", **asdict(cmd))
         say(f"sending command {cid}")
-        try:
-            ack = link.send_grasp(cmd, timeout_s=options.ack_timeout_s)
-        except CommandRejected as exc:
-            log("rejected", reason=exc.reason.name)
-            return TrialOutcome(cid, False, exc.reason.name, None, "REJECTED", msgs)
-        except LinkTimeout as exc:
-            st = exc.status
-            log("ack_timeout", status=None if st is None else st.state.name)
-            return TrialOutcome(cid, False, None, None,
-                                f"NO ACK ({'controller unreachable' if st is None else st.state.name}): {exc}", msgs)
-        log("ack", accepted=ack.accepted)
-        say(f"command {cid} accepted; waiting for the outcome")
-        try:
-            out = link.wait_outcome(cid, timeout_s=options.outcome_timeout_s)
-        except LinkTimeout as exc:
-            log("outcome_timeout", status=None if exc.status is None else exc.status.state.name)
-            return TrialOutcome(cid, True, None, None, f"OUTCOME UNKNOWN: {exc}", msgs)
-        od = {"class": out.outcome_class.name, "logs_grasped": out.logs_grasped,
-              "cos_beta": out.balance_cos_milli / 1000.0}
-        log("outcome", **od)
-        return TrialOutcome(cid, True, None, od, out.outcome_class.name, msgs)
+        fate = link.execute(cmd, ack_timeout_s=options.ack_timeout_s, outcome_timeout_s=options.outcome_timeout_s)
+        return _trial_outcome(fate, link, msgs, log, say)
+
+
+def _trial_outcome(fate, link, msgs: list[dict], log: Callable[..., None], say: Callable[[str], None]) -> TrialOutcome:
+    """What the record says: the controller's final state for the command (``CommandFate``)."""
+    cid = fate.command_id
+    for note in fate.notes:
+        log("reconciled", note=note)
+        say(f"NOTE: {note}")
+    if link.laptops_heard > 1:
+        log("second_laptop", laptops=link.laptops_heard)
+        say(f"WARNING: the crane hears {link.laptops_heard} laptops; only one may command it")
+    if fate.executed is None:
+        log("unknown", summary=fate.summary)
+        return TrialOutcome(cid, False, None, None, f"UNKNOWN: {fate.summary}", msgs)
+    if not fate.executed:
+        reason = None if fate.reason is None else fate.reason.name
+        log("rejected" if reason else "not_executed", reason=reason, summary=fate.summary)
+        return TrialOutcome(cid, False, reason, None, "REJECTED" if reason else f"NOT EXECUTED: {fate.summary}", msgs)
+    log("ack", accepted=True)
+    if fate.outcome is None:
+        log("outcome_timeout", summary=fate.summary)
+        return TrialOutcome(cid, True, None, None, f"OUTCOME UNKNOWN: {fate.summary}", msgs)
+    out = fate.outcome
+    od = {"class": out.outcome_class.name, "logs_grasped": out.logs_grasped, "cos_beta": out.balance_cos_milli / 1000.0}
+    log("outcome", **od)
+    return TrialOutcome(cid, True, None, od, out.outcome_class.name, msgs)
 
 
 def _versions() -> dict:

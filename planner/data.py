@@ -101,9 +101,10 @@ def list_shards(data_dir: str | Path | list) -> tuple[list[Path], dict]:
             shards += more
         return shards, grid
     from synth import dataset as ds
+    from synth.datastore import data_folder
 
-    data_dir = Path(data_dir)
     try:
+        data_dir = data_folder(data_dir)  # a committed store is rendered into its cache first
         manifest = ds.read_manifest(data_dir)
     except ds.DatasetError as exc:
         raise DataError(f"cannot use the data set in {data_dir}: {exc}") from exc

@@ -5,6 +5,7 @@ are raised and printed once by ``field.cli.run``."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Literal
 
@@ -117,9 +118,15 @@ def dataset(
                                         field=(DatasetJob, "max_trials_per_subset"), min=1),
     piles_dir: Path = option("--piles-dir", "Use the piles of a `loggrasp synth piles` job.", default=None,
                              metavar="DIR"),
+    store: bool = option("--store", "Write the compact form that is committed to git (store.json + chunks/: "
+                         "piles, grasps, trials; renders are re-made on load) and resumes from any clone; "
+                         "local engine only.", default=False),
     as_json: bool = JSON,
 ) -> None:
     """Try rule-based candidate grasps in physics (Algorithm 1) and write the grasp-map data set.
+
+    With --store (e.g. --out data/paper-v3) the folder holds only what the simulation found and
+    `loggrasp train --data data/paper-v3` renders the training images from it on first use.
 
     \b
     Example: loggrasp synth dataset --piles 604 --logs 4 --obstacles-fraction 0.33 --out data/
@@ -131,6 +138,8 @@ def dataset(
     o = Output(as_json)
     if address is not None and engine != "dask":
         raise CliError("--address needs --engine dask")
+    if store and (engine != "local" or piles_dir is not None):
+        raise CliError("--store runs with --engine local and generates its own piles (drop --piles-dir)")
     DatasetJob(n_piles=piles, n_logs=logs, obstacles_fraction=obstacles_fraction, seed=seed, size_px=size,
                n_renders=renders, max_trials_per_subset=max_trials_per_subset, trial_preset=trial,
                piles_dir=None if piles_dir is None else str(piles_dir))  # every value checked before any work
@@ -144,15 +153,25 @@ def dataset(
             bar.update(task, total=p.chunks_total, completed=p.chunks_done,
                        info=f"{p.samples} samples, {p.trials} trials, {p.trials_per_s:.1f} trials/s")
 
-        manifest = build_dataset(out, n_piles=piles, n_logs=logs, obstacles_fraction=obstacles_fraction,
-                                 seed=seed, workers=workers, engine=engine, address=address, size_px=size,
-                                 n_renders=renders, trial_config=trial, max_trials_per_subset=max_trials_per_subset,
-                                 piles_dir=piles_dir, progress=progress)
-    s = manifest.summary
+        if store:
+            from synth.datastore import build_store
+
+            job = DatasetJob(n_piles=piles, n_logs=logs, obstacles_fraction=obstacles_fraction, seed=seed,
+                             size_px=size, n_renders=renders, trial_preset=trial,
+                             max_trials_per_subset=max_trials_per_subset)
+            rec = build_store(out, job, workers=workers or (os.cpu_count() or 1), progress=progress)
+        else:
+            manifest = build_dataset(out, n_piles=piles, n_logs=logs, obstacles_fraction=obstacles_fraction,
+                                     seed=seed, workers=workers, engine=engine, address=address, size_px=size,
+                                     n_renders=renders, trial_config=trial,
+                                     max_trials_per_subset=max_trials_per_subset, piles_dir=piles_dir,
+                                     progress=progress)
+    s = rec["summary"] if store else manifest.summary
     rate = s.get("success_rate")
-    o.say(f"data set {out}: {plural(int(s.get('samples', 0)), 'sample')} from "
-          f"{plural(int(s.get('piles', 0)), 'pile')}, {plural(int(s.get('trials', 0)), 'trial')}"
+    what = (f"store {out}: {plural(int(s.get('map_samples', 0)), 'grasp map')}" if store
+            else f"data set {out}: {plural(int(s.get('samples', 0)), 'sample')}")
+    o.say(f"{what} from {plural(int(s.get('piles', 0)), 'pile')}, {plural(int(s.get('trials', 0)), 'trial')}"
           + (f" ({100 * rate:.0f} % successful)" if isinstance(rate, float) else "")
           + ("" if s.get("complete", True) else f"; {s.get('chunks_done')} of {s.get('chunks_total')} chunks done"))
-    o.result("loggrasp.synth-dataset", {"out": str(out), "summary": s})
+    o.result("loggrasp.synth-dataset", {"out": str(out), "store": store, "summary": s})
 

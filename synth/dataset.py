@@ -528,7 +528,9 @@ class DatasetJob:
         (so a resumed job notices changed trial settings), JSON-normalised."""
         from dataclasses import asdict
 
-        d = {**self.to_dict(), "trial_config_values": asdict(self.trial_config()),
+        from synth.trial import TRIAL_REVISION
+
+        d = {**self.to_dict(), "trial_revision": TRIAL_REVISION, "trial_config_values": asdict(self.trial_config()),
              "candidate_config_values": asdict(self.candidate_config()), "format_version": DATASET_FORMAT_VERSION}
         return json.loads(json.dumps(d))
 
@@ -582,23 +584,42 @@ def _load_source_pile(job: DatasetJob, k: int):
                                         "generation_attempts": report.attempts}
 
 
-def build_chunk(out_dir: str, job_dict: dict, chunk: int, worker: str | None = None,
-                simulate_factory: Callable | None = None) -> dict:
-    """Simulate every pile of ``chunk`` and write its shard + done record; returns the done record.
+def new_chunk_stats() -> dict[str, Any]:
+    """The per-chunk statistics a data-set job accumulates (see :func:`summarise`)."""
+    return {"piles": 0, "piles_failed": 0, "piles_with_obstacles": 0, "subsets": 0, "negatives": 0,
+            "grasps": 0, "candidates": 0, "trials": 0, "widened": 0, "capped_subsets": 0,
+            "no_candidate_subsets": 0, "outcomes": {}, "trial_wall_s": 0.0, "wall_s": 0.0, "failed_piles": []}
 
-    ``simulate_factory(pile, targets) -> simulate(grasp)`` replaces the real
-    :func:`synth.trial.run_trial` (tests only).
-    """
+
+@dataclass(frozen=True)
+class SubsetResult:
+    """Algorithm 1 on one target subset: the accepted grasps (x, y, phi, width, cos beta) and
+    every trial it simulated (the grasp, its outcome, cos beta, the logs held)."""
+
+    targets: tuple[int, ...]
+    accepted: tuple[tuple[float, float, float, float, float], ...]
+    trials: tuple[dict, ...]
+    n_candidates: int
+    widened: int
+    capped: bool
+
+
+def _trial_row(grasp: Grasp, result: object) -> dict:
+    outcome = getattr(getattr(result, "outcome", None), "value", None)
+    if outcome is None:
+        outcome = "success" if getattr(result, "success", False) else "failure"
+    b = float(getattr(result, "cos_beta", float("nan")))
+    return {"g": [grasp.x_m, grasp.y_m, grasp.phi_rad, grasp.width_m], "o": outcome,
+            "b": b if math.isfinite(b) else None, "h": list(getattr(result, "grasped", ()))}
+
+
+def simulate_subsets(job: "DatasetJob", k: int, pile, simulate_factory: Callable | None,
+                     stats: dict) -> list[SubsetResult]:
+    """Candidates and Algorithm 1 for every target subset of pile ``k`` (updates ``stats``)."""
     import time
 
     from synth.candidates import generate_candidates, reduce_candidates
-    from synth.errors import GenerationError
-    from synth.frames import OrthoGrid
-    from synth.maps import encode_grasps
-    from synth.pile import write_pile
 
-    job = DatasetJob(**job_dict)
-    worker = worker or f"p{os.getpid()}"
     if simulate_factory is None:
         from synth.trial import run_trial
 
@@ -608,11 +629,70 @@ def build_chunk(out_dir: str, job_dict: dict, chunk: int, worker: str | None = N
             return lambda g: run_trial(pile, g, targets, tc)
 
     cand_cfg = job.candidate_config()
+    stats["piles"] += 1
+    stats["piles_with_obstacles"] += int(pile.n_obstacles > 0)
+    out = []
+    for T in _subsets(pile.n_logs):
+        cands = generate_candidates(pile, T, cand_cfg)
+        rng = np.random.default_rng(np.random.SeedSequence([int(job.seed), int(k), *T, 0xA1]))
+        t1 = time.perf_counter()
+        res = reduce_candidates(cands, simulate_factory(pile, T), rng=rng, max_trials=job.max_trials_per_subset)
+        stats["trial_wall_s"] += time.perf_counter() - t1
+        accepted = []
+        for g, r in res.accepted:
+            b = float(getattr(r, "cos_beta", getattr(r, "balance", float("nan"))))
+            accepted.append((g.x_m, g.y_m, g.phi_rad, g.width_m, min(1.0, max(-1.0, b)) if math.isfinite(b) else 1.0))
+        trials = tuple(_trial_row(g, r) for g, r in res.trials)
+        for t in trials:
+            stats["outcomes"][t["o"]] = stats["outcomes"].get(t["o"], 0) + 1
+        stats["candidates"] += len(cands)
+        stats["no_candidate_subsets"] += int(not cands)
+        stats["trials"] += res.n_trials
+        stats["widened"] += res.widened
+        stats["capped_subsets"] += int(res.capped)
+        stats["subsets"] += 1
+        stats["negatives"] += int(not accepted)
+        stats["grasps"] += len(accepted)
+        out.append(SubsetResult(targets=tuple(T), accepted=tuple(accepted), trials=trials,
+                                n_candidates=len(cands), widened=res.widened, capped=res.capped))
+    return out
+
+
+def add_pile_samples(writer: "ShardWriter", job: "DatasetJob", pile, pile_id: str, obs,
+                     subsets: Sequence[SubsetResult], stats: dict) -> None:
+    """The training samples of one simulated pile (every render x every subset) into ``writer``."""
+    from synth.frames import OrthoGrid
+    from synth.maps import encode_grasps
+
+    grid = OrthoGrid(obs.depth.shape[0], obs.extent_m)
+    stats["grid"] = {"size_px": grid.size_px, "extent_m": grid.extent_m, "camera_height_m": obs.camera_height_m}
+    for sub in subsets:
+        arr = np.asarray(sub.accepted, dtype=np.float64).reshape(-1, 5)
+        grasps = [Grasp(float(x), float(y), float(p), float(w)) for x, y, p, w, _ in arr]
+        maps = encode_grasps(grid, grasps, [float(b) for b in arr[:, 4]])
+        mask = obs.target_mask(sub.targets)
+        for r in range(job.n_renders):
+            writer.add(Sample(pile_id=pile_id, render=r, subset=tuple(sub.targets), intensity=obs.intensity[r],
+                              depth=obs.depth, target_mask=mask, maps=maps, grasps=arr,
+                              negative=not len(arr), n_logs=pile.n_logs))
+
+
+def build_chunk(out_dir: str, job_dict: dict, chunk: int, worker: str | None = None,
+                simulate_factory: Callable | None = None) -> dict:
+    """Simulate every pile of ``chunk`` and write its shard + done record; returns the done record.
+
+    ``simulate_factory(pile, targets) -> simulate(grasp)`` replaces the real
+    :func:`synth.trial.run_trial` (tests only).
+    """
+    import time
+
+    from synth.errors import GenerationError
+    from synth.pile import write_pile
+
+    job = DatasetJob(**job_dict)
+    worker = worker or f"p{os.getpid()}"
     writer = ShardWriter(out_dir, worker, chunk)
-    stats: dict[str, Any] = {"piles": 0, "piles_failed": 0, "piles_with_obstacles": 0, "subsets": 0,
-                             "negatives": 0, "grasps": 0, "candidates": 0, "trials": 0, "widened": 0,
-                             "capped_subsets": 0, "no_candidate_subsets": 0, "outcomes": {},
-                             "trial_wall_s": 0.0, "wall_s": 0.0, "failed_piles": []}
+    stats = new_chunk_stats()
     t0 = time.perf_counter()
     for k in job.chunk_piles(chunk):
         try:
@@ -625,40 +705,8 @@ def build_chunk(out_dir: str, job_dict: dict, chunk: int, worker: str | None = N
             raise DatasetJobError(f"pile {k} cannot be loaded: {exc}") from exc
         if job.piles_dir is None:
             write_pile(pile, Path(out_dir) / "piles" / f"{pile_id}.json")
-        stats["piles"] += 1
-        stats["piles_with_obstacles"] += int(pile.n_obstacles > 0)
-        grid = OrthoGrid(obs.depth.shape[0], obs.extent_m)
-        stats["grid"] = {"size_px": grid.size_px, "extent_m": grid.extent_m, "camera_height_m": obs.camera_height_m}
-        for T in _subsets(pile.n_logs):
-            cands = generate_candidates(pile, T, cand_cfg)
-            rng = np.random.default_rng(np.random.SeedSequence([int(job.seed), int(k), *T, 0xA1]))
-            sim = simulate_factory(pile, T)
-            t1 = time.perf_counter()
-            res = reduce_candidates(cands, sim, rng=rng, max_trials=job.max_trials_per_subset)
-            stats["trial_wall_s"] += time.perf_counter() - t1
-            stats["candidates"] += len(cands)
-            stats["no_candidate_subsets"] += int(not cands)
-            stats["trials"] += res.n_trials
-            stats["widened"] += res.widened
-            stats["capped_subsets"] += int(res.capped)
-            for _, r in res.trials:
-                o = getattr(getattr(r, "outcome", None), "value", None) or ("success" if getattr(r, "success", False) else "failure")
-                stats["outcomes"][o] = stats["outcomes"].get(o, 0) + 1
-            grasps = [g for g, _ in res.accepted]
-            bal = []
-            for _, r in res.accepted:
-                b = float(getattr(r, "cos_beta", getattr(r, "balance", float("nan"))))
-                bal.append(min(1.0, max(-1.0, b)) if math.isfinite(b) else 1.0)
-            maps = encode_grasps(grid, grasps, bal)
-            arr = np.array([[g.x_m, g.y_m, g.phi_rad, g.width_m, b] for g, b in zip(grasps, bal)]).reshape(-1, 5)
-            mask = obs.target_mask(T)
-            stats["subsets"] += 1
-            stats["negatives"] += int(not grasps)
-            stats["grasps"] += len(grasps)
-            for r in range(job.n_renders):
-                writer.add(Sample(pile_id=pile_id, render=r, subset=tuple(T), intensity=obs.intensity[r],
-                                  depth=obs.depth, target_mask=mask, maps=maps, grasps=arr,
-                                  negative=not grasps, n_logs=pile.n_logs))
+        subsets = simulate_subsets(job, k, pile, simulate_factory, stats)
+        add_pile_samples(writer, job, pile, pile_id, obs, subsets, stats)
     stats["wall_s"] = time.perf_counter() - t0
     if len(writer) == 0:  # every pile of the chunk failed: an empty shard still records the chunk
         return _write_empty_done(Path(out_dir), worker, chunk, stats)

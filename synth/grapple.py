@@ -16,8 +16,9 @@ link  name            joint (parent)               role
  7    claw_pos        revolute, actuated (5)       claw on the +u side
 ====  ==============  ===========================  ===========================================
 
-The two swing hinges carry only a small friction motor, so the grapple hangs plumb, folds when
-pressed against a log or an obstacle, and bounces off hard hits (the paper's compliance). The
+The two swing hinges are viscous dampers (a dual swing damper), so the grapple hangs plumb when
+empty, folds when pressed against a log or an obstacle, bounces off hard hits (the paper's
+compliance) and, holding a load, swings until the load's centre of mass hangs under the hinges. The
 claws close symmetrically under position motors whose torque is limited to a real grapple's
 closing strength (see :class:`GrappleConfig`). Collision geometry is cuboids only; the carriage
 and swing links have none. Grapple–terrain contacts are disabled, as in the paper, to reduce the
@@ -81,11 +82,14 @@ class GrappleConfig:
     # actuators
     claw_torque_limit_nm: float = 4000.0  # per claw [N·m]
     closing_speed_rad_s: float = 1.0  # claw angular speed limit [rad/s]
-    hinge_friction_nm: float = 50.0  # friction motor of each unactuated swing hinge [N·m]
+    closed_overlap_m: float = 0.60  # the claws interleave: closing drives the tips this far past each other [m]
+    hinge_damping_nms: float = 1300.0  # viscous damping of each unactuated swing hinge [N·m·s/rad]
+    hinge_friction_nm: float = 5.0  # residual (seal) friction of each swing hinge [N·m]
     rotator_torque_limit_nm: float = 2500.0  # yaw motor [N·m]
     boom_force_limit_n: float = 1.0e6  # carriage motors: stiff enough to be kinematic [N]
     # contact
     friction: float = 0.6  # steel on bark [-]
+    claw_spinning_friction_m: float = 0.10  # torsional friction arm of a claw's contact patch [m]
     colour: tuple[float, float, float] = (0.85, 0.45, 0.10)  # RGB in [0, 1]
 
     def __post_init__(self) -> None:
@@ -100,8 +104,8 @@ class GrappleConfig:
                      "rotator_torque_limit_nm", "boom_force_limit_n"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"grapple {name} must be > 0, got {getattr(self, name)}")
-        if self.yaw_drop_m < 0 or self.hinge_friction_nm < 0:
-            raise ValueError("grapple yaw_drop_m and hinge_friction_nm must be >= 0")
+        if self.yaw_drop_m < 0 or self.hinge_friction_nm < 0 or self.hinge_damping_nms < 0 or self.closed_overlap_m < 0:
+            raise ValueError("grapple yaw_drop_m, hinge_friction_nm and hinge_damping_nms must be >= 0")
         if not MAX_WIDTH_M <= self.max_opening_m <= 3.0:
             raise ValueError(
                 f"grapple max_opening_m must be in [{MAX_WIDTH_M}, 3] m so every grasp width fits, "
@@ -127,6 +131,15 @@ class GrappleConfig:
 
     def closed_gap_m(self) -> float:
         return float(self.gap_at(0.0))
+
+    def close_angle_rad(self) -> float:
+        """Claw angle [rad] (<= 0) the closing drives towards: tips ``closed_overlap_m`` past each other."""
+        qs = np.linspace(-0.8, 0.0, 801)
+        gaps = self.gap_at(qs)
+        target = self.closed_gap_m() - self.closed_overlap_m
+        if not gaps[0] <= target:
+            raise ValueError(f"closed_overlap_m {self.closed_overlap_m} m is beyond the claws' reach")
+        return float(np.interp(target, gaps, qs))
 
     def max_angle_rad(self) -> float:
         return float(self.angle_for_gap(self.max_opening_m))
@@ -257,8 +270,10 @@ class Grapple:
             linkParentIndices=parents, linkJointTypes=types, linkJointAxis=axes,
         )
         for link in range(n):
+            damping = g.hinge_damping_nms if link in (SWING_A, SWING_B) else 0.0
+            spinning = g.claw_spinning_friction_m if link in (CLAW_NEG, CLAW_POS) else 0.0
             c.changeDynamics(body, link, lateralFriction=g.friction, linearDamping=0.0,
-                             angularDamping=0.0, jointDamping=0.0)
+                             angularDamping=0.0, jointDamping=damping, spinningFriction=spinning)
             c.changeVisualShape(body, link, rgbaColor=rgba)
         # carriage links have no geometry: give them a sane inertia
         for link in (CARRIAGE_X, CARRIAGE_Y, BOOM_TIP):
@@ -304,8 +319,9 @@ class Grapple:
             )
 
     def close(self) -> None:
-        """Close both claws as far as the torque limit allows."""
-        self.set_claws(0.0)
+        """Close both claws as far as the torque limit allows (the tips may pass each other, so a
+        small load is squeezed rather than left loose in the claws' bowl)."""
+        self.set_claws(self.config.close_angle_rad())
 
     # -- state -------------------------------------------------------------------------------
     def boom_z(self) -> float:

@@ -44,6 +44,10 @@ from synth.pile import PileSpec
 from synth.world import PhysicsConfig, World
 
 TRIAL_FORMAT_VERSION = "1.0"
+# Revision of the trial's code (not its parameters, which TrialConfig records): data sets and
+# stores record it, and a resumed job refuses another. 2: swing dampers, interleaving claws,
+# a lift that goes on until the load hangs free.
+TRIAL_REVISION = 2
 
 
 class Outcome(enum.Enum):
@@ -91,6 +95,8 @@ class TrialConfig:
     close_still_rad_s: float = 0.05  # [rad/s]
     lift_height_m: float | None = None  # lift this far; None = back to the start height [m]
     min_lift_m: float = 0.5  # lift at least this far [m]
+    free_lift_max_m: float = 1.5  # then lift on, at most this much more, until the load hangs free [m]
+    free_contact_n: float = 20.0  # a held log touching anything else harder than this is not free [N]
     hold_s: float = 0.5  # hold after the lift before judging [s]
     held_rise_m: float = 0.25  # a log is held if its centre rose this much and it is inside [m]
     max_lower_s: float = 8.0  # safety limits [s]
@@ -107,13 +113,13 @@ class TrialConfig:
                 raise ValueError(f"trial {name} must be > 0, got {getattr(self, name)}")
         if self.check_every < 1:
             raise ValueError("check_every must be >= 1")
-        if self.hold_s < 0:
-            raise ValueError("hold_s must be >= 0")
+        if self.hold_s < 0 or self.free_lift_max_m < 0 or self.free_contact_n <= 0:
+            raise ValueError("hold_s and free_lift_max_m must be >= 0 and free_contact_n > 0")
 
     @staticmethod
     def careful() -> "TrialConfig":
         """Reference settings: dt 1/240 s, 50 solver iterations, the pile's own terrain (64²)."""
-        return TrialConfig(physics=PhysicsConfig(dt_s=1 / 240, solver_iterations=50), hold_s=1.0)
+        return TrialConfig(physics=PhysicsConfig(dt_s=1 / 240, solver_iterations=50), hold_s=2.0)
 
     @staticmethod
     def fast() -> "TrialConfig":
@@ -124,7 +130,7 @@ class TrialConfig:
         above the pile were 1.5-2x faster but agreed on only 90 % of the outcome classes.)"""
         return TrialConfig(
             physics=PhysicsConfig(dt_s=1 / 120, solver_iterations=50),
-            terrain_resolution=None, start_clearance_m=0.30, hold_s=0.3, check_every=2,
+            terrain_resolution=None, start_clearance_m=0.30, hold_s=1.0, check_every=2,
         )
 
 
@@ -146,8 +152,9 @@ class TrialResult:
     sim_time_s: float  # total simulated time [s]
     wall_time_s: float  # wall-clock time of the whole call [s]
     cpu_time_s: float  # CPU time of the whole call (this process) [s]
-    stop_reason: str  # why lowering stopped: "inside", "force", "ground", "timeout"
+    stop_reason: str  # why lowering stopped: "inside", "force", "ground", "timeout"; "aborted" (should_abort)
     final_poses: tuple[tuple[float, ...], ...]  # per log: x, y, z [m], quaternion x, y, z, w at the end
+    aborted_in: str | None = None  # the phase an aborted trial stopped in ("lower", "close", ...); None = ran to the end
 
     @property
     def success(self) -> bool:
@@ -165,7 +172,7 @@ class TrialResult:
             "phase_s": dict(self.phase_s), "sim_time_s": self.sim_time_s,
             "wall_time_s": self.wall_time_s, "cpu_time_s": self.cpu_time_s,
             "stop_reason": self.stop_reason, "final_poses": [list(p) for p in self.final_poses],
-        }
+        } | ({} if self.aborted_in is None else {"aborted_in": self.aborted_in})
 
 
 class _Mean:
@@ -265,6 +272,7 @@ def run_trial(
     targets: int | Iterable[int],
     config: TrialConfig | None = None,
     on_phase: Callable[[str, World, Grapple], None] | None = None,
+    should_abort: Callable[[], bool] | None = None,
 ) -> TrialResult:
     """Run one grasp trial on a settled pile and classify it.
 
@@ -273,6 +281,12 @@ def run_trial(
     is called at "start", "lowered", "closed" and "end" (e.g. to render pictures); it must not
     step the simulation. Deterministic: the same arguments give the same result in any process
     and after any other trials.
+
+    ``should_abort()`` is asked after every simulation step; once it returns True the boom and
+    the claws are held where they are and the trial returns at once with ``stop_reason``
+    "aborted", ``aborted_in`` the phase, ``grasped`` the logs held (risen, inside) and
+    ``enclosed`` the logs between the claws at that moment (``outcome`` is FEWER_OR_OTHER: the
+    trial did not finish). Without it the trial is exactly as before.
     """
     t_wall, t_cpu = time.perf_counter(), time.process_time()
     cfg = config or TrialConfig.fast()
@@ -285,7 +299,8 @@ def run_trial(
     start_z = top + cfg.start_clearance_m + g.hang_height_m(q_open)
 
     # no visual meshes unless someone will look (pictures): ~25-30 ms less per trial
-    with World(trial_pile(pile, cfg.terrain_resolution), cfg.physics, visuals=on_phase is not None) as world:
+    with World(trial_pile(pile, cfg.terrain_resolution), cfg.physics, visuals=on_phase is not None) as world, \
+            _AbortCatcher() as aborted:
         c = world.client
         grapple = Grapple(c, g, grasp, start_z, terrain_id=world.terrain_id)
         log_ids = world.log_ids
@@ -317,6 +332,8 @@ def run_trial(
             nonlocal steps
             c.stepSimulation()
             steps += 1
+            if should_abort is not None and should_abort():
+                raise _Aborted(stopped_now())
             total = coll = pen = 0.0
             coll_set = coll_lowering if lowering else obstacle_set
             for cp in c.getContactPoints(bodyA=grapple.body):
@@ -380,12 +397,39 @@ def run_trial(
             ok &= _points_in_polygon(u, z, poly)
             return ok.any(axis=1)
 
+        def load_is_free(load: set[int]) -> bool:
+            """No log of ``load`` rests on anything but the grapple and the other logs of ``load``
+            harder than ``free_contact_n``: the load hangs in the grapple."""
+            for b in load:
+                for cp in c.getContactPoints(bodyA=b):
+                    if cp[2] != grapple.body and cp[2] not in load and cp[9] > cfg.free_contact_n:
+                        return False
+            return True
+
         def max_log_speed() -> float:
             best = 0.0
             for b in log_ids:
                 v = c.getBaseVelocity(b)[0]
                 best = max(best, math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]))
             return best
+
+        def stopped_now() -> TrialResult:
+            """Abort: hold the boom where it is, stop the claws; the true state at this moment."""
+            grapple.hold_xyz(grasp.x_m, grasp.y_m, grapple.boom_z())
+            grapple.set_claws(float(np.mean(grapple.claw_angles())))
+            cen, _ = log_axes()
+            risen = cen[:, 2] - start_centres[:, 2] >= cfg.held_rise_m
+            held = tuple(int(i) for i in np.flatnonzero(risen & inside(-g.claw_thickness_m)))
+            between = tuple(int(i) for i in np.flatnonzero(inside(-0.5 * g.claw_thickness_m)))
+            return TrialResult(
+                outcome=Outcome.FEWER_OR_OTHER, grasp=grasp, targets=target_idx, n_targets=n_targets, grasped=held,
+                enclosed=between, cos_beta=grapple.cos_beta(), final_gap_m=grapple.gap_m(),
+                max_force_n=stats["max_force"], max_collision_force_n=stats["max_coll"],
+                max_penetration_m=stats["pen"], max_log_speed_m_s=stats["speed"], phase_s=dict(phase_s),
+                sim_time_s=steps * dt, wall_time_s=time.perf_counter() - t_wall,
+                cpu_time_s=time.process_time() - t_cpu, stop_reason="aborted",
+                final_poses=tuple(tuple(float(v) for v in row) for row in world.log_poses()),
+                aborted_in=next((ph for ph in _PHASES if ph not in phase_s), "end"))
 
         if on_phase:
             on_phase("start", world, grapple)
@@ -441,11 +485,16 @@ def run_trial(
             target_z = start_z if cfg.lift_height_m is None else z0 + cfg.lift_height_m
             target_z = max(target_z, z0 + cfg.min_lift_m)
             grapple.move_z(cfg.lift_speed_m_s)
-            n_lift = int(((target_z - z0) / cfg.lift_speed_m_s + 2.0) / dt)
+            top_z = target_z + cfg.free_lift_max_m
+            n_lift = int(((top_z - z0) / cfg.lift_speed_m_s + 2.0) / dt)
+            free_every = max(1, round(0.05 / dt))
+            load = {log_ids[i] for i in enclosed}
             for k in range(n_lift):
                 contact_step(lowering=False)
-                if grapple.boom_z() >= target_z:
+                z = grapple.boom_z()
+                if z >= top_z or (z >= target_z and k % free_every == 0 and load_is_free(load)):
                     break
+            target_z = grapple.boom_z()
             phase_s["lift"] = (k + 1) * dt
             grapple.hold_xyz(*grasp_xy, target_z)
             n_hold = int(round(cfg.hold_s / dt))
@@ -466,6 +515,8 @@ def run_trial(
         sim_time = steps * dt
         final_poses = tuple(tuple(float(v) for v in row) for row in world.log_poses())
 
+    if aborted.result is not None:
+        return aborted.result
     enclosed_t = tuple(int(i) for i in enclosed)
     held = set(grasped)
     wanted_ok = (held == set(target_idx)) if target_idx is not None else (len(held) == n_targets)
@@ -489,6 +540,34 @@ def run_trial(
         wall_time_s=time.perf_counter() - t_wall, cpu_time_s=time.process_time() - t_cpu,
         stop_reason=stop_reason, final_poses=final_poses,
     )
+
+
+#: the phases of a trial in order (``phase_s`` keys); an aborted trial stopped in the first one
+#: that has no time recorded yet
+_PHASES = ("lower", "close", "lift", "hold")
+
+
+class _Aborted(Exception):
+    """Raised inside a trial when ``should_abort()`` turned True; carries the result."""
+
+    def __init__(self, result: TrialResult):
+        super().__init__("trial aborted")
+        self.result = result
+
+
+class _AbortCatcher:
+    """Context manager ending an aborted trial quietly (the world still closes after it)."""
+
+    result: TrialResult | None = None
+
+    def __enter__(self) -> "_AbortCatcher":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> bool:
+        if isinstance(exc, _Aborted):
+            self.result = exc.result
+            return True
+        return False
 
 
 def render_view(world: World, look_at_m, distance_m: float = 3.2, yaw_deg: float = 35.0,

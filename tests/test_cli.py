@@ -89,7 +89,7 @@ def a_file(work) -> Path:
 # -- help, version, README ---------------------------------------------------------------------------
 COMMANDS = [[], ["synth"], ["synth", "piles"], ["synth", "render"], ["synth", "dataset"], ["synth", "scan"],
             ["train"], ["plan"], ["eval"], ["reconstruct"], ["compare-piles"], ["crane-sim"], ["trial"],
-            ["replay"], ["demo"]]
+            ["replay"], ["demo"], ["link-key"]]
 
 
 @pytest.mark.parametrize("args", COMMANDS)

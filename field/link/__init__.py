@@ -5,7 +5,16 @@ Importing this package loads neither python-can nor zenoh; a backend is imported
 :mod:`field.link.codec` for the wire format (``loggrasp.dbc``).
 """
 
-from field.link.base import BACKENDS, CONTROLLER_TRANSPORTS, CraneLink, LinkConfig, LinkStats, open_link, open_resources
+from field.link.base import (
+    BACKENDS,
+    CONTROLLER_TRANSPORTS,
+    CommandFate,
+    CraneLink,
+    LinkConfig,
+    LinkStats,
+    open_link,
+    open_resources,
+)
 from field.link.messages import (
     Ack,
     ControllerState,
@@ -21,6 +30,7 @@ __all__ = [
     "BACKENDS",
     "CONTROLLER_TRANSPORTS",
     "Ack",
+    "CommandFate",
     "ControllerState",
     "ControllerStatus",
     "CraneLink",

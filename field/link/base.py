@@ -13,16 +13,23 @@
 Backends are registered in :data:`BACKENDS` as ``"module:Class"`` and imported only when
 chosen, so ``import field.link`` loads neither python-can nor zenoh. Link options common to all
 backends may be given as URL query parameters: ``record=PATH`` (CAN: BLF recording),
-``heartbeat_ms``, ``heartbeat_timeout_ms``, ``max_pile_age_s``, ``connect_timeout_s``.
+``heartbeat_ms``, ``heartbeat_timeout_ms``, ``max_pile_age_s``, ``connect_timeout_s``,
+``secoc_key=PATH`` (authenticated frames, :mod:`field.link.secoc`; the crane needs the same key).
 
-Frames delivered by a backend go through :meth:`CraneLink._deliver`: E2E check, rolling counter
-check, decode, then into an inbox that ``send_grasp`` / ``wait_outcome`` / ``status`` wait on.
+Frames delivered by a backend go through :meth:`CraneLink._deliver`: SecOC check (with a key),
+E2E check, rolling counter check, decode, then into an inbox that ``send_grasp`` /
+``wait_outcome`` / ``status`` wait on. Answers are reconciled per command id: the controller
+answers a copy of a frame with its original decision and a frame that failed its check with id
+0 (counted for nobody), so the first answer naming a command is the decision about it; a later
+contradicting answer, or an outcome for a rejected command, is recorded in ``notes`` and the
+controller's own status settles what the operator is told (:meth:`CraneLink.execute`).
 """
 
 from __future__ import annotations
 
 import abc
 import importlib
+import logging
 import secrets
 import threading
 import time
@@ -34,6 +41,12 @@ from urllib.parse import parse_qsl, unquote, urlsplit
 from field.errors import CommandRejected, LinkClosed, LinkError, LinkTimeout, ProtocolError
 from field.link.messages import Ack, ControllerState, ControllerStatus, GraspCommand, Outcome, RejectReason
 from field.link.safety import CommandGuard, SafetyConfig
+
+log = logging.getLogger(__name__)
+
+#: target log count of a revocation: a command the controller refuses by definition (MALFORMED),
+#: sent under the id of a command whose acknowledgement never came, to burn that id
+REVOKE_TARGET_LOGS = 0
 
 #: link backends, name -> "module:Class" (imported only when chosen)
 BACKENDS: dict[str, str] = {
@@ -73,10 +86,13 @@ class LinkConfig:
     connect_timeout_s: float = 3.0  # wait this long for the controller's first sign of life at open [s]
     require_controller: bool = True  # open fails when no controller answers within connect_timeout_s
     record_path: str | None = None  # record the session's traffic here (CAN: BLF)
+    secoc_key_path: str | None = None  # pre-shared key file: authenticated frames only (SecOC style)
+    secoc_window_s: float = 2.0  # SecOC freshness window [s]
     safety: SafetyConfig = field(default_factory=SafetyConfig)
 
     def __post_init__(self) -> None:
-        for name in ("heartbeat_period_s", "heartbeat_timeout_s", "status_timeout_s", "connect_timeout_s"):
+        for name in ("heartbeat_period_s", "heartbeat_timeout_s", "status_timeout_s", "connect_timeout_s",
+                     "secoc_window_s"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and v > 0):
                 raise ValueError(f"LinkConfig.{name} must be > 0 s, got {v!r}")
@@ -123,6 +139,10 @@ class LinkURL:
                 kw["connect_timeout_s"] = float(q.pop("connect_timeout_s"))
             if "record" in q:
                 kw["record_path"] = q.pop("record")
+            if "secoc_key" in q:
+                kw["secoc_key_path"] = q.pop("secoc_key")
+            if "secoc_window_s" in q:
+                kw["secoc_window_s"] = float(q.pop("secoc_window_s"))
             if "max_pile_age_s" in q:
                 safety["max_pile_age_s"] = float(q.pop("max_pile_age_s"))
         except ValueError as exc:
@@ -182,6 +202,35 @@ class LinkStats:
     duplicates_dropped: int = 0  # repeated rolling counter
     sequence_errors: int = 0  # counter jumped (lost / reordered frames)
     bus_errors: int = 0
+    auth_failures: int = 0  # frames dropped by the SecOC check (MAC, freshness, length)
+    unattributed_answers: int = 0  # controller answers with id 0 (to a frame that failed its check)
+    stale_heartbeats: int = 0  # crane heartbeats whose counter did not advance (frozen sender)
+    conflicts: int = 0  # answers that contradicted an earlier one (reconciled; see CraneLink.notes)
+
+
+@dataclass(frozen=True)
+class CommandFate:
+    """What the controller did with one command, as far as the laptop can know it: what to tell
+    the operator. ``executed`` is True (it ran: ``outcome`` is its result, or None when the
+    outcome is not known yet), False (it never ran: ``reason`` says why), or None (UNKNOWN: the
+    controller is unreachable — check the crane on site)."""
+
+    command_id: int
+    executed: bool | None
+    outcome: Outcome | None = None
+    reason: RejectReason | None = None  # why it did not run (a rejection); None otherwise
+    local: bool = False  # refused on the laptop: never sent
+    summary: str = ""  # one line for the operator
+    notes: tuple[str, ...] = ()  # conflicting or late answers that were reconciled
+
+    @property
+    def final_state(self) -> str:
+        """SUCCESS / FEWER / ... (the outcome class), REJECTED, NOT EXECUTED, RUNNING or UNKNOWN."""
+        if self.executed is None:
+            return "UNKNOWN"
+        if self.executed:
+            return self.outcome.outcome_class.name if self.outcome is not None else "RUNNING"
+        return "REJECTED" if self.reason is not None else "NOT EXECUTED"
 
 
 class CraneLink(abc.ABC):
@@ -195,6 +244,8 @@ class CraneLink(abc.ABC):
     #: re-synchronise the rolling counters after heartbeat-timeout silence (heartbeat-driven
     #: backends); backends with a presence signal call :meth:`_mark_alive` / :meth:`_mark_lost`
     _resync_on_silence = True
+    #: crane heartbeat counter advance accepted between two heartbeats (lost frames) [-]
+    _max_heartbeat_gap = 64
 
     def __init__(self, config: LinkConfig | None = None, *, clock: Callable[[], float] = time.time):
         from field.link.codec import CounterMonitor, Encoder
@@ -202,14 +253,19 @@ class CraneLink(abc.ABC):
         self.config = config or LinkConfig()
         self.guard = CommandGuard(self.config.safety, clock)
         self.stats = LinkStats()
+        self._secoc = _load_secoc(self.config, clock)
         self._encoder = Encoder(first_counter=secrets.randbits(8))
         self._counters = CounterMonitor(max_delta=8)  # laptop side: drop duplicates, count jumps
         self._cond = threading.Condition()
-        self._acks: dict[int, Ack] = {}
+        self._answers: dict[int, list[Ack]] = {}  # every Ack per command id, in arrival order
         self._outcomes: dict[int, Outcome] = {}
+        self._told: dict[int, str] = {}  # what send_grasp / execute told the operator per id
+        self.notes: dict[int, list[str]] = {}  # reconciled conflicts per command id
         self._status_replies: dict[int, ControllerStatus] = {}
+        self._pending_status: set[int] = set()
         self._latest_status: ControllerStatus | None = None
         self._last_heartbeat_mono: float | None = None
+        self._crane_heartbeat: int | None = None
         self._last_rx_mono: float | None = None
         self._last_crane_state: ControllerState | None = None
         self._request_id = secrets.randbits(31) + 1
@@ -223,41 +279,34 @@ class CraneLink(abc.ABC):
         """A fresh command id never used on this link."""
         return self.guard.new_command_id()
 
+    @property
+    def laptops_heard(self) -> int:
+        """How many laptops the controller last said it hears (more than 1: a second laptop)."""
+        st = self._latest_status
+        return 0 if st is None else st.laptops
+
     def send_grasp(self, cmd: GraspCommand, timeout_s: float = 1.0) -> Ack:
-        """Send one grasp command and wait for its acknowledgement.
+        """Send one grasp command and wait for the controller's decision about it.
 
         Returns the accepting :class:`Ack`. Raises :class:`CommandRejected` (reason code; local
         checks: duplicate id, stale pile data), :class:`ProtocolError` (a value out of wire
-        range; nothing sent), :class:`LinkTimeout` (no ack within ``timeout_s``; ``.status`` is
-        the controller status learned afterwards, ``None`` if unreachable). Never re-sends.
+        range; nothing sent), :class:`LinkTimeout` (no decision within ``timeout_s``; ``.status``
+        is the controller status learned afterwards, ``None`` if unreachable). Never re-sends.
+        The first answer naming the command is the decision (answers to corrupted frames name
+        no command); an Outcome for it overrides a rejection (the controller ran it).
+        :meth:`execute` follows the command to its end.
         """
         if not isinstance(cmd, GraspCommand):
             raise ValueError(f"send_grasp takes a GraspCommand, got {type(cmd).__name__}")
         _check_timeout(timeout_s)
         self._check_usable()
         self.guard.reserve(cmd)  # burns the id: never sent twice
-        kind, data = self._encoder.encode(cmd)
-        if not self.controller_alive():
-            status = self._status_or_none()
-            if status is None:
-                raise LinkTimeout(
-                    f"command {cmd.command_id} NOT sent: no sign of life from the controller for "
-                    f"{self.config.heartbeat_timeout_s:.2f} s and no status answer; check the crane "
-                    f"and the link, then send a new command",
-                    command_id=cmd.command_id,
-                    status=None,
-                )
+        kind, data = self._wire(cmd)
+        self._check_controller_reachable(cmd.command_id)
         self._send(kind, data)
-        deadline = time.monotonic() + timeout_s
-        with self._cond:
-            while cmd.command_id not in self._acks:
-                self._raise_if_failed()
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    break
-                self._cond.wait(min(left, 0.05))
-            ack = self._acks.get(cmd.command_id)
+        ack = self._await_decision(cmd.command_id, timeout_s)
         if ack is None:
+            self._tell(cmd.command_id, "no answer")
             status = self._status_or_none()
             raise LinkTimeout(
                 f"no acknowledgement for command {cmd.command_id} within {timeout_s:.3f} s; "
@@ -265,14 +314,60 @@ class CraneLink(abc.ABC):
                 command_id=cmd.command_id,
                 status=status,
             )
+        self._tell(cmd.command_id, "accepted" if ack.accepted else "rejected")
         if not ack.accepted:
             raise CommandRejected(
                 f"controller rejected command {cmd.command_id}: {ack.reason.name} "
-                f"({REASON_HELP.get(ack.reason, '')})",
+                f"({REASON_HELP.get(ack.reason, '')}){self._second_laptop_hint()}",
                 reason=ack.reason,
                 command_id=cmd.command_id,
             )
         return ack
+
+    def execute(self, cmd: GraspCommand, ack_timeout_s: float = 1.0, outcome_timeout_s: float = 30.0) -> CommandFate:
+        """Send ``cmd`` and follow it to the controller's final state — what the operator is told.
+
+        Never raises for what the controller did (a rejection, a lost acknowledgement, a lost
+        outcome): the :class:`CommandFate` says it, settled by a status query whenever two answers
+        disagree. Raises :class:`ProtocolError` (nothing sent) and :class:`LinkError` when the
+        link itself fails.
+        """
+        cid = cmd.command_id
+        try:
+            self.send_grasp(cmd, ack_timeout_s)
+        except CommandRejected as exc:
+            if exc.local:
+                return CommandFate(cid, False, reason=exc.reason, local=True, summary=str(exc))
+            return self._confirm_rejection(cid, exc)
+        except LinkTimeout as exc:
+            if exc.status is None:
+                sent = self._told.get(cid) != "not sent"
+                return CommandFate(cid, None if sent else False, local=not sent, summary=str(exc), notes=self._notes(cid))
+            if not _runs_or_ran(cid, exc.status):
+                return self._settle_unanswered(cmd, outcome_timeout_s)
+            self._note(cid, "its acknowledgement was lost; the controller reports it running")
+        return self._follow(cid, outcome_timeout_s)
+
+    def fate(self, command_id: int, *, query: bool = True) -> CommandFate:
+        """What is known now about ``command_id`` (late answers included); ``query`` asks the
+        controller's status too."""
+        with self._cond:
+            out = self._outcomes.get(command_id)
+            ack = self._decision(command_id)
+        status = self._status_or_none() if query else self._latest_status
+        if out is None and status is not None and status.last_outcome is not None \
+                and status.last_outcome.command_id == command_id:
+            out = status.last_outcome
+        notes = self._notes(command_id)
+        if out is not None:
+            return CommandFate(command_id, True, out, summary=f"finished: {out.outcome_class.name}", notes=notes)
+        if (ack is not None and ack.accepted) or (status is not None and status.current_command_id == command_id):
+            return CommandFate(command_id, True, summary="accepted, outcome not known yet", notes=notes)
+        if ack is not None:
+            return CommandFate(command_id, False, reason=ack.reason, summary=f"rejected: {ack.reason.name}", notes=notes)
+        if status is None:
+            return CommandFate(command_id, None, summary="no answer and no status: UNKNOWN", notes=notes)
+        return CommandFate(command_id, False, summary=describe_fate(command_id, status), notes=notes)
 
     def wait_outcome(self, command_id: int, timeout_s: float = 30.0) -> Outcome:
         """Wait for the outcome of an accepted command.
@@ -286,41 +381,17 @@ class CraneLink(abc.ABC):
         deadline = time.monotonic() + timeout_s
         next_probe = time.monotonic() + max(self.config.heartbeat_timeout_s, 0.2)
         while True:
-            with self._cond:
-                self._raise_if_failed()
-                out = self._outcomes.get(command_id)
-                if out is None:
-                    st = self._latest_status
-                    if st is not None and st.last_outcome is not None and st.last_outcome.command_id == command_id:
-                        out = st.last_outcome
-                if out is not None:
-                    return out
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    break
-                self._cond.wait(min(left, 0.05))
+            out = self._wait_for_outcome(command_id, deadline)
+            if out is not None:
+                return out
+            if time.monotonic() >= deadline:
+                break
             now = time.monotonic()
             if now >= next_probe and not self.controller_alive():
-                # the controller went quiet: ask it directly before giving up
                 next_probe = now + max(self.config.heartbeat_timeout_s, 0.2)
-                status = self._status_or_none()
-                if status is None:
-                    raise LinkTimeout(
-                        f"controller vanished while command {command_id} was running (no heartbeat "
-                        f"for {self.config.heartbeat_timeout_s:.2f} s, no status answer); its final "
-                        f"state is UNKNOWN - check the crane on site",
-                        command_id=command_id,
-                        status=None,
-                    )
-                if status.last_outcome is not None and status.last_outcome.command_id == command_id:
-                    return status.last_outcome
-                if status.current_command_id != command_id:
-                    raise LinkTimeout(
-                        f"controller restarted or moved on: it is not running command {command_id} "
-                        f"and reports no outcome for it; {describe_fate(command_id, status)}",
-                        command_id=command_id,
-                        status=status,
-                    )
+                out = self._probe_vanished(command_id)
+                if out is not None:
+                    return out
         status = self._status_or_none()
         if status is not None and status.last_outcome is not None and status.last_outcome.command_id == command_id:
             return status.last_outcome
@@ -341,21 +412,13 @@ class CraneLink(abc.ABC):
         with self._cond:
             self._request_id = (self._request_id % 0xFFFFFFFF) + 1
             rid = self._request_id
-        kind, data = self._encoder.encode(StatusRequest(rid))
-        self._send(kind, data)
-        deadline = time.monotonic() + timeout_s
-        with self._cond:
-            while rid not in self._status_replies:
-                self._raise_if_failed()
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    raise LinkTimeout(
-                        f"controller did not answer a status query within {timeout_s:.3f} s; it is "
-                        f"unreachable - check the crane and the link",
-                        status=None,
-                    )
-                self._cond.wait(min(left, 0.05))
-            return self._status_replies.pop(rid)
+            self._pending_status.add(rid)
+        try:
+            self._send(*self._wire(StatusRequest(rid)))
+            return self._await_status(rid, timeout_s)
+        finally:
+            with self._cond:
+                self._pending_status.discard(rid)
 
     def abort(self, timeout_s: float = 1.0) -> ControllerStatus:
         """Emergency stop: send the e-stop frame and confirm the controller is in ESTOP.
@@ -371,9 +434,8 @@ class CraneLink(abc.ABC):
         deadline = time.monotonic() + timeout_s
         last: ControllerStatus | None = None
         while True:
-            kind, data = self._encoder.encode(EStopRequest(source=1))
             try:
-                self._transmit(kind, data)
+                self._transmit(*self._wire(EStopRequest(source=1)))
                 self.stats.frames_sent += 1
             except Exception:
                 pass  # keep trying until the deadline
@@ -395,7 +457,7 @@ class CraneLink(abc.ABC):
         )
 
     def controller_alive(self) -> bool:
-        """True while the controller's heartbeat is fresh."""
+        """True while the controller's heartbeat is fresh (advancing, in sequence)."""
         t = self._last_heartbeat_mono
         return t is not None and time.monotonic() - t < self.config.heartbeat_timeout_s
 
@@ -422,11 +484,14 @@ class CraneLink(abc.ABC):
     def _await_controller(self) -> None:
         """Open-time handshake: raise :class:`LinkError` (and close) when no controller answers."""
         if self.config.require_controller and not self.wait_for_controller(self.config.connect_timeout_s):
+            auth = self.stats.auth_failures
             self.close()
+            hint = (f"; {auth} frames failed authentication: the crane uses another SecOC key or none "
+                    f"(secoc_key= on both sides)" if auth else "")
             raise LinkError(
                 f"no crane controller answered on the {self.backend_name} link within "
                 f"{self.config.connect_timeout_s:.1f} s; check that it runs, the URL / endpoint and "
-                f"the credentials"
+                f"the credentials{hint}"
             )
 
     @property
@@ -466,44 +531,14 @@ class CraneLink(abc.ABC):
 
     def _deliver(self, kind: str, data: bytes) -> None:
         """Feed one crane -> laptop frame (any thread): check, decode, store, notify."""
-        from field.link.codec import CounterCheck, CraneHeartbeat, decode
-
         self.stats.frames_received += 1
-        now = time.monotonic()
-        last, self._last_rx_mono = self._last_rx_mono, now
-        if self._resync_on_silence and (last is None or now - last > self.config.heartbeat_timeout_s):
-            self._counters.reset()  # the controller was silent: a new session, re-synchronise
-        try:
-            d = decode(kind, data)
-        except ProtocolError as exc:
-            if exc.reason is RejectReason.CRC:
-                self.stats.crc_errors += 1
-            else:
-                self.stats.malformed += 1
+        self._resync_after_silence()
+        plain = self._unwrap(kind, data)
+        d = None if plain is None else self._decode(kind, plain)
+        if d is None:
             return
-        check = self._counters.check(d.kind, d.counter)
-        if check is CounterCheck.REPEATED:
-            self.stats.duplicates_dropped += 1
-            return
-        if check is CounterCheck.WRONG_SEQUENCE:
-            self.stats.sequence_errors += 1
-        msg = d.message
         with self._cond:
-            if isinstance(msg, CraneHeartbeat):
-                self._last_heartbeat_mono = time.monotonic()
-                self._last_crane_state = msg.state
-            elif isinstance(msg, Ack):
-                self._acks.setdefault(msg.command_id, msg)  # first answer wins
-                self._prune(self._acks)
-            elif isinstance(msg, Outcome):
-                self._outcomes.setdefault(msg.command_id, msg)
-                self._prune(self._outcomes)
-            elif isinstance(msg, ControllerStatus):
-                self._last_heartbeat_mono = time.monotonic()  # a status is a sign of life too
-                self._latest_status = msg
-                if msg.request_id:
-                    self._status_replies[msg.request_id] = msg
-                    self._prune(self._status_replies)
+            self._dispatch(d.message)
             self._cond.notify_all()
 
     def _mark_alive(self) -> None:
@@ -527,7 +562,266 @@ class CraneLink(abc.ABC):
                 self._failure = exc
             self._cond.notify_all()
 
+    # ---- receiving -----------------------------------------------------------------------
+
+    def _resync_after_silence(self) -> None:
+        now = time.monotonic()
+        last, self._last_rx_mono = self._last_rx_mono, now
+        if self._resync_on_silence and (last is None or now - last > self.config.heartbeat_timeout_s):
+            self._counters.reset()  # the controller was silent: a new session, re-synchronise
+            self._crane_heartbeat = None
+
+    def _unwrap(self, kind: str, data: bytes) -> bytes | None:
+        if self._secoc is None:
+            return data
+        from field.errors import AuthenticationError
+
+        try:
+            return self._secoc.verify(kind, data)
+        except AuthenticationError as exc:
+            self.stats.auth_failures += 1
+            log.debug("dropped %s: %s", kind, exc)
+            return None
+
+    def _decode(self, kind: str, data: bytes) -> Any:
+        from field.link.codec import CounterCheck, decode
+
+        try:
+            d = decode(kind, data)
+        except ProtocolError as exc:
+            if exc.reason is RejectReason.CRC:
+                self.stats.crc_errors += 1
+            else:
+                self.stats.malformed += 1
+            return None
+        check = self._counters.check(d.kind, d.counter)
+        if check is CounterCheck.REPEATED:
+            self.stats.duplicates_dropped += 1
+            return None
+        if check is CounterCheck.WRONG_SEQUENCE:
+            self.stats.sequence_errors += 1
+        return d
+
+    def _dispatch(self, msg: Any) -> None:
+        """Store one decoded crane -> laptop message (under ``self._cond``)."""
+        from field.link.codec import CraneHeartbeat
+
+        if isinstance(msg, CraneHeartbeat):
+            self._on_crane_heartbeat(msg)
+        elif isinstance(msg, Ack):
+            self._on_ack(msg)
+        elif isinstance(msg, Outcome):
+            self._on_outcome(msg)
+        elif isinstance(msg, ControllerStatus):
+            self._on_status(msg)
+
+    def _on_crane_heartbeat(self, msg: Any) -> None:
+        last, self._crane_heartbeat = self._crane_heartbeat, msg.heartbeat_counter
+        self._last_crane_state = msg.state
+        if last is None:
+            return  # the first heartbeat of a session only primes the sequence
+        if 1 <= (msg.heartbeat_counter - last) & 0xFFFFFFFF <= self._max_heartbeat_gap:
+            self._last_heartbeat_mono = time.monotonic()
+        else:
+            self.stats.stale_heartbeats += 1
+
+    def _on_ack(self, ack: Ack) -> None:
+        if ack.command_id == 0:
+            self.stats.unattributed_answers += 1  # the controller got a frame that failed its check
+            return
+        answers = self._answers.setdefault(ack.command_id, [])
+        answers.append(ack)
+        self._prune(self._answers)
+        first = answers[0]
+        if first.accepted != ack.accepted:
+            self._note(ack.command_id, f"contradicting answers: {_ack_word(first)} then {_ack_word(ack)}")
+        told = self._told.get(ack.command_id)
+        if told in ("no answer", "not executed") and ack.accepted:
+            self._note(ack.command_id, f"a late acceptance arrived after the operator was told '{told}'")
+
+    def _on_outcome(self, out: Outcome) -> None:
+        self._outcomes.setdefault(out.command_id, out)
+        self._prune(self._outcomes)
+        told = self._told.get(out.command_id)
+        if told in ("rejected", "no answer", "not executed"):
+            self._note(out.command_id, f"the controller reports an outcome ({out.outcome_class.name}) for a "
+                                       f"command the operator was told was '{told}'")
+
+    def _on_status(self, msg: ControllerStatus) -> None:
+        if msg.request_id in self._pending_status:
+            self._last_heartbeat_mono = time.monotonic()  # the answer to our own query: fresh
+            self._status_replies[msg.request_id] = msg
+            self._prune(self._status_replies)
+        elif msg.request_id:
+            return  # an answer to a query this link did not make (or a replay): not ours
+        if msg.laptops > 1 and self.laptops_heard <= 1:
+            log.warning("the crane controller hears %d laptops: a second laptop is on the link; only one may "
+                        "command a crane - disconnect the other", msg.laptops)
+        self._latest_status = msg
+
+    # ---- reconciliation ------------------------------------------------------------------
+
+    def _decision(self, command_id: int) -> Ack | None:
+        """The controller's decision about ``command_id``: the first answer naming it."""
+        answers = self._answers.get(command_id)
+        return answers[0] if answers else None
+
+    def _await_decision(self, command_id: int, timeout_s: float) -> Ack | None:
+        """The decision, or None at the deadline; an outcome for the id overrides a rejection."""
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while (ack := self._decision(command_id)) is None:
+                self._raise_if_failed()
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return None
+                self._cond.wait(min(left, 0.05))
+            ran = command_id in self._outcomes
+        if not ack.accepted and ran:
+            self._note(command_id, f"rejected {ack.reason.name}, but the controller reports an outcome: it ran")
+            return Ack(command_id, True)
+        return ack
+
+    def _settle_unanswered(self, cmd: GraspCommand, outcome_timeout_s: float) -> CommandFate:
+        """No answer, and the controller is not running the command: revoke its id, so that a
+        copy delayed on the way can never run after the operator was told it did not."""
+        cid = cmd.command_id
+        ack = self._revoke(cmd)
+        if ack is None:
+            self._tell(cid, "no answer")
+            return CommandFate(cid, None, summary=(
+                f"no acknowledgement for command {cid}; the controller is not executing it, but its id could not "
+                f"be revoked (no answer): a delayed copy could still run - watch the crane"), notes=self._notes(cid))
+        if ack.accepted or ack.reason is RejectReason.DUPLICATE_ID:  # the original got there after all
+            status = self._status_or_none()
+            if ack.accepted or (status is not None and _runs_or_ran(cid, status)):
+                self._note(cid, "its acknowledgement was lost; the frame reached the controller late")
+                return self._follow(cid, outcome_timeout_s)
+        self._tell(cid, "not executed")
+        return CommandFate(cid, False, summary=(
+            f"no acknowledgement for command {cid}; the controller is not executing it and its id is revoked: "
+            f"it can never run. Send a new command"), notes=self._notes(cid))
+
+    def _revoke(self, cmd: GraspCommand, attempts: int = 3) -> Ack | None:
+        """Send the revocation of ``cmd``'s id (the same command with zero target logs, which the
+        controller refuses by definition and so burns the id); the controller's first answer
+        naming the id, or None."""
+        revoke = replace(cmd, target_log_count=REVOKE_TARGET_LOGS)
+        for _ in range(attempts):
+            self._send(*self._wire(revoke))
+            ack = self._await_decision(cmd.command_id, self.config.status_timeout_s)
+            if ack is not None:
+                return ack
+        return None
+
+    def _confirm_rejection(self, command_id: int, exc: CommandRejected) -> CommandFate:
+        """A rejection, checked against the controller's status: it must not be running it."""
+        status = self._status_or_none()
+        if status is not None and _runs_or_ran(command_id, status):
+            self._note(command_id, f"rejected {exc.reason.name}, but the controller runs or ran it")
+            return self._follow(command_id, 30.0)
+        self._tell(command_id, "rejected")
+        return CommandFate(command_id, False, reason=exc.reason, summary=str(exc), notes=self._notes(command_id))
+
+    def _follow(self, command_id: int, timeout_s: float) -> CommandFate:
+        try:
+            out = self.wait_outcome(command_id, timeout_s)
+        except LinkTimeout as exc:
+            self._tell(command_id, "outcome unknown")
+            return CommandFate(command_id, True if exc.status is not None else None, summary=str(exc),
+                               notes=self._notes(command_id))
+        self._tell(command_id, "finished")
+        return CommandFate(command_id, True, out, summary=f"finished: {out.outcome_class.name}",
+                           notes=self._notes(command_id))
+
+    def _tell(self, command_id: int, what: str) -> None:
+        with self._cond:
+            self._told[command_id] = what
+            self._prune(self._told)
+
+    def _note(self, command_id: int, text: str) -> None:
+        """Record a reconciled conflict (call with or without ``self._cond``)."""
+        with self._cond:
+            self.notes.setdefault(command_id, []).append(text)
+            self._prune(self.notes)
+        self.stats.conflicts += 1
+        log.warning("command %d: %s", command_id, text)
+
+    def _notes(self, command_id: int) -> tuple[str, ...]:
+        with self._cond:
+            return tuple(self.notes.get(command_id, ()))
+
+    def _second_laptop_hint(self) -> str:
+        n = self.laptops_heard
+        return f"; NOTE: the controller hears {n} laptops - disconnect the other one" if n > 1 else ""
+
     # ---- helpers -------------------------------------------------------------------------
+
+    def _wire(self, msg: Any) -> tuple[str, bytes]:
+        """``(kind, frame bytes)`` of ``msg``: E2E, then SecOC when a key is configured."""
+        kind, data = self._encoder.encode(msg)
+        return kind, data if self._secoc is None else self._secoc.secure(kind, data)
+
+    def _check_controller_reachable(self, command_id: int) -> None:
+        if not self.controller_alive() and self._status_or_none() is None:
+            self._tell(command_id, "not sent")
+            raise LinkTimeout(
+                f"command {command_id} NOT sent: no sign of life from the controller for "
+                f"{self.config.heartbeat_timeout_s:.2f} s and no status answer; check the crane "
+                f"and the link, then send a new command",
+                command_id=command_id,
+                status=None,
+            )
+
+    def _wait_for_outcome(self, command_id: int, deadline: float) -> Outcome | None:
+        """The outcome, from its frame or the latest status, waiting until ``deadline`` at most
+        one poll period."""
+        with self._cond:
+            self._raise_if_failed()
+            out = self._outcomes.get(command_id)
+            st = self._latest_status
+            if out is None and st is not None and st.last_outcome is not None and st.last_outcome.command_id == command_id:
+                out = st.last_outcome
+            if out is None and (left := deadline - time.monotonic()) > 0:
+                self._cond.wait(min(left, 0.05))
+            return out
+
+    def _probe_vanished(self, command_id: int) -> Outcome | None:
+        """The controller went quiet while ``command_id`` ran: ask it directly before giving up."""
+        status = self._status_or_none()
+        if status is None:
+            raise LinkTimeout(
+                f"controller vanished while command {command_id} was running (no heartbeat "
+                f"for {self.config.heartbeat_timeout_s:.2f} s, no status answer); its final "
+                f"state is UNKNOWN - check the crane on site",
+                command_id=command_id,
+                status=None,
+            )
+        if status.last_outcome is not None and status.last_outcome.command_id == command_id:
+            return status.last_outcome
+        if status.current_command_id != command_id:
+            raise LinkTimeout(
+                f"controller restarted or moved on: it is not running command {command_id} "
+                f"and reports no outcome for it; {describe_fate(command_id, status)}",
+                command_id=command_id,
+                status=status,
+            )
+        return None
+
+    def _await_status(self, rid: int, timeout_s: float) -> ControllerStatus:
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while rid not in self._status_replies:
+                self._raise_if_failed()
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise LinkTimeout(
+                        f"controller did not answer a status query within {timeout_s:.3f} s; it is "
+                        f"unreachable - check the crane and the link",
+                        status=None,
+                    )
+                self._cond.wait(min(left, 0.05))
+            return self._status_replies.pop(rid)
 
     def _send(self, kind: str, data: bytes) -> None:
         try:
@@ -542,11 +836,17 @@ class CraneLink(abc.ABC):
             ) from exc
         self.stats.frames_sent += 1
 
-    def _status_or_none(self) -> ControllerStatus | None:
-        try:
-            return self.status()
-        except LinkError:
-            return None
+    def _status_or_none(self, attempts: int = 3) -> ControllerStatus | None:
+        """The controller's status, asked up to ``attempts`` times (one lost frame is no reason
+        to call its state UNKNOWN); None when it never answers."""
+        for _ in range(attempts):
+            try:
+                return self.status()
+            except LinkTimeout:
+                continue
+            except LinkError:
+                return None
+        return None
 
     def _check_usable(self) -> None:
         if self._closed:
@@ -565,9 +865,27 @@ class CraneLink(abc.ABC):
             d.pop(next(iter(d)))
 
 
+def _load_secoc(config: LinkConfig, clock: Callable[[], float]) -> Any:
+    if config.secoc_key_path is None:
+        return None
+    from field.link.secoc import SecOC
+
+    return SecOC.from_key_file(config.secoc_key_path, window_s=config.secoc_window_s, clock=clock)
+
+
+def _runs_or_ran(command_id: int, status: ControllerStatus) -> bool:
+    """The status says the controller is running ``command_id`` or finished it last."""
+    last = status.last_outcome
+    return status.current_command_id == command_id or (last is not None and last.command_id == command_id)
+
+
+def _ack_word(ack: Ack) -> str:
+    return "accepted" if ack.accepted else f"rejected {ack.reason.name}"
+
+
 REASON_HELP: dict[RejectReason, str] = {
     RejectReason.CRC: "the frame was corrupted on the way; check the bus, send a new command",
-    RejectReason.COUNTER: "frames were lost or reordered; send a new command",
+    RejectReason.COUNTER: "frames were lost or reordered, or a second laptop is on the bus; send a new command",
     RejectReason.STALE: "the pile data is too old for the controller; rescan and plan again",
     RejectReason.DUPLICATE_ID: "this id was already used; use a new command id",
     RejectReason.OUT_OF_REACH: "the grasp point is outside the crane's reach; plan another grasp",

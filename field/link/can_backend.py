@@ -22,6 +22,7 @@ read it back.
 from __future__ import annotations
 
 import copy
+import secrets
 import threading
 import time
 from pathlib import Path
@@ -31,7 +32,7 @@ import can
 
 from field.errors import LinkError
 from field.link.base import CraneLink, LinkConfig, LinkURL, track_resource, untrack_resource
-from field.link.codec import CRANE_TO_LAPTOP, LAPTOP_TO_CRANE, frame_id, kind_of_frame_id
+from field.link.codec import CRANE_TO_LAPTOP, LAPTOP_TO_CRANE, frame_id, kind_of_can_frame, kind_of_frame_id
 
 #: python-can config keys accepted as URL query parameters (passed to can.Bus as given)
 _INT_KEYS = {"bitrate", "data_bitrate", "rx_queue_size"}
@@ -244,10 +245,11 @@ class CanLink(_CanEndpoint, CraneLink):
 
         self.bus_kwargs = dict(bus_kwargs or {})
         raw = bus if bus is not None else open_bus(self.bus_kwargs)
-        self._hb_counter = 0
+        # a random start: two laptops on one bus are two heartbeat streams far apart
+        self._hb_counter = secrets.randbits(31)
         try:
             self._setup_bus(raw, self.config.record_path, self._on_message, f"CanLink bus {raw.channel_info}")
-            _, first = self._encoder.encode(LaptopHeartbeat(0))
+            _, first = self._wire(LaptopHeartbeat(self._hb_counter))
             self._start_heartbeat("LaptopHeartbeat", self.config.heartbeat_period_s, first, self._next_heartbeat)
         except BaseException:
             raw.shutdown()
@@ -265,13 +267,13 @@ class CanLink(_CanEndpoint, CraneLink):
         from field.link.codec import LaptopHeartbeat
 
         self._hb_counter = (self._hb_counter + 1) & 0xFFFFFFFF
-        msg.data = bytearray(self._encoder.encode(LaptopHeartbeat(self._hb_counter))[1])
+        msg.data = bytearray(self._wire(LaptopHeartbeat(self._hb_counter))[1])
 
     def _on_message(self, msg: can.Message) -> None:
         if msg.is_error_frame:
             self.stats.bus_errors += 1
             return
-        kind = kind_of_frame_id(msg.arbitration_id)
+        kind = kind_of_can_frame(msg.arbitration_id, msg.is_extended_id, msg.is_fd)
         if kind in CRANE_TO_LAPTOP and not msg.is_remote_frame:
             self._deliver(kind, bytes(msg.data))
 
@@ -321,7 +323,7 @@ class CanControllerTransport(_CanEndpoint):
     def _on_message(self, msg: can.Message) -> None:
         if msg.is_error_frame or msg.is_remote_frame:
             return
-        kind = kind_of_frame_id(msg.arbitration_id)
+        kind = kind_of_can_frame(msg.arbitration_id, msg.is_extended_id, msg.is_fd)
         if kind in LAPTOP_TO_CRANE:
             self.controller.on_frame(kind, bytes(msg.data), self.send)
 
@@ -354,18 +356,27 @@ def read_recording(path: str | Path) -> list[can.Message]:
         return list(reader)
 
 
-def decode_recording(path: str | Path) -> list[tuple[float, str, Any]]:
-    """``(timestamp, kind, message or ProtocolError)`` for every link frame of a recording."""
+def decode_recording(path: str | Path, secoc_key: str | Path | None = None) -> list[tuple[float, str, Any]]:
+    """``(timestamp, kind, message or ProtocolError)`` for every link frame of a recording.
+
+    ``secoc_key``: the key file of an authenticated session (MACs are checked, freshness is not:
+    a recording is old by nature)."""
     from field.errors import ProtocolError
     from field.link.codec import decode
 
+    secoc = None
+    if secoc_key is not None:
+        from field.link.secoc import SecOC
+
+        secoc = SecOC.from_key_file(secoc_key)
     out: list[tuple[float, str, Any]] = []
     for msg in read_recording(path):
         kind = kind_of_frame_id(msg.arbitration_id)
         if kind is None:
             continue
         try:
-            out.append((msg.timestamp, kind, decode(kind, bytes(msg.data)).message))
+            data = bytes(msg.data) if secoc is None else secoc.verify(kind, bytes(msg.data), check_freshness=False)
+            out.append((msg.timestamp, kind, decode(kind, data).message))
         except ProtocolError as exc:
             out.append((msg.timestamp, kind, exc))
     return out

@@ -117,6 +117,53 @@ def kind_of_frame_id(arbitration_id: int) -> str | None:
         return None
 
 
+def kind_of_can_frame(arbitration_id: int, is_extended_id: bool, is_fd: bool) -> str | None:
+    """The message kind of a received CAN frame, or ``None`` when it is not a link frame.
+
+    The DBC's ``VFrameFormat`` decides: every link frame is a CAN FD frame with an 11-bit
+    identifier, so an extended (29-bit) frame whose id happens to equal a link id, or a classic
+    frame, is a foreign frame and is ignored.
+    """
+    kind = kind_of_frame_id(arbitration_id)
+    if kind is None:
+        return None
+    message = _message(kind)
+    if bool(is_extended_id) != bool(message.is_extended_frame) or bool(is_fd) != bool(message.is_fd):
+        return None
+    return kind
+
+
+@functools.lru_cache(maxsize=None)
+def used_bits_mask(kind: str) -> bytes:
+    """One byte per frame byte, a bit set where a DBC signal lives (little-endian signals)."""
+    message = _message(kind)
+    mask = bytearray(message.length)
+    for sig in message.signals:
+        for bit in range(sig.start, sig.start + sig.length):
+            mask[bit // 8] |= 1 << (bit % 8)
+    return bytes(mask)
+
+
+@functools.lru_cache(maxsize=None)
+def authentic_length(kind: str) -> int:
+    """Bytes from the start of the frame up to the last byte a signal uses (the part an
+    authenticated frame carries; the rest is reserved and zero)."""
+    mask = used_bits_mask(kind)
+    return max(i for i, m in enumerate(mask) if m) + 1
+
+
+def _check_reserved_zero(kind: str, data: bytearray) -> None:
+    mask = used_bits_mask(kind)
+    bad = [i for i, (b, m) in enumerate(zip(data, mask)) if b & ~m & 0xFF]
+    if bad:
+        raise ProtocolError(
+            f"{kind}: reserved bits set in byte(s) {bad}; loggrasp.dbc says unused bytes are zero. "
+            f"The sender speaks another protocol variant: run the same loggrasp on both sides",
+            reason=RejectReason.MALFORMED,
+            integrity_ok=True,
+        )
+
+
 def _signals(msg: Message) -> dict[str, int]:
     if isinstance(msg, GraspCommand):
         return {
@@ -149,6 +196,7 @@ def _signals(msg: Message) -> dict[str, int]:
             "LastOutcomeClass": int(last.outcome_class) if last else NO_OUTCOME,
             "LastLogsGrasped": last.logs_grasped if last else 0,
             "LastBalanceCosMilli": last.balance_cos_milli if last else 0,
+            "LaptopPeers": msg.laptops,
         }
     if isinstance(msg, StatusRequest):
         return {"RequestId": msg.request_id}
@@ -205,7 +253,9 @@ def _enum(kind: str, enum_type: type[enum.IntEnum], value: int) -> Any:
 
 def decode(kind_or_id: str | int, data: bytes | bytearray) -> Decoded:
     """Check and decode one frame. Raises :class:`ProtocolError` with ``reason`` CRC (failed
-    E2E check) or MALFORMED (unknown id, wrong length, wrong version, invalid field)."""
+    E2E check) or MALFORMED (unknown id, wrong length, reserved bits set, wrong version, invalid
+    field); ``integrity_ok`` on the error says whether the frame passed its E2E check first
+    (only then may a reply name the command id in it)."""
     from e2e.p05 import e2e_p05_check
 
     kind = kind_of_frame_id(kind_or_id) if isinstance(kind_or_id, int) else kind_or_id
@@ -219,21 +269,25 @@ def decode(kind_or_id: str | int, data: bytes | bytearray) -> Decoded:
         )
     if not e2e_p05_check(data, data_id(kind)):
         raise ProtocolError(f"{kind}: end-to-end CRC check failed (corrupted frame)", reason=RejectReason.CRC)
+    _check_reserved_zero(kind, data)
     try:
         v = message.decode(bytes(data), decode_choices=False, scaling=True)
     except Exception as exc:  # cantools DecodeError and friends: a malformed frame
-        raise ProtocolError(f"{kind}: cannot decode ({exc})", reason=RejectReason.MALFORMED) from exc
+        raise ProtocolError(f"{kind}: cannot decode ({exc})", reason=RejectReason.MALFORMED,
+                            integrity_ok=True) from exc
     if v["ProtocolVersion"] != PROTOCOL_VERSION:
         raise ProtocolError(
             f"{kind}: protocol version {v['ProtocolVersion']}, this code speaks {PROTOCOL_VERSION}; "
             f"run the same loggrasp version on the laptop and the crane",
             reason=RejectReason.MALFORMED,
+            integrity_ok=True,
         )
     counter = int(v["Counter"])
     try:
         msg = _build(kind, v)
-    except ValueError as exc:
-        raise ProtocolError(f"{kind}: invalid content ({exc})", reason=RejectReason.MALFORMED) from exc
+    except (ValueError, ProtocolError) as exc:
+        raise ProtocolError(f"{kind}: invalid content ({exc})", reason=RejectReason.MALFORMED,
+                            integrity_ok=True) from exc
     return Decoded(kind, counter, msg)
 
 
@@ -271,6 +325,7 @@ def _build(kind: str, v: dict[str, Any]) -> Message:
             heartbeat_counter=i["HeartbeatCounter"],
             last_outcome=last,
             request_id=i["RequestId"],
+            laptops=i["LaptopPeers"],
         )
     if kind == "StatusRequest":
         return StatusRequest(i["RequestId"])

@@ -9,7 +9,8 @@ commands (waiting, untimed, for each outcome before the next): use it against a 
 ``local_controller(backend)`` starts a controller twin for a backend on this machine and yields
 the laptop URL: ``"can-virtual"`` (in-process), ``"can-remote"`` (``python -m can_remote`` bound
 to 127.0.0.1 + a controller process), ``"zenoh"`` (a controller process listening on
-``tcp/127.0.0.1``), ``"twin"`` (``twin://``).
+``tcp/127.0.0.1``), ``"twin"`` (``twin://``). With ``secoc_key`` both ends use authenticated
+frames (:mod:`field.link.secoc`), so the cost of the MACs can be measured.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ import sys
 import threading
 import time
 import uuid
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Iterator
 
 from field.errors import CommandRejected, LinkError
@@ -39,6 +40,7 @@ class LatencyStats:
     p99_ms: float
     mean_ms: float
     max_ms: float
+    label: str = ""  # e.g. the backend name, "+secoc" when authenticated
 
     def to_dict(self) -> dict:
         return dict(self.__dict__)
@@ -138,16 +140,27 @@ def _controller_process(url: str, delay_s: float) -> Iterator[None]:
             proc.stdout.close()
 
 
+def _keyed(url: str, secoc_key: str | None) -> str:
+    return url if secoc_key is None else f"{url}{'&' if '?' in url else '?'}secoc_key={secoc_key}"
+
+
 @contextlib.contextmanager
-def local_controller(backend: str, *, delay_s: float = 0.0) -> Iterator[str]:
-    """Start a controller twin for ``backend`` on this machine; yields the laptop URL."""
+def local_controller(backend: str, *, delay_s: float = 0.0, secoc_key: str | None = None) -> Iterator[str]:
+    """Start a controller twin for ``backend`` on this machine; yields the laptop URL (with
+    ``secoc_key``: both ends authenticated)."""
+    with _local_controller(backend, delay_s, secoc_key) as url:
+        yield url
+
+
+@contextlib.contextmanager
+def _local_controller(backend: str, delay_s: float, secoc_key: str | None) -> Iterator[str]:
     if backend == "twin":
-        yield f"twin://?delay_ms={delay_s * 1000:g}"
+        yield _keyed(f"twin://?delay_ms={delay_s * 1000:g}", secoc_key)
         return
     if backend == "can-virtual":
         from field.controller import FixedOutcomeExecutor, run_controller
 
-        url = f"can://virtual/lat-{uuid.uuid4().hex[:8]}"
+        url = _keyed(f"can://virtual/lat-{uuid.uuid4().hex[:8]}", secoc_key)
         stop, ready = threading.Event(), threading.Event()
         th = threading.Thread(target=run_controller, args=(url, FixedOutcomeExecutor(delay_s=delay_s), stop),
                               kwargs={"ready_event": ready}, daemon=True)
@@ -174,24 +187,27 @@ def local_controller(backend: str, *, delay_s: float = 0.0) -> Iterator[str]:
                     if time.monotonic() > deadline or server.poll() is not None:
                         raise LinkError("can_remote server did not start") from None
                     time.sleep(0.05)
-            url = f"can://remote/127.0.0.1:{port}/{channel}"
+            url = _keyed(f"can://remote/127.0.0.1:{port}/{channel}", secoc_key)
             with _controller_process(url, delay_s):
                 yield url
         finally:
             _stop(server)
         return
     if backend == "zenoh":
-        url = f"zenoh://127.0.0.1:{_free_port()}/lat-{uuid.uuid4().hex[:6]}"
+        url = _keyed(f"zenoh://127.0.0.1:{_free_port()}/lat-{uuid.uuid4().hex[:6]}", secoc_key)
         with _controller_process(url, delay_s):
             yield url
         return
     raise ValueError(f"unknown backend {backend!r}; choose twin, can-virtual, can-remote or zenoh")
 
 
-def measure_backends(n: int = 200, mode: str = "reject", backends: tuple[str, ...] = ("can-virtual", "can-remote", "zenoh")) -> list[LatencyStats]:
-    """Latency of every local backend rig (what the benchmark reports)."""
+def measure_backends(n: int = 200, mode: str = "reject", backends: tuple[str, ...] = ("can-virtual", "can-remote", "zenoh"),
+                     secoc_key: str | None = None) -> list[LatencyStats]:
+    """Latency of every local backend rig (what the benchmark reports); ``secoc_key``:
+    authenticated frames on both ends."""
     out = []
     for b in backends:
-        with local_controller(b) as url:
-            out.append(measure_latency(url, n, mode=mode))
+        with local_controller(b, secoc_key=secoc_key) as url:
+            s = measure_latency(url, n, mode=mode)
+            out.append(replace(s, label=b + (" +SecOC" if secoc_key else "")))
     return out

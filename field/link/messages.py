@@ -19,6 +19,15 @@ import time
 from dataclasses import dataclass
 
 
+#: The one staleness limit of the link [s]: the oldest pile data a grasp command may be based on.
+#: Laptop (:class:`field.link.safety.SafetyConfig`), controller
+#: (:class:`field.controller.ControllerConfig`), field trial and CLI all default to it. A crane
+#: acts on a pile as it was seconds ago, not minutes: logs settle and slide.
+DEFAULT_MAX_PILE_AGE_S = 30.0
+#: Plan timestamps ahead of the receiver's clock by more than this are refused as STALE [s].
+DEFAULT_MAX_FUTURE_SKEW_S = 2.0
+
+
 class RejectReason(enum.IntEnum):
     """Why the controller refused a command (values = the DBC ``RejectReason`` table)."""
 
@@ -230,8 +239,9 @@ class ControllerStatus:
     heartbeat_counter: int  # controller heartbeat counter (uint32, wraps)
     last_outcome: Outcome | None = None  # the last finished command, None = none yet
     request_id: int = 0  # echo of the status query's id, 0 = unsolicited
+    laptops: int = 0  # laptops the controller hears now (more than 1: a second laptop is on the link)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "state", ControllerState(self.state))
-        for name in ("current_command_id", "heartbeat_counter", "request_id"):
+        for name in ("current_command_id", "heartbeat_counter", "request_id", "laptops"):
             _check_int("ControllerStatus", name, getattr(self, name))

@@ -18,13 +18,13 @@ from dataclasses import dataclass
 from typing import Callable
 
 from field.errors import CommandRejected
-from field.link.messages import GraspCommand, RejectReason
+from field.link.messages import DEFAULT_MAX_FUTURE_SKEW_S, DEFAULT_MAX_PILE_AGE_S, GraspCommand, RejectReason
 
 
 @dataclass(frozen=True)
 class SafetyConfig:
-    max_pile_age_s: float = 30.0  # oldest pile data a command may be based on [s]
-    max_future_skew_s: float = 2.0  # plan timestamps ahead of the laptop clock by more are refused [s]
+    max_pile_age_s: float = DEFAULT_MAX_PILE_AGE_S  # oldest pile data a command may be based on [s]
+    max_future_skew_s: float = DEFAULT_MAX_FUTURE_SKEW_S  # plan timestamps ahead of the laptop clock by more are refused [s]
 
     def __post_init__(self) -> None:
         if not self.max_pile_age_s > 0:

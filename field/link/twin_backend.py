@@ -8,12 +8,13 @@ URL parameters: ``crane_base=E,N,H`` / ``crane_max_reach_m`` / ``crane_max_pile_
 crane's own reach envelope and staleness limit), ``executor=NAME`` (registered executor, default ``fixed``), ``delay_ms`` and
 ``outcome`` (for ``fixed``); other parameters go to the executor as strings
 (``twin://?executor=pybullet&pile=runs/pile.json&trial=fast``); plus the common link options
-(``record=...`` etc.).
+(``record=...``; ``secoc_key=PATH`` keys the laptop and the twin crane alike).
 """
 
 from __future__ import annotations
 
 import uuid
+from dataclasses import replace
 from typing import Any
 
 import can
@@ -26,9 +27,12 @@ class TwinLink(CanLink):
     backend_name = "twin"
 
     def __init__(self, config: LinkConfig | None = None, *, controller_config: Any = None, executor: Any = None):
-        from field.controller import CraneController, FixedOutcomeExecutor
+        from field.controller import ControllerConfig, CraneController, FixedOutcomeExecutor
 
         self.channel = f"loggrasp-twin-{uuid.uuid4().hex[:12]}"
+        key = (config or LinkConfig()).secoc_key_path
+        if key is not None:  # the twin crane holds the same key as the laptop
+            controller_config = replace(controller_config or ControllerConfig(), secoc_key_path=key)
         self.controller = CraneController(controller_config, executor if executor is not None else FixedOutcomeExecutor())
         self.transport = CanControllerTransport(
             bus=can.Bus(interface="virtual", channel=self.channel, fd=True),

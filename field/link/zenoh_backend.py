@@ -29,6 +29,7 @@ writes every payload as the CAN FD frame it is, so CAN and Zenoh sessions read b
 from __future__ import annotations
 
 import json
+import re
 import threading
 from dataclasses import dataclass
 from typing import Any
@@ -157,6 +158,13 @@ def _close_session(session: Any) -> None:
         untrack_resource(session)
 
 
+def _sender(query: Any) -> str | None:
+    """The commanding laptop a query names in its attachment (its session id), or None."""
+    att = query.attachment
+    zid = att.to_bytes().decode("ascii", errors="replace") if att is not None else ""
+    return f"zenoh:{zid}" if re.fullmatch(r"[0-9a-f]{1,64}", zid) else None
+
+
 def _payload(sample_or_query: Any) -> bytes:
     p = sample_or_query.payload
     return b"" if p is None else p.to_bytes()
@@ -242,9 +250,10 @@ class ZenohLink(CraneLink):
     def _transmit(self, kind: str, data: bytes) -> None:
         z = self._zenoh
         self._record(kind, data, False)
-        if kind == "GraspCommand":
+        if kind == "GraspCommand":  # the attachment names this laptop: the controller's commanding peer
             self._session.get(self.keys.cmd, self._reply_to("Ack"), payload=data, timeout=self.query_timeout_s,
-                              priority=z.Priority.INTERACTIVE_HIGH, congestion_control=z.CongestionControl.BLOCK)
+                              priority=z.Priority.INTERACTIVE_HIGH, congestion_control=z.CongestionControl.BLOCK,
+                              attachment=str(self._session.zid()).encode())
         elif kind == "StatusRequest":
             self._session.get(self.keys.status, self._reply_to("Status"), payload=data, timeout=self.query_timeout_s)
         elif kind == "EStop":
@@ -275,8 +284,6 @@ class ZenohControllerTransport:
         self.heartbeat_period_s = heartbeat_period_s
         self.controller: Any = None
         self._session: Any = None
-        self._laptop_present = False
-        self._laptops: set[str] = set()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._closed = False
@@ -314,27 +321,21 @@ class ZenohControllerTransport:
                 query.reply(query.key_expr, data)
             self.send(kind, data)
 
-        self.controller.on_frame("GraspCommand", _payload(query), reply)
+        self.controller.on_frame("GraspCommand", _payload(query), reply, peer=_sender(query))
 
     def _on_status_query(self, query: Any) -> None:
         self.controller.on_frame("StatusRequest", _payload(query), lambda kind, data: query.reply(query.key_expr, data))
 
     def _on_laptop(self, sample: Any) -> None:
-        key = str(sample.key_expr)
+        """A laptop's liveliness token came or went: ``alive/laptop/<zid>`` is peer ``zenoh:<zid>``."""
+        peer = f"zenoh:{str(sample.key_expr).rsplit('/', 1)[-1]}"
         if sample.kind == self._zenoh.SampleKind.PUT:
-            self._laptops.add(key)
-            self._laptop_present = True
-            self.controller.laptop_seen()
+            self.controller.peer_present(peer)
         else:
-            self._laptops.discard(key)
-            if not self._laptops:
-                self._laptop_present = False
-                self.controller.laptop_lost("laptop liveliness token gone")
+            self.controller.peer_gone(peer)
 
     def _heartbeat_loop(self) -> None:
         while not self._stop.wait(self.heartbeat_period_s):
-            if self._laptop_present:
-                self.controller.laptop_seen()
             try:
                 self._session.put(self.keys.heartbeat, self.controller.heartbeat_frame())
             except Exception:

@@ -181,14 +181,28 @@ RIG_CONFIG = {"max_pile_age_s": 5.0, "laptop_timeout_s": 1.0, "heartbeat_period_
 RIG_EXECUTOR = {"delay_s": 0.05, "delay_by_target_logs": {"9": 1.5}}
 
 
-def build_rig(name: str, tmp_path: Path, *, config: dict | None = None, executor: dict | None = None) -> Rig:
+@pytest.fixture(scope="session")
+def link_key(tmp_path_factory) -> Path:
+    """A generated SecOC key (mode 0600): the rigs run authenticated, as a field link should."""
+    from field.link.secoc import generate_key_file
+
+    return generate_key_file(tmp_path_factory.mktemp("secoc") / "link.key")
+
+
+def keyed(url: str, key: Path | None) -> str:
+    return url if key is None else f"{url}{'&' if '?' in url else '?'}secoc_key={key}"
+
+
+def build_rig(name: str, tmp_path: Path, *, config: dict | None = None, executor: dict | None = None,
+              key: Path | None = None) -> Rig:
+    """A rig for backend ``name``; with ``key`` both ends use authenticated frames."""
     config = {**RIG_CONFIG, **(config or {})}
     log_path = tmp_path / f"executed-{uuid.uuid4().hex[:6]}.jsonl"
     executor = {**RIG_EXECUTOR, **(executor or {}), "log_path": str(log_path)}
     if name == "can-virtual":
         from field.controller import FixedOutcomeExecutor, controller_config_from_dict, run_controller
 
-        url = f"can://virtual/lg-{uuid.uuid4().hex[:8]}"
+        url = keyed(f"can://virtual/lg-{uuid.uuid4().hex[:8]}", key)
         state: dict[str, Any] = {}
 
         def start() -> None:
@@ -210,10 +224,10 @@ def build_rig(name: str, tmp_path: Path, *, config: dict | None = None, executor
         return rig
     if name == "can-remote":
         server = RemoteCanServer()
-        url = server.url
+        url = keyed(server.url, key)
     elif name == "zenoh":
         server = None
-        url = f"zenoh://127.0.0.1:{free_port()}/crane-{uuid.uuid4().hex[:6]}"
+        url = keyed(f"zenoh://127.0.0.1:{free_port()}/crane-{uuid.uuid4().hex[:6]}", key)
     else:
         raise ValueError(name)
     holder: dict[str, ControllerProcess] = {}
@@ -239,12 +253,14 @@ def build_rig(name: str, tmp_path: Path, *, config: dict | None = None, executor
 
 
 @pytest.fixture
-def rig_factory(tmp_path: Path) -> Iterator[Callable[..., Rig]]:
-    """``rig_factory(name, config=..., executor=...)`` -> a started :class:`Rig` (cleaned up)."""
+def rig_factory(tmp_path: Path, link_key: Path) -> Iterator[Callable[..., Rig]]:
+    """``rig_factory(name, config=..., executor=...)`` -> a started, authenticated :class:`Rig`
+    (cleaned up); ``secoc=False`` for plain frames."""
     made: list[Rig] = []
 
-    def make(name: str, *, config: dict | None = None, executor: dict | None = None, start: bool = True) -> Rig:
-        r = build_rig(name, tmp_path, config=config, executor=executor)
+    def make(name: str, *, config: dict | None = None, executor: dict | None = None, start: bool = True,
+             secoc: bool = True) -> Rig:
+        r = build_rig(name, tmp_path, config=config, executor=executor, key=link_key if secoc else None)
         made.append(r)
         if start:
             r.start_controller()
@@ -257,8 +273,9 @@ def rig_factory(tmp_path: Path) -> Iterator[Callable[..., Rig]]:
 
 
 @pytest.fixture(params=BACKENDS)
-def rig(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Rig]:
-    r = build_rig(request.param, tmp_path)
+def rig(request: pytest.FixtureRequest, tmp_path: Path, link_key: Path) -> Iterator[Rig]:
+    """Every backend, authenticated (the contract suite runs with a generated SecOC key)."""
+    r = build_rig(request.param, tmp_path, key=link_key)
     try:
         r.start_controller()
         yield r

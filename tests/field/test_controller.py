@@ -74,7 +74,10 @@ def test_accept_execute_and_report(make_cmd):
     assert Outcome(11, OutcomeClass.COLLISION, 1, 700) in f.published
     (st,) = f.send(StatusRequest(5))
     assert st == ControllerStatus(ControllerState.DONE, 0, 0, Outcome(11, OutcomeClass.COLLISION, 1, 700), 5)
-    assert f.grasp(cmd) == Ack(11, False, RejectReason.DUPLICATE_ID)
+    assert f.grasp(cmd) == Ack(11, True)  # an identical copy: the same answer, no second run
+    from dataclasses import replace
+
+    assert f.grasp(replace(cmd, heading_cdeg=100)) == Ack(11, False, RejectReason.DUPLICATE_ID)  # id reused
     assert ex.executed == [11]
 
 
@@ -109,8 +112,8 @@ def test_journal_never_executes_twice_across_restarts(tmp_path, make_cmd):
 
     ctl1.executor = hang
     assert f1.grasp(make_cmd(22)).accepted
-    doc = json.loads(journal.read_text())
-    assert doc["format"] == "loggrasp.controller_journal" and doc["version"].startswith("1.")
+    head = json.loads(journal.read_text().splitlines()[0])
+    assert head["format"] == "loggrasp.controller_journal" and head["version"].startswith("2.")
     # restart from the journal while 22 is still "running" (= the old process died)
     ex2 = FixedOutcomeExecutor(delay_s=0.0)
     ctl2 = CraneController(cfg, ex2)
@@ -126,12 +129,27 @@ def test_journal_never_executes_twice_across_restarts(tmp_path, make_cmd):
 
 def test_journal_version_checked(tmp_path):
     p = tmp_path / "j.json"
-    p.write_text(json.dumps({"format": "loggrasp.controller_journal", "version": "2.0", "entries": []}))
+    p.write_text(json.dumps({"format": "loggrasp.controller_journal", "version": "3.0"}) + "\n")
     with pytest.raises(ControllerError, match="version"):
         ControllerJournal(p)
     p.write_text("{not json")
     with pytest.raises(ControllerError, match="unreadable"):
         ControllerJournal(p)
+
+
+def test_journal_reads_version_1_and_survives_a_torn_last_line(tmp_path):
+    p = tmp_path / "j.json"
+    p.write_text(json.dumps({"format": "loggrasp.controller_journal", "version": "1.0", "entries": [
+        {"command_id": 5, "status": "done", "outcome": {"outcome_class": "SUCCESS", "logs_grasped": 2,
+                                                        "balance_cos_milli": 990}}]}))
+    ids, last = ControllerJournal(p).recover()
+    assert set(ids) == {5} and last == Outcome(5, OutcomeClass.SUCCESS, 2, 990)
+    assert json.loads(p.read_text().splitlines()[0])["version"].startswith("2.")  # rewritten as 2.x
+    j = ControllerJournal(p)
+    j.record_rejected(6, RejectReason.BUSY)
+    with open(p, "a") as f:
+        f.write('{"command_id": 7, "sta')  # the controller died mid-line
+    assert ControllerJournal(p).recover()[0] == {5: (None, RejectReason.NONE), 6: (None, RejectReason.BUSY)}
 
 
 def test_executor_failure_is_a_fault_until_reset(make_cmd):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import collections
 import time
 from dataclasses import replace
 
@@ -14,6 +15,7 @@ from field.errors import ProtocolError
 from field.link import codec
 from field.link.codec import (
     CounterCheck,
+    Encoder,
     CounterMonitor,
     CraneHeartbeat,
     EStopRequest,
@@ -159,6 +161,7 @@ def test_counter_monitor():
 KINDS = list(codec.KIND_OF.values())
 LAPTOP_KINDS = list(codec.LAPTOP_TO_CRANE)
 ACCEPTED: list[int] = []  # ids the fuzzed controller executed (the test must exercise acceptance)
+REASONS: collections.Counter = collections.Counter()  # rejection reasons the fuzz drew
 
 
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -206,15 +209,42 @@ any_commands = st.builds(
     target_log_count=st.integers(0, 20),
     plan_timestamp_ms=st.integers(-60_000, 60_000),  # AGE [ms]
 )
-commands = st.one_of(valid_commands, any_commands)
+#: a valid command with exactly one field moved out of what the controller accepts
+_ONE_BAD = {
+    "narrow": lambda c: replace(c, opening_width_mm=299),
+    "wide": lambda c: replace(c, opening_width_mm=1551),
+    "heading": lambda c: replace(c, heading_cdeg=18000 + c.heading_cdeg),
+    "no logs": lambda c: replace(c, target_log_count=0),
+    "too many logs": lambda c: replace(c, target_log_count=13),
+    "far": lambda c: replace(c, easting_mm=c.easting_mm + 20_000),
+    "too low": lambda c: replace(c, height_mm=c.height_mm - 20_000),
+    "old": lambda c: replace(c, plan_timestamp_ms=31_000),  # AGE [ms]
+    "future": lambda c: replace(c, plan_timestamp_ms=-3_000),
+}
+one_bad_field = st.tuples(valid_commands, st.sampled_from(sorted(_ONE_BAD))).map(lambda t: _ONE_BAD[t[1]](t[0]))
+commands = st.one_of(valid_commands, one_bad_field, any_commands)
+
+
+#: a command frame: the command, its counter (None = the sender's next one, as a real laptop sends:
+#: 90 %, so that what the fuzz exercises is payload validation, not the counter check), and a
+#: byte to corrupt (None = none: 85 %)
+def _sometimes(strategy, percent: int):
+    """``strategy``'s value ``percent`` % of the time, else None."""
+    return st.tuples(st.integers(0, 99), strategy).map(lambda t: t[1] if t[0] < percent else None)
+
+
+command_frames = st.tuples(commands, _sometimes(st.integers(0, 255), 10), _sometimes(st.integers(0, 63), 15))
 
 
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 @given(
     frames=st.lists(
         st.one_of(
-            st.tuples(st.sampled_from(LAPTOP_KINDS + ["Ack", "Status"]), st.binary(max_size=70)),
-            st.tuples(st.just("GraspCommand"), st.tuples(commands, st.integers(0, 255), st.one_of(st.just(-1), st.integers(0, 63)))),
+            # (random EStop frames would latch ESTOP and hide validation: the e-stop has its own tests)
+            st.tuples(st.sampled_from([k for k in LAPTOP_KINDS if k != "EStop"] + ["Ack", "Status"]),
+                      st.binary(max_size=70)),
+            st.tuples(st.just("GraspCommand"), command_frames),
+            st.tuples(st.just("GraspCommand"), command_frames),
         ),
         max_size=6,
     )
@@ -226,23 +256,12 @@ def test_fuzz_controller_accepts_only_valid_commands(frames):
     ctl = CraneController(ControllerConfig(), executor)
     replies: list[tuple[str, bytes, float]] = []
     sent: dict[int, GraspCommand] = {}
+    enc = Encoder()
     for kind, payload in frames:
         if isinstance(payload, tuple):
-            cmd, counter, flip = payload
-            cmd = replace(cmd, plan_timestamp_ms=int(time.time() * 1000) - cmd.plan_timestamp_ms)
-            if flip < 0 and cmd.command_id in sent:
-                continue  # an ack names only the id: one intact frame per id (re-used ids: test_link_contract)
-            try:
-                _, data = encode(cmd, counter)
-            except ProtocolError:
+            payload = _command_frame(enc, sent, *payload)
+            if payload is None:
                 continue
-            if flip >= 0:
-                b = bytearray(data)
-                b[flip] ^= 0x10
-                data = bytes(b)
-            else:
-                sent[cmd.command_id] = cmd
-            payload = data
         ctl.on_frame(kind, payload, lambda k, d: replies.append((k, d, time.time())))
         if ctl._worker is not None:
             ctl._worker.join(2)
@@ -253,10 +272,29 @@ def test_fuzz_controller_accepts_only_valid_commands(frames):
             cmd = sent[d.message.command_id]
             assert _valid(cmd, ctl.config, t), cmd
             accepted.add(cmd.command_id)
+        elif isinstance(d.message, Ack):
+            REASONS[d.message.reason] += 1
     assert len(executor.executed) == len(set(executor.executed))  # never twice
     assert set(executor.executed) == accepted
     ACCEPTED.extend(executor.executed)
     ctl.close()
+
+
+def _command_frame(enc: Encoder, sent: dict, cmd: GraspCommand, counter: int | None, flip: int | None) -> bytes | None:
+    """The frame of a fuzzed command (its age made absolute), or None to skip it."""
+    cmd = replace(cmd, plan_timestamp_ms=int(time.time() * 1000) - cmd.plan_timestamp_ms)
+    if flip is None and cmd.command_id in sent:
+        return None  # an ack names only the id: one intact frame per id (re-used ids: test_controller_checks)
+    try:
+        data = encode(cmd, counter)[1] if counter is not None else enc.encode(cmd)[1]
+    except ProtocolError:
+        return None
+    if flip is not None:
+        b = bytearray(data)
+        b[flip] ^= 0x10
+        return bytes(b)
+    sent[cmd.command_id] = cmd
+    return data
 
 
 @settings(max_examples=200, deadline=None)
@@ -275,12 +313,20 @@ def test_fuzz_laptop_side_decoder(kind, data):
     link._deliver(kind, data)
     s = link.stats
     assert s.crc_errors + s.malformed + s.duplicates_dropped <= 1
-    assert link._acks == {} or s.crc_errors == 0
+    assert link._answers == {} or s.crc_errors == 0
 
 
-def test_fuzz_exercised_acceptance():
-    """Runs after the controller fuzz test: it must have seen some valid commands accepted."""
+def test_fuzz_exercised_acceptance_and_validation():
+    """The controller fuzz test must have seen valid commands accepted, and the rejections must
+    come mostly from payload validation, not from the counter check. Run alone (or first), it
+    runs that fuzz test itself instead of failing on an empty list."""
+    if not ACCEPTED:
+        test_fuzz_controller_accepts_only_valid_commands()
     assert ACCEPTED, "the fuzz strategy produced no acceptable command; widen it"
+    payload = {RejectReason.STALE, RejectReason.WIDTH_RANGE, RejectReason.HEADING_RANGE, RejectReason.OUT_OF_REACH}
+    assert len(payload & set(REASONS)) >= 3, f"payload checks seldom reached: {dict(REASONS)}"
+    intact = len(ACCEPTED) + sum(n for r, n in REASONS.items() if r not in (RejectReason.CRC, RejectReason.MALFORMED))
+    assert REASONS[RejectReason.COUNTER] < 0.25 * intact, f"most commands die at the counter check: {dict(REASONS)}"
 
 
 def test_command_from_pile_grasp_uses_grid_bearing():

@@ -1,5 +1,9 @@
 """Fault injection on the CAN link (in-process virtual bus, FaultyBus on both ends): a command is
-never executed twice, never when stale or out of sequence, and the final state is always known."""
+never executed twice, never when stale or out of sequence, and the final state is always known.
+
+Timing margins hold on a loaded 2-core machine: a timeout a test expects is 1 s, an executor that
+must still run when a status query comes is 3-6 s, and waits for something that should happen
+end as soon as it does (wait_until, or a status query as a barrier behind the frames in flight)."""
 
 from __future__ import annotations
 
@@ -16,6 +20,7 @@ from field.link import ControllerState, OutcomeClass, RejectReason
 from field.link.base import LinkConfig
 from field.link.can_backend import CanControllerTransport, CanLink
 from field.link.faults import FaultyBus
+from tests.field.helpers import wait_until
 
 
 @dataclass
@@ -41,7 +46,7 @@ def pair():
         transport.start(controller)
         controller.start()
         lbus = FaultyBus(can.Bus(interface="virtual", channel=channel, fd=True))
-        link = CanLink(config=LinkConfig(heartbeat_timeout_s=0.3, status_timeout_s=0.3), bus=lbus)
+        link = CanLink(config=LinkConfig(heartbeat_timeout_s=1.0, status_timeout_s=1.0), bus=lbus)
         link._await_controller()
         p = Pair(link, lbus, cbus, controller, executor, transport)
         made.append(p)
@@ -59,26 +64,26 @@ def test_dropped_command_frame(pair, make_cmd):
     p.lbus.arm("drop", "GraspCommand")
     cmd = make_cmd(p.link.new_command_id())
     with pytest.raises(LinkTimeout) as ei:
-        p.link.send_grasp(cmd, timeout_s=0.3)
+        p.link.send_grasp(cmd, timeout_s=1.0)
     assert ei.value.status is not None and ei.value.status.state is ControllerState.IDLE
     assert "NOT executing" in str(ei.value)
     with pytest.raises(CommandRejected):  # never re-sent with the same id
         p.link.send_grasp(cmd)
     nxt = make_cmd(p.link.new_command_id())
     assert p.link.send_grasp(nxt, timeout_s=1.0).accepted  # one lost frame is within the counter tolerance
-    p.link.wait_outcome(nxt.command_id, 2.0)
+    p.link.wait_outcome(nxt.command_id, 10.0)
     assert p.executor.executed == [nxt.command_id]
 
 
 def test_dropped_ack_final_state_known(pair, make_cmd):
-    p = pair(delay_s=0.6)
+    p = pair(delay_s=3.0)
     p.cbus.arm("drop", "Ack")
     cmd = make_cmd(p.link.new_command_id())
     with pytest.raises(LinkTimeout) as ei:
-        p.link.send_grasp(cmd, timeout_s=0.2)
+        p.link.send_grasp(cmd, timeout_s=1.0)
     assert ei.value.status.current_command_id == cmd.command_id  # the operator learns it IS running
     assert "IS executing" in str(ei.value)
-    assert p.link.wait_outcome(cmd.command_id, 3.0).outcome_class is OutcomeClass.SUCCESS
+    assert p.link.wait_outcome(cmd.command_id, 10.0).outcome_class is OutcomeClass.SUCCESS
     assert p.executor.executed == [cmd.command_id]
 
 
@@ -86,26 +91,25 @@ def test_duplicated_command_frame_executes_once(pair, make_cmd):
     p = pair()
     p.lbus.arm("duplicate", "GraspCommand")
     cmd = make_cmd(p.link.new_command_id())
-    assert p.link.send_grasp(cmd, timeout_s=1.0).accepted
-    p.link.wait_outcome(cmd.command_id, 2.0)
-    time.sleep(0.1)
+    assert p.link.send_grasp(cmd, timeout_s=5.0).accepted
+    p.link.wait_outcome(cmd.command_id, 10.0)
+    p.link.status()  # a barrier: the controller handled the copy before this query
     assert p.executor.executed == [cmd.command_id]
     assert p.controller.rejections == []  # the copy was recognised by its counter and dropped
 
 
-def test_corrupted_command_frame_rejected_crc(pair, make_cmd):
+@pytest.mark.parametrize("byte", [20, 5])  # inside the northing / inside the command id
+def test_corrupted_command_frame_is_answered_for_nobody(pair, make_cmd, byte):
+    """The controller answers a frame that failed its CRC with id 0: the laptop never takes it
+    for the answer to its command, and learns from the status that nothing runs."""
     p = pair()
-    p.lbus.arm("corrupt", "GraspCommand", byte=20)  # inside the northing
+    p.lbus.arm("corrupt", "GraspCommand", byte=byte)
     cmd = make_cmd(p.link.new_command_id())
-    with pytest.raises(CommandRejected) as ei:
-        p.link.send_grasp(cmd, timeout_s=1.0)
-    assert ei.value.reason is RejectReason.CRC
-    # corruption inside the command id: the reject goes to an id nobody waits for
-    p.lbus.arm("corrupt", "GraspCommand", byte=5)
-    cmd2 = make_cmd(p.link.new_command_id())
     with pytest.raises(LinkTimeout) as ei:
-        p.link.send_grasp(cmd2, timeout_s=0.3)
-    assert ei.value.status.state is ControllerState.IDLE
+        p.link.send_grasp(cmd, timeout_s=1.0)
+    assert ei.value.status.state is ControllerState.IDLE and "NOT executing" in str(ei.value)
+    assert p.controller.rejections == [(0, RejectReason.CRC)]
+    assert wait_until(lambda: p.link.stats.unattributed_answers == 1)
     assert p.executor.executed == []
 
 
@@ -114,31 +118,29 @@ def test_reordered_late_command_is_never_executed(pair, make_cmd):
     a = make_cmd(p.link.new_command_id())
     p.lbus.arm("hold", "GraspCommand")
     with pytest.raises(LinkTimeout):
-        p.link.send_grasp(a, timeout_s=0.2)
+        p.link.send_grasp(a, timeout_s=1.0)
     b = make_cmd(p.link.new_command_id())
-    assert p.link.send_grasp(b, timeout_s=1.0).accepted  # b overtakes a
-    p.link.wait_outcome(b.command_id, 2.0)
+    assert p.link.send_grasp(b, timeout_s=5.0).accepted  # b overtakes a
+    p.link.wait_outcome(b.command_id, 10.0)
     assert p.lbus.release() == 1  # a arrives late, out of sequence
-    deadline = time.monotonic() + 2
-    while (a.command_id, RejectReason.COUNTER) not in p.controller.rejections and time.monotonic() < deadline:
-        time.sleep(0.02)
-    assert (a.command_id, RejectReason.COUNTER) in p.controller.rejections
+    assert wait_until(lambda: (a.command_id, RejectReason.COUNTER) in p.controller.rejections)
     assert p.executor.executed == [b.command_id]
 
 
 def test_corrupted_and_duplicated_answers(pair, make_cmd):
-    p = pair(delay_s=0.3)
+    p = pair(delay_s=3.0)
     p.cbus.arm("corrupt", "Ack")
     cmd = make_cmd(p.link.new_command_id())
     with pytest.raises(LinkTimeout) as ei:
-        p.link.send_grasp(cmd, timeout_s=0.2)
+        p.link.send_grasp(cmd, timeout_s=1.0)
     assert p.link.stats.crc_errors == 1
     assert ei.value.status.current_command_id == cmd.command_id
-    p.link.wait_outcome(cmd.command_id, 2.0)
+    p.link.wait_outcome(cmd.command_id, 10.0)
+    p.executor.delay_s = 0.05
     p.lbus.arm("duplicate", "Ack", direction="rx")
     cmd2 = make_cmd(p.link.new_command_id())
-    assert p.link.send_grasp(cmd2, timeout_s=1.0).accepted
-    p.link.wait_outcome(cmd2.command_id, 2.0)
+    assert p.link.send_grasp(cmd2, timeout_s=5.0).accepted
+    p.link.wait_outcome(cmd2.command_id, 10.0)
     assert p.link.stats.duplicates_dropped == 1
     assert p.executor.executed == [cmd.command_id, cmd2.command_id]
 
@@ -148,42 +150,41 @@ def test_lost_outcome_recovered_from_status(pair, make_cmd):
     p.cbus.arm("drop", "Outcome")
     p.cbus.arm("drop", "Status")  # the unsolicited status after the outcome is lost too
     cmd = make_cmd(p.link.new_command_id(), logs=4)
-    p.link.send_grasp(cmd, timeout_s=1.0)
-    out = p.link.wait_outcome(cmd.command_id, 0.5)  # recovered by the status query at the deadline
+    p.link.send_grasp(cmd, timeout_s=5.0)
+    out = p.link.wait_outcome(cmd.command_id, 2.0)  # recovered by the status query at the deadline
     assert out.command_id == cmd.command_id and out.logs_grasped == 4
 
 
 def test_crane_heartbeat_loss(pair, make_cmd):
     p = pair()
     p.cbus.arm("drop", "CraneHeartbeat", count=None)
-    time.sleep(0.45)
-    assert not p.link.controller_alive()
+    assert wait_until(lambda: not p.link.controller_alive())
     cmd = make_cmd(p.link.new_command_id())
-    assert p.link.send_grasp(cmd, timeout_s=1.0).accepted  # the status query proves it is there
-    p.link.wait_outcome(cmd.command_id, 2.0)
+    assert p.link.send_grasp(cmd, timeout_s=5.0).accepted  # the status query proves it is there
+    p.link.wait_outcome(cmd.command_id, 10.0)
     p.cbus.arm("drop", None, count=None)  # now the crane is mute
-    time.sleep(0.4)
+    assert wait_until(lambda: not p.link.controller_alive())
     cmd2 = make_cmd(p.link.new_command_id())
     with pytest.raises(LinkTimeout, match="NOT sent") as ei:
-        p.link.send_grasp(cmd2, timeout_s=0.3)
+        p.link.send_grasp(cmd2, timeout_s=1.0)
     assert ei.value.status is None
     assert p.executor.executed == [cmd.command_id]
 
 
 def test_laptop_heartbeat_loss_aborts_the_running_grasp(pair, make_cmd):
-    p = pair(delay_s=3.0, laptop_timeout_s=0.3)
+    p = pair(delay_s=6.0, laptop_timeout_s=1.0)
     cmd = make_cmd(p.link.new_command_id())
-    p.link.send_grasp(cmd, timeout_s=1.0)
+    p.link.send_grasp(cmd, timeout_s=5.0)
     p.lbus.arm("drop", "LaptopHeartbeat", count=None)
     t = time.monotonic()
-    out = p.link.wait_outcome(cmd.command_id, 3.0)
-    assert out.outcome_class is OutcomeClass.ABORTED and time.monotonic() - t < 1.5
+    out = p.link.wait_outcome(cmd.command_id, 15.0)
+    assert out.outcome_class is OutcomeClass.ABORTED and time.monotonic() - t < 4.0  # not the 6 s end
     p.lbus.disarm()
-    time.sleep(0.1)
-    nxt = make_cmd(p.link.new_command_id())  # heartbeats back: a new session, counters re-synced
+    assert wait_until(lambda: p.controller.status().laptops == 1)  # heartbeats back: a new session
+    nxt = make_cmd(p.link.new_command_id())
     p.executor.delay_s = 0.05
-    assert p.link.send_grasp(nxt, timeout_s=1.0).accepted
-    p.link.wait_outcome(nxt.command_id, 2.0)
+    assert p.link.send_grasp(nxt, timeout_s=5.0).accepted
+    p.link.wait_outcome(nxt.command_id, 10.0)
     assert p.executor.executed == [cmd.command_id, nxt.command_id]
 
 
@@ -192,15 +193,15 @@ def test_bus_errors(pair, make_cmd):
     p.lbus.arm("error", "GraspCommand")
     cmd = make_cmd(p.link.new_command_id())
     with pytest.raises(LinkError) as ei:
-        p.link.send_grasp(cmd, timeout_s=0.5)
+        p.link.send_grasp(cmd, timeout_s=1.0)
     assert type(ei.value) is LinkError and isinstance(ei.value.__cause__, can.CanError)
     assert p.link.guard.used(cmd.command_id)  # burned: never sent later by accident
     nxt = make_cmd(p.link.new_command_id())
-    assert p.link.send_grasp(nxt, timeout_s=1.0).accepted
-    p.link.wait_outcome(nxt.command_id, 2.0)
+    assert p.link.send_grasp(nxt, timeout_s=5.0).accepted
+    p.link.wait_outcome(nxt.command_id, 10.0)
     # a receive error is unrecoverable for this link: every call says so
     p.lbus.arm("error", None, direction="rx")
-    time.sleep(0.2)
+    assert wait_until(lambda: p.link._failure is not None)
     with pytest.raises(LinkError, match="failed"):
         p.link.status()
     assert p.link.stats.bus_errors >= 1

@@ -1,0 +1,206 @@
+"""Authenticated frames in the style of AUTOSAR SecOC: origin, not only integrity.
+
+E2E (:mod:`field.link.codec`) detects corruption, but anyone on the bus can compute a CRC: a
+node that should not speak could forge a "success" outcome or a command. With a pre-shared key
+every frame carries a freshness value and a truncated MAC, and a receiver drops any frame whose
+MAC or freshness does not check out (SecOC's "verification failed" → PDU dropped).
+
+Secured frame layout (all CAN FD lengths, little-endian)::
+
+    [0, A)        the authentic PDU: the frame's bytes up to the last one a DBC signal uses
+                  (E2E header included; the DBC's reserved tail is not sent and reads as zero)
+    [A, A+8)      freshness value (uint64): sender clock in ms << 16 | a per-ms sequence
+    [A+8, A+16)   MAC: HMAC-SHA256(key, "LGSECOC1" | frame id (uint16) | authentic PDU | FV),
+                  truncated to its first 8 bytes (64 bits)
+    [A+16, L)     zero padding up to the next CAN FD length L
+
+The freshness value is time-based and strictly increasing per sender, so a receiver accepts a
+frame only when its FV lies within ``window_s`` of the receiver's clock and was not seen
+before: replayed, duplicated and long-delayed frames all fail, across restarts too. This needs
+the laptop and the crane clocks to agree within ``window_s`` (GNSS time on a real crane; the
+plan timestamps already need it). The key is 32 random bytes, stored hex-encoded in a file
+only its owner can read (mode 0600); it is never logged or shown.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import hmac
+import os
+import secrets
+import stat
+import threading
+import time
+from collections import deque
+from pathlib import Path
+from typing import Callable
+
+from field.errors import AuthenticationError, KeyFileError
+
+MAC_BYTES = 8  # truncated MAC length [bytes]
+FV_BYTES = 8  # freshness value length [bytes]
+TRAILER_BYTES = FV_BYTES + MAC_BYTES
+KEY_BYTES = 32  # generated key length [bytes]
+MIN_KEY_BYTES = 16  # shortest key accepted [bytes]
+DEFAULT_WINDOW_S = 2.0  # freshness window: |FV time - receiver clock| allowed [s]
+FD_LENGTHS = (8, 12, 16, 20, 24, 32, 48, 64)
+_LABEL = b"LGSECOC1"
+
+
+@functools.lru_cache(maxsize=None)
+def secured_length(kind: str) -> int:
+    """Length of the authenticated frame of ``kind`` [bytes]: the next CAN FD length."""
+    from field.link.codec import authentic_length
+
+    need = authentic_length(kind) + TRAILER_BYTES
+    for n in FD_LENGTHS:
+        if n >= need:
+            return n
+    raise ValueError(f"{kind}: {need} bytes do not fit one CAN FD frame")
+
+
+# --- the key file ---------------------------------------------------------------------------
+
+
+def load_key(path: str | Path) -> bytes:
+    """Read a hex-encoded key from ``path``; refuse a file group or others may read."""
+    path = Path(path)
+    try:
+        st = path.stat()
+    except OSError as exc:
+        raise KeyFileError(f"SecOC key file {path} cannot be read ({exc.strerror}); create one with "
+                           f"`loggrasp link-key {path}` or fix the --secoc-key / secoc_key= path") from exc
+    if st.st_mode & (stat.S_IRWXG | stat.S_IRWXO):
+        raise KeyFileError(f"SecOC key file {path} is accessible by group/others (mode "
+                           f"{stat.S_IMODE(st.st_mode):04o}); run `chmod 600 {path}`")
+    try:
+        key = bytes.fromhex(path.read_text().strip())
+    except (OSError, ValueError) as exc:
+        raise KeyFileError(f"SecOC key file {path} does not hold a hex key; create a new one with "
+                           f"`loggrasp link-key {path}`") from exc
+    if len(key) < MIN_KEY_BYTES:
+        raise KeyFileError(f"SecOC key in {path} is {len(key)} bytes, need at least {MIN_KEY_BYTES}; "
+                           f"create a new one with `loggrasp link-key {path}`")
+    return key
+
+
+def generate_key_file(path: str | Path) -> Path:
+    """Write a new random key to ``path`` (mode 0600, refuses to overwrite)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    except FileExistsError as exc:
+        raise KeyFileError(f"{path} exists; a key is never overwritten - remove it first or choose "
+                           f"another path") from exc
+    with os.fdopen(fd, "w") as f:
+        f.write(secrets.token_hex(KEY_BYTES) + "\n")
+    return path
+
+
+# --- freshness ------------------------------------------------------------------------------
+
+
+class FreshnessCounter:
+    """A sender's freshness values: ``clock ms << 16 | sequence``, strictly increasing."""
+
+    def __init__(self, clock: Callable[[], float] = time.time):
+        self._clock = clock
+        self._last = 0
+        self._lock = threading.Lock()
+
+    def next(self) -> int:
+        with self._lock:
+            base = int(self._clock() * 1000) << 16 | secrets.randbits(8)
+            self._last = max(base, self._last + 1)
+            return self._last
+
+
+class ReplayGuard:
+    """A receiver's freshness check per message kind: inside the window, never seen before."""
+
+    def __init__(self, window_s: float, clock: Callable[[], float] = time.time):
+        self.window_s = window_s
+        self._clock = clock
+        self._seen: dict[str, set[int]] = {}
+        self._order: dict[str, deque[int]] = {}
+        self._lock = threading.Lock()
+
+    def check(self, kind: str, fv: int) -> str | None:
+        """``None`` if fresh (and remember it), else why not."""
+        skew = (fv >> 16) / 1000.0 - self._clock()
+        if abs(skew) > self.window_s:
+            return (f"freshness value {skew:+.2f} s off this clock (window {self.window_s:.1f} s): a "
+                    f"delayed or replayed frame, or the two clocks disagree")
+        with self._lock:
+            seen = self._seen.setdefault(kind, set())
+            if fv in seen:
+                return "freshness value seen before: a duplicated or replayed frame"
+            order = self._order.setdefault(kind, deque())
+            seen.add(fv)
+            order.append(fv)
+            oldest = (int((self._clock() - 2 * self.window_s) * 1000)) << 16
+            while order and order[0] < oldest:
+                seen.discard(order.popleft())
+        return None
+
+
+# --- securing and verifying -----------------------------------------------------------------
+
+
+class SecOC:
+    """Secure outgoing frames and verify incoming ones with one pre-shared key."""
+
+    def __init__(self, key: bytes, *, window_s: float = DEFAULT_WINDOW_S, clock: Callable[[], float] = time.time,
+                 source: str = "<key>"):
+        if len(key) < MIN_KEY_BYTES:
+            raise KeyFileError(f"SecOC key from {source} is {len(key)} bytes, need at least {MIN_KEY_BYTES}")
+        if not window_s > 0:
+            raise ValueError(f"SecOC freshness window must be > 0 s, got {window_s}")
+        self._key = key
+        self.source = source
+        self.window_s = window_s
+        self._fv = FreshnessCounter(clock)
+        self._replay = ReplayGuard(window_s, clock)
+
+    @classmethod
+    def from_key_file(cls, path: str | Path, **kwargs) -> "SecOC":
+        return cls(load_key(path), source=str(path), **kwargs)
+
+    def __repr__(self) -> str:  # never the key
+        return f"<SecOC key={self.source} window={self.window_s:g}s>"
+
+    def _mac(self, kind: str, pdu: bytes, fv: bytes) -> bytes:
+        from field.link.codec import frame_id
+
+        msg = _LABEL + frame_id(kind).to_bytes(2, "little") + pdu + fv
+        return hmac.new(self._key, msg, hashlib.sha256).digest()[:MAC_BYTES]
+
+    def secure(self, kind: str, frame: bytes) -> bytes:
+        """The authenticated frame for an E2E-protected ``frame`` of ``kind``."""
+        from field.link.codec import authentic_length
+
+        n = authentic_length(kind)
+        pdu = bytes(frame[:n])
+        fv = self._fv.next().to_bytes(FV_BYTES, "little")
+        out = pdu + fv + self._mac(kind, pdu, fv)
+        return out + bytes(secured_length(kind) - len(out))
+
+    def verify(self, kind: str, data: bytes, *, check_freshness: bool = True) -> bytes:
+        """The plain frame (DBC length) inside an authenticated one; raises
+        :class:`AuthenticationError` (the frame must be dropped)."""
+        from field.link.codec import _message, authentic_length
+
+        n = authentic_length(kind)
+        if len(data) != secured_length(kind):
+            raise AuthenticationError(f"{kind}: {len(data)} bytes, an authenticated frame has "
+                                      f"{secured_length(kind)} (is the other side running without the key?)")
+        pdu, fv, mac = bytes(data[:n]), bytes(data[n:n + FV_BYTES]), bytes(data[n + FV_BYTES:n + TRAILER_BYTES])
+        if not hmac.compare_digest(mac, self._mac(kind, pdu, fv)) or any(data[n + TRAILER_BYTES:]):
+            raise AuthenticationError(f"{kind}: MAC check failed (forged or corrupted frame, or another key)")
+        if check_freshness:
+            why = self._replay.check(kind, int.from_bytes(fv, "little"))
+            if why is not None:
+                raise AuthenticationError(f"{kind}: {why}")
+        return pdu + bytes(_message(kind).length - n)

@@ -1,0 +1,295 @@
+#!/usr/bin/env python3
+"""Plant plausible one-line bugs in a copy of the tree and check that the test suite catches them.
+
+For each mutation in MUTATIONS below, the script copies the working tree (tracked and untracked,
+not ignored files; never touching the tree itself) into a temporary folder, replaces one exact
+piece of source text there, runs the test files that should guard it, and reports
+
+    caught   the tests failed (the first failing assertion is shown)
+    MISSED   the tests passed (or skipped) with the bug in place
+    stale    the source text is no longer found exactly once: update the table
+    error    pytest could not run (collection error, timeout)
+
+Before the mutations the same test files are run on the unchanged copy: a mutation only counts as
+caught if its tests pass without it (a failing baseline is reported and stops the run).
+
+    python scripts/mutation_check.py                    # every mutation
+    python scripts/mutation_check.py --list             # the table
+    python scripts/mutation_check.py --only f3-reads-w  # some of them
+    python scripts/mutation_check.py --quick            # only each entry's dedicated test file
+    python scripts/mutation_check.py --tests-from main  # the tests of another commit on today's code
+
+``--tests-from REF`` replaces the copy's ``tests/`` by that commit's (``git archive``): how the
+suite of REF fares against the same bugs (test files REF does not have are left out).
+
+After a refactor, update ``file``/``find`` (and ``tests``) of each entry to where the code lives.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tarfile
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@dataclass(frozen=True)
+class Mutation:
+    id: str
+    what: str  # the regression, in words
+    file: str  # repository-relative path of the mutated module
+    find: str  # exact source text, present exactly once
+    replace: str  # what it becomes
+    tests: tuple[str, ...]  # test files (or node ids) that must catch it
+    env: str | None = None  # an ENVIRONMENTS key: the machine the tests run on
+
+
+M = Mutation
+# ------------------------------------------------------------------------------------------------
+# The mutation table. One entry, one planted bug.
+# ------------------------------------------------------------------------------------------------
+MUTATIONS: tuple[Mutation, ...] = (
+    M("atomic-writer-plain", "the shared atomic writer writes in place",
+      "synth/pile.py", 'fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)',
+      "path.write_bytes(data); return",
+      ("tests/synth/test_atomic_writes.py", "tests/synth/test_pile.py", "tests/synth/test_dataset.py")),
+    M("dataset-write-plain", "the data set's write seam (shards, done records, manifest) writes in place",
+      "synth/dataset.py", "    atomic_write_bytes(path, data)\n", "    path.write_bytes(data)\n",
+      ("tests/synth/test_atomic_writes.py", "tests/synth/test_dataset.py")),
+    M("pile-write-plain", "write_pile writes pile.json in place",
+      "synth/pile.py", "atomic_write_bytes(path, text.encode())", "path.write_bytes(text.encode())",
+      ("tests/synth/test_atomic_writes.py", "tests/synth/test_pile.py")),
+    M("checkpoint-write-plain", "save_tensors (checkpoints, training state) writes in place",
+      "planner/checkpoint.py", "atomic_write_bytes(path, data)", "path.write_bytes(data)",
+      ("tests/synth/test_atomic_writes.py", "tests/planner/test_planner_inference.py")),
+    M("geojson-write-plain", "write_geojson writes in place (no behavioural test reaches it)",
+      "field/geo.py", 'atomic_write_bytes(path, json.dumps(fc, indent=1).encode("utf-8"))',
+      'path.write_bytes(json.dumps(fc, indent=1).encode("utf-8"))',
+      ("tests/synth/test_atomic_writes.py", "tests/field/test_geo.py")),
+    M("resume-checksum-off", "resuming a data set no longer checks finished shards' sha256",
+      "synth/dataset.py", "_check_shard_file(out / info.file, info, checksum=True)",
+      "_check_shard_file(out / info.file, info, checksum=False)",
+      ("tests/synth/test_dataset_resume_checksum.py", "tests/synth/test_dataset.py")),
+    M("loss-lambda-w-dropped", "the lambda_W width term is left out of the loss",
+      "planner/loss.py", " + weights.lambda_w * lw", "",
+      ("tests/planner/test_loss_terms.py", "tests/planner/test_planner_loss_augment.py")),
+    M("loss-u-pos-weight-dropped", "u_pos_weight no longer weighs the BCE",
+      "planner/loss.py", "pred[:, 3], u, pos_weight=pos_weight)", "pred[:, 3], u)",
+      ("tests/planner/test_loss_terms.py", "tests/planner/test_planner_loss_augment.py")),
+    M("train-ignores-loss-config", "training steps use the default loss weights, not TrainConfig.loss",
+      "planner/train.py", "loss, parts = grasp_loss(pred, y, config.loss)", "loss, parts = grasp_loss(pred, y)",
+      ("tests/planner/test_loss_terms.py", "tests/planner/test_planner_train.py")),
+    M("mirror-view-sin-sign", "the mirrored test-time view is mapped back without negating sin 2phi",
+      "planner/inference.py", "        y[:, 1] *= -1.0", "        y[:, 1] *= 1.0",
+      ("tests/planner/test_views_equivariance.py", "tests/planner/test_planner_inference.py")),
+    M("quarter-turn-sign", "a quarter-turned test-time view is mapped back without turning (C, S)",
+      "planner/inference.py", "        y[:, 0:2] *= -1.0", "        y[:, 0:2] *= 1.0",
+      ("tests/planner/test_views_equivariance.py", "tests/planner/test_planner_inference.py")),
+    M("f3-reads-w", "f3 (and the reported balance) read the W channel instead of B",
+      "planner/inference.py", "np.ascontiguousarray(out[:, 4], dtype=np.float32)",
+      "np.ascontiguousarray(out[:, 2], dtype=np.float32)",
+      ("tests/planner/test_objective_channels.py", "tests/planner/test_planner_inference.py")),
+    M("subset-slack-removed", "the subset pre-selection's slack for the sparse candidate centres is removed",
+      "planner/subsets.py", "R = policy.fit_radius_m + slack", "R = policy.fit_radius_m",
+      ("tests/planner/test_subset_slack.py", "tests/planner/test_planner_inference.py")),
+    M("rh2000-ballpark", "RH 2000 heights fall back to PROJ's ballpark (ellipsoidal) without the geoid grid",
+      "synth/geodesy.py", "    t = _rh2000_transformer()\n",
+      '    t = _transformer(EPSG_SWEREF99_3D, f"{EPSG_SWEREF99}+5613")\n',
+      ("tests/synth/test_rh2000_refusal.py", "tests/synth/test_geodesy.py")),
+    M("rh2000-ballpark-on-a-grid-machine", "the same, tested on a machine that has the geoid grid installed",
+      "synth/geodesy.py", "    t = _rh2000_transformer()\n",
+      '    t = _transformer(EPSG_SWEREF99_3D, f"{EPSG_SWEREF99}+5613")\n',
+      ("tests/synth/test_rh2000_refusal.py", "tests/synth/test_geodesy.py"), env="geoid-grid"),
+    # -- guards of the tests that could not fail -------------------------------------------------
+    M("real-test-angle-half-period", "the real test's angle difference wraps at 90 deg instead of 180",
+      "field/real_test.py", "d = (a - b + math.pi / 2) % math.pi - math.pi / 2",
+      "d = (a - b) % (math.pi / 2)",
+      ("tests/field/test_real_test_angles.py",
+       "tests/field/test_real_test.py::test_summary_counts_and_paired_uncertainty")),
+    M("validation-split-per-process", "the by-pile split uses Python's per-process hash()",
+      "planner/data.py", 'digest = hashlib.blake2b(f"{seed}:{pile_id}".encode(), digest_size=8).digest()',
+      'digest = (hash(f"{seed}:{pile_id}") % 2 ** 64).to_bytes(8, "little")',
+      ("tests/planner/test_planner_train.py::test_split_is_by_pile_and_deterministic",)),
+    M("cli-slow-import", "`loggrasp --help` imports dask.distributed (~0.8 s of CPU; not on the heavy list)",
+      "field/cli.py", "import typer\n", "import typer\nimport distributed  # noqa: F401\n",
+      ("tests/test_cli_startup.py", "tests/test_cli.py::test_help_is_fast_and_imports_nothing_heavy")),
+)
+
+
+# ------------------------------------------------------------------------------------------------
+# environments: what the machine the tests run on has installed
+# ------------------------------------------------------------------------------------------------
+def _geoid_grid_env(copy: Path, scratch: Path) -> dict[str, str]:
+    """A machine with the SWEN17_RH2000 geoid grid: a stand-in grid in PROJ's user folder (written
+    by the working tree's tests/synth/geoid_stand_in.py, whatever tests the copy has)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("geoid_stand_in", REPO / "tests/synth/geoid_stand_in.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    folder = scratch / "proj-user"
+    mod.write_stand_in_geoid(folder)
+    return {"PROJ_USER_WRITABLE_DIRECTORY": str(folder)}
+
+
+ENVIRONMENTS = {"geoid-grid": _geoid_grid_env}
+
+
+# ------------------------------------------------------------------------------------------------
+def copy_tree(dest: Path) -> None:
+    """The working tree's tracked and untracked, not ignored files (no .git) into ``dest``."""
+    out = subprocess.run(["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"], cwd=REPO,
+                         capture_output=True, check=True).stdout
+    for rel in sorted({p for p in out.decode().split("\0") if p}):
+        src = REPO / rel
+        if src.is_file():
+            (dest / rel).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(src, dest / rel)
+
+
+def replace_tests(dest: Path, ref: str) -> None:
+    data = subprocess.run(["git", "archive", "--format=tar", ref, "tests"], cwd=REPO, capture_output=True,
+                          check=True).stdout
+    shutil.rmtree(dest / "tests", ignore_errors=True)
+    with tarfile.open(fileobj=io.BytesIO(data)) as tar:
+        tar.extractall(dest, filter="data")
+
+
+def _exists(copy: Path, test: str) -> bool:
+    return (copy / test.split("::")[0]).is_file()
+
+
+def run_pytest(copy: Path, tests: list[str], python: str, timeout_s: float, extra_env: dict) -> tuple[int, str, float]:
+    env = {**os.environ, "PYTHONPATH": str(copy), "PYTHONDONTWRITEBYTECODE": "1", **extra_env}
+    cmd = [python, "-m", "pytest", "-q", "-x", "-p", "no:cacheprovider", "-rfEs", *tests]
+    t0 = time.perf_counter()
+    try:
+        r = subprocess.run(cmd, cwd=copy, env=env, capture_output=True, text=True, timeout=timeout_s)
+        return r.returncode, r.stdout + r.stderr, time.perf_counter() - t0
+    except subprocess.TimeoutExpired as exc:
+        return -1, f"timed out after {timeout_s:.0f} s\n{exc.stdout or ''}", time.perf_counter() - t0
+
+
+def first_failure(output: str) -> str:
+    """The first failing test and its assertion, in one line."""
+    test = next((m.group(1) for m in re.finditer(r"^FAILED (\S+)", output, re.M)), "")
+    errs = [ln[1:].strip() for ln in output.splitlines() if ln.startswith("E ") and ln[1:].strip()]
+    err = " ".join(errs[:2]) if errs and re.fullmatch(r"\w+(Error|Exception):?", errs[0]) else (errs or [""])[0]
+    return f"{test.split('/')[-1]}: {err}"[:240]
+
+
+def summary_line(output: str) -> str:
+    lines = [ln for ln in output.strip().splitlines() if re.search(r"\d+ (passed|failed|skipped|error)", ln)]
+    if lines:
+        return lines[-1].strip("= ")
+    return (output.strip().splitlines() or [""])[-1]
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--only", nargs="+", metavar="ID", help="run only these mutations")
+    ap.add_argument("--list", action="store_true", help="print the mutation table and exit")
+    ap.add_argument("--tests-from", metavar="REF", help="use the tests/ of this git commit")
+    ap.add_argument("--python", default=sys.executable, help="interpreter with the project's dependencies")
+    ap.add_argument("--timeout", type=float, default=900.0, help="per pytest run [s]")
+    ap.add_argument("--quick", action="store_true", help="run only each entry's first (dedicated) test file")
+    ap.add_argument("--json", metavar="PATH", help="also write the results as JSON")
+    ap.add_argument("--keep", action="store_true", help="keep the temporary copy")
+    a = ap.parse_args(argv)
+
+    chosen = [m for m in MUTATIONS if not a.only or m.id in a.only]
+    if a.quick:
+        from dataclasses import replace
+
+        chosen = [replace(m, tests=m.tests[:1]) for m in chosen]
+    unknown = set(a.only or ()) - {m.id for m in MUTATIONS}
+    if unknown:
+        ap.error(f"unknown mutation ids: {sorted(unknown)}")
+    if a.list:
+        for m in chosen:
+            print(f"{m.id:36s} {m.file:24s} {m.what}" + (f"  [on: {m.env}]" if m.env else ""))
+        return 0
+
+    tmp = Path(tempfile.mkdtemp(prefix="loggrasp-mutation-"))
+    copy, scratch = tmp / "tree", tmp / "scratch"
+    copy.mkdir(), scratch.mkdir()
+    results = []
+    try:
+        copy_tree(copy)
+        if a.tests_from:
+            replace_tests(copy, a.tests_from)
+        envs = {name: ENVIRONMENTS[name](copy, scratch / name) for name in {m.env for m in chosen if m.env}}
+        # baseline: every test set passes on the unchanged copy, on each environment used
+        for env_name in sorted({m.env or "" for m in chosen}):
+            tests = sorted({t for m in chosen if (m.env or "") == env_name for t in m.tests if _exists(copy, t)})
+            rc, out, wall = run_pytest(copy, tests, a.python, a.timeout, envs.get(env_name, {}))
+            print(f"baseline{' on ' + env_name if env_name else ''}: {summary_line(out)} ({wall:.0f} s)", flush=True)
+            if rc != 0:
+                print(out[-4000:])
+                print("the baseline fails: fix the suite first", file=sys.stderr)
+                return 2
+        for m in chosen:
+            path = copy / m.file
+            original = path.read_text()
+            n = original.count(m.find)
+            tests = [t for t in m.tests if _exists(copy, t)]
+            row = {"id": m.id, "what": m.what, "file": m.file, "env": m.env, "tests": tests}
+            if n != 1:
+                row.update(result="stale", detail=f"the text to replace occurs {n} times in {m.file}")
+            elif not tests:
+                row.update(result="MISSED", detail="no test file of this entry exists")
+            else:
+                mutated = original.replace(m.find, m.replace)
+                try:
+                    compile(mutated, str(path), "exec")
+                except SyntaxError as exc:
+                    row.update(result="stale", detail=f"the mutated {m.file} does not compile: {exc}")
+                    results.append(row)
+                    print(f"stale   {m.id}: {row['detail']}", flush=True)
+                    continue
+                path.write_text(mutated)
+                try:
+                    rc, out, wall = run_pytest(copy, tests, a.python, a.timeout, envs.get(m.env, {}))
+                finally:
+                    path.write_text(original)
+                row["wall_s"] = round(wall, 1)
+                if rc == 1 and re.search(r"^FAILED ", out, re.M):
+                    row.update(result="caught", detail=first_failure(out))
+                elif rc == 0:
+                    row.update(result="MISSED", detail=summary_line(out))
+                else:
+                    row.update(result="error", detail=f"pytest exit {rc}: {summary_line(out)}")
+            results.append(row)
+            print(f"{row['result']:7s} {m.id}: {row['detail']}", flush=True)
+    finally:
+        if a.keep:
+            print(f"copy kept in {tmp}")
+        else:
+            shutil.rmtree(tmp, ignore_errors=True)
+
+    print()
+    print("| mutation | file | result | by (first failure) |")
+    print("|---|---|---|---|")
+    for r in results:
+        on = f" (on: {r['env']})" if r["env"] else ""
+        print(f"| {r['id']}{on} | {r['file']} | {r['result']} | {r['detail'].replace('|', '/')} |")
+    n_caught = sum(r["result"] == "caught" for r in results)
+    print(f"\n{n_caught} of {len(results)} caught" + (f" (tests from {a.tests_from})" if a.tests_from else ""))
+    if a.json:
+        Path(a.json).write_text(json.dumps(results, indent=1))
+    return 0 if n_caught == len(results) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
