@@ -1,22 +1,56 @@
 """The ``loggrasp`` command. Sub-commands are thin wrappers over library functions; every heavy
-import happens inside a command so that ``loggrasp --help`` is instant."""
+import happens inside a command so that ``loggrasp --help`` is instant.
+
+:func:`run` is the one place errors are printed: a command (or the library under it) raises, and
+:func:`run` writes one line ``error: …`` on standard error — the problem, with the flag or file
+to fix — and returns the documented exit code (``synth.cli_common.EXIT_CODES``). :func:`main`
+(the console script) also keeps C libraries quiet unless ``--verbose``.
+"""
 
 from __future__ import annotations
 
+import os
+import re
+import sys
 from pathlib import Path
+from typing import Literal
 
 import typer
 
-from field.link.messages import DEFAULT_MAX_PILE_AGE_S
-from planner.cli import eval_command, plan_command, train_command
-from reconstruct.cli import compare_command, reconstruct_command, scan_command
+from field.controller import ReachEnvelope
+from field.trial import TrialOptions
+from planner.cli import MODEL, OBJECTIVE_HELP, VIEW_SPREAD, VIEWS, eval_command, plan_command, train_command
+from reconstruct.cli import compare_command, gnss_crs_warning, reconstruct_command, scan_command
+from synth.cli import APP_SETTINGS, JSON
 from synth.cli import app as synth_app
-from synth.cli import fail
+from synth.cli_common import (EXIT_CODES, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_LINK,
+                              EXIT_REPLAY_DIFFERS, EXIT_TRIAL, CliError, Output, check_input, check_output_dir,
+                              check_output_file, field_default, flag_of_path, option, to_flags)
 
-app = typer.Typer(
-    help="loggrasp — multi-log grasp planning for forestry cranes, from simulator twin to field.",
-    no_args_is_help=True, pretty_exceptions_enable=False,
-)
+LINK_FORMS = ("can://virtual/CH, can://socketcan/can0, can://remote/127.0.0.1:PORT/CH, can://, "
+              "zenoh://HOST:PORT/CRANE, zenoh://CRANE?config=PATH.json5, twin://")
+TWIN_PARAMETERS = (
+    "twin:// runs a crane controller twin inside this process behind a simulated CAN bus. Its "
+    "parameters (URL query, e.g. twin://?executor=pybullet&pile=truth/pile.json&trial=fast): "
+    "crane_base=E,N,H (SWEREF 99 TM [m], ellipsoidal h [m]; trial fills it from --base, else 5 m "
+    "south of the surveyed logs), crane_max_reach_m=M (trial: --max-reach), crane_max_pile_age_s=S "
+    "(the twin crane's own staleness limit; trial: --max-pile-age, replay: the record's age), "
+    "executor=fixed|pybullet (fixed: always the outcome=SUCCESS|COLLISION|... after delay_ms=MS; "
+    "pybullet: a grasp trial on pile=PILE.json with trial=fast|careful), and the link options "
+    "record=PATH.blf, heartbeat_ms, heartbeat_timeout_ms, connect_timeout_s, max_pile_age_s, secoc_key=KEYFILE "
+    "(authenticated frames, SecOC style: both ends use the key; see `loggrasp link-key`).")
+ROOT_HELP = f"""loggrasp — multi-log grasp planning for forestry cranes, from simulator twin to field.
+
+\b
+Exit codes:
+""" + "\n".join(f"  {code:>3}  {what}" for code, what in EXIT_CODES.items()) + """
+
+--json (where offered) prints one JSON document with a format name and version on standard output;
+progress and warnings go to standard error. --verbose (anywhere on the line) shows what C libraries
+print (pybullet, EGL/OpenGL, libpng) and the traceback of an internal error.
+"""
+
+app = typer.Typer(help=ROOT_HELP, **APP_SETTINGS)
 synth_app.command("scan")(scan_command)
 app.add_typer(synth_app, name="synth")
 app.command("train")(train_command)
@@ -26,78 +60,140 @@ app.command("reconstruct")(reconstruct_command)
 app.command("compare-piles")(compare_command)
 
 
-def _parse_triple(text: str, name: str) -> tuple[float, float, float]:
-    parts = [float(v) for v in text.split(",")]
-    if len(parts) != 3:
-        raise ValueError(f"{name} must be E,N,H (SWEREF 99 TM easting, northing [m], ellipsoidal height [m])")
+def version_text() -> str:
+    try:
+        from importlib.metadata import version
+
+        v = version("loggrasp")
+    except Exception:  # running from a source tree that is not installed
+        import synth
+
+        v = synth.__version__
+    return f"loggrasp {v}"
+
+
+def _print_version(value: bool) -> None:
+    if value:
+        print(version_text())
+        raise typer.Exit(0)
+
+
+@app.callback()
+def root(
+    version: bool = typer.Option(False, "--version", help="Print loggrasp's version and exit.", is_eager=True,
+                                 callback=_print_version),
+    verbose: bool = typer.Option(False, "--verbose", help="Show C libraries' output and internal tracebacks "
+                                 "(may be given anywhere on the line)."),
+) -> None:
+    """loggrasp — multi-log grasp planning for forestry cranes."""
+
+
+# -- shared field flags ----------------------------------------------------------------------------
+def link_option(help: str = f"Crane link URL: {LINK_FORMS}."):
+    return option("--link", help, default=..., metavar="URL")
+
+
+BASE_HELP = "Crane base E,N,H (SWEREF 99 TM easting, northing [m], ellipsoidal height [m])"
+MAX_REACH = option("--max-reach", "Boom reach.", field=(ReachEnvelope, "max_reach_m"), min=0.1)
+MAX_PILE_AGE = option("--max-pile-age", "Refuse plans on pile data older than this.",
+                      field=(TrialOptions, "max_pile_age_s"), min=0.001)
+
+
+def parse_base(text: str | None, flag: str = "--base") -> tuple[float, float, float] | None:
+    if text is None:
+        return None
+    try:
+        parts = [float(v) for v in text.split(",")]
+    except ValueError:
+        parts = []
+    if len(parts) != 3 or not all(v == v for v in parts):
+        raise CliError(f"{flag} must be E,N,H (SWEREF 99 TM easting and northing [m], ellipsoidal height [m]), "
+                       f"e.g. 743497.0,7117716.0,249.8; got {text!r}")
+    from synth.geodesy import check_sweref_tm
+
+    check_sweref_tm(parts[0], parts[1], flag)
     return parts[0], parts[1], parts[2]
 
 
-@app.command("crane-sim")
-def crane_sim(
-    link: str = typer.Option(..., "--link", help="Link URL the controller serves, e.g. zenoh://127.0.0.1:7447/crane1."),
-    pile: str = typer.Option(..., "--pile", help="The true, georeferenced pile.json the crane stands at."),
-    base: str = typer.Option(None, "--base", help="Crane base E,N,H (SWEREF 99 TM, ellipsoidal h); default: 5 m "
-                                                  "south of the pile."),
-    max_reach: float = typer.Option(10.0, "--max-reach", help="Boom reach [m]."),
-    max_pile_age: float = typer.Option(DEFAULT_MAX_PILE_AGE_S, "--max-pile-age", help="Refuse plans on older pile data [s]."),
-    journal: str = typer.Option(None, "--journal", help="Burn every seen command id here (never run twice, across "
-                                                        "restarts); default: a file per link under ~/.local/state/loggrasp."),
-    no_journal: bool = typer.Option(False, "--no-journal", help="Remember ids in memory only (a restart forgets them)."),
-    trial: str = typer.Option("fast", "--trial", help="Trial preset: fast or careful."),
-) -> None:
-    """Run the crane controller twin: validates commands like a real controller and executes
-    accepted grasps in pybullet on the given pile. Stops on Ctrl-C / SIGTERM. Authenticated
-    frames: add ?secoc_key=KEYFILE to --link (the laptop uses the same key; see `loggrasp link-key`).
+def check_link(url: str, flag: str = "--link", serve: bool = False):
+    """The parsed link URL, or a :class:`CliError` (exit 3) before any work: empty, malformed, or a
+    scheme with no backend (``serve``: one a controller can serve, i.e. not ``twin://``)."""
+    from field.link.base import BACKENDS, CONTROLLER_TRANSPORTS, LinkURL
 
-    Example: loggrasp crane-sim --link zenoh://127.0.0.1:7447/crane1 --pile scans/s3/truth/pile.json
-    """
-    import signal
-    import threading
-
-    import field.controller
-    from field.errors import FieldError
-    from field.executor import PybulletTrialExecutor
-    from synth.errors import SynthError
-
-    if no_journal and journal:
-        fail("give --journal PATH or --no-journal, not both")
-    journal = None if no_journal else (journal or str(field.controller.default_journal_path(link)))
+    if not url or not url.strip():
+        raise CliError(f"{flag} is empty; give a crane link URL: {LINK_FORMS}", EXIT_LINK)
     try:
-        executor = PybulletTrialExecutor(pile, trial=trial)
-        base_tm = _parse_triple(base, "--base") if base else default_crane_base(executor.pile)
-        config = crane_config(base_tm, max_reach, max_pile_age, journal)
-    except (FieldError, SynthError, ValueError) as exc:
-        fail(str(exc))
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
-    typer.echo(f"crane controller twin serving {link} (base E {base_tm[0]:.3f} N {base_tm[1]:.3f}); "
-               f"journal {journal or 'OFF (ids forgotten on restart)'}; Ctrl-C stops")
-    try:
-        final = field.controller.run_controller(link, executor, stop, config)
-    except (FieldError, ValueError) as exc:
-        fail(str(exc))
-    typer.echo(f"stopped in state {final.state.name}")
+        parsed = LinkURL.parse(url)
+    except ValueError as exc:
+        raise CliError(f"{flag}: {exc}", EXIT_LINK) from exc
+    registry = CONTROLLER_TRANSPORTS if serve else BACKENDS
+    if parsed.scheme not in registry:
+        if serve and parsed.scheme == "twin":
+            raise CliError(f"{flag} {url}: twin:// is a crane twin inside the laptop's own process; a controller "
+                           "serves can://... or zenoh://...", EXIT_LINK)
+        raise CliError(f"{flag} {url}: unknown link scheme {parsed.scheme + '://'!r}; use one of {LINK_FORMS}",
+                       EXIT_LINK)
+    if parsed.scheme == "zenoh" and not parsed.path and "config" not in parsed.query:
+        raise CliError(f"{flag} {url}: a Zenoh URL names the crane: zenoh://HOST:PORT/CRANE or "
+                       "zenoh://CRANE?config=PATH.json5", EXIT_LINK)
+    return parsed
+
+
+def twin_url(url: str, base_tm, max_reach_m: float, max_pile_age_s: float) -> str:
+    """A ``twin://`` URL with the twin crane's own limits filled in where the URL leaves them out,
+    so the twin judges a command like the laptop does."""
+    from urllib.parse import urlencode
+
+    from field.link.base import LinkURL
+
+    u = LinkURL.parse(url)
+    q = dict(u.query)
+    if "crane_base" not in q:
+        q["crane_base"] = ",".join(f"{v:.3f}" for v in base_tm)
+        q.setdefault("crane_max_reach_m", f"{max_reach_m:g}")
+    q.setdefault("crane_max_pile_age_s", f"{max_pile_age_s:g}")
+    return "twin://?" + urlencode(q, safe=",/:")
+
+
+def base_from_survey(gnss: Path) -> tuple[float, float, float]:
+    """A crane base 5 m south (site frame) of the surveyed log ends' centre, at about ground
+    height: the twin crane's default position, known before the reconstruction."""
+    import numpy as np
+
+    from reconstruct.gnss import read_gnss
+    from synth.geodesy import site_to_tm
+
+    survey = read_gnss(gnss, allow_float=True)
+    origin = survey.default_origin()
+    ends = np.array([p for a_b in survey.endpoints_site(origin).values() for p in a_b], dtype=float)
+    c = ends.mean(axis=0)
+    point = np.array([c[0], c[1] - 5.0, float(ends[:, 2].min()) - 0.3])
+    e, n, h = site_to_tm(origin, point)
+    return float(np.ravel(e)[0]), float(np.ravel(n)[0]), float(np.ravel(h)[0])
 
 
 @app.command("link-key")
-def link_key_command(path: str = typer.Argument(..., help="Key file to create (mode 0600; never overwritten).")) -> None:
+def link_key_command(path: Path = typer.Argument(..., metavar="KEYFILE",
+                                                 help="Key file to create (mode 0600; never overwritten).")) -> None:
     """Create a pre-shared key for authenticated crane-link frames (SecOC style).
 
     Give the same file to both ends, e.g. --link 'can://socketcan/can0?secoc_key=PATH' on the
     laptop and on the crane (crane-sim). The key is never printed.
 
+    \b
     Example: loggrasp link-key ~/.config/loggrasp/crane1.key
     """
     from field.errors import KeyFileError
     from field.link.secoc import generate_key_file
 
+    if path.exists():
+        raise CliError(f"KEYFILE {path} exists; a key is never overwritten - remove it first or choose another path")
+    check_output_file(path, "KEYFILE")
     try:
         written = generate_key_file(path)
     except KeyFileError as exc:
-        fail(str(exc))
-    typer.echo(f"wrote a new key to {written} (mode 0600); copy it to the crane over a secure channel")
+        raise CliError(str(exc)) from exc
+    Output().say(f"wrote a new key to {written} (mode 0600); copy it to the crane over a secure channel")
 
 
 def with_secoc_key(link: str, key: Path) -> str:
@@ -118,149 +214,399 @@ def default_crane_base(pile) -> tuple[float, float, float]:
 
 
 def crane_config(base_tm, max_reach: float, max_pile_age: float, journal: str | None = None):
-    from field.controller import ControllerConfig, ReachEnvelope
+    from field.controller import ControllerConfig
 
     return ControllerConfig(reach=ReachEnvelope(base_easting_m=base_tm[0], base_northing_m=base_tm[1],
                                                 base_height_m=base_tm[2], max_reach_m=max_reach),
                             max_pile_age_s=max_pile_age, journal_path=journal)
 
 
-def _trial_options(objective, model, allow_float, max_pile_age, base, max_reach, capacity, views=1, view_spread=0.0):
-    from field.trial import TrialOptions
-
-    return TrialOptions(objective=objective, model=model, allow_float=allow_float, max_pile_age_s=max_pile_age,
-                        crane_base_tm=_parse_triple(base, "--base") if base else None, max_reach_m=max_reach,
+def _trial_options(objective, model, allow_float, max_pile_age, base_tm, max_reach, capacity, views=1,
+                   view_spread=0.0) -> TrialOptions:
+    return TrialOptions(objective=objective, model=None if model is None else str(model), allow_float=allow_float,
+                        max_pile_age_s=max_pile_age, crane_base_tm=base_tm, max_reach_m=max_reach,
                         lift_capacity_kg=capacity, views=views, view_spread_k=view_spread)
 
 
-def _show_plan(prepared) -> None:
-    from rich.console import Console
-    from rich.table import Table
+def outcome_words(outcome: dict | None, targets: int | None = None) -> str:
+    """A grasp outcome for people: ``SUCCESS: 4 logs held (4 targeted), balance cos β 0.999``."""
+    if not outcome:
+        return "no outcome"
+    held = outcome.get("logs_grasped")
+    text = f"{outcome.get('class')}: {held} log{'' if held == 1 else 's'} held"
+    if targets is not None:
+        text += f" ({targets} targeted)"
+    if outcome.get("cos_beta") is not None:
+        text += f", balance cos β {outcome['cos_beta']:.3f}"
+    return text
 
-    console = Console()
-    table = Table(title="plan (best grasp per target subset)")
-    for col in ("rank", "targets", "q", "u", "b", "width m"):
-        table.add_column(col, justify="right")
-    for i, g in enumerate(prepared.plan.grasps[:5]):
-        table.add_row(str(i + 1), ",".join(map(str, g.targets)), f"{g.quality:.3f}", f"{g.graspability:.3f}",
-                      f"{g.balance:.3f}", f"{g.grasp.width_m:.2f}")
-    console.print(table)
+
+def show_plan(prepared) -> None:
+    """What the operator confirms: the plan table, the grasp in SWEREF 99 TM, the warnings and
+    the pictures (paths that exist)."""
+    from synth.cli_common import format_table
+
+    rows = [[str(i + 1), ",".join(map(str, g.targets)), f"{g.quality:.3f}", f"{g.graspability:.3f}",
+             f"{g.balance:.3f}", f"{g.grasp.width_m:.2f}"] for i, g in enumerate(prepared.plan.grasps[:5])]
+    print(format_table("plan: the best grasp of each target subset (#1 is sent; Q quality, U graspability, "
+                       "B balance)", ["#", "targets", "Q", "U", "B", "width m"], rows), file=sys.stderr)
     for line in prepared.summary_lines():
-        console.print("  " + line)
-    console.print("  pictures and GeoJSON go to the record's plan/ folder: plan.png, grasp_map.png, pile.geojson")
+        print(("  " if not line.startswith("WARNING") else "") + line, file=sys.stderr)
+    plan_dir = Path(prepared.work_dir) / "plan"
+    pictures = [p for p in (plan_dir / "plan.png", plan_dir / "grasp_map.png", plan_dir / "pile.geojson") if p.exists()]
+    print("  look before sending: " + ", ".join(str(p) for p in pictures), file=sys.stderr, flush=True)
 
 
-@app.command("trial")
+def ask_yes_no(question: str) -> bool | None:
+    """Ask on standard error, read a line from standard input: True for y/yes, False for anything
+    else, None when there is no answer (end of input, Ctrl-C). Standard output is left alone."""
+    print(f"{question} [y/N]: ", end="", file=sys.stderr, flush=True)
+    try:
+        line = sys.stdin.readline() if sys.stdin is not None else ""
+    except (KeyboardInterrupt, OSError, ValueError):
+        line = ""
+    if not line:
+        print(file=sys.stderr, flush=True)
+        return None
+    return line.strip().lower() in ("y", "yes")
+
+
+# -- crane-sim ----------------------------------------------------------------------------------
+class _Announcing:
+    """An executor that says, per command, what the crane does and how it ended. It wraps the
+    executor API ``execute(cmd, should_abort) -> Outcome`` (:mod:`field.executor`), passing the
+    controller's abort request through to the inner executor."""
+
+    def __init__(self, inner, say):
+        self.inner, self.say = inner, say
+
+    def execute(self, cmd, should_abort):
+        self.say(f"command {cmd.command_id}: accepted; grasping at E {cmd.easting_mm / 1000:.3f} N "
+                 f"{cmd.northing_mm / 1000:.3f} h {cmd.height_mm / 1000:.3f} m, heading {cmd.heading_cdeg / 100:.2f}° "
+                 f"(grid), opening {cmd.opening_width_mm / 1000:.2f} m, {cmd.target_log_count} target log(s)")
+        execute = getattr(self.inner, "execute", None)
+        out = execute(cmd, should_abort) if callable(execute) else self.inner(cmd)
+        self.say(f"command {cmd.command_id}: {out.outcome_class.name}, {out.logs_grasped} log(s) held, "
+                 f"balance cos β {out.balance_cos_milli / 1000:.3f}")
+        return out
+
+
+@app.command("crane-sim")
+def crane_sim(
+    link: str = link_option("Link URL the controller serves: can://virtual/CH, can://remote/127.0.0.1:PORT/CH "
+                            "or zenoh://127.0.0.1:PORT/CRANE (it listens there)."),
+    pile: Path = option("--pile", "The true, georeferenced pile.json the crane stands at.", default=...,
+                        metavar="PILE.json"),
+    base: str = option("--base", f"{BASE_HELP}; default: 5 m south of the pile.", default=None, metavar="E,N,H"),
+    max_reach: float = MAX_REACH,
+    max_pile_age: float = option("--max-pile-age", "This crane's own staleness limit: it rejects (STALE) commands "
+                                 "planned on older pile data, whatever the laptop's --max-pile-age.",
+                                 field=(TrialOptions, "max_pile_age_s"), min=0.001),
+    journal: Path = option("--journal", "Burn every seen command id here (never run twice, across restarts); "
+                           "default: a file per link under $XDG_STATE_HOME/loggrasp (~/.local/state/loggrasp).",
+                           default=None, metavar="FILE"),
+    no_journal: bool = option("--no-journal", "Remember command ids in memory only (a restart forgets them).",
+                              default=False),
+    trial: Literal["fast", "careful"] = option("--trial", "Trial preset of the grasps it executes.", default="fast",
+                                                metavar="fast|careful"),
+) -> None:
+    """Run the crane controller twin: validates commands like a real controller and executes
+    accepted grasps in pybullet on the given pile; says what it does with each command. Stops on
+    Ctrl-C / SIGTERM. Authenticated frames: add ?secoc_key=KEYFILE to --link (the laptop uses the
+    same key; see `loggrasp link-key`).
+
+    \b
+    Example: loggrasp crane-sim --link zenoh://127.0.0.1:7447/crane1 --pile scans/s3/truth/pile.json
+    """
+    import signal
+    import threading
+
+    import field.controller
+    from field.executor import PybulletTrialExecutor
+    from field.trial import REJECT_EXPLANATIONS
+
+    o = Output()
+    check_link(link, serve=True)
+    check_input(pile, "--pile", "file")
+    base_tm = parse_base(base)
+    if no_journal and journal is not None:
+        raise CliError("give --journal PATH or --no-journal, not both")
+    if journal is not None:
+        check_input(journal.parent if str(journal.parent) else Path("."), "--journal", "dir")
+    elif not no_journal:
+        journal = field.controller.default_journal_path(link)
+    executor = PybulletTrialExecutor(pile, trial=trial)
+    base_tm = base_tm or default_crane_base(executor.pile)
+    config = crane_config(base_tm, max_reach, max_pile_age, None if journal is None else str(journal))
+    stop = threading.Event()
+    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
+
+    served: list = []
+    lock = threading.Lock()
+    seen = [0]
+
+    def report_rejections() -> None:
+        with lock:
+            rejections = served[0].rejections if served else []
+            while seen[0] < len(rejections):
+                cid, reason = rejections[seen[0]]
+                seen[0] += 1
+                why = REJECT_EXPLANATIONS.get(reason.name, "")
+                o.say(f"command {cid}: REJECTED ({reason.name})" + (f": {why}" if why else ""))
+
+    def watch(controller) -> None:  # called once the transport is up: only then say "serving"
+        served.append(controller)
+        o.say(f"crane controller twin serving {link}: base E {base_tm[0]:.3f} N {base_tm[1]:.3f} "
+              f"h {base_tm[2]:.3f} m, reach {max_reach:g} m, pile age limit {max_pile_age:g} s; "
+              f"journal {journal or 'OFF (ids forgotten on restart)'}; Ctrl-C stops")
+
+        def loop() -> None:
+            while not stop.wait(0.05):
+                report_rejections()
+
+        threading.Thread(target=loop, name="crane-sim-watch", daemon=True).start()
+
+    try:
+        final = field.controller.run_controller(link, _Announcing(executor, o.say), stop, config, on_serve=watch)
+    finally:
+        stop.set()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    report_rejections()  # the last ones, seen just before the stop
+    o.say(f"stopped in state {final.state.name}")
+
+
+# -- trial ----------------------------------------------------------------------------------------
+_TRIAL_CODES = {"input": EXIT_INPUT, "link": EXIT_LINK, "refused": EXIT_TRIAL, "declined": EXIT_TRIAL,
+                "interrupted": EXIT_INTERRUPTED}
+
+
+def _run_trial(o: Output, scan: Path, gnss: Path, link: str, record: Path, opts: TrialOptions, confirm) -> dict:
+    """Run the trial; a trial that stopped before sending becomes a :class:`CliError` saying where
+    its record is."""
+    from field.trial import TrialAborted, run_trial_record
+
+    try:
+        return run_trial_record(scan, gnss, link, record, opts, confirm=confirm, progress=o.progress)
+    except TrialAborted as exc:
+        recorded = (Path(record) / "record.json").is_file()
+        if recorded:
+            import json
+
+            _result(o, json.loads((Path(record) / "record.json").read_text()), record)
+        where = f"; record: {record}" if recorded else "; nothing was recorded"
+        raise CliError(f"{exc}{where}", _TRIAL_CODES.get(exc.kind, EXIT_TRIAL)) from exc
+    except KeyboardInterrupt as exc:
+        where = f"; record: {record}" if (Path(record) / "record.json").is_file() else "; nothing was recorded"
+        raise CliError(f"interrupted (Ctrl-C){where}", EXIT_INTERRUPTED) from exc
+
+
+def _result(o: Output, rec: dict, record: Path) -> None:
+    o.result("loggrasp.trial-result", {
+        "record": str(record), "final_state": rec.get("final_state"), "command_id": rec.get("command_id"),
+        "accepted": rec.get("accepted"), "reject_reason": rec.get("reject_reason"), "reason": rec.get("reason"),
+        "outcome": rec.get("outcome"), "command": rec.get("command"), "geo": rec.get("geo"),
+        "warnings": rec.get("warnings", [])})
+
+
+def _finish_trial(o: Output, rec: dict, record: Path) -> None:
+    """The trial's result: JSON, a summary line, and exit 4 unless the grasp succeeded."""
+    from field.trial import REJECT_EXPLANATIONS
+
+    state = rec.get("final_state")
+    targets = (rec.get("command") or {}).get("target_log_count")
+    _result(o, rec, record)
+    if state == "SUCCESS":
+        o.say(f"trial {record}: {outcome_words(rec.get('outcome'), targets)}")
+        return
+    if state == "REJECTED":
+        why = rec.get("reject_reason")
+        raise CliError(f"the crane rejected the command ({why}): {REJECT_EXPLANATIONS.get(why, 'see the controller')}; "
+                       f"record: {record}", EXIT_TRIAL)
+    if rec.get("outcome"):
+        raise CliError(f"the grasp did not succeed: {outcome_words(rec.get('outcome'), targets)}; record: {record}",
+                       EXIT_TRIAL)
+    raise CliError(f"{state}; record: {record}", EXIT_TRIAL)
+
+
+@app.command("trial", epilog=TWIN_PARAMETERS)
 def trial_command(
-    scan: str = typer.Option(..., "--scan", help="Scan folder (stereo pair folders + scan_pose.json)."),
-    gnss: str = typer.Option(..., "--gnss", help="RTK endpoint survey CSV."),
-    link: str = typer.Option(..., "--link", help="Crane link URL: can://..., zenoh://..., twin://..."),
-    record: str = typer.Option(..., "--record", help="Trial record folder to create."),
-    objective: str = typer.Option("f3", "--objective"),
-    model: str = typer.Option(None, "--model", help="Checkpoint; default: the shipped model."),
-    views: int = typer.Option(1, "--views", help="Dihedral views the planner averages: 1, 2, 4 or 8 (slower, steadier)."),
-    view_spread: float = typer.Option(0.0, "--view-spread", help="Lower U by K x its spread over the views (needs --views > 1)."),
-    yes: bool = typer.Option(False, "--yes", help="Do not ask for confirmation before sending."),
-    allow_float: bool = typer.Option(False, "--allow-float", help="Accept RTK float endpoints."),
-    max_pile_age: float = typer.Option(DEFAULT_MAX_PILE_AGE_S, "--max-pile-age", help="Refuse pile data older than this [s]."),
-    base: str = typer.Option(None, "--base", help="Crane base E,N,H (SWEREF 99 TM) for the reach check."),
-    max_reach: float = typer.Option(10.0, "--max-reach", help="[m]"),
-    capacity: float = typer.Option(1500.0, "--capacity", help="Lift capacity [kg]."),
+    scan: Path = option("--scan", "Scan folder (stereo pair folders + scan_pose.json).", default=..., metavar="DIR"),
+    gnss: Path = option("--gnss", "RTK endpoint survey CSV.", default=..., metavar="FILE"),
+    link: str = link_option(),
+    record: Path = option("--record", "Trial record folder to create (must not exist).", default=..., metavar="DIR"),
+    objective: Literal["f1", "f2", "f3"] = option("--objective", OBJECTIVE_HELP, field=(TrialOptions, "objective"),
+                                                  metavar="f1|f2|f3"),
+    model: Path = MODEL,
+    views: int = VIEWS,
+    view_spread: float = VIEW_SPREAD,
+    yes: bool = option("--yes", "Do not ask for confirmation before sending.", default=False),
+    allow_float: bool = option("--allow-float", "Accept RTK float endpoints.", field=(TrialOptions, "allow_float")),
+    max_pile_age: float = MAX_PILE_AGE,
+    base: str = option("--base", f"{BASE_HELP}, for the laptop's reach check (and a twin:// crane's position).",
+                       default=None, metavar="E,N,H", names=["crane_base_tm"]),
+    max_reach: float = MAX_REACH,
+    capacity: float = option("--capacity", "Lift capacity.", field=(TrialOptions, "lift_capacity_kg"), min=1.0),
+    as_json: bool = JSON,
 ) -> None:
     """Field trial: reconstruct, plan, show, confirm, send, wait for the outcome, record everything.
 
+    The link is checked and the controller reached before the reconstruction. The operator sees
+    the plan table, the warnings and the pictures (in the record's plan/ folder) before saying
+    yes; a trial that is refused, declined, not answered or interrupted still leaves a complete
+    record saying so. Exit 0 only when the grasp succeeded (4: not sent, rejected or failed).
+
+    \b
     Example: loggrasp trial --scan s3/scan --gnss s3/gnss.csv --link can://virtual/ch0 --record trials/t1
+    Example: loggrasp trial --scan s3/scan --gnss s3/gnss.csv --record trials/t2 --yes \\
+               --link "twin://?executor=pybullet&pile=s3/truth/pile.json"
     """
-    from field.errors import FieldError
-    from field.trial import TrialAborted, run_trial_record
+    from dataclasses import replace
 
-    def confirm(prepared) -> bool:
-        _show_plan(prepared)
-        return yes or typer.confirm("send this grasp to the crane?", default=False)
+    from planner.inference import check_views
 
-    try:
-        opts = _trial_options(objective, model, allow_float, max_pile_age, base, max_reach, capacity, views,
-                              view_spread)
-        rec = run_trial_record(scan, gnss, link, record, opts, confirm=confirm, progress=typer.echo)
-    except TrialAborted as exc:
-        fail(f"{exc} (record: {record})", code=3)
-    except (FieldError, ValueError) as exc:
-        fail(str(exc))
-    typer.echo(f"final state: {rec['final_state']}  outcome: {rec.get('outcome')}  record: {record}")
-    if rec["final_state"] != "SUCCESS":
-        raise typer.Exit(4)
+    o = Output(as_json)
+    parsed = check_link(link)
+    base_tm = parse_base(base)
+    check_input(scan, "--scan", "dir")
+    check_input(gnss, "--gnss", "file")
+    if model is not None:
+        check_input(model, "--model", "file")
+    if record.exists():
+        raise CliError(f"--record {record} already exists; choose a new --record folder")
+    check_output_dir(record, "--record")
+    check_views(views, view_spread)
+    opts = _trial_options(objective, model, allow_float, max_pile_age, base_tm, max_reach, capacity, views, view_spread)
+    warning = gnss_crs_warning(gnss)
+    if warning:
+        o.warn(warning)
+    if parsed.scheme == "twin":
+        base_tm = base_tm or base_from_survey(gnss)
+        link = twin_url(link, base_tm, max_reach, max_pile_age)
+        opts = replace(opts, crane_base_tm=base_tm)
+        o.progress(f"twin crane at E {base_tm[0]:.3f} N {base_tm[1]:.3f} h {base_tm[2]:.3f} m, reach {max_reach:g} m, "
+                   f"pile age limit {max_pile_age:g} s ({link})")
+
+    def ask(prepared) -> bool:
+        from field.trial import TrialAborted
+
+        show_plan(prepared)
+        answer = ask_yes_no("send this grasp to the crane?")
+        if answer is None:
+            raise TrialAborted("no answer at the confirmation prompt (standard input closed or interrupted): nothing "
+                               "was sent; answer y at the prompt, or pass --yes", kind="declined")
+        return answer
+
+    rec = _run_trial(o, scan, gnss, link, record, opts, None if yes else ask)
+    _finish_trial(o, rec, record)
 
 
-@app.command("replay")
+# -- replay ----------------------------------------------------------------------------------------
+@app.command("replay", epilog=TWIN_PARAMETERS)
 def replay_command(
-    record: str = typer.Argument(..., help="A trial record folder."),
-    out: str = typer.Option(None, "--out", help="Work folder for the re-run (default: a temp folder)."),
-    link: str = typer.Option(None, "--link", help="Re-send the recorded command to this (twin) link."),
-    realtime: bool = typer.Option(False, "--realtime", help="Replay the recorded CAN traffic with its original timing."),
+    record: Path = typer.Argument(..., metavar="RECORD", help="A trial record folder."),
+    out: Path = option("--out", "Work folder for the re-run, kept (default: a temporary folder, removed).",
+                       default=None, metavar="DIR"),
+    link: str = option("--link", "Re-send the recorded command over this link (a twin:// crane accepts the old data; "
+                       "see trial --help for twin:// parameters).", default=None, metavar="URL"),
+    realtime: bool = option("--realtime", "Replay the recorded CAN traffic with its original timing.", default=False),
+    as_json: bool = JSON,
 ) -> None:
     """Re-run reconstruction and planning from a trial record; say whether the command is bit-identical.
 
-    Example: loggrasp replay trials/t1 --link twin://?executor=fixed
+    The recorded inputs are checked against their sha256 in record.json first; a changed,
+    missing or added input file is named. Exit 0: identical; 5: the re-run differs.
+
+    \b
+    Example: loggrasp replay trials/t1 --json
+    Example: loggrasp replay trials/t1 --link "twin://?executor=fixed"
     """
-    import json
     import tempfile
-    from pathlib import Path
+    import time
 
-    from field.errors import FieldError
-    from field.trial import TrialAborted, read_record, replay_record
+    from field.trial import read_record, replay_record
 
-    work = out or tempfile.mkdtemp(prefix="loggrasp-replay-")
-    try:
-        result = replay_record(record, work, progress=typer.echo)
-    except (TrialAborted, FieldError) as exc:
-        fail(str(exc))
-    typer.echo(json.dumps(result, indent=1))
+    o = Output(as_json)
+    check_input(record, "RECORD", "dir")
+    parsed = check_link(link) if link is not None else None
+    rec = read_record(record)
+    if out is not None:
+        check_output_dir(out, "--out")
+    if realtime and not (record / "link" / "traffic.blf").exists():
+        raise CliError(f"{record} has no CAN recording (link/traffic.blf): --realtime needs a trial over can://")
+    with tempfile.TemporaryDirectory(prefix="loggrasp-replay-") as tmp:
+        work = Path(out) if out is not None else Path(tmp) / "work"
+        result = replay_record(record, work, progress=o.progress)
+    doc = {"record": str(record), **result}
     if realtime:
-        blf = Path(record) / "link" / "traffic.blf"
-        if not blf.exists():
-            fail(f"{record} has no CAN recording (link/traffic.blf): --realtime needs a CAN trial")
         from field.link.can_backend import replay as replay_can
 
-        n = sum(1 for _ in replay_can(blf, realtime=True))
-        typer.echo(f"replayed {n} recorded frames with their original timing")
-    if link:
-        from field.link import GraspCommand, open_link
-        from field.link.base import LinkConfig
-        from field.link.safety import SafetyConfig
-
-        from field.errors import CommandRejected, LinkError
-
-        rec = read_record(record)
-        fields = dict(rec["command"])
-        try:
-            # the recorded plan is old by design: the laptop-side age check is lifted for a replay;
-            # the controller keeps its own (a real crane refuses it: use a twin with crane_max_pile_age_s)
-            with open_link(link, LinkConfig(safety=SafetyConfig(max_pile_age_s=1e12))) as lk:
-                cmd = GraspCommand(command_id=lk.new_command_id(), **fields)
-                lk.send_grasp(cmd, timeout_s=2.0)
-                res = lk.wait_outcome(cmd.command_id, timeout_s=120.0)
-        except CommandRejected as exc:
-            fail(f"the controller rejected the re-sent command: {exc}. Recorded data is old; a twin "
-                 "accepts it with e.g. twin://?executor=pybullet&pile=PILE.json&crane_base=E,N,H&crane_max_pile_age_s=1e9")
-        except LinkError as exc:
-            fail(f"re-sending failed: {exc}")
-        typer.echo(f"re-sent as command {cmd.command_id}: {res.outcome_class.name}, {res.logs_grasped} logs")
-    if not result["identical"]:
-        raise typer.Exit(5)
+        n = sum(1 for _ in replay_can(record / "link" / "traffic.blf", realtime=True))
+        doc["realtime_frames"] = n
+        o.say(f"replayed {n} recorded frames with their original timing")
+    if parsed is not None:
+        doc["resent"] = _resend(o, rec, link, parsed, time.time())
+    o.result("loggrasp.replay", doc)
+    if result["identical"]:
+        o.say(f"replay of {record}: identical (the command and the plan are bit-identical)")
+    else:
+        what = ", ".join(result["differences"]) or "the plan"
+        o.say(f"replay of {record}: DIFFERS ({what})")
+        raise typer.Exit(EXIT_REPLAY_DIFFERS)
 
 
+def _resend(o: Output, rec: dict, link: str, parsed, now: float) -> dict:
+    """Send the recorded command again (a new command id) and wait for its outcome."""
+    from field.errors import CommandRejected
+    from field.link import GraspCommand, open_link
+    from field.link.base import LinkConfig
+    from field.link.safety import SafetyConfig
+    from field.trial import REJECT_EXPLANATIONS
+
+    fields = dict(rec["command"])
+    age = now - fields["plan_timestamp_ms"] / 1000.0
+    if parsed.scheme == "twin":  # the twin crane is told the recorded data is old by design
+        opts = rec.get("options", {})
+        base = opts.get("crane_base_tm")
+        if base is None:
+            base = (fields["easting_mm"] / 1000.0, fields["northing_mm"] / 1000.0 - 5.0, fields["height_mm"] / 1000.0)
+        link = twin_url(link, base, float(opts.get("max_reach_m", 10.0)), age + 3600.0)
+    try:
+        # the recorded plan is old by design: the laptop-side age check is lifted for a replay;
+        # the controller keeps its own (a real crane refuses it)
+        with open_link(link, LinkConfig(safety=SafetyConfig(max_pile_age_s=1e12))) as lk:
+            cmd = GraspCommand(command_id=lk.new_command_id(), **fields)
+            lk.send_grasp(cmd, timeout_s=2.0)
+            res = lk.wait_outcome(cmd.command_id, timeout_s=120.0)
+    except CommandRejected as exc:
+        name = getattr(exc.reason, "name", str(exc.reason))
+        raise CliError(f"the controller rejected the re-sent command ({name}): {REJECT_EXPLANATIONS.get(name, exc)}",
+                       EXIT_LINK) from exc
+    outcome = {"class": res.outcome_class.name, "logs_grasped": res.logs_grasped,
+               "cos_beta": res.balance_cos_milli / 1000.0}
+    o.say(f"re-sent as command {cmd.command_id}: {outcome_words(outcome, fields.get('target_log_count'))}")
+    return {"link": link, "command_id": cmd.command_id, "outcome": outcome}
+
+
+# -- demo -----------------------------------------------------------------------------------------
 DEMO_DATA = Path(__file__).resolve().parent / "demo_data"
 
 
 @app.command("demo")
 def demo(
-    out: str = typer.Option("out/demo", "--out", help="Output folder (trial record, pictures)."),
-    link: str = typer.Option("can://virtual/loggrasp-demo", "--link", help="Link to the in-process crane twin."),
-    model: str = typer.Option(None, "--model", help="Checkpoint; default: the shipped model."),
+    out: Path = option("--out", "Output folder (trial record, pictures); its trial/ is replaced.",
+                       default=Path("out/demo"), metavar="DIR"),
+    link: str = option("--link", "Link to the in-process crane twin: can://virtual/CH or zenoh://127.0.0.1:PORT/CRANE.",
+                       default="can://virtual/loggrasp-demo", metavar="URL"),
+    model: Path = MODEL,
+    as_json: bool = JSON,
 ) -> None:
     """The main job on the embedded default: a bundled recorded scan (stereo pair + RTK endpoints)
     is reconstructed, planned on, sent as a SWEREF 99 TM grasp over simulated CAN to the crane
     controller twin, executed in pybullet on the true pile, and recorded.
+
+    \b
+    Example: loggrasp demo --out out/demo
     """
     import shutil
     import threading
@@ -268,56 +614,169 @@ def demo(
 
     from field.controller import run_controller
     from field.executor import PybulletTrialExecutor
-    from field.trial import TrialAborted, run_trial_record
+    from field.trial import captured_time
     from synth.pile import read_pile
 
+    o = Output(as_json)
     t0 = _time.perf_counter()
+    check_link(link, serve=True)
+    if model is not None:
+        check_input(model, "--model", "file")
+    check_output_dir(out, "--out")
     data = DEMO_DATA
     truth = read_pile(data / "truth" / "pile.json")
     base = default_crane_base(truth)
     # the bundled scan was recorded earlier: its staleness limit is set past its age, and said so
-    from field.trial import captured_time
-
     age = _time.time() - captured_time(data / "scan", data / "gnss.csv")
     max_age = age + 3600.0
-    typer.echo(f"bundled scan recorded {age / 86400:.1f} days ago: staleness limit raised to {max_age:.0f} s for the demo")
-    out_dir = Path(out)
-    record = out_dir / "trial"
+    o.progress(f"bundled scan recorded {age / 86400:.1f} days ago: staleness limit raised to {max_age:.0f} s "
+               "for the demo")
+    record = Path(out) / "trial"
     if record.exists():
         shutil.rmtree(record)
     from field.link.secoc import generate_key_file
 
-    key = out_dir / "link.key"
+    key = Path(out) / "link.key"
     if not key.exists():
         generate_key_file(key)
     link = with_secoc_key(link, key)
-    typer.echo(f"authenticated frames on (SecOC-style MACs, key {key}); crane journal {out_dir / 'crane-journal.jsonl'}")
+    journal = Path(out) / "crane-journal.jsonl"
+    o.progress(f"authenticated frames on (SecOC-style MACs, key {key}); crane journal {journal}")
     stop, ready = threading.Event(), threading.Event()
-    config = crane_config(base, 10.0, max_age, str(out_dir / "crane-journal.jsonl"))
-    crane = threading.Thread(target=run_controller, daemon=True, name="crane-twin",
-                             args=(link, PybulletTrialExecutor(truth), stop, config), kwargs={"ready_event": ready})
-    crane.start()
-    if not ready.wait(20):
-        fail("the crane controller twin did not start")
+    failure: list[BaseException] = []
+
+    def crane() -> None:
+        try:
+            run_controller(link, PybulletTrialExecutor(truth), stop,
+                           crane_config(base, field_default(ReachEnvelope, "max_reach_m"), max_age, str(journal)),
+                           ready_event=ready)
+        except BaseException as exc:  # reported by the main thread, as one line
+            failure.append(exc)
+            ready.set()
+
+    thread = threading.Thread(target=crane, daemon=True, name="crane-twin")
+    thread.start()
+    if not ready.wait(30) or failure:
+        stop.set()
+        if failure:
+            raise CliError(f"the crane controller twin could not serve {link}: {failure[0]}", EXIT_LINK) from failure[0]
+        raise CliError(f"the crane controller twin did not start on {link} within 30 s", EXIT_LINK)
     try:
-        opts = _trial_options("f3", model, False, max_age, f"{base[0]},{base[1]},{base[2]}", 10.0, 1500.0)
+        opts = _trial_options("f3", model, False, max_age, base, field_default(ReachEnvelope, "max_reach_m"),
+                              field_default(TrialOptions, "lift_capacity_kg"))
 
         def show(prepared) -> bool:
-            _show_plan(prepared)
+            show_plan(prepared)
             return True
 
-        rec = run_trial_record(data / "scan", data / "gnss.csv", link, record, opts, confirm=show, progress=typer.echo)
-    except TrialAborted as exc:
-        fail(str(exc), code=3)
+        rec = _run_trial(o, data / "scan", data / "gnss.csv", link, record, opts, show)
     finally:
         stop.set()
-        crane.join(10)
-    typer.echo(f"crane twin: {rec['final_state']}, outcome {rec.get('outcome')}")
-    typer.echo(f"record: {record} (plan pictures in {record / 'plan'}); whole chain {_time.perf_counter() - t0:.1f} s")
+        thread.join(10)
+    o.progress(f"record: {record} (plan pictures in {record / 'plan'}); whole chain {_time.perf_counter() - t0:.1f} s")
+    _finish_trial(o, rec, record)
+
+
+# -- the one error handler ------------------------------------------------------------------------
+_RUST_PATH = re.compile(r"\s*(?:\bat\s+)?\(?/[^\s()]*\.rs:\d+(?::\d+)?\)?\.?")
+
+
+def clean_message(text: str) -> str:
+    """One line: flags for Python names, no Rust source paths (Zenoh), no line breaks."""
+    text = _RUST_PATH.sub("", str(text)).replace("Value error, ", "")
+    text = " ".join(part.strip() for part in text.splitlines() if part.strip())
+    return to_flags(text)
+
+
+def classify(exc: BaseException) -> tuple[int, str]:
+    """(exit code, message) of an exception that reached :func:`run`."""
+    from field.errors import FieldError, LinkError
+
+    if isinstance(exc, CliError):
+        return exc.code, str(exc)
+    if isinstance(exc, LinkError):
+        return EXIT_LINK, f"crane link: {exc}"
+    if isinstance(exc, OSError):
+        flag = flag_of_path(exc.filename)
+        what = f"{exc.filename}" + (f" ({flag})" if flag else "")
+        return EXIT_INPUT, f"cannot use {what}: {exc.strerror or exc}" + (f"; choose another {flag}" if flag else "")
+    from planner.errors import PlannerError
+    from reconstruct.errors import ReconstructError
+    from synth.errors import SynthError
+
+    if isinstance(exc, (FieldError, SynthError, PlannerError, ReconstructError, ValueError)):
+        return EXIT_INPUT, str(exc)
+    return EXIT_INTERNAL, (f"internal error {type(exc).__name__}: {exc} (a bug; run again with --verbose for the "
+                           "traceback and report it)")
+
+
+def _pop_verbose(argv: list[str]) -> bool:
+    end = argv.index("--") if "--" in argv else len(argv)
+    found = "--verbose" in argv[:end] or os.environ.get("LOGGRASP_VERBOSE", "") not in ("", "0")
+    argv[:end] = [a for a in argv[:end] if a != "--verbose"]
+    return found
+
+
+def run(argv: list[str] | None = None) -> int:
+    """Run ``loggrasp`` with ``argv``; print any error as one line on standard error; return the
+    exit code."""
+    from typer import _click as click
+    from typer.main import get_command
+
+    from synth.cli_common import FLAG_OF_PATH
+
+    argv = list(sys.argv[1:] if argv is None else argv)
+    verbose = _pop_verbose(argv)
+    FLAG_OF_PATH.clear()
+    command = get_command(app)
+    try:
+        rv = command.main(args=argv, prog_name="loggrasp", standalone_mode=False)
+        if rv == EXIT_INTERRUPTED:  # Ctrl-C (typer turns it into this exit code)
+            print("error: interrupted", file=sys.stderr, flush=True)
+        return rv if isinstance(rv, int) else 0
+    except click.exceptions.NoArgsIsHelpError as exc:
+        print(exc.ctx.get_help() if exc.ctx else "", file=sys.stdout)
+        return 0
+    except click.exceptions.UsageError as exc:
+        where = exc.ctx.command_path if exc.ctx else "loggrasp"
+        code, message = EXIT_INPUT, f"{clean_message(exc.format_message())} (see `{where} --help`)"
+    except click.exceptions.ClickException as exc:  # e.g. a file typer could not open
+        code, message = EXIT_INPUT, clean_message(exc.format_message())
+    except (typer.Abort, KeyboardInterrupt):
+        code, message = EXIT_INTERRUPTED, "interrupted"
+    except typer.Exit as exc:
+        return exc.exit_code
+    except BaseException as exc:  # the one place errors are printed
+        if isinstance(exc, SystemExit):
+            return exc.code if isinstance(exc.code, int) else 1
+        code, message = classify(exc)
+        message = clean_message(message)
+        if verbose:
+            import traceback
+
+            traceback.print_exception(exc, file=sys.stderr)
+    try:
+        sys.stdout.flush()
+    except OSError:
+        pass
+    print(f"error: {message}", file=sys.stderr, flush=True)
+    return code
 
 
 def main() -> None:
-    app()
+    """The console script: C libraries quiet unless --verbose, then :func:`run`."""
+    from synth.cli_common import quiet_c_streams
+
+    argv = sys.argv[1:]
+    if not _pop_verbose(list(argv)):
+        quiet_c_streams()
+    code = run(argv)
+    try:
+        sys.stdout.flush()
+        sys.stderr.flush()
+    except (OSError, ValueError):
+        pass
+    raise SystemExit(code)
 
 
 if __name__ == "__main__":

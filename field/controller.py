@@ -882,6 +882,7 @@ def run_controller(
     config: ControllerConfig | None = None,
     *,
     ready_event: threading.Event | None = None,
+    on_serve: Callable[[CraneController], None] | None = None,
     **transport_kwargs: Any,
 ) -> ControllerStatus:
     """Serve the crane side of ``link_url`` until ``stop_event`` is set; returns the final status.
@@ -889,7 +890,8 @@ def run_controller(
     ``executor`` is a callable or a registered name (:data:`EXECUTORS`). The URL forms are those
     of :func:`field.link.open_link` (``can://virtual/ch0``, ``can://remote/127.0.0.1:PORT/ch0``,
     ``zenoh://127.0.0.1:7447/crane1`` — the controller LISTENS on that endpoint — ...).
-    ``ready_event`` is set once the controller serves. A ``secoc_key=PATH`` in the URL is the
+    ``ready_event`` is set once the controller serves; ``on_serve(controller)`` is called just
+    before (e.g. to watch its ``rejections``). A ``secoc_key=PATH`` in the URL is the
     controller's key when ``config`` names none.
     """
     from field.link.base import LinkURL, open_controller_transport
@@ -906,6 +908,8 @@ def run_controller(
     try:
         transport.start(controller)
         controller.start()
+        if on_serve is not None:
+            on_serve(controller)
         if ready_event is not None:
             ready_event.set()
         # poll: a signal delivered to a library thread (zenoh, python-can) must not leave the

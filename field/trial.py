@@ -2,10 +2,13 @@
 
 :func:`prepare_trial` does everything up to the command (reconstruction, planning, the grasp in
 SWEREF 99 TM, the safety checks, pictures and GeoJSON); :func:`execute_trial` sends it over a
-crane link and waits for the acknowledgement and the outcome; :func:`run_trial_record` does both
-and writes the *trial record* atomically (built in a temporary sibling folder, renamed when
-complete: a crash leaves either nothing or a whole record). :func:`replay_record` re-runs
-reconstruction and planning from a record and says whether the command is bit-identical.
+crane link and waits for the acknowledgement and the outcome; :func:`run_trial_record` probes the
+link first, then does both and writes the *trial record*: built in a temporary sibling folder until
+the plan is ready, then renamed into place, after which ``record.json`` (replaced atomically) always
+says how far the trial got (``AWAITING CONFIRMATION``, ``SENDING``, the final state; ``NOT SENT``
+with the reason for a trial that was refused, declined, not answered or interrupted).
+:func:`replay_record` checks the recorded inputs' sha256, re-runs reconstruction and planning from
+them and says whether the command is bit-identical.
 
 Trial record (``loggrasp.trial-record`` 1.0)::
 
@@ -43,7 +46,37 @@ RECORD_VERSION = "1.0"
 
 
 class TrialAborted(FieldError):
-    """The trial stopped before or instead of sending a command; the message says why."""
+    """The trial stopped before or instead of sending a command; the message says why.
+
+    ``kind`` says whose move it is: ``"input"`` (a scan, survey or model that cannot be used: fix
+    the file or flag), ``"link"`` (the crane link: URL, controller unreachable or not ready),
+    ``"refused"`` (a safety check: stale data, reach, lift capacity, no grasp), ``"declined"``
+    (the operator said no or gave no answer) or ``"interrupted"`` (Ctrl-C)."""
+
+    def __init__(self, message: str, kind: str = "refused"):
+        super().__init__(message)
+        self.kind = kind
+
+
+#: why a crane controller rejects a command (``RejectReason`` name -> what to do), for the record
+#: and the operator
+REJECT_EXPLANATIONS = {
+    "STALE": "the pile data is older than the crane controller accepts (the crane's own limit: "
+             "crane-sim --max-pile-age, twin://?crane_max_pile_age_s=S, or a real crane's configuration; "
+             "trial --max-pile-age sets only the laptop's check): scan the pile again",
+    "OUT_OF_REACH": "the grasp point is outside the crane's reach envelope (its base and reach: crane-sim "
+                    "--base/--max-reach, twin://?crane_base=E,N,H&crane_max_reach_m=M, or a real crane's "
+                    "configuration): move the crane or check --base",
+    "WIDTH_RANGE": "the opening width is outside the grapple's range",
+    "HEADING_RANGE": "the heading is outside the rotator's accepted range",
+    "BUSY": "the crane is executing another command: wait for it and send a new trial",
+    "ESTOP": "the crane is in emergency stop: reset it on the crane",
+    "FAULT": "the crane controller is in FAULT: reset it on the crane",
+    "DUPLICATE_ID": "the command id was already used: start a new trial",
+    "COUNTER": "frames were lost or reordered on the link: check the link and start a new trial",
+    "CRC": "a frame was corrupted on the link: check the link and start a new trial",
+    "MALFORMED": "the crane could not read the command (protocol version or impossible values)",
+}
 
 
 @dataclass(frozen=True)
@@ -91,10 +124,21 @@ class PreparedTrial:
             f"targets: logs {list(best.targets)} ({len(best.targets)} of {self.pile.n_logs})",
             f"quality q={best.quality:.3f}  graspability u={best.graspability:.3f}  balance b={best.balance:.3f}",
             f"SWEREF 99 TM  E {g.easting_m:.3f}  N {g.northing_m:.3f}  h {g.h_ell_m:.3f} m (ellipsoidal)",
-            f"heading (closing axis) {g.heading_grid_deg:.2f}° from grid north, {g.heading_true_deg:.2f}° from true north",
+            f"heading (closing axis) {g.heading_grid_deg:.2f}° from grid north, "
+            f"{g.heading_true_deg:.2f}° from true north",
             f"opening width {g.width_m:.3f} m",
-        ] + [f"WARNING: target log {i} was {how} (the reconstruction's report says how it was placed); "
-             "check it on the pile before confirming" for i, how in self.doubtful_targets()]
+        ] + [f"WARNING: {w}" for w in self.warnings()]
+
+    def warnings(self) -> list[str]:
+        """What the operator should check before confirming: target logs the scan hardly showed,
+        the survey reader's warnings, plan constraints that removed or moved grasps."""
+        out = [f"target log {i} was {how} (the reconstruction's report says how it was placed); "
+               "check it on the pile before confirming" for i, how in self.doubtful_targets()]
+        out += [f"GNSS survey: {w}" for w in self.report.get("survey_warnings", [])]
+        for r in getattr(self.plan, "rejected", None) or []:
+            if isinstance(r, dict) and r.get("action") == "removed":
+                out.append(f"targets {r.get('targets')}: no grasp ({r.get('constraint')}: {r.get('detail')})")
+        return out
 
     def doubtful_targets(self) -> list[tuple[int, str]]:
         """Target logs the scan showed only in part or not at all: (index, how it was placed)."""
@@ -142,19 +186,21 @@ def prepare_trial(scan_dir: str | Path, gnss_path: str | Path, work_dir: str | P
     age = now - captured
     if age > options.max_pile_age_s:
         raise TrialAborted(f"the pile data is {age:.0f} s old (captured {time.ctime(captured)}), over the "
-                           f"{options.max_pile_age_s:.0f} s limit: scan the pile again before grasping")
+                           f"{options.max_pile_age_s:.0f} s limit (--max-pile-age): scan the pile again before "
+                           "grasping",
+                           kind="refused")
     try:  # first: a model that cannot load stops the trial before the reconstruction's work
         planner = load_planner(options.model or DEFAULT_MODEL, views=options.views,
                                view_spread_k=options.view_spread_k)
     except PlannerError as exc:
-        raise TrialAborted(f"planning failed: {exc}") from exc
+        raise TrialAborted(f"planning failed: {exc}", kind="input") from exc
     say("reconstructing the pile from the scan and the RTK endpoints")
     try:  # re-rendered at the network's pixel pitch
         result = reconstruct(scan_dir, gnss_path, work / "reconstruction",
                              ReconstructConfig(allow_float=options.allow_float, render_size_px=planner.config.size_px,
                                                render_extent_m=planner.config.extent_m), progress=say)
     except (ReconstructError, SynthError, ValueError) as exc:
-        raise TrialAborted(f"reconstruction failed: {exc}") from exc
+        raise TrialAborted(f"reconstruction failed: {exc}", kind="input") from exc
     pile = result.pile
     obs = OrthoObservation.load(work / "reconstruction" / "ortho.npz")
 
@@ -170,11 +216,11 @@ def prepare_trial(scan_dir: str | Path, gnss_path: str | Path, work_dir: str | P
     try:
         the_plan = plan(obs, planner, Objective(kind=options.objective), constraints, top_k=10, pile=pile)
     except PlannerError as exc:
-        raise TrialAborted(f"planning failed: {exc}") from exc
+        raise TrialAborted(f"planning failed: {exc}", kind="input") from exc
     if the_plan.best is None:
         why = "; ".join(f"{r['targets']}: {r['constraint']}" for r in the_plan.rejected[:5])
         raise TrialAborted("no grasp satisfies the constraints (reach, lift capacity, keep-out)"
-                           + (f": {why}" if why else ""))
+                           + (f": {why}" if why else ""), kind="refused")
     best = the_plan.best
     z = float(pile.terrain.height_at(best.grasp.x_m, best.grasp.y_m))
     geo = grasp_to_gnss(best.grasp, pile.georef, z)
@@ -186,17 +232,17 @@ def prepare_trial(scan_dir: str | Path, gnss_path: str | Path, work_dir: str | P
     }
     plan_dir = work / "plan"
     plan_dir.mkdir(parents=True, exist_ok=True)
+    from planner.pictures import draw_plan
     from synth.pile import atomic_write_bytes
-    from synth.preview import draw_grasps, write_png
 
     atomic_write_bytes(plan_dir / "plan.json", the_plan.to_json().encode())
-    write_png(plan_dir / "plan.png", draw_grasps(obs, [(g.grasp, g.targets) for g in the_plan.grasps[:5]],
-                                                  labels=[f"{g.quality:.2f}" for g in the_plan.grasps[:5]]))
+    draw_plan(obs, the_plan, plan_dir / "plan.png", pile=pile, objective=Objective(kind=options.objective),
+              constraints=constraints)
     write_geojson_pair(pile, plan_dir, grasp=best.grasp, plan_extra={"target_logs": list(best.targets)})
     draw_grasp_map(pile, best.grasp, plan_dir / "grasp_map.png", target_logs=best.targets)
     return PreparedTrial(pile=pile, plan=the_plan, geo=geo, command_fields=command_fields,
                          captured_utc_s=captured, work_dir=work,
-                         report={"pile_age_s": age,
+                         report={"pile_age_s": age, "survey_warnings": list(result.report.get("survey_warnings", [])),
                                  "log_fits": [log.get("fit", "scan") for log in result.report.get("logs", [])]})
 
 
@@ -230,7 +276,7 @@ def execute_trial(prepared: PreparedTrial, link_url: str, options: TrialOptions,
     try:
         link = open_link(link_url, cfg)
     except (LinkError, ValueError) as exc:
-        raise TrialAborted(f"cannot open the crane link {link_url}: {exc}") from exc
+        raise TrialAborted(f"cannot open the crane link {link_url}: {exc}", kind="link") from exc
     with link:
         cid = link.new_command_id()
         cmd = GraspCommand(command_id=cid, **prepared.command_fields)
@@ -282,65 +328,163 @@ def _versions() -> dict:
     return v
 
 
+def probe_link(link_url: str, options: TrialOptions) -> str:
+    """Open the crane link, ask the controller for its status and close it again: called before
+    the reconstruction so that a wrong URL or an unreachable crane stops the trial in seconds.
+    Returns the controller's state name; raises :class:`TrialAborted` (``kind="link"``)."""
+    from field.errors import LinkError
+    from field.link import open_link
+    from field.link.base import LinkConfig
+    from field.link.safety import SafetyConfig
+
+    try:
+        with open_link(link_url, LinkConfig(safety=SafetyConfig(max_pile_age_s=options.max_pile_age_s))) as link:
+            state = link.status(timeout_s=max(options.ack_timeout_s, 0.5)).state.name
+    except (LinkError, ValueError) as exc:
+        raise TrialAborted(f"cannot reach the crane controller at {link_url}: {exc}", kind="link") from exc
+    if state in ("ESTOP", "FAULT"):
+        raise TrialAborted(f"the crane controller at {link_url} is in {state}: reset it on the crane first",
+                           kind="link")
+    return state
+
+
+def _stage_record(record_dir: Path) -> Path:
+    """A temporary sibling folder the record is built in (modes as the umask says)."""
+    if record_dir.exists():
+        raise TrialAborted(f"trial record {record_dir} already exists; choose a new --record folder", kind="input")
+    record_dir.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{record_dir.name}.", suffix=".tmp", dir=record_dir.parent))
+    from synth.pile import apply_umask
+
+    apply_umask(tmp, directory=True)
+    return tmp
+
+
 def run_trial_record(scan_dir: str | Path, gnss_path: str | Path, link_url: str, record_dir: str | Path,
                      options: TrialOptions, confirm: Callable[[PreparedTrial], bool] | None = None,
-                     progress: Callable[[str], None] | None = None, now: float | None = None) -> dict:
-    """The whole trial; returns the record dict. The record folder appears only when complete.
+                     progress: Callable[[str], None] | None = None, now: float | None = None,
+                     probe: bool = True) -> dict:
+    """The whole trial; returns the record dict.
 
-    ``confirm(prepared)`` asks the operator (None = already confirmed, e.g. ``--yes``). A trial that
-    stops before sending still writes a record (with its reason), so nothing is lost."""
+    First the crane link is probed (:func:`probe_link`; nothing is written when it fails). The
+    record is built in a temporary sibling folder until the plan is ready, then renamed to
+    ``record_dir``; from then on ``record.json`` (replaced atomically) always says how far the
+    trial got: ``AWAITING CONFIRMATION`` while ``confirm(prepared)`` asks the operator (the
+    pictures it names are in ``record_dir/plan/``), ``SENDING`` (with the command) before
+    anything goes on the link, then the final state. A trial that stops before sending —
+    refused by a safety check, declined, no answer, Ctrl-C — leaves a complete record with
+    ``final_state`` ``NOT SENT`` and the reason, and raises :class:`TrialAborted` (Ctrl-C:
+    ``KeyboardInterrupt``). ``confirm`` None means already confirmed (``--yes``); it may raise
+    :class:`TrialAborted` (e.g. no answer)."""
     from planner.cli import DEFAULT_MODEL
     from synth.pile import atomic_write_bytes
 
     say = progress or (lambda s: None)
     scan_dir, gnss_path, record_dir = Path(scan_dir), Path(gnss_path), Path(record_dir)
     if record_dir.exists():
-        raise FieldError(f"trial record {record_dir} already exists; choose a new --record folder")
-    record_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{record_dir.name}.", suffix=".tmp", dir=record_dir.parent))
+        raise TrialAborted(f"trial record {record_dir} already exists; choose a new --record folder", kind="input")
+    if probe:
+        say(f"crane link {link_url}: controller {probe_link(link_url, options)}")
+    tmp = _stage_record(record_dir)
+    where = tmp  # the record's folder now (tmp until renamed)
+    outer_say = say
+    say = lambda text: outer_say(str(text).replace(str(tmp), str(record_dir)))  # noqa: E731 - where it will be
+    record: dict = {"format": RECORD_FORMAT, "format_version": RECORD_VERSION, "versions": _versions(),
+                    "started_utc_s": time.time(), "link": link_url, "options": asdict(options),
+                    "final_state": "PREPARING"}
+
+    def write(**changes) -> None:
+        record.update(changes)
+        atomic_write_bytes(where / "record.json", json.dumps(record, indent=1).encode())
+
+    def publish() -> None:
+        nonlocal where
+        os.replace(tmp, record_dir)
+        where = record_dir
+
     try:
         inputs = tmp / "inputs"
+        say("copying the inputs into the record")
         shutil.copytree(scan_dir, inputs / "scan")
         shutil.copy2(gnss_path, inputs / "gnss.csv")
         model = Path(options.model or DEFAULT_MODEL)
-        record: dict = {
-            "format": RECORD_FORMAT, "format_version": RECORD_VERSION, "versions": _versions(),
-            "started_utc_s": time.time(), "link": link_url, "options": asdict(options),
-            "inputs": {"scan": str(scan_dir), "gnss": str(gnss_path),
-                       "hashes": {str(p.relative_to(inputs)): sha256_of(p) for p in sorted(inputs.rglob("*")) if p.is_file()}},
-            "model": {"path": str(model), "sha256": sha256_of(model) if model.exists() else None},
-        }
+        record["inputs"] = {"scan": str(scan_dir), "gnss": str(gnss_path),
+                            "hashes": {str(p.relative_to(inputs)): sha256_of(p)
+                                       for p in sorted(inputs.rglob("*")) if p.is_file()}}
+        record["model"] = {"path": str(model), "sha256": sha256_of(model) if model.exists() else None}
         try:
             prepared = prepare_trial(inputs / "scan", inputs / "gnss.csv", tmp, options, progress=say, now=now)
         except TrialAborted as exc:
-            record.update({"final_state": "NOT SENT", "reason": str(exc)})
-            atomic_write_bytes(tmp / "record.json", json.dumps(record, indent=1).encode())
-            os.replace(tmp, record_dir)
+            write(final_state="NOT SENT", reason=str(exc), stopped=exc.kind, finished_utc_s=time.time())
+            publish()
             raise
         record["plan"] = json.loads((tmp / "plan" / "plan.json").read_text())
         record["command"] = prepared.command_fields
         record["geo"] = prepared.geo.to_dict()
         record["pile_age_s"] = prepared.report.get("pile_age_s")
-        if confirm is not None and not confirm(prepared):
-            record.update({"final_state": "NOT SENT", "reason": "the operator declined"})
-            atomic_write_bytes(tmp / "record.json", json.dumps(record, indent=1).encode())
-            os.replace(tmp, record_dir)
-            raise TrialAborted("the operator declined: nothing was sent")
+        record["warnings"] = prepared.warnings()
+        write(final_state="AWAITING CONFIRMATION" if confirm is not None else "CONFIRMED (--yes)")
+        publish()
+        prepared.work_dir = record_dir
+        if confirm is not None:
+            try:
+                ok = confirm(prepared)
+            except TrialAborted as exc:
+                write(final_state="NOT SENT", reason=str(exc), stopped=exc.kind, finished_utc_s=time.time())
+                raise
+            if not ok:
+                write(final_state="NOT SENT", reason="the operator declined", stopped="declined",
+                      finished_utc_s=time.time())
+                raise TrialAborted("the operator declined: nothing was sent", kind="declined")
         traffic = None
         if link_url.startswith("can"):
-            (tmp / "link").mkdir()
-            traffic = tmp / "link" / "traffic.blf"
+            (record_dir / "link").mkdir(exist_ok=True)
+            traffic = record_dir / "link" / "traffic.blf"
+        write(final_state="SENDING", confirmed_utc_s=time.time())
         outcome = execute_trial(prepared, link_url, options, record_traffic=traffic, say=say)
-        record.update({"command_id": outcome.command_id, "accepted": outcome.accepted,
-                       "reject_reason": outcome.reject_reason, "outcome": outcome.outcome,
-                       "final_state": outcome.final_state, "messages": outcome.messages,
-                       "finished_utc_s": time.time()})
-        atomic_write_bytes(tmp / "record.json", json.dumps(record, indent=1).encode())
-        os.replace(tmp, record_dir)
+        changes = {"command_id": outcome.command_id, "accepted": outcome.accepted,
+                   "reject_reason": outcome.reject_reason, "outcome": outcome.outcome,
+                   "final_state": outcome.final_state, "messages": outcome.messages,
+                   "finished_utc_s": time.time()}
+        if outcome.reject_reason:
+            changes["reason"] = (f"the crane rejected the command ({outcome.reject_reason}): "
+                                 + REJECT_EXPLANATIONS.get(outcome.reject_reason, "see the controller"))
+        write(**changes)
         return record
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
+    except TrialAborted as exc:
+        if where is tmp:
+            shutil.rmtree(tmp, ignore_errors=True)
+        elif record.get("final_state") in ("SENDING", "AWAITING CONFIRMATION", "CONFIRMED (--yes)"):
+            write(final_state="NOT SENT", reason=str(exc), stopped=exc.kind, finished_utc_s=time.time())
         raise
+    except KeyboardInterrupt:
+        state = record.get("final_state")
+        if where is tmp and "inputs" not in record:
+            shutil.rmtree(tmp, ignore_errors=True)  # nothing of the trial yet
+            raise
+        sent = state == "SENDING"
+        write(final_state="INTERRUPTED" if sent else "NOT SENT", stopped="interrupted",
+              reason=("interrupted (Ctrl-C) after the command went to the crane: its outcome is unknown here, "
+                      "check the crane" if sent else f"interrupted (Ctrl-C) while {state.lower()}: nothing was sent"),
+              finished_utc_s=time.time())
+        if where is tmp:
+            publish()
+        raise
+    except BaseException as exc:
+        if where is tmp:
+            shutil.rmtree(tmp, ignore_errors=True)
+        elif record.get("final_state") == "SENDING":
+            write(final_state="UNKNOWN", reason=f"the trial stopped after sending ({type(exc).__name__}: {exc}); "
+                  "check the crane", finished_utc_s=time.time())
+        elif record.get("final_state") not in ("NOT SENT",) and "messages" not in record:
+            write(final_state="NOT SENT", reason=f"the trial stopped ({type(exc).__name__}: {exc})",
+                  finished_utc_s=time.time())
+        raise
+
+
+class RecordError(FieldError):
+    """A trial record cannot be read or replayed as recorded (not a record, a newer version,
+    recorded inputs that changed since the trial)."""
 
 
 def read_record(record_dir: str | Path) -> dict:
@@ -348,21 +492,54 @@ def read_record(record_dir: str | Path) -> dict:
     try:
         d = json.loads(path.read_text())
     except (OSError, ValueError) as exc:
-        raise FieldError(f"{path} is not a readable trial record: {exc}") from exc
-    if d.get("format") != RECORD_FORMAT:
-        raise FieldError(f"{path} is not a loggrasp trial record")
+        raise RecordError(f"{path} is not a readable trial record: {exc}") from exc
+    if not isinstance(d, dict) or d.get("format") != RECORD_FORMAT:
+        raise RecordError(f"{path} is not a loggrasp trial record")
     if str(d.get("format_version", "")).split(".")[0] != RECORD_VERSION.split(".")[0]:
-        raise FieldError(f"{path}: trial record version {d.get('format_version')!r} is not supported by this loggrasp")
+        raise RecordError(f"{path}: trial record version {d.get('format_version')!r} is not supported by this loggrasp")
     return d
+
+
+def changed_inputs(record_dir: str | Path, rec: dict | None = None) -> list[str]:
+    """Recorded inputs whose files differ from the sha256 in ``record.json`` (changed, missing or
+    added under ``inputs/``), as short descriptions; empty when the inputs are as recorded."""
+    rec = read_record(record_dir) if rec is None else rec
+    inputs = Path(record_dir) / "inputs"
+    want = dict((rec.get("inputs") or {}).get("hashes") or {})
+    have = {str(p.relative_to(inputs)): p for p in sorted(inputs.rglob("*")) if p.is_file()} if inputs.is_dir() else {}
+    out = [f"inputs/{k} is missing" for k in sorted(set(want) - set(have))]
+    out += [f"inputs/{k} changed (its sha256 differs from record.json)" for k in sorted(set(want) & set(have))
+            if sha256_of(have[k]) != want[k]]
+    out += [f"inputs/{k} was added after the trial" for k in sorted(set(have) - set(want))]
+    return out
 
 
 def replay_record(record_dir: str | Path, work_dir: str | Path, progress=None) -> dict:
     """Re-run reconstruction and planning from a record's inputs; compare with what was sent.
 
-    Returns ``{"identical": bool, "command_sent", "command_replayed", "plan_identical", "differences"}``.
-    The staleness check is judged against the record's own time (the data was fresh then)."""
+    The recorded inputs are checked against their sha256 first (:class:`RecordError` naming the
+    changed file). Returns ``{"identical": bool, "command_sent", "command_replayed",
+    "plan_identical", "differences"}``; a model whose sha256 differs from the record's is a
+    :class:`RecordError` too. The staleness check is judged against
+    the record's own time (the data was fresh then)."""
     rec = read_record(record_dir)
+    if not rec.get("inputs", {}).get("hashes"):
+        raise RecordError(f"{record_dir}/record.json lists no input hashes: this record cannot be replayed")
+    changed = changed_inputs(record_dir, rec)
+    if changed:
+        more = f" (and {len(changed) - 1} more)" if len(changed) > 1 else ""
+        raise RecordError(f"{record_dir}: {changed[0]}{more}"
+                          + "; a replay re-runs the recorded inputs: restore them from the original record")
+    if rec.get("command") is None:
+        raise RecordError(f"{record_dir}: the trial never got to a command ({rec.get('final_state')}: "
+                          f"{rec.get('reason', 'no reason recorded')}); there is nothing to replay")
     opts = TrialOptions(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in rec["options"].items()})
+    model = rec.get("model") or {}
+    model_changed = bool(model.get("sha256")) and (not Path(model["path"]).exists()
+                                                   or sha256_of(Path(model["path"])) != model["sha256"])
+    if model_changed:
+        raise RecordError(f"the model {model['path']} differs from the one the trial used (sha256 in record.json) "
+                          "or is gone: a replay needs that checkpoint")
     inputs = Path(record_dir) / "inputs"
     prepared = prepare_trial(inputs / "scan", inputs / "gnss.csv", work_dir, opts, progress=progress,
                              now=rec["started_utc_s"])

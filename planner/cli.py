@@ -1,59 +1,85 @@
-"""``loggrasp train`` and ``loggrasp plan``: thin commands over :mod:`planner`."""
+"""``loggrasp train``, ``plan`` and ``eval``: thin commands over :mod:`planner`.
+
+Flags take their defaults from the config dataclasses (:func:`synth.cli_common.option`); errors
+are raised and printed once by ``field.cli.run``."""
 
 from __future__ import annotations
 
-import json
+import math
 from pathlib import Path
+from typing import Literal
 
 import typer
 
-from synth.cli import fail
+from planner.evaluate import EvalConfig
+from planner.inference import Objective
+from planner.loss import LossWeights
+from planner.model import UNetConfig
+from planner.subsets import SubsetPolicy
+from planner.train import TrainConfig
+from synth.cli import JSON, WORKERS
+from synth.cli_common import progress_bar
+from synth.cli_common import CliError, Output, check_input, check_output_dir, check_output_file, option
 
 #: The trained default model shipped with loggrasp (safetensors + config in its header).
 DEFAULT_MODEL = Path(__file__).resolve().parent / "weights" / "default.safetensors"
 
+OBJECTIVE_HELP = "f1 (graspability), f2 (+ more logs), f3 (+ balance)."
+MODEL = option("--model", "Checkpoint (.safetensors); default: the shipped model.", default=None, metavar="PATH")
+VIEWS = option("--views", "Dihedral views the planner averages: 1, 2, 4 or 8 (slower, steadier).", default=1,
+               names=["views"])
+VIEW_SPREAD = option("--view-spread", "Lower U by K x its spread over the views (needs --views > 1).", default=0.0,
+                     names=["view_spread_k"], metavar="K")
+
 
 def train_command(
-    data: list[Path] = typer.Option(..., "--data", help="Data set folder (from `loggrasp synth dataset`); repeat to train on several."),
-    out: Path = typer.Option(..., "--out", help="Run folder: checkpoints, log, training curve."),
-    epochs: int = typer.Option(50, "--epochs"),
-    batch_size: int = typer.Option(16, "--batch-size"),
-    lr: float = typer.Option(1e-3, "--lr"),
-    lr_schedule: str = typer.Option("cosine", "--lr-schedule", help="cosine (decays to 5 % of --lr) or constant."),
-    base_channels: int = typer.Option(23, "--base-channels", help="U-Net width (23 ~ 4.0M parameters, the paper's size; 16 ~ 1.9M)."),
-    no_depth: bool = typer.Option(False, "--no-depth", help="The paper's ablation: inputs (I, M_T) only."),
-    u_pos_weight: float = typer.Option(1.0, "--u-pos-weight", help="BCE weight of positive U pixels (1 = the paper's plain BCE; U marks ~0.3 % of pixels)."),
-    seed: int = typer.Option(0, "--seed"),
-    device: str = typer.Option("auto", "--device", help="auto, cpu or cuda."),
-    precision: str = typer.Option("bf16", "--precision", help="bf16 (autocast) or fp32."),
-    max_steps_per_epoch: int = typer.Option(None, "--max-steps-per-epoch", help="Cap steps per epoch (quick runs)."),
+    data: list[Path] = option("--data", "Data set folder (from `loggrasp synth dataset`); repeat to train on several.",
+                              default=..., metavar="DIR"),
+    out: Path = option("--out", "Run folder: checkpoints, log, training curve.", default=..., metavar="DIR"),
+    epochs: int = option("--epochs", "Passes over the training split.", field=(TrainConfig, "epochs"), min=1),
+    batch_size: int = option("--batch-size", "Samples per step.", field=(TrainConfig, "batch_size"), min=1),
+    lr: float = option("--lr", "Adam learning rate.", field=(TrainConfig, "lr"), min=0.0),
+    lr_schedule: Literal["cosine", "constant"] = option("--lr-schedule", "cosine (decays to 5 % of --lr) or constant.",
+                                                        field=(TrainConfig, "lr_schedule"), metavar="cosine|constant"),
+    base_channels: int = option("--base-channels", "U-Net width (23 ~ 4.0M parameters, the paper's size; 16 ~ 1.9M).",
+                                field=(UNetConfig, "base_channels"), min=2, max=256),
+    no_depth: bool = option("--no-depth", "The paper's ablation: inputs (I, M_T) only.", default=False),
+    u_pos_weight: float = option("--u-pos-weight", "BCE weight of positive U pixels (1 = the paper's plain BCE; "
+                                 "U marks ~0.3 % of pixels).", field=(LossWeights, "u_pos_weight"), min=0.0),
+    seed: int = option("--seed", "Initialisation, data order and augmentation.", field=(TrainConfig, "seed")),
+    device: Literal["auto", "cpu", "cuda"] = option("--device", "auto (cuda when available), cpu or cuda.",
+                                                    field=(TrainConfig, "device"), metavar="auto|cpu|cuda"),
+    precision: Literal["bf16", "fp32"] = option("--precision", "bf16 (autocast) or fp32.",
+                                                field=(TrainConfig, "precision"), metavar="bf16|fp32"),
+    max_steps_per_epoch: int = option("--max-steps-per-epoch", "Cap steps per epoch (quick runs).", default=None,
+                                      min=1, metavar="INT", names=["max_steps_per_epoch"]),
+    as_json: bool = JSON,
 ) -> None:
     """Train the target-conditioned U-Net; re-running the same command resumes from the last checkpoint.
 
+    The network's image size is the data set's (a 64 px data set trains a 64 px network).
+
+    \b
     Example: loggrasp train --data data/ --out runs/r1 --epochs 50
     """
     from dataclasses import replace
 
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+    from planner.data import DataConfig, list_shards
+    from planner.train import train
 
-    from planner.data import DataConfig
-    from planner.errors import PlannerError
-    from planner.loss import LossWeights
-    from planner.model import UNetConfig
-    from planner.train import TrainConfig, train
-    from synth.errors import SynthError
-
-    try:
-        in_ch = 2 if no_depth else 3
-        cfg = TrainConfig(model=replace(UNetConfig(), base_channels=base_channels, in_channels=in_ch),
-                          loss=replace(LossWeights(), u_pos_weight=u_pos_weight),
-                          data=replace(DataConfig(), in_channels=in_ch), epochs=epochs, batch_size=batch_size,
-                          lr=lr, lr_schedule=lr_schedule, seed=seed, device=device, precision=precision,
-                          max_steps_per_epoch=max_steps_per_epoch)
-    except (ValueError, TypeError) as exc:
-        fail(str(exc))
-    with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.fields[info]}"),
-                  TimeElapsedColumn()) as bar:
+    o = Output(as_json)
+    for d in data:
+        check_input(d, "--data", "dir")
+    check_output_dir(out, "--out")
+    _, grid = list_shards(data if len(data) > 1 else data[0])
+    in_ch = 2 if no_depth else 3
+    size = int(grid.get("size_px", UNetConfig().size_px))
+    cfg = TrainConfig(model=replace(UNetConfig(), base_channels=base_channels, in_channels=in_ch, size_px=size),
+                      loss=replace(LossWeights(), u_pos_weight=u_pos_weight),
+                      data=replace(DataConfig(), in_channels=in_ch), epochs=epochs, batch_size=batch_size,
+                      lr=lr, lr_schedule=lr_schedule, seed=seed, device=device, precision=precision,
+                      max_steps_per_epoch=max_steps_per_epoch)
+    with progress_bar() as bar:
         task = bar.add_task("training", total=epochs, info="")
 
         def progress(ev: dict) -> None:
@@ -68,19 +94,20 @@ def train_command(
                 bar.update(task, info=f"step {ev.get('step')} loss {num('loss')} "
                                       f"{ev.get('samples_per_s') or 0:.1f} samples/s")
 
-        try:
-            result = train(data if len(data) > 1 else data[0], out, cfg, progress=progress)
-        except (PlannerError, SynthError, ValueError) as exc:
-            fail(str(exc))
-    typer.echo(f"best checkpoint: {result.model_path}\ntraining curve: {result.curve_path}")
+        result = train(data if len(data) > 1 else data[0], out, cfg, progress=progress)
+    o.say(f"best checkpoint: {result.model_path}\ntraining curve: {result.curve_path}")
+    o.result("loggrasp.train", {"out": str(out), "model": str(result.model_path), "state": str(result.state_path),
+                                "log": str(result.log_path), "curve": str(result.curve_path), "size_px": size})
 
 
-def load_observation(path: Path, cfg):
+def load_observation(path: Path, cfg, warn=None):
     """An observation from a pile folder (its ortho.npz when it has the network's pixel pitch,
     else re-rendered) or a pile.json (rendered at the pitch of ``cfg``, a
-    :class:`planner.model.UNetConfig`). Returns (observation, pile or None)."""
+    :class:`planner.model.UNetConfig`). Returns (observation, pile or None). ``warn(text)`` hears
+    about an ortho.npz that could not be used beside a readable pile.json."""
     from planner.errors import ObservationError
     from planner.inference import check_grid
+    from synth.errors import PileFormatError
     from synth.pile import read_pile
     from synth.render import OrthoObservation, OrthoRenderConfig, render_ortho
     from synth.world import World
@@ -89,129 +116,164 @@ def load_observation(path: Path, cfg):
     pile = None
     if (folder / "pile.json").exists() or path.suffix == ".json":
         pile = read_pile(path)
-    npz = folder / "ortho.npz"
+    npz = folder / "ortho.npz" if path.suffix != ".npz" else path
     if npz.exists():
-        obs = OrthoObservation.load(npz)
         try:
-            check_grid(obs.depth.shape[0], obs.extent_m, cfg)
-            return obs, pile
-        except ObservationError:
-            pass  # rendered from the pile below
+            obs = OrthoObservation.load(npz)
+        except PileFormatError as exc:
+            if pile is None:
+                raise
+            if warn:
+                warn(f"{exc}; rendering from {folder / 'pile.json'} instead")
+        else:
+            try:
+                check_grid(obs.depth.shape[0], obs.extent_m, cfg)
+                return obs, pile
+            except ObservationError:
+                pass  # rendered from the pile below
     if pile is None:
-        raise FileNotFoundError(f"{path}: neither a pile.json nor an ortho.npz at the network's pixel pitch "
-                                f"({100 * cfg.pixel_m:.2f} cm)")
+        raise ObservationError(f"{path}: neither a pile.json nor an ortho.npz at the network's pixel pitch "
+                               f"({100 * cfg.pixel_m:.2f} cm)")
     size = max(16, round(pile.terrain.extent_m / cfg.pixel_m))  # plan() names a patch that does not fit
     with World(pile) as world:
         return render_ortho(world, OrthoRenderConfig(size_px=size, n_renders=1), seed=pile.seed or 0), pile
 
 
 def plan_command(
-    pile: Path = typer.Argument(..., help="A pile folder (pile.json and/or ortho.npz) or a pile.json."),
-    model: Path = typer.Option(None, "--model", help="Checkpoint (.safetensors); default: the shipped model."),
-    objective: str = typer.Option("f1", "--objective", help="f1 (graspability), f2 (+ more logs), f3 (+ balance)."),
-    top: int = typer.Option(5, "--top", help="How many subsets' best grasps to list."),
-    as_json: bool = typer.Option(False, "--json", help="Print the plan as JSON."),
-    png: Path = typer.Option(None, "--png", help="Draw the chosen grasp and targets over the render."),
-    max_subsets: int = typer.Option(127, "--max-subsets", help="Network passes budget; larger piles are pruned."),
-    views: int = typer.Option(1, "--views", help="Dihedral views averaged: 1, 2, 4 or 8 (slower, steadier)."),
-    view_spread: float = typer.Option(0.0, "--view-spread", help="Lower U by K x its spread over the views (needs --views > 1)."),
+    pile: Path = typer.Argument(..., metavar="PILE",
+                                help="A pile folder (pile.json and/or ortho.npz), a pile.json or an ortho.npz."),
+    model: Path = MODEL,
+    objective: Literal["f1", "f2", "f3"] = option("--objective", OBJECTIVE_HELP, field=(Objective, "kind"),
+                                                  metavar="f1|f2|f3", names=["objective"]),
+    top: int = option("--top", "How many subsets' best grasps to list (and draw).", default=5, min=1,
+                      names=["top_k"]),
+    as_json: bool = option("--json", "Print the plan as JSON (format loggrasp.plan) on standard output.",
+                           default=False),
+    png: Path = option("--png", "Write a picture of the plan: ranked grasps over the render, legend, scale, "
+                       "north.", default=None, metavar="OUT.png"),
+    max_subsets: int = option("--max-subsets", "Network passes budget; larger piles are pruned.",
+                              field=(SubsetPolicy, "max_subsets"), min=1),
+    views: int = VIEWS,
+    view_spread: float = VIEW_SPREAD,
 ) -> None:
     """Plan the best multi-log grasp on a pile: every target subset scored with Q = f(U, tau, B).
 
+    \b
     Example: loggrasp plan piles/pile_00000 --objective f3 --json
+    Example: loggrasp plan recon/s3 --objective f3 --png plan.png
     """
-    from planner.errors import PlannerError
-    from planner.inference import Objective, load_planner, plan
-    from planner.subsets import SubsetPolicy
-    from synth.errors import SynthError
-
-    path = model or DEFAULT_MODEL
-    try:
-        planner = load_planner(path, views=views, view_spread_k=view_spread)
-        obs, spec = load_observation(pile, planner.config)
-        result = plan(obs, planner, Objective(kind=objective), top_k=top,
-                      subsets=SubsetPolicy(max_subsets=max_subsets), pile=spec)
-    except (PlannerError, SynthError, ValueError, FileNotFoundError) as exc:
-        fail(str(exc))
-    if png is not None:
-        from synth.preview import draw_grasps, write_png
-
-        write_png(png, draw_grasps(obs, [(g.grasp, g.targets) for g in result.grasps],
-                                   labels=[f"{g.quality:.2f}" for g in result.grasps]))
-    if as_json:
-        d = result.to_dict()
-        typer.echo(json.dumps({k: d[k] for k in ("grasps", "subsets_evaluated", "elapsed_s")}, indent=1))
-        return
     from rich.console import Console
-    from rich.table import Table
 
-    table = Table(title=f"{result.subsets_evaluated} subsets in {result.elapsed_s:.2f} s, objective {objective}")
-    for col in ("rank", "targets", "x m", "y m", "phi deg", "width m", "q", "u", "b"):
-        table.add_column(col, justify="right")
-    import math
+    from planner.inference import check_views, load_planner, plan
 
-    for i, g in enumerate(result.grasps):
-        table.add_row(str(i + 1), ",".join(map(str, g.targets)), f"{g.grasp.x_m:.2f}", f"{g.grasp.y_m:.2f}",
-                      f"{math.degrees(g.grasp.phi_rad):.1f}", f"{g.grasp.width_m:.2f}", f"{g.quality:.3f}",
-                      f"{g.graspability:.3f}", f"{g.balance:.3f}")
-    Console().print(table)
+    o = Output(as_json)
+    check_views(views, view_spread)
+    check_input(pile, "PILE")
+    path = model or DEFAULT_MODEL
+    check_input(path, "--model", "file")
+    if png is not None:
+        check_output_file(png, "--png", ".png")
+    pile_json = pile if pile.suffix == ".json" else pile / "pile.json"
+    if pile_json.is_file():
+        from synth.pile import read_pile
+
+        read_pile(pile_json)  # a bad pile file stops the command before the network loads
+    planner = load_planner(path, views=views, view_spread_k=view_spread)
+    obs, spec = load_observation(pile, planner.config, warn=o.warn)
+    obj = Objective(kind=objective)
+    o.progress(f"planning on {pile}: {obs.n_logs} logs, up to {max_subsets} target subsets x {views} view(s)")
+    with Console(stderr=True).status("planning"):
+        result = plan(obs, planner, obj, top_k=top, subsets=SubsetPolicy(max_subsets=max_subsets), pile=spec)
+    if png is not None:
+        from planner.pictures import draw_plan
+
+        draw_plan(obs, result, png, pile=spec, objective=obj, top=top)
+    o.result("loggrasp.plan", {k: v for k, v in result.to_dict().items() if k != "info"} | {"pile": str(pile)})
+    rows = [[str(i + 1), ",".join(map(str, g.targets)), f"{g.grasp.x_m:.3f}", f"{g.grasp.y_m:.3f}",
+             f"{math.degrees(g.grasp.phi_rad):.1f}", f"{g.grasp.width_m:.3f}", f"{g.quality:.3f}",
+             f"{g.graspability:.3f}", f"{g.balance:.3f}"] for i, g in enumerate(result.grasps)]
+    o.table(f"plan for {pile}: {result.subsets_evaluated} target subsets in {result.elapsed_s:.2f} s, "
+            f"objective {objective} (Q = quality, U = graspability, B = balance; pile frame)",
+            ["rank", "targets", "x m", "y m", "phi deg", "width m", "Q", "U", "B"], rows)
+    if not result.grasps:
+        o.say("no grasp: every target subset was removed by a constraint (below)")
     for r in result.rejected:
-        typer.echo(f"rejected {r['targets']}: {r['constraint']} ({r['detail']})")
+        o.say(f"{'no grasp for' if r['action'] == 'removed' else 'moved grasp of'} targets {r['targets']}: "
+              f"{r['constraint']} ({r['detail']})")
+    if png is not None:
+        o.say(f"picture: {png}")
 
 
 def eval_command(
-    out: Path = typer.Option(..., "--out", help="Results folder (records, results.md/json, examples.png)."),
-    model: Path = typer.Option(None, "--model", help="Checkpoint; default: the shipped model."),
-    per_cell: int = typer.Option(100, "--per-cell", help="Piles per (size, obstacles) cell."),
-    logs: str = typer.Option("2-7", "--logs", help="Pile sizes, 'A-B'."),
-    obstacles: str = typer.Option("both", "--obstacles", help="yes, no or both."),
-    objectives: str = typer.Option("f1,f2,f3", "--objectives", help="Comma-separated: f1,f2,f3."),
-    baselines: str = typer.Option("random,geometric,oracle", "--baselines",
-                                  help="Comma-separated baselines through the same trials ('' for none)."),
-    extra_model: list[str] = typer.Option([], "--extra-model", help="LABEL=PATH, e.g. no-depth=runs/nd/best.safetensors."),
-    workers: int = typer.Option(0, "--workers", help="Processes (0 = all cores) or Dask workers."),
-    engine: str = typer.Option("local", "--engine", help="local or dask."),
-    address: str = typer.Option(None, "--address", help="Dask scheduler address."),
-    trial: str = typer.Option("fast", "--trial", help="Trial preset: fast or careful."),
-    seed_base: int = typer.Option(900_000_000, "--seed-base", help="First test seed (keep far from training seeds)."),
+    out: Path = option("--out", "Results folder (records, results.md/json, examples.png).", default=...,
+                       metavar="DIR"),
+    model: Path = MODEL,
+    per_cell: int = option("--per-cell", "Piles per (size, obstacles) cell.", field=(EvalConfig, "per_cell"), min=1),
+    logs: str = option("--logs", "Pile sizes, 'A-B' or 'A'.", default="2-7"),
+    obstacles: Literal["yes", "no", "both"] = option("--obstacles", "Cells with obstacles: yes, no or both.",
+                                                     default="both", metavar="yes|no|both"),
+    objectives: str = option("--objectives", "Comma-separated U-Net objectives: f1,f2,f3.", default="f1,f2,f3"),
+    baselines: str = option("--baselines", "Comma-separated baselines through the same trials: random, geometric, "
+                            "oracle ('' for none).", default="random,geometric,oracle"),
+    extra_model: list[str] = option("--extra-model", "LABEL=PATH, e.g. no-depth=runs/nd/best.safetensors; repeatable.",
+                                    default=[], metavar="LABEL=PATH"),
+    workers: int = WORKERS,
+    engine: Literal["local", "dask"] = option("--engine", "local (process pool) or dask.", default="local",
+                                              metavar="local|dask"),
+    address: str = option("--address", "Dask scheduler address (tcp://HOST:PORT); none = a local cluster.",
+                          default=None, metavar="URL"),
+    trial: Literal["fast", "careful"] = option("--trial", "Trial preset.", field=(EvalConfig, "trial"),
+                                                metavar="fast|careful"),
+    seed_base: int = option("--seed-base", "First test seed (keep far from training seeds).",
+                            field=(EvalConfig, "seed_base")),
+    as_json: bool = option("--json", "Print results.json (format loggrasp.eval-results) on standard output.",
+                           default=False),
 ) -> None:
     """Evaluate planners in the twin, the paper's protocol: fresh piles, one grasp each, tried in physics.
 
+    \b
     Example: loggrasp eval --per-cell 100 --logs 2-7 --obstacles both --objectives f1,f2,f3 --out results/
     Re-running resumes (one record file per pile).
     """
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn, TimeRemainingColumn
+    import json
 
-    from planner.evaluate import EvalConfig, PlannerSpec, run_evaluation
-    from synth.errors import SynthError
+    from planner.evaluate import PlannerSpec, run_evaluation
     from synth.jobs import parse_range
 
-    try:
-        lo, hi = parse_range(logs, "--logs")
-        obs = {"yes": (True,), "no": (False,), "both": (True, False)}.get(obstacles)
-        if obs is None:
-            raise ValueError(f"--obstacles must be yes, no or both, got {obstacles!r}")
-        cfg = EvalConfig(logs=tuple(range(lo, hi + 1)), obstacles=obs, per_cell=per_cell, trial=trial,
-                         seed_base=seed_base)
-        path = str(model or DEFAULT_MODEL)
-        specs = [PlannerSpec("unet", model=path, objective=o.strip()) for o in objectives.split(",") if o.strip()]
-        for item in extra_model:
-            label, _, p = item.partition("=")
-            if not p:
-                raise ValueError(f"--extra-model must be LABEL=PATH, got {item!r}")
-            specs.append(PlannerSpec("unet", model=p, objective="f1", label=label))
-        specs += [PlannerSpec(b.strip()) for b in baselines.split(",") if b.strip()]
-        for s in specs:
-            if s.kind == "unet" and not Path(s.model).exists():
-                raise ValueError(f"model {s.model} not found; train one with `loggrasp train` or pass --model")
-    except ValueError as exc:
-        fail(str(exc))
-    with Progress("[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(),
-                  TimeElapsedColumn(), TimeRemainingColumn()) as bar:
-        task = bar.add_task("piles", total=len(cfg.tasks()))
-        try:
-            run_evaluation(specs, cfg, out, workers=workers, engine=engine, address=address,
-                           progress=lambda d, t: bar.update(task, completed=d))
-        except (SynthError, ValueError) as exc:
-            fail(str(exc))
-    typer.echo((Path(out) / "results.md").read_text())
+    o = Output(as_json)
+    if address is not None and engine != "dask":
+        raise CliError("--address needs --engine dask")
+    lo, hi = parse_range(logs, "--logs")
+    obs = {"yes": (True,), "no": (False,), "both": (True, False)}[obstacles]
+    cfg = EvalConfig(logs=tuple(range(lo, hi + 1)), obstacles=obs, per_cell=per_cell, trial=trial, seed_base=seed_base)
+    path = str(model or DEFAULT_MODEL)
+    objs = [x.strip() for x in objectives.split(",") if x.strip()]
+    bad = [x for x in objs if x not in ("f1", "f2", "f3")]
+    if bad:
+        raise CliError(f"--objectives must be a comma-separated list of f1, f2, f3, got {objectives!r}")
+    specs = [PlannerSpec("unet", model=path, objective=x) for x in objs]
+    for item in extra_model:
+        label, _, p = item.partition("=")
+        if not p or not label:
+            raise CliError(f"--extra-model must be LABEL=PATH, got {item!r}")
+        specs.append(PlannerSpec("unet", model=p, objective="f1", label=label))
+    names = [b.strip() for b in baselines.split(",") if b.strip()]
+    unknown = [b for b in names if b not in ("random", "geometric", "oracle")]
+    if unknown:
+        raise CliError(f"--baselines must be a comma-separated list of random, geometric, oracle, got {baselines!r}")
+    specs += [PlannerSpec(b) for b in names]
+    if not specs:
+        raise CliError("nothing to evaluate: give --objectives, --baselines or --extra-model")
+    for s in specs:
+        if s.kind == "unet":
+            check_input(s.model, "--model" if s.label == "" else "--extra-model", "file")
+    check_output_dir(out, "--out")
+    with progress_bar() as bar:
+        task = bar.add_task("piles", total=len(cfg.tasks()), info="")
+        run_evaluation(specs, cfg, out, workers=workers, engine=engine, address=address,
+                                progress=lambda d, t: bar.update(task, completed=d))
+    if as_json:
+        o.result("loggrasp.eval-results", json.loads((Path(out) / "results.json").read_text()))
+    else:
+        o.say((Path(out) / "results.md").read_text().rstrip())
+    o.say(f"results: {Path(out) / 'results.md'}, {Path(out) / 'results.json'}; examples: {Path(out) / 'examples.png'}")

@@ -341,7 +341,7 @@ def run_evaluation(specs: list[PlannerSpec], cfg: EvalConfig, out_dir: str | Pat
     to ``records/`` one file per pile, atomically); writes tables (Markdown + JSON) and a figure."""
     import os
 
-    from synth.pile import atomic_write_bytes
+    from synth.pile import atomic_write_bytes, dumps_json
 
     if not specs:
         raise ValueError("no planner to evaluate")
@@ -427,7 +427,7 @@ def run_evaluation(specs: list[PlannerSpec], cfg: EvalConfig, out_dir: str | Pat
 
     records = [r for t in tasks for r in _read_records(rec_dir / f"{t[3]}.json")]
     tables = summarise(records, cfg, names)
-    atomic_write_bytes(out / "results.json", json.dumps(tables, indent=1).encode())
+    atomic_write_bytes(out / "results.json", dumps_json(tables).encode())  # NaN (no piles, no successes): null
     atomic_write_bytes(out / "results.md", tables_markdown(tables, cfg).encode())
     try:
         draw_examples(records, cfg, out / "examples.png", names[0])
@@ -493,7 +493,8 @@ def summarise(records: list[dict], cfg: EvalConfig, names: list[str]) -> dict:
 
 
 def tables_markdown(tables: dict, cfg: EvalConfig) -> str:
-    lines = [f"# Evaluation in the twin\n\n{cfg.per_cell} piles per cell, one grasp per pile, trial preset "
+    piles = f"{cfg.per_cell} pile{'' if cfg.per_cell == 1 else 's'}"
+    lines = [f"# Evaluation in the twin\n\n{piles} per cell, one grasp per pile, trial preset "
              f"`{cfg.trial}`, seeds from {cfg.seed_base}. Avg. logs = logs held in successful grasps "
              "(the paper's 'average number of grasped logs'); β_avg over successful grasps.\n"]
     for name, t in tables["planners"].items():
@@ -518,39 +519,19 @@ def tables_markdown(tables: dict, cfg: EvalConfig) -> str:
                      f"{s['beta_avg_deg']:.0f}° | {s['piles']} |")
     lines.append("\n## Failures\n")
     kinds = sorted({k for t in tables["planners"].values() for k in t["total"]["failures"]})
-    lines.append("| planner | " + " | ".join(kinds) + " |")
-    lines.append("|---|" + "---|" * len(kinds))
-    for name, t in tables["planners"].items():
-        lines.append(f"| {name} | " + " | ".join(str(t["total"]["failures"].get(k, 0)) for k in kinds) + " |")
-    return "\n".join(lines) + "\n"
+    if not kinds:
+        lines.append("No failures.")
+    else:
+        lines.append("| planner | " + " | ".join(kinds) + " |")
+        lines.append("|---|" + "---|" * len(kinds))
+        for name, t in tables["planners"].items():
+            lines.append(f"| {name} | " + " | ".join(str(t["total"]["failures"].get(k, 0)) for k in kinds) + " |")
+    return "\n".join(lines).replace("nan%", "-").replace("/nan", "/-").replace("nan°", "-") + "\n"
 
 
 def draw_examples(records: list[dict], cfg: EvalConfig, path: Path, planner: str, n: int = 4) -> None:
-    """A grid of example successes (top row) and failures (bottom row) of ``planner``."""
-    import cv2
+    """Example successes (top row) and failures (bottom row) of ``planner``
+    (:func:`planner.pictures.draw_examples`)."""
+    from planner.pictures import draw_examples as draw
 
-    from synth.generate import GenerationConfig, generate_pile
-    from synth.preview import draw_grasps, write_png
-    from synth.render import OrthoRenderConfig, render_ortho
-    from synth.world import World
-
-    mine = [r for r in records if r["planner"] == planner and r["grasp"]]
-    rows = [[r for r in mine if r["outcome"] == "success"][:n], [r for r in mine if r["outcome"] != "success"][:n]]
-    tiles = []
-    for row in rows:
-        imgs = []
-        for r in row:
-            rng = np.random.default_rng([r["seed"], 77])
-            n_obst = int(rng.integers(1, cfg.max_obstacles + 1)) if r["obstacles"] else 0
-            pile, _ = generate_pile(r["seed"], GenerationConfig(n_logs=r["n_logs"], n_obstacles=n_obst))
-            with World(pile) as world:
-                obs = render_ortho(world, OrthoRenderConfig(size_px=cfg.size_px, n_renders=1), seed=r["seed"])
-            g = Grasp(**r["grasp"])
-            img = draw_grasps(obs, [(g, tuple(r["targets"]))], scale=3)[:, : cfg.size_px * 3]
-            cv2.putText(img, f"{r['outcome']} {len(r['grasped'])}/{len(r['targets'])}", (6, 40),
-                        cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 255), 2)
-            imgs.append(img)
-        while len(imgs) < n:
-            imgs.append(np.zeros((cfg.size_px * 3, cfg.size_px * 3, 3), np.uint8))
-        tiles.append(np.concatenate(imgs, axis=1))
-    write_png(path, np.concatenate(tiles, axis=0))
+    draw(records, cfg, path, planner, n=n)

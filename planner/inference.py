@@ -35,6 +35,8 @@ from planner.subsets import SubsetPolicy, choose_subsets
 from synth.frames import OrthoGrid, wrap_phi
 from synth.grasp import MAX_WIDTH_M, MIN_WIDTH_M, RECT_WIDTH_M, Grasp
 
+PLAN_FORMAT_NAME = "loggrasp.plan"  # plan.json, ``loggrasp plan --json``
+PLAN_FORMAT_VERSION = "1.0"
 OBSTACLE_CODE_BASE = 1000  # instance codes >= this are obstacles (synth.render)
 
 
@@ -247,11 +249,14 @@ class Plan:
         return self.grasps[0] if self.grasps else None
 
     def to_dict(self) -> dict:
-        return {"grasps": [g.to_dict() for g in self.grasps], "subsets_evaluated": self.subsets_evaluated,
+        return {"format": PLAN_FORMAT_NAME, "format_version": PLAN_FORMAT_VERSION,
+                "grasps": [g.to_dict() for g in self.grasps], "subsets_evaluated": self.subsets_evaluated,
                 "elapsed_s": self.elapsed_s, "rejected": self.rejected, "info": self.info}
 
     def to_json(self) -> str:
-        return json.dumps(self.to_dict(), indent=1)
+        from synth.pile import dumps_json
+
+        return dumps_json(self.to_dict())
 
 
 def _observation_arrays(observation) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:

@@ -1,109 +1,159 @@
-"""``loggrasp synth scan`` (the twin's field scans), ``loggrasp reconstruct`` and ``compare-piles``."""
+"""``loggrasp synth scan`` (the twin's field scans), ``loggrasp reconstruct`` and ``compare-piles``.
+
+Flags take their defaults from the config dataclasses (:func:`synth.cli_common.option`); errors
+are raised and printed once by ``field.cli.run``."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
+from typing import Literal
 
 import typer
 
-from synth.cli import fail
+from reconstruct.pipeline import ReconstructConfig
+from synth.cli import JSON
+from synth.cli_common import CliError, Output, check_input, check_output_dir, option
+
+SITE_HELP = "Site origin LAT,LON (SWEREF 99) [deg], optional ,H (ellipsoidal) [m]."
+
+
+def parse_site(text: str, flag: str = "--site") -> tuple[float, ...]:
+    """``LAT,LON`` or ``LAT,LON,H`` -> floats; a :class:`CliError` naming ``flag`` otherwise."""
+    try:
+        parts = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        parts = ()
+    if len(parts) not in (2, 3) or not all(map(lambda v: v == v, parts)):
+        raise CliError(f"{flag} must be LAT,LON or LAT,LON,H in degrees (and metres), e.g. 64.1,20.0; got {text!r}")
+    return parts
+
+
+def gnss_crs_warning(path: str | Path) -> str | None:
+    """A warning when a survey CSV names no CRS (the reader then assumes SWEREF 99)."""
+    p = Path(path)
+    if p.suffix.lower() != ".csv":
+        return None
+    try:
+        with open(p, errors="replace") as f:
+            head = [next(f, "") for _ in range(50)]
+    except OSError:
+        return None
+    if any(re.match(r"\s*#\s*crs\s*:", line, re.IGNORECASE) for line in head):
+        return None
+    return (f"{p} has no '# crs:' line: SWEREF 99 assumed (EPSG:4619 for lat/lon columns, EPSG:3006 for "
+            "easting/northing); add the line to say which")
 
 
 def scan_command(
-    out: Path = typer.Option(..., "--out", help="Scan folder to write (scan/, gnss.csv, truth/)."),
-    seed: int = typer.Option(0, "--seed"),
-    logs: str = typer.Option("3-5", "--logs", help="Logs, 'A-B'."),
-    obstacles: str = typer.Option("0-2", "--obstacles", help="Obstacles, 'A-B'."),
-    packed: bool = typer.Option(False, "--packed"),
-    site: str = typer.Option("64.1,20.0", "--site", help="Site origin LAT,LON (SWEREF 99) [deg], optional ,H [m]."),
-    float_fixes: int = typer.Option(2, "--float-fixes", help="Endpoints measured with an RTK float fix only."),
-    height: float = typer.Option(3.0, "--height", help="Camera height above the pile [m]."),
-    hfov: float = typer.Option(50.0, "--hfov", help="Horizontal field of view [deg]."),
-    pairs: str = typer.Option("2x2", "--pairs", help="Grid of stereo pairs over the pile, NXxNY (along x across)."),
-    unposed: bool = typer.Option(False, "--unposed", help="No camera poses: calibrations without T_pile_cam, no "
-                                 "scan_pose.json, the rig moved by hand between pairs (truth/poses.json keeps them)."),
-    handheld: bool | None = typer.Option(None, "--handheld/--grid", help="Move the rig between pairs like a handheld or "
+    out: Path = option("--out", "Scan folder to write (scan/, gnss.csv, truth/).", default=..., metavar="DIR"),
+    seed: int = option("--seed", "Pile and survey seed: same seed, same scan.", default=0),
+    logs: str = option("--logs", "Logs, 'A-B' or 'A'.", default="3-5"),
+    obstacles: str = option("--obstacles", "Obstacles, 'A-B' or 'A'.", default="0-2"),
+    packed: bool = option("--packed", "Aligned, tightly packed logs.", default=False),
+    site: str = option("--site", SITE_HELP, default="64.1,20.0", metavar="LAT,LON[,H]"),
+    float_fixes: int = option("--float-fixes", "Endpoints measured with an RTK float fix only.", default=2, min=0,
+                              names=["n_float"]),
+    height: float = option("--height", "Camera height above the pile.", default=3.0, unit="m", min=0.5,
+                           names=["height_m"]),
+    hfov: float = option("--hfov", "Horizontal field of view.", default=50.0, unit="deg", min=10.0, max=170.0,
+                         names=["hfov_deg"]),
+    pairs: str = option("--pairs", "Grid of stereo pairs over the pile, NXxNY (along x, across; 1..4 each).",
+                        default="2x2", metavar="NXxNY"),
+    unposed: bool = option("--unposed", "No camera poses: calibrations without T_pile_cam, no scan_pose.json, the rig "
+                           "moved by hand between pairs (truth/poses.json keeps them).", default=False),
+    handheld: bool = typer.Option(None, "--handheld/--grid", help="Move the rig between pairs like a handheld or "
                                   "boom camera (default: with --unposed), or hold a straight-down grid."),
+    as_json: bool = JSON,
 ) -> None:
-    """Make a field scan of a generated pile whose truth is known: a ZED 2-like stereo pair with its
-    calibration, an RTK GNSS endpoint CSV with realistic noise, and the true pile kept apart in truth/.
+    """Make a field scan of a generated pile whose truth is known: ZED 2-like stereo pairs with their
+    calibrations, an RTK GNSS endpoint CSV with realistic noise, and the true pile kept apart in truth/.
 
+    \b
     Example: loggrasp synth scan --seed 3 --logs 3-5 --site 64.1,20.0 --out scans/s3
     Unposed (SfM + GNSS georegistration): loggrasp synth scan --seed 3 --unposed --out scans/s3u
     """
     from reconstruct.twin_scan import DEFAULT_SITE, make_twin_scan
-    from synth.errors import SynthError
+    from synth.geodesy import check_geodetic
     from synth.jobs import parse_range
 
+    o = Output(as_json)
+    parts = parse_site(site)
+    check_geodetic(parts[0], parts[1], "--site")
+    site_t = (parts[0], parts[1], parts[2] if len(parts) == 3 else DEFAULT_SITE[2])
     try:
-        parts = [float(v) for v in site.split(",")]
-        if len(parts) not in (2, 3):
-            raise ValueError(f"--site must be LAT,LON or LAT,LON,H, got {site!r}")
-        site_t = (parts[0], parts[1], parts[2] if len(parts) == 3 else DEFAULT_SITE[2])
-        try:
-            grid = tuple(int(v) for v in pairs.lower().split("x"))
-        except ValueError:
-            grid = ()
-        if len(grid) != 2 or min(grid) < 1 or max(grid) > 4:
-            raise ValueError(f"--pairs must look like 2x2 (1..4 each), got {pairs!r}")
-        path = make_twin_scan(out, seed, parse_range(logs, "--logs"), parse_range(obstacles, "--obstacles"),
-                              packed=packed, site=site_t, n_float=float_fixes, height_m=height, hfov_deg=hfov,
-                              grid=grid, unposed=unposed, handheld=handheld)
-    except (SynthError, ValueError) as exc:
-        fail(str(exc))
-    typer.echo(f"scan written to {path} (truth in {path / 'truth'})")
+        grid = tuple(int(v) for v in pairs.lower().split("x"))
+    except ValueError:
+        grid = ()
+    if len(grid) != 2 or min(grid) < 1 or max(grid) > 4:
+        raise CliError(f"--pairs must look like 2x2 (1..4 each), got {pairs!r}")
+    log_range, obst_range = parse_range(logs, "--logs"), parse_range(obstacles, "--obstacles")
+    if log_range[0] < 1:
+        raise CliError("--logs must start at 1 or more")
+    check_output_dir(out, "--out")
+    path = make_twin_scan(out, seed, log_range, obst_range, packed=packed, site=site_t, n_float=float_fixes,
+                          height_m=height, hfov_deg=hfov, grid=grid, unposed=unposed, handheld=handheld,
+                          progress=o.progress)
+    o.say(f"scan written to {path} (scan/ and gnss.csv for `loggrasp reconstruct`; the truth in {path / 'truth'})")
+    o.result("loggrasp.synth-scan", {"out": str(path), "scan": str(path / "scan"), "gnss": str(path / "gnss.csv"),
+                                     "truth": str(path / "truth" / "pile.json")})
 
 
 def reconstruct_command(
-    scan: Path = typer.Argument(..., help="Scan folder: stereo pair folder(s) + scan_pose.json."),
-    gnss: Path = typer.Option(..., "--gnss", help="RTK endpoint survey CSV (see README)."),
-    out: Path = typer.Option(..., "--out", help="Output folder: pile.json, ortho.npz, previews, report.json."),
-    allow_float: bool = typer.Option(False, "--allow-float", help="Accept RTK float endpoints (not recommended)."),
-    pair_poses: str = typer.Option("auto", "--pair-poses", help="Where the pairs' poses come from: auto (the "
-                                   "calibrations' T_pile_cam, SfM when they have none), calibration, sfm (pycolmap)."),
-    georegister: str = typer.Option("auto", "--georegister", help="How the scan is placed in the site frame: auto "
-                                    "(scan_pose.json; from the GNSS ends for an unposed scan), scan-pose, gnss."),
-    log_direction: str = typer.Option("45", "--log-direction", help="Turn the pile frame so the logs' mean direction "
-                                      "lies at this angle [deg] from +x, or 'site' to keep the site's axes."),
+    scan: Path = typer.Argument(..., metavar="SCAN", help="Scan folder: stereo pair folder(s) + scan_pose.json."),
+    gnss: Path = option("--gnss", "RTK endpoint survey CSV (see README).", default=..., metavar="FILE"),
+    out: Path = option("--out", "Output folder: pile.json, ortho.npz, previews, report.json.", default=...,
+                       metavar="DIR"),
+    allow_float: bool = option("--allow-float", "Accept RTK float endpoints (not recommended).",
+                               field=(ReconstructConfig, "allow_float")),
+    pair_poses: Literal["auto", "calibration", "sfm"] = option(
+        "--pair-poses", "Where the pairs' poses come from: auto (the calibrations' T_pile_cam, SfM when they have "
+        "none), calibration, sfm (pycolmap).", field=(ReconstructConfig, "pair_poses"), metavar="auto|calibration|sfm"),
+    georegister: Literal["auto", "scan-pose", "gnss"] = option(
+        "--georegister", "How the scan is placed in the site frame: auto (scan_pose.json; from the GNSS ends for an "
+        "unposed scan), scan-pose, gnss.", field=(ReconstructConfig, "georegister"), metavar="auto|scan-pose|gnss"),
+    log_direction: str = option("--log-direction", "Turn the pile frame so the logs' mean direction lies at this angle "
+                                "[deg] from +x, or 'site' to keep the site's axes.", default="45", metavar="DEG|site",
+                                names=["log_direction_deg"]),
+    as_json: bool = option("--json", "Print report.json (format loggrasp.reconstruction-report) on standard output.",
+                           default=False),
 ) -> None:
     """Rebuild the scanned pile in the twin from a stereo scan and RTK GNSS log endpoints.
 
+    \b
     Example: loggrasp reconstruct scans/s3/scan --gnss scans/s3/gnss.csv --out recon/s3
     No poses at all (SfM + GNSS): loggrasp reconstruct scans/s3u/scan --gnss scans/s3u/gnss.csv --out recon/s3u
     """
-    from rich.console import Console
-    from rich.table import Table
+    from reconstruct.pipeline import parse_log_direction, reconstruct
 
-    from reconstruct.errors import ReconstructError
-    from reconstruct.pipeline import ReconstructConfig, parse_log_direction, reconstruct
-    from synth.errors import SynthError
-
-    console = Console()
-    try:
-        with console.status("reconstructing") as status:
-            cfg = ReconstructConfig(allow_float=allow_float, pair_poses=pair_poses, georegister=georegister,
-                                    log_direction_deg=parse_log_direction(log_direction))
-            result = reconstruct(scan, gnss, out, cfg, progress=lambda s: status.update(s))
-    except (ReconstructError, SynthError, ValueError) as exc:
-        fail(str(exc))
-    table = Table(title=f"{result.pile.n_logs} logs, {result.pile.n_obstacles} obstacles in {result.time_s:.1f} s")
-    for title in LOG_TABLE.values():
-        table.add_column(title, justify="right")
-    for row in result.report.get("logs", []):
-        table.add_row(*log_table_row(row))
-    console.print(table)
-    for log in result.report.get("logs", []):
-        if log.get("fit") == "hidden":
-            typer.echo(f"log {log['log_id']}: hidden under other logs (no scan points on it): placed on its GNSS "
-                       "axis, its diameter estimated; check it before trusting grasps that take it")
+    o = Output(as_json)
+    cfg = ReconstructConfig(allow_float=allow_float, pair_poses=pair_poses, georegister=georegister,
+                            log_direction_deg=parse_log_direction(log_direction))
+    check_input(scan, "SCAN", "dir")
+    check_input(gnss, "--gnss", "file")
+    check_output_dir(out, "--out")
+    warning = gnss_crs_warning(gnss)
+    if warning:
+        o.warn(warning)
+    result = reconstruct(scan, gnss, out, cfg, progress=o.progress)
     rep = result.report
+    o.result("loggrasp.reconstruction-report", rep)
+    o.table(f"{result.pile.n_logs} logs, {result.pile.n_obstacles} obstacles in {result.time_s:.1f} s",
+            list(LOG_TABLE.values()), [log_table_row(row) for row in rep.get("logs", [])])
+    for log in rep.get("logs", []):
+        if log.get("fit") == "hidden":
+            o.say(f"log {log['log_id']}: hidden under other logs (no scan points on it): placed on its GNSS axis, its "
+                  "diameter estimated; check it before trusting grasps that take it")
+    for w in rep.get("survey_warnings", []):
+        o.warn(f"GNSS survey: {w}")
     reg = rep.get("registration", {})
     line = f"scan pose: {rep.get('scan_pose_source')}; pair poses: {rep.get('pair_poses_source')}"
     if "residual_rms_after_m" in reg:
-        line += (f"; GNSS residual RMS {reg.get('residual_rms_before_m', float('nan')):.3f} -> "
+        before = reg.get("residual_rms_before_m")
+        line += (f"; GNSS residual RMS {'-' if before is None else f'{before:.3f}'} -> "
                  f"{reg['residual_rms_after_m']:.3f} m")
-    typer.echo(line)
-    typer.echo(f"wrote {out}/pile.json, ortho.npz, preview.png, compare.png, report.json")
+    o.say(line)
+    o.say(f"wrote {out}/pile.json, ortho.npz, preview.png, compare.png, report.json")
 
 
 #: the per-log report's columns: report key -> column title
@@ -125,26 +175,37 @@ def log_table_row(log: dict) -> list[str]:
     return [cell(log.get(k)) for k in LOG_TABLE]
 
 
+COMPARISON_FORMAT = "loggrasp.pile-comparison"
+
+
 def compare_command(
-    truth: Path = typer.Argument(..., help="Ground-truth pile.json (or its folder)."),
-    recon: Path = typer.Argument(..., help="Reconstructed pile.json (or its folder)."),
-    as_json: bool = typer.Option(False, "--json", help="Print the full comparison as JSON."),
+    truth: Path = typer.Argument(..., metavar="TRUTH", help="Ground-truth pile.json (or its folder)."),
+    recon: Path = typer.Argument(..., metavar="RECON", help="Reconstructed pile.json (or its folder)."),
+    as_json: bool = option("--json", f"Print the full comparison as JSON (format {COMPARISON_FORMAT}).", default=False),
 ) -> None:
     """Per-log and summary errors of a reconstruction against the truth (endpoint, diameter, mask IoU, obstacles).
 
+    \b
     Example: loggrasp compare-piles scans/s3/truth recon/s3 --json
     """
-    import json
-
     from reconstruct.compare import compare_piles
-    from synth.errors import SynthError
     from synth.pile import read_pile
 
-    try:
-        result = compare_piles(read_pile(truth), read_pile(recon))
-    except (SynthError, ValueError) as exc:
-        fail(str(exc))
-    if as_json:
-        typer.echo(json.dumps(result, indent=1))
-    else:
-        typer.echo(json.dumps(result["summary"], indent=1))
+    o = Output(as_json)
+    check_input(truth, "TRUTH")
+    check_input(recon, "RECON")
+    result = compare_piles(read_pile(truth), read_pile(recon))
+    o.result(COMPARISON_FORMAT, result)
+    summary = result.get("summary", {})
+    o.table(f"reconstruction {recon} against the truth {truth}", ["measure", "value"],
+            [[k, _cell(v)] for k, v in summary.items()])
+
+
+def _cell(v) -> str:
+    if isinstance(v, float):
+        return "-" if v != v else f"{v:.4g}"
+    if isinstance(v, dict):
+        return ", ".join(f"{k} {_cell(x)}" for k, x in v.items())
+    if isinstance(v, (list, tuple)):
+        return ",".join(_cell(x) for x in v)
+    return "-" if v is None else str(v)

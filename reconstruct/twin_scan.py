@@ -36,11 +36,12 @@ import shutil
 import tempfile
 from dataclasses import replace
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
 from synth.frames import make_T, rot_z
-from synth.pile import Georeference, PileSpec, atomic_write_bytes, write_pile
+from synth.pile import Georeference, PileSpec, apply_umask, atomic_write_bytes, write_pile
 
 SCAN_FORMAT_VERSION = "1.0"
 DEFAULT_SITE = (64.1, 20.0, 250.0)  # near Umeå inland: lat [deg], lon [deg], ellipsoidal h [m]
@@ -129,7 +130,8 @@ def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5
                    pose_error_m: float = 0.03, pose_error_deg: float = 0.5,
                    unposed: bool = False, handheld: bool | None = None,
                    image_size: tuple[int, int] = (1280, 720), jitter_m: float = 0.15,
-                   jitter_height_m: float = 0.2, jitter_yaw_deg: float = 8.0, jitter_tilt_deg: float = 4.0) -> Path:
+                   jitter_height_m: float = 0.2, jitter_yaw_deg: float = 8.0, jitter_tilt_deg: float = 4.0,
+                   progress: "Callable[[str], None] | None" = None) -> Path:
     """Generate a pile, render its stereo pairs and survey its log ends; write a scan folder.
 
     ``unposed``: calibrations without ``T_pile_cam`` and no ``scan_pose.json`` (see the module
@@ -144,6 +146,8 @@ def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5
     from synth.geodesy import check_geodetic
 
     check_geodetic(site[0], site[1], "--site")
+    say = progress or (lambda s: None)
+    say("generating and settling the pile")
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x5CA7]))
     n_logs = int(rng.integers(logs[0], logs[1] + 1))
     n_obst = int(rng.integers(obstacles[0], obstacles[1] + 1))
@@ -154,6 +158,7 @@ def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
     try:
+        apply_umask(tmp, directory=True)
         (tmp / "truth").mkdir()
         write_pile(pile, tmp / "truth" / "pile.json")
         import datetime as dt
@@ -180,6 +185,7 @@ def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5
                     if moving:
                         T = _handheld_pose(rig, rig_rng, jitter_m, jitter_height_m, jitter_yaw_deg, jitter_tilt_deg)
                         rig = replace(rig, T_pile_cam=tuple(tuple(float(v) for v in r) for r in T))
+                    say(f"rendering stereo pair {k + 1} of {nx * ny}")
                     pair = renderer.render(pile, rig)
                     pair.meta.update({"camera": "ZED 2 (twin)", "captured_utc": captured})
                     pair_dir = pair.save(tmp / "scan" / f"pair_{k:03d}")
@@ -198,6 +204,7 @@ def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5
         if not unposed:
             write_scan_pose(ScanPose(site[0], site[1], site[2], tuple(tuple(float(v) for v in r) for r in T_site_scan)),
                             tmp / "scan" / "scan_pose.json")
+        say("simulating the RTK survey of the log ends")
         survey = simulate_survey(pile_endpoints_site(pile), pile.georef, rng, n_float=n_float)
         write_gnss_csv(survey, tmp / "gnss.csv")
         info = {"format": "loggrasp.twin-scan", "format_version": SCAN_FORMAT_VERSION, "seed": seed,

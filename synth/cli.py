@@ -1,150 +1,177 @@
-"""``loggrasp synth ...``: thin commands over :mod:`synth` (heavy imports stay inside commands)."""
+"""``loggrasp synth ...``: thin commands over :mod:`synth` (heavy imports stay inside commands).
+
+Flags take their defaults from the config dataclasses (:func:`synth.cli_common.option`); errors
+are raised and printed once by ``field.cli.run``."""
 
 from __future__ import annotations
 
-import json
 import os
-
 from pathlib import Path
+from typing import Literal
 
 import typer
 
-app = typer.Typer(help="The simulator twin: generate and render log piles.", no_args_is_help=True)
+from synth.cli_common import CliError, Output, check_input, check_output_dir, option, plural, progress_bar
+from synth.dataset import DatasetJob
+from synth.jobs import PileJob
 
+#: how every loggrasp Typer app formats help: plain text (units such as [m] kept, no markup), -h
+APP_SETTINGS = dict(no_args_is_help=True, rich_markup_mode=None, add_completion=False, pretty_exceptions_enable=False,
+                    context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
 
-def fail(message: str, code: int = 2) -> None:
-    from rich.console import Console
-    from rich.markup import escape
+app = typer.Typer(help="The simulator twin: generate and render log piles, build the training data set, make "
+                       "field scans with known truth.", **APP_SETTINGS)
 
-    Console(stderr=True, soft_wrap=True).print(f"[bold red]error:[/] {escape(message)}", highlight=False)
-    raise typer.Exit(code)
+JSON = option("--json", "Print the result as one JSON document on standard output (progress stays on "
+                        "standard error).", default=False)
+WORKERS = option("--workers", "Worker processes (0 = all cores) or Dask workers.", default=0, min=0)
 
 
 @app.command("piles")
 def piles(
-    count: int = typer.Option(..., "--count", help="Number of piles to generate."),
-    out: Path = typer.Option(..., "--out", help="Output folder (one sub-folder per pile)."),
-    logs: str = typer.Option("4", "--logs", help="Logs per pile, 'A-B' or 'A'."),
-    obstacles: str = typer.Option("0", "--obstacles", help="Obstacles (stumps, rocks) per pile, 'A-B' or 'A'."),
-    seed: int = typer.Option(0, "--seed", help="Job seed: same seed, same piles."),
-    packed: bool = typer.Option(False, "--packed", help="Aligned, tightly packed logs."),
-    size: int = typer.Option(128, "--size", help="Orthographic render size [px]."),
-    renders: int = typer.Option(3, "--renders", help="Renders per pile with random colours/light."),
-    stereo: bool = typer.Option(False, "--stereo", help="Also write a ZED 2-like stereo pair + calibration."),
-    workers: int = typer.Option(0, "--workers", help="Worker processes (0 = all cores)."),
+    count: int = option("--count", "Number of piles to generate.", default=..., min=1, metavar="INT",
+                        names=["count"]),
+    out: Path = option("--out", "Output folder (one sub-folder per pile).", default=..., metavar="DIR"),
+    logs: str = option("--logs", "Logs per pile, 'A-B' or 'A'.", default="4", names=["logs"]),
+    obstacles: str = option("--obstacles", "Obstacles (stumps, rocks) per pile, 'A-B' or 'A'.", default="0",
+                            names=["obstacles"]),
+    seed: int = option("--seed", "Job seed: same seed, same piles.", field=(PileJob, "seed")),
+    packed: bool = option("--packed", "Aligned, tightly packed logs.", field=(PileJob, "packed")),
+    size: int = option("--size", "Orthographic render size (a multiple of 16).", field=(PileJob, "size_px"),
+                       min=16, max=2048),
+    renders: int = option("--renders", "Renders per pile with random colours/light.", field=(PileJob, "n_renders"),
+                          min=1),
+    stereo: bool = option("--stereo", "Also write a ZED 2-like stereo pair + calibration.", field=(PileJob, "stereo")),
+    workers: int = WORKERS,
+    as_json: bool = JSON,
 ) -> None:
     """Generate settled piles and their renders: pile.json, ortho.npz, preview.png per pile.
 
+    \b
     Example: loggrasp synth piles --count 10 --logs 2-7 --obstacles 0-3 --seed 1 --out piles/
     Re-running the same command resumes: finished piles are kept, the rest are made.
     """
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn, TimeRemainingColumn
+    from synth.jobs import parse_range, run_pile_job
 
-    from synth.errors import SynthError
-    from synth.jobs import PileJob, parse_range, run_pile_job
-
-    try:
-        job = PileJob(count=count, logs=parse_range(logs, "--logs"), obstacles=parse_range(obstacles, "--obstacles"),
-                      seed=seed, packed=packed, size_px=size, n_renders=renders, stereo=stereo)
-    except ValueError as exc:
-        fail(str(exc))
-    with Progress("[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(),
-                  TimeElapsedColumn(), TimeRemainingColumn(), transient=False) as bar:
-        task = bar.add_task("piles", total=count)
-        try:
-            stats = run_pile_job(out, job, workers=workers, progress=lambda d, t: bar.update(task, completed=d))
-        except (SynthError, ValueError) as exc:
-            fail(str(exc))
-    typer.echo(f"{stats['generated']} piles generated, {stats['skipped']} already there, in {out}")
+    o = Output(as_json)
+    job = PileJob(count=count, logs=parse_range(logs, "--logs"), obstacles=parse_range(obstacles, "--obstacles"),
+                  seed=seed, packed=packed, size_px=size, n_renders=renders, stereo=stereo)
+    check_output_dir(out, "--out")
+    with progress_bar() as bar:
+        task = bar.add_task("piles", total=count, info="")
+        stats = run_pile_job(out, job, workers=workers, progress=lambda d, t: bar.update(task, completed=d))
+    o.say(f"{plural(stats['generated'], 'pile')} generated, {stats['skipped']} already there, in {out}")
+    o.result("loggrasp.synth-piles", {"out": str(out), **stats})
 
 
 @app.command("render")
 def render(
-    pile: Path = typer.Argument(..., help="A pile.json (or a folder holding one)."),
-    out: Path = typer.Option(None, "--out", help="Folder for ortho.npz + preview.png (default: beside the pile)."),
-    size: int = typer.Option(128, "--size", help="Render size [px]."),
-    renders: int = typer.Option(3, "--renders", help="Renders with random colours/light."),
+    pile: Path = typer.Argument(..., metavar="PILE", help="A pile.json (or a folder holding one)."),
+    out: Path = option("--out", "Folder for ortho.npz + preview.png (default: beside the pile).", default=None,
+                       metavar="DIR"),
+    size: int = option("--size", "Render size (a multiple of 16).", field=(PileJob, "size_px"), min=16, max=2048),
+    renders: int = option("--renders", "Renders with random colours/light.", field=(PileJob, "n_renders"), min=1),
+    as_json: bool = JSON,
 ) -> None:
-    """Validate a (hand-written or reconstructed) pile and render it in the training format."""
-    from synth.errors import SynthError
+    """Validate a (hand-written or reconstructed) pile and render it in the training format.
+
+    \b
+    Example: loggrasp synth render piles/pile_00000 --out renders/p0
+    """
     from synth.pile import read_pile
     from synth.preview import preview_image, write_png
     from synth.render import OrthoRenderConfig, render_ortho
     from synth.world import World
 
-    try:
-        spec = read_pile(pile)
-        out_dir = out or (pile if pile.is_dir() else pile.parent)
-        with World(spec) as world:
-            world.check_valid()
-            obs = render_ortho(world, OrthoRenderConfig(size_px=size, n_renders=renders), seed=spec.seed or 0)
-        obs.save(Path(out_dir) / "ortho.npz")
-        write_png(Path(out_dir) / "preview.png", preview_image(obs))
-    except (SynthError, ValueError) as exc:
-        fail(str(exc))
-    typer.echo(f"rendered {spec.n_logs} logs to {out_dir}")
+    o = Output(as_json)
+    check_input(pile, "PILE")
+    spec = read_pile(pile)
+    out_dir = Path(out) if out is not None else (pile if pile.is_dir() else pile.parent)
+    check_output_dir(out_dir, "--out")
+    cfg = OrthoRenderConfig(size_px=size, n_renders=renders)
+    with World(spec) as world:
+        world.check_valid()
+        obs = render_ortho(world, cfg, seed=spec.seed or 0)
+    files = [obs.save(out_dir / "ortho.npz"), write_png(out_dir / "preview.png", preview_image(obs))]
+    o.say(f"rendered {plural(spec.n_logs, 'log')} to {out_dir}")
+    o.result("loggrasp.synth-render", {"pile": str(pile), "files": [str(f) for f in files], "n_logs": spec.n_logs})
 
 
 @app.command("dataset")
 def dataset(
-    piles: int = typer.Option(..., "--piles", help="Number of piles."),
-    out: Path = typer.Option(..., "--out", help="Data set folder (manifest.json + shards)."),
-    logs: int = typer.Option(4, "--logs", help="Logs per pile (the paper: 4)."),
-    obstacles_fraction: float = typer.Option(0.33, "--obstacles-fraction", help="Share of piles with obstacles."),
-    seed: int = typer.Option(0, "--seed"),
-    workers: int = typer.Option(0, "--workers", help="Processes (0 = all cores) or Dask workers."),
-    engine: str = typer.Option("local", "--engine", help="local (process pool) or dask."),
-    address: str = typer.Option(None, "--address", help="Dask scheduler address (tcp://host:port); "
-                                                        "none = a local cluster."),
-    size: int = typer.Option(128, "--size", help="Render size [px]."),
-    renders: int = typer.Option(3, "--renders", help="Renders per scene."),
-    trial: str = typer.Option("fast", "--trial", help="Trial settings preset: fast or careful."),
-    max_trials_per_subset: int = typer.Option(16, "--max-trials-per-subset"),
-    piles_dir: Path = typer.Option(None, "--piles-dir", help="Use the piles of a `synth piles` job."),
-    store: bool = typer.Option(False, "--store", help="Write the compact form that is committed to git "
-                               "(store.json + chunks/: piles, grasps, trials; renders are re-made on load) "
-                               "and resumes from any clone; local engine only."),
+    piles: int = option("--piles", "Number of piles.", default=..., min=1, metavar="INT", names=["n_piles"]),
+    out: Path = option("--out", "Data set folder (manifest.json + shards).", default=..., metavar="DIR"),
+    logs: int = option("--logs", "Logs per pile (the paper: 4).", field=(DatasetJob, "n_logs"), min=1),
+    obstacles_fraction: float = option("--obstacles-fraction", "Share of piles with obstacles.",
+                                       field=(DatasetJob, "obstacles_fraction"), min=0.0, max=1.0),
+    seed: int = option("--seed", "Job seed: same seed, same data set.", field=(DatasetJob, "seed")),
+    workers: int = WORKERS,
+    engine: Literal["local", "dask"] = option("--engine", "local (process pool) or dask.", default="local",
+                                              metavar="local|dask"),
+    address: str = option("--address", "Dask scheduler address (tcp://HOST:PORT); none = a local cluster.",
+                          default=None, metavar="URL"),
+    size: int = option("--size", "Render size (a multiple of 16).", field=(DatasetJob, "size_px"), min=16, max=2048),
+    renders: int = option("--renders", "Renders per scene.", field=(DatasetJob, "n_renders"), min=1),
+    trial: Literal["fast", "careful"] = option("--trial", "Trial settings preset.", field=(DatasetJob, "trial_preset"),
+                                                metavar="fast|careful"),
+    max_trials_per_subset: int = option("--max-trials-per-subset", "Algorithm 1 trial cap per target subset.",
+                                        field=(DatasetJob, "max_trials_per_subset"), min=1),
+    piles_dir: Path = option("--piles-dir", "Use the piles of a `loggrasp synth piles` job.", default=None,
+                             metavar="DIR"),
+    store: bool = option("--store", "Write the compact form that is committed to git (store.json + chunks/: "
+                         "piles, grasps, trials; renders are re-made on load) and resumes from any clone; "
+                         "local engine only.", default=False),
+    as_json: bool = JSON,
 ) -> None:
     """Try rule-based candidate grasps in physics (Algorithm 1) and write the grasp-map data set.
 
     With --store (e.g. --out data/paper-v3) the folder holds only what the simulation found and
     `loggrasp train --data data/paper-v3` renders the training images from it on first use.
 
+    \b
     Example: loggrasp synth dataset --piles 604 --logs 4 --obstacles-fraction 0.33 --out data/
     Re-running resumes: finished shards are kept, partial ones redone. With --engine dask
     --address tcp://HOST:8786 the same job runs on a Dask cluster.
     """
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
     from synth.dataset import build_dataset
-    from synth.errors import SynthError
 
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[info]}"),
-                  TimeElapsedColumn()) as bar:
+    o = Output(as_json)
+    if address is not None and engine != "dask":
+        raise CliError("--address needs --engine dask")
+    if store and (engine != "local" or piles_dir is not None):
+        raise CliError("--store runs with --engine local and generates its own piles (drop --piles-dir)")
+    DatasetJob(n_piles=piles, n_logs=logs, obstacles_fraction=obstacles_fraction, seed=seed, size_px=size,
+               n_renders=renders, max_trials_per_subset=max_trials_per_subset, trial_preset=trial,
+               piles_dir=None if piles_dir is None else str(piles_dir))  # every value checked before any work
+    if piles_dir is not None:
+        check_input(piles_dir, "--piles-dir", "dir")
+    check_output_dir(out, "--out")
+    with progress_bar() as bar:
         task = bar.add_task("piles", total=None, info="")
 
         def progress(p) -> None:
             bar.update(task, total=p.chunks_total, completed=p.chunks_done,
                        info=f"{p.samples} samples, {p.trials} trials, {p.trials_per_s:.1f} trials/s")
 
-        try:
-            if store:
-                if engine != "local" or piles_dir is not None:
-                    fail("--store runs with --engine local and generates its own piles (drop --piles-dir)")
-                from synth.dataset import DatasetJob
-                from synth.datastore import build_store
+        if store:
+            from synth.datastore import build_store
 
-                job = DatasetJob(n_piles=piles, n_logs=logs, obstacles_fraction=obstacles_fraction, seed=seed,
-                                 size_px=size, n_renders=renders, trial_preset=trial,
-                                 max_trials_per_subset=max_trials_per_subset)
-                rec = build_store(out, job, workers=workers or (os.cpu_count() or 1), progress=progress)
-                typer.echo(json.dumps(rec["summary"], indent=1))
-                return
+            job = DatasetJob(n_piles=piles, n_logs=logs, obstacles_fraction=obstacles_fraction, seed=seed,
+                             size_px=size, n_renders=renders, trial_preset=trial,
+                             max_trials_per_subset=max_trials_per_subset)
+            rec = build_store(out, job, workers=workers or (os.cpu_count() or 1), progress=progress)
+        else:
             manifest = build_dataset(out, n_piles=piles, n_logs=logs, obstacles_fraction=obstacles_fraction,
                                      seed=seed, workers=workers, engine=engine, address=address, size_px=size,
                                      n_renders=renders, trial_config=trial,
                                      max_trials_per_subset=max_trials_per_subset, piles_dir=piles_dir,
                                      progress=progress)
-        except (SynthError, ValueError) as exc:
-            fail(str(exc))
-    typer.echo(json.dumps(manifest.summary, indent=1))
+    s = rec["summary"] if store else manifest.summary
+    rate = s.get("success_rate")
+    what = (f"store {out}: {plural(int(s.get('map_samples', 0)), 'grasp map')}" if store
+            else f"data set {out}: {plural(int(s.get('samples', 0)), 'sample')}")
+    o.say(f"{what} from {plural(int(s.get('piles', 0)), 'pile')}, {plural(int(s.get('trials', 0)), 'trial')}"
+          + (f" ({100 * rate:.0f} % successful)" if isinstance(rate, float) else "")
+          + ("" if s.get("complete", True) else f"; {s.get('chunks_done')} of {s.get('chunks_total')} chunks done"))
+    o.result("loggrasp.synth-dataset", {"out": str(out), "store": store, "summary": s})
+

@@ -69,6 +69,10 @@ class PileJob:
                 raise ValueError(f"{name} must be a range A-B with 0 <= A <= B <= {top}, got {lo}-{hi}")
         if self.logs[0] < 1:
             raise ValueError("--logs must start at 1 or more")
+        if not 16 <= self.size_px <= 2048 or self.size_px % 16:
+            raise ValueError(f"--size must be a multiple of 16 in [16, 2048] px, got {self.size_px}")
+        if not 1 <= self.n_renders <= 64:
+            raise ValueError(f"--renders must be in [1, 64], got {self.n_renders}")
 
     def pile_params(self, k: int) -> tuple[int, int, int]:
         """(seed, n_logs, n_obstacles) of pile ``k`` — a pure function of (job seed, k)."""
@@ -110,19 +114,23 @@ def build_one(out: str, job: PileJob, k: int) -> dict:
     tmp = out_dir / f".{pile_dir_name(k)}.tmp-{os.getpid()}"
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
-    seed, n_logs, n_obst = job.pile_params(k)
-    pile, report = generate_pile(seed, GenerationConfig(n_logs=n_logs, n_obstacles=n_obst, packed=job.packed))
-    write_pile(pile, tmp / "pile.json")
-    with World(pile) as world:
-        obs = render_ortho(world, OrthoRenderConfig(size_px=job.size_px, n_renders=job.n_renders), seed=seed)
-        obs.meta.update({"pile_seed": seed})
-        obs.save(tmp / "ortho.npz")
-        if job.stereo:
-            from synth.stereo import StereoRigConfig, render_stereo
+    try:
+        seed, n_logs, n_obst = job.pile_params(k)
+        pile, report = generate_pile(seed, GenerationConfig(n_logs=n_logs, n_obstacles=n_obst, packed=job.packed))
+        write_pile(pile, tmp / "pile.json")
+        with World(pile) as world:
+            obs = render_ortho(world, OrthoRenderConfig(size_px=job.size_px, n_renders=job.n_renders), seed=seed)
+            obs.meta.update({"pile_seed": seed})
+            obs.save(tmp / "ortho.npz")
+            if job.stereo:
+                from synth.stereo import StereoRigConfig, render_stereo
 
-            render_stereo(world, StereoRigConfig()).save(tmp / "stereo")
-    write_png(tmp / "preview.png", preview_image(obs))
-    os.replace(tmp, final)
+                render_stereo(world, StereoRigConfig()).save(tmp / "stereo")
+        write_png(tmp / "preview.png", preview_image(obs))
+        os.replace(tmp, final)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)  # never a half-made pile folder left behind
+        raise
     return {"k": k, "skipped": False, "attempts": report.attempts, "settle_s": report.settle_time_s}
 
 
@@ -137,8 +145,12 @@ def _check_out_dir(out: Path, job: PileJob) -> None:
     meta = out / "job.json"
     want = {"format": "loggrasp.piles", "format_version": JOB_FORMAT_VERSION, **asdict(job)}
     want["logs"], want["obstacles"] = list(job.logs), list(job.obstacles)
-    if meta.exists():
-        have = json.loads(meta.read_text())
+    finished = any(out.glob("pile_[0-9]*"))
+    if meta.exists() and finished:  # a job file without any finished pile binds nothing
+        try:
+            have = json.loads(meta.read_text())
+        except ValueError as exc:
+            raise OutputError(f"{meta} is corrupt ({exc}); delete it or choose a new --out") from exc
         keys = [k for k in want if k != "count"]
         diff = [k for k in keys if have.get(k) != want[k]]
         if diff:

@@ -21,6 +21,7 @@ the window is shifted by half a pixel to sample pixel centres.
 from __future__ import annotations
 
 import json
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable
@@ -118,8 +119,9 @@ class OrthoObservation:
             with np.load(path) as z:
                 meta = json.loads(bytes(z["meta"]).decode())
                 arrays = {k: z[k] for k in ("intensity", "depth", "instance")}
-        except (OSError, KeyError, ValueError) as exc:
-            raise PileFormatError(f"cannot read orthographic render {path}: {exc}") from exc
+        except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+            raise PileFormatError(f"cannot read orthographic render {path} ({exc or type(exc).__name__}): "
+                                  "it is truncated or not an ortho.npz; delete it and render the pile again") from exc
         if meta.get("format") != ORTHO_FORMAT_NAME:
             raise PileFormatError(f"{path} is not a loggrasp orthographic render")
         if str(meta.get("format_version", "")).split(".")[0] != ORTHO_FORMAT_VERSION.split(".")[0]:

@@ -626,6 +626,9 @@ class StereoPair:
         try:
             parent.mkdir(parents=True, exist_ok=True)
             tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".tmp", dir=parent))
+            from synth.pile import apply_umask
+
+            apply_umask(tmp, directory=True)
         except OSError as exc:
             raise OutputError(f"cannot create {folder}: {exc.strerror or exc}; check the path and permissions") from exc
         try:

@@ -1,28 +1,123 @@
-"""Each command: --help works, bad input exits non-zero with a clear message, a tiny real run."""
+"""Every ``loggrasp`` command as a field engineer or a script meets it (issue 20): ``--help`` for
+each; each command's happy path, tiny; each bad input of the issue. Every case asserts the exit
+code, one ``error:`` line naming the problem and the flag or file to fix, no traceback, nothing
+half-written, and standard output that parses as JSON where ``--json`` is given.
 
+Commands run in-process through :func:`field.cli.run` (the one error handler); what only a real
+process shows (C libraries' output on file descriptors 1 and 2, a crane in another process) runs
+as a subprocess. The heavy fixtures (the demo's trial, a trial over twin://) are module-scoped and
+shared."""
+
+from __future__ import annotations
+
+import io
 import json
+import os
+import re
+import shutil
+import signal
+import socket
 import subprocess
 import sys
+import tempfile
 import time
+from dataclasses import dataclass
+from pathlib import Path
 
 import pytest
-from typer.testing import CliRunner
 
-from field.cli import app
+from field.cli import DEMO_DATA, app, run
 
-runner = CliRunner()
+ROOT = Path(__file__).resolve().parents[1]
+SCAN, GNSS = DEMO_DATA / "scan", DEMO_DATA / "gnss.csv"
+OLD = "1e9"  # the bundled scan is old: a --max-pile-age it passes
 
 
+@dataclass
+class Result:
+    code: int
+    out: str
+    err: str
+
+    @property
+    def error(self) -> str:
+        lines = [ln for ln in self.err.splitlines() if ln.startswith("error:")]
+        assert len(lines) == 1, f"want exactly one error line:\n{self.err}"
+        return lines[0]
+
+    def json(self) -> dict:
+        def strict(c):
+            raise ValueError(f"{c} is not JSON")
+
+        d = json.loads(self.out, parse_constant=strict)  # the whole of stdout: one document
+        assert isinstance(d.get("format"), str) and d["format"].startswith("loggrasp.") and d.get("format_version")
+        return d
+
+
+def cli(capsys, *args, stdin: str | None = None, monkeypatch=None) -> Result:
+    capsys.readouterr()
+    if stdin is not None:
+        monkeypatch.setattr(sys, "stdin", io.StringIO(stdin))
+    code = run([str(a) for a in args])
+    out, err = capsys.readouterr()
+    assert "Traceback" not in out + err, err
+    return Result(code, out, err)
+
+
+def fails(r: Result, code: int, *words: str) -> str:
+    """``r`` exited with ``code`` and one error line that contains every word."""
+    assert r.code == code, (r.code, r.err)
+    line = r.error
+    for w in words:
+        assert w in line, (w, line)
+    return line
+
+
+@pytest.fixture(scope="module")
+def work(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("cli")
+
+
+@pytest.fixture(scope="module")
+def a_file(work) -> Path:
+    """A plain file: an output path under it can never be made (also as root)."""
+    f = work / "a_file"
+    f.write_text("x")
+    return f
+
+
+# -- help, version, README ---------------------------------------------------------------------------
 COMMANDS = [[], ["synth"], ["synth", "piles"], ["synth", "render"], ["synth", "dataset"], ["synth", "scan"],
             ["train"], ["plan"], ["eval"], ["reconstruct"], ["compare-piles"], ["crane-sim"], ["trial"],
-            ["replay"], ["demo"]]
+            ["replay"], ["demo"], ["link-key"]]
 
 
 @pytest.mark.parametrize("args", COMMANDS)
-def test_help(args):
-    result = runner.invoke(app, [*args, "--help"])
-    assert result.exit_code == 0, result.output
-    assert "Usage" in result.output
+def test_help_shows_units_and_no_placeholders(capsys, args):
+    r = cli(capsys, *args, "--help")
+    assert r.code == 0 and "Usage" in r.out
+    assert "<bool>" not in r.out and "[default: False]" not in r.out
+    assert not re.search(r"\w \.(\s|$)", r.out), "a unit was eaten ('Boom reach .')"
+
+
+@pytest.mark.parametrize("args,flag,unit", [
+    (["crane-sim"], "--max-reach", "[m]"), (["crane-sim"], "--max-pile-age", "[s]"),
+    (["trial"], "--capacity", "[kg]"), (["synth", "piles"], "--size", "[px]"), (["synth", "scan"], "--hfov", "[deg]"),
+])
+def test_help_keeps_units(capsys, args, flag, unit):
+    text = cli(capsys, *args, "--help").out
+    block = re.search(rf"^  {flag}\b.*?(?=^  -|\Z)", text, re.M | re.S).group(0)
+    assert unit in block, block
+
+
+def test_version(capsys):
+    r = cli(capsys, "--version")
+    assert r.code == 0 and re.fullmatch(r"loggrasp \d+\.\d+\.\d+\S*\n", r.out)
+
+
+def test_no_arguments_prints_help_and_exit_codes(capsys):
+    r = cli(capsys)
+    assert r.code == 0 and "Commands:" in r.out and "Exit codes" in r.out
 
 
 def test_help_is_fast_and_imports_nothing_heavy():
@@ -33,82 +128,487 @@ def test_help_is_fast_and_imports_nothing_heavy():
     assert out.startswith("[]"), out
 
 
-def test_synth_piles_tiny_run_and_bad_input(tmp_path):
-    result = runner.invoke(app, ["synth", "piles", "--count", "1", "--logs", "2", "--renders", "1",
-                                 "--workers", "1", "--out", str(tmp_path / "p")])
-    assert result.exit_code == 0, result.output
-    assert (tmp_path / "p" / "pile_00000" / "ortho.npz").exists()
-    bad = runner.invoke(app, ["synth", "piles", "--count", "1", "--logs", "x", "--out", str(tmp_path / "q")])
-    assert bad.exit_code != 0 and "--logs" in bad.output
+def test_readme_command_list_matches_help():
+    """Every `loggrasp ...` line of the README's command list names a command and flags that
+    exist, every command is listed, and with all its flags."""
+    from typer.main import get_command
+
+    root = get_command(app)
+    text = (ROOT / "README.md").read_text()
+    block = text[text.index("## Commands"):]
+    block = block[block.index("```sh") + 5:block.index("```", block.index("```sh") + 5)]
+    listed: dict[str, set[str]] = {}
+    for line in block.splitlines():
+        line = line.split("#")[0].strip()
+        if not line.startswith("loggrasp "):
+            continue
+        words = line.split()[1:]
+        cmd, path = root, []
+        while words and hasattr(cmd, "commands") and words[0] in cmd.commands:
+            cmd = cmd.commands[words[0]]
+            path.append(words.pop(0))
+        flags = {o for p in cmd.params for o in (*p.opts, *p.secondary_opts)}
+        named = set(re.findall(r"(?<![\w-])--[a-z][a-z-]*", line))
+        assert named <= flags, f"README: `loggrasp {' '.join(path)}` has no {sorted(named - flags)}"
+        listed.setdefault(" ".join(path), set()).update(named)
+    every = {" ".join(p) for p in COMMANDS if p != ["synth"]}
+    assert every <= set(listed), f"README lists no {sorted(every - set(listed))}"
+    for name in every:
+        cmd = root
+        for word in name.split():
+            cmd = cmd.commands[word]
+        flags = {o for p in cmd.params for o in p.opts if o.startswith("--")} - {"--help"}
+        assert flags <= listed[name], f"README: `loggrasp {name}` lacks {sorted(flags - listed[name])}"
 
 
-def test_synth_render_rejects_malformed_pile(tmp_path):
-    (tmp_path / "pile.json").write_text("{")
-    result = runner.invoke(app, ["synth", "render", str(tmp_path)])
-    assert result.exit_code != 0 and "not valid JSON" in result.output
+# -- synth --------------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def pile_dir(work) -> Path:
+    """A tiny generated pile (2 logs, one render), made with a group-readable umask."""
+    old = os.umask(0o027)
+    try:
+        assert run(["synth", "piles", "--count", "1", "--logs", "2", "--renders", "1", "--workers", "1",
+                    "--out", str(work / "piles")]) == 0
+    finally:
+        os.umask(old)
+    return work / "piles" / "pile_00000"
 
 
-def test_synth_scan_rejects_swapped_site(tmp_path):
-    result = runner.invoke(app, ["synth", "scan", "--out", str(tmp_path / "s"), "--site", "20.0,64.1"])
-    assert result.exit_code != 0 and "swap" in result.output
-    assert not (tmp_path / "s").exists()
+def test_synth_piles_modes_follow_the_umask(pile_dir):
+    for p in (pile_dir, pile_dir / "pile.json", pile_dir / "ortho.npz", pile_dir.parent / "job.json"):
+        want = 0o750 if p.is_dir() else 0o640
+        assert p.stat().st_mode & 0o777 == want, (p, oct(p.stat().st_mode))
 
 
-def test_plan_with_missing_model_fails_clearly(tmp_path):
-    result = runner.invoke(app, ["plan", str(tmp_path), "--model", str(tmp_path / "none.safetensors")])
-    assert result.exit_code != 0 and "none.safetensors" in result.output
+def test_synth_piles_json_and_plural(capsys, work, pile_dir):
+    r = cli(capsys, "synth", "piles", "--count", "1", "--logs", "2", "--renders", "1", "--workers", "1",
+            "--out", work / "piles", "--json")
+    assert r.code == 0 and r.json()["skipped"] == 1
+    assert "0 piles generated, 1 already there" in r.err  # words on stderr under --json
 
 
-def test_eval_rejects_bad_obstacles_option(tmp_path):
-    result = runner.invoke(app, ["eval", "--out", str(tmp_path), "--obstacles", "maybe"])
-    assert result.exit_code != 0 and "--obstacles" in result.output
+def test_synth_piles_typo_leaves_nothing_and_the_fix_runs(capsys, work):
+    out = work / "typo"
+    for bad, flag in ((["--size", "0"], "--size"), (["--size", "20"], "--size"), (["--workers", "-3"], "--workers"),
+                      (["--logs", "x"], "--logs"), (["--count", "0"], "--count")):
+        fails(cli(capsys, "synth", "piles", "--count", "1", *bad, "--out", out), 2, flag)
+        assert not out.exists(), f"{bad} left {list(out.rglob('*'))}"
+    r = cli(capsys, "synth", "piles", "--count", "1", "--logs", "2", "--renders", "1", "--size", "64", "--workers", "1",
+            "--out", out)
+    assert r.code == 0 and (out / "pile_00000" / "ortho.npz").exists()
+    assert not list(out.glob(".*tmp*"))
 
 
-def test_trial_refuses_an_existing_record(tmp_path):
-    (tmp_path / "rec").mkdir()
-    result = runner.invoke(app, ["trial", "--scan", str(tmp_path), "--gnss", str(tmp_path / "g.csv"),
-                                 "--link", "twin://", "--record", str(tmp_path / "rec"), "--yes"])
-    assert result.exit_code != 0 and "already exists" in result.output
+def test_synth_render(capsys, work, pile_dir, a_file):
+    r = cli(capsys, "synth", "render", pile_dir, "--out", work / "render", "--renders", "1", "--json")
+    assert r.code == 0 and len(r.json()["files"]) == 2 and (work / "render" / "ortho.npz").exists()
+    fails(cli(capsys, "synth", "render", pile_dir, "--out", a_file / "x"), 2, "--out", str(a_file))
+    fails(cli(capsys, "synth", "render", work / "nowhere"), 2, "nowhere", "does not exist")
+    bad = work / "garbage"
+    bad.mkdir()
+    (bad / "pile.json").write_text("{")
+    fails(cli(capsys, "synth", "render", bad), 2, str(bad / "pile.json"), "not valid JSON")
+    (bad / "pile.json").write_text('{"format": "loggrasp.pile", "format_version": "1.0", "terrain": [1]}')
+    fails(cli(capsys, "synth", "render", bad), 2, str(bad / "pile.json"), "malformed")
 
 
-def test_plan_with_averaged_views_and_bad_views(tmp_path):
-    made = runner.invoke(app, ["synth", "piles", "--count", "1", "--logs", "3", "--renders", "1", "--size", "128",
-                               "--workers", "1", "--out", str(tmp_path / "p")])
-    assert made.exit_code == 0, made.output
-    pile = str(tmp_path / "p" / "pile_00000")
-    result = runner.invoke(app, ["plan", pile, "--objective", "f3", "--views", "8", "--view-spread", "1", "--json"])
-    assert result.exit_code == 0, result.output
-    assert json.loads(result.output)["grasps"][0]["targets"]
-    bad = runner.invoke(app, ["plan", pile, "--views", "3"])
-    assert bad.exit_code != 0 and "views must be one of" in bad.output
-    bad = runner.invoke(app, ["plan", pile, "--view-spread", "1"])
-    assert bad.exit_code != 0 and "needs views > 1" in bad.output
+def test_synth_scan_bad_site_and_paths(capsys, work, a_file):
+    for site in ("abc", "20.0,64.1", "1,2,3,4"):
+        fails(cli(capsys, "synth", "scan", "--site", site, "--out", work / "s"), 2, "--site")
+    fails(cli(capsys, "synth", "scan", "--float-fixes", "-1", "--out", work / "s"), 2, "--float-fixes")
+    fails(cli(capsys, "synth", "scan", "--pairs", "9x9", "--out", work / "s"), 2, "--pairs")
+    fails(cli(capsys, "synth", "scan", "--out", a_file / "s"), 2, "--out", str(a_file))
+    assert not (work / "s").exists()
 
 
-def test_reconstruct_names_a_bad_log_direction(tmp_path):
-    result = runner.invoke(app, ["reconstruct", str(tmp_path), "--gnss", str(tmp_path / "g.csv"), "--out",
-                                 str(tmp_path / "o"), "--log-direction", "north"])
-    assert result.exit_code != 0
-    assert "--log-direction must be an angle in degrees or 'site'" in result.output
-    result = runner.invoke(app, ["reconstruct", str(tmp_path), "--gnss", str(tmp_path / "g.csv"), "--out",
-                                 str(tmp_path / "o"), "--log-direction", "400"])
-    assert result.exit_code != 0 and "log_direction_deg must be in [-180, 180]" in result.output
+@pytest.mark.slow
+def test_synth_dataset_and_train_a_64px_network(capsys, work, a_file):
+    """A 64 px data set trains from the command line (the network takes the data set's size)."""
+    fails(cli(capsys, "synth", "dataset", "--piles", "1", "--engine", "spark", "--out", work / "d"), 2, "--engine")
+    fails(cli(capsys, "synth", "dataset", "--piles", "1", "--out", a_file / "d"), 2, "--out")
+    r = cli(capsys, "synth", "dataset", "--piles", "2", "--logs", "2", "--size", "64", "--renders", "1",
+            "--max-trials-per-subset", "1", "--workers", "1", "--out", work / "data", "--json")
+    assert r.code == 0 and r.json()["summary"]["samples"] > 0
+    fails(cli(capsys, "train", "--data", work / "data", "--out", a_file / "r"), 2, "--out")
+    fails(cli(capsys, "train", "--data", work / "none", "--out", work / "r"), 2, "--data")
+    r = cli(capsys, "train", "--data", work / "data", "--out", work / "run", "--epochs", "1", "--max-steps-per-epoch",
+            "1", "--base-channels", "4", "--batch-size", "2", "--json")
+    d = r.json()
+    assert r.code == 0 and d["size_px"] == 64 and Path(d["model"]).exists()
 
 
-def test_reconstruct_prints_the_per_log_report(tmp_path):
-    """The per-log table names each log, how it was fitted, its length, diameter, GNSS residuals,
-    fit RMS and coverage (the report keys, not stale names)."""
-    from field.cli import DEMO_DATA
+# -- plan ---------------------------------------------------------------------------------------------
+def test_plan_json_png_and_table(capsys, work, pile_dir):
+    png = work / "plan.png"
+    r = cli(capsys, "plan", pile_dir, "--objective", "f3", "--json", "--png", png)
+    d = r.json()
+    assert r.code == 0 and d["format"] == "loggrasp.plan" and d["grasps"][0]["targets"]
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    r = cli(capsys, "plan", pile_dir, "--top", "3")
+    rows = [ln.split() for ln in r.out.splitlines() if re.match(r"\s*\d+\s+[\d,]+\s", ln)]
+    assert r.code == 0 and rows and all(len(row) == 9 for row in rows), r.out  # every column, never cut
+    assert "…" not in r.out
 
-    result = runner.invoke(app, ["reconstruct", str(DEMO_DATA / "scan"), "--gnss", str(DEMO_DATA / "gnss.csv"),
-                                 "--out", str(tmp_path / "o")], env={"COLUMNS": "200"})
-    assert result.exit_code == 0, result.output
+
+def test_plan_bad_input(capsys, work, pile_dir, a_file):
+    fails(cli(capsys, "plan", pile_dir, "--top", "-2"), 2, "--top")
+    fails(cli(capsys, "plan", pile_dir, "--top", "0"), 2, "--top")
+    fails(cli(capsys, "plan", pile_dir, "--views", "3"), 2, "--views must be one of")
+    fails(cli(capsys, "plan", pile_dir, "--view-spread", "1"), 2, "--view-spread", "needs views > 1")
+    fails(cli(capsys, "plan", pile_dir, "--png", a_file / "x.png"), 2, "--png", str(a_file))
+    fails(cli(capsys, "plan", pile_dir, "--png", work / "plan.txt"), 2, "--png", ".png")
+    fails(cli(capsys, "plan", pile_dir, "--model", work / "none.safetensors"), 2, "--model", "none.safetensors")
+    assert not (work / "plan.txt").exists()
+
+
+def test_plan_beside_a_truncated_render(capsys, work, pile_dir):
+    """A truncated ortho.npz beside a good pile.json: rendered from the pile, with a warning; a
+    truncated ortho.npz alone: an error naming it."""
+    both = work / "truncated"
+    both.mkdir()
+    shutil.copy(pile_dir / "pile.json", both)
+    (both / "ortho.npz").write_bytes((pile_dir / "ortho.npz").read_bytes()[:3000])
+    r = cli(capsys, "plan", both, "--json")
+    assert r.code == 0 and r.json()["grasps"] and "warning:" in r.err and "ortho.npz" in r.err
+    alone = work / "truncated_alone"
+    alone.mkdir()
+    shutil.copy(both / "ortho.npz", alone)
+    fails(cli(capsys, "plan", alone / "ortho.npz"), 2, str(alone / "ortho.npz"), "truncated")
+
+
+# -- eval ---------------------------------------------------------------------------------------------
+@pytest.mark.slow
+def test_eval_tiny_strict_json_and_examples(capsys, work, a_file):
+    out = work / "eval"
+    # on this pile the random baseline fails: a planner without successes has no beta_avg (NaN), which
+    # must reach stdout and results.json as null
+    r = cli(capsys, "eval", "--per-cell", "1", "--logs", "2", "--obstacles", "no", "--objectives", "f1",
+            "--baselines", "random", "--seed-base", "900000001", "--workers", "1", "--out", out, "--json")
+    d = r.json()
+    assert r.code == 0 and d["format"] == "loggrasp.eval-results" and set(d["planners"]) == {"unet-f1", "random"}
+    random_total = d["planners"]["random"]["total"]
+    assert random_total["success_rate"] == 0.0 and random_total["beta_avg_deg"] is None
+    Result(0, (out / "results.json").read_text(), "").json()  # no NaN in the file either
+    assert (out / "examples.png").exists() and "1 pile per cell" in (out / "results.md").read_text()
+    md = (out / "results.md").read_text().splitlines()
+    for i, ln in enumerate(md):  # every Markdown table row has its header's cells
+        if ln.startswith("|---"):
+            assert ln.count("|") == md[i - 1].count("|") and md[i + 1].count("|") == ln.count("|"), md[i - 1:i + 2]
+
+
+def test_eval_bad_input(capsys, work, a_file):
+    for bad, flag in ((["--engine", "spark"], "--engine"), (["--per-cell", "0"], "--per-cell"),
+                      (["--workers", "-3"], "--workers"), (["--obstacles", "maybe"], "--obstacles"),
+                      (["--objectives", "f9"], "--objectives"), (["--baselines", "magic"], "--baselines"),
+                      (["--extra-model", "nolabel"], "--extra-model"), (["--logs", "7-2"], "--logs"),
+                      (["--address", "tcp://x:1"], "--address")):
+        fails(cli(capsys, "eval", *bad, "--out", work / "e2"), 2, flag)
+    fails(cli(capsys, "eval", "--out", a_file / "e"), 2, "--out", str(a_file))
+    assert not (work / "e2").exists()
+
+
+# -- reconstruct, compare-piles --------------------------------------------------------------------------
+def run_captured(*args) -> Result:
+    """:func:`run` for a module-scoped fixture (no capsys there)."""
+    import contextlib
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = run([str(a) for a in args])
+    r = Result(code, out.getvalue(), err.getvalue())
+    assert "Traceback" not in r.out + r.err, r.err
+    return r
+
+
+@pytest.fixture(scope="module")
+def recon_run(work) -> tuple[Path, Result]:
+    return work / "recon", run_captured("reconstruct", SCAN, "--gnss", GNSS, "--out", work / "recon", "--json")
+
+
+@pytest.fixture(scope="module")
+def recon(recon_run) -> Path:
+    assert recon_run[1].code == 0, recon_run[1].err
+    return recon_run[0]
+
+
+@pytest.mark.slow
+def test_reconstruct_prints_the_per_log_report(recon_run):
+    r = recon_run[1]
+    rep = r.json()
+    assert r.code == 0 and rep["format"] == "loggrasp.reconstruction-report"
     for title in ("log", "fit", "length m", "diam. m", "GNSS res. a m", "GNSS res. b m", "fit rms m", "coverage"):
-        assert title in result.output, result.output
-    report = json.loads((tmp_path / "o" / "report.json").read_text())
-    for log in report["logs"]:
-        assert log["log_id"] in result.output and log["fit"] in ("scan", "partial", "hidden")
+        assert title in r.err, r.err  # the table goes to stderr under --json
+    for log in rep["logs"]:
+        assert log["log_id"] in r.err and log["fit"] in ("scan", "partial", "hidden")
     from reconstruct.cli import log_table_row
 
-    row = log_table_row({**report["logs"][0], "rms_m": float("nan"), "top_diameter_m": None})
+    row = log_table_row({**rep["logs"][0], "rms_m": float("nan"), "top_diameter_m": None})
     assert row[1] in ("scan", "partial", "hidden") and "-" in row
+
+
+@pytest.mark.slow
+def test_compare_piles(capsys, recon, work):
+    r = cli(capsys, "compare-piles", DEMO_DATA / "truth", recon, "--json")
+    assert r.code == 0 and r.json()["format"] == "loggrasp.pile-comparison" and r.json()["summary"]["n_matched"] == 4
+    r = cli(capsys, "compare-piles", DEMO_DATA / "truth", recon)
+    assert r.code == 0 and "endpoint_err_m" in r.out and "{" not in r.out
+    fails(cli(capsys, "compare-piles", DEMO_DATA / "truth", work / "none"), 2, "RECON", "none")
+
+
+def test_reconstruct_bad_input(capsys, work, a_file):
+    fails(cli(capsys, "reconstruct", SCAN, "--gnss", GNSS, "--out", work / "o", "--log-direction", "north"), 2,
+          "--log-direction must be an angle in degrees or 'site'")
+    fails(cli(capsys, "reconstruct", SCAN, "--gnss", GNSS, "--out", work / "o", "--log-direction", "400"), 2,
+          "--log-direction must be in [-180, 180]")
+    fails(cli(capsys, "reconstruct", SCAN, "--gnss", GNSS, "--out", a_file / "o"), 2, "--out", str(a_file))
+    fails(cli(capsys, "reconstruct", SCAN, "--gnss", work / "none.csv", "--out", work / "o"), 2, "--gnss")
+    fails(cli(capsys, "reconstruct", SCAN, "--gnss", GNSS, "--out", work / "o", "--pair-poses", "magic"), 2,
+          "--pair-poses")
+    floaty = work / "float.csv"
+    floaty.write_text(GNSS.read_text().replace("rtk_fixed", "rtk_float", 1))
+    r = cli(capsys, "reconstruct", SCAN, "--gnss", floaty, "--out", work / "o")
+    line = fails(r, 2, "--allow-float", str(floaty))
+    assert "allow_float" not in line
+    assert not (work / "o").exists()
+
+
+def test_gnss_without_a_crs_line_warns():
+    from reconstruct.cli import gnss_crs_warning
+
+    assert gnss_crs_warning(GNSS) is None
+    d = Path(tempfile.mkdtemp())
+    try:
+        (d / "g.csv").write_text("\n".join(ln for ln in GNSS.read_text().splitlines() if "crs" not in ln.lower()))
+        assert "no '# crs:' line" in gnss_crs_warning(d / "g.csv")
+    finally:
+        shutil.rmtree(d)
+
+
+# -- field: demo, trial, replay, crane-sim ----------------------------------------------------------------
+@pytest.fixture(scope="module")
+def demo_record(work) -> Path:
+    r = run_captured("demo", "--out", work / "demo", "--json")
+    assert r.code == 0, r.err
+    d = r.json()
+    assert d["format"] == "loggrasp.trial-result" and d["final_state"] == "SUCCESS"
+    return work / "demo" / "trial"
+
+
+@pytest.mark.slow
+def test_demo_record_is_complete(demo_record):
+    rec = json.loads((demo_record / "record.json").read_text())
+    assert rec["final_state"] == "SUCCESS" and rec["outcome"]["class"] == "SUCCESS"
+    for f in ("plan/plan.png", "plan/grasp_map.png", "plan/plan.json", "reconstruction/pile.json", "link/traffic.blf"):
+        assert (demo_record / f).exists(), f
+    plan = json.loads((demo_record / "plan" / "plan.json").read_text())
+    assert plan["format"] == "loggrasp.plan" and plan["format_version"]
+    assert not list(demo_record.parent.glob(".*tmp*"))
+
+
+def test_demo_bad_input(capsys, work, a_file):
+    fails(cli(capsys, "demo", "--link", "foo://x", "--out", work / "d2"), 3, "--link", "foo://")
+    fails(cli(capsys, "demo", "--link", "twin://", "--out", work / "d2"), 3, "--link", "twin://")
+    fails(cli(capsys, "demo", "--out", a_file / "d"), 2, "--out", str(a_file))
+    assert not (work / "d2").exists()
+
+
+def _replay_temp_dirs() -> set[str]:
+    return {p.name for p in Path(tempfile.gettempdir()).glob("loggrasp-replay-*")}
+
+
+@pytest.mark.slow
+def test_replay_identical_json_and_no_leaks(capsys, demo_record):
+    before = _replay_temp_dirs()
+    r = cli(capsys, "replay", demo_record, "--json", "--link", "twin://")  # the README's example
+    d = r.json()
+    assert r.code == 0 and d["format"] == "loggrasp.replay" and d["identical"] is True
+    assert d["resent"]["outcome"]["class"] == "SUCCESS"  # a plain twin:// takes the old record's command
+    assert "replay of" in r.err and "replay of" not in r.out  # progress and words on stderr only
+    assert _replay_temp_dirs() <= before, "replay left its temporary folder"
+
+
+@pytest.mark.slow
+def test_replay_names_the_changed_input(capsys, work, demo_record, a_file):
+    edited = work / "edited"
+    shutil.copytree(demo_record, edited)
+    gnss = edited / "inputs" / "gnss.csv"
+    gnss.write_text(gnss.read_text().replace("rtk_fixed", "rtk_float", 1))
+    fails(cli(capsys, "replay", edited), 2, "inputs/gnss.csv", "changed")
+    (edited / "inputs" / "extra.txt").write_text("x")
+    shutil.copy(demo_record / "inputs" / "gnss.csv", gnss)
+    fails(cli(capsys, "replay", edited), 2, "inputs/extra.txt")
+    fails(cli(capsys, "replay", demo_record, "--out", a_file / "w"), 2, "--out", str(a_file))
+    fails(cli(capsys, "replay", work / "none"), 2, "none", "does not exist")
+    fails(cli(capsys, "replay", a_file.parent), 2, "record.json")
+    fails(cli(capsys, "replay", demo_record, "--link", "foo://x"), 3, "--link")
+
+
+@pytest.fixture(scope="module")
+def twin_trial(work) -> tuple[Path, Result]:
+    """A plain twin:// trial: the twin crane stands where the laptop thinks (in reach)."""
+    rec = work / "t_twin"
+    return rec, run_captured("trial", "--scan", SCAN, "--gnss", GNSS, "--link", "twin://", "--record", rec, "--yes",
+                             "--max-pile-age", OLD, "--json")
+
+
+@pytest.mark.slow
+def test_trial_over_plain_twin_succeeds(twin_trial):
+    rec, r = twin_trial
+    assert r.code == 0, r.err
+    d = r.json()
+    assert d["format"] == "loggrasp.trial-result" and d["final_state"] == "SUCCESS"
+    assert "SUCCESS: 4 logs held" in r.err and "{'class'" not in r.err  # words, not a Python dict
+    assert "crane link twin://" in r.err  # the link was reached before the reconstruction
+    assert r.err.index("crane link twin://") < r.err.index("reconstructing")
+    assert ".tmp" not in r.err  # progress names the record's own folder
+
+
+@pytest.mark.slow
+def test_trial_with_standard_input_closed_leaves_a_record(capsys, monkeypatch, work):
+    rec = work / "t_closed"
+    r = cli(capsys, "trial", "--scan", SCAN, "--gnss", GNSS, "--link", "twin://", "--record", rec,
+            "--max-pile-age", OLD, "--json", stdin="", monkeypatch=monkeypatch)
+    fails(r, 4, "no answer", str(rec))
+    assert r.json()["final_state"] == "NOT SENT"
+    saved = json.loads((rec / "record.json").read_text())
+    assert saved["final_state"] == "NOT SENT" and "no answer" in saved["reason"] and saved["command"]
+    # the confirmation showed the plan table, the SWEREF grasp and pictures that exist
+    assert re.search(r"^#\s+targets\s+Q\s+U\s+B", r.err, re.M) and "SWEREF 99 TM" in r.err
+    shown = re.search(r"look before sending: (.*)", r.err).group(1).split(", ")
+    assert shown and all(Path(p).exists() and str(rec) in p for p in shown), shown
+
+
+def test_trial_bad_input_fails_before_any_work(capsys, work, a_file):
+    rec = work / "t_bad"
+    base = ["trial", "--scan", SCAN, "--gnss", GNSS, "--record", rec, "--yes"]
+    t = time.perf_counter()
+    fails(cli(capsys, *base, "--link", "foo://x"), 3, "--link", "foo://")
+    fails(cli(capsys, *base, "--link", ""), 3, "--link", "empty")
+    fails(cli(capsys, *base, "--link", "zenoh://127.0.0.1:9"), 3, "--link", "zenoh://")
+    fails(cli(capsys, *base, "--link", "twin://", "--base", "abc"), 2, "--base")
+    fails(cli(capsys, *base, "--link", "twin://", "--objective", "f9"), 2, "--objective")
+    fails(cli(capsys, "trial", "--scan", SCAN, "--gnss", GNSS, "--record", a_file / "r", "--link", "twin://"), 2,
+          "--record", str(a_file))
+    fails(cli(capsys, "trial", "--scan", work / "none", "--gnss", GNSS, "--record", rec, "--link", "twin://"), 2,
+          "--scan")
+    assert time.perf_counter() - t < 20, "bad input must stop the trial before the reconstruction"
+    assert not rec.exists()
+    (work / "exists").mkdir(exist_ok=True)
+    fails(cli(capsys, "trial", "--scan", SCAN, "--gnss", GNSS, "--record", work / "exists", "--link", "twin://"), 2,
+          "--record", "already exists")
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _loggrasp(*args: str, **kw) -> subprocess.Popen:
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    return subprocess.Popen([sys.executable, "-m", "field.cli", *args], stdout=subprocess.PIPE, cwd=ROOT,
+                            stderr=subprocess.PIPE, text=True, env=env, **kw)
+
+
+def test_unreachable_zenoh_crane_fails_fast_without_rust_paths(capsys, work):
+    rec = work / "t_unreachable"
+    t = time.perf_counter()
+    r = cli(capsys, "trial", "--scan", SCAN, "--gnss", GNSS, "--record", rec, "--yes", "--max-pile-age", OLD,
+            "--link", f"zenoh://127.0.0.1:{_free_port()}/nocrane?connect_timeout_s=1")
+    line = fails(r, 3, "cannot reach the crane controller")
+    assert ".rs:" not in line and time.perf_counter() - t < 20 and not rec.exists()
+
+
+@pytest.mark.slow
+def test_crane_sim_says_why_it_rejects(capsys, work):
+    """A crane in its own process with its own staleness limit rejects the trial's command
+    (STALE) although the laptop's --max-pile-age lets it through; both sides say why."""
+    url = f"zenoh://127.0.0.1:{_free_port()}/crane-test"
+    crane = _loggrasp("crane-sim", "--link", url, "--pile", str(DEMO_DATA / "truth" / "pile.json"),
+                      "--max-pile-age", "60")
+    try:
+        deadline = time.time() + 60
+        line = ""
+        while "serving" not in line and time.time() < deadline:
+            line = crane.stdout.readline()
+            assert line or crane.poll() is None, crane.stderr.read()
+        rec = work / "t_stale"
+        r = cli(capsys, "trial", "--scan", SCAN, "--gnss", GNSS, "--record", rec, "--yes", "--max-pile-age", OLD,
+                "--link", url)
+        fails(r, 4, "rejected", "STALE", "crane-sim --max-pile-age", str(rec))
+        assert json.loads((rec / "record.json").read_text())["reject_reason"] == "STALE"
+    finally:
+        crane.send_signal(signal.SIGTERM)
+        out, err = crane.communicate(timeout=30)
+    assert crane.returncode == 0, err
+    assert re.search(r"command \d+: REJECTED \(STALE\)", out), out
+    assert "stopped in state" in out and "Traceback" not in err and "pybullet build time" not in out + err
+
+
+def test_crane_sim_on_a_busy_port_says_so_in_one_line(capsys):
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        port = s.getsockname()[1]
+        r = cli(capsys, "crane-sim", "--link", f"zenoh://127.0.0.1:{port}/c", "--pile",
+                DEMO_DATA / "truth" / "pile.json")
+    line = fails(r, 3, str(port))
+    assert ".rs:" not in line and "cargo" not in line
+
+
+def test_messages_lose_rust_source_paths_and_python_names():
+    from field.cli import clean_message
+
+    zenoh = ("Can not create a new TCP listener bound to tcp/127.0.0.1:7471: [127.0.0.1:7471: Address already in "
+             "use (os error 98) at /root/.cargo/git/checkouts/zenoh-9c5/cc8/io/zenoh-link-commons/src/tcp.rs:61.] at "
+             "/root/.cargo/git/checkouts/zenoh-9c5/cc8/io/zenoh-links/zenoh-link-tcp/src/unicast.rs:338.. Check it")
+    assert clean_message(zenoh) == ("Can not create a new TCP listener bound to tcp/127.0.0.1:7471: [127.0.0.1:7471: "
+                                    "Address already in use (os error 98)]. Check it")
+    assert clean_message("pass allow_float=True, or per_cell must be >= 1\nsecond line") == \
+        "pass --allow-float, or --per-cell must be >= 1 second line"
+    kept = "twin://?crane_max_pile_age_s=S and the logs must"
+    assert clean_message(kept) == kept
+
+
+def test_crane_sim_bad_input(capsys, work, a_file):
+    pile = DEMO_DATA / "truth" / "pile.json"
+    fails(cli(capsys, "crane-sim", "--link", "twin://", "--pile", pile), 3, "--link", "twin://")
+    fails(cli(capsys, "crane-sim", "--link", "foo://x", "--pile", pile), 3, "--link")
+    fails(cli(capsys, "crane-sim", "--link", "can://virtual/x", "--pile", work / "none.json"), 2, "--pile")
+    fails(cli(capsys, "crane-sim", "--link", "can://virtual/x", "--pile", pile, "--base", "1,2"), 2, "--base")
+    fails(cli(capsys, "crane-sim", "--link", "can://virtual/x", "--pile", pile, "--max-reach", "-1"), 2,
+          "--max-reach")
+
+
+# -- what only a real process shows ------------------------------------------------------------------------
+def test_c_libraries_stay_quiet_unless_verbose(work, pile_dir):
+    """pybullet's build time, EGL/OpenGL lines: on neither stream of the real command, and the
+    --json output is pure; --verbose lets them through (so the quiet is the CLI's doing)."""
+    p = _loggrasp("synth", "render", str(pile_dir), "--out", str(work / "quiet"), "--renders", "1", "--json")
+    out, err = p.communicate(timeout=300)
+    assert p.returncode == 0, err
+    assert json.loads(out)["format"] == "loggrasp.synth-render"
+    assert "pybullet build time" not in out + err and "EGL" not in out + err, (out, err)
+    p = _loggrasp("--verbose", "synth", "render", str(pile_dir), "--out", str(work / "loud"), "--renders", "1")
+    out, err = p.communicate(timeout=300)
+    assert p.returncode == 0 and "pybullet build time" in out + err
+
+
+@pytest.mark.slow
+def test_synth_scan_json_is_pure_and_errors_are_one_line(work):
+    """synth scan renders through EGL/OpenGL: stdout is still one JSON document; a broken image
+    gives one error line and no libpng chatter."""
+    p = _loggrasp("synth", "scan", "--seed", "1", "--logs", "2", "--obstacles", "0", "--pairs", "1x1",
+                  "--float-fixes", "0", "--out", str(work / "scan"), "--json")
+    out, err = p.communicate(timeout=600)
+    assert p.returncode == 0, err
+    d = json.loads(out)
+    assert d["format"] == "loggrasp.synth-scan" and Path(d["gnss"]).exists()
+    assert "generating" in err and "rendering stereo pair 1 of 1" in err  # progress on stderr
+    left = work / "scan" / "scan" / "pair_000" / "left.png"
+    left.write_bytes(left.read_bytes()[:200])
+    p = _loggrasp("reconstruct", str(work / "scan" / "scan"), "--gnss", d["gnss"], "--out", str(work / "rs"))
+    out, err = p.communicate(timeout=300)
+    lines = [ln for ln in err.splitlines() if ln.strip() and not ln.startswith(("reading", "matching", "warning"))]
+    assert p.returncode == 2 and len(lines) == 1 and lines[0].startswith("error:") and "left.png" in lines[0], err
+    assert not (work / "rs").exists()

@@ -14,11 +14,16 @@ def test_link_key_help():
     assert res.exit_code == 0 and "secoc_key" in res.output
 
 
-def test_link_key_writes_a_private_key_once(tmp_path):
+def test_link_key_writes_a_private_key_once(tmp_path, capsys):
+    from field.cli import run
+    from synth.cli_common import EXIT_INPUT
+
     path = tmp_path / "keys" / "crane1.key"
-    res = CliRunner().invoke(app, ["link-key", str(path)])
-    assert res.exit_code == 0, res.output
+    code = run(["link-key", str(path)])
+    out, err = capsys.readouterr()
+    assert code == 0, err
     assert os.stat(path).st_mode & 0o777 == 0o600
-    assert path.read_text().strip() not in res.output  # the key is never printed
-    again = CliRunner().invoke(app, ["link-key", str(path)])
-    assert again.exit_code != 0 and "never overwritten" in again.output
+    assert path.read_text().strip() not in out + err  # the key is never printed
+    again = run(["link-key", str(path)])  # errors are printed once, by field.cli.run
+    out, err = capsys.readouterr()
+    assert again == EXIT_INPUT and err.startswith("error: ") and "never overwritten" in err

@@ -34,8 +34,16 @@ def test_pile_params_depend_only_on_seed_and_index():
 
 def test_resume_with_other_parameters_is_refused(tmp_path):
     (tmp_path / "job.json").write_text(json.dumps({"format": "loggrasp.piles", "logs": [9, 9]}))
+    (tmp_path / pile_dir_name(0)).mkdir()  # a finished pile binds the folder to its job
     with pytest.raises(OutputError, match="other parameters"):
-        run_pile_job(tmp_path, PileJob(count=1), workers=1)
+        run_pile_job(tmp_path, PileJob(count=2), workers=1)
+
+
+def test_a_job_file_without_finished_piles_binds_nothing(tmp_path):
+    """A typo that failed before making a pile does not refuse the corrected command."""
+    (tmp_path / "job.json").write_text(json.dumps({"format": "loggrasp.piles", "logs": [9, 9]}))
+    assert run_pile_job(tmp_path, PileJob(count=1, logs=(2, 2), n_renders=1, size_px=64), workers=1)["generated"] == 1
+    assert json.loads((tmp_path / "job.json").read_text())["logs"] == [2, 2]
 
 
 def test_unwritable_output(tmp_path):
