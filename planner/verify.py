@@ -108,7 +108,7 @@ class PerturbationConfig:
     obstacle_scale_sigma: float = 0.10  # stump / rock size, relative [-]
     log_sigmas_m: tuple[tuple[float, float], ...] | None = None  # per log: (end sigma, diameter sigma) [m]
     seed: int = 0  # [-]
-    max_lift_rounds: int = 6  # rounds of lifting logs out of what they were pushed into [-]
+    max_lift_rounds: int = 20  # rounds of lifting logs out of what they were pushed into [-]
     penetration_tolerance_m: float = 0.005  # interpenetration left as it is [m]
 
     def __post_init__(self) -> None:
