@@ -273,6 +273,7 @@ def summarise(rec: dict) -> dict:
                 "plan_s_median": float(np.median(times)), "plan_s_p90": float(np.percentile(times, 90)),
                 "plan_s_median_6logs": float(np.median(times7)) if times7 else math.nan,
                 "plan_cpu_s_median": float(np.median(cpus)), "plan_cpu_s_p90": float(np.percentile(cpus, 90)),
+                "plan_cpu_s_mean": float(np.mean(cpus)),
                 "plan_cpu_s_median_6logs": float(np.median(cpus6)) if cpus6 else math.nan,
                 "trials_mean": float(np.mean([v.get("trials", 0) for v in vs])),
                 "vs_network_pp": paired(s["network"], s[name]), "vs_truth_pp": paired(s["truth-planned"], s[name]),
@@ -306,9 +307,9 @@ def markdown(rec: dict, command: str) -> str:
     for kind, table in summarise(rec).items():
         lines += [f"## {kind}", "",
                   "| planner | piles | success | vs network [pp] (95 % CI) | vs truth-planned [pp] (95 % CI) | "
-                  "logs / success | β [deg] | plan wall s median | p90 | plan CPU s median | p90 | CPU s median, 6-log "
-                  "piles | trials / pile | failures |",
-                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+                  "logs / success | β [deg] | plan wall s median | p90 | plan CPU s median | mean | p90 | CPU s median, "
+                  "6-log piles | trials / pile | failures |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for name, t in table.items():
             d1, l1, h1 = t["vs_network_pp"]
             d2, l2, h2 = t["vs_truth_pp"]
@@ -316,6 +317,7 @@ def markdown(rec: dict, command: str) -> str:
             lines.append(f"| {name} | {t['piles']} | {100 * t['success']:.1f} % | {d1:+.1f} [{l1:+.1f}, {h1:+.1f}] | "
                          f"{d2:+.1f} [{l2:+.1f}, {h2:+.1f}] | {t['logs_per_success']:.2f} | {t['beta_deg']:.1f} | "
                          f"{t['plan_s_median']:.1f} | {t['plan_s_p90']:.1f} | {t['plan_cpu_s_median']:.1f} | "
+                         f"{t['plan_cpu_s_mean']:.1f} | "
                          f"{t['plan_cpu_s_p90']:.1f} | {t['plan_cpu_s_median_6logs']:.1f} | "
                          f"{t['trials_mean']:.1f} | {f} |")
         lines.append("")
@@ -334,19 +336,24 @@ def figure(rec: dict, path: Path) -> None:
     tables = summarise(rec)
     ks, copies = rec["config"]["ks"], rec["config"]["copies"]
     fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    colours = {"f1": "tab:blue", "f2": "tab:green", "f3": "tab:red"}
     for kind, t in tables.items():
+        col = colours.get(kind, "black")
         for c, style in ((0, "-o"), (copies, "--s")) if copies else ((0, "-o"),):
             names = [f"verify K={k}" + (f" +{c} copies" if c else "") for k in ks]
-            lab = f"{kind}, verified" + (f" + {c} copies" if c else "")
-            axes[0].plot(ks, [100 * t[n]["success"] for n in names], style, label=lab)
-            axes[1].plot(ks, [t[n]["plan_cpu_s_median"] for n in names], style, label=lab)
-        for ax, key, f in ((axes[0], "success", 100.0), (axes[1], "plan_cpu_s_median", 1.0)):
-            ax.axhline(f * t["network"][key], ls=":", color="grey")
-        axes[0].axhline(100 * t["truth-planned"]["success"], ls="-.", lw=0.8, color="black")
+            lab = f"{kind}, verified" + (f" + {c} perturbed copies" if c else "")
+            axes[0].plot(ks, [100 * t[n]["success"] for n in names], style, color=col, label=lab,
+                         alpha=0.6 if c else 1.0)
+            axes[1].plot(ks, [t[n]["plan_cpu_s_mean"] for n in names], style, color=col, label=lab,
+                         alpha=0.6 if c else 1.0)
+        axes[0].axhline(100 * t["network"]["success"], ls=":", color=col, label=f"{kind}, network alone")
+        axes[0].axhline(100 * t["truth-planned"]["success"], ls="-.", lw=0.8, color=col,
+                        label=f"{kind}, network on the truth")
+        axes[1].axhline(t["network"]["plan_cpu_s_mean"], ls=":", color=col, label=f"{kind}, network alone")
     axes[0].set(xlabel="K (grasps the twin tries)", ylabel="success on the true pile [%]",
-                title="success (dotted: network alone; dash-dot: truth-planned)")
-    axes[1].set(xlabel="K (grasps the twin tries)", ylabel="planning CPU time per pile, median [s]",
-                title="planning time, one core, CPU (dotted: network alone)")
+                title=f"success, {tables and next(iter(tables.values()))['network']['piles']} twin scans")
+    axes[1].set(xlabel="K (grasps the twin tries)", ylabel="planning CPU time per pile, mean [s]",
+                title="planning time, one core (CPU)")
     for ax in axes:
         ax.set_xscale("log", base=2)
         ax.set_xticks(ks, [str(k) for k in ks])
