@@ -161,8 +161,14 @@ ALLOWED_DIRECT_WRITES: dict[tuple[str, str], tuple[Counter, str]] = {
     ("reconstruct/sfm.py", "estimate_pair_poses"): (Counter({"shutil.copytree": 1}), "keep_workdir: a debugging copy"),
     ("field/controller.py", "FixedOutcomeExecutor.__init__"): (
         Counter({"open('w')": 1}), "the crane twin's append-only execution log (its header line)"),
-    ("field/controller.py", "FixedOutcomeExecutor.__call__"): (
+    ("field/controller.py", "FixedOutcomeExecutor._log_start"): (
         Counter({"open('a')": 1}), "the crane twin's append-only execution log (one line per command)"),
+    ("field/controller.py", "ControllerJournal._append"): (
+        Counter({"open('a')": 1}), "the burned-id journal: append-only JSON lines, fsynced per line"),
+    ("field/link/secoc.py", "generate_key_file"): (
+        Counter({"os.open": 1, "fdopen('w')": 1}), "a new key file created exclusively with mode 0600"),
+    ("synth/cli_common.py", "quiet_c_streams"): (
+        Counter({"fdopen('w')": 2}), "C-level stdout/stderr pointed at /dev/null, not a file written"),
     ("field/trial.py", "run_trial_record"): (
         Counter({"shutil.copytree": 1, "shutil.copy2": 1}),
         "inputs copied into a temporary record folder renamed into place"),
