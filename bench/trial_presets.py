@@ -33,6 +33,8 @@ def _old_fast() -> TrialConfig:  # the preset before 2026-11-22: 32² terrain, t
 VARIANTS = {
     "careful": TrialConfig.careful,
     "fast": TrialConfig.fast,
+    "fast_nofreeze": lambda: dataclasses.replace(TrialConfig.fast(), freeze_when_free=False),
+    "fast_noapproach": lambda: dataclasses.replace(TrialConfig.fast(), approach_speed_m_s=TrialConfig.fast().lower_speed_m_s),
     "t32_start12": _old_fast,
     "t32_start12_dt240_it20": lambda: dataclasses.replace(_old_fast(), physics=PhysicsConfig(dt_s=1 / 240, solver_iterations=20)),
     "t32_start12_dt180_it30": lambda: dataclasses.replace(_old_fast(), physics=PhysicsConfig(dt_s=1 / 180, solver_iterations=30), check_every=3),

@@ -125,3 +125,50 @@ def test_terrain_override_resamples_only_the_heightfield():
     small = trial_pile(pile, 32)
     assert small.terrain.resolution == 32 and small.logs == pile.logs
     assert trial_pile(pile, None) is pile
+
+
+def test_logs_left_behind_are_frozen_once_apart_from_the_load():
+    """``freeze_when_free``: a log that does not touch the load is made static during the lift
+    (pybullet reports mass 0 for it afterwards); the outcome and the load's pose are the same as
+    without freezing."""
+    import pybullet
+
+    pile = flat_pile([log_along_y(0.0), log_along_y(1.2)])
+    masses = {}
+
+    def look(phase, world, grapple):
+        if phase == "end":
+            masses.update({i: world.client.getDynamicsInfo(b, -1)[0] for i, b in enumerate(world.log_ids)})
+
+    r = run_trial(pile, Grasp(0.0, 0.0, 0.0, 0.6), [0], FAST, on_phase=look)
+    assert r.outcome is Outcome.SUCCESS, r
+    assert masses[1] == 0.0 and masses[0] > 0.0, masses  # the far log frozen, the held one not
+    plain = run_trial(pile, Grasp(0.0, 0.0, 0.0, 0.6), [0], replace(FAST, freeze_when_free=False))
+    assert plain.outcome is r.outcome and plain.grasped == r.grasped
+    assert np.allclose(plain.final_poses[0][:3], r.final_poses[0][:3], atol=0.01)
+    assert pybullet is not None
+
+
+def test_a_log_resting_on_the_load_is_not_frozen():
+    """A log lying across the load's end stays dynamic while it touches the load: it is carried up
+    and slides off as without freezing. (Freezing it would pin the load's end under it.)"""
+    target = log_along_y(0.0)
+    across = LogSpec(centre_m=(0.9, 0.9, 0.41 * 0.16 + 0.16), orientation=quat_from_x_axis((1, 0, 0)),
+                     length_m=2.5, diameter_m=0.16)
+    pile = flat_pile([target, across])
+    g = Grasp(0.0, 0.0, 0.0, 0.6)
+    r = run_trial(pile, g, [0], FAST)
+    plain = run_trial(pile, g, [0], replace(FAST, freeze_when_free=False))
+    assert r.outcome is plain.outcome, (r.outcome, plain.outcome)
+    assert np.allclose(r.final_poses[1][:3], plain.final_poses[1][:3], atol=0.05), (r.final_poses[1], plain.final_poses[1])
+
+
+def test_the_approach_through_free_air_is_faster_and_changes_nothing():
+    pile = flat_pile([log_along_y(0.0)])
+    quick = run_trial(pile, Grasp(0.0, 0.0, 0.0, 0.6), [0], FAST)
+    slow = run_trial(pile, Grasp(0.0, 0.0, 0.0, 0.6), [0], replace(FAST, approach_speed_m_s=FAST.lower_speed_m_s))
+    assert quick.outcome is slow.outcome is Outcome.SUCCESS
+    # 0.20 m of the 0.30 m start clearance at 1.0 instead of 0.5 m/s: 0.2 s less lowering
+    assert slow.phase_s["lower"] - quick.phase_s["lower"] == pytest.approx(0.2, abs=0.03)
+    with pytest.raises(ValueError, match="approach_clearance_m"):
+        replace(FAST, approach_clearance_m=0.5)
