@@ -175,3 +175,35 @@ def dataset(
           + ("" if s.get("complete", True) else f"; {s.get('chunks_done')} of {s.get('chunks_total')} chunks done"))
     o.result("loggrasp.synth-dataset", {"out": str(out), "store": store, "summary": s})
 
+
+
+@app.command("export")
+def export(
+    data: Path = option("--data", "A committed data-set store (store.json + chunks/), e.g. data/paper-v3.",
+                        default=..., metavar="DIR"),
+    out: Path = option("--out", "Folder for the training shards (manifest.json + .npz).", default=..., metavar="DIR"),
+    max_mib: float = option("--max-mib", "Refuse an export larger than this [MiB] (a device machine takes 64 MiB "
+                            "with the code).", default=60.0, min=1.0),
+    as_json: bool = JSON,
+) -> None:
+    """Render a store's training shards into a folder that trains without pybullet.
+
+    \b
+    Example: loggrasp synth export --data data/paper-v3 --out out/paper-v3-train
+    Then, on a machine with torch but no pybullet: loggrasp train --data out/paper-v3-train ...
+    Re-running reuses the shards already made.
+    """
+    from synth.datastore import export_training, is_store
+
+    o = Output(as_json)
+    check_input(data, "--data", "dir")
+    if not is_store(data):
+        raise CliError(f"--data {data} is not a data-set store (no store.json); give the folder that "
+                       "`loggrasp synth dataset --store` wrote")
+    check_output_dir(out, "--out")
+    with progress_bar() as bar:
+        task = bar.add_task("chunks", total=None, info="")
+        folder, size = export_training(data, out, max_bytes=int(max_mib * 2 ** 20),
+                                       progress=lambda i, n: bar.update(task, total=n, completed=i))
+    o.say(f"training shards of {data} in {folder}: {size / 2 ** 20:.1f} MiB")
+    o.result("loggrasp.synth-export", {"data": str(data), "out": str(folder), "bytes": size})

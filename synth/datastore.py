@@ -338,10 +338,30 @@ def materialize(store_dir: str | Path, cache_dir: str | Path | None = None,
     return cache
 
 
+#: what a lent GPU machine takes along (its file limit is 64 MiB, with the code)
+EXPORT_BUDGET_BYTES = 60 * 2 ** 20
+
+
+def export_training(store_dir: str | Path, out_dir: str | Path, max_bytes: int = EXPORT_BUDGET_BYTES,
+                    progress: Callable[[int, int], None] | None = None) -> tuple[Path, int]:
+    """The store's training shards rendered into ``out_dir``: an ordinary data set (manifest.json
+    + compressed .npz shards) that :mod:`planner` trains on with numpy and torch alone, so it can
+    travel to a machine without pybullet. Resumable like :func:`materialize` (it is the same
+    cache). Returns the folder and its size in bytes; raises :class:`DatasetJobError` when the
+    export exceeds ``max_bytes`` (the folder stays, complete, for a machine that takes more)."""
+    out = materialize(store_dir, out_dir, progress=progress)
+    size = sum(f.stat().st_size for f in out.iterdir() if f.is_file())
+    if size > max_bytes:
+        raise DatasetJobError(
+            f"the training export in {out} is {size / 2 ** 20:.1f} MiB, over the {max_bytes / 2 ** 20:.0f} MiB "
+            "a device machine takes along; export fewer piles (a smaller store) or raise --max-mib")
+    return out, size
+
+
 def data_folder(path: str | Path) -> Path:
     """The folder a trainer reads: a store is materialised first; any other folder is itself."""
     return materialize(path) if is_store(path) else Path(path)
 
 
-__all__ = ["build_store", "materialize", "data_folder", "open_store", "read_store", "read_chunk",
+__all__ = ["build_store", "materialize", "export_training", "data_folder", "open_store", "read_store", "read_chunk",
            "simulate_chunk", "is_store", "read_manifest"]

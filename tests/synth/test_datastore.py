@@ -116,3 +116,42 @@ def test_missing_listed_chunk(clone):
     chunk_path(clone, 1).unlink()
     with pytest.raises(DatasetIntegrityError, match="missing"):
         open_store(clone)
+
+
+def test_export_trains_on_a_machine_without_pybullet(store, tmp_path):
+    """The export is what a lent GPU machine gets (torch, no pybullet): in a process where
+    ``import pybullet`` fails, the planner lists it, streams it and trains a step on it."""
+    import subprocess
+    import sys
+    import textwrap
+
+    from synth.datastore import export_training
+
+    out, size = export_training(store, tmp_path / "export")
+    assert 0 < size < 2 ** 20 and (out / "manifest.json").exists()
+    code = textwrap.dedent(f"""
+        import sys
+        sys.modules["pybullet"] = None  # any import of pybullet now raises ImportError
+        from planner.data import DataConfig, list_shards
+        from planner.model import UNetConfig
+        from planner.train import TrainConfig, train
+        shards, grid = list_shards({str(out)!r})
+        assert len(shards) == 2 and grid["size_px"] == 32, (shards, grid)
+        cfg = TrainConfig(model=UNetConfig.tiny(), epochs=1, batch_size=2, precision="fp32",
+                          max_steps_per_epoch=1, max_val_batches=1,
+                          data=DataConfig(val_fraction=0.0, shuffle_buffer=4))
+        res = train({str(out)!r}, {str(tmp_path / "run")!r}, cfg)
+        assert res.model_path.exists()
+        assert "pybullet" not in [m for m in sys.modules if sys.modules[m] is not None]
+        print("trained without pybullet")
+    """)
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and "trained without pybullet" in r.stdout, r.stderr[-2000:]
+
+
+def test_export_over_the_device_budget_is_refused(store, tmp_path):
+    from synth.datastore import export_training
+
+    with pytest.raises(DatasetJobError, match="over the 0 MiB a device machine takes"):
+        export_training(store, tmp_path / "export", max_bytes=1000)
+    assert (tmp_path / "export" / "manifest.json").exists()  # the complete export stays
