@@ -252,7 +252,11 @@ def plan_command(
     if pile_json.is_file():
         from synth.pile import read_pile
 
-        read_pile(pile_json)  # a bad pile file stops the command before the network loads
+        spec = read_pile(pile_json)  # a bad pile file stops the command before the network loads
+        if verify is not None:
+            from planner.verify import check_twin_loads
+
+            check_twin_loads(spec)
     vcfg = None
     if verify is not None:
         vcfg = VerifyConfig(k=verify, time_budget_s=budget_s, workers=verify_workers,
