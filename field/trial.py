@@ -360,6 +360,9 @@ def prepare_trial(scan_dir: str | Path, gnss_path: str | Path, work_dir: str | P
         verification = verify_trial_plan(the_plan, pile, options, log_fits, recorded_verification, say)
         if verification.ok:
             best = verification.grasp
+            if options.operator_rank is not None:
+                say(f"the operator's plan rank {options.operator_rank} is not used: plan rank "
+                    f"{verification.chosen.rank + 1} succeeded in the twin and is sent")
         elif options.operator_rank is None:
             raise NotVerified(f"nothing was sent: {verification.reason}; to send a grasp anyway, name its plan "
                               "rank (operator_rank)", verification, the_plan)
