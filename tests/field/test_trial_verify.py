@@ -44,9 +44,15 @@ def outcome(kind: str, grasp, targets, held=None, cos_beta: float = 0.999) -> Tr
                        final_poses=())
 
 
+def pile_print(pile) -> float:
+    """A number in [0, 1) that changes with every log position of ``pile`` (a perturbed copy too)."""
+    return math.fsum(c * (i + 1) for i, lg in enumerate(pile.logs) for c in lg.centre_m) * 1000.0 % 1.0
+
+
 def log3_collides(pile, grasp, targets, cfg):
-    """Every grasp that targets log 3 collides; every other one lifts all its targets."""
-    return outcome("collision" if 3 in targets else "success", grasp, targets)
+    """Every grasp that targets log 3 collides; every other one lifts all its targets, balanced by
+    how the pile lies (so a trial on another pile copy measures another cos beta)."""
+    return outcome("collision" if 3 in targets else "success", grasp, targets, cos_beta=0.95 + 0.04 * pile_print(pile))
 
 
 def everything_collides(pile, grasp, targets, cfg):
@@ -70,7 +76,7 @@ def verified(tmp_path_factory):
     twin(mp, log3_collides)
     rec = tmp_path_factory.mktemp("verified") / "t"
     try:
-        record = run_trial_record(SCAN, GNSS, LINK, rec, options(verify_k=6))
+        record = run_trial_record(SCAN, GNSS, LINK, rec, options(verify_k=6, verify_copies=1))
     finally:
         mp.undo()
     return rec, record
@@ -93,8 +99,11 @@ def test_the_command_carries_the_verified_grasp_not_a_higher_scored_failing_one(
     assert record["chosen_rank"] == v["chosen_rank"] + 1 and record["verified"] is True
     assert record["command"]["target_log_count"] == len(plan[v["chosen_rank"]]["targets"])
     assert record["final_state"] == "SUCCESS"
-    # every trial the twin ran is in the record and in plan/verification.json, the same
+    # every trial the twin ran is in the record and in plan/verification.json, the same; a grasp that
+    # succeeded on the pile was tried on its perturbed copy too
     assert all(c["trials"] for c in cands if c["status"] == "checked")
+    assert all([t["copy"] for t in c["trials"]] == [0, 1] for c in succeeded)
+    assert chosen["trials"][0]["trial"]["cos_beta"] != chosen["trials"][1]["trial"]["cos_beta"]
     assert read_verification(rec / "plan" / "verification.json")["candidates"] == json.loads(
         (rec / "record.json").read_text())["verification"]["candidates"]
 
@@ -120,7 +129,9 @@ def test_replay_says_which_verification_trial_differs_and_exits_5(verified, monk
     out, err = capsys.readouterr()
     doc = json.loads(out)
     assert code == 5 and doc["identical"] is False and doc["verification_differences"]
-    assert all(d.endswith("another result") for d in doc["verification_differences"])
+    diffs = doc["verification_differences"]
+    assert all(d.endswith(("copy 0: another result", "copy 1: not run again")) for d in diffs), diffs
+    assert any(d.endswith("another result") for d in diffs) and any(d.endswith("not run again") for d in diffs)
     line = [ln for ln in err.splitlines() if ln.startswith("error:")]
     assert len(line) == 1 and "differs from the record" in line[0] and "verification rank" in line[0], err
     assert "Traceback" not in err
