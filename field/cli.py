@@ -222,10 +222,41 @@ def crane_config(base_tm, max_reach: float, max_pile_age: float, journal: str | 
 
 
 def _trial_options(objective, model, allow_float, max_pile_age, base_tm, max_reach, capacity, views=1,
-                   view_spread=0.0) -> TrialOptions:
+                   view_spread=0.0, **verify) -> TrialOptions:
+    """The trial's options; ``verify``: the ``TrialOptions.verify_*`` / ``operator_rank`` fields."""
     return TrialOptions(objective=objective, model=None if model is None else str(model), allow_float=allow_float,
                         max_pile_age_s=max_pile_age, crane_base_tm=base_tm, max_reach_m=max_reach,
-                        lift_capacity_kg=capacity, views=views, view_spread_k=view_spread)
+                        lift_capacity_kg=capacity, views=views, view_spread_k=view_spread, **verify)
+
+
+# -- verified planning flags of trial and demo ------------------------------------------------------
+NO_VERIFY = option("--no-verify", "Send without trying the grasps in the twin first (the network's best, or "
+                   "--send-rank).", default=False)
+VERIFY_K = option("--verify", "Grasps the twin tries on the reconstructed pile before one is sent; the best that "
+                  "succeeded there is sent.", field=(TrialOptions, "verify_k"), metavar="K")
+VERIFY_COPIES = option("--verify-copies", "Also try each grasp that succeeded on this many perturbed copies of the "
+                       "reconstruction (its measured uncertainty, per log from how it was fitted).",
+                       field=(TrialOptions, "verify_copies"), min=0, max=64)
+VERIFY_BUDGET = option("--verify-budget", "Wall time for the twin's trials; no trial starts after it and only the "
+                       "grasps checked by then can be sent (0 = no limit).", field=(TrialOptions, "verify_budget_s"),
+                       names=["time_budget_s"])
+VERIFY_WORKERS = option("--verify-workers", "Processes for the twin's trials (0 = all cores, 1 = in this process).",
+                        field=(TrialOptions, "verify_workers"), min=0)
+SEND_RANK = option("--send-rank", "When no grasp succeeded in the twin (or with --no-verify): send plan rank N "
+                   "anyway, the operator's explicit choice, marked NOT VERIFIED.", default=None, min=1, metavar="N",
+                   names=["operator_rank"])
+
+
+def verify_fields(verify: int, no_verify: bool, copies: int, budget: float | None, workers: int,
+                  send_rank: int | None) -> dict:
+    """The ``TrialOptions`` fields of the verification flags, checked (exit 2) before any work."""
+    from planner.cli import check_verify_flags
+
+    if no_verify:
+        return {"verify_k": 0, "operator_rank": send_rank}
+    budget_s = check_verify_flags(verify, budget, off_hint="--no-verify turns verification off")
+    return {"verify_k": verify, "verify_copies": copies, "verify_budget_s": budget_s, "verify_workers": workers,
+            "operator_rank": send_rank}
 
 
 def outcome_words(outcome: dict | None, targets: int | None = None) -> str:
@@ -244,12 +275,20 @@ def outcome_words(outcome: dict | None, targets: int | None = None) -> str:
 def show_plan(prepared) -> None:
     """What the operator confirms: the plan table, the grasp in SWEREF 99 TM, the warnings and
     the pictures (paths that exist)."""
+    from planner.cli import TWIN_COLUMNS, twin_cells
     from synth.cli_common import format_table
 
-    rows = [[str(i + 1), ",".join(map(str, g.targets)), f"{g.quality:.3f}", f"{g.graspability:.3f}",
-             f"{g.balance:.3f}", f"{g.grasp.width_m:.2f}"] for i, g in enumerate(prepared.plan.grasps[:5])]
-    print(format_table("plan: the best grasp of each target subset (#1 is sent; Q quality, U graspability, "
-                       "B balance)", ["#", "targets", "Q", "U", "B", "width m"], rows), file=sys.stderr)
+    v = prepared.verification
+    shown = max([5, prepared.chosen_rank] + ([] if v is None else [c.rank + 1 for c in v.candidates]))
+    rows = [[("*" if g is prepared.best else "") + str(i + 1), ",".join(map(str, g.targets)), f"{g.quality:.3f}",
+             f"{g.graspability:.3f}", f"{g.balance:.3f}", f"{g.grasp.width_m:.2f}"]
+            + ([] if v is None else twin_cells(v, i)) for i, g in enumerate(prepared.plan.grasps[:shown])]
+    what = ("twin: its outcome on the reconstructed pile, held logs, beta" if v is not None
+            else "not tried in the twin")
+    print(format_table(f"plan: the best grasp of each target subset (*{prepared.chosen_rank} is sent; Q quality, "
+                       f"U graspability, B balance; {what})",
+                       ["#", "targets", "Q", "U", "B", "width m"] + ([] if v is None else TWIN_COLUMNS), rows),
+          file=sys.stderr)
     for line in prepared.summary_lines():
         print(("  " if not line.startswith("WARNING") else "") + line, file=sys.stderr)
     plan_dir = Path(prepared.work_dir) / "plan"
@@ -406,7 +445,8 @@ def _result(o: Output, rec: dict, record: Path) -> None:
         "record": str(record), "final_state": rec.get("final_state"), "command_id": rec.get("command_id"),
         "accepted": rec.get("accepted"), "reject_reason": rec.get("reject_reason"), "reason": rec.get("reason"),
         "outcome": rec.get("outcome"), "command": rec.get("command"), "geo": rec.get("geo"),
-        "warnings": rec.get("warnings", [])})
+        "warnings": rec.get("warnings", []), "chosen_rank": rec.get("chosen_rank"), "verified": rec.get("verified"),
+        "verification": rec.get("verification")})
 
 
 def _finish_trial(o: Output, rec: dict, record: Path) -> None:
@@ -447,19 +487,31 @@ def trial_command(
                        default=None, metavar="E,N,H", names=["crane_base_tm"]),
     max_reach: float = MAX_REACH,
     capacity: float = option("--capacity", "Lift capacity.", field=(TrialOptions, "lift_capacity_kg"), min=1.0),
+    verify: int = VERIFY_K,
+    no_verify: bool = NO_VERIFY,
+    verify_copies: int = VERIFY_COPIES,
+    verify_budget: float = VERIFY_BUDGET,
+    verify_workers: int = VERIFY_WORKERS,
+    send_rank: int = SEND_RANK,
     as_json: bool = JSON,
 ) -> None:
-    """Field trial: reconstruct, plan, show, confirm, send, wait for the outcome, record everything.
+    """Field trial: reconstruct, plan, verify in the twin, show, confirm, send, wait for the outcome, record everything.
 
-    The link is checked and the controller reached before the reconstruction. The operator sees
-    the plan table, the warnings and the pictures (in the record's plan/ folder) before saying
-    yes; a trial that is refused, declined, not answered or interrupted still leaves a complete
-    record saying so. Exit 0 only when the grasp succeeded (4: not sent, rejected or failed).
+    The link is checked and the controller reached before the reconstruction. Before anything is
+    shown, the twin tries the plan's best grasps (--verify K) on the reconstructed pile and the
+    best that succeeded there is the one offered; when none did, nothing is sent (exit 4) unless
+    --send-rank N names a plan rank to send anyway. The operator sees the plan table with each
+    tried grasp's twin outcome, the warnings and the pictures (in the record's plan/ folder)
+    before saying yes; a trial that is refused, declined, not answered or interrupted still leaves
+    a complete record saying so, with every verification trial. Exit 0 only when the grasp
+    succeeded (4: not sent, rejected or failed).
 
     \b
     Example: loggrasp trial --scan s3/scan --gnss s3/gnss.csv --link can://virtual/ch0 --record trials/t1
     Example: loggrasp trial --scan s3/scan --gnss s3/gnss.csv --record trials/t2 --yes \\
                --link "twin://?executor=pybullet&pile=s3/truth/pile.json"
+    Example: loggrasp trial --scan s3/scan --gnss s3/gnss.csv --link can://virtual/ch0 --record trials/t3 \\
+               --verify 16 --verify-copies 3 --verify-budget 30
     """
     from dataclasses import replace
 
@@ -476,7 +528,8 @@ def trial_command(
         raise CliError(f"--record {record} already exists; choose a new --record folder")
     check_output_dir(record, "--record")
     check_views(views, view_spread)
-    opts = _trial_options(objective, model, allow_float, max_pile_age, base_tm, max_reach, capacity, views, view_spread)
+    opts = _trial_options(objective, model, allow_float, max_pile_age, base_tm, max_reach, capacity, views, view_spread,
+                          **verify_fields(verify, no_verify, verify_copies, verify_budget, verify_workers, send_rank))
     warning = gnss_crs_warning(gnss)
     if warning:
         o.warn(warning)
@@ -512,10 +565,12 @@ def replay_command(
     realtime: bool = option("--realtime", "Replay the recorded CAN traffic with its original timing.", default=False),
     as_json: bool = JSON,
 ) -> None:
-    """Re-run reconstruction and planning from a trial record; say whether the command is bit-identical.
+    """Re-run reconstruction, planning and verification from a trial record; say whether the command is bit-identical.
 
     The recorded inputs are checked against their sha256 in record.json first; a changed,
-    missing or added input file is named. Exit 0: identical; 5: the re-run differs.
+    missing or added input file is named. Every verification trial the record holds runs again
+    (without the time budget) and must give the same result bit for bit (its times aside). Exit 0:
+    identical; 5: the re-run differs (the command, the plan or a verification trial).
 
     \b
     Example: loggrasp replay trials/t1 --json
@@ -530,6 +585,9 @@ def replay_command(
     check_input(record, "RECORD", "dir")
     parsed = check_link(link) if link is not None else None
     rec = read_record(record)
+    if parsed is not None and rec.get("command") is None:
+        raise CliError(f"--link: {record} sent no command ({rec.get('final_state')}: {rec.get('reason')}); there is "
+                       "nothing to re-send")
     if out is not None:
         check_output_dir(out, "--out")
     if realtime and not (record / "link" / "traffic.blf").exists():
@@ -547,12 +605,18 @@ def replay_command(
     if parsed is not None:
         doc["resent"] = _resend(o, rec, link, parsed, time.time())
     o.result("loggrasp.replay", doc)
+    vtrials = sum(len(c.get("trials", [])) for c in (rec.get("verification") or {}).get("candidates", []))
+    checked = f", and its {vtrials} verification trials" if vtrials else ""
     if result["identical"]:
-        o.say(f"replay of {record}: identical (the command and the plan are bit-identical)")
-    else:
-        what = ", ".join(result["differences"]) or "the plan"
-        o.say(f"replay of {record}: DIFFERS ({what})")
-        raise typer.Exit(EXIT_REPLAY_DIFFERS)
+        what = "the command and the plan" if result["command_sent"] is not None else "the refusal to send, the plan"
+        o.say(f"replay of {record}: identical ({what}{checked} are bit-identical)")
+        return
+    what = list(result["differences"])
+    if result["plan_identical"] is False:
+        what.append("the plan")
+    what += [f"verification {d}" for d in result.get("verification_differences", [])]
+    raise CliError(f"the replay of {record} differs from the record: {'; '.join(what) or 'the plan'}",
+                   EXIT_REPLAY_DIFFERS)
 
 
 def _resend(o: Output, rec: dict, link: str, parsed, now: float) -> dict:
@@ -599,14 +663,18 @@ def demo(
     link: str = option("--link", "Link to the in-process crane twin: can://virtual/CH or zenoh://127.0.0.1:PORT/CRANE.",
                        default="can://virtual/loggrasp-demo", metavar="URL"),
     model: Path = MODEL,
+    no_verify: bool = option("--no-verify", "Send the network's best grasp without trying the best ones in the twin "
+                             "on the reconstruction first.", default=False),
     as_json: bool = JSON,
 ) -> None:
     """The main job on the embedded default: a bundled recorded scan (stereo pair + RTK endpoints)
-    is reconstructed, planned on, sent as a SWEREF 99 TM grasp over simulated CAN to the crane
-    controller twin, executed in pybullet on the true pile, and recorded.
+    is reconstructed, planned on, its best grasps tried in the twin on the reconstruction (unless
+    --no-verify), the best that succeeded there sent as a SWEREF 99 TM grasp over simulated CAN to
+    the crane controller twin, executed in pybullet on the true pile, and recorded.
 
     \b
     Example: loggrasp demo --out out/demo
+    Example: loggrasp demo --out out/demo-unverified --no-verify
     """
     import shutil
     import threading
@@ -663,7 +731,7 @@ def demo(
         raise CliError(f"the crane controller twin did not start on {link} within 30 s", EXIT_LINK)
     try:
         opts = _trial_options("f3", model, False, max_age, base, field_default(ReachEnvelope, "max_reach_m"),
-                              field_default(TrialOptions, "lift_capacity_kg"))
+                              field_default(TrialOptions, "lift_capacity_kg"), **({"verify_k": 0} if no_verify else {}))
 
         def show(prepared) -> bool:
             show_plan(prepared)

@@ -22,11 +22,22 @@ Trial record (``loggrasp.trial-record`` 1.0)::
 Nothing unsafe is sent: no RTK fix (the survey reader refuses float/no-fix points unless
 allowed), a grasp out of reach or over the lift capacity, stale pile data, an operator who does
 not confirm — each stops with a clear :class:`TrialAborted` before anything goes on the link.
+
+Verified planning (``TrialOptions.verify_k`` > 0, the default): before anything is shown or sent,
+the twin tries the plan's best grasps on the reconstructed pile (:mod:`planner.verify`) and the
+command carries the best one that succeeded there. When none did, nothing is sent
+(:class:`NotVerified`, with every candidate's outcome) unless the operator explicitly names a plan
+rank (``operator_rank``); that grasp is then sent marked *not verified* in the summary and the
+record. A verification stopped by its time budget chooses only among the candidates it checked and
+says which those were. The record stores every verification trial (``verification`` in
+``record.json`` and ``plan/verification.json``); :func:`replay_record` runs them again without the
+budget and compares them trial by trial, bit for bit but for their times.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 import tempfile
@@ -42,7 +53,7 @@ from field.link.messages import DEFAULT_MAX_PILE_AGE_S
 from synth.dataset import sha256_file as sha256_of
 
 RECORD_FORMAT = "loggrasp.trial-record"
-RECORD_VERSION = "1.0"
+RECORD_VERSION = "1.1"  # 1.1: verification, chosen_rank, verified (a 1.0 record was never verified)
 
 
 class TrialAborted(FieldError):
@@ -53,9 +64,19 @@ class TrialAborted(FieldError):
     ``"refused"`` (a safety check: stale data, reach, lift capacity, no grasp), ``"declined"``
     (the operator said no or gave no answer) or ``"interrupted"`` (Ctrl-C)."""
 
-    def __init__(self, message: str, kind: str = "refused"):
+    def __init__(self, message: str, kind: str = "refused", verification=None, plan=None):
         super().__init__(message)
         self.kind = kind
+        self.verification = verification  # planner.verify.Verification when the twin's trials ran
+        self.plan = plan  # the planner.inference.Plan those trials were of
+
+
+class NotVerified(TrialAborted):
+    """No grasp the twin checked on the reconstruction succeeded (``verification`` says what each
+    did), and the operator did not name a plan rank to send anyway."""
+
+    def __init__(self, message: str, verification, plan=None) -> None:
+        super().__init__(message, kind="refused", verification=verification, plan=plan)
 
 
 #: why a crane controller rejects a command (``RejectReason`` name -> what to do), for the record
@@ -94,6 +115,13 @@ class TrialOptions:
     wood_density_kg_m3: float = 900.0  # [kg/m³]
     ack_timeout_s: float = 2.0  # [s]
     outcome_timeout_s: float = 120.0  # [s]
+    verify_k: int = 8  # grasps the twin tries on the reconstruction before one is sent [-]; 0 = off
+    verify_copies: int = 0  # perturbed copies of the reconstruction each is also tried on [-]
+    verify_budget_s: float | None = 20.0  # wall time for the twin's trials [s]; None = no limit
+    verify_workers: int = 0  # processes for them; 0 = all cores, 1 = in this process [-]
+    verify_seed: int = 0  # seed of the perturbed copies [-]
+    operator_rank: int | None = None  # plan rank (1 = best) to send when no grasp verified (or
+    # verification is off): the operator's explicit choice [-]
 
     def __post_init__(self) -> None:
         if self.objective not in ("f1", "f2", "f3"):
@@ -105,6 +133,23 @@ class TrialOptions:
         check_views(self.views, self.view_spread_k)
         if not 0 <= self.min_reach_m < self.max_reach_m:
             raise ValueError("need 0 <= min_reach_m < max_reach_m")
+        if isinstance(self.verify_k, bool) or not isinstance(self.verify_k, int) or self.verify_k < 0:
+            raise ValueError(f"verify_k must be a whole number >= 0 (0 = no verification), got {self.verify_k!r}")
+        if self.operator_rank is not None and (isinstance(self.operator_rank, bool) or self.operator_rank < 1):
+            raise ValueError(f"operator_rank is a plan rank (1 = the best), got {self.operator_rank!r}")
+        if self.verify_k:
+            self.verify_config()  # its own checks: a budget too small for one trial, copies, workers
+
+    def verify_config(self, fits: tuple[str, ...] | list[str] = ()):
+        """The :class:`planner.verify.VerifyConfig` of these options; ``fits``: how the
+        reconstruction placed each log (its report's ``fit``), for per-log perturbation sigmas."""
+        from planner.verify import PerturbationConfig, VerifyConfig, perturbation_for_fits
+
+        pert = PerturbationConfig(copies=self.verify_copies, seed=self.verify_seed)
+        if fits:
+            pert = perturbation_for_fits(fits, pert)
+        return VerifyConfig(k=max(1, self.verify_k), time_budget_s=self.verify_budget_s, workers=self.verify_workers,
+                            perturbation=pert)
 
 
 @dataclass
@@ -116,11 +161,47 @@ class PreparedTrial:
     captured_utc_s: float  # when the pile data was captured [s since epoch]
     work_dir: Path
     report: dict = field(default_factory=dict)
+    verification: object | None = None  # planner.verify.Verification; None: verification off
+    chosen: object | None = None  # the PlannedGrasp the command carries; None = the plan's best
+
+    @property
+    def best(self):
+        """The grasp the command carries: the verified one, the operator's choice, or the plan's best."""
+        return self.chosen if self.chosen is not None else self.plan.best
+
+    @property
+    def chosen_rank(self) -> int:
+        """The plan rank (1 = the network's best) of the grasp the command carries."""
+        if self.chosen is None:
+            return 1
+        return next(i for i, g in enumerate(self.plan.grasps) if g is self.best) + 1
+
+    @property
+    def verified(self) -> bool:
+        """Whether the command carries a grasp the twin checked and chose."""
+        v = self.verification
+        return v is not None and v.chosen is not None and v.chosen.planned is self.best
+
+    def verification_lines(self) -> list[str]:
+        """What the twin said about the grasp to be sent, first in the summary."""
+        v = self.verification
+        if v is None:
+            return ["not verified in the twin (verification off)"
+                    + (f"; plan rank {self.chosen_rank}, the operator's choice" if self.chosen_rank != 1 else "")]
+        if self.verified:
+            return [v.reason]
+        rank = self.chosen_rank
+        check = next((c for c in v.candidates if c.rank == rank - 1), None)
+        twin = ("the twin did not try it" if check is None or not check.trials
+                else f"in the twin it ended {check.outcome}" if check.checked
+                else f"its twin trials were cut short ({check.status}, {check.outcome})")
+        return [f"WARNING: NOT VERIFIED: {v.reason}",
+                f"WARNING: sending plan rank {rank}, the operator's explicit choice (--send-rank); {twin}"]
 
     def summary_lines(self) -> list[str]:
-        best = self.plan.best
+        best = self.best
         g = self.geo
-        return [
+        return self.verification_lines() + [
             f"targets: logs {list(best.targets)} ({len(best.targets)} of {self.pile.n_logs})",
             f"quality q={best.quality:.3f}  graspability u={best.graspability:.3f}  balance b={best.balance:.3f}",
             f"SWEREF 99 TM  E {g.easting_m:.3f}  N {g.northing_m:.3f}  h {g.h_ell_m:.3f} m (ellipsoidal)",
@@ -145,7 +226,7 @@ class PreparedTrial:
         fits = self.report.get("log_fits", [])
         words = {"partial": "seen only in part (its radius from the visible top)",
                  "hidden": "hidden under other logs (diameter estimated, no scan points on it)"}
-        return [(i, words[fits[i]]) for i in self.plan.best.targets if i < len(fits) and fits[i] in words]
+        return [(i, words[fits[i]]) for i in self.best.targets if i < len(fits) and fits[i] in words]
 
 
 def captured_time(scan_dir: Path, gnss_path: Path) -> float:
@@ -164,9 +245,59 @@ def captured_time(scan_dir: Path, gnss_path: Path) -> float:
     return max(times) if times else time.time()
 
 
+def verify_trial_plan(the_plan, pile, options: TrialOptions, fits=(), recorded: dict | None = None,
+                      say: Callable[[str], None] | None = None):
+    """The twin's verification of ``the_plan`` on ``pile`` (the reconstruction) with the options'
+    settings (:func:`planner.verify.verify_plan`); ``fits``: the reconstruction's fit class of each
+    log (per-log perturbation sigmas).
+
+    ``recorded`` (a replay): the verification a trial record stores. The trials then run without a
+    time budget and without pruning (so every trial the record holds runs again, whatever order
+    the workers finish in), and the grasp is chosen by the same rule among the candidates the
+    record checked: the record's own decision, reproduced from its own evidence.
+
+    Raises :class:`TrialAborted` (``kind="input"``) for a pile the twin cannot use or a budget that
+    ran out before one candidate was checked (with the trials that did run)."""
+    from dataclasses import replace
+
+    from planner.inference import Objective
+    from planner.verify import (VerificationBudgetError, VerificationError, choose, measured_quality,
+                                verify_plan)
+
+    say = say or (lambda s: None)
+    objective = Objective(kind=options.objective)
+    cfg = options.verify_config(tuple(fits) if len(fits) == pile.n_logs else ())
+    if recorded is not None:
+        cfg = replace(cfg, time_budget_s=None, prune=False)
+    budget = "no time limit" if cfg.time_budget_s is None else f"{cfg.time_budget_s:g} s"
+    copies = f", each also on {cfg.perturbation.copies} perturbed copies" if cfg.perturbation.copies else ""
+    say(f"verifying: the twin tries the best {cfg.k} grasps on the reconstructed pile{copies} ({budget})")
+    try:
+        v = verify_plan(the_plan, pile, objective, cfg)
+    except VerificationBudgetError as exc:
+        n = len(exc.verification.candidates)
+        raise TrialAborted(f"nothing was sent: the verification's time budget (verify_budget_s {cfg.time_budget_s:g} "
+                           f"s) ran out before any of the {n} candidates was checked (one needs a twin trial on the "
+                           "pile and on every perturbed copy); give a larger verify_budget_s, fewer verify_copies or "
+                           "more verify_workers", kind="input", verification=exc.verification, plan=the_plan) from exc
+    except VerificationError as exc:
+        raise TrialAborted(f"verification failed: {exc}", kind="input", plan=the_plan) from exc
+    if recorded is not None:
+        ranks = {c["rank"] for c in recorded.get("candidates", []) if c.get("status") == "checked"}
+        chosen = choose([c for c in v.candidates if c.rank in ranks], objective)
+        v = replace(v, chosen=chosen, chosen_quality=(math.nan if chosen is None
+                                                      else measured_quality(objective, chosen.nominal.result)))
+    say(v.reason)
+    return v
+
+
 def prepare_trial(scan_dir: str | Path, gnss_path: str | Path, work_dir: str | Path, options: TrialOptions,
-                  progress: Callable[[str], None] | None = None, now: float | None = None) -> PreparedTrial:
-    """Reconstruct, plan, convert to SWEREF 99 TM and check safety. Raises :class:`TrialAborted`."""
+                  progress: Callable[[str], None] | None = None, now: float | None = None,
+                  recorded_verification: dict | None = None) -> PreparedTrial:
+    """Reconstruct, plan, verify in the twin, convert to SWEREF 99 TM and check safety. Raises
+    :class:`TrialAborted` (:class:`NotVerified` when no checked grasp succeeded in the twin and
+    the operator named no plan rank). ``recorded_verification``: a replay's recorded verification
+    (:func:`verify_trial_plan`)."""
     from planner.cli import DEFAULT_MODEL
     from planner.constraints import Constraints
     from planner.errors import PlannerError
@@ -214,14 +345,32 @@ def prepare_trial(scan_dir: str | Path, gnss_path: str | Path, work_dir: str | P
                                   wood_density_kg_m3=options.wood_density_kg_m3)
     say("planning: every target subset through the network")
     try:
-        the_plan = plan(obs, planner, Objective(kind=options.objective), constraints, top_k=10, pile=pile)
+        the_plan = plan(obs, planner, Objective(kind=options.objective), constraints,
+                        top_k=max(10, options.verify_k, options.operator_rank or 0), pile=pile)
     except PlannerError as exc:
         raise TrialAborted(f"planning failed: {exc}", kind="input") from exc
     if the_plan.best is None:
         why = "; ".join(f"{r['targets']}: {r['constraint']}" for r in the_plan.rejected[:5])
         raise TrialAborted("no grasp satisfies the constraints (reach, lift capacity, keep-out)"
                            + (f": {why}" if why else ""), kind="refused")
+    log_fits = [log.get("fit", "scan") for log in result.report.get("logs", [])]
+    verification = None
     best = the_plan.best
+    if options.verify_k:
+        verification = verify_trial_plan(the_plan, pile, options, log_fits, recorded_verification, say)
+        if verification.ok:
+            best = verification.grasp
+            if options.operator_rank is not None:
+                say(f"the operator's plan rank {options.operator_rank} is not used: plan rank "
+                    f"{verification.chosen.rank + 1} succeeded in the twin and is sent")
+        elif options.operator_rank is None:
+            raise NotVerified(f"nothing was sent: {verification.reason}; to send a grasp anyway, name its plan "
+                              "rank (operator_rank)", verification, the_plan)
+    if options.operator_rank is not None and (verification is None or not verification.ok):
+        if options.operator_rank > len(the_plan.grasps):
+            raise TrialAborted(f"operator_rank {options.operator_rank}: the plan has only {len(the_plan.grasps)} "
+                               "grasps", kind="input", verification=verification, plan=the_plan)
+        best = the_plan.grasps[options.operator_rank - 1]
     z = float(pile.terrain.height_at(best.grasp.x_m, best.grasp.y_m))
     geo = grasp_to_gnss(best.grasp, pile.georef, z)
     command_fields = {
@@ -233,17 +382,20 @@ def prepare_trial(scan_dir: str | Path, gnss_path: str | Path, work_dir: str | P
     plan_dir = work / "plan"
     plan_dir.mkdir(parents=True, exist_ok=True)
     from planner.pictures import draw_plan
-    from synth.pile import atomic_write_bytes
+    from synth.pile import atomic_write_bytes, dumps_json
 
     atomic_write_bytes(plan_dir / "plan.json", the_plan.to_json().encode())
     draw_plan(obs, the_plan, plan_dir / "plan.png", pile=pile, objective=Objective(kind=options.objective),
               constraints=constraints)
     write_geojson_pair(pile, plan_dir, grasp=best.grasp, plan_extra={"target_logs": list(best.targets)})
     draw_grasp_map(pile, best.grasp, plan_dir / "grasp_map.png", target_logs=best.targets)
+    if verification is not None:
+        atomic_write_bytes(plan_dir / "verification.json", dumps_json(verification.to_dict()).encode())
     return PreparedTrial(pile=pile, plan=the_plan, geo=geo, command_fields=command_fields,
                          captured_utc_s=captured, work_dir=work,
                          report={"pile_age_s": age, "survey_warnings": list(result.report.get("survey_warnings", [])),
-                                 "log_fits": [log.get("fit", "scan") for log in result.report.get("logs", [])]})
+                                 "log_fits": log_fits},
+                         verification=verification, chosen=best)
 
 
 @dataclass
@@ -377,7 +529,7 @@ def run_trial_record(scan_dir: str | Path, gnss_path: str | Path, link_url: str,
     ``KeyboardInterrupt``). ``confirm`` None means already confirmed (``--yes``); it may raise
     :class:`TrialAborted` (e.g. no answer)."""
     from planner.cli import DEFAULT_MODEL
-    from synth.pile import atomic_write_bytes
+    from synth.pile import atomic_write_bytes, json_safe
 
     say = progress or (lambda s: None)
     scan_dir, gnss_path, record_dir = Path(scan_dir), Path(gnss_path), Path(record_dir)
@@ -415,10 +567,18 @@ def run_trial_record(scan_dir: str | Path, gnss_path: str | Path, link_url: str,
         try:
             prepared = prepare_trial(inputs / "scan", inputs / "gnss.csv", tmp, options, progress=say, now=now)
         except TrialAborted as exc:
+            if exc.verification is not None:  # every trial the twin ran, and the plan they were of
+                record["verification"] = json_safe(exc.verification.to_dict())
+            if exc.plan is not None:
+                record["plan"] = json.loads(exc.plan.to_json())
             write(final_state="NOT SENT", reason=str(exc), stopped=exc.kind, finished_utc_s=time.time())
             publish()
             raise
         record["plan"] = json.loads((tmp / "plan" / "plan.json").read_text())
+        record["verification"] = (None if prepared.verification is None
+                                  else json_safe(prepared.verification.to_dict()))
+        record["chosen_rank"] = prepared.chosen_rank
+        record["verified"] = prepared.verified
         record["command"] = prepared.command_fields
         record["geo"] = prepared.geo.to_dict()
         record["pile_age_s"] = prepared.report.get("pile_age_s")
@@ -515,13 +675,22 @@ def changed_inputs(record_dir: str | Path, rec: dict | None = None) -> list[str]
 
 
 def replay_record(record_dir: str | Path, work_dir: str | Path, progress=None) -> dict:
-    """Re-run reconstruction and planning from a record's inputs; compare with what was sent.
+    """Re-run reconstruction, planning and verification from a record's inputs; compare with what
+    was sent and with every verification trial the record stores.
 
     The recorded inputs are checked against their sha256 first (:class:`RecordError` naming the
-    changed file). Returns ``{"identical": bool, "command_sent", "command_replayed",
-    "plan_identical", "differences"}``; a model whose sha256 differs from the record's is a
-    :class:`RecordError` too. The staleness check is judged against
-    the record's own time (the data was fresh then)."""
+    changed file); a model whose sha256 differs from the record's is a :class:`RecordError` too.
+    Returns ``{"identical": bool, "command_sent", "command_replayed", "plan_identical",
+    "differences", "verification_identical", "verification_differences"}``; ``identical`` needs
+    the command, the plan and every recorded verification trial reproduced bit for bit (a trial's
+    wall and CPU times aside). The staleness check is judged against the record's own time (the
+    data was fresh then); the verification runs without the time budget and chooses among the
+    candidates the record checked (:func:`verify_trial_plan`). A record that refused to send
+    because no grasp verified is identical when the replay refuses too, with the same plan and
+    the same trials."""
+    from planner.verify import trial_differences
+    from synth.pile import json_safe
+
     rec = read_record(record_dir)
     if not rec.get("inputs", {}).get("hashes"):
         raise RecordError(f"{record_dir}/record.json lists no input hashes: this record cannot be replayed")
@@ -530,10 +699,15 @@ def replay_record(record_dir: str | Path, work_dir: str | Path, progress=None) -
         more = f" (and {len(changed) - 1} more)" if len(changed) > 1 else ""
         raise RecordError(f"{record_dir}: {changed[0]}{more}"
                           + "; a replay re-runs the recorded inputs: restore them from the original record")
-    if rec.get("command") is None:
+    recorded_v = rec.get("verification")
+    sent = rec.get("command")
+    refused = sent is None and isinstance(recorded_v, dict) and not recorded_v.get("ok")
+    if sent is None and not refused:
         raise RecordError(f"{record_dir}: the trial never got to a command ({rec.get('final_state')}: "
                           f"{rec.get('reason', 'no reason recorded')}); there is nothing to replay")
-    opts = TrialOptions(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in rec["options"].items()})
+    stored = dict(rec["options"])
+    stored.setdefault("verify_k", 0)  # a 1.0 record sent the network's best grasp, unverified
+    opts = TrialOptions(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in stored.items()})
     model = rec.get("model") or {}
     model_changed = bool(model.get("sha256")) and (not Path(model["path"]).exists()
                                                    or sha256_of(Path(model["path"])) != model["sha256"])
@@ -541,13 +715,34 @@ def replay_record(record_dir: str | Path, work_dir: str | Path, progress=None) -
         raise RecordError(f"the model {model['path']} differs from the one the trial used (sha256 in record.json) "
                           "or is gone: a replay needs that checkpoint")
     inputs = Path(record_dir) / "inputs"
-    prepared = prepare_trial(inputs / "scan", inputs / "gnss.csv", work_dir, opts, progress=progress,
-                             now=rec["started_utc_s"])
-    sent = rec.get("command")
+    strip = lambda p: {k: p.get(k) for k in ("grasps", "subsets_evaluated")}  # noqa: E731 - elapsed_s differs
+
+    def verification_diffs(replayed) -> list[str]:
+        if recorded_v is None:
+            return [] if replayed is None else ["the record has no verification; the replay verified"]
+        if replayed is None:
+            return ["the record has a verification; the replay did not verify"]
+        return trial_differences(recorded_v, json_safe(replayed.to_dict()))
+
+    try:
+        prepared = prepare_trial(inputs / "scan", inputs / "gnss.csv", work_dir, opts, progress=progress,
+                                 now=rec["started_utc_s"], recorded_verification=recorded_v if opts.verify_k else None)
+    except NotVerified as exc:
+        vdiff = verification_diffs(exc.verification)
+        plan_same = rec.get("plan") is not None and strip(rec["plan"]) == strip(json.loads(exc.plan.to_json()))
+        diffs = [] if refused else ["no grasp verified on replay: the replay refuses to send"]
+        return {"identical": refused and plan_same and not vdiff, "command_sent": sent, "command_replayed": None,
+                "plan_identical": plan_same, "differences": diffs, "verification_identical": not vdiff,
+                "verification_differences": vdiff}
     again = prepared.command_fields
     plan_again = json.loads((Path(work_dir) / "plan" / "plan.json").read_text())
-    strip = lambda p: {k: p[k] for k in ("grasps", "subsets_evaluated")}  # noqa: E731 - elapsed_s differs
     diffs = [k for k in again if sent is None or sent.get(k) != again[k]]
+    if refused:
+        diffs = [f"the record refused to send (no grasp verified); the replay chose plan rank {prepared.chosen_rank}"]
     plan_same = rec.get("plan") is not None and strip(rec["plan"]) == strip(plan_again)
-    return {"identical": sent is not None and not diffs and plan_same, "command_sent": sent,
-            "command_replayed": again, "plan_identical": plan_same, "differences": diffs}
+    vdiff = verification_diffs(prepared.verification)
+    if rec.get("chosen_rank") is not None and rec["chosen_rank"] != prepared.chosen_rank:
+        diffs.append(f"chosen plan rank {rec['chosen_rank']} in the record, {prepared.chosen_rank} on replay")
+    return {"identical": not refused and not diffs and plan_same and not vdiff, "command_sent": sent,
+            "command_replayed": again, "plan_identical": plan_same, "differences": diffs,
+            "verification_identical": not vdiff, "verification_differences": vdiff}

@@ -11,15 +11,17 @@ from typing import Literal
 
 import typer
 
-from planner.evaluate import EvalConfig
+from planner.evaluate import EvalConfig, PlannerSpec
 from planner.inference import Objective
 from planner.loss import LossWeights
 from planner.model import UNetConfig
 from planner.subsets import SubsetPolicy
 from planner.train import TrainConfig
+from planner.verify import PerturbationConfig, VerifyConfig
 from synth.cli import JSON, WORKERS
 from synth.cli_common import progress_bar
-from synth.cli_common import CliError, Output, check_input, check_output_dir, check_output_file, option
+from synth.cli_common import (EXIT_TRIAL, CliError, Output, check_input, check_output_dir, check_output_file,
+                              field_default, option)
 
 #: The trained default model shipped with loggrasp (safetensors + config in its header).
 DEFAULT_MODEL = Path(__file__).resolve().parent / "weights" / "default.safetensors"
@@ -30,6 +32,55 @@ VIEWS = option("--views", "Dihedral views the planner averages: 1, 2, 4 or 8 (sl
                names=["views"])
 VIEW_SPREAD = option("--view-spread", "Lower U by K x its spread over the views (needs --views > 1).", default=0.0,
                      names=["view_spread_k"], metavar="K")
+
+
+# -- verified planning: flags and table cells shared by plan, trial and demo ---------------------------
+def check_verify_flags(k: int | None, budget_s: float | None, off_hint: str = "") -> float | None:
+    """Fail now (a :class:`CliError`, exit 2) on ``--verify K`` < 1 or a ``--verify-budget`` too
+    small for one twin trial; returns the budget in seconds, None for no limit (0 on the command
+    line). ``off_hint``: how this command turns verification off."""
+    from planner.verify import VerifyConfig
+
+    if k is not None and (isinstance(k, bool) or k < 1):
+        raise CliError(f"--verify {k}: K is how many grasps the twin tries and must be >= 1"
+                       + (f"; {off_hint}" if off_hint else ""))
+    if budget_s is None or budget_s == 0:
+        return None
+    least = VerifyConfig().min_trial_s
+    if not (math.isfinite(budget_s) and budget_s >= least):
+        raise CliError(f"--verify-budget {budget_s:g} s is too small for one twin trial (at least {least:g} s); "
+                       "give more time, or 0 for no limit")
+    return float(budget_s)
+
+
+def budget_message(exc, budget_s: float | None) -> str:
+    """A :class:`planner.verify.VerificationBudgetError` in the flags' words."""
+    n = len(exc.verification.candidates)
+    ran = sum(len(c.trials) for c in exc.verification.candidates)
+    return (f"--verify-budget {budget_s:g} s ran out before any of the {n} candidates was checked ({ran} twin "
+            "trials ran; a candidate needs one on the pile and one on every perturbed copy): give a larger "
+            "--verify-budget, fewer --verify-copies or more --verify-workers")
+
+
+TWIN_COLUMNS = ["twin", "held", "beta deg"]
+
+
+def twin_cells(verification, rank: int) -> list[str]:
+    """The plan table's twin columns for plan rank ``rank`` (0 = best): the outcome of its trial
+    on the pile as given (``*`` marks the chosen grasp; ``pruned`` / ``not_checked`` for one the
+    twin did not finish), the logs it held and the measured load angle beta; empty for a grasp that
+    was no candidate."""
+    c = next((c for c in verification.candidates if c.rank == rank), None)
+    if c is None:
+        return ["", "", ""]
+    chosen = verification.chosen is not None and verification.chosen.rank == rank
+    outcome = c.outcome if c.checked else (c.status if not c.trials else f"{c.status}:{c.outcome}")
+    if c.copies and c.trials:
+        outcome += f" {c.successes}/{c.copies + 1}"
+    held = str(len(c.held)) if c.nominal is not None and c.nominal.result is not None else "-"
+    beta = (f"{math.degrees(math.acos(max(-1.0, min(1.0, c.cos_beta)))):.1f}" if math.isfinite(c.cos_beta)
+            else "-")
+    return [("*" if chosen else "") + outcome, held, beta]
 
 
 def train_command(
@@ -155,12 +206,30 @@ def plan_command(
                               field=(SubsetPolicy, "max_subsets"), min=1),
     views: int = VIEWS,
     view_spread: float = VIEW_SPREAD,
+    verify: int = option("--verify", "Let the twin try the K best grasps on the pile (needs its pile.json) and "
+                         "choose the best that succeeded there; off when not given. Exit 4 when none succeeded.",
+                         default=None, metavar="K"),
+    verify_copies: int = option("--verify-copies", "With --verify: also try each grasp that succeeded on this many "
+                                "perturbed copies of the pile (the reconstruction's uncertainty).",
+                                field=(PerturbationConfig, "copies"), min=0, max=64, names=["verify_copies"]),
+    verify_budget: float = option("--verify-budget", "With --verify: wall time for the twin's trials; no trial "
+                                  "starts after it (0 = no limit).", field=(VerifyConfig, "time_budget_s"),
+                                  names=["verify_budget_s"]),
+    verify_workers: int = option("--verify-workers", "With --verify: processes for the twin's trials (0 = all "
+                                 "cores, 1 = in this process).", default=field_default(VerifyConfig, "workers"),
+                                 min=0, names=["verify_workers"]),
 ) -> None:
     """Plan the best multi-log grasp on a pile: every target subset scored with Q = f(U, tau, B).
+
+    With --verify K the twin tries the K best grasps on the pile itself and the table shows each
+    one's twin outcome, the logs it held and beta; the grasp marked * is the best that succeeded
+    (by the objective computed from what the twin measured). A verification cut short by
+    --verify-budget chooses only among the grasps it checked and says which.
 
     \b
     Example: loggrasp plan piles/pile_00000 --objective f3 --json
     Example: loggrasp plan recon/s3 --objective f3 --png plan.png
+    Example: loggrasp plan piles/pile_00000 --objective f3 --verify 8 --verify-budget 20
     """
     from rich.console import Console
 
@@ -168,33 +237,65 @@ def plan_command(
 
     o = Output(as_json)
     check_views(views, view_spread)
+    budget_s = check_verify_flags(verify, verify_budget)
+    if verify is None and verify_copies:
+        raise CliError("--verify-copies needs --verify K")
     check_input(pile, "PILE")
     path = model or DEFAULT_MODEL
     check_input(path, "--model", "file")
     if png is not None:
         check_output_file(png, "--png", ".png")
-    pile_json = pile if pile.suffix == ".json" else pile / "pile.json"
+    pile_json = pile if pile.suffix == ".json" else pile / "pile.json" if pile.is_dir() else pile.parent / "pile.json"
+    if verify is not None and not pile_json.is_file():
+        raise CliError(f"--verify needs the pile the plan is made on, and {pile} has no pile.json: give a pile "
+                       "folder with its pile.json, or the pile.json itself (in the field: the reconstruction's)")
     if pile_json.is_file():
         from synth.pile import read_pile
 
-        read_pile(pile_json)  # a bad pile file stops the command before the network loads
+        spec = read_pile(pile_json)  # a bad pile file stops the command before the network loads
+        if verify is not None:
+            from planner.verify import check_twin_loads
+
+            check_twin_loads(spec)
+    vcfg = None
+    if verify is not None:
+        vcfg = VerifyConfig(k=verify, time_budget_s=budget_s, workers=verify_workers,
+                            perturbation=PerturbationConfig(copies=verify_copies))
     planner = load_planner(path, views=views, view_spread_k=view_spread)
     obs, spec = load_observation(pile, planner.config, warn=o.warn)
     obj = Objective(kind=objective)
     o.progress(f"planning on {pile}: {obs.n_logs} logs, up to {max_subsets} target subsets x {views} view(s)")
     with Console(stderr=True).status("planning"):
-        result = plan(obs, planner, obj, top_k=top, subsets=SubsetPolicy(max_subsets=max_subsets), pile=spec)
+        result = plan(obs, planner, obj, top_k=top if vcfg is None else max(top, vcfg.k),
+                      subsets=SubsetPolicy(max_subsets=max_subsets), pile=spec)
+    verification = None
+    if vcfg is not None:
+        from planner.verify import VerificationBudgetError, verify_plan
+
+        o.progress(f"verifying: the twin tries the best {vcfg.k} grasps on {pile_json}"
+                   + (f", each also on {verify_copies} perturbed copies" if verify_copies else "")
+                   + (f" ({budget_s:g} s)" if budget_s is not None else " (no time limit)"))
+        try:
+            verification = verify_plan(result, spec, obj, vcfg)
+        except VerificationBudgetError as exc:
+            raise CliError(budget_message(exc, budget_s)) from exc
     if png is not None:
         from planner.pictures import draw_plan
 
         draw_plan(obs, result, png, pile=spec, objective=obj, top=top)
-    o.result("loggrasp.plan", {k: v for k, v in result.to_dict().items() if k != "info"} | {"pile": str(pile)})
+    doc = {k: v for k, v in result.to_dict().items() if k != "info"} | {"pile": str(pile)}
+    if verification is not None:
+        doc["verification"] = verification.to_dict()
+    o.result("loggrasp.plan", doc)
     rows = [[str(i + 1), ",".join(map(str, g.targets)), f"{g.grasp.x_m:.3f}", f"{g.grasp.y_m:.3f}",
              f"{math.degrees(g.grasp.phi_rad):.1f}", f"{g.grasp.width_m:.3f}", f"{g.quality:.3f}",
-             f"{g.graspability:.3f}", f"{g.balance:.3f}"] for i, g in enumerate(result.grasps)]
+             f"{g.graspability:.3f}", f"{g.balance:.3f}"]
+            + ([] if verification is None else twin_cells(verification, i)) for i, g in enumerate(result.grasps)]
     o.table(f"plan for {pile}: {result.subsets_evaluated} target subsets in {result.elapsed_s:.2f} s, "
-            f"objective {objective} (Q = quality, U = graspability, B = balance; pile frame)",
-            ["rank", "targets", "x m", "y m", "phi deg", "width m", "Q", "U", "B"], rows)
+            f"objective {objective} (Q = quality, U = graspability, B = balance; pile frame"
+            + ("; twin: outcome on the pile, * = chosen" if verification is not None else "") + ")",
+            ["rank", "targets", "x m", "y m", "phi deg", "width m", "Q", "U", "B"]
+            + ([] if verification is None else TWIN_COLUMNS), rows)
     if not result.grasps:
         o.say("no grasp: every target subset was removed by a constraint (below)")
     for r in result.rejected:
@@ -202,6 +303,10 @@ def plan_command(
               f"{r['constraint']} ({r['detail']})")
     if png is not None:
         o.say(f"picture: {png}")
+    if verification is not None:
+        if not verification.ok:
+            raise CliError(verification.reason, EXIT_TRIAL)
+        o.say(verification.reason)
 
 
 def eval_command(
@@ -226,6 +331,11 @@ def eval_command(
                                                 metavar="fast|careful"),
     seed_base: int = option("--seed-base", "First test seed (keep far from training seeds).",
                             field=(EvalConfig, "seed_base")),
+    verify: int = option("--verify", "Add a verified U-Net row per objective: its K best grasps tried in the twin on "
+                         "a perturbed copy of each test pile (never the pile itself), the best that succeeded "
+                         "there is the one tried on the pile.", default=None, metavar="K"),
+    verify_copies: int = option("--verify-copies", "With --verify: further perturbed copies each grasp is tried on.",
+                                field=(PlannerSpec, "verify_copies"), min=0, max=64),
     as_json: bool = option("--json", "Print results.json (format loggrasp.eval-results) on standard output.",
                            default=False),
 ) -> None:
@@ -237,7 +347,7 @@ def eval_command(
     """
     import json
 
-    from planner.evaluate import PlannerSpec, run_evaluation
+    from planner.evaluate import run_evaluation
     from synth.jobs import parse_range
 
     o = Output(as_json)
@@ -252,6 +362,12 @@ def eval_command(
     if bad:
         raise CliError(f"--objectives must be a comma-separated list of f1, f2, f3, got {objectives!r}")
     specs = [PlannerSpec("unet", model=path, objective=x) for x in objs]
+    check_verify_flags(verify, None)
+    if verify is not None:
+        specs += [PlannerSpec("unet", model=path, objective=x, verify_k=verify, verify_copies=verify_copies)
+                  for x in objs]
+    elif verify_copies:
+        raise CliError("--verify-copies needs --verify K")
     for item in extra_model:
         label, _, p = item.partition("=")
         if not p or not label:

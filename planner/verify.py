@@ -524,13 +524,21 @@ def check_pile(plan: Plan, pile: PileSpec | None, physics=None) -> None:
     if top >= pile.n_logs:
         raise VerificationError(f"the plan targets log {top} but the pile has {pile.n_logs} logs: it was made on "
                                 "another pile; verify on the pile the plan was made on")
+    check_twin_loads(pile, physics)
+
+
+def check_twin_loads(pile: PileSpec, physics=None) -> None:
+    """:class:`VerificationError` unless the twin can build a world of ``pile`` (e.g. a rock
+    whose vertices are flat has no hull); the message keeps the cause's first line."""
     from synth.world import World
 
     try:
         with World(pile, physics, visuals=False):
             pass
     except Exception as exc:
-        raise VerificationError(f"the twin cannot load the pile ({type(exc).__name__}: {exc}); check the pile "
+        first = (str(exc).strip().splitlines() or [""])[0]
+        first = first if len(first) <= 160 else first[:157] + "..."
+        raise VerificationError(f"the twin cannot load the pile ({type(exc).__name__}: {first}); check the pile "
                                 "file (loggrasp synth render PILE)") from exc
 
 

@@ -34,8 +34,9 @@ EXIT_OK = 0
 EXIT_INTERNAL = 1  # a bug: rerun with --verbose for the traceback and report it
 EXIT_INPUT = 2  # bad input: a flag, a path or a file (the message names it)
 EXIT_LINK = 3  # the crane link: unknown URL, controller unreachable, link failure
-EXIT_TRIAL = 4  # the trial did not succeed: refused before sending, rejected by the crane, failed
-EXIT_REPLAY_DIFFERS = 5  # ``replay``: the re-run plan or command differs from the recorded one
+EXIT_TRIAL = 4  # the trial did not succeed: refused before sending (a safety check, or no grasp succeeded
+# in the twin: also ``plan --verify``), rejected by the crane, failed
+EXIT_REPLAY_DIFFERS = 5  # ``replay``: the re-run plan, command or a verification trial differs from the record
 EXIT_INTERRUPTED = 130  # Ctrl-C
 
 EXIT_CODES = {
@@ -43,8 +44,9 @@ EXIT_CODES = {
     EXIT_INTERNAL: "internal error (a bug: rerun with --verbose for the traceback and report it)",
     EXIT_INPUT: "bad input: a flag, a path or a file (the message names it)",
     EXIT_LINK: "crane link: unknown or malformed URL, controller unreachable, link failure",
-    EXIT_TRIAL: "trial not successful: refused before sending, declined, rejected by the crane, or failed",
-    EXIT_REPLAY_DIFFERS: "replay: the re-run plan or command differs from the recorded one",
+    EXIT_TRIAL: "trial not successful: refused before sending (a safety check, or no grasp succeeded in the twin; "
+                "also plan --verify), declined, rejected by the crane, or failed",
+    EXIT_REPLAY_DIFFERS: "replay: the re-run plan, command or a verification trial differs from the recorded one",
     EXIT_INTERRUPTED: "interrupted (Ctrl-C)",
 }
 

@@ -276,6 +276,46 @@ def test_plan_beside_a_truncated_render(capsys, work, pile_dir):
     fails(cli(capsys, "plan", alone / "ortho.npz"), 2, str(alone / "ortho.npz"), "truncated")
 
 
+def test_plan_verify_tries_the_best_grasps_in_the_twin(capsys, work):
+    """`plan --verify K` on a real pile and the real twin: the JSON carries every candidate's
+    trials, the table the twin columns; exit 4 (no link involved) when none succeeded."""
+    pile = DEMO_DATA / "truth" / "pile.json"
+    r = cli(capsys, "plan", pile, "--objective", "f3", "--verify", "3", "--verify-workers", "1", "--json")
+    d = r.json()
+    v = d["verification"]
+    assert r.code in (0, 4), r.err
+    assert v["format"] == "loggrasp.verification" and v["k"] == 3 and len(v["candidates"]) == 3
+    assert v["ok"] == (r.code == 0) and (v["ok"] or "no checked grasp succeeded" in r.error)
+    assert all(c["trials"] for c in v["candidates"] if c["status"] == "checked")
+    assert len(d["grasps"]) >= 5  # --top's rows, and every candidate's
+    r = cli(capsys, "plan", pile, "--objective", "f3", "--verify", "2", "--verify-workers", "1", "--top", "2")
+    header = next(ln for ln in r.out.splitlines() if ln.startswith("rank"))
+    assert header.split()[-4:] == ["twin", "held", "beta", "deg"], header
+    rows = [ln.split() for ln in r.out.splitlines() if re.match(r"\s*\d+\s+[\d,]+\s", ln)]
+    assert len(rows) == 2 and all(len(row) == 12 for row in rows), r.out
+    assert sum(row[9].startswith("*") for row in rows) == (1 if r.code == 0 else 0)
+    assert ("verified: plan rank" in r.out) == (r.code == 0)
+
+
+def test_plan_verify_bad_input(capsys, work, pile_dir):
+    fails(cli(capsys, "plan", pile_dir, "--verify", "0"), 2, "--verify 0", ">= 1")
+    fails(cli(capsys, "plan", pile_dir, "--verify", "-1"), 2, "--verify -1")
+    fails(cli(capsys, "plan", pile_dir, "--verify", "2", "--verify-budget", "0.05"), 2, "--verify-budget 0.05",
+          "too small for one twin trial")
+    fails(cli(capsys, "plan", pile_dir, "--verify-copies", "2"), 2, "--verify-copies needs --verify")
+    alone = work / "ortho_alone"
+    alone.mkdir(exist_ok=True)
+    shutil.copy(pile_dir / "ortho.npz", alone)
+    fails(cli(capsys, "plan", alone / "ortho.npz", "--verify", "2"), 2, "--verify needs the pile", "no pile.json")
+    fails(cli(capsys, "plan", alone, "--verify", "2"), 2, "--verify needs the pile")
+    # a pile the twin cannot load (a rock whose vertices are flat has no hull): named, before the network
+    d = json.loads((pile_dir / "pile.json").read_text())
+    d["rocks"] = [{"position_m": [0.5, 0.5, 0.0], "orientation": [0.0, 0.0, 0.0, 1.0],
+                   "vertices_m": [[0, 0, 0], [0.3, 0, 0], [0, 0.3, 0], [0.3, 0.3, 0]]}]
+    (work / "flat_rock.json").write_text(json.dumps(d))
+    fails(cli(capsys, "plan", work / "flat_rock.json", "--verify", "2"), 2, "the twin cannot load the pile")
+
+
 # -- eval ---------------------------------------------------------------------------------------------
 @pytest.mark.slow
 def test_eval_tiny_strict_json_and_examples(capsys, work, a_file):
@@ -301,7 +341,8 @@ def test_eval_bad_input(capsys, work, a_file):
                       (["--workers", "-3"], "--workers"), (["--obstacles", "maybe"], "--obstacles"),
                       (["--objectives", "f9"], "--objectives"), (["--baselines", "magic"], "--baselines"),
                       (["--extra-model", "nolabel"], "--extra-model"), (["--logs", "7-2"], "--logs"),
-                      (["--address", "tcp://x:1"], "--address")):
+                      (["--address", "tcp://x:1"], "--address"), (["--verify", "0"], "--verify 0"),
+                      (["--verify-copies", "2"], "--verify-copies needs --verify")):
         fails(cli(capsys, "eval", *bad, "--out", work / "e2"), 2, flag)
     fails(cli(capsys, "eval", "--out", a_file / "e"), 2, "--out", str(a_file))
     assert not (work / "e2").exists()
@@ -403,6 +444,20 @@ def test_demo_record_is_complete(demo_record):
     plan = json.loads((demo_record / "plan" / "plan.json").read_text())
     assert plan["format"] == "loggrasp.plan" and plan["format_version"]
     assert not list(demo_record.parent.glob(".*tmp*"))
+    # verified planning is on by default: the grasp sent is the one the twin chose on the reconstruction
+    v = rec["verification"]
+    assert v["ok"] and v["k"] == 8 and rec["verified"] is True and rec["chosen_rank"] == v["chosen_rank"] + 1
+    assert (demo_record / "plan" / "verification.json").exists()
+
+
+@pytest.mark.slow
+def test_demo_without_verification_sends_the_networks_best(capsys, work):
+    r = cli(capsys, "demo", "--out", work / "demo_nv", "--no-verify", "--json")
+    d = r.json()
+    assert r.code == 0, r.err
+    assert d["final_state"] == "SUCCESS" and d["verification"] is None and d["verified"] is False
+    assert d["chosen_rank"] == 1 and "verification off" in r.err and "verifying" not in r.err
+    assert not (work / "demo_nv" / "trial" / "plan" / "verification.json").exists()
 
 
 def test_demo_bad_input(capsys, work, a_file):
@@ -422,6 +477,8 @@ def test_replay_identical_json_and_no_leaks(capsys, demo_record):
     r = cli(capsys, "replay", demo_record, "--json", "--link", "twin://")  # the README's example
     d = r.json()
     assert r.code == 0 and d["format"] == "loggrasp.replay" and d["identical"] is True
+    assert d["verification_identical"] is True and d["verification_differences"] == []
+    assert "verification trials are bit-identical" in r.err
     assert d["resent"]["outcome"]["class"] == "SUCCESS"  # a plain twin:// takes the old record's command
     assert "replay of" in r.err and "replay of" not in r.out  # progress and words on stderr only
     assert _replay_temp_dirs() <= before, "replay left its temporary folder"
@@ -457,7 +514,13 @@ def test_trial_over_plain_twin_succeeds(twin_trial):
     assert r.code == 0, r.err
     d = r.json()
     assert d["format"] == "loggrasp.trial-result" and d["final_state"] == "SUCCESS"
-    assert "SUCCESS: 4 logs held" in r.err and "{'class'" not in r.err  # words, not a Python dict
+    # verified by default: the command carries the grasp the twin chose on the reconstruction
+    v = d["verification"]
+    assert v["ok"] and v["k"] == 8 and d["verified"] is True and d["chosen_rank"] == v["chosen_rank"] + 1
+    assert "verifying: the twin tries the best 8 grasps" in r.err
+    assert r.err.index("verifying") < r.err.index("sending command")
+    held = d["command"]["target_log_count"]
+    assert f"SUCCESS: {held} logs held" in r.err and "{'class'" not in r.err  # words, not a Python dict
     assert "crane link twin://" in r.err  # the link was reached before the reconstruction
     assert r.err.index("crane link twin://") < r.err.index("reconstructing")
     assert ".tmp" not in r.err  # progress names the record's own folder
@@ -487,6 +550,10 @@ def test_trial_bad_input_fails_before_any_work(capsys, work, a_file):
     fails(cli(capsys, *base, "--link", "zenoh://127.0.0.1:9"), 3, "--link", "zenoh://")
     fails(cli(capsys, *base, "--link", "twin://", "--base", "abc"), 2, "--base")
     fails(cli(capsys, *base, "--link", "twin://", "--objective", "f9"), 2, "--objective")
+    fails(cli(capsys, *base, "--link", "twin://", "--verify", "0"), 2, "--verify 0", "--no-verify")
+    fails(cli(capsys, *base, "--link", "twin://", "--verify-budget", "0.1"), 2, "--verify-budget 0.1",
+          "too small for one twin trial")
+    fails(cli(capsys, *base, "--link", "twin://", "--send-rank", "0"), 2, "--send-rank")
     fails(cli(capsys, "trial", "--scan", SCAN, "--gnss", GNSS, "--record", a_file / "r", "--link", "twin://"), 2,
           "--record", str(a_file))
     fails(cli(capsys, "trial", "--scan", work / "none", "--gnss", GNSS, "--record", rec, "--link", "twin://"), 2,

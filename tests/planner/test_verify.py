@@ -297,3 +297,15 @@ def test_a_written_verification_reads_back_and_a_newer_major_version_is_refused(
     path.write_text(json.dumps({**v.to_dict(), "format_version": "2.0"}))
     with pytest.raises(VerificationError, match="newer"):
         read_verification(path)
+
+
+def test_logs_the_reconstruction_hardly_saw_are_jittered_more():
+    from planner.verify import FIT_SIGMAS_M, perturbation_for_fits
+
+    cfg = perturbation_for_fits(["scan", "partial", "hidden", "what"], PerturbationConfig(copies=2, seed=3))
+    assert cfg.copies == 2 and cfg.seed == 3
+    assert cfg.log_sigmas_m == (FIT_SIGMAS_M["scan"], FIT_SIGMAS_M["partial"], FIT_SIGMAS_M["hidden"],
+                                FIT_SIGMAS_M["hidden"])  # an unknown class counts as the least certain
+    assert FIT_SIGMAS_M["scan"] < FIT_SIGMAS_M["partial"] < FIT_SIGMAS_M["hidden"]
+    with pytest.raises(VerificationError, match="log_sigmas_m gives 4 logs but the pile has 3"):
+        perturb_pile(flat_pile(3), cfg, 1)
