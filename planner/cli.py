@@ -11,6 +11,7 @@ from typing import Literal
 
 import typer
 
+from planner.data import DataConfig
 from planner.evaluate import EvalConfig, PlannerSpec
 from planner.inference import Objective
 from planner.loss import LossWeights
@@ -104,6 +105,9 @@ def train_command(
                                                 field=(TrainConfig, "precision"), metavar="bf16|fp32"),
     max_steps_per_epoch: int = option("--max-steps-per-epoch", "Cap steps per epoch (quick runs).", default=None,
                                       min=1, metavar="INT", names=["max_steps_per_epoch"]),
+    train_fraction: float = option("--train-fraction", "Use this share of the training piles (nested: a learning "
+                                   "curve's smaller shares are subsets of its larger ones; validation unchanged).",
+                                   field=(DataConfig, "train_fraction"), min=0.0, max=1.0),
     as_json: bool = JSON,
 ) -> None:
     """Train the target-conditioned U-Net; re-running the same command resumes from the last checkpoint.
@@ -115,7 +119,7 @@ def train_command(
     """
     from dataclasses import replace
 
-    from planner.data import DataConfig, list_shards
+    from planner.data import list_shards
     from planner.train import train
 
     o = Output(as_json)
@@ -127,7 +131,8 @@ def train_command(
     size = int(grid.get("size_px", UNetConfig().size_px))
     cfg = TrainConfig(model=replace(UNetConfig(), base_channels=base_channels, in_channels=in_ch, size_px=size),
                       loss=replace(LossWeights(), u_pos_weight=u_pos_weight),
-                      data=replace(DataConfig(), in_channels=in_ch), epochs=epochs, batch_size=batch_size,
+                      data=replace(DataConfig(), in_channels=in_ch, train_fraction=train_fraction),
+                      epochs=epochs, batch_size=batch_size,
                       lr=lr, lr_schedule=lr_schedule, seed=seed, device=device, precision=precision,
                       max_steps_per_epoch=max_steps_per_epoch)
     with progress_bar() as bar:

@@ -57,6 +57,15 @@ def is_validation_pile(pile_id, seed: int = 0, val_fraction: float = 0.2) -> boo
     return int.from_bytes(digest, "little") / 2 ** 64 < val_fraction
 
 
+def in_train_fraction(pile_id, seed: int = 0, fraction: float = 1.0) -> bool:
+    """Deterministic, nested choice of training piles: True if ``pile_id`` is among the first
+    ``fraction`` of them (by a hash independent of the validation split's)."""
+    if fraction >= 1.0:
+        return True
+    digest = hashlib.blake2b(f"train-share:{seed}:{pile_id}".encode(), digest_size=8).digest()
+    return int.from_bytes(digest, "little") / 2 ** 64 < fraction
+
+
 def sample_pile_id(sample) -> str:
     """The pile identifier of a :mod:`synth.dataset` sample (its ``pile_id`` attribute or metadata)."""
     for obj in (sample, getattr(sample, "meta", None), getattr(sample, "metadata", None)):
@@ -75,10 +84,14 @@ class DataConfig:
     camera_height_m: float = 5.0  # camera plane above the datum, as rendered [m]
     in_channels: int = 3  # 3 = (I, D, M_T), 2 = (I, M_T)
     shuffle_buffer: int = 256  # samples shuffled together across shards [-]
+    train_fraction: float = 1.0  # share of the training side's piles used (nested: a smaller share
+    # is a subset of a larger one; the validation piles stay the same) [-]
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.val_fraction < 1.0:
             raise ValueError(f"val_fraction must be in [0, 1), got {self.val_fraction}")
+        if not 0.0 < self.train_fraction <= 1.0:
+            raise ValueError(f"train_fraction must be in (0, 1], got {self.train_fraction}")
         if self.in_channels not in (2, 3):
             raise ValueError(f"in_channels must be 2 or 3, got {self.in_channels}")
         if self.shuffle_buffer < 1:
@@ -148,8 +161,11 @@ class ShardStream:
         self.epoch = epoch
 
     def _keep(self, sample) -> bool:
-        val = is_validation_pile(sample_pile_id(sample), self.config.split_seed, self.config.val_fraction)
-        return val if self.split == "val" else not val
+        pile_id = sample_pile_id(sample)
+        val = is_validation_pile(pile_id, self.config.split_seed, self.config.val_fraction)
+        if self.split == "val":
+            return val
+        return not val and in_train_fraction(pile_id, self.config.split_seed, self.config.train_fraction)
 
     def _convert(self, sample, rng) -> tuple[np.ndarray, np.ndarray]:
         inten, depth, mask, maps = sample_arrays(sample)

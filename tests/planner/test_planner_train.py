@@ -47,6 +47,33 @@ def test_split_is_by_pile_and_deterministic(tmp_path):
     assert 0.18 < frac < 0.22
 
 
+def test_train_fraction_takes_nested_shares_of_the_training_piles(tmp_path):
+    """A learning curve's shares: 1/2 of the training piles is a subset of 3/4 of them, the
+    validation side is the same at every share, and the share is about what was asked."""
+    from planner.data import in_train_fraction, load_samples, sample_pile_id
+
+    make_dataset(tmp_path, n_piles=9)
+    shards, _ = list_shards(tmp_path)
+
+    def piles(split, fraction):
+        cfg = DataConfig(val_fraction=0.34, split_seed=1, train_fraction=fraction, shuffle_buffer=1)
+        return {sample_pile_id(s) for s in _samples(ShardStream(shards, split, cfg, AugmentConfig.off()))}
+
+    half, most, full = piles("train", 0.5), piles("train", 0.75), piles("train", 1.0)
+    assert half <= most <= full and len(half) < len(full)
+    assert piles("val", 0.5) == piles("val", 1.0)
+    share = np.mean([in_train_fraction(f"p{i}", 0, 0.25) for i in range(4000)])
+    assert 0.23 < share < 0.27
+    with pytest.raises(ValueError, match="train_fraction"):
+        DataConfig(train_fraction=0.0)
+    assert {sample_pile_id(s) for sh in shards for s in load_samples(sh)} >= full
+
+
+def _samples(stream):
+    """The samples a stream keeps (its own rule, without converting them)."""
+    return [s for sh in stream.shards for s in stream.loader(sh) if stream._keep(s)]
+
+
 def test_depth_normalisation():
     d = np.full((10, 10), 4.9, np.float32)  # ground 0.1 m above datum
     d[2:4] = 4.7  # a log 0.2 m above ground
