@@ -96,6 +96,12 @@ def reconstruct_command(
         if log.get("fit") == "hidden":
             typer.echo(f"log {log['log_id']}: hidden under other logs (no scan points on it): placed on its GNSS "
                        "axis, its diameter estimated; check it before trusting grasps that take it")
+    for k in result.report.get("fusion", {}).get("new_logs", {}):
+        typer.echo(f"log {k}: not in the survey; found in the scan and placed from it alone")
+    for line in result.report.get("weak_ends", []):
+        typer.echo(f"weak estimate: {line}")
+    for line in result.report.get("contradicted_points", []):
+        typer.echo(f"survey point not used: {line}")
     rep = result.report
     reg = rep.get("registration", {})
     line = f"scan pose: {rep.get('scan_pose_source')}; pair poses: {rep.get('pair_poses_source')}"
@@ -107,7 +113,7 @@ def reconstruct_command(
 
 
 #: the per-log report's columns: report key -> column title
-LOG_TABLE = {"log_id": "log", "fit": "fit", "length_m": "length m", "diameter_m": "diam. m",
+LOG_TABLE = {"log_id": "log", "fit": "fit", "end_source": "ends butt/top", "length_m": "length m", "diameter_m": "diam. m",
              "top_diameter_m": "top diam. m", "gnss_residual_a_m": "GNSS res. a m",
              "gnss_residual_b_m": "GNSS res. b m", "rms_m": "fit rms m", "coverage": "coverage",
              "n_points": "points", "moved_m": "moved m"}
@@ -118,6 +124,8 @@ def log_table_row(log: dict) -> list[str]:
     def cell(v) -> str:
         if v is None:
             return "-"
+        if isinstance(v, (list, tuple)):
+            return "/".join(cell(x) for x in v)
         if isinstance(v, float):
             return "-" if v != v else f"{v:.3f}"
         return str(v)

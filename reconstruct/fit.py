@@ -203,7 +203,9 @@ class LogFit:
     axis_shift_m: float  # largest move of the axis end from the GNSS point (perpendicular) [m]
     swapped: bool  # True when end "b" turned out to be the butt (the thicker end)
     moved_m: float = 0.0  # how far it was moved to separate it from other bodies [m]
-    end_source: tuple[str, str] = ("gnss", "gnss")  # butt, top: "gnss" point or "scan" extent
+    end_source: tuple[str, str] = ("gnss", "gnss")  # butt, top: "gnss" point or "scan" extent; with the
+    #                                                 survey fused (fit_pile's place_ends): scan, fixed, float, inferred
+    ends: list[dict] | None = None  # ends a, b as placed (reconstruct.fuse.EndEstimate.to_dict), when fused
     fit: str = "scan"  # "scan": fitted to its points; "partial": seen only in part, a circle through its
     #                    visible top near the survey's axis; "hidden": no points on it (under other logs),
     #                    the survey's axis, as thick as the gap between the ground and the logs over it
@@ -1246,10 +1248,19 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
              cfg: FitConfig | None = None, progress: Callable[[str], None] | None = None,
              georef: Any = None, notes: str = "",
              first_pass: Mapping[str, LogSpec] | None = None,
-             sigmas: Mapping[str, tuple[float, float]] | None = None) -> PileFit:
+             sigmas: Mapping[str, tuple[float, float]] | None = None,
+             place_ends: Callable[[str, LogSpec, str, np.ndarray, bool], tuple[LogSpec, Any]] | None = None,
+             ) -> PileFit:
     """Fit a whole pile to scan ``points`` ((N, 3), pile frame) and GNSS ``endpoints``
-    (``{log_id: (end_a, end_b)}``, pile frame). ``extent_m``: side of the terrain patch,
-    centred on the origin. Returns a :class:`PileFit` whose ``pile`` has ``source="reconstructed"``.
+    (``{log_id: (end_a, end_b)}``, pile frame: where each log is searched for). ``extent_m``: side
+    of the terrain patch, centred on the origin. Returns a :class:`PileFit` whose ``pile`` has
+    ``source="reconstructed"``.
+
+    ``place_ends``: called once every log is placed, before the terrain, with (log id, its
+    LogSpec, how it was placed, the scan points that may lie on it, whether end b is its butt); returns
+    the log with its ends moved and what placed them (two dicts, ends a and b, kept in
+    ``LogFit.ends``; their ``source`` becomes ``LogFit.end_source``) — how
+    :mod:`reconstruct.fuse` places each end from the scan and the survey by their accuracies.
     """
     import time
 
@@ -1380,6 +1391,13 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
         say(f"log {log_id}: seen only in part; axis from GNSS, diameter {fitted[i][1].diameter_m * 100:.1f} cm")
     for i in sorted(hidden):
         place_hidden(i, hidden[i])
+    placed: dict[int, tuple] = {}
+    if place_ends is not None:
+        for i, log_id in enumerate(ids):
+            f, spec, swapped = fitted[i]
+            spec, ends_info = place_ends(log_id, spec, how[i], P[(owner == i) | (owner < 0)], bool(swapped))
+            fitted[i] = (f, spec, swapped)
+            placed[i] = tuple(e if isinstance(e, dict) else e.to_dict() for e in ends_info)
     fits: list[LogFit] = []
     logs: list[LogSpec] = []
     for i, log_id in enumerate(ids):
@@ -1398,6 +1416,15 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
             swapped=bool(swapped), end_source=tuple(reversed(f["end_source"])) if swapped else tuple(f["end_source"]),
             fit=how[i],
         ))
+        if i in placed:
+            lf = fits[-1]
+            lf.ends = [dict(e) for e in placed[i]]
+            srcs = tuple(e["source"] for e in placed[i])
+            lf.end_source = tuple(reversed(srcs)) if swapped else srcs
+            # each survey point's distance from the placed log's axis (NaN: no point)
+            lf.gnss_residual_a_m, lf.gnss_residual_b_m = (
+                float(e.get("gnss_axis_distance_m", math.nan) if e.get("gnss_axis_distance_m") is not None
+                      else math.nan) for e in placed[i])
     timings["logs_s"] = time.perf_counter() - t0
     t1 = time.perf_counter()
     say("fitting terrain")

@@ -66,7 +66,7 @@ def test_missing_unreadable_and_mismatched_inputs(tmp_path):
         read_pair(p)
     p = _write_pair(tmp_path / "nocalib")
     (p / "calibration.yaml").unlink()
-    with pytest.raises(ScanError, match=r"calibration\.yaml is missing"):
+    with pytest.raises(ScanError, match=r"has no calibration: every pair needs calibration\.yaml"):
         read_pair(p)
     # a pair of unrelated noise images: no depth -> a clear error, not an empty pile
     p = tmp_path / "noise"
