@@ -300,11 +300,7 @@ def _profile_circle(sw: np.ndarray, prior_centre: np.ndarray, cfg: FitConfig,
     ds = sb[None, :] - C[:, None]
     fp = np.abs(ds) < R[:, None] - step / 2
     sq = np.sqrt(np.clip(R[:, None] ** 2 - ds ** 2, 0.0, None))
-    import warnings
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # hypotheses with an empty footprint
-        cw = np.nanmedian(np.where(fp, wb[None, :] - sq, np.nan), axis=1)
+    cw = _row_medians(wb[None, :] - sq, fp)
     valid = np.isfinite(cw) & (np.abs(cw - prior_centre[1]) <= cfg.axis_tolerance_m)
     if not valid.any():
         raise FitError("no half-circle near the axis")
@@ -316,6 +312,20 @@ def _profile_circle(sw: np.ndarray, prior_centre: np.ndarray, cfg: FitConfig,
     score = np.where(valid, on.sum(axis=1) - 3 * below.sum(axis=1), -10**9)
     best = int(np.argmax(score))
     return np.array([C[best], cw[best]]), float(R[best]), int(on[best].sum())
+
+
+def _row_medians(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Median of each row's ``values`` where ``mask`` holds (NaN for an empty row): what
+    ``np.nanmedian`` gives on the masked-out values set to NaN, without its slow masked-array path."""
+    v = np.where(mask, values, np.inf)
+    v.sort(axis=1)
+    n = mask.sum(axis=1)
+    rows = np.arange(len(v))
+    lo = v[rows, np.maximum((n - 1) // 2, 0)]
+    hi = v[rows, np.maximum(n // 2, 0)]
+    out = 0.5 * (lo + hi)
+    out[n == 0] = np.nan
+    return out
 
 
 def fit_log(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = None,
@@ -875,12 +885,13 @@ def _hull_holds_a_log(C: np.ndarray, axis_samples: np.ndarray) -> bool:
     """True when the obstacle that the points ``C`` would make (their convex hull down to the
     ground) contains a point of a log's axis: two clusters on either side of a log that make
     such a hull are two obstacles, not one that the log lies across (a log rests on top)."""
-    from scipy.spatial import Delaunay
+    from scipy.spatial import ConvexHull, Delaunay
 
     below = C.copy()
     below[:, 2] = C[:, 2].min() - 0.05
     try:
-        tri = Delaunay(np.vstack([C, below]))
+        pts = np.vstack([C, below])
+        tri = Delaunay(pts[ConvexHull(pts).vertices])  # the hull's vertices span the same region, fast
     except Exception:  # flat or degenerate: no volume, holds nothing
         return False
     return bool((tri.find_simplex(axis_samples) >= 0).any())
@@ -1393,9 +1404,13 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
         place_hidden(i, hidden[i])
     placed: dict[int, tuple] = {}
     if place_ends is not None:
+        specs = [fitted[i][1] for i in range(len(ids))]
         for i, log_id in enumerate(ids):
             f, spec, swapped = fitted[i]
-            spec, ends_info = place_ends(log_id, spec, how[i], P[(owner == i) | (owner < 0)], bool(swapped))
+            # the points on no other log (a neighbour's top where it touches this log's end is not this log)
+            others = [o for j, o in enumerate(specs) if j != i]
+            mine = P[_distance_to_logs(P, others, pad_m=0.0) > cfg.inlier_band_m] if others else P
+            spec, ends_info = place_ends(log_id, spec, how[i], mine, bool(swapped))
             fitted[i] = (f, spec, swapped)
             placed[i] = tuple(e if isinstance(e, dict) else e.to_dict() for e in ends_info)
     fits: list[LogFit] = []

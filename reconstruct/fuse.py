@@ -488,23 +488,26 @@ def match_survey(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]]
         j = pick[i]
         matches[k] = Match(k, j, bool(rev[i, j]) if j is not None else False,
                            float(cost[i, j]) if j is not None else math.nan)
-    # is another matching nearly as good, changing which logs exist (a surveyed log hidden instead of
-    # matched, or matched to a scan log that is otherwise a log of its own)?
+    # is another matching nearly as good that makes another pile? The pile holds the scan logs matched or
+    # long enough to stand alone, and the surveyed logs matched to none (placed from their points); two
+    # matchings that only swap which surveyed log sits on which scan log make the same pile
+    def content(p: list[int | None]) -> tuple[frozenset, frozenset]:
+        used = {j for j in p if j is not None}
+        used |= {j for j in range(n_k) if j not in used and scan_logs[j].seen_m >= cfg.min_new_log_m}
+        return frozenset(used), frozenset(ids[i] for i, j in enumerate(p) if j is None)
+
     taken = {j for j in pick if j is not None}
+    best_content = content(pick)
     for i, k in enumerate(ids):
-        if n_k == 0:
-            break
-        c2 = cost.copy()
-        if pick[i] is not None:
-            c2[i, pick[i]] = math.inf
-        else:
+        if n_k == 0 or pick[i] is None:
             continue
+        c2 = cost.copy()
+        c2[i, pick[i]] = math.inf
         alt, alt_pick = solve(c2)
         delta = alt - best
-        alt_taken = {j for j in alt_pick if j is not None}
         choice = "nothing" if alt_pick[i] is None else f"scan log {alt_pick[i]}"
         matches[k].alternative = f"{choice} (chi2 +{delta:.1f})"
-        if delta < cfg.ambiguity_chi2 and alt_taken != taken:
+        if delta < cfg.ambiguity_chi2 and content(alt_pick) != best_content:
             e = survey[k]
             pts = ", ".join(f"{end} ({p.fix}, +-{p.sigma_h_m * math.sqrt(2) * 100:.0f} cm)"
                             for end, p in zip("ab", e) if p is not None)
@@ -513,8 +516,8 @@ def match_survey(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]]
             other = "being hidden under other logs" if j2 is None else f"the scan's log {_where(scan_logs[j2])}"
             raise AmbiguousSurveyError(
                 f"log {k!r} fits the scan's log {where} and {other} almost equally well (chi2 differs by "
-                f"{delta:.1f}; its points: {pts}): the pile is ambiguous. Re-measure log {k!r}'s ends with an RTK "
-                "fixed solution (or survey the neighbouring logs)")
+                f"{delta:.1f}; its points: {pts}), and the two make different piles. Re-measure log {k!r}'s ends "
+                "with an RTK fixed solution (or survey the neighbouring logs)")
     unmatched = [j for j in range(n_k) if j not in taken]
     return matches, unmatched
 
@@ -630,8 +633,10 @@ def scan_end_interval(points: np.ndarray, p0: np.ndarray, p1: np.ndarray, radius
     # the end is the cut that best separates bins on the log (inside) from bins seen below its top
     # (outside): a stray bin of either kind (a gap seen through at a crossing, another log's top at the
     # same height farther on) does not decide it; bins over it or unseen count for neither
-    inside = np.cumsum(on_k - below_k)
-    outside = np.cumsum((below_k - on_k)[::-1])[::-1]
+    # (seeing the ground through where the log would be is the stronger evidence: it counts threefold)
+    w_below = 3
+    inside = np.cumsum(on_k - w_below * below_k)
+    outside = np.cumsum((w_below * below_k - on_k)[::-1])[::-1]
     score = inside + np.r_[outside[1:], 0]
     score[on_k == 0] = np.iinfo(np.int64).min  # the cut is right after a bin on the log
     j = int(np.argmax(score))

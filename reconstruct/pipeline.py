@@ -52,6 +52,7 @@ from reconstruct.errors import FitError, ReconstructError, RegistrationError, Sc
 from reconstruct.fit import FitConfig, PileFit, fit_log, fit_pile, log_spec_from_fit, natural_key
 from reconstruct.fuse import (
     FuseConfig, SurveyEnd, absorb_pieces, find_scan_logs, match_survey, place_log_ends, point_accuracy, prior_axis,
+    scan_end_interval,
 )
 from reconstruct.sfm import SfmConfig
 from reconstruct.stereo import ScanCloud, StereoConfig, scan_cloud
@@ -146,7 +147,7 @@ class ReconstructConfig:
     #                           "6dof": full rotation (roll about a parallel pile is weakly seen)
     refine_with_scale: bool = False  # let the refinement scale the scan (a stereo baseline error)
     refine_iterations: int = 10  # point-to-line iterations per round [-]
-    refine_rounds: int = 3  # fit logs + estimate the correction, at most this often [-]
+    refine_rounds: int = 3  # kept for old configs: the fits start from the scan's own log axes, one round [-]
     registration_max_sigma_m: float = 0.05  # points less accurate than this (radial) are not in the reported
     #                                         residual RMS; they steer by their accuracy (weight 1/sigma^2) [m]
     registration_robust_sigma: float = 2.5  # Cauchy scale of the registration's normalised residuals [-]
@@ -329,6 +330,21 @@ def refine_registration(points: np.ndarray, endpoints: dict, cfg: ReconstructCon
     G = np.array([e.position_m for _, _, e in targets])
     SH = np.array([e.sigma_h_m for _, _, e in targets])
     SV = np.array([e.sigma_v_m for _, _, e in targets])
+    # where the scan itself sees a surveyed end (its top stops, the scan sees below it): the survey point's
+    # place along the axis counts too, which fixes the shift along parallel logs
+    S = np.full((len(targets), 3), np.nan)
+    SA = np.ones(len(targets))
+    for i, (k, end, e) in enumerate(targets):
+        f = axes[k][2]
+        p0, p1 = f["ends"]
+        r = 0.5 * (f["radius_a_m"] + f["radius_b_m"])
+        iv = scan_end_interval(points, p0, p1, r, toward_p1=(end == "b"), reach_m=cfg.fuse.end_search_m,
+                               cfg=cfg.fuse)
+        if iv.state == "seen":
+            u_k = (p1 - p0) / max(float(np.linalg.norm(p1 - p0)), 1e-9)
+            S[i] = p0 + u_k * 0.5 * (iv.last_on_m + iv.first_off_m)
+            SA[i] = math.hypot(e.sigma_along(u_k), cfg.fuse.scan_end_sigma_m)
+    seen = np.isfinite(S[:, 0])
     directions = np.array([axes[k][1] for k in ids])
     spread = np.degrees(np.arccos(np.clip(np.abs(directions @ directions.T), 0, 1))).max() if len(ids) > 1 else 0.0
     full = len(ids) >= 2 and spread > 10.0
@@ -340,7 +356,8 @@ def refine_registration(points: np.ndarray, endpoints: dict, cfg: ReconstructCon
     sig_rot = math.radians(cfg.scan_pose_sigma_deg)
 
     def point_residuals(x: np.ndarray) -> np.ndarray:
-        """(2 per point) the point's offset from its fitted axis across and up, in sigmas."""
+        """(3 per point) the point's offset from its fitted axis across and up, and along it from the end
+        the scan sees (0 where it sees none), in sigmas."""
         T = _correction(x, mode, with_scale, pivot)
         c = C @ T[:3, :3].T + T[:3, 3]
         u = U @ T[:3, :3].T
@@ -351,7 +368,11 @@ def refine_registration(points: np.ndarray, endpoints: dict, cfg: ReconstructCon
         n_h /= np.maximum(np.linalg.norm(n_h, axis=1, keepdims=True), 1e-9)
         n_v = np.cross(n_h, u)
         s_v = np.sqrt(SH ** 2 * (n_v[:, 0] ** 2 + n_v[:, 1] ** 2) + SV ** 2 * n_v[:, 2] ** 2)
-        return np.column_stack([np.einsum("ij,ij->i", d, n_h) / SH, np.einsum("ij,ij->i", d, n_v) / s_v])
+        along = np.zeros(len(G))
+        if seen.any():
+            s_end = S[seen] @ T[:3, :3].T + T[:3, 3]
+            along[seen] = np.einsum("ij,ij->i", G[seen] - s_end, u[seen]) / SA[seen]
+        return np.column_stack([np.einsum("ij,ij->i", d, n_h) / SH, np.einsum("ij,ij->i", d, n_v) / s_v, along])
 
     def prior(x: np.ndarray) -> np.ndarray:
         r = [x[:n_rot] / sig_rot, x[n_rot:n_rot + 3] / cfg.scan_pose_sigma_m]
@@ -403,7 +424,7 @@ def refine_registration(points: np.ndarray, endpoints: dict, cfg: ReconstructCon
         "residual_rms_after_m": float(np.sqrt(np.mean(after[good] ** 2))),
         "residual_max_after_m": float(after[good].max()),
         "logs_used": ids, "logs_not_fitted": failures, "end_points_used": int(len(targets)),
-        "end_points_precise": int(good.sum()), "weights": {f"{k}.{end}": float(wi) for (k, end, _), wi in zip(targets, w)},
+        "end_points_precise": int(good.sum()), "end_points_seen": int(seen.sum()), "weights": {f"{k}.{end}": float(wi) for (k, end, _), wi in zip(targets, w)},
         "outliers": outliers, "T_correction": T.tolist(),
     }
     fitted = {}
@@ -943,32 +964,15 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
     # registration: the logs the scan and the survey both show, fitted around their scan axes
     matched = {k: m for k, m in matches.items() if m.scan_index is not None and any(survey_ends[k])}
     if cfg.refine and matched:
-        rounds = []
-        best = None
-        for k in range(cfg.refine_rounds):
-            say(f"refining the scan pose against the GNSS end points (round {k + 1})")
-            moved = [s.moved(T_corr) for s in logs_pile]
-            pri = {key: prior_axis(survey_ends[key], moved[m.scan_index], m.reversed, fuse_cfg)[:2]
-                   for key, m in matched.items()}
-            T_k, rep_k, fp_k = refine_registration(apply_T(T_corr, pts[near]), {}, reg_cfg, priors=pri,
-                                                   survey={key: survey_ends[key] for key in matched})
-            rounds.append({key: rep_k[key] for key in (
-                "correction_m", "correction_deg", "residual_rms_before_m", "residual_rms_after_m")})
-            if best is not None and rep_k["residual_rms_after_m"] >= best:
-                rounds[-1]["kept"] = False  # refitting did not help: keep the previous round
-                break
-            rounds[-1]["kept"] = True
-            best = rep_k["residual_rms_after_m"]
-            T_corr, reg_report, first_pass = T_k @ T_corr, rep_k, fp_k
-            if rep_k["correction_m"] < 0.005 and rep_k["correction_deg"] < 0.2:
-                break
-        R = T_corr[:3, :3] / np.cbrt(abs(np.linalg.det(T_corr[:3, :3])))
-        reg_report.update({
-            "rounds": rounds, "T_correction": T_corr.tolist(),
-            "total_correction_m": float(np.linalg.norm(T_corr[:3, 3])),
-            "total_correction_deg": math.degrees(math.acos(float(np.clip((np.trace(R) - 1) / 2, -1, 1)))),
-            "residual_rms_before_m": rounds[0]["residual_rms_before_m"],
-        })
+        # the fits start from the scan's own log axes, which move with the scan: one round (fit, then the
+        # correction) is all; a second would fit the same points the same way
+        say("refining the scan pose against the GNSS end points")
+        pri = {key: prior_axis(survey_ends[key], logs_pile[m.scan_index], m.reversed, fuse_cfg)[:2]
+               for key, m in matched.items()}
+        T_corr, reg_report, first_pass = refine_registration(pts[near], {}, reg_cfg, priors=pri,
+                                                             survey={key: survey_ends[key] for key in matched})
+        reg_report.update({"total_correction_m": reg_report["correction_m"],
+                           "total_correction_deg": reg_report["correction_deg"]})
         pts = apply_T(T_corr, pts)
     timings["registration_s"] = time.perf_counter() - t
     # T_site_scan after refinement: site <- pile <- (corrected) <- scan
