@@ -17,6 +17,8 @@ def scan_command(
     packed: bool = typer.Option(False, "--packed"),
     site: str = typer.Option("64.1,20.0", "--site", help="Site origin LAT,LON (SWEREF 99) [deg], optional ,H [m]."),
     float_fixes: int = typer.Option(2, "--float-fixes", help="Endpoints measured with an RTK float fix only."),
+    unsurveyed: int = typer.Option(0, "--unsurveyed-logs", help="Logs left out of the survey (chosen among those "
+                                   "the scan shows well): a degraded survey."),
     height: float = typer.Option(3.0, "--height", help="Camera height above the pile [m]."),
     hfov: float = typer.Option(50.0, "--hfov", help="Horizontal field of view [deg]."),
     pairs: str = typer.Option("2x2", "--pairs", help="Grid of stereo pairs over the pile, NXxNY (along x across)."),
@@ -30,6 +32,7 @@ def scan_command(
 
     Example: loggrasp synth scan --seed 3 --logs 3-5 --site 64.1,20.0 --out scans/s3
     Unposed (SfM + GNSS georegistration): loggrasp synth scan --seed 3 --unposed --out scans/s3u
+    Degraded survey: loggrasp synth scan --seed 3 --float-fixes 4 --unsurveyed-logs 1 --out scans/s3d
     """
     from reconstruct.twin_scan import DEFAULT_SITE, make_twin_scan
     from synth.errors import SynthError
@@ -48,7 +51,7 @@ def scan_command(
             raise ValueError(f"--pairs must look like 2x2 (1..4 each), got {pairs!r}")
         path = make_twin_scan(out, seed, parse_range(logs, "--logs"), parse_range(obstacles, "--obstacles"),
                               packed=packed, site=site_t, n_float=float_fixes, height_m=height, hfov_deg=hfov,
-                              grid=grid, unposed=unposed, handheld=handheld)
+                              grid=grid, unposed=unposed, handheld=handheld, n_unsurveyed=unsurveyed)
     except (SynthError, ValueError) as exc:
         fail(str(exc))
     typer.echo(f"scan written to {path} (truth in {path / 'truth'})")

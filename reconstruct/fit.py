@@ -6,7 +6,9 @@ scan and the endpoints into that frame first.
 
 Logs
 ----
-The two RTK points of a log give its axis and length. What the points are is a parameter
+The two RTK points of a log give its axis and length (:func:`fit_pile` is given where to look for each
+log: with :mod:`reconstruct.pipeline` the scan's own axis of the log, its ends placed afterwards from
+the scan and the survey by their accuracies, :mod:`reconstruct.fuse`). What the points are is a parameter
 (``FitConfig.endpoint_ref``):
 
 * ``"end_centre"`` (default): the rover pole stood on the centre of each end face — the points
@@ -88,7 +90,9 @@ AXIS_SOURCES = ("fit", "gnss")
 #: strays keeps the first fit; logs hidden under others are placed from their survey. 4: a log
 #: seen only in part gets a circle through its top arc (axis within two sigma of the survey's)
 #: instead of the lower quartile of distances from the survey's axis (diameters 7.5 cm too small).
-FIT_REVISION = 4
+#: 5: logs are fitted around the scan's own axes (:mod:`reconstruct.fuse`), their ends placed from the
+#: scan where it sees them and from the survey where it does not, by their accuracies.
+FIT_REVISION = 5
 
 
 @dataclass(frozen=True)
@@ -1260,7 +1264,7 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
              georef: Any = None, notes: str = "",
              first_pass: Mapping[str, LogSpec] | None = None,
              sigmas: Mapping[str, tuple[float, float]] | None = None,
-             place_ends: Callable[[str, LogSpec, str, np.ndarray, bool], tuple[LogSpec, Any]] | None = None,
+             place_ends: Callable[[str, LogSpec, str, np.ndarray, bool, list], tuple[LogSpec, Any]] | None = None,
              ) -> PileFit:
     """Fit a whole pile to scan ``points`` ((N, 3), pile frame) and GNSS ``endpoints``
     (``{log_id: (end_a, end_b)}``, pile frame: where each log is searched for). ``extent_m``: side
@@ -1268,7 +1272,8 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
     ``source="reconstructed"``.
 
     ``place_ends``: called once every log is placed, before the terrain, with (log id, its
-    LogSpec, how it was placed, the scan points that may lie on it, whether end b is its butt); returns
+    LogSpec, how it was placed, the scan points that may lie on it, whether end b is its butt, the other
+    logs); returns
     the log with its ends moved and what placed them (two dicts, ends a and b, kept in
     ``LogFit.ends``; their ``source`` becomes ``LogFit.end_source``) — how
     :mod:`reconstruct.fuse` places each end from the scan and the survey by their accuracies.
@@ -1410,7 +1415,7 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
             # the points on no other log (a neighbour's top where it touches this log's end is not this log)
             others = [o for j, o in enumerate(specs) if j != i]
             mine = P[_distance_to_logs(P, others, pad_m=0.0) > cfg.inlier_band_m] if others else P
-            spec, ends_info = place_ends(log_id, spec, how[i], mine, bool(swapped))
+            spec, ends_info = place_ends(log_id, spec, how[i], mine, bool(swapped), others)
             fitted[i] = (f, spec, swapped)
             placed[i] = tuple(e if isinstance(e, dict) else e.to_dict() for e in ends_info)
     fits: list[LogFit] = []

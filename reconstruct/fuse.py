@@ -195,8 +195,9 @@ def _height_raster(P: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray, 
     return H, np.isfinite(H), lo
 
 
-def _ridges(H: np.ndarray, have: np.ndarray, cfg: FuseConfig) -> tuple[np.ndarray, np.ndarray]:
-    """Ridge strength (curvature across [1/m], 0 off ridges) and the across direction [rad] per cell."""
+def _ridges(H: np.ndarray, have: np.ndarray, cfg: FuseConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Ridge strength (curvature across [1/m], 0 off ridges), the across direction [rad] per cell, and
+    the heights with empty cells filled from the nearest cell with points."""
     from scipy import ndimage
 
     _, (jy, jx) = ndimage.distance_transform_edt(~have, return_indices=True)
@@ -209,13 +210,14 @@ def _ridges(H: np.ndarray, have: np.ndarray, cfg: FuseConfig) -> tuple[np.ndarra
     half_tr = 0.5 * (hxx + hyy)
     disc = np.sqrt(np.maximum(0.25 * (hxx - hyy) ** 2 + hxy ** 2, 0.0))
     l1, l2 = half_tr - disc, half_tr + disc  # l1 <= l2: across a ridge l1 is strongly negative
-    # observed all around (the curvature's window): the hole fill is flat, and the edge of the data makes
-    # false curvature
-    seen = ndimage.gaussian_filter(have.astype(np.float64), s) > 0.9
+    # observed all around (the curvature's window; single empty cells of a sparse cloud do not count): the
+    # hole fill is flat, and the edge of the data makes false curvature
+    dense = have | ndimage.binary_closing(have, structure=np.ones((3, 3), bool))
+    seen = ndimage.gaussian_filter(dense.astype(np.float64), s) > 0.9
     ridge = seen & (l1 < -cfg.min_curvature_per_m) & (np.abs(l2) < cfg.max_anisotropy * np.abs(l1))
     strength = np.where(ridge, -l1, 0.0)
     along = 0.5 * np.arctan2(2 * hxy, hxx - hyy)  # eigenvector of l2: along the ridge
-    return strength, along + 0.5 * math.pi
+    return strength, along + 0.5 * math.pi, Hf
 
 
 def find_scan_logs(points: np.ndarray, cfg: FuseConfig | None = None) -> list[ScanLog]:
@@ -232,7 +234,7 @@ def find_scan_logs(points: np.ndarray, cfg: FuseConfig | None = None) -> list[Sc
         return []
     cell = cfg.cell_m
     H, have, lo = _height_raster(P, cell)
-    strength, normal = _ridges(H, have, cfg)
+    strength, normal, Hf = _ridges(H, have, cfg)
     ys, xs = np.nonzero(strength > 0)
     if len(xs) < 10:
         return []
@@ -251,9 +253,7 @@ def find_scan_logs(points: np.ndarray, cfg: FuseConfig | None = None) -> list[Sc
     band_px = max(1, int(round(cfg.band_m / cell)))
     max_ang = math.radians(cfg.max_angle_deg)
     min_votes = cfg.min_segment_m / cell * cfg.min_curvature_per_m * 2  # a short line of weak ridge pixels
-    # z of the smoothed heights at ridge pixels (the top line)
-    z_top = ndimage.gaussian_filter(np.where(have, H, np.nan_to_num(H[have].min() if have.any() else 0.0)),
-                                    1.0)[ys, xs]
+    z_top = ndimage.gaussian_filter(Hf, 1.0)[ys, xs]  # heights at the ridge pixels: the top line
     out: list[ScanLog] = []
 
     cos_t, sin_t = np.cos(np.radians(np.arange(n_th))), np.sin(np.radians(np.arange(n_th)))
@@ -424,7 +424,7 @@ def _match_cost(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, c
     n = np.array([-u[1], u[0]])
     best = (math.inf, False)
     for rev in (False, True):
-        total = 0.0
+        total, outliers = 0.0, 0
         for k, e in enumerate(ends):
             if e is None:
                 continue
@@ -442,9 +442,13 @@ def _match_cost(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, c
             inside = max(0.0, min(inside, L) - cfg.ridge_overrun_m) / math.hypot(sh, cfg.ridge_overrun_m)
             c2 = lat * lat + vert * vert + inside * inside
             if lat * lat + vert * vert > cfg.gate_sigma ** 2 or inside > cfg.gate_sigma:
-                total = math.inf
-                break
+                # not on this scan log: a wrong point, if the log's other point is (costs more than the
+                # gate, so a log with no point on a scan log is better matched to none)
+                c2 = cfg.gate_sigma ** 2 + 1.0
+                outliers += 1
             total += c2
+        if outliers and outliers == sum(e is not None for e in ends):
+            total = math.inf
         if total < best[0]:
             best = (total, rev)
     return best
@@ -592,10 +596,13 @@ class EndInterval:
 
 
 def scan_end_interval(points: np.ndarray, p0: np.ndarray, p1: np.ndarray, radius_m: float, toward_p1: bool,
-                      reach_m: float, cfg: FuseConfig | None = None, t_from: float | None = None) -> EndInterval:
+                      reach_m: float, cfg: FuseConfig | None = None, t_from: float | None = None,
+                      others: Sequence[Any] = ()) -> EndInterval:
     """Walk along the log axis ``p0`` -> ``p1`` from its middle (or ``t_from`` [m from p0]) toward
     ``p1`` (``toward_p1``) or ``p0``, up to ``reach_m`` past that end, and find where the log ends
-    (see the module docstring). ``points``: scan points (N, 3), same frame."""
+    (see the module docstring). ``points``: scan points (N, 3), same frame. ``others``: the other logs
+    (:class:`synth.pile.LogSpec`): where the axis would run half a radius into one of them, the log is
+    not (as good as seeing below it)."""
     cfg = cfg or FuseConfig()
     P = np.asarray(points, dtype=np.float64)
     d = np.asarray(p1, float) - np.asarray(p0, float)
@@ -624,6 +631,14 @@ def scan_end_interval(points: np.ndarray, p0: np.ndarray, p1: np.ndarray, radius
     below_thr = -max(0.03, 0.5 * r)
     # the scan sees deeper than the log's top there (two points at least: one stray point is noise)
     below = ~on & (count >= 2) & (top < below_thr)
+    if len(others):
+        q = np.asarray(p0, float)[None, :] + np.outer(lo_t + (np.arange(nb) + 0.5) * step, u)
+        for o in others:
+            a, b = o.endpoints_m()
+            d = b - a
+            tt = np.clip((q - a) @ d / max(float(d @ d), 1e-12), 0.0, 1.0)
+            dist = np.linalg.norm(q - (a + np.outer(tt, d)), axis=1)
+            below |= ~on & (dist < 0.5 * o.mean_diameter_m + 0.5 * r)
     start = (0.5 * L if t_from is None else float(t_from))
     k0 = int(np.clip((start - lo_t) // step, 0, nb - 1))
     ks = np.arange(k0, nb) if toward_p1 else np.arange(k0, -1, -1)
@@ -754,12 +769,13 @@ def fuse_end(p0: np.ndarray, u: np.ndarray, interval: EndInterval, at_start: boo
 
 
 def place_log_ends(points: np.ndarray, spec: Any, how: str, survey: tuple[SurveyEnd | None, SurveyEnd | None],
-                   swapped: bool, lateral_sigma_m: float, cfg: FuseConfig | None = None,
+                   swapped: bool, lateral_sigma_m: float, cfg: FuseConfig | None = None, others: Sequence[Any] = (),
                    ) -> tuple[Any, tuple[EndEstimate, EndEstimate]]:
     """A fitted log (:class:`synth.pile.LogSpec` ``spec``, placed ``how``: "scan", "partial" or
     "hidden") with both ends placed by :func:`fuse_end`, and the two estimates in survey order
     (end a, end b; ``swapped``: end b is the butt). ``points``: the scan points that may lie on it.
-    ``lateral_sigma_m``: how well its axis is known across [m]."""
+    ``lateral_sigma_m``: how well its axis is known across [m]. ``others``: the other logs (a log does
+    not run into one, :func:`scan_end_interval`)."""
     from synth.pile import LogSpec
 
     cfg = cfg or FuseConfig()
@@ -770,11 +786,18 @@ def place_log_ends(points: np.ndarray, spec: Any, how: str, survey: tuple[Survey
     r = 0.5 * spec.mean_diameter_m
     ests = []
     for k, e in enumerate(survey):
-        reach = cfg.end_search_m if e is None else min(max(cfg.end_search_m, 3 * e.sigma_along(u) + 0.1), 1.5)
+        # past the fitted end, as far as the survey point (and three of its sigmas) or, with none, a log
+        # may run on unseen under others
+        if e is None:
+            reach = 2 * cfg.end_search_m
+        else:
+            t_g = float((e.position_m - pa) @ u)
+            beyond = -t_g if k == 0 else t_g - L
+            reach = float(np.clip(beyond + 3 * e.sigma_along(u) + 0.1, cfg.end_search_m, 2.0))
         if how == "hidden":
             iv = EndInterval(None, None, "none")
         else:
-            iv = scan_end_interval(points, pa, pb, r, toward_p1=(k == 1), reach_m=reach, cfg=cfg)
+            iv = scan_end_interval(points, pa, pb, r, toward_p1=(k == 1), reach_m=reach, cfg=cfg, others=others)
         ests.append(fuse_end(pa, u, iv, k == 0, e, lateral_sigma_m, cfg))
     a, b = ests
     for est, e in zip(ests, survey):

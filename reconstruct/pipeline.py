@@ -2,8 +2,9 @@
 
 ``reconstruct(scan_dir, gnss_path, out_dir)`` runs every stage and writes its results:
 
-1. **Survey** (:mod:`reconstruct.gnss`): the log end points, checked (RTK fixed, both ends of
-   every log, no outliers), in the *site frame* (ENU at ``site_origin``).
+1. **Survey** (:mod:`reconstruct.gnss`): the log end points, checked (RTK fixed unless
+   ``allow_float``; no outliers; a log with one end measured is admitted), in the *site frame* (ENU
+   at ``site_origin``), each with its accuracy (:func:`reconstruct.fuse.point_accuracy`).
 2. **Scan** (:mod:`reconstruct.stereo`): the fused point cloud of every pair, in the *scan
    frame* (the frame of the calibrations' ``T_pile_cam``). When the pairs carry no pose (a
    handheld/boom camera without a pose sensor; ``pair_poses``), their poses come from pycolmap
@@ -16,25 +17,35 @@
    (:func:`coarse_scan_pose`: ground plane, yaw and shift search; the site origin is then the
    mean surveyed point, and the refinement below runs in 6 DoF). ``report.json`` names the
    source (``scan_pose_source``: "config", the scan_pose.json path, or "gnss-coarse"). Every
-   GNSS end point must then lie within ``max_endpoint_distance_m`` (horizontally) of
-   scan points — otherwise the scan and the survey are of different places, or a log id is
-   wrong, and the error names the point.
-4. **Registration refinement**: each log is fitted to the scan around its GNSS axis; the rigid
-   transform (open3d's point-to-point estimation, Umeyama's method; scale optional) that brings
-   the fitted axes through the GNSS end points is found by iterating closest points on the
-   axes (point-to-line ICP over the end points); the logs are refitted and this repeated until
-   the correction is negligible (``refine_rounds``). Its size and the residuals before/after are
-   reported; a correction beyond ``max_correction_m`` / ``max_correction_deg`` is an error (the
-   fits start from the GNSS axes, so the given pose must be right to a few centimetres).
-5. **Fit** (:mod:`reconstruct.fit`): logs, terrain and obstacles in the new *pile frame* (the
+   GNSS end point must then lie within ``max_endpoint_distance_m`` (horizontally; four sigma for an
+   imprecise point) of scan points — otherwise the scan and the survey are of different places, or
+   a log id is wrong, and the error names the point.
+4. **Logs in the scan, matched to the survey** (:mod:`reconstruct.fuse`): the logs the scan shows
+   (ridges of its top view), each surveyed log matched to one of them by its points' accuracies;
+   where each log is fitted comes from the scan's axis (and from the survey for a log the scan
+   does not show). A log the survey missed but the scan shows is kept (``scan0``...); geometry two
+   matchings explain nearly equally well is an error naming the logs to re-measure.
+5. **Registration refinement** (:func:`refine_registration`): each matched log is fitted around
+   its scan axis; the correction (4 DoF: yaw + translation, or 6 DoF after a coarse pose; translation
+   only for parallel logs) that brings the fitted axes — and the ends the scan sees — through the
+   survey points, each weighted by its accuracy, robustly (Cauchy), against the prior that the scan
+   pose is right to ``scan_pose_sigma_m`` / ``scan_pose_sigma_deg``. Its size, the residuals and the
+   points it did not believe (``outliers``) are reported; a correction beyond ``max_correction_m`` /
+   ``max_correction_deg`` is an error.
+6. **Fit** (:mod:`reconstruct.fit`): logs, terrain and obstacles in the new *pile frame* (the
    site frame turned about the vertical so the logs' mean direction lies at ``log_direction_deg``
-   when that is set, shifted to the centre of the surveyed logs, at ground level; a square patch
-   of the training images' pixel pitch, :func:`patch_extent`), the pile checked in the twin.
-6. **Outputs** in ``out_dir``: ``pile.json`` (with the site georeference), ``ortho.npz`` (the
+   when that is set, shifted to the centre of the logs, at ground level; a square patch
+   of the training images' pixel pitch, :func:`patch_extent`), each log's ends placed from the scan
+   where it sees them and from the survey where it does not (:func:`reconstruct.fuse.place_log_ends`:
+   per end a source — scan, fixed, float, inferred — and a 1-sigma uncertainty), the pile checked in
+   the twin.
+7. **Outputs** in ``out_dir``: ``pile.json`` (with the site georeference), ``ortho.npz`` (the
    re-render in the training format, :func:`synth.render.render_ortho`), ``preview.png``,
    ``compare.png`` (scan seen from above beside the re-render) and ``report.json``
-   (``loggrasp.reconstruction-report`` 1.0: per log length, diameters, GNSS residuals, fit
-   quality; registration; obstacles; timings).
+   (``loggrasp.reconstruction-report`` 1.2: per log length, diameters, GNSS residuals, fit
+   quality and its ends as placed; the matching (``fusion``); ends on a weak estimate
+   (``weak_ends``) and survey points the scan contradicts (``contradicted_points``); registration;
+   obstacles; timings).
 """
 
 from __future__ import annotations
@@ -153,8 +164,9 @@ class ReconstructConfig:
     registration_robust_sigma: float = 2.5  # Cauchy scale of the registration's normalised residuals [-]
     registration_outlier_sigma: float = 4.0  # a point this many sigma off its fitted axis after it is reported [-]
     registration_prior_sigma_m: float = 0.03  # how far the fitted axis may stray from its prior (scan log) [m]
-    scan_pose_sigma_m: float = 0.05  # the given scan pose is right to this (1 sigma, per axis) [m]
-    scan_pose_sigma_deg: float = 1.0  # ... and its rotation to this [deg]
+    scan_pose_sigma_m: float = 0.03  # the given scan pose (the crane's RTK/IMU camera pose) is right to this
+    #                                  (1 sigma, per axis; the twin's scans are made so) [m]
+    scan_pose_sigma_deg: float = 0.5  # ... and its rotation to this [deg]
     fuse: FuseConfig = field(default_factory=FuseConfig)  # logs found in the scan, matched, their ends placed
     max_correction_m: float = 0.30  # larger refinement translations are an error [m]
     max_correction_deg: float = 5.0  # larger refinement rotations are an error [deg]
@@ -1002,7 +1014,7 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
             del new_ids[k], priors[k]
     lateral = {k: s for k, (_, _, s) in priors.items()}
 
-    def placer(log_id: str, spec, how: str, points: np.ndarray, swapped: bool):
+    def placer(log_id: str, spec, how: str, points: np.ndarray, swapped: bool, others: list):
         ends_k = survey_ends.get(log_id, (None, None))
         if how == "scan":
             sig = 0.005  # a fitted axis: a few millimetres across
@@ -1011,7 +1023,7 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
         else:
             sig = max((e.sigma_h_m for e in ends_k if e is not None), default=lateral[log_id])
         try:
-            return place_log_ends(points, spec, how, ends_k, swapped, sig, fuse_cfg)
+            return place_log_ends(points, spec, how, ends_k, swapped, sig, fuse_cfg, others=others)
         except FitError as exc:
             raise FitError(f"log {log_id!r}: {exc}") from exc
 
