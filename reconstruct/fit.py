@@ -503,6 +503,33 @@ def fit_log(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = 
             end_off[[1, 3]] *= 0.1  # the vertical prior is loose: the radius is not known a priori
         return np.concatenate([res, end_off])
 
+    def jacobian(x):
+        """d residuals / d x, analytically (the residuals are distances from a cylinder's surface)."""
+        v = u0 + x[2] * e1 + x[3] * e2
+        nv = float(np.linalg.norm(v))
+        u = v / nv
+        d = Pm - (x[0] * e1 + x[1] * e2)
+        tt = d @ u
+        perp = d - np.outer(tt, u)
+        rad = np.maximum(np.linalg.norm(perp, axis=1), 1e-12)
+        p1, p2 = perp @ e1, perp @ e2
+        J = np.empty((len(Pm) + 4, 6))
+        J[:-4, 0] = -p1 / rad + x[5] * float(u @ e1)
+        J[:-4, 1] = -p2 / rad + x[5] * float(u @ e2)
+        J[:-4, 2] = -(tt / rad + x[5]) * p1 / nv
+        J[:-4, 3] = -(tt / rad + x[5]) * p2 / nv
+        J[:-4, 4] = -1.0
+        J[:-4, 5] = -tt
+        w_a, w_b = cfg.loss_scale_m / sig_a, cfg.loss_scale_m / sig_b
+        J[-4:] = 0.0
+        J[-4, [0, 2]] = w_b, w_b * L / 2
+        J[-3, [1, 3]] = w_b, w_b * L / 2
+        J[-2, [0, 2]] = w_a, -w_a * L / 2
+        J[-1, [1, 3]] = w_a, -w_a * L / 2
+        if cfg.endpoint_ref == "top_surface":
+            J[[-3, -1]] *= 0.1
+        return J
+
     x0 = x_init.copy()
     x0[4] = float(np.clip(x0[4], cfg.min_radius_m + 1e-6, cfg.max_radius_m - 1e-6))
     r_lo = max(cfg.min_radius_m, x0[4] - cfg.radius_window_m)  # about the profiles' radius
@@ -515,7 +542,7 @@ def fit_log(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = 
         ub = [np.inf] * 4 + [r_hi, 0.2]
     sol = None
     for _ in range(2):  # fit, re-select the band around the fitted surface, refit
-        sol = least_squares(residuals, x0, loss="soft_l1", f_scale=cfg.loss_scale_m,
+        sol = least_squares(residuals, x0, jac=jacobian, loss="soft_l1", f_scale=cfg.loss_scale_m,
                             bounds=(lb, ub), x_scale=[0.01, 0.01, 0.01, 0.01, 0.01, 0.01], max_nfev=60)
         new_sel = select(sol.x)
         if new_sel.size < cfg.min_points:
@@ -1264,7 +1291,7 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
              georef: Any = None, notes: str = "",
              first_pass: Mapping[str, LogSpec] | None = None,
              sigmas: Mapping[str, tuple[float, float]] | None = None,
-             place_ends: Callable[[str, LogSpec, str, np.ndarray, bool, list], tuple[LogSpec, Any]] | None = None,
+             place_ends: Callable[[str, LogSpec, str, np.ndarray, bool], tuple[LogSpec, Any]] | None = None,
              ) -> PileFit:
     """Fit a whole pile to scan ``points`` ((N, 3), pile frame) and GNSS ``endpoints``
     (``{log_id: (end_a, end_b)}``, pile frame: where each log is searched for). ``extent_m``: side
@@ -1272,8 +1299,7 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
     ``source="reconstructed"``.
 
     ``place_ends``: called once every log is placed, before the terrain, with (log id, its
-    LogSpec, how it was placed, the scan points that may lie on it, whether end b is its butt, the other
-    logs); returns
+    LogSpec, how it was placed, the scan points on no other log, whether end b is its butt); returns
     the log with its ends moved and what placed them (two dicts, ends a and b, kept in
     ``LogFit.ends``; their ``source`` becomes ``LogFit.end_source``) — how
     :mod:`reconstruct.fuse` places each end from the scan and the survey by their accuracies.
@@ -1415,7 +1441,7 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
             # the points on no other log (a neighbour's top where it touches this log's end is not this log)
             others = [o for j, o in enumerate(specs) if j != i]
             mine = P[_distance_to_logs(P, others, pad_m=0.0) > cfg.inlier_band_m] if others else P
-            spec, ends_info = place_ends(log_id, spec, how[i], mine, bool(swapped), others)
+            spec, ends_info = place_ends(log_id, spec, how[i], mine, bool(swapped))
             fitted[i] = (f, spec, swapped)
             placed[i] = tuple(e if isinstance(e, dict) else e.to_dict() for e in ends_info)
     fits: list[LogFit] = []

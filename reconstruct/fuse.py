@@ -86,13 +86,15 @@ class FuseConfig:
     #                                   contradicted: reported, not used [-]
     weak_sigma_m: float = 0.05  # an end less certain than this is a weak estimate (warned about) [m]
     inferred_sigma_m: float = 0.30  # uncertainty of an end known only to lie beyond what the scan sees [m]
+    extrapolation_sigma_per_m: float = 0.02  # a fitted axis extended past what the scan shows of its log is
+    #                                          less sure across by this per metre [m/m]
 
     def __post_init__(self) -> None:
         for name in ("cell_m", "ridge_scale_m", "min_curvature_per_m", "band_m", "suppress_m", "max_angle_deg",
                      "max_gap_m", "max_occluded_gap_m", "min_segment_m", "pose_sigma_m", "axis_sigma_m",
                      "radius_sigma_m", "gate_sigma", "ridge_overrun_m",
                      "end_bin_m", "end_search_m", "on_band_m", "scan_end_sigma_m", "contradiction_sigma",
-                     "weak_sigma_m", "inferred_sigma_m", "min_new_log_m"):
+                     "weak_sigma_m", "inferred_sigma_m", "min_new_log_m", "extrapolation_sigma_per_m"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
         if not 0 < self.max_anisotropy < 1:
@@ -596,13 +598,11 @@ class EndInterval:
 
 
 def scan_end_interval(points: np.ndarray, p0: np.ndarray, p1: np.ndarray, radius_m: float, toward_p1: bool,
-                      reach_m: float, cfg: FuseConfig | None = None, t_from: float | None = None,
-                      others: Sequence[Any] = ()) -> EndInterval:
+                      reach_m: float, cfg: FuseConfig | None = None, t_from: float | None = None) -> EndInterval:
     """Walk along the log axis ``p0`` -> ``p1`` from its middle (or ``t_from`` [m from p0]) toward
     ``p1`` (``toward_p1``) or ``p0``, up to ``reach_m`` past that end, and find where the log ends
-    (see the module docstring). ``points``: scan points (N, 3), same frame. ``others``: the other logs
-    (:class:`synth.pile.LogSpec`): where the axis would run half a radius into one of them, the log is
-    not (as good as seeing below it)."""
+    (see the module docstring). ``points``: scan points (N, 3), same frame (without those on other
+    logs: a neighbour's top where it touches this log's end is not this log)."""
     cfg = cfg or FuseConfig()
     P = np.asarray(points, dtype=np.float64)
     d = np.asarray(p1, float) - np.asarray(p0, float)
@@ -631,14 +631,6 @@ def scan_end_interval(points: np.ndarray, p0: np.ndarray, p1: np.ndarray, radius
     below_thr = -max(0.03, 0.5 * r)
     # the scan sees deeper than the log's top there (two points at least: one stray point is noise)
     below = ~on & (count >= 2) & (top < below_thr)
-    if len(others):
-        q = np.asarray(p0, float)[None, :] + np.outer(lo_t + (np.arange(nb) + 0.5) * step, u)
-        for o in others:
-            a, b = o.endpoints_m()
-            d = b - a
-            tt = np.clip((q - a) @ d / max(float(d @ d), 1e-12), 0.0, 1.0)
-            dist = np.linalg.norm(q - (a + np.outer(tt, d)), axis=1)
-            below |= ~on & (dist < 0.5 * o.mean_diameter_m + 0.5 * r)
     start = (0.5 * L if t_from is None else float(t_from))
     k0 = int(np.clip((start - lo_t) // step, 0, nb - 1))
     ks = np.arange(k0, nb) if toward_p1 else np.arange(k0, -1, -1)
@@ -755,7 +747,17 @@ def fuse_end(p0: np.ndarray, u: np.ndarray, interval: EndInterval, at_start: boo
                 t, sa = lo, cfg.inferred_sigma_m
             source = "inferred"
     pos = np.asarray(p0, float) + u * t
-    sigma = math.sqrt(sa ** 2 + 2 * lateral_sigma_m ** 2)
+    # across the axis: the fitted axis, less sure the farther the end lies past what the scan shows of the
+    # log; where the scan does not see the end, a survey point it does not contradict counts by its accuracy
+    lat = lateral_sigma_m + cfg.extrapolation_sigma_per_m * abs(t - lo)
+    if survey is not None and not seen and not contradicted:
+        off = survey.position_m - pos
+        off -= (off @ u) * u  # the point's offset from the axis, across it
+        sg_across = math.sqrt(0.5 * (survey.sigma_h_m ** 2 + survey.sigma_v_m ** 2))
+        w = lat ** 2 / (lat ** 2 + sg_across ** 2)
+        pos = pos + w * off
+        lat = math.sqrt(1.0 / (1.0 / lat ** 2 + 1.0 / sg_across ** 2))
+    sigma = math.sqrt(sa ** 2 + 2 * lat ** 2)
     est = EndEstimate(pos, float(sigma), float(sa), source, interval.state, None if survey is None else survey.fix,
                       contradicted=contradicted)
     if survey is not None:
@@ -769,13 +771,12 @@ def fuse_end(p0: np.ndarray, u: np.ndarray, interval: EndInterval, at_start: boo
 
 
 def place_log_ends(points: np.ndarray, spec: Any, how: str, survey: tuple[SurveyEnd | None, SurveyEnd | None],
-                   swapped: bool, lateral_sigma_m: float, cfg: FuseConfig | None = None, others: Sequence[Any] = (),
+                   swapped: bool, lateral_sigma_m: float, cfg: FuseConfig | None = None,
                    ) -> tuple[Any, tuple[EndEstimate, EndEstimate]]:
     """A fitted log (:class:`synth.pile.LogSpec` ``spec``, placed ``how``: "scan", "partial" or
     "hidden") with both ends placed by :func:`fuse_end`, and the two estimates in survey order
     (end a, end b; ``swapped``: end b is the butt). ``points``: the scan points that may lie on it.
-    ``lateral_sigma_m``: how well its axis is known across [m]. ``others``: the other logs (a log does
-    not run into one, :func:`scan_end_interval`)."""
+    ``lateral_sigma_m``: how well its axis is known across [m]."""
     from synth.pile import LogSpec
 
     cfg = cfg or FuseConfig()
@@ -797,7 +798,7 @@ def place_log_ends(points: np.ndarray, spec: Any, how: str, survey: tuple[Survey
         if how == "hidden":
             iv = EndInterval(None, None, "none")
         else:
-            iv = scan_end_interval(points, pa, pb, r, toward_p1=(k == 1), reach_m=reach, cfg=cfg, others=others)
+            iv = scan_end_interval(points, pa, pb, r, toward_p1=(k == 1), reach_m=reach, cfg=cfg)
         ests.append(fuse_end(pa, u, iv, k == 0, e, lateral_sigma_m, cfg))
     a, b = ests
     for est, e in zip(ests, survey):

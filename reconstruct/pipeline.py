@@ -318,7 +318,7 @@ def refine_registration(points: np.ndarray, endpoints: dict, cfg: ReconstructCon
 
     fcfg = cfg.fit
     survey = survey if survey is not None else _survey_ends_from(endpoints, sigmas)
-    priors = priors if priors is not None else {k: v for k, v in endpoints.items() if None not in v}
+    priors = priors if priors is not None else {k: v for k, v in endpoints.items() if all(p is not None for p in v)}
     axes, failures = {}, {}
     rng = np.random.default_rng(fcfg.seed)
     for log_id in sorted(priors, key=natural_key):
@@ -1014,7 +1014,7 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
             del new_ids[k], priors[k]
     lateral = {k: s for k, (_, _, s) in priors.items()}
 
-    def placer(log_id: str, spec, how: str, points: np.ndarray, swapped: bool, others: list):
+    def placer(log_id: str, spec, how: str, points: np.ndarray, swapped: bool):
         ends_k = survey_ends.get(log_id, (None, None))
         if how == "scan":
             sig = 0.005  # a fitted axis: a few millimetres across
@@ -1023,7 +1023,7 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
         else:
             sig = max((e.sigma_h_m for e in ends_k if e is not None), default=lateral[log_id])
         try:
-            return place_log_ends(points, spec, how, ends_k, swapped, sig, fuse_cfg, others=others)
+            return place_log_ends(points, spec, how, ends_k, swapped, sig, fuse_cfg)
         except FitError as exc:
             raise FitError(f"log {log_id!r}: {exc}") from exc
 
