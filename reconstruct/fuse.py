@@ -78,6 +78,8 @@ class FuseConfig:
     ridge_overrun_m: float = 0.10  # a ridge may run this far past its log's end [m]
     ambiguity_chi2: float = 4.0  # another matching within this summed chi^2 of the best is as good [-]
     end_bin_m: float = 0.02  # bins of the walk along a fitted log [m]
+    seen_gap_m: float = 0.08  # an end whose top stops this close to where the scan sees below it is seen (the
+    #                           gap is the end face's shadow) [m]
     end_search_m: float = 0.6  # the walk goes at most this far past the prior end [m]
     on_band_m: float = 0.02  # a bin is on the log when points lie this close to its top [m]
     min_on_points: int = 2  # ... at least this many [-]
@@ -93,7 +95,7 @@ class FuseConfig:
         for name in ("cell_m", "ridge_scale_m", "min_curvature_per_m", "band_m", "suppress_m", "max_angle_deg",
                      "max_gap_m", "max_occluded_gap_m", "min_segment_m", "pose_sigma_m", "axis_sigma_m",
                      "radius_sigma_m", "gate_sigma", "ridge_overrun_m",
-                     "end_bin_m", "end_search_m", "on_band_m", "scan_end_sigma_m", "contradiction_sigma",
+                     "end_bin_m", "seen_gap_m", "end_search_m", "on_band_m", "scan_end_sigma_m", "contradiction_sigma",
                      "weak_sigma_m", "inferred_sigma_m", "min_new_log_m", "extrapolation_sigma_per_m"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
@@ -651,16 +653,22 @@ def scan_end_interval(points: np.ndarray, p0: np.ndarray, p1: np.ndarray, radius
     beyond = np.flatnonzero(below_k[j + 1:])
     first_off = None if not len(beyond) else int(ks[j + 1 + beyond[0]])
 
-    def edge(k: int, outer: bool) -> float:
-        lo_edge = lo_t + k * step
-        return lo_edge + step if outer == toward_p1 else lo_edge
-
-    t_on = edge(last_on, True)
+    # the last bin on the log ends it at its middle (stereo smears a top a centimetre past its end); the
+    # first bin below begins where it begins
+    t_on = lo_t + (last_on + 0.5) * step
     if first_off is None:
         return EndInterval(t_on, None, "open")
-    t_off = edge(first_off, False)
-    state = "seen" if abs(t_off - t_on) <= 2 * step + 1e-9 else "occluded"
+    t_off = lo_t + (first_off + (0 if toward_p1 else 1)) * step
+    state = "seen" if abs(t_off - t_on) <= cfg.seen_gap_m + 1e-9 else "occluded"
     return EndInterval(t_on, t_off, state)
+
+
+def seen_end(interval: EndInterval, toward_p1: bool, cfg: FuseConfig | None = None) -> float:
+    """Where a seen end lies along the axis [m from p0]: just past the last bin on the log, toward
+    the first bin seen below it."""
+    cfg = cfg or FuseConfig()
+    sign = 1.0 if toward_p1 else -1.0
+    return interval.last_on_m + sign * 0.5 * min(abs(interval.first_off_m - interval.last_on_m), cfg.end_bin_m)
 
 
 @dataclass
@@ -714,10 +722,10 @@ def fuse_end(p0: np.ndarray, u: np.ndarray, interval: EndInterval, at_start: boo
         return EndEstimate(pos, float(sig), float(sg), survey.label, interval.state, survey.fix, res,
                            res / math.sqrt(survey.sigma_3d_m ** 2 + sig ** 2))
     seen = interval.state == "seen"
-    t_s = 0.5 * (lo + hi) if seen else None
     ss = cfg.scan_end_sigma_m
     contradicted = False
-    if seen:
+    if seen:  # the top stops at lo; the scan sees below it a little farther out (hi)
+        t_s = seen_end(interval, not at_start, cfg)
         if survey is not None:
             z = abs(t_g - t_s) / math.hypot(ss, sg)
             if z > cfg.contradiction_sigma:
@@ -731,13 +739,16 @@ def fuse_end(p0: np.ndarray, u: np.ndarray, interval: EndInterval, at_start: boo
         else:
             t, sa, source = t_s, ss, "scan"
     else:
-        # the end lies beyond the last bin on the log (lo), and before hi when the scan sees below there
-        outer = math.inf if hi is None else sign * hi
+        # the end lies past the last bin on the log (lo; the scan's own end of the log, to ss), and short of
+        # hi when the scan sees below the top there (something lay over the end)
         inner = sign * lo
+        outer = math.inf if hi is None else sign * hi
         width = None if hi is None else abs(hi - lo)
-        if survey is not None and inner - cfg.contradiction_sigma * sg <= sign * t_g <= outer + cfg.contradiction_sigma * sg:
-            t = sign * float(np.clip(sign * t_g, inner, outer))
-            sa = sg if width is None else min(sg, width / math.sqrt(12.0))
+        tol = None if survey is None else cfg.contradiction_sigma * math.hypot(sg, ss)
+        if survey is not None and inner - tol <= sign * t_g <= outer + tol:
+            # a point more precise than the scan's bounds stands; a less precise one is kept within them
+            t = t_g if sg <= ss else sign * float(np.clip(sign * t_g, inner, outer))
+            sa = max(min(sg, width / math.sqrt(12.0)) if width is not None else sg, min(sg, ss))
             source = survey.label
         else:
             contradicted = survey is not None
@@ -748,9 +759,9 @@ def fuse_end(p0: np.ndarray, u: np.ndarray, interval: EndInterval, at_start: boo
             source = "inferred"
     pos = np.asarray(p0, float) + u * t
     # across the axis: the fitted axis, less sure the farther the end lies past what the scan shows of the
-    # log; where the scan does not see the end, a survey point it does not contradict counts by its accuracy
+    # log, and a survey point the scan does not contradict, each by its accuracy
     lat = lateral_sigma_m + cfg.extrapolation_sigma_per_m * abs(t - lo)
-    if survey is not None and not seen and not contradicted:
+    if survey is not None and not contradicted:
         off = survey.position_m - pos
         off -= (off @ u) * u  # the point's offset from the axis, across it
         sg_across = math.sqrt(0.5 * (survey.sigma_h_m ** 2 + survey.sigma_v_m ** 2))

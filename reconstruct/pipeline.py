@@ -63,7 +63,7 @@ from reconstruct.errors import FitError, ReconstructError, RegistrationError, Sc
 from reconstruct.fit import FitConfig, PileFit, fit_log, fit_pile, log_spec_from_fit, natural_key
 from reconstruct.fuse import (
     FuseConfig, SurveyEnd, absorb_pieces, find_scan_logs, match_survey, place_log_ends, point_accuracy, prior_axis,
-    scan_end_interval,
+    scan_end_interval, seen_end,
 )
 from reconstruct.sfm import SfmConfig
 from reconstruct.stereo import ScanCloud, StereoConfig, scan_cloud
@@ -354,7 +354,7 @@ def refine_registration(points: np.ndarray, endpoints: dict, cfg: ReconstructCon
                                cfg=cfg.fuse)
         if iv.state == "seen":
             u_k = (p1 - p0) / max(float(np.linalg.norm(p1 - p0)), 1e-9)
-            S[i] = p0 + u_k * 0.5 * (iv.last_on_m + iv.first_off_m)
+            S[i] = p0 + u_k * seen_end(iv, end == "b", cfg.fuse)
             SA[i] = math.hypot(e.sigma_along(u_k), cfg.fuse.scan_end_sigma_m)
     seen = np.isfinite(S[:, 0])
     directions = np.array([axes[k][1] for k in ids])
@@ -1019,7 +1019,7 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
         if how == "scan":
             sig = 0.005  # a fitted axis: a few millimetres across
         elif how == "partial":
-            sig = lateral[log_id]
+            sig = max(lateral[log_id], 0.04)  # seen in part: its axis is a few centimetres sure
         else:
             sig = max((e.sigma_h_m for e in ends_k if e is not None), default=lateral[log_id])
         try:
