@@ -542,7 +542,7 @@ def fit_log(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = 
         ub = [np.inf] * 4 + [r_hi, 0.2]
     sol = None
     for _ in range(2):  # fit, re-select the band around the fitted surface, refit
-        sol = least_squares(residuals, x0, jac=jacobian, loss="soft_l1", f_scale=cfg.loss_scale_m,
+        sol = least_squares(residuals, x0, jac=jacobian, loss="soft_l1", f_scale=cfg.loss_scale_m, tr_solver="lsmr",
                             bounds=(lb, ub), x_scale=[0.01, 0.01, 0.01, 0.01, 0.01, 0.01], max_nfev=60)
         new_sel = select(sol.x)
         if new_sel.size < cfg.min_points:
@@ -1435,12 +1435,12 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
         place_hidden(i, hidden[i])
     placed: dict[int, tuple] = {}
     if place_ends is not None:
-        specs = [fitted[i][1] for i in range(len(ids))]
+        # the points on no other log (a neighbour's top where it touches this log's end is not this log)
+        on_log = [np.abs(_distance_to_logs(P, [fitted[i][1]], pad_m=0.0)) <= cfg.inlier_band_m for i in range(len(ids))]
         for i, log_id in enumerate(ids):
             f, spec, swapped = fitted[i]
-            # the points on no other log (a neighbour's top where it touches this log's end is not this log)
-            others = [o for j, o in enumerate(specs) if j != i]
-            mine = P[_distance_to_logs(P, others, pad_m=0.0) > cfg.inlier_band_m] if others else P
+            others = [m for j, m in enumerate(on_log) if j != i]
+            mine = P[~np.logical_or.reduce(others)] if others else P
             spec, ends_info = place_ends(log_id, spec, how[i], mine, bool(swapped))
             fitted[i] = (f, spec, swapped)
             placed[i] = tuple(e if isinstance(e, dict) else e.to_dict() for e in ends_info)

@@ -374,7 +374,9 @@ def _scan_log_from_run(P: np.ndarray, c: np.ndarray, u: np.ndarray, t0: float, t
     n = np.array([-u[1], u[0]])
     rel = P[:, :2] - c
     t, s = rel @ u, rel @ n
-    near = (t > t0) & (t < t1) & (np.abs(s) < 0.5)
+    near = np.flatnonzero((t > t0) & (t < t1) & (np.abs(s) < 0.4))
+    if len(near) > 4000:  # a profile needs a few thousand points at most
+        near = near[np.linspace(0, len(near) - 1, 4000).astype(np.int64)]
     dz = P[near, 2] - (coef[0] + coef[1] * t[near])
     radius = _profile_radius(s[near], dz)
     if radius is None:
@@ -796,6 +798,13 @@ def place_log_ends(points: np.ndarray, spec: Any, how: str, survey: tuple[Survey
     L = float(np.linalg.norm(pb - pa))
     u = (pb - pa) / max(L, 1e-9)
     r = 0.5 * spec.mean_diameter_m
+    # only the points over the log's line (as far as any walk can reach past its ends) matter
+    P = np.asarray(points, dtype=np.float64)
+    d2 = (pb - pa)[:2]
+    t2 = (P[:, :2] - pa[:2]) @ d2 / max(float(d2 @ d2), 1e-12)
+    across = np.abs((P[:, :2] - pa[:2]) @ np.array([-d2[1], d2[0]])) / max(float(np.linalg.norm(d2)), 1e-12)
+    reach_t = 2.5 / max(float(np.linalg.norm(d2)), 1e-6)
+    points = P[(across < r + 0.05) & (t2 > -reach_t) & (t2 < 1.0 + reach_t)]
     ests = []
     for k, e in enumerate(survey):
         # past the fitted end, as far as the survey point (and three of its sigmas) or, with none, a log
