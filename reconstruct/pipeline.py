@@ -1091,7 +1091,7 @@ def weak_ends(logs: list, cfg: FuseConfig | None = None) -> list[str]:
     for lf in logs:
         for end, e in zip("ab", lf.ends or []):
             if e["sigma_m"] > cfg.weak_sigma_m or e["contradicted"]:
-                out.append(f"log {lf.log_id} end {end}: {e['source']} (scan: {e['scan']}), +-{e['sigma_m'] * 100:.0f} cm")
+                out.append(f"{lf.log_id} end {end}: {e['source']} (scan: {e['scan']}), +-{e['sigma_m'] * 100:.0f} cm")
     return out
 
 
@@ -1101,7 +1101,7 @@ def contradicted_points(logs: list) -> list[str]:
     for lf in logs:
         for end, e in zip("ab", lf.ends or []):
             if e["contradicted"]:
-                out.append(f"log {lf.log_id} end {end} ({e['gnss_fix']}): {e['gnss_residual_m'] * 100:.0f} cm from where "
+                out.append(f"{lf.log_id} end {end} ({e['gnss_fix']}): {e['gnss_residual_m'] * 100:.0f} cm from where "
                            f"the scan puts it ({e['gnss_residual_sigma']:.1f} sigma); check or re-measure it")
     return out
 

@@ -140,7 +140,7 @@ def test_points_the_scan_contradicts_are_reported_and_do_not_drag_the_scan(pile,
     assert rep["registration"]["weights"]["log1.b"] < 0.1
     bad = {(lf["log_id"], end) for lf in rep["logs"] for end, e in zip("ab", lf["ends"]) if e["contradicted"]}
     assert bad == {("log0", "a"), ("log1", "b")}
-    assert len(rep["contradicted_points"]) == 2 and "log log0 end a (rtk_fixed)" in rep["contradicted_points"][0]
+    assert len(rep["contradicted_points"]) == 2 and "log0 end a (rtk_fixed)" in rep["contradicted_points"][0]
 
 
 def _scan_log(x0, x1, y, z=0.08, r=0.08) -> ScanLog:
