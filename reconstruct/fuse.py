@@ -760,10 +760,12 @@ def fuse_end(p0: np.ndarray, u: np.ndarray, interval: EndInterval, at_start: boo
                 t, sa = lo, cfg.inferred_sigma_m
             source = "inferred"
     pos = np.asarray(p0, float) + u * t
-    # across the axis: the fitted axis, less sure the farther the end lies past what the scan shows of the
-    # log, and a survey point the scan does not contradict, each by its accuracy
+    # across the axis: the fitted axis (less sure the farther the end lies past what the scan shows of the
+    # log); for a log the scan shows only in part or not at all, also the survey point, each by its
+    # accuracy (an axis fitted to the scan is better than any survey point: measured, pulling it toward
+    # fixed points by their accuracy cost 0.017 in median mask IoU on test_end_to_end_generated_pile)
     lat = lateral_sigma_m + cfg.extrapolation_sigma_per_m * abs(t - lo)
-    if survey is not None and not contradicted:
+    if survey is not None and not contradicted and lateral_sigma_m >= cfg.axis_sigma_m:
         off = survey.position_m - pos
         off -= (off @ u) * u  # the point's offset from the axis, across it
         sg_across = math.sqrt(0.5 * (survey.sigma_h_m ** 2 + survey.sigma_v_m ** 2))
