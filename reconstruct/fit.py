@@ -6,7 +6,9 @@ scan and the endpoints into that frame first.
 
 Logs
 ----
-The two RTK points of a log give its axis and length. What the points are is a parameter
+The two RTK points of a log give its axis and length (:func:`fit_pile` is given where to look for each
+log: with :mod:`reconstruct.pipeline` the scan's own axis of the log, its ends placed afterwards from
+the scan and the survey by their accuracies, :mod:`reconstruct.fuse`). What the points are is a parameter
 (``FitConfig.endpoint_ref``):
 
 * ``"end_centre"`` (default): the rover pole stood on the centre of each end face — the points
@@ -88,7 +90,9 @@ AXIS_SOURCES = ("fit", "gnss")
 #: strays keeps the first fit; logs hidden under others are placed from their survey. 4: a log
 #: seen only in part gets a circle through its top arc (axis within two sigma of the survey's)
 #: instead of the lower quartile of distances from the survey's axis (diameters 7.5 cm too small).
-FIT_REVISION = 4
+#: 5: logs are fitted around the scan's own axes (:mod:`reconstruct.fuse`), their ends placed from the
+#: scan where it sees them and from the survey where it does not, by their accuracies.
+FIT_REVISION = 5
 
 
 @dataclass(frozen=True)
@@ -203,7 +207,9 @@ class LogFit:
     axis_shift_m: float  # largest move of the axis end from the GNSS point (perpendicular) [m]
     swapped: bool  # True when end "b" turned out to be the butt (the thicker end)
     moved_m: float = 0.0  # how far it was moved to separate it from other bodies [m]
-    end_source: tuple[str, str] = ("gnss", "gnss")  # butt, top: "gnss" point or "scan" extent
+    end_source: tuple[str, str] = ("gnss", "gnss")  # butt, top: "gnss" point or "scan" extent; with the
+    #                                                 survey fused (fit_pile's place_ends): scan, fixed, float, inferred
+    ends: list[dict] | None = None  # ends a, b as placed (reconstruct.fuse.EndEstimate.to_dict), when fused
     fit: str = "scan"  # "scan": fitted to its points; "partial": seen only in part, a circle through its
     #                    visible top near the survey's axis; "hidden": no points on it (under other logs),
     #                    the survey's axis, as thick as the gap between the ground and the logs over it
@@ -298,11 +304,7 @@ def _profile_circle(sw: np.ndarray, prior_centre: np.ndarray, cfg: FitConfig,
     ds = sb[None, :] - C[:, None]
     fp = np.abs(ds) < R[:, None] - step / 2
     sq = np.sqrt(np.clip(R[:, None] ** 2 - ds ** 2, 0.0, None))
-    import warnings
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # hypotheses with an empty footprint
-        cw = np.nanmedian(np.where(fp, wb[None, :] - sq, np.nan), axis=1)
+    cw = _row_medians(wb[None, :] - sq, fp)
     valid = np.isfinite(cw) & (np.abs(cw - prior_centre[1]) <= cfg.axis_tolerance_m)
     if not valid.any():
         raise FitError("no half-circle near the axis")
@@ -314,6 +316,20 @@ def _profile_circle(sw: np.ndarray, prior_centre: np.ndarray, cfg: FitConfig,
     score = np.where(valid, on.sum(axis=1) - 3 * below.sum(axis=1), -10**9)
     best = int(np.argmax(score))
     return np.array([C[best], cw[best]]), float(R[best]), int(on[best].sum())
+
+
+def _row_medians(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Median of each row's ``values`` where ``mask`` holds (NaN for an empty row): what
+    ``np.nanmedian`` gives on the masked-out values set to NaN, without its slow masked-array path."""
+    v = np.where(mask, values, np.inf)
+    v.sort(axis=1)
+    n = mask.sum(axis=1)
+    rows = np.arange(len(v))
+    lo = v[rows, np.maximum((n - 1) // 2, 0)]
+    hi = v[rows, np.maximum(n // 2, 0)]
+    out = 0.5 * (lo + hi)
+    out[n == 0] = np.nan
+    return out
 
 
 def fit_log(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = None,
@@ -487,6 +503,33 @@ def fit_log(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = 
             end_off[[1, 3]] *= 0.1  # the vertical prior is loose: the radius is not known a priori
         return np.concatenate([res, end_off])
 
+    def jacobian(x):
+        """d residuals / d x, analytically (the residuals are distances from a cylinder's surface)."""
+        v = u0 + x[2] * e1 + x[3] * e2
+        nv = float(np.linalg.norm(v))
+        u = v / nv
+        d = Pm - (x[0] * e1 + x[1] * e2)
+        tt = d @ u
+        perp = d - np.outer(tt, u)
+        rad = np.maximum(np.linalg.norm(perp, axis=1), 1e-12)
+        p1, p2 = perp @ e1, perp @ e2
+        J = np.empty((len(Pm) + 4, 6))
+        J[:-4, 0] = -p1 / rad + x[5] * float(u @ e1)
+        J[:-4, 1] = -p2 / rad + x[5] * float(u @ e2)
+        J[:-4, 2] = -(tt / rad + x[5]) * p1 / nv
+        J[:-4, 3] = -(tt / rad + x[5]) * p2 / nv
+        J[:-4, 4] = -1.0
+        J[:-4, 5] = -tt
+        w_a, w_b = cfg.loss_scale_m / sig_a, cfg.loss_scale_m / sig_b
+        J[-4:] = 0.0
+        J[-4, [0, 2]] = w_b, w_b * L / 2
+        J[-3, [1, 3]] = w_b, w_b * L / 2
+        J[-2, [0, 2]] = w_a, -w_a * L / 2
+        J[-1, [1, 3]] = w_a, -w_a * L / 2
+        if cfg.endpoint_ref == "top_surface":
+            J[[-3, -1]] *= 0.1
+        return J
+
     x0 = x_init.copy()
     x0[4] = float(np.clip(x0[4], cfg.min_radius_m + 1e-6, cfg.max_radius_m - 1e-6))
     r_lo = max(cfg.min_radius_m, x0[4] - cfg.radius_window_m)  # about the profiles' radius
@@ -499,7 +542,7 @@ def fit_log(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = 
         ub = [np.inf] * 4 + [r_hi, 0.2]
     sol = None
     for _ in range(2):  # fit, re-select the band around the fitted surface, refit
-        sol = least_squares(residuals, x0, loss="soft_l1", f_scale=cfg.loss_scale_m,
+        sol = least_squares(residuals, x0, jac=jacobian, loss="soft_l1", f_scale=cfg.loss_scale_m, tr_solver="lsmr",
                             bounds=(lb, ub), x_scale=[0.01, 0.01, 0.01, 0.01, 0.01, 0.01], max_nfev=60)
         new_sel = select(sol.x)
         if new_sel.size < cfg.min_points:
@@ -873,12 +916,13 @@ def _hull_holds_a_log(C: np.ndarray, axis_samples: np.ndarray) -> bool:
     """True when the obstacle that the points ``C`` would make (their convex hull down to the
     ground) contains a point of a log's axis: two clusters on either side of a log that make
     such a hull are two obstacles, not one that the log lies across (a log rests on top)."""
-    from scipy.spatial import Delaunay
+    from scipy.spatial import ConvexHull, Delaunay
 
     below = C.copy()
     below[:, 2] = C[:, 2].min() - 0.05
     try:
-        tri = Delaunay(np.vstack([C, below]))
+        pts = np.vstack([C, below])
+        tri = Delaunay(pts[ConvexHull(pts).vertices])  # the hull's vertices span the same region, fast
     except Exception:  # flat or degenerate: no volume, holds nothing
         return False
     return bool((tri.find_simplex(axis_samples) >= 0).any())
@@ -1246,10 +1290,19 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
              cfg: FitConfig | None = None, progress: Callable[[str], None] | None = None,
              georef: Any = None, notes: str = "",
              first_pass: Mapping[str, LogSpec] | None = None,
-             sigmas: Mapping[str, tuple[float, float]] | None = None) -> PileFit:
+             sigmas: Mapping[str, tuple[float, float]] | None = None,
+             place_ends: Callable[[str, LogSpec, str, np.ndarray, bool], tuple[LogSpec, Any]] | None = None,
+             ) -> PileFit:
     """Fit a whole pile to scan ``points`` ((N, 3), pile frame) and GNSS ``endpoints``
-    (``{log_id: (end_a, end_b)}``, pile frame). ``extent_m``: side of the terrain patch,
-    centred on the origin. Returns a :class:`PileFit` whose ``pile`` has ``source="reconstructed"``.
+    (``{log_id: (end_a, end_b)}``, pile frame: where each log is searched for). ``extent_m``: side
+    of the terrain patch, centred on the origin. Returns a :class:`PileFit` whose ``pile`` has
+    ``source="reconstructed"``.
+
+    ``place_ends``: called once every log is placed, before the terrain, with (log id, its
+    LogSpec, how it was placed, the scan points on no other log, whether end b is its butt); returns
+    the log with its ends moved and what placed them (two dicts, ends a and b, kept in
+    ``LogFit.ends``; their ``source`` becomes ``LogFit.end_source``) — how
+    :mod:`reconstruct.fuse` places each end from the scan and the survey by their accuracies.
     """
     import time
 
@@ -1380,6 +1433,17 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
         say(f"log {log_id}: seen only in part; axis from GNSS, diameter {fitted[i][1].diameter_m * 100:.1f} cm")
     for i in sorted(hidden):
         place_hidden(i, hidden[i])
+    placed: dict[int, tuple] = {}
+    if place_ends is not None:
+        # the points on no other log (a neighbour's top where it touches this log's end is not this log)
+        on_log = [np.abs(_distance_to_logs(P, [fitted[i][1]], pad_m=0.0)) <= cfg.inlier_band_m for i in range(len(ids))]
+        for i, log_id in enumerate(ids):
+            f, spec, swapped = fitted[i]
+            others = [m for j, m in enumerate(on_log) if j != i]
+            mine = P[~np.logical_or.reduce(others)] if others else P
+            spec, ends_info = place_ends(log_id, spec, how[i], mine, bool(swapped))
+            fitted[i] = (f, spec, swapped)
+            placed[i] = tuple(e if isinstance(e, dict) else e.to_dict() for e in ends_info)
     fits: list[LogFit] = []
     logs: list[LogSpec] = []
     for i, log_id in enumerate(ids):
@@ -1398,6 +1462,15 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
             swapped=bool(swapped), end_source=tuple(reversed(f["end_source"])) if swapped else tuple(f["end_source"]),
             fit=how[i],
         ))
+        if i in placed:
+            lf = fits[-1]
+            lf.ends = [dict(e) for e in placed[i]]
+            srcs = tuple(e["source"] for e in placed[i])
+            lf.end_source = tuple(reversed(srcs)) if swapped else srcs
+            # each survey point's distance from the placed log's axis (NaN: no point)
+            lf.gnss_residual_a_m, lf.gnss_residual_b_m = (
+                float(e.get("gnss_axis_distance_m", math.nan) if e.get("gnss_axis_distance_m") is not None
+                      else math.nan) for e in placed[i])
     timings["logs_s"] = time.perf_counter() - t0
     t1 = time.perf_counter()
     say("fitting terrain")
