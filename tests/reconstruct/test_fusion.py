@@ -192,3 +192,19 @@ def test_an_end_is_placed_from_what_knows_it_best():
     assert e.source == "inferred" and e.weak(cfg)
     e = fuse_end(p0, u, EndInterval(0.02, 0.0, "seen"), True, None, 0.005, cfg)  # end a, toward -t
     assert e.source == "scan" and abs(e.position_m[0] - 0.01) < 1e-9
+
+
+def test_float_points_count_by_their_accuracy_in_the_registration(pile, cloud, tmp_path):
+    # the scan pose is right; five float points share a 10 cm error (well within their 25 cm), three
+    # fixed points are right: weighted by accuracy, the float points do not move the scan (weighted as
+    # fixed ones, they drag it about a centimetre)
+    scan = _scan_folder(tmp_path, pile)
+    bias = (0.08, 0.06, 0.0)
+    floats = {(i, end): ("rtk_float", bias, 0.25, 0.40) for i, end in ((1, "b"), (2, "a"), (2, "b"), (3, "a"), (3, "b"))}
+    exact = {(i, end): ("rtk_fixed", (0.0, 0.0, 0.0), 0.015, 0.025) for i, end in ((0, "a"), (0, "b"), (1, "a"))}
+    gnss = _survey(pile, tmp_path / "survey.csv", floats | exact)
+    res = reconstruct(scan, gnss, tmp_path / "out", ReconstructConfig(allow_float=True), cloud=cloud)
+    reg = res.report["registration"]
+    assert reg["end_points_used"] == 8 and reg["end_points_precise"] == 3
+    assert reg["correction_m"] < 0.004, reg
+    assert max(_errors(pile, res.pile).values()) < 0.03
