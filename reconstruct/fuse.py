@@ -501,10 +501,19 @@ def match_survey(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]]
     # is another matching nearly as good that makes another pile? The pile holds the scan logs matched or
     # long enough to stand alone, and the surveyed logs matched to none (placed from their points); two
     # matchings that only swap which surveyed log sits on which scan log make the same pile
+    # pieces of one log (collinear scan logs: a log seen in two pieces with a stretch under others
+    # between) are one log: a surveyed log on either piece makes the same pile
+    group = list(range(n_k))
+    for j in range(n_k):
+        for j2 in range(j):
+            if _same_line(scan_logs[j], scan_logs[j2]):
+                old, new = group[j], group[j2]
+                group = [new if g == old else g for g in group]
+
     def content(p: list[int | None]) -> tuple[frozenset, frozenset]:
         used = {j for j in p if j is not None}
         used |= {j for j in range(n_k) if j not in used and scan_logs[j].seen_m >= cfg.min_new_log_m}
-        return frozenset(used), frozenset(ids[i] for i, j in enumerate(p) if j is None)
+        return frozenset(group[j] for j in used), frozenset(ids[i] for i, j in enumerate(p) if j is None)
 
     taken = {j for j in pick if j is not None}
     best_content = content(pick)
@@ -537,29 +546,36 @@ def _where(log: ScanLog) -> str:
     return f"at ({m[0]:.2f}, {m[1]:.2f}) m, {log.length_m:.2f} m long"
 
 
+#: a scan log is a piece of another when it lies this close to its line [m] and this parallel [deg]
+PIECE_LATERAL_M = 0.06
+PIECE_ANGLE_DEG = 6.0
+
+
+def _is_piece_of(piece: ScanLog, log: ScanLog, lateral_m: float = PIECE_LATERAL_M,
+                 angle_deg: float = PIECE_ANGLE_DEG) -> bool:
+    """Whether ``piece`` lies on ``log``'s line (top view): parallel within ``angle_deg`` and both its
+    ends within ``lateral_m`` of the line."""
+    u = log.direction[:2] / max(float(np.linalg.norm(log.direction[:2])), 1e-9)
+    v = piece.direction[:2] / max(float(np.linalg.norm(piece.direction[:2])), 1e-9)
+    if abs(float(u @ v)) < math.cos(math.radians(angle_deg)):
+        return False
+    n = np.array([-u[1], u[0]])
+    return all(abs(float((p[:2] - log.start_m[:2]) @ n)) < lateral_m for p in (piece.start_m, piece.end_m))
+
+
+def _same_line(a: ScanLog, b: ScanLog) -> bool:
+    """Whether two scan logs are pieces of one log: the shorter lies on the longer's line."""
+    short, long_ = (a, b) if a.length_m <= b.length_m else (b, a)
+    return _is_piece_of(short, long_)
+
+
 def absorb_pieces(matches: Mapping[str, Match], unmatched: Sequence[int], scan_logs: Sequence[ScanLog],
-                  lateral_m: float = 0.06, angle_deg: float = 6.0) -> list[int]:
+                  lateral_m: float = PIECE_LATERAL_M, angle_deg: float = PIECE_ANGLE_DEG) -> list[int]:
     """Unmatched scan logs that continue a matched one (collinear: a log seen in two pieces with a
     long stretch under others between) are dropped from ``unmatched``. Returns the rest."""
-    rest = []
-    for j in unmatched:
-        piece = scan_logs[j]
-        part_of = False
-        for m in matches.values():
-            if m.scan_index is None:
-                continue
-            log = scan_logs[m.scan_index]
-            u = log.direction
-            if abs(float(piece.direction[:2] @ u[:2])) / max(float(np.linalg.norm(u[:2])), 1e-9) \
-                    / max(float(np.linalg.norm(piece.direction[:2])), 1e-9) < math.cos(math.radians(angle_deg)):
-                continue
-            n = np.array([-u[1], u[0]]) / max(float(np.linalg.norm(u[:2])), 1e-9)
-            if all(abs(float((p[:2] - log.start_m[:2]) @ n)) < lateral_m for p in (piece.start_m, piece.end_m)):
-                part_of = True
-                break
-        if not part_of:
-            rest.append(j)
-    return rest
+    matched = [scan_logs[m.scan_index] for m in matches.values() if m.scan_index is not None]
+    return [j for j in unmatched
+            if not any(_is_piece_of(scan_logs[j], log, lateral_m, angle_deg) for log in matched)]
 
 
 # -- priors for the fit ---------------------------------------------------------------------------

@@ -14,7 +14,7 @@ from reconstruct.compare import compare_piles
 from reconstruct.errors import GnssQualityError
 from reconstruct.fit import sample_top_view_points
 from reconstruct.fuse import (
-    AmbiguousSurveyError, EndInterval, FuseConfig, ScanLog, SurveyEnd, fuse_end, match_survey,
+    AmbiguousSurveyError, EndInterval, FuseConfig, ScanLog, SurveyEnd, absorb_pieces, fuse_end, match_survey,
 )
 from reconstruct.gnss import GnssPoint, GnssSurvey, write_gnss_csv
 from reconstruct.pipeline import ReconstructConfig, ScanPose, reconstruct, write_scan_pose
@@ -167,6 +167,13 @@ def test_only_geometry_the_survey_cannot_settle_stops_and_names_the_log():
     two = [_scan_log(-1.0, 1.0, 0.0), _scan_log(-1.0, 1.0, 0.3)]
     matches, unmatched = match_survey(floating, two)
     assert matches["log7"].scan_index in (0, 1) and len(unmatched) == 1
+    # one log seen in two short pieces (something lies over its middle), its ends fixed: either piece
+    # is the same log, no error (twin scan 1100017 stopped here)
+    pieces = [_scan_log(-1.0, -0.4, 0.0), _scan_log(0.7, 1.0, 0.005)]
+    whole = {"log7": (_end(-1.0, 0.0, fix="rtk_fixed"), _end(1.0, 0.0, fix="rtk_fixed"))}
+    matches, unmatched = match_survey(whole, pieces)
+    assert matches["log7"].scan_index in (0, 1)
+    assert absorb_pieces(matches, unmatched, pieces) == []
 
 
 def test_an_end_is_placed_from_what_knows_it_best():
