@@ -718,10 +718,13 @@ class EndEstimate:
 
 
 def fuse_end(p0: np.ndarray, u: np.ndarray, interval: EndInterval, at_start: bool, survey: SurveyEnd | None,
-             lateral_sigma_m: float, cfg: FuseConfig | None = None) -> EndEstimate:
+             lateral_sigma_m: float, cfg: FuseConfig | None = None, seen_whole: bool = True) -> EndEstimate:
     """Place one end on the axis ``p0 + t u`` (t [m] from ``p0``; the end is at the low-t side when
     ``at_start``) from the scan's interval and the survey point (see the module docstring).
-    ``lateral_sigma_m``: how well the axis itself is known across [m]."""
+    ``lateral_sigma_m``: how well the axis itself is known across [m]. ``seen_whole``: the scan shows
+    the log whole (fit "scan"); for a log it shows only in part, a seen end that a survey point beyond
+    it contradicts only bounds the end from inside (the log may run on under others where the scan
+    sees something lower: a log bending down under a crossing one)."""
     cfg = cfg or FuseConfig()
     u = np.asarray(u, dtype=float)
     sign = -1.0 if at_start else 1.0  # outward along t
@@ -741,6 +744,10 @@ def fuse_end(p0: np.ndarray, u: np.ndarray, interval: EndInterval, at_start: boo
                            res / math.sqrt(survey.sigma_3d_m ** 2 + sig ** 2))
     seen = interval.state == "seen"
     ss = cfg.scan_end_sigma_m
+    if seen and not seen_whole and survey is not None:
+        t_s = seen_end(interval, not at_start, cfg)
+        if abs(t_g - t_s) / math.hypot(ss, sg) > cfg.contradiction_sigma and sign * (t_g - t_s) > 0:
+            seen, hi = False, None
     contradicted = False
     if seen:  # the top stops at lo; the scan sees below it a little farther out (hi)
         t_s = seen_end(interval, not at_start, cfg)
@@ -837,7 +844,7 @@ def place_log_ends(points: np.ndarray, spec: Any, how: str, survey: tuple[Survey
             iv = EndInterval(None, None, "none")
         else:
             iv = scan_end_interval(points, pa, pb, r, toward_p1=(k == 1), reach_m=reach, cfg=cfg)
-        ests.append(fuse_end(pa, u, iv, k == 0, e, lateral_sigma_m, cfg))
+        ests.append(fuse_end(pa, u, iv, k == 0, e, lateral_sigma_m, cfg, seen_whole=(how == "scan")))
     a, b = ests
     for est, e in zip(ests, survey):
         if e is not None:
