@@ -199,6 +199,14 @@ def test_an_end_is_placed_from_what_knows_it_best():
     assert e.source == "inferred" and e.weak(cfg)
     e = fuse_end(p0, u, EndInterval(0.02, 0.0, "seen"), True, None, 0.005, cfg)  # end a, toward -t
     assert e.source == "scan" and abs(e.position_m[0] - 0.01) < 1e-9
+    # a log the scan shows only in part may run on under others past where its top seems to stop: a
+    # fixed point beyond a seen end places it there; one short of it is still contradicted
+    beyond = _end(2.60, 0.0, fix="rtk_fixed")
+    e = fuse_end(p0, u, seen, False, beyond, 0.04, cfg, seen_whole=False)
+    assert e.source == "fixed" and not e.contradicted and abs(e.position_m[0] - 2.60) < 1e-9
+    assert fuse_end(p0, u, seen, False, beyond, 0.005, cfg).contradicted  # a log seen whole: the scan's end
+    short = _end(1.60, 0.0, fix="rtk_fixed")
+    assert fuse_end(p0, u, seen, False, short, 0.04, cfg, seen_whole=False).contradicted
 
 
 def test_float_points_count_by_their_accuracy_in_the_registration(pile, cloud, tmp_path):
