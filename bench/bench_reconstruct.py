@@ -362,8 +362,12 @@ def survey_bench(n_scans: int, seed0: int, work_dir: Path, out: Path, logs=(3, 7
     """Reconstruction under the three survey conditions (:data:`SURVEY_CONDITIONS`) on ``n_scans``
     fresh twin scans (``loggrasp synth scan`` piles, seeds ``seed0``...): the stereo cloud of each scan
     is matched once and reconstructed with each survey; every log is measured against the truth (worst
-    end, mean diameter, mask IoU) and every end's source kept. The record (``out``, JSON) is written
-    after every scan; a run with the same settings resumes it. One process."""
+    end, mean diameter, mask IoU) and every end's source kept.
+
+    ``out`` is a folder: one record per scan (``scans/<seed>.json``, written when the scan is done) and
+    ``summary.json``. A run with the same settings skips the scans it has records of, so the same
+    command with a larger ``n_scans`` extends the run. ``work_dir`` keeps each scan's images and
+    stereo cloud (not needed to resume). One process."""
     import json
     import os
 
@@ -376,16 +380,12 @@ def survey_bench(n_scans: int, seed0: int, work_dir: Path, out: Path, logs=(3, 7
     from synth.pile import atomic_write_bytes, read_pile
 
     key = {"seed0": seed0, "logs": list(logs), "obstacles": list(obstacles), "fit_revision": FIT_REVISION}
-    rec = {"format": SURVEY_BENCH_FORMAT, "format_version": "1.0", "key": key, "conditions": SURVEY_CONDITIONS,
-           "scans": []}
-    if out.exists():
-        old = json.loads(out.read_text())
-        if old.get("key") == key:
-            rec = old
-    done = {r["seed"] for r in rec["scans"]}
+    records = out / "scans"
+    records.mkdir(parents=True, exist_ok=True)
     work_dir.mkdir(parents=True, exist_ok=True)
     for seed in range(seed0, seed0 + n_scans):
-        if seed in done:
+        path = records / f"{seed}.json"
+        if path.exists() and json.loads(path.read_text()).get("key") == key:
             continue
         root = work_dir / f"scan_{seed}"
         t0 = time.perf_counter()
@@ -408,7 +408,9 @@ def survey_bench(n_scans: int, seed0: int, work_dir: Path, out: Path, logs=(3, 7
             stereo = (time.perf_counter() - t0, time.process_time() - c0)
             np.savez(kept, points=cloud.points, colours=cloud.colours, cameras=cloud.camera_positions)
             atomic_write_bytes(kept_t, json.dumps(list(stereo)).encode())
-        row = {"seed": seed, "n_logs": truth.n_logs, "n_obstacles": len(truth.stumps) + len(truth.rocks),
+        row = {"format": SURVEY_BENCH_FORMAT, "format_version": "2.0", "key": key,
+               "seed": seed, "n_logs": truth.n_logs, "n_obstacles": len(truth.stumps) + len(truth.rocks),
+               "n_pairs": int(len(cloud.camera_positions)), "cpus": os.cpu_count(),
                "stereo_wall_s": stereo[0], "stereo_cpu_s": stereo[1], "scan_make_s": make_s,
                "load": os.getloadavg()[0], "conditions": {}}
         for cond, gnss in surveys.items():
@@ -424,8 +426,10 @@ def survey_bench(n_scans: int, seed0: int, work_dir: Path, out: Path, logs=(3, 7
                 cmp = compare_piles(truth, res.pile)
                 by_recon = {lf["index"]: lf for lf in res.report["logs"]}
                 entry["logs"] = [{
-                    "truth_index": e["truth_index"], "worst_end_m": e["endpoint_max_err_m"],
+                    "truth_index": e["truth_index"], "log_id": by_recon[e["recon_index"]]["log_id"],
+                    "worst_end_m": e["endpoint_max_err_m"],
                     "mean_end_m": e["endpoint_err_m"], "diameter_err_m": e["diameter_err_m"], "mask_iou": e["mask_iou"],
+                    "true_diameter_m": e["true_diameter_m"], "axis_angle_err_deg": e["axis_angle_err_deg"],
                     "fit": by_recon[e["recon_index"]]["fit"],
                     "ends": [{k: end[k] for k in ("source", "scan", "sigma_m", "gnss_fix", "contradicted")}
                              for end in by_recon[e["recon_index"]]["ends"]]}
@@ -435,14 +439,36 @@ def survey_bench(n_scans: int, seed0: int, work_dir: Path, out: Path, logs=(3, 7
                 entry["new_logs"] = list(res.report["fusion"]["new_logs"])
                 entry["weak_ends"] = len(res.report["weak_ends"])
                 entry["contradicted_points"] = len(res.report["contradicted_points"])
+                entry["registration"] = {k: res.report["registration"].get(k) for k in
+                                         ("mode", "correction_m", "correction_deg", "residual_rms_after_m")}
             row["conditions"][cond] = entry
-        rec["scans"].append(row)
-        atomic_write_bytes(out, json.dumps(rec, indent=1).encode())
+        atomic_write_bytes(path, json.dumps(row, indent=1).encode())
         errs = {c: e.get("error", "")[:80] for c, e in row["conditions"].items() if "error" in e}
         worst = {c: max((lg["worst_end_m"] for lg in e.get("logs", [])), default=float("nan"))
                  for c, e in row["conditions"].items()}
         progress(f"scan {seed}: {truth.n_logs} logs, worst end " + ", ".join(f"{c} {v * 100:.1f} cm" for c, v in worst.items())
                  + (f"; failed {errs}" if errs else ""))
+    return read_survey_records(out, key)
+
+
+def read_survey_records(out: Path, key: dict | None = None) -> dict:
+    """The survey-conditions record of folder ``out``: every scan record (of ``key``'s settings; by
+    default those of the most records), written to ``out/summary.json`` too."""
+    import json
+
+    from synth.pile import atomic_write_bytes
+
+    rows = [json.loads(p.read_text()) for p in sorted((out / "scans").glob("*.json"))]
+    if key is None and rows:
+        keys = [json.dumps(r["key"], sort_keys=True) for r in rows]
+        key = json.loads(max(set(keys), key=keys.count))
+    rows = sorted((r for r in rows if r.get("key") == key), key=lambda r: r["seed"])
+    rec = {"format": SURVEY_BENCH_FORMAT, "format_version": "2.0", "key": key, "conditions": SURVEY_CONDITIONS,
+           "scans": rows}
+    if rows:
+        atomic_write_bytes(out / "summary.json", json.dumps(
+            {k: v for k, v in rec.items() if k != "scans"} | {"seeds": [r["seed"] for r in rows],
+                                                              "summary": survey_summary(rec)}, indent=1).encode())
     return rec
 
 
@@ -498,8 +524,8 @@ def survey_markdown(rec: dict, figure: Path | None = None) -> list[str]:
         f"(fitting revision {rec['key']['fit_revision']}). Per log: worst end error (the farther of its two ends "
         "from the truth), absolute mean-diameter error, mask IoU (128 px). Targets (issue 18): <= 1 % failures, "
         "worst end <= 3 cm median and <= 8 cm p95, diameter <= 1 cm median, <= 15 s per 4-pair scan. "
-        f"One process; load average {min(loads):.1f}-{max(loads):.1f} (median {statistics.median(loads):.1f}) "
-        "on the 2 cores while it ran.\n",
+        f"One process on {rec['scans'][0].get('cpus', '?')} cores; load average {min(loads):.1f}-{max(loads):.1f} "
+        f"(median {statistics.median(loads):.1f}) while it ran.\n",
         "| survey | scans | failures | logs | not reconstructed | worst end median [cm] | p95 | max | "
         "abs diameter median [cm] | p95 | mask IoU median | p5 |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|",
@@ -585,8 +611,9 @@ if __name__ == "__main__":
                     help="run only the survey-conditions bench on this many fresh twin scans (one process)")
     ap.add_argument("--survey-seed", type=int, default=1_100_000, help="first seed of the survey-conditions bench")
     ap.add_argument("--survey-work", type=Path, default=Path("runs/survey-work"), help="its scans and reconstructions")
-    ap.add_argument("--survey-out", type=Path, default=Path("runs/survey_conditions.json"),
-                    help="its record (written after every scan, resumed when re-run)")
+    ap.add_argument("--survey-out", type=Path, default=Path("docs/results/survey-conditions"),
+                    help="its record: a folder with one JSON per scan (kept: the same command with more "
+                         "--survey-scans extends the run) and summary.json")
     ap.add_argument("--figure", type=Path, default=None, help="write the error-distribution figure here")
     ap.add_argument("--survey-report", action="store_true",
                     help="print the markdown (and write --figure) of an existing --survey-out record, run nothing")
@@ -594,7 +621,7 @@ if __name__ == "__main__":
     if args.survey_scans > 0 or args.survey_report:
         import json
 
-        rec = (json.loads(args.survey_out.read_text()) if args.survey_report else
+        rec = (read_survey_records(args.survey_out) if args.survey_report else
                survey_bench(args.survey_scans, args.survey_seed, args.survey_work, args.survey_out,
                             progress=lambda s: print(s, file=sys.stderr, flush=True)))
         fig = survey_figure(rec, args.figure) if args.figure is not None else None
