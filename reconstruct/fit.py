@@ -91,8 +91,10 @@ AXIS_SOURCES = ("fit", "gnss")
 #: seen only in part gets a circle through its top arc (axis within two sigma of the survey's)
 #: instead of the lower quartile of distances from the survey's axis (diameters 7.5 cm too small).
 #: 5: logs are fitted around the scan's own axes (:mod:`reconstruct.fuse`), their ends placed from the
-#: scan where it sees them and from the survey where it does not, by their accuracies.
-FIT_REVISION = 5
+#: scan where it sees them and from the survey where it does not, by their accuracies. 6: a seen end is the
+#: middle of the last bin on the log's top, not that bin's outer edge (+9 mm outward on twin scans); the
+#: registration walks a log's end over the points on no other log, as the ends' placement does.
+FIT_REVISION = 6
 
 
 @dataclass(frozen=True)
@@ -642,6 +644,18 @@ def _distance_to_logs(P: np.ndarray, logs: Sequence[LogSpec], pad_m: float) -> n
         d = rad - r
         best[inside] = np.minimum(best[inside], d)
     return best
+
+
+def points_on_no_other_log(P: np.ndarray, logs: Sequence[LogSpec], band_m: float) -> list[np.ndarray]:
+    """For each of ``logs``, a mask of the points ``P`` that lie on no other log (farther than ``band_m``
+    from every other log's surface): what may show where that log ends (a neighbour's top where it
+    touches the end is not this log)."""
+    on_log = [np.abs(_distance_to_logs(P, [log], pad_m=0.0)) <= band_m for log in logs]
+    out = []
+    for i in range(len(logs)):
+        others = [m for j, m in enumerate(on_log) if j != i]
+        out.append(~np.logical_or.reduce(others) if others else np.ones(len(P), bool))
+    return out
 
 
 # -- terrain ---------------------------------------------------------------------------------
@@ -1435,13 +1449,10 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
         place_hidden(i, hidden[i])
     placed: dict[int, tuple] = {}
     if place_ends is not None:
-        # the points on no other log (a neighbour's top where it touches this log's end is not this log)
-        on_log = [np.abs(_distance_to_logs(P, [fitted[i][1]], pad_m=0.0)) <= cfg.inlier_band_m for i in range(len(ids))]
+        mine = points_on_no_other_log(P, [fitted[i][1] for i in range(len(ids))], cfg.inlier_band_m)
         for i, log_id in enumerate(ids):
             f, spec, swapped = fitted[i]
-            others = [m for j, m in enumerate(on_log) if j != i]
-            mine = P[~np.logical_or.reduce(others)] if others else P
-            spec, ends_info = place_ends(log_id, spec, how[i], mine, bool(swapped))
+            spec, ends_info = place_ends(log_id, spec, how[i], P[mine[i]], bool(swapped))
             fitted[i] = (f, spec, swapped)
             placed[i] = tuple(e if isinstance(e, dict) else e.to_dict() for e in ends_info)
     fits: list[LogFit] = []

@@ -60,7 +60,9 @@ from typing import Any, Callable
 import numpy as np
 
 from reconstruct.errors import FitError, ReconstructError, RegistrationError, ScanError
-from reconstruct.fit import FitConfig, PileFit, fit_log, fit_pile, log_spec_from_fit, natural_key
+from reconstruct.fit import (
+    FitConfig, PileFit, fit_log, fit_pile, log_spec_from_fit, natural_key, points_on_no_other_log,
+)
 from reconstruct.fuse import (
     FuseConfig, SurveyEnd, absorb_pieces, find_scan_logs, match_survey, place_log_ends, point_accuracy, prior_axis,
     scan_end_interval, seen_end,
@@ -344,17 +346,21 @@ def refine_registration(points: np.ndarray, endpoints: dict, cfg: ReconstructCon
     SV = np.array([e.sigma_v_m for _, _, e in targets])
     # where the scan itself sees a surveyed end (its top stops, the scan sees below it): the survey point's
     # place along the axis counts too, which fixes the shift along parallel logs
+    # (walked over the points on no other fitted log, as the ends are placed later: a neighbour's top
+    # where it touches this log's end is not this log)
     S = np.full((len(targets), 3), np.nan)
     SA = np.ones(len(targets))
+    mine = dict(zip(ids, points_on_no_other_log(points, [log_spec_from_fit(axes[k][2], fcfg)[0] for k in ids],
+                                                fcfg.inlier_band_m)))
     for i, (k, end, e) in enumerate(targets):
         f = axes[k][2]
         p0, p1 = f["ends"]
         r = 0.5 * (f["radius_a_m"] + f["radius_b_m"])
-        iv = scan_end_interval(points, p0, p1, r, toward_p1=(end == "b"), reach_m=cfg.fuse.end_search_m,
+        iv = scan_end_interval(points[mine[k]], p0, p1, r, toward_p1=(end == "b"), reach_m=cfg.fuse.end_search_m,
                                cfg=cfg.fuse)
         if iv.state == "seen":
             u_k = (p1 - p0) / max(float(np.linalg.norm(p1 - p0)), 1e-9)
-            S[i] = p0 + u_k * seen_end(iv, end == "b", cfg.fuse)
+            S[i] = p0 + u_k * seen_end(iv)
             SA[i] = math.hypot(e.sigma_along(u_k), cfg.fuse.scan_end_sigma_m)
     seen = np.isfinite(S[:, 0])
     directions = np.array([axes[k][1] for k in ids])

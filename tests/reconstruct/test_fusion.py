@@ -15,6 +15,7 @@ from reconstruct.errors import GnssQualityError
 from reconstruct.fit import sample_top_view_points
 from reconstruct.fuse import (
     AmbiguousSurveyError, EndInterval, FuseConfig, ScanLog, SurveyEnd, absorb_pieces, fuse_end, match_survey,
+    scan_end_interval, seen_end,
 )
 from reconstruct.gnss import GnssPoint, GnssSurvey, write_gnss_csv
 from reconstruct.pipeline import ReconstructConfig, ScanPose, reconstruct, write_scan_pose
@@ -179,17 +180,17 @@ def test_only_geometry_the_survey_cannot_settle_stops_and_names_the_log():
 def test_an_end_is_placed_from_what_knows_it_best():
     cfg = FuseConfig()
     p0, u = np.zeros(3), np.array([1.0, 0.0, 0.0])
-    seen = EndInterval(2.00, 2.02, "seen")  # the scan sees the end at 2.01 m
+    seen = EndInterval(2.00, 2.02, "seen")  # the scan sees the end at 2.00 m (the last bin on its top)
     near = _end(2.15, 0.1)  # float, 15 cm off along: consistent
     e = fuse_end(p0, u, seen, False, near, 0.005, cfg)
-    assert e.source == "scan" and not e.contradicted and abs(e.position_m[0] - 2.01) < 0.005
+    assert e.source == "scan" and not e.contradicted and abs(e.position_m[0] - 2.00) < 0.005
     assert e.sigma_along_m < cfg.scan_end_sigma_m
     far = _end(2.20, 0.0, fix="rtk_fixed")  # fixed, 19 cm off: the scan contradicts it
     e = fuse_end(p0, u, seen, False, far, 0.005, cfg)
-    assert e.contradicted and e.source == "scan" and abs(e.position_m[0] - 2.01) < 1e-9
+    assert e.contradicted and e.source == "scan" and abs(e.position_m[0] - 2.00) < 1e-9
     agree = _end(2.02, 0.0, fix="rtk_fixed")
     e = fuse_end(p0, u, seen, False, agree, 0.005, cfg)
-    assert e.source == "fixed" and 2.01 < e.position_m[0] < 2.02
+    assert e.source == "fixed" and 2.00 < e.position_m[0] < 2.02
     under = EndInterval(2.00, 2.30, "occluded")  # a log lies over its end: somewhere in 2.0-2.3 m
     e = fuse_end(p0, u, under, False, _end(2.21, 0.0), 0.005, cfg)
     assert e.source == "float" and abs(e.position_m[0] - 2.21) < 1e-9 and e.sigma_along_m < 0.09
@@ -198,7 +199,7 @@ def test_an_end_is_placed_from_what_knows_it_best():
     e = fuse_end(p0, u, EndInterval(2.0, None, "open"), False, None, 0.005, cfg)  # the scan stops
     assert e.source == "inferred" and e.weak(cfg)
     e = fuse_end(p0, u, EndInterval(0.02, 0.0, "seen"), True, None, 0.005, cfg)  # end a, toward -t
-    assert e.source == "scan" and abs(e.position_m[0] - 0.01) < 1e-9
+    assert e.source == "scan" and abs(e.position_m[0] - 0.02) < 1e-9
     # a log the scan shows only in part may run on under others past where its top seems to stop: a
     # fixed point beyond a seen end places it there; one short of it is still contradicted
     beyond = _end(2.60, 0.0, fix="rtk_fixed")
@@ -207,6 +208,25 @@ def test_an_end_is_placed_from_what_knows_it_best():
     assert fuse_end(p0, u, seen, False, beyond, 0.005, cfg).contradicted  # a log seen whole: the scan's end
     short = _end(1.60, 0.0, fix="rtk_fixed")
     assert fuse_end(p0, u, seen, False, short, 0.04, cfg, seen_whole=False).contradicted
+
+
+def test_a_seen_end_is_where_the_log_ends_not_a_bin_past_it():
+    """A log's top sampled densely up to its end face, the ground beyond it, the end at every offset
+    within a walk bin: the seen end is unbiased (it was the last bin's outer edge: +1 cm on average)."""
+    cfg = FuseConfig()
+    rng = np.random.default_rng(5)
+    r, errors = 0.08, []
+    for end in np.linspace(2.0, 2.0 + cfg.end_bin_m, 11, endpoint=False):
+        x = rng.uniform(0.0, 3.0, 40000)
+        y = rng.uniform(-r, r, x.size)
+        z = np.where(x <= end, r + np.sqrt(np.clip(r * r - y * y, 0, None)), 0.0)  # log top, then the ground
+        P = np.column_stack([x, y, z + rng.normal(0, 0.002, x.size)])
+        p0, p1 = np.array([0.0, 0.0, r]), np.array([end, 0.0, r])
+        iv = scan_end_interval(P, p0, p1, r, toward_p1=True, reach_m=0.5, cfg=cfg)
+        assert iv.state == "seen"
+        errors.append(seen_end(iv) - end)
+    assert abs(float(np.mean(errors))) < 0.003, errors
+    assert max(abs(e) for e in errors) <= 0.5 * cfg.end_bin_m + 1e-9, errors
 
 
 def test_float_points_count_by_their_accuracy_in_the_registration(pile, cloud, tmp_path):
