@@ -93,8 +93,19 @@ AXIS_SOURCES = ("fit", "gnss")
 #: 5: logs are fitted around the scan's own axes (:mod:`reconstruct.fuse`), their ends placed from the
 #: scan where it sees them and from the survey where it does not, by their accuracies. 6: a seen end is the
 #: middle of the last bin on the log's top, not that bin's outer edge (+9 mm outward on twin scans); the
-#: registration walks a log's end over the points on no other log, as the ends' placement does.
-FIT_REVISION = 6
+#: registration walks a log's end over the points on no other log, as the ends' placement does. 7: a
+#: cross-section circle pays for the part of its footprint it does not explain (a log with a neighbour
+#: against its side was fitted up to 2-3.5 cm too thick); two logs side by side that interpenetrate are
+#: each pushed half the way apart (only the upper one was moved).
+FIT_REVISION = 7
+# a cross-section circle loses this much score per footprint bin it does not explain (the profile
+# there lies above it or off it): where a neighbour lies against a log, or the stereo fills the
+# valley between them, that side shows no edge, and without this a wider circle, centred toward
+# the neighbour, explained as many bins as the true one [-]
+PROFILE_UNSEEN_WEIGHT = 0.5
+# a contact between two logs whose normal is at least this horizontal (squared horizontal part of the
+# unit normal; 0.5: within 45 deg of horizontal) is side by side: both are pushed apart [-]
+SIDE_CONTACT_MIN_H2 = 0.5
 
 
 @dataclass(frozen=True)
@@ -278,8 +289,10 @@ def _profile_circle(sw: np.ndarray, prior_centre: np.ndarray, cfg: FitConfig,
     the chunk is reduced to its visible profile (the median ``w`` per ``profile_bin_m`` bin). An
     exhaustive search over centre offset and radius then scores each upper half-circle by the
     bins it explains minus three times the bins that lie clearly BELOW it inside its footprint
-    (impossible: ground beside a too-wide circle, points inside the log); bins above it are
-    occluders and count for nothing. Robust to neighbouring logs, the ground and obstacles.
+    (impossible: ground beside a too-wide circle, points inside the log), less
+    ``PROFILE_UNSEEN_WEIGHT`` for each other footprint bin (above it: an occluder, or a neighbour
+    over its flank; it may be there, but nothing shows it, so of two circles that explain as much the
+    one that claims less unseen width wins). Robust to neighbouring logs, the ground and obstacles.
     """
     step = cfg.profile_bin_m
     reach = cfg.max_radius_m + cfg.axis_tolerance_m + abs(float(prior_centre[0]))
@@ -315,7 +328,9 @@ def _profile_circle(sw: np.ndarray, prior_centre: np.ndarray, cfg: FitConfig,
     upper = wb[None, :] > cw[:, None] - tol  # the visible (upper) half only
     on = fp & upper & ((np.abs(e) < tol) | (np.abs(rad) < tol))
     below = fp & (e < -2 * tol) & ~(upper & (np.abs(rad) < tol))
-    score = np.where(valid, on.sum(axis=1) - 3 * below.sum(axis=1), -10**9)
+    unseen = fp & ~on & ~below  # footprint bins the circle does not explain: above it, or off it
+    score = np.where(valid, on.sum(axis=1) - 3 * below.sum(axis=1) - PROFILE_UNSEEN_WEIGHT * unseen.sum(axis=1),
+                     -10**9)
     best = int(np.argmax(score))
     return np.array([C[best], cw[best]]), float(R[best]), int(on[best].sum())
 
@@ -992,8 +1007,9 @@ def _rock_from_points(C: np.ndarray, terrain: TerrainSpec, cfg: FitConfig) -> Ro
 # -- validation ------------------------------------------------------------------------------
 def separate_logs(pile: PileSpec, cfg: FitConfig | None = None) -> tuple[PileSpec, list[str], list[float]]:
     """Move logs that interpenetrate other bodies (fit noise) out along the contact normal by
-    the penetration depth, the worst contact first, until the twin accepts the pile (of two
-    logs, the one the normal moves up; side by side logs are pushed apart, stacked ones lifted).
+    the penetration depth, the worst contact first, until the twin accepts the pile (two logs side
+    by side, the contact normal within 45 deg of horizontal, are each pushed half the way apart,
+    horizontally; of two stacked logs the upper one is lifted).
     Returns the pile, what was done, and how far each log moved [m]. Raises
     :class:`FitError` when a log would have to move more than ``max_move_m``."""
     from synth.errors import PileValidationError
@@ -1032,24 +1048,32 @@ def separate_logs(pile: PileSpec, cfg: FitConfig | None = None) -> tuple[PileSpe
         dist, i, other, normal = worst
         other_name = names.get(other, str(other))
         j = log_of.get(other)
-        if j is not None and normal[2] < 0:  # move whichever log goes UP (never push one down)
-            i, normal, other_name = j, -normal, f"log {worst[1]}"
-        step = normal / max(np.linalg.norm(normal), 1e-9) * (-dist + 0.002)
-        moves[i] = moves[i] + step
-        if np.linalg.norm(moves[i]) > cfg.max_move_m:
-            raise FitError(
-                f"log {i} would have to move {np.linalg.norm(moves[i]) * 100:.1f} cm to clear {other_name} "
-                f"(limit {cfg.max_move_m * 100:.0f} cm); its fit or its GNSS end points are wrong"
-            )
-        log = pile.logs[i]
+        n = normal / max(np.linalg.norm(normal), 1e-9)
+        n_h = np.array([n[0], n[1], 0.0])
+        if j is not None and np.linalg.norm(n_h) ** 2 >= SIDE_CONTACT_MIN_H2:
+            # side by side: both fits are as sure, so each goes half the way, horizontally (neither
+            # is pushed down into the ground, nor lifted off it)
+            step = n_h * ((-dist + 0.002) / (2 * float(n_h @ n_h)))
+            steps = [(i, step, f"log {j}"), (j, -step, f"log {i}")]
+        else:
+            if j is not None and n[2] < 0:  # move whichever log goes UP (never push one down)
+                i, n, other_name = j, -n, f"log {worst[1]}"
+            steps = [(i, n * (-dist + 0.002), other_name)]
         logs = list(pile.logs)
-        logs[i] = replace(log, centre_m=tuple(float(v) for v in np.asarray(log.centre_m) + step))
+        for k, step, against in steps:
+            moves[k] = moves[k] + step
+            if np.linalg.norm(moves[k]) > cfg.max_move_m:
+                raise FitError(
+                    f"log {k} would have to move {np.linalg.norm(moves[k]) * 100:.1f} cm to clear {against} "
+                    f"(limit {cfg.max_move_m * 100:.0f} cm); its fit or its GNSS end points are wrong"
+                )
+            logs[k] = replace(logs[k], centre_m=tuple(float(v) for v in np.asarray(logs[k].centre_m) + step))
+            how = "lifted" if step[2] > 0.7 * np.linalg.norm(step) else "moved"
+            notes.append(f"log {k} {how} {np.linalg.norm(step) * 1000:.1f} mm along "
+                         f"({step[0] / np.linalg.norm(step):+.2f}, {step[1] / np.linalg.norm(step):+.2f}, "
+                         f"{step[2] / np.linalg.norm(step):+.2f}) (log {k} / {against} interpenetrated "
+                         f"{-dist * 1000:.1f} mm)")
         pile = pile.with_logs(tuple(logs))
-        how = "lifted" if step[2] > 0.7 * np.linalg.norm(step) else "moved"
-        notes.append(f"log {i} {how} {np.linalg.norm(step) * 1000:.1f} mm along "
-                     f"({step[0] / np.linalg.norm(step):+.2f}, {step[1] / np.linalg.norm(step):+.2f}, "
-                     f"{step[2] / np.linalg.norm(step):+.2f}) (log {i} / {other_name} interpenetrated "
-                     f"{-dist * 1000:.1f} mm)")
     raise FitError("could not separate the reconstructed logs; check the fits")
 
 
