@@ -190,7 +190,9 @@ def real_test_markdown(rec: dict) -> list[str]:
         f"{len(piles)} twin scans{'' if len(piles) == cfg['n_piles'] else ' (of ' + str(cfg['n_piles']) + ' asked for; the run was stopped)'} "
         f"(`loggrasp synth scan` piles, seeds {cfg['seed']}..{cfg['seed'] + cfg['n_piles'] - 1}, "
         f"{cfg['logs'][0]}-{cfg['logs'][1]} logs, {cfg['obstacles'][0]}-{cfg['obstacles'][1]} obstacles, "
-        f"{cfg['grid'][0]}x{cfg['grid'][1]} pairs, RTK fixed), reconstructed; model `{Path(rec['model']['path']).name}` "
+        f"{cfg['grid'][0]}x{cfg['grid'][1]} pairs, "
+        f"{'RTK fixed' if not cfg.get('n_float') else str(cfg['n_float']) + ' RTK float ends per survey, the rest fixed'}), "
+        "reconstructed; model `{Path(rec['model']['path']).name}` "
         f"(sha256 {rec['model']['sha256'][:12]}, {cfg.get('views', 1)} view(s) averaged, U less "
         f"{cfg.get('view_spread_k', 0.0):g} x their spread; reconstructed pile frames "
         f"{'in site axes' if cfg.get('log_direction_deg') is None else 'turned so the logs lie at ' + format(cfg['log_direction_deg'], 'g') + ' deg'}) "
@@ -346,6 +348,245 @@ def markdown(n_piles: int = 3, repeats: int = 3, real_cfg=None, real_out: Path |
     return "\n".join(lines)
 
 
+# -- survey conditions: the same scans with the twin's default survey, an all-fixed one, a degraded one --
+SURVEY_CONDITIONS = {
+    "default": "the twin's default survey: 2 RTK float ends (sigma 25 cm h, 40 cm v), the rest fixed",
+    "fixed": "every end RTK fixed (1.5 cm h, 2.5 cm v)",
+    "degraded": "half the ends float and one log (one the scan shows well) not surveyed at all",
+}
+SURVEY_BENCH_FORMAT = "loggrasp.bench-survey-conditions"
+
+
+def survey_bench(n_scans: int, seed0: int, work_dir: Path, out: Path, logs=(3, 7), obstacles=(0, 3),
+                 progress=print) -> dict:
+    """Reconstruction under the three survey conditions (:data:`SURVEY_CONDITIONS`) on ``n_scans``
+    fresh twin scans (``loggrasp synth scan`` piles, seeds ``seed0``...): the stereo cloud of each scan
+    is matched once and reconstructed with each survey; every log is measured against the truth (worst
+    end, mean diameter, mask IoU) and every end's source kept.
+
+    ``out`` is a folder: one record per scan (``scans/<seed>.json``, written when the scan is done) and
+    ``summary.json``. A run with the same settings skips the scans it has records of, so the same
+    command with a larger ``n_scans`` extends the run. ``work_dir`` keeps each scan's images and
+    stereo cloud (not needed to resume). One process."""
+    import json
+    import os
+
+    from reconstruct.compare import compare_piles
+    from reconstruct.errors import ReconstructError
+    from reconstruct.fit import FIT_REVISION
+    from reconstruct.pipeline import ReconstructConfig, reconstruct
+    from reconstruct.stereo import ScanCloud, scan_cloud
+    from reconstruct.twin_scan import make_twin_scan, write_twin_survey
+    from synth.pile import atomic_write_bytes, read_pile
+
+    key = {"seed0": seed0, "logs": list(logs), "obstacles": list(obstacles), "fit_revision": FIT_REVISION}
+    records = out / "scans"
+    records.mkdir(parents=True, exist_ok=True)
+    work_dir.mkdir(parents=True, exist_ok=True)
+    for seed in range(seed0, seed0 + n_scans):
+        path = records / f"{seed}.json"
+        if path.exists() and json.loads(path.read_text()).get("key") == key:
+            continue
+        root = work_dir / f"scan_{seed}"
+        t0 = time.perf_counter()
+        if not (root / "scan.json").exists():
+            make_twin_scan(root, seed, logs=tuple(logs), obstacles=tuple(obstacles))
+        surveys = {"default": root / "gnss.csv",
+                   "fixed": write_twin_survey(root, root / "gnss_fixed.csv", n_float=0),
+                   "degraded": write_twin_survey(root, root / "gnss_degraded.csv", n_float=-1, n_unsurveyed=1)}
+        make_s = time.perf_counter() - t0
+        truth = read_pile(root / "truth" / "pile.json")
+        # the stereo cloud is kept with the scan (a re-run with another fitting matches no pairs again)
+        kept, kept_t = root / "cloud.npz", root / "cloud_time.json"
+        if kept.exists() and kept_t.exists():
+            with np.load(kept) as z:
+                cloud = ScanCloud(z["points"], z["colours"], camera_positions=z["cameras"])
+            stereo = tuple(json.loads(kept_t.read_text()))
+        else:
+            t0, c0 = time.perf_counter(), time.process_time()
+            cloud = scan_cloud(root / "scan")
+            stereo = (time.perf_counter() - t0, time.process_time() - c0)
+            np.savez(kept, points=cloud.points, colours=cloud.colours, cameras=cloud.camera_positions)
+            atomic_write_bytes(kept_t, json.dumps(list(stereo)).encode())
+        row = {"format": SURVEY_BENCH_FORMAT, "format_version": "2.0", "key": key,
+               "seed": seed, "n_logs": truth.n_logs, "n_obstacles": len(truth.stumps) + len(truth.rocks),
+               "n_pairs": int(len(cloud.camera_positions)), "cpus": os.cpu_count(),
+               "stereo_wall_s": stereo[0], "stereo_cpu_s": stereo[1], "scan_make_s": make_s,
+               "load": os.getloadavg()[0], "conditions": {}}
+        for cond, gnss in surveys.items():
+            entry: dict = {}
+            t0, c0 = time.perf_counter(), time.process_time()
+            try:
+                res = reconstruct(root / "scan", gnss, root / f"recon_{cond}", ReconstructConfig(allow_float=True),
+                                  cloud=cloud)
+            except ReconstructError as exc:
+                entry["error"] = f"{type(exc).__name__}: {exc}"
+            else:
+                entry["wall_s"], entry["cpu_s"] = time.perf_counter() - t0, time.process_time() - c0
+                cmp = compare_piles(truth, res.pile)
+                by_recon = {lf["index"]: lf for lf in res.report["logs"]}
+                entry["logs"] = [{
+                    "truth_index": e["truth_index"], "log_id": by_recon[e["recon_index"]]["log_id"],
+                    "worst_end_m": e["endpoint_max_err_m"],
+                    "mean_end_m": e["endpoint_err_m"], "diameter_err_m": e["diameter_err_m"], "mask_iou": e["mask_iou"],
+                    "true_diameter_m": e["true_diameter_m"], "axis_angle_err_deg": e["axis_angle_err_deg"],
+                    "fit": by_recon[e["recon_index"]]["fit"],
+                    "ends": [{k: end[k] for k in ("source", "scan", "sigma_m", "gnss_fix", "contradicted")}
+                             for end in by_recon[e["recon_index"]]["ends"]]}
+                    for e in cmp["logs"]]
+                entry["unmatched_truth"] = cmp["unmatched_truth"]
+                entry["unmatched_recon"] = cmp["unmatched_recon"]
+                entry["new_logs"] = list(res.report["fusion"]["new_logs"])
+                entry["weak_ends"] = len(res.report["weak_ends"])
+                entry["contradicted_points"] = len(res.report["contradicted_points"])
+                entry["registration"] = {k: res.report["registration"].get(k) for k in
+                                         ("mode", "correction_m", "correction_deg", "residual_rms_after_m")}
+            row["conditions"][cond] = entry
+        atomic_write_bytes(path, json.dumps(row, indent=1).encode())
+        errs = {c: e.get("error", "")[:80] for c, e in row["conditions"].items() if "error" in e}
+        worst = {c: max((lg["worst_end_m"] for lg in e.get("logs", [])), default=float("nan"))
+                 for c, e in row["conditions"].items()}
+        progress(f"scan {seed}: {truth.n_logs} logs, worst end " + ", ".join(f"{c} {v * 100:.1f} cm" for c, v in worst.items())
+                 + (f"; failed {errs}" if errs else ""))
+    return read_survey_records(out, key)
+
+
+def read_survey_records(out: Path, key: dict | None = None) -> dict:
+    """The survey-conditions record of folder ``out``: every scan record (of ``key``'s settings; by
+    default those of the most records), written to ``out/summary.json`` too."""
+    import json
+
+    from synth.pile import atomic_write_bytes
+
+    rows = [json.loads(p.read_text()) for p in sorted((out / "scans").glob("*.json"))]
+    if key is None and rows:
+        keys = [json.dumps(r["key"], sort_keys=True) for r in rows]
+        key = json.loads(max(set(keys), key=keys.count))
+    rows = sorted((r for r in rows if r.get("key") == key), key=lambda r: r["seed"])
+    rec = {"format": SURVEY_BENCH_FORMAT, "format_version": "2.0", "key": key, "conditions": SURVEY_CONDITIONS,
+           "scans": rows}
+    if rows:
+        atomic_write_bytes(out / "summary.json", json.dumps(
+            {k: v for k, v in rec.items() if k != "scans"} | {"seeds": [r["seed"] for r in rows],
+                                                              "summary": survey_summary(rec)}, indent=1).encode())
+    return rec
+
+
+def survey_summary(rec: dict) -> dict:
+    """Per condition: failures, per-log worst-end / diameter error and mask IoU statistics, logs not
+    reconstructed, end sources, times."""
+    out = {}
+    for cond in SURVEY_CONDITIONS:
+        entries = [(r, r["conditions"][cond]) for r in rec["scans"] if cond in r["conditions"]]
+        ok = [(r, e) for r, e in entries if "error" not in e]
+        logs = [lg for _, e in ok for lg in e["logs"]]
+        worst = [lg["worst_end_m"] for lg in logs]
+        dia = [abs(lg["diameter_err_m"]) for lg in logs]
+        iou = [lg["mask_iou"] for lg in logs if lg["mask_iou"] is not None]
+        srcs: dict[str, int] = {}
+        for lg in logs:
+            for end in lg["ends"]:
+                srcs[end["source"]] = srcs.get(end["source"], 0) + 1
+        four = [(r["stereo_wall_s"] + e["wall_s"], r["stereo_cpu_s"] + e["cpu_s"]) for r, e in ok]
+        out[cond] = {
+            "scans": len(entries), "failures": len(entries) - len(ok),
+            "failure_messages": [f"{r['seed']}: {e['error']}" for r, e in entries if "error" in e],
+            "logs": len(logs), "missing_logs": sum(len(e["unmatched_truth"]) for _, e in ok),
+            "extra_logs": sum(len(e["unmatched_recon"]) for _, e in ok),
+            "worst_end_m": _stats(worst), "abs_diameter_m": _stats(dia), "mask_iou": _stats(iou, low=True),
+            "sources": srcs, "weak_ends": sum(e["weak_ends"] for _, e in ok),
+            "contradicted_points": sum(e["contradicted_points"] for _, e in ok),
+            "scan_wall_s": _stats([w for w, _ in four]), "scan_cpu_s": _stats([c for _, c in four]),
+            "recon_cpu_s": _stats([e["cpu_s"] for _, e in ok]),
+        }
+    return out
+
+
+def _stats(v: list[float], low: bool = False) -> dict:
+    if not v:
+        return {"n": 0}
+    a = np.asarray(v, dtype=float)
+    d = {"n": int(a.size), "median": float(np.median(a)), "p95": float(np.percentile(a, 95)), "max": float(a.max())}
+    if low:
+        d.update(p5=float(np.percentile(a, 5)), min=float(a.min()))
+    return d
+
+
+def survey_markdown(rec: dict, figure: Path | None = None) -> list[str]:
+    s = survey_summary(rec)
+    n = len(rec["scans"])
+    loads = [r["load"] for r in rec["scans"]]
+    lines = [
+        "#### Reconstruction under three survey conditions (the same scans)",
+        f"{n} fresh twin scans (`loggrasp synth scan` piles, seeds {rec['key']['seed0']}..{rec['key']['seed0'] + n - 1}, "
+        f"{rec['key']['logs'][0]}-{rec['key']['logs'][1]} logs, {rec['key']['obstacles'][0]}-{rec['key']['obstacles'][1]} "
+        "obstacles, 2x2 pairs at 3 m), each reconstructed with three surveys of its pile "
+        f"(fitting revision {rec['key']['fit_revision']}). Per log: worst end error (the farther of its two ends "
+        "from the truth), absolute mean-diameter error, mask IoU (128 px). Targets (issue 18): <= 1 % failures, "
+        "worst end <= 3 cm median and <= 8 cm p95, diameter <= 1 cm median, <= 15 s per 4-pair scan. "
+        f"One process on {rec['scans'][0].get('cpus', '?')} cores; load average {min(loads):.1f}-{max(loads):.1f} "
+        f"(median {statistics.median(loads):.1f}) while it ran.\n",
+        "| survey | scans | failures | logs | not reconstructed | worst end median [cm] | p95 | max | "
+        "abs diameter median [cm] | p95 | mask IoU median | p5 |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for cond, d in s.items():
+        if not d["logs"]:
+            continue
+        w, di, io = d["worst_end_m"], d["abs_diameter_m"], d["mask_iou"]
+        lines.append(f"| {cond} | {d['scans']} | {d['failures']} ({100 * d['failures'] / max(d['scans'], 1):.1f} %) | "
+                     f"{d['logs']} | {d['missing_logs']} | {100 * w['median']:.1f} | {100 * w['p95']:.1f} | "
+                     f"{100 * w['max']:.1f} | {100 * di['median']:.2f} | {100 * di['p95']:.1f} | {io['median']:.3f} | "
+                     f"{io['p5']:.3f} |")
+    lines += ["", "| survey | ends placed: scan / fixed / float / inferred | weak ends | survey points contradicted | "
+              "4-pair scan wall median [s] | p95 | CPU median [s] | reconstruction CPU (stereo excluded) [s] |",
+              "|---|---|---|---|---|---|---|---|"]
+    for cond, d in s.items():
+        if not d["logs"]:
+            continue
+        src = " / ".join(str(d["sources"].get(k, 0)) for k in ("scan", "fixed", "float", "inferred"))
+        lines.append(f"| {cond} | {src} | {d['weak_ends']} | {d['contradicted_points']} | "
+                     f"{d['scan_wall_s']['median']:.1f} | {d['scan_wall_s']['p95']:.1f} | {d['scan_cpu_s']['median']:.1f} | "
+                     f"{d['recon_cpu_s']['median']:.1f} |")
+    for cond, d in s.items():
+        for m in d["failure_messages"]:
+            lines.append(f"- {cond}, seed {m}")
+    if figure is not None:
+        lines += ["", f"![error distributions per survey condition]({figure})"]
+    return lines
+
+
+def survey_figure(rec: dict, path: Path) -> Path:
+    """Histograms (cumulative) of the per-log worst end error and the diameter error, per condition."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
+    for cond in SURVEY_CONDITIONS:
+        logs = [lg for r in rec["scans"] for lg in r["conditions"].get(cond, {}).get("logs", [])]
+        if not logs:
+            continue
+        for ax, key, scale in ((axes[0], "worst_end_m", 100), (axes[1], "diameter_err_m", 100)):
+            v = np.sort(np.abs([lg[key] for lg in logs])) * scale
+            ax.plot(v, np.arange(1, len(v) + 1) / len(v), label=f"{cond} ({len(v)} logs)")
+    axes[0].axvline(3, color="grey", ls=":")
+    axes[0].axvline(8, color="grey", ls="--")
+    axes[0].set(xlabel="worst end error per log [cm]", ylabel="share of logs", xscale="log", xlim=(0.3, 100))
+    axes[1].axvline(1, color="grey", ls=":")
+    axes[1].set(xlabel="|mean diameter error| per log [cm]", xscale="log", xlim=(0.01, 30))
+    for ax in axes:
+        ax.grid(alpha=0.3)
+        ax.legend(loc="lower right", fontsize=8)
+    fig.suptitle(f"Reconstruction under three survey conditions, {len(rec['scans'])} twin scans", fontsize=10)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 if __name__ == "__main__":
     ap = argparse.ArgumentParser()
     ap.add_argument("--piles", type=int, default=3)
@@ -363,7 +604,29 @@ if __name__ == "__main__":
                          "site's axes (default 45, ReconstructConfig's)")
     ap.add_argument("--work-dir", type=Path, default=None,
                     help="keep the real test's scans and reconstructions here (reused when re-run)")
+    ap.add_argument("--n-float", type=int, default=0,
+                    help="RTK float ends per real-test survey (the twin's default survey has 2; reconstructed "
+                         "with allow_float)")
+    ap.add_argument("--survey-scans", type=int, default=0,
+                    help="run only the survey-conditions bench on this many fresh twin scans (one process)")
+    ap.add_argument("--survey-seed", type=int, default=1_100_000, help="first seed of the survey-conditions bench")
+    ap.add_argument("--survey-work", type=Path, default=Path("runs/survey-work"), help="its scans and reconstructions")
+    ap.add_argument("--survey-out", type=Path, default=Path("docs/results/survey-conditions"),
+                    help="its record: a folder with one JSON per scan (kept: the same command with more "
+                         "--survey-scans extends the run) and summary.json")
+    ap.add_argument("--figure", type=Path, default=None, help="write the error-distribution figure here")
+    ap.add_argument("--survey-report", action="store_true",
+                    help="print the markdown (and write --figure) of an existing --survey-out record, run nothing")
     args = ap.parse_args()
+    if args.survey_scans > 0 or args.survey_report:
+        import json
+
+        rec = (read_survey_records(args.survey_out) if args.survey_report else
+               survey_bench(args.survey_scans, args.survey_seed, args.survey_work, args.survey_out,
+                            progress=lambda s: print(s, file=sys.stderr, flush=True)))
+        fig = survey_figure(rec, args.figure) if args.figure is not None else None
+        print("\n".join(survey_markdown(rec, fig)))
+        raise SystemExit(0)
     from reconstruct.pipeline import parse_log_direction
 
     try:
@@ -374,7 +637,7 @@ if __name__ == "__main__":
 
     real_cfg = None if args.real_piles <= 0 else RealTestConfig(
         n_piles=args.real_piles, model=args.model, workers=args.workers, views=args.views,
-        view_spread_k=args.view_spread, log_direction_deg=log_direction)
+        view_spread_k=args.view_spread, log_direction_deg=log_direction, n_float=args.n_float)
     if args.real_only:
         if real_cfg is None:
             raise SystemExit("--real-only needs --real-piles > 0")

@@ -222,11 +222,20 @@ class PreparedTrial:
         return out
 
     def doubtful_targets(self) -> list[tuple[int, str]]:
-        """Target logs the scan showed only in part or not at all: (index, how it was placed)."""
+        """Target logs the scan showed only in part or not at all, or with an end placed on a weak
+        estimate (an RTK float point the scan does not see, a survey point it contradicts, an end
+        inferred): (index, how it was placed)."""
         fits = self.report.get("log_fits", [])
+        weak = self.report.get("log_weak_ends", [])
         words = {"partial": "seen only in part (its radius from the visible top)",
                  "hidden": "hidden under other logs (diameter estimated, no scan points on it)"}
-        return [(i, words[fits[i]]) for i in self.best.targets if i < len(fits) and fits[i] in words]
+        out = []
+        for i in self.best.targets:
+            if i < len(fits) and fits[i] in words:
+                out.append((i, words[fits[i]]))
+            elif i < len(weak) and weak[i]:
+                out.append((i, "placed on a weak estimate at " + ", ".join(weak[i])))
+        return out
 
 
 def captured_time(scan_dir: Path, gnss_path: Path) -> float:
@@ -394,8 +403,20 @@ def prepare_trial(scan_dir: str | Path, gnss_path: str | Path, work_dir: str | P
     return PreparedTrial(pile=pile, plan=the_plan, geo=geo, command_fields=command_fields,
                          captured_utc_s=captured, work_dir=work,
                          report={"pile_age_s": age, "survey_warnings": list(result.report.get("survey_warnings", [])),
-                                 "log_fits": log_fits},
+                                 "log_fits": log_fits, "log_weak_ends": weak_ends_by_log(result.report)},
                          verification=verification, chosen=best)
+
+
+def weak_ends_by_log(report: dict) -> list[list[str]]:
+    """Per log of a reconstruction report, its ends placed on a weak estimate
+    (:meth:`reconstruct.fuse.EndEstimate.weak`), e.g. ``"end b (rtk_float, scan: open, +-23 cm)"``."""
+    from reconstruct.fuse import FuseConfig
+
+    limit = FuseConfig().weak_sigma_m
+    return [[f"end {end} ({e['source']}, scan: {e['scan']}, +-{e['sigma_m'] * 100:.0f} cm"
+             + (", its survey point contradicted" if e["contradicted"] else "") + ")"
+             for end, e in zip("ab", log.get("ends") or []) if e["sigma_m"] > limit or e["contradicted"]]
+            for log in report.get("logs", [])]
 
 
 @dataclass

@@ -54,6 +54,8 @@ def scan_command(
     site: str = option("--site", SITE_HELP, default="64.1,20.0", metavar="LAT,LON[,H]"),
     float_fixes: int = option("--float-fixes", "Endpoints measured with an RTK float fix only.", default=2, min=0,
                               names=["n_float"]),
+    unsurveyed: int = option("--unsurveyed-logs", "Logs left out of the survey (chosen among those the scan shows "
+                             "well): a degraded survey.", default=0, min=0, names=["n_unsurveyed"]),
     height: float = option("--height", "Camera height above the pile.", default=3.0, unit="m", min=0.5,
                            names=["height_m"]),
     hfov: float = option("--hfov", "Horizontal field of view.", default=50.0, unit="deg", min=10.0, max=170.0,
@@ -72,6 +74,7 @@ def scan_command(
     \b
     Example: loggrasp synth scan --seed 3 --logs 3-5 --site 64.1,20.0 --out scans/s3
     Unposed (SfM + GNSS georegistration): loggrasp synth scan --seed 3 --unposed --out scans/s3u
+    Degraded survey: loggrasp synth scan --seed 3 --float-fixes 4 --unsurveyed-logs 1 --out scans/s3d
     """
     from reconstruct.twin_scan import DEFAULT_SITE, make_twin_scan
     from synth.geodesy import check_geodetic
@@ -93,6 +96,7 @@ def scan_command(
     check_output_dir(out, "--out")
     path = make_twin_scan(out, seed, log_range, obst_range, packed=packed, site=site_t, n_float=float_fixes,
                           height_m=height, hfov_deg=hfov, grid=grid, unposed=unposed, handheld=handheld,
+                          n_unsurveyed=unsurveyed,
                           progress=o.progress)
     o.say(f"scan written to {path} (scan/ and gnss.csv for `loggrasp reconstruct`; the truth in {path / 'truth'})")
     o.result("loggrasp.synth-scan", {"out": str(path), "scan": str(path / "scan"), "gnss": str(path / "gnss.csv"),
@@ -144,6 +148,12 @@ def reconstruct_command(
         if log.get("fit") == "hidden":
             o.say(f"log {log['log_id']}: hidden under other logs (no scan points on it): placed on its GNSS axis, its "
                   "diameter estimated; check it before trusting grasps that take it")
+    for k in rep.get("fusion", {}).get("new_logs", {}):
+        o.say(f"log {k}: not in the survey; found in the scan and placed from it alone")
+    for w in rep.get("weak_ends", []):
+        o.warn(f"weak estimate: {w}")
+    for w in rep.get("contradicted_points", []):
+        o.warn(f"survey point not used: {w}")
     for w in rep.get("survey_warnings", []):
         o.warn(f"GNSS survey: {w}")
     reg = rep.get("registration", {})
@@ -157,7 +167,7 @@ def reconstruct_command(
 
 
 #: the per-log report's columns: report key -> column title
-LOG_TABLE = {"log_id": "log", "fit": "fit", "length_m": "length m", "diameter_m": "diam. m",
+LOG_TABLE = {"log_id": "log", "fit": "fit", "end_source": "ends butt/top", "length_m": "length m", "diameter_m": "diam. m",
              "top_diameter_m": "top diam. m", "gnss_residual_a_m": "GNSS res. a m",
              "gnss_residual_b_m": "GNSS res. b m", "rms_m": "fit rms m", "coverage": "coverage",
              "n_points": "points", "moved_m": "moved m"}
@@ -168,6 +178,8 @@ def log_table_row(log: dict) -> list[str]:
     def cell(v) -> str:
         if v is None:
             return "-"
+        if isinstance(v, (list, tuple)):
+            return "/".join(cell(x) for x in v)
         if isinstance(v, float):
             return "-" if v != v else f"{v:.3f}"
         return str(v)

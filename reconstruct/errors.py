@@ -45,6 +45,11 @@ class ScanError(ReconstructError):
     right images of different sizes, a calibration that does not fit the images, or no depth."""
 
 
+class CalibrationError(ScanError):
+    """A pair's calibration is missing, unreadable or corrupt (calibration.yaml, a ZED SN*.conf), has
+    no section for the images' resolution, or two calibrations of one pair disagree."""
+
+
 class FitError(ReconstructError):
     """The scan does not support a model: a log with (almost) no scan points around its GNSS
     axis (outside the scanned area, or wrong endpoints), or a fit that failed."""

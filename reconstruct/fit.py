@@ -6,7 +6,9 @@ scan and the endpoints into that frame first.
 
 Logs
 ----
-The two RTK points of a log give its axis and length. What the points are is a parameter
+The two RTK points of a log give its axis and length (:func:`fit_pile` is given where to look for each
+log: with :mod:`reconstruct.pipeline` the scan's own axis of the log, its ends placed afterwards from
+the scan and the survey by their accuracies, :mod:`reconstruct.fuse`). What the points are is a parameter
 (``FitConfig.endpoint_ref``):
 
 * ``"end_centre"`` (default): the rover pole stood on the centre of each end face — the points
@@ -88,7 +90,22 @@ AXIS_SOURCES = ("fit", "gnss")
 #: strays keeps the first fit; logs hidden under others are placed from their survey. 4: a log
 #: seen only in part gets a circle through its top arc (axis within two sigma of the survey's)
 #: instead of the lower quartile of distances from the survey's axis (diameters 7.5 cm too small).
-FIT_REVISION = 4
+#: 5: logs are fitted around the scan's own axes (:mod:`reconstruct.fuse`), their ends placed from the
+#: scan where it sees them and from the survey where it does not, by their accuracies. 6: a seen end is the
+#: middle of the last bin on the log's top, not that bin's outer edge (+9 mm outward on twin scans); the
+#: registration walks a log's end over the points on no other log, as the ends' placement does. 7: a
+#: cross-section circle pays for the part of its footprint it does not explain (a log with a neighbour
+#: against its side was fitted up to 2-3.5 cm too thick); two logs side by side that interpenetrate are
+#: each pushed half the way apart (only the upper one was moved).
+FIT_REVISION = 7
+# a cross-section circle loses this much score per footprint bin it does not explain (the profile
+# there lies above it or off it): where a neighbour lies against a log, or the stereo fills the
+# valley between them, that side shows no edge, and without this a wider circle, centred toward
+# the neighbour, explained as many bins as the true one [-]
+PROFILE_UNSEEN_WEIGHT = 0.5
+# a contact between two logs whose normal is at least this horizontal (squared horizontal part of the
+# unit normal; 0.5: within 45 deg of horizontal) is side by side: both are pushed apart [-]
+SIDE_CONTACT_MIN_H2 = 0.5
 
 
 @dataclass(frozen=True)
@@ -203,7 +220,9 @@ class LogFit:
     axis_shift_m: float  # largest move of the axis end from the GNSS point (perpendicular) [m]
     swapped: bool  # True when end "b" turned out to be the butt (the thicker end)
     moved_m: float = 0.0  # how far it was moved to separate it from other bodies [m]
-    end_source: tuple[str, str] = ("gnss", "gnss")  # butt, top: "gnss" point or "scan" extent
+    end_source: tuple[str, str] = ("gnss", "gnss")  # butt, top: "gnss" point or "scan" extent; with the
+    #                                                 survey fused (fit_pile's place_ends): scan, fixed, float, inferred
+    ends: list[dict] | None = None  # ends a, b as placed (reconstruct.fuse.EndEstimate.to_dict), when fused
     fit: str = "scan"  # "scan": fitted to its points; "partial": seen only in part, a circle through its
     #                    visible top near the survey's axis; "hidden": no points on it (under other logs),
     #                    the survey's axis, as thick as the gap between the ground and the logs over it
@@ -270,8 +289,10 @@ def _profile_circle(sw: np.ndarray, prior_centre: np.ndarray, cfg: FitConfig,
     the chunk is reduced to its visible profile (the median ``w`` per ``profile_bin_m`` bin). An
     exhaustive search over centre offset and radius then scores each upper half-circle by the
     bins it explains minus three times the bins that lie clearly BELOW it inside its footprint
-    (impossible: ground beside a too-wide circle, points inside the log); bins above it are
-    occluders and count for nothing. Robust to neighbouring logs, the ground and obstacles.
+    (impossible: ground beside a too-wide circle, points inside the log), less
+    ``PROFILE_UNSEEN_WEIGHT`` for each other footprint bin (above it: an occluder, or a neighbour
+    over its flank; it may be there, but nothing shows it, so of two circles that explain as much the
+    one that claims less unseen width wins). Robust to neighbouring logs, the ground and obstacles.
     """
     step = cfg.profile_bin_m
     reach = cfg.max_radius_m + cfg.axis_tolerance_m + abs(float(prior_centre[0]))
@@ -298,11 +319,7 @@ def _profile_circle(sw: np.ndarray, prior_centre: np.ndarray, cfg: FitConfig,
     ds = sb[None, :] - C[:, None]
     fp = np.abs(ds) < R[:, None] - step / 2
     sq = np.sqrt(np.clip(R[:, None] ** 2 - ds ** 2, 0.0, None))
-    import warnings
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # hypotheses with an empty footprint
-        cw = np.nanmedian(np.where(fp, wb[None, :] - sq, np.nan), axis=1)
+    cw = _row_medians(wb[None, :] - sq, fp)
     valid = np.isfinite(cw) & (np.abs(cw - prior_centre[1]) <= cfg.axis_tolerance_m)
     if not valid.any():
         raise FitError("no half-circle near the axis")
@@ -311,9 +328,25 @@ def _profile_circle(sw: np.ndarray, prior_centre: np.ndarray, cfg: FitConfig,
     upper = wb[None, :] > cw[:, None] - tol  # the visible (upper) half only
     on = fp & upper & ((np.abs(e) < tol) | (np.abs(rad) < tol))
     below = fp & (e < -2 * tol) & ~(upper & (np.abs(rad) < tol))
-    score = np.where(valid, on.sum(axis=1) - 3 * below.sum(axis=1), -10**9)
+    unseen = fp & ~on & ~below  # footprint bins the circle does not explain: above it, or off it
+    score = np.where(valid, on.sum(axis=1) - 3 * below.sum(axis=1) - PROFILE_UNSEEN_WEIGHT * unseen.sum(axis=1),
+                     -10**9)
     best = int(np.argmax(score))
     return np.array([C[best], cw[best]]), float(R[best]), int(on[best].sum())
+
+
+def _row_medians(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Median of each row's ``values`` where ``mask`` holds (NaN for an empty row): what
+    ``np.nanmedian`` gives on the masked-out values set to NaN, without its slow masked-array path."""
+    v = np.where(mask, values, np.inf)
+    v.sort(axis=1)
+    n = mask.sum(axis=1)
+    rows = np.arange(len(v))
+    lo = v[rows, np.maximum((n - 1) // 2, 0)]
+    hi = v[rows, np.maximum(n // 2, 0)]
+    out = 0.5 * (lo + hi)
+    out[n == 0] = np.nan
+    return out
 
 
 def fit_log(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = None,
@@ -487,6 +520,33 @@ def fit_log(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = 
             end_off[[1, 3]] *= 0.1  # the vertical prior is loose: the radius is not known a priori
         return np.concatenate([res, end_off])
 
+    def jacobian(x):
+        """d residuals / d x, analytically (the residuals are distances from a cylinder's surface)."""
+        v = u0 + x[2] * e1 + x[3] * e2
+        nv = float(np.linalg.norm(v))
+        u = v / nv
+        d = Pm - (x[0] * e1 + x[1] * e2)
+        tt = d @ u
+        perp = d - np.outer(tt, u)
+        rad = np.maximum(np.linalg.norm(perp, axis=1), 1e-12)
+        p1, p2 = perp @ e1, perp @ e2
+        J = np.empty((len(Pm) + 4, 6))
+        J[:-4, 0] = -p1 / rad + x[5] * float(u @ e1)
+        J[:-4, 1] = -p2 / rad + x[5] * float(u @ e2)
+        J[:-4, 2] = -(tt / rad + x[5]) * p1 / nv
+        J[:-4, 3] = -(tt / rad + x[5]) * p2 / nv
+        J[:-4, 4] = -1.0
+        J[:-4, 5] = -tt
+        w_a, w_b = cfg.loss_scale_m / sig_a, cfg.loss_scale_m / sig_b
+        J[-4:] = 0.0
+        J[-4, [0, 2]] = w_b, w_b * L / 2
+        J[-3, [1, 3]] = w_b, w_b * L / 2
+        J[-2, [0, 2]] = w_a, -w_a * L / 2
+        J[-1, [1, 3]] = w_a, -w_a * L / 2
+        if cfg.endpoint_ref == "top_surface":
+            J[[-3, -1]] *= 0.1
+        return J
+
     x0 = x_init.copy()
     x0[4] = float(np.clip(x0[4], cfg.min_radius_m + 1e-6, cfg.max_radius_m - 1e-6))
     r_lo = max(cfg.min_radius_m, x0[4] - cfg.radius_window_m)  # about the profiles' radius
@@ -499,7 +559,7 @@ def fit_log(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = 
         ub = [np.inf] * 4 + [r_hi, 0.2]
     sol = None
     for _ in range(2):  # fit, re-select the band around the fitted surface, refit
-        sol = least_squares(residuals, x0, loss="soft_l1", f_scale=cfg.loss_scale_m,
+        sol = least_squares(residuals, x0, jac=jacobian, loss="soft_l1", f_scale=cfg.loss_scale_m, tr_solver="lsmr",
                             bounds=(lb, ub), x_scale=[0.01, 0.01, 0.01, 0.01, 0.01, 0.01], max_nfev=60)
         new_sel = select(sol.x)
         if new_sel.size < cfg.min_points:
@@ -599,6 +659,18 @@ def _distance_to_logs(P: np.ndarray, logs: Sequence[LogSpec], pad_m: float) -> n
         d = rad - r
         best[inside] = np.minimum(best[inside], d)
     return best
+
+
+def points_on_no_other_log(P: np.ndarray, logs: Sequence[LogSpec], band_m: float) -> list[np.ndarray]:
+    """For each of ``logs``, a mask of the points ``P`` that lie on no other log (farther than ``band_m``
+    from every other log's surface): what may show where that log ends (a neighbour's top where it
+    touches the end is not this log)."""
+    on_log = [np.abs(_distance_to_logs(P, [log], pad_m=0.0)) <= band_m for log in logs]
+    out = []
+    for i in range(len(logs)):
+        others = [m for j, m in enumerate(on_log) if j != i]
+        out.append(~np.logical_or.reduce(others) if others else np.ones(len(P), bool))
+    return out
 
 
 # -- terrain ---------------------------------------------------------------------------------
@@ -873,12 +945,13 @@ def _hull_holds_a_log(C: np.ndarray, axis_samples: np.ndarray) -> bool:
     """True when the obstacle that the points ``C`` would make (their convex hull down to the
     ground) contains a point of a log's axis: two clusters on either side of a log that make
     such a hull are two obstacles, not one that the log lies across (a log rests on top)."""
-    from scipy.spatial import Delaunay
+    from scipy.spatial import ConvexHull, Delaunay
 
     below = C.copy()
     below[:, 2] = C[:, 2].min() - 0.05
     try:
-        tri = Delaunay(np.vstack([C, below]))
+        pts = np.vstack([C, below])
+        tri = Delaunay(pts[ConvexHull(pts).vertices])  # the hull's vertices span the same region, fast
     except Exception:  # flat or degenerate: no volume, holds nothing
         return False
     return bool((tri.find_simplex(axis_samples) >= 0).any())
@@ -934,8 +1007,9 @@ def _rock_from_points(C: np.ndarray, terrain: TerrainSpec, cfg: FitConfig) -> Ro
 # -- validation ------------------------------------------------------------------------------
 def separate_logs(pile: PileSpec, cfg: FitConfig | None = None) -> tuple[PileSpec, list[str], list[float]]:
     """Move logs that interpenetrate other bodies (fit noise) out along the contact normal by
-    the penetration depth, the worst contact first, until the twin accepts the pile (of two
-    logs, the one the normal moves up; side by side logs are pushed apart, stacked ones lifted).
+    the penetration depth, the worst contact first, until the twin accepts the pile (two logs side
+    by side, the contact normal within 45 deg of horizontal, are each pushed half the way apart,
+    horizontally; of two stacked logs the upper one is lifted).
     Returns the pile, what was done, and how far each log moved [m]. Raises
     :class:`FitError` when a log would have to move more than ``max_move_m``."""
     from synth.errors import PileValidationError
@@ -974,24 +1048,32 @@ def separate_logs(pile: PileSpec, cfg: FitConfig | None = None) -> tuple[PileSpe
         dist, i, other, normal = worst
         other_name = names.get(other, str(other))
         j = log_of.get(other)
-        if j is not None and normal[2] < 0:  # move whichever log goes UP (never push one down)
-            i, normal, other_name = j, -normal, f"log {worst[1]}"
-        step = normal / max(np.linalg.norm(normal), 1e-9) * (-dist + 0.002)
-        moves[i] = moves[i] + step
-        if np.linalg.norm(moves[i]) > cfg.max_move_m:
-            raise FitError(
-                f"log {i} would have to move {np.linalg.norm(moves[i]) * 100:.1f} cm to clear {other_name} "
-                f"(limit {cfg.max_move_m * 100:.0f} cm); its fit or its GNSS end points are wrong"
-            )
-        log = pile.logs[i]
+        n = normal / max(np.linalg.norm(normal), 1e-9)
+        n_h = np.array([n[0], n[1], 0.0])
+        if j is not None and np.linalg.norm(n_h) ** 2 >= SIDE_CONTACT_MIN_H2:
+            # side by side: both fits are as sure, so each goes half the way, horizontally (neither
+            # is pushed down into the ground, nor lifted off it)
+            step = n_h * ((-dist + 0.002) / (2 * float(n_h @ n_h)))
+            steps = [(i, step, f"log {j}"), (j, -step, f"log {i}")]
+        else:
+            if j is not None and n[2] < 0:  # move whichever log goes UP (never push one down)
+                i, n, other_name = j, -n, f"log {worst[1]}"
+            steps = [(i, n * (-dist + 0.002), other_name)]
         logs = list(pile.logs)
-        logs[i] = replace(log, centre_m=tuple(float(v) for v in np.asarray(log.centre_m) + step))
+        for k, step, against in steps:
+            moves[k] = moves[k] + step
+            if np.linalg.norm(moves[k]) > cfg.max_move_m:
+                raise FitError(
+                    f"log {k} would have to move {np.linalg.norm(moves[k]) * 100:.1f} cm to clear {against} "
+                    f"(limit {cfg.max_move_m * 100:.0f} cm); its fit or its GNSS end points are wrong"
+                )
+            logs[k] = replace(logs[k], centre_m=tuple(float(v) for v in np.asarray(logs[k].centre_m) + step))
+            how = "lifted" if step[2] > 0.7 * np.linalg.norm(step) else "moved"
+            notes.append(f"log {k} {how} {np.linalg.norm(step) * 1000:.1f} mm along "
+                         f"({step[0] / np.linalg.norm(step):+.2f}, {step[1] / np.linalg.norm(step):+.2f}, "
+                         f"{step[2] / np.linalg.norm(step):+.2f}) (log {k} / {against} interpenetrated "
+                         f"{-dist * 1000:.1f} mm)")
         pile = pile.with_logs(tuple(logs))
-        how = "lifted" if step[2] > 0.7 * np.linalg.norm(step) else "moved"
-        notes.append(f"log {i} {how} {np.linalg.norm(step) * 1000:.1f} mm along "
-                     f"({step[0] / np.linalg.norm(step):+.2f}, {step[1] / np.linalg.norm(step):+.2f}, "
-                     f"{step[2] / np.linalg.norm(step):+.2f}) (log {i} / {other_name} interpenetrated "
-                     f"{-dist * 1000:.1f} mm)")
     raise FitError("could not separate the reconstructed logs; check the fits")
 
 
@@ -1246,10 +1328,19 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
              cfg: FitConfig | None = None, progress: Callable[[str], None] | None = None,
              georef: Any = None, notes: str = "",
              first_pass: Mapping[str, LogSpec] | None = None,
-             sigmas: Mapping[str, tuple[float, float]] | None = None) -> PileFit:
+             sigmas: Mapping[str, tuple[float, float]] | None = None,
+             place_ends: Callable[[str, LogSpec, str, np.ndarray, bool], tuple[LogSpec, Any]] | None = None,
+             ) -> PileFit:
     """Fit a whole pile to scan ``points`` ((N, 3), pile frame) and GNSS ``endpoints``
-    (``{log_id: (end_a, end_b)}``, pile frame). ``extent_m``: side of the terrain patch,
-    centred on the origin. Returns a :class:`PileFit` whose ``pile`` has ``source="reconstructed"``.
+    (``{log_id: (end_a, end_b)}``, pile frame: where each log is searched for). ``extent_m``: side
+    of the terrain patch, centred on the origin. Returns a :class:`PileFit` whose ``pile`` has
+    ``source="reconstructed"``.
+
+    ``place_ends``: called once every log is placed, before the terrain, with (log id, its
+    LogSpec, how it was placed, the scan points on no other log, whether end b is its butt); returns
+    the log with its ends moved and what placed them (two dicts, ends a and b, kept in
+    ``LogFit.ends``; their ``source`` becomes ``LogFit.end_source``) — how
+    :mod:`reconstruct.fuse` places each end from the scan and the survey by their accuracies.
     """
     import time
 
@@ -1380,6 +1471,14 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
         say(f"log {log_id}: seen only in part; axis from GNSS, diameter {fitted[i][1].diameter_m * 100:.1f} cm")
     for i in sorted(hidden):
         place_hidden(i, hidden[i])
+    placed: dict[int, tuple] = {}
+    if place_ends is not None:
+        mine = points_on_no_other_log(P, [fitted[i][1] for i in range(len(ids))], cfg.inlier_band_m)
+        for i, log_id in enumerate(ids):
+            f, spec, swapped = fitted[i]
+            spec, ends_info = place_ends(log_id, spec, how[i], P[mine[i]], bool(swapped))
+            fitted[i] = (f, spec, swapped)
+            placed[i] = tuple(e if isinstance(e, dict) else e.to_dict() for e in ends_info)
     fits: list[LogFit] = []
     logs: list[LogSpec] = []
     for i, log_id in enumerate(ids):
@@ -1398,6 +1497,15 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
             swapped=bool(swapped), end_source=tuple(reversed(f["end_source"])) if swapped else tuple(f["end_source"]),
             fit=how[i],
         ))
+        if i in placed:
+            lf = fits[-1]
+            lf.ends = [dict(e) for e in placed[i]]
+            srcs = tuple(e["source"] for e in placed[i])
+            lf.end_source = tuple(reversed(srcs)) if swapped else srcs
+            # each survey point's distance from the placed log's axis (NaN: no point)
+            lf.gnss_residual_a_m, lf.gnss_residual_b_m = (
+                float(e.get("gnss_axis_distance_m", math.nan) if e.get("gnss_axis_distance_m") is not None
+                      else math.nan) for e in placed[i])
     timings["logs_s"] = time.perf_counter() - t0
     t1 = time.perf_counter()
     say("fitting terrain")

@@ -201,6 +201,15 @@ class GnssSurvey:
             raise GnssFormatError(f"logs {missing} lack an 'a' or 'b' end; run check_survey first")
         return {k: (v["a"], v["b"]) for k, v in out.items()}
 
+    def ends_site(self, origin: Any = None) -> dict[str, tuple[np.ndarray | None, np.ndarray | None]]:
+        """``{log_id: (end_a, end_b)}`` in the site ENU frame [m], ``None`` for an end not measured
+        (:func:`check_survey` with ``require_both_ends=False``)."""
+        site = self.points_site(origin)
+        out: dict[str, list] = {}
+        for p, xyz in zip(self.points, site):
+            out.setdefault(p.log_id, [None, None])[ENDS.index(p.end)] = xyz
+        return {k: (v[0], v[1]) for k, v in out.items()}
+
     def endpoints_pile(self, georef: Georeference) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """``{log_id: (end_a, end_b)}`` in the pile frame of ``georef`` [m] (through its site
         frame and ``T_site_pile``) — ready for :meth:`synth.pile.LogSpec.from_endpoints`."""
@@ -216,9 +225,11 @@ class GnssSurvey:
 
 # -- checks ---------------------------------------------------------------------------------
 def check_survey(survey: GnssSurvey, *, allow_float: bool = False, max_distance_m: float = 50.0,
-                 area: Any = None) -> GnssSurvey:
+                 area: Any = None, require_both_ends: bool = True) -> GnssSurvey:
     """Check a survey (see the module docstring); return it, with a warning added when float
     points were admitted. ``area``: the scanned area's origin (a Georeference or (lat, lon, h)).
+    ``require_both_ends=False`` admits logs with one end measured (a warning names them): the
+    reconstruction places the other end from the scan.
     Raises :class:`GnssFormatError`, :class:`GnssQualityError` or :class:`GnssOutlierError`."""
     if not max_distance_m > 0:
         raise ValueError(f"max_distance_m must be > 0 m, got {max_distance_m}")
@@ -241,10 +252,14 @@ def check_survey(survey: GnssSurvey, *, allow_float: bool = False, max_distance_
                 f"{p.source or '?'}); delete one or fix its log id / end"
             )
         seen[key] = p
+    one_ended = []
     for log_id in survey.log_ids:
         for end in ENDS:
             if (log_id, end) not in seen:
                 other = seen[(log_id, "b" if end == "a" else "a")]
+                if not require_both_ends:
+                    one_ended.append(f"{log_id} (no end {end})")
+                    continue
                 raise GnssFormatError(
                     f"log {log_id!r} has no end {end!r} (only {other.where}); measure the other "
                     "end or remove the log from the survey"
@@ -256,9 +271,13 @@ def check_survey(survey: GnssSurvey, *, allow_float: bool = False, max_distance_
         listing = "; ".join(f"{p.where} is {p.fix}" for p in bad[:8])
         more = f" (and {len(bad) - 8} more)" if len(bad) > 8 else ""
         hint = ("re-measure them with an RTK fixed solution"
-                + ("" if allow_float else ", or pass allow_float=True to accept RTK float points"))
+                + ("" if allow_float else ", or accept RTK float points explicitly with --allow-float "
+                   "(the scan then places every float end it sees)"))
         raise GnssQualityError(f"{len(bad)} point(s) are not {' / '.join(accepted)}: {listing}{more}; {hint}")
     warnings = list(survey.warnings)
+    if one_ended:
+        warnings.append(f"{len(one_ended)} log(s) with one end measured: {', '.join(one_ended)}; the other end "
+                        "comes from the scan")
     n_float = sum(p.fix == "rtk_float" for p in pts)
     if n_float:
         warnings.append(f"{n_float} RTK float point(s) admitted (decimetre-level accuracy)")
@@ -286,7 +305,7 @@ def _check_distances(pts: Sequence[GnssPoint], site: np.ndarray, limit: float, w
 
 # -- CSV reader -----------------------------------------------------------------------------
 def read_gnss_csv(path: str | Path, *, allow_float: bool = False, max_distance_m: float = 50.0,
-                  area: Any = None) -> GnssSurvey:
+                  area: Any = None, require_both_ends: bool = True) -> GnssSurvey:
     """Read and check a survey CSV (format in the module docstring).
 
     Raises :class:`GnssFileError` (missing/unreadable), :class:`GnssFormatError`,
@@ -359,7 +378,8 @@ def read_gnss_csv(path: str | Path, *, allow_float: bool = False, max_distance_m
             raise GnssFormatError(str(exc)) from exc
         points.append(point)
     survey = GnssSurvey(points=tuple(points), source=f"{path} ({crs})")
-    return check_survey(survey, allow_float=allow_float, max_distance_m=max_distance_m, area=area)
+    return check_survey(survey, allow_float=allow_float, max_distance_m=max_distance_m, area=area,
+                        require_both_ends=require_both_ends)
 
 
 def _read_lines(path: Path) -> list[tuple[int, str]]:
@@ -523,6 +543,7 @@ def simulate_survey(
     float_sigma_v_m: float = 0.40,
     t0_utc: str = "2026-05-14T09:00:00Z",
     seconds_per_point: float = 20.0,
+    omit: Sequence[str] = (),
 ) -> GnssSurvey:
     """A survey as an RTK rover would measure the given log ends.
 
@@ -533,6 +554,8 @@ def simulate_survey(
     noise (pass ``n_float > 0`` to exercise the float path; the default survey is all fixed so
     that it passes :func:`check_survey` as is). Reported accuracies are the sigmas scaled by a
     random 0.8–1.25 (receivers' estimates are themselves approximate). Times start at ``t0_utc``.
+    ``omit``: ids of logs left out of the survey (their points are drawn, then dropped, so the other
+    points are the same as without it; ``n_float`` counts the points kept).
     """
     if not (sigma_h_m >= 0 and sigma_v_m >= 0 and float_sigma_h_m >= 0 and float_sigma_v_m >= 0):
         raise ValueError("noise sigmas must be >= 0 m")
@@ -541,23 +564,30 @@ def simulate_survey(
     else:
         items = [(f"log{i}", v) for i, v in enumerate(logs_endpoints_site)]
     n_pts = 2 * len(items)
-    if not 0 <= n_float <= n_pts:
-        raise ValueError(f"n_float must be in [0, {n_pts}] (the number of log ends), got {n_float}")
+    unknown = set(omit) - {k for k, _ in items}
+    if unknown:
+        raise ValueError(f"omit names logs that are not there: {sorted(unknown)}")
+    kept = np.array([items[k // 2][0] not in set(omit) for k in range(n_pts)])
+    if not 0 <= n_float <= int(kept.sum()):
+        raise ValueError(f"n_float must be in [0, {int(kept.sum())}] (the number of log ends surveyed), got {n_float}")
     truth = np.array([[np.asarray(a, float), np.asarray(b, float)] for _, (a, b) in items]).reshape(-1, 3)
     is_float = np.zeros(n_pts, bool)
-    is_float[rng.choice(n_pts, size=n_float, replace=False)] = True
+    is_float[np.flatnonzero(kept)[rng.choice(int(kept.sum()), size=n_float, replace=False)]] = True
     sh = np.where(is_float, float_sigma_h_m, sigma_h_m)
     sv = np.where(is_float, float_sigma_v_m, sigma_v_m)
     noise = rng.standard_normal((n_pts, 3)) * np.stack([sh / math.sqrt(2), sh / math.sqrt(2), sv], axis=1)
     lat, lon, h = geodesy.site_to_geodetic(georef, truth + noise)
     t0 = _parse_time(t0_utc, "t0_utc")
+    acc = rng.uniform(0.8, 1.25, size=(n_pts, 2))  # the same stream as one draw per value, point by point
     points = []
     for k in range(n_pts):
         log_id = items[k // 2][0]
+        if not kept[k]:
+            continue
         points.append(GnssPoint(
             log_id=log_id, end=ENDS[k % 2], lat_deg=float(lat[k]), lon_deg=float(lon[k]),
             h_ell_m=float(h[k]), fix="rtk_float" if is_float[k] else "rtk_fixed",
-            h_acc_m=float(sh[k] * rng.uniform(0.8, 1.25)), v_acc_m=float(sv[k] * rng.uniform(0.8, 1.25)),
+            h_acc_m=float(sh[k] * acc[k, 0]), v_acc_m=float(sv[k] * acc[k, 1]),
             time_utc=_iso(t0 + dt.timedelta(seconds=k * seconds_per_point)),
             source=f"simulated point {k}",
         ))

@@ -2,8 +2,9 @@
 
 ``reconstruct(scan_dir, gnss_path, out_dir)`` runs every stage and writes its results:
 
-1. **Survey** (:mod:`reconstruct.gnss`): the log end points, checked (RTK fixed, both ends of
-   every log, no outliers), in the *site frame* (ENU at ``site_origin``).
+1. **Survey** (:mod:`reconstruct.gnss`): the log end points, checked (RTK fixed unless
+   ``allow_float``; no outliers; a log with one end measured is admitted), in the *site frame* (ENU
+   at ``site_origin``), each with its accuracy (:func:`reconstruct.fuse.point_accuracy`).
 2. **Scan** (:mod:`reconstruct.stereo`): the fused point cloud of every pair, in the *scan
    frame* (the frame of the calibrations' ``T_pile_cam``). When the pairs carry no pose (a
    handheld/boom camera without a pose sensor; ``pair_poses``), their poses come from pycolmap
@@ -16,25 +17,35 @@
    (:func:`coarse_scan_pose`: ground plane, yaw and shift search; the site origin is then the
    mean surveyed point, and the refinement below runs in 6 DoF). ``report.json`` names the
    source (``scan_pose_source``: "config", the scan_pose.json path, or "gnss-coarse"). Every
-   GNSS end point must then lie within ``max_endpoint_distance_m`` (horizontally) of
-   scan points — otherwise the scan and the survey are of different places, or a log id is
-   wrong, and the error names the point.
-4. **Registration refinement**: each log is fitted to the scan around its GNSS axis; the rigid
-   transform (open3d's point-to-point estimation, Umeyama's method; scale optional) that brings
-   the fitted axes through the GNSS end points is found by iterating closest points on the
-   axes (point-to-line ICP over the end points); the logs are refitted and this repeated until
-   the correction is negligible (``refine_rounds``). Its size and the residuals before/after are
-   reported; a correction beyond ``max_correction_m`` / ``max_correction_deg`` is an error (the
-   fits start from the GNSS axes, so the given pose must be right to a few centimetres).
-5. **Fit** (:mod:`reconstruct.fit`): logs, terrain and obstacles in the new *pile frame* (the
+   GNSS end point must then lie within ``max_endpoint_distance_m`` (horizontally; four sigma for an
+   imprecise point) of scan points — otherwise the scan and the survey are of different places, or
+   a log id is wrong, and the error names the point.
+4. **Logs in the scan, matched to the survey** (:mod:`reconstruct.fuse`): the logs the scan shows
+   (ridges of its top view), each surveyed log matched to one of them by its points' accuracies;
+   where each log is fitted comes from the scan's axis (and from the survey for a log the scan
+   does not show). A log the survey missed but the scan shows is kept (``scan0``...); geometry two
+   matchings explain nearly equally well is an error naming the logs to re-measure.
+5. **Registration refinement** (:func:`refine_registration`): each matched log is fitted around
+   its scan axis; the correction (4 DoF: yaw + translation, or 6 DoF after a coarse pose; translation
+   only for parallel logs) that brings the fitted axes — and the ends the scan sees — through the
+   survey points, each weighted by its accuracy, robustly (Cauchy), against the prior that the scan
+   pose is right to ``scan_pose_sigma_m`` / ``scan_pose_sigma_deg``. Its size, the residuals and the
+   points it did not believe (``outliers``) are reported; a correction beyond ``max_correction_m`` /
+   ``max_correction_deg`` is an error.
+6. **Fit** (:mod:`reconstruct.fit`): logs, terrain and obstacles in the new *pile frame* (the
    site frame turned about the vertical so the logs' mean direction lies at ``log_direction_deg``
-   when that is set, shifted to the centre of the surveyed logs, at ground level; a square patch
-   of the training images' pixel pitch, :func:`patch_extent`), the pile checked in the twin.
-6. **Outputs** in ``out_dir``: ``pile.json`` (with the site georeference), ``ortho.npz`` (the
+   when that is set, shifted to the centre of the logs, at ground level; a square patch
+   of the training images' pixel pitch, :func:`patch_extent`), each log's ends placed from the scan
+   where it sees them and from the survey where it does not (:func:`reconstruct.fuse.place_log_ends`:
+   per end a source — scan, fixed, float, inferred — and a 1-sigma uncertainty), the pile checked in
+   the twin.
+7. **Outputs** in ``out_dir``: ``pile.json`` (with the site georeference), ``ortho.npz`` (the
    re-render in the training format, :func:`synth.render.render_ortho`), ``preview.png``,
    ``compare.png`` (scan seen from above beside the re-render) and ``report.json``
-   (``loggrasp.reconstruction-report`` 1.0: per log length, diameters, GNSS residuals, fit
-   quality; registration; obstacles; timings).
+   (``loggrasp.reconstruction-report`` 1.2: per log length, diameters, GNSS residuals, fit
+   quality and its ends as placed; the matching (``fusion``); ends on a weak estimate
+   (``weak_ends``) and survey points the scan contradicts (``contradicted_points``); registration;
+   obstacles; timings).
 """
 
 from __future__ import annotations
@@ -49,7 +60,13 @@ from typing import Any, Callable
 import numpy as np
 
 from reconstruct.errors import FitError, ReconstructError, RegistrationError, ScanError
-from reconstruct.fit import FitConfig, PileFit, fit_log, fit_pile, log_spec_from_fit, natural_key
+from reconstruct.fit import (
+    FitConfig, PileFit, fit_log, fit_pile, log_spec_from_fit, natural_key, points_on_no_other_log,
+)
+from reconstruct.fuse import (
+    FuseConfig, SurveyEnd, absorb_pieces, find_scan_logs, match_survey, place_log_ends, point_accuracy, prior_axis,
+    scan_end_interval, seen_end,
+)
 from reconstruct.sfm import SfmConfig
 from reconstruct.stereo import ScanCloud, StereoConfig, scan_cloud
 from synth.frames import apply_T, invert_T, make_T, rot_z
@@ -58,7 +75,8 @@ from synth.pile import Georeference, PileSpec, atomic_write_bytes, write_pile
 SCAN_POSE_FORMAT = "loggrasp.scan-pose"
 SCAN_POSE_VERSION = "1.0"
 REPORT_FORMAT = "loggrasp.reconstruction-report"
-REPORT_VERSION = "1.1"  # 1.1: per-log "fit" (scan, partial, hidden)
+REPORT_VERSION = "1.2"  # 1.1: per-log "fit" (scan, partial, hidden); 1.2: per-end "ends" (source, sigma), "fusion",
+#                       "weak_ends", "contradicted_points"
 PAIR_POSES = ("auto", "calibration", "sfm")
 GEOREGISTER = ("auto", "scan-pose", "gnss")
 RENDER_PX_MULTIPLE = 16  # re-render sides are a multiple of this (a depth-4 U-Net pools 4 times) [px]
@@ -142,8 +160,16 @@ class ReconstructConfig:
     #                           "6dof": full rotation (roll about a parallel pile is weakly seen)
     refine_with_scale: bool = False  # let the refinement scale the scan (a stereo baseline error)
     refine_iterations: int = 10  # point-to-line iterations per round [-]
-    refine_rounds: int = 3  # fit logs + estimate the correction, at most this often [-]
-    registration_max_sigma_m: float = 0.05  # less accurate GNSS points do not steer it [m]
+    refine_rounds: int = 3  # kept for old configs: the fits start from the scan's own log axes, one round [-]
+    registration_max_sigma_m: float = 0.05  # points less accurate than this (radial) are not in the reported
+    #                                         residual RMS; they steer by their accuracy (weight 1/sigma^2) [m]
+    registration_robust_sigma: float = 2.5  # Cauchy scale of the registration's normalised residuals [-]
+    registration_outlier_sigma: float = 4.0  # a point this many sigma off its fitted axis after it is reported [-]
+    registration_prior_sigma_m: float = 0.03  # how far the fitted axis may stray from its prior (scan log) [m]
+    scan_pose_sigma_m: float = 0.03  # the given scan pose (the crane's RTK/IMU camera pose) is right to this
+    #                                  (1 sigma, per axis; the twin's scans are made so) [m]
+    scan_pose_sigma_deg: float = 0.5  # ... and its rotation to this [deg]
+    fuse: FuseConfig = field(default_factory=FuseConfig)  # logs found in the scan, matched, their ends placed
     max_correction_m: float = 0.30  # larger refinement translations are an error [m]
     max_correction_deg: float = 5.0  # larger refinement rotations are an error [deg]
     terrain_margin_m: float = 0.75  # terrain reaches this far beyond the outermost log end [m]
@@ -179,6 +205,10 @@ class ReconstructConfig:
             raise ValueError(f"georegister must be one of {GEOREGISTER}, got {self.georegister!r}")
         if self.refine_iterations < 1 or self.refine_rounds < 1:
             raise ValueError("refine_iterations and refine_rounds must be >= 1")
+        for name in ("registration_robust_sigma", "registration_outlier_sigma", "registration_prior_sigma_m",
+                     "scan_pose_sigma_m", "scan_pose_sigma_deg", "registration_max_sigma_m"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
 
 
 def parse_log_direction(text: str) -> float | None:
@@ -233,34 +263,71 @@ class ReconstructionResult:
 
 
 # -- registration ------------------------------------------------------------------------------
-def _rigid_from_correspondences(src: np.ndarray, dst: np.ndarray, with_scale: bool) -> np.ndarray:
-    """Similarity/rigid transform (4x4) taking ``src`` points onto ``dst`` (Umeyama, via open3d)."""
-    import open3d as o3d
+def _survey_ends_from(endpoints: dict, sigmas: dict | None) -> dict:
+    """:class:`reconstruct.fuse.SurveyEnd` pairs from plain end points and 1-sigma 3-D accuracies
+    (``sigmas``: ``{log_id: (sigma_a, sigma_b)}``; default RTK fixed)."""
+    from reconstruct.fuse import SurveyEnd
 
-    a = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(src, dtype=np.float64)))
-    b = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(dst, dtype=np.float64)))
-    corr = o3d.utility.Vector2iVector(np.column_stack([np.arange(len(src)), np.arange(len(src))]).astype(np.int32))
-    est = o3d.pipelines.registration.TransformationEstimationPointToPoint(with_scaling=with_scale)
-    return np.asarray(est.compute_transformation(a, b, corr), dtype=np.float64)
+    out = {}
+    for k, ends in endpoints.items():
+        pair = []
+        for end, p in zip("ab", ends):
+            if p is None:
+                pair.append(None)
+                continue
+            s = (sigmas or {}).get(k, (None, None))["ab".index(end)]
+            s = 0.02 if s is None or not np.isfinite(s) else float(s)
+            pair.append(SurveyEnd(np.asarray(p, dtype=float), s / math.sqrt(3.0), s / math.sqrt(3.0),
+                                  "rtk_fixed" if s <= 0.05 else "rtk_float"))
+        out[k] = tuple(pair)
+    return out
 
 
-def refine_registration(points: np.ndarray, endpoints: dict[str, tuple[np.ndarray, np.ndarray]],
-                        cfg: ReconstructConfig, sigmas: dict[str, tuple[float, float]] | None = None,
+def _correction(x: np.ndarray, mode: str, with_scale: bool, pivot: np.ndarray) -> np.ndarray:
+    """The 4x4 correction of parameters ``x`` (small rotation about ``pivot``, translation, log scale)."""
+    import cv2
+
+    if mode == "6dof":
+        rvec, t = x[:3], x[3:6]
+    elif mode == "4dof":
+        rvec, t = np.array([0.0, 0.0, x[0]]), x[1:4]
+    else:
+        rvec, t = np.zeros(3), x[:3]
+    R = cv2.Rodrigues(np.asarray(rvec, dtype=np.float64).reshape(3, 1))[0]
+    s = math.exp(float(x[-1])) if with_scale else 1.0
+    T = np.eye(4)
+    T[:3, :3] = s * R
+    T[:3, 3] = pivot + np.asarray(t, dtype=float) - s * R @ pivot
+    return T
+
+
+def refine_registration(points: np.ndarray, endpoints: dict, cfg: ReconstructConfig,
+                        sigmas: dict | None = None, priors: dict | None = None, survey: dict | None = None,
                         ) -> tuple[np.ndarray, dict, dict]:
     """Correction ``T`` (4x4, applied to ``points``) that brings the logs fitted to the scan
-    through their GNSS end points, a report (residuals before/after, size of the correction)
-    and the fitted logs (``{log_id: LogSpec}``, moved by ``T``). Points and endpoints in the
-    same frame. ``sigmas``: ``{log_id: (sigma_a, sigma_b)}`` 1-sigma accuracy of the GNSS points
-    [m]; points worse than ``registration_max_sigma_m`` (RTK float) do not steer the transform."""
+    through their surveyed end points, a report and the fitted logs (``{log_id: LogSpec}``, moved by
+    ``T``). Points and end points in the same frame.
+
+    Each log is fitted around its ``priors`` axis (``{log_id: (a, b)}``; default ``endpoints``);
+    the survey points (``survey``: ``{log_id: (SurveyEnd | None, SurveyEnd | None)}``, or
+    ``endpoints`` with ``sigmas``, 1-sigma 3-D [m]) are the targets. Each point's distance from its
+    fitted axis counts by its own accuracy, robustly (Cauchy-weighted least squares: a float or wrong
+    point cannot drag the scan), against a prior that the given scan pose is right to
+    ``scan_pose_sigma_m`` / ``scan_pose_sigma_deg``. With one log (or parallel ones) a rotation about
+    their common direction is unobservable: translation only. Points whose normalised residual stays
+    above ``registration_outlier_sigma`` are reported (``outliers``)."""
+    from scipy.optimize import least_squares
+
     fcfg = cfg.fit
-    axes = {}
-    failures = {}
+    survey = survey if survey is not None else _survey_ends_from(endpoints, sigmas)
+    priors = priors if priors is not None else {k: v for k, v in endpoints.items() if all(p is not None for p in v)}
+    axes, failures = {}, {}
     rng = np.random.default_rng(fcfg.seed)
-    for log_id in sorted(endpoints, key=natural_key):
-        a, b = endpoints[log_id]
+    for log_id in sorted(priors, key=natural_key):
+        a, b = priors[log_id]
         try:
-            sa, sb = (sigmas or {}).get(log_id, (None, None))
-            f = fit_log(points, a, b, fcfg, log_id=log_id, rng=rng, sigma_a_m=sa, sigma_b_m=sb)
+            f = fit_log(points, a, b, fcfg, log_id=log_id, rng=rng, sigma_a_m=cfg.registration_prior_sigma_m,
+                        sigma_b_m=cfg.registration_prior_sigma_m)
         except ReconstructError as exc:
             failures[log_id] = str(exc)
             continue
@@ -269,59 +336,115 @@ def refine_registration(points: np.ndarray, endpoints: dict[str, tuple[np.ndarra
         raise RegistrationError("no log could be fitted to the scan around its GNSS axis: "
                                 + "; ".join(failures.values()))
     ids = list(axes)
-    sig = np.array([s for k in ids for s in (sigmas or {}).get(k, (0.0, 0.0))], dtype=np.float64)
-    good = ~(sig > cfg.registration_max_sigma_m)  # NaN (unknown) counts as good
-    if good.sum() < 2:
-        good[:] = True
-    gnss = np.array([p for k in ids for p in endpoints[k]], dtype=np.float64)[good]
-    C = np.array([axes[k][0] for k in ids for _ in range(2)])[good]  # a point on each fitted axis
-    U = np.array([axes[k][1] for k in ids for _ in range(2)])[good]
+    targets = [(k, end, e) for k in ids if k in survey for end, e in zip("ab", survey[k]) if e is not None]
+    if not targets:
+        raise RegistrationError("no surveyed end point lies on a log fitted to the scan: nothing to register to")
+    C = np.array([axes[k][0] for k, _, _ in targets])
+    U = np.array([axes[k][1] for k, _, _ in targets])
+    G = np.array([e.position_m for _, _, e in targets])
+    SH = np.array([e.sigma_h_m for _, _, e in targets])
+    SV = np.array([e.sigma_v_m for _, _, e in targets])
+    # where the scan itself sees a surveyed end (its top stops, the scan sees below it): the survey point's
+    # place along the axis counts too, which fixes the shift along parallel logs
+    # (walked over the points on no other fitted log, as the ends are placed later: a neighbour's top
+    # where it touches this log's end is not this log)
+    S = np.full((len(targets), 3), np.nan)
+    SA = np.ones(len(targets))
+    mine = dict(zip(ids, points_on_no_other_log(points, [log_spec_from_fit(axes[k][2], fcfg)[0] for k in ids],
+                                                fcfg.inlier_band_m)))
+    for i, (k, end, e) in enumerate(targets):
+        f = axes[k][2]
+        p0, p1 = f["ends"]
+        r = 0.5 * (f["radius_a_m"] + f["radius_b_m"])
+        iv = scan_end_interval(points[mine[k]], p0, p1, r, toward_p1=(end == "b"), reach_m=cfg.fuse.end_search_m,
+                               cfg=cfg.fuse)
+        if iv.state == "seen":
+            u_k = (p1 - p0) / max(float(np.linalg.norm(p1 - p0)), 1e-9)
+            S[i] = p0 + u_k * seen_end(iv)
+            SA[i] = math.hypot(e.sigma_along(u_k), cfg.fuse.scan_end_sigma_m)
+    seen = np.isfinite(S[:, 0])
     directions = np.array([axes[k][1] for k in ids])
-    # with one log (or parallel ones) a rotation about the common axis is unobservable: translate only
     spread = np.degrees(np.arccos(np.clip(np.abs(directions @ directions.T), 0, 1))).max() if len(ids) > 1 else 0.0
     full = len(ids) >= 2 and spread > 10.0
+    mode = cfg.refine_dof if full else "translation"
+    with_scale = bool(cfg.refine_with_scale and full)
+    pivot = C.mean(axis=0)
+    n_rot = {"6dof": 3, "4dof": 1, "translation": 0}[mode]
+    x0 = np.zeros(n_rot + 3 + (1 if with_scale else 0))
+    sig_rot = math.radians(cfg.scan_pose_sigma_deg)
 
-    def residuals(T):
-        c = apply_T(T, C)
+    def point_residuals(x: np.ndarray) -> np.ndarray:
+        """(3 per point) the point's offset from its fitted axis across and up, and along it from the end
+        the scan sees (0 where it sees none), in sigmas."""
+        T = _correction(x, mode, with_scale, pivot)
+        c = C @ T[:3, :3].T + T[:3, 3]
         u = U @ T[:3, :3].T
         u /= np.linalg.norm(u, axis=1, keepdims=True)
-        t = np.einsum("ij,ij->i", gnss - c, u)
-        proj = c + u * t[:, None]
-        return proj, np.linalg.norm(gnss - proj, axis=1)
+        d = G - c
+        d -= u * np.einsum("ij,ij->i", d, u)[:, None]
+        n_h = np.cross(u, [0.0, 0.0, 1.0])
+        n_h /= np.maximum(np.linalg.norm(n_h, axis=1, keepdims=True), 1e-9)
+        n_v = np.cross(n_h, u)
+        s_v = np.sqrt(SH ** 2 * (n_v[:, 0] ** 2 + n_v[:, 1] ** 2) + SV ** 2 * n_v[:, 2] ** 2)
+        along = np.zeros(len(G))
+        if seen.any():
+            s_end = S[seen] @ T[:3, :3].T + T[:3, 3]
+            along[seen] = np.einsum("ij,ij->i", G[seen] - s_end, u[seen]) / SA[seen]
+        return np.column_stack([np.einsum("ij,ij->i", d, n_h) / SH, np.einsum("ij,ij->i", d, n_v) / s_v, along])
 
-    T = np.eye(4)
-    _, before = residuals(T)
+    def prior(x: np.ndarray) -> np.ndarray:
+        r = [x[:n_rot] / sig_rot, x[n_rot:n_rot + 3] / cfg.scan_pose_sigma_m]
+        if with_scale:
+            r.append(x[-1:] / 0.02)
+        return np.concatenate(r)
+
+    w = np.ones(len(targets))
+    c_robust = cfg.registration_robust_sigma
+    x = x0
     for _ in range(cfg.refine_iterations):
-        proj, _ = residuals(T)
-        if full and cfg.refine_dof == "6dof":
-            dT = _rigid_from_correspondences(proj, gnss, cfg.refine_with_scale)
-        elif full:  # yaw about the vertical + translation: the scan's gravity direction is kept
-            flat_src, flat_dst = proj.copy(), gnss.copy()
-            flat_src[:, 2] = 0.0
-            flat_dst[:, 2] = 0.0
-            dT = _rigid_from_correspondences(flat_src, flat_dst, cfg.refine_with_scale)
-            dT[2, 3] = float(np.mean(gnss[:, 2] - (proj @ dT[:3, :3].T)[:, 2]))
-        else:
-            dT = make_T(t=np.mean(gnss - proj, axis=0))
-        T = dT @ T
-        if np.linalg.norm(dT[:3, 3]) < 1e-5 and np.allclose(dT[:3, :3], np.eye(3), atol=1e-7):
+        sw = np.sqrt(w)[:, None]
+        sol = least_squares(lambda v: np.concatenate([(point_residuals(v) * sw).ravel(), prior(v)]), x,
+                            x_scale=[0.01] * len(x0), max_nfev=100)
+        moved = float(np.max(np.abs(sol.x - x)))
+        x = sol.x
+        r = np.linalg.norm(point_residuals(x), axis=1)
+        w_new = 1.0 / (1.0 + (r / c_robust) ** 2)  # Cauchy weights
+        if moved < 1e-6 and np.allclose(w_new, w, atol=1e-3):
             break
-    _, after = residuals(T)
+        w = w_new
+    T = _correction(x, mode, with_scale, pivot)
+
+    def metric(Tm: np.ndarray) -> np.ndarray:
+        c = C @ Tm[:3, :3].T + Tm[:3, 3]
+        u = U @ Tm[:3, :3].T
+        u /= np.linalg.norm(u, axis=1, keepdims=True)
+        d = G - c
+        d -= u * np.einsum("ij,ij->i", d, u)[:, None]
+        return np.linalg.norm(d, axis=1)
+
+    before, after = metric(np.eye(4)), metric(T)
+    norm_after = np.linalg.norm(point_residuals(x), axis=1)
+    good = np.array([e.sigma_h_m * math.sqrt(2) <= cfg.registration_max_sigma_m for _, _, e in targets])
+    if not good.any():
+        good[:] = True
     scale = float(np.cbrt(abs(np.linalg.det(T[:3, :3]))))
     R = T[:3, :3] / scale
     angle = math.degrees(math.acos(float(np.clip((np.trace(R) - 1) / 2, -1, 1))))
-    shift = float(np.linalg.norm(T[:3, 3]))
+    shift = float(np.linalg.norm(T[:3, 3] + T[:3, :3] @ pivot - pivot))  # at the logs' centre
+    outliers = [{"log_id": k, "end": end, "fix": e.fix, "residual_m": float(after[i]),
+                 "residual_sigma": float(norm_after[i])}
+                for i, (k, end, e) in enumerate(targets) if norm_after[i] > cfg.registration_outlier_sigma]
     report = {
-        "mode": (cfg.refine_dof if full else "translation"),
-        "with_scale": bool(cfg.refine_with_scale and full), "scale": scale,
+        "mode": mode, "with_scale": with_scale, "scale": scale,
         "correction_m": shift, "correction_deg": angle,
-        "residual_rms_before_m": float(np.sqrt(np.mean(before ** 2))),
-        "residual_rms_after_m": float(np.sqrt(np.mean(after ** 2))),
-        "residual_max_after_m": float(after.max()),
-        "logs_used": ids, "logs_not_fitted": failures, "end_points_used": int(good.sum()),
-        "T_correction": T.tolist(),
+        # RMS over the precise points (RTK fixed): the float ones are metres of noise in comparison
+        "residual_rms_before_m": float(np.sqrt(np.mean(before[good] ** 2))),
+        "residual_rms_after_m": float(np.sqrt(np.mean(after[good] ** 2))),
+        "residual_max_after_m": float(after[good].max()),
+        "logs_used": ids, "logs_not_fitted": failures, "end_points_used": int(len(targets)),
+        "end_points_precise": int(good.sum()), "end_points_seen": int(seen.sum()), "weights": {f"{k}.{end}": float(wi) for (k, end, _), wi in zip(targets, w)},
+        "outliers": outliers, "T_correction": T.tolist(),
     }
-    # the fitted logs, moved with the correction: the first pass of fit_pile
     fitted = {}
     for k in ids:
         f = dict(axes[k][2])
@@ -362,11 +485,14 @@ class CoarseConfig:
     refine_dof: str = "6dof"  # refinement after the coarse pose: the vertical came from the ground plane
     max_correction_m: float = 0.30  # refinement limits after the coarse pose [m]
     max_correction_deg: float = 5.0  # [deg]
+    pose_sigma_m: float = 0.15  # the coarse pose is right to this (1 sigma, the refinement's prior) [m]
+    pose_sigma_deg: float = 3.0  # [deg]
     seed: int = 0  # RANSAC seed [-]
 
     def __post_init__(self) -> None:
         for name in ("voxel_m", "ground_distance_m", "log_min_height_m", "cell_m", "band_m", "yaw_step_deg",
-                     "fine_step_deg", "peak_separation_deg", "max_correction_m", "max_correction_deg"):
+                     "fine_step_deg", "peak_separation_deg", "max_correction_m", "max_correction_deg", "pose_sigma_m",
+                     "pose_sigma_deg"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
         if not self.log_max_height_m > self.log_min_height_m:
@@ -577,31 +703,57 @@ def coarse_scan_pose(points: np.ndarray, camera_positions: np.ndarray,
     return T_site_level @ T_level_scan, report
 
 
-def _point_sigma(p: Any) -> float:
-    """1-sigma 3-D accuracy [m] of a GNSS point: its receiver estimates (and epoch scatter), or
-    typical RTK values (fixed 1.5/2.5 cm, float 25/40 cm) when unknown."""
-    fixed = p.fix == "rtk_fixed"
-    h = p.h_acc_m if np.isfinite(p.h_acc_m) else (0.015 if fixed else 0.25)
-    v = p.v_acc_m if np.isfinite(p.v_acc_m) else (0.025 if fixed else 0.40)
-    h = max(h, p.spread_h_m)
-    v = max(v, p.spread_v_m)
-    return float(max(h, v))
+def _survey_ends(survey: Any, origin: Any) -> dict[str, tuple[SurveyEnd | None, SurveyEnd | None]]:
+    """Every surveyed log's ends in the site frame at ``origin`` with their accuracies
+    (:func:`reconstruct.fuse.point_accuracy`); ``None`` for an end not measured."""
+    site = survey.ends_site(origin)
+    out = {}
+    for k, (a, b) in site.items():
+        pair = []
+        for end, p in zip("ab", (a, b)):
+            if p is None:
+                pair.append(None)
+                continue
+            gp = survey.point(k, end)
+            h, v = point_accuracy(gp)
+            pair.append(SurveyEnd(np.asarray(p, dtype=float), h / math.sqrt(2.0), v, gp.fix))
+        out[k] = tuple(pair)
+    return out
 
 
-def _check_coverage(points_xy: np.ndarray, endpoints: dict[str, tuple[np.ndarray, np.ndarray]],
-                    limit_m: float) -> dict[str, list[float]]:
-    """Horizontal distance from every end point to the nearest scan point; error beyond ``limit_m``."""
+def _new_log_ids(indices: list[int], survey: dict) -> dict[str, int]:
+    """Ids for logs the survey missed (``scan0``, ``scan1``, ... not clashing with surveyed ones)."""
+    out, n = {}, 0
+    for j in indices:
+        while f"scan{n}" in survey:
+            n += 1
+        out[f"scan{n}"] = j
+        n += 1
+    return out
+
+
+def _check_coverage(points_xy: np.ndarray, endpoints: dict[str, tuple[Any, Any]],
+                    limit_m: float) -> dict[str, list[float | None]]:
+    """Horizontal distance from every end point (a :class:`~reconstruct.fuse.SurveyEnd`, a point, or
+    None: not surveyed) to the nearest scan point; an error beyond ``limit_m`` (or four times an
+    imprecise point's accuracy)."""
     from scipy.spatial import cKDTree
 
     tree = cKDTree(points_xy)
-    out = {}
+    out: dict[str, list[float | None]] = {}
     worst = []
     for log_id, ends in endpoints.items():
-        d, _ = tree.query(np.array([e[:2] for e in ends]))
-        out[log_id] = [float(v) for v in d]
-        for end, dist in zip("ab", d):
-            if dist > limit_m:
-                worst.append((float(dist), log_id, end, ends["ab".index(end)]))
+        out[log_id] = []
+        for end, e in zip("ab", ends):
+            if e is None:
+                out[log_id].append(None)
+                continue
+            p = e.position_m if isinstance(e, SurveyEnd) else np.asarray(e, dtype=float)
+            lim = max(limit_m, 4 * math.sqrt(2) * e.sigma_h_m) if isinstance(e, SurveyEnd) else limit_m
+            dist = float(tree.query(p[:2])[0])
+            out[log_id].append(dist)
+            if dist > lim:
+                worst.append((dist, log_id, end, p))
     if worst:
         worst.sort(reverse=True)
         dist, log_id, end, p = worst[0]
@@ -677,18 +829,19 @@ def _pose(scan_dir: Path, cfg: ReconstructConfig, unposed: bool = False) -> tupl
 def _scan(scan_dir: Path, cfg: ReconstructConfig, say: Callable[[str], None]) -> tuple[ScanCloud, str, dict | None]:
     """The fused cloud (scan frame), where the pair poses came from ("calibration", "sfm",
     "single pair") and the SfM report (None without SfM)."""
-    from reconstruct.sfm import camera_clouds, estimate_pair_poses, fuse_pairs, pair_has_pose
+    from reconstruct.calibration import pair_pose_present
+    from reconstruct.sfm import camera_clouds, estimate_pair_poses, fuse_pairs
     from reconstruct.stereo import find_pairs, read_pair
 
     folders = find_pairs(scan_dir)
-    posed = [pair_has_pose(f / "calibration.yaml") for f in folders]
+    posed = [pair_pose_present(f) for f in folders]
     mode = cfg.pair_poses
     if mode == "auto":
         mode = "calibration" if all(posed) or len(folders) == 1 else "sfm"
     if mode == "calibration":
         if len(folders) > 1 and not all(posed):
             missing = [f.name for f, ok in zip(folders, posed) if not ok]
-            raise ScanError(f"pairs {missing} have no T_pile_cam in calibration.yaml; estimate the pair poses "
+            raise ScanError(f"pairs {missing} have no T_pile_cam in their calibration; estimate the pair poses "
                             "by SfM (pair_poses='sfm' / --pair-poses sfm) or add them")
         return scan_cloud(scan_dir, cfg.stereo, progress=say), ("calibration" if all(posed) else "single pair"), None
     if len(folders) < 2:
@@ -707,20 +860,23 @@ def _scan(scan_dir: Path, cfg: ReconstructConfig, say: Callable[[str], None]) ->
 
 def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path,
                 config: ReconstructConfig | None = None,
-                progress: Callable[[str], None] | None = None) -> ReconstructionResult:
+                progress: Callable[[str], None] | None = None,
+                cloud: ScanCloud | None = None) -> ReconstructionResult:
     """Reconstruct a pile from a stereo scan folder and an RTK survey of the log ends.
 
     ``scan_dir``: one pair folder (``left.png``, ``right.png``, ``calibration.yaml``) or a folder
     of pair folders, plus ``scan_pose.json`` unless ``config.scan_pose`` is given.
     ``gnss_path``: a survey CSV (:func:`reconstruct.gnss.read_gnss`). ``out_dir``: created; gets
     ``pile.json``, ``ortho.npz``, ``preview.png``, ``compare.png``, ``report.json``.
-    ``progress``: called with a short line per stage.
+    ``progress``: called with a short line per stage. ``cloud``: this scan's fused cloud from an
+    earlier run (``ReconstructionResult.cloud``), to reconstruct it again with another survey or
+    config without matching the stereo pairs again (its pair poses are reported as "given").
 
     Raises a :class:`~reconstruct.errors.ReconstructError` subclass (``ScanError``,
     ``GnssError``, ``RegistrationError``, ``FitError``) naming the file, log or point at fault.
     """
     from reconstruct.gnss import read_gnss
-    from reconstruct.sfm import pair_has_pose
+    from reconstruct.calibration import pair_pose_present
     from reconstruct.stereo import find_pairs
     from synth.errors import SynthError
     from synth.render import OrthoRenderConfig, render_ortho
@@ -734,41 +890,77 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
     t_start = time.perf_counter()
 
     say(f"reading survey {gnss_path}")
-    unposed = not any(pair_has_pose(f / "calibration.yaml") for f in find_pairs(scan_dir))
+    unposed = not any(pair_pose_present(f) for f in find_pairs(scan_dir))
     pose, pose_source = _pose(scan_dir, cfg, unposed=unposed)
-    survey = read_gnss(gnss_path, allow_float=cfg.allow_float, area=None if pose is None else pose.origin)
+    survey = read_gnss(gnss_path, allow_float=cfg.allow_float, area=None if pose is None else pose.origin,
+                       require_both_ends=False)
     origin = survey.default_origin() if pose is None else pose.origin
-    ends_site = {k: (np.asarray(a, float), np.asarray(b, float))
-                 for k, (a, b) in survey.endpoints_site(origin).items()}
-    sigmas = {k: tuple(_point_sigma(survey.point(k, end)) for end in ("a", "b")) for k in ends_site}
+    survey_site = _survey_ends(survey, origin)
+    ends_site = {k: (e[0].position_m, e[1].position_m) for k, e in survey_site.items() if None not in e}
     timings["survey_s"] = time.perf_counter() - t_start
 
     t = time.perf_counter()
-    say(f"matching stereo pairs in {scan_dir}")
-    cloud, pair_pose_source, sfm_report = _scan(scan_dir, cfg, say)
+    if cloud is None:
+        say(f"matching stereo pairs in {scan_dir}")
+        cloud, pair_pose_source, sfm_report = _scan(scan_dir, cfg, say)
+    else:
+        pair_pose_source, sfm_report = "given", None
     timings["stereo_s"] = time.perf_counter() - t
     if sfm_report is not None:
         timings["sfm_s"] = float(sfm_report["timings_s"].get("total_s", math.nan))
 
     coarse_report = None
     reg_cfg = cfg
+    fuse_cfg = cfg.fuse
     if pose is None:
         t = time.perf_counter()
         say("placing the scan from the GNSS end points (ground plane, yaw search)")
+        if not ends_site:
+            raise RegistrationError("no log has both ends surveyed: the scan cannot be placed from the survey alone; "
+                                    "give a scan pose (scan_pose.json)")
         T_coarse, coarse_report = coarse_scan_pose(cloud.points, cloud.camera_positions, ends_site, cfg.coarse)
         pose = ScanPose(*origin, T_site_scan=tuple(tuple(float(v) for v in r) for r in T_coarse))
         reg_cfg = replace(cfg, refine_dof=cfg.coarse.refine_dof, max_correction_m=cfg.coarse.max_correction_m,
-                          max_correction_deg=cfg.coarse.max_correction_deg)
+                          max_correction_deg=cfg.coarse.max_correction_deg, scan_pose_sigma_m=cfg.coarse.pose_sigma_m,
+                          scan_pose_sigma_deg=cfg.coarse.pose_sigma_deg)
+        fuse_cfg = replace(cfg.fuse, pose_sigma_m=max(cfg.fuse.pose_sigma_m, cfg.coarse.pose_sigma_m / 2))
         timings["georegistration_s"] = time.perf_counter() - t
 
-    # site frame, then the pile frame: the site frame turned (log_direction_deg) and shifted to the
-    # centre of the logs, at ground level
     T_site_scan = pose.matrix()
     pts_site = apply_T(T_site_scan, cloud.points)
-    coverage = _check_coverage(pts_site[:, :2], ends_site, cfg.max_endpoint_distance_m)
-    yaw = 0.0 if cfg.log_direction_deg is None else logs_direction(ends_site) - math.radians(cfg.log_direction_deg)
+    coverage = _check_coverage(pts_site[:, :2], survey_site, cfg.max_endpoint_distance_m)
+
+    # the logs in the scan, matched to the survey: where each log is fitted
+    t = time.perf_counter()
+    say("finding the logs in the scan and matching them to the survey")
+    scan_logs = find_scan_logs(pts_site, fuse_cfg)
+    matches, unmatched = match_survey(survey_site, scan_logs, fuse_cfg)
+    unmatched = absorb_pieces(matches, unmatched, scan_logs)
+    for k, m in matches.items():
+        if m.scan_index is None and None in survey_site[k]:
+            end = "ab"[survey_site[k].index(None)]
+            raise FitError(f"log {k!r} has no end {end!r} in the survey and the scan shows no log near its other end: "
+                           f"measure both ends of log {k!r}, or remove it from the survey")
+    new_ids = _new_log_ids([j for j in unmatched if scan_logs[j].seen_m >= fuse_cfg.min_new_log_m], survey_site)
+    timings["matching_s"] = time.perf_counter() - t
+
+    def priors_for(logs_found: list) -> dict:
+        out = {}
+        for k, m in matches.items():
+            found = None if m.scan_index is None else logs_found[m.scan_index]
+            out[k] = prior_axis(survey_ends[k], found, m.reversed, fuse_cfg)
+        for k, j in new_ids.items():
+            out[k] = (logs_found[j].start_m.copy(), logs_found[j].end_m.copy(), fuse_cfg.axis_sigma_m)
+        return out
+
+    survey_ends = survey_site
+    priors_site = priors_for(scan_logs)
+    # the pile frame: the site frame turned (log_direction_deg) and shifted to the centre of the logs, at
+    # ground level
+    prior_ends = {k: (a, b) for k, (a, b, _) in priors_site.items()}
+    yaw = 0.0 if cfg.log_direction_deg is None else logs_direction(prior_ends) - math.radians(cfg.log_direction_deg)
     R_site_pile = rot_z(yaw)
-    all_ends = np.array([p for ends in ends_site.values() for p in ends]) @ R_site_pile  # turned site axes
+    all_ends = np.array([p for ends in prior_ends.values() for p in ends]) @ R_site_pile  # turned site axes
     centre_xy = 0.5 * (all_ends[:, :2].min(0) + all_ends[:, :2].max(0))
     reach = float(np.max(np.abs(all_ends[:, :2] - centre_xy))) + cfg.terrain_margin_m
     extent, render_px = patch_extent(2 * reach, cfg)
@@ -780,51 +972,78 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
     T_site_pile = make_T(R_site_pile, R_site_pile @ np.array([centre_xy[0], centre_xy[1], z0]))
     T_pile_site = invert_T(T_site_pile)
     pts = apply_T(T_pile_site, pts_site)
-    ends = {k: (apply_T(T_pile_site, a), apply_T(T_pile_site, b)) for k, (a, b) in ends_site.items()}
+    survey_ends = {k: tuple(None if e is None else e.moved(T_pile_site) for e in v) for k, v in survey_site.items()}
+    logs_pile = [s.moved(T_pile_site) for s in scan_logs]
 
     t = time.perf_counter()
     reg_report: dict = {"mode": "none"}
-    first_pass = None
+    first_pass: dict = {}
     T_corr = np.eye(4)
-    if cfg.refine:
-        # rounds: the logs are refitted after each correction (a pose error of several cm
-        # moves the scan away from the GNSS axes the fits start from)
-        rounds = []
-        best = None
-        for k in range(cfg.refine_rounds):
-            say(f"refining the scan pose against the GNSS end points (round {k + 1})")
-            T_k, rep_k, fp_k = refine_registration(apply_T(T_corr, pts[near]), ends, reg_cfg, sigmas)
-            rounds.append({key: rep_k[key] for key in (
-                "correction_m", "correction_deg", "residual_rms_before_m", "residual_rms_after_m")})
-            if best is not None and rep_k["residual_rms_after_m"] >= best:
-                rounds[-1]["kept"] = False  # refitting did not help: keep the previous round
-                break
-            rounds[-1]["kept"] = True
-            best = rep_k["residual_rms_after_m"]
-            T_corr, reg_report, first_pass = T_k @ T_corr, rep_k, fp_k
-            if rep_k["correction_m"] < 0.005 and rep_k["correction_deg"] < 0.2:
-                break
-        R = T_corr[:3, :3] / np.cbrt(abs(np.linalg.det(T_corr[:3, :3])))
-        reg_report.update({
-            "rounds": rounds, "T_correction": T_corr.tolist(),
-            "total_correction_m": float(np.linalg.norm(T_corr[:3, 3])),
-            "total_correction_deg": math.degrees(math.acos(float(np.clip((np.trace(R) - 1) / 2, -1, 1)))),
-            "residual_rms_before_m": rounds[0]["residual_rms_before_m"],
-        })
+    # registration: the logs the scan and the survey both show, fitted around their scan axes
+    matched = {k: m for k, m in matches.items() if m.scan_index is not None and any(survey_ends[k])}
+    if cfg.refine and matched:
+        # the fits start from the scan's own log axes, which move with the scan: one round (fit, then the
+        # correction) is all; a second would fit the same points the same way
+        say("refining the scan pose against the GNSS end points")
+        pri = {key: prior_axis(survey_ends[key], logs_pile[m.scan_index], m.reversed, fuse_cfg)[:2]
+               for key, m in matched.items()}
+        T_corr, reg_report, first_pass = refine_registration(pts[near], {}, reg_cfg, priors=pri,
+                                                             survey={key: survey_ends[key] for key in matched})
+        reg_report.update({"total_correction_m": reg_report["correction_m"],
+                           "total_correction_deg": reg_report["correction_deg"]})
         pts = apply_T(T_corr, pts)
     timings["registration_s"] = time.perf_counter() - t
     # T_site_scan after refinement: site <- pile <- (corrected) <- scan
     T_site_scan_refined = T_site_pile @ T_corr @ T_pile_site @ T_site_scan
+    logs_pile = [s.moved(T_corr) for s in logs_pile]
 
     t = time.perf_counter()
     georef = Georeference(origin_lat_deg=pose.origin_lat_deg, origin_lon_deg=pose.origin_lon_deg,
                           origin_h_m=pose.origin_h_m,
                           T_site_pile=tuple(tuple(float(v) for v in row) for row in T_site_pile))
     in_patch = np.all(np.abs(pts[:, :2]) < extent / 2, axis=1)
-    fit = fit_pile(pts[in_patch], ends, extent, cfg.fit, progress=say, georef=georef,
-                   notes=f"reconstructed from {scan_dir} and {gnss_path}", first_pass=first_pass,
-                   sigmas=sigmas)
+    priors = priors_for(logs_pile)
+    # logs the survey missed: kept when the scan shows a log there, fitted over most of what it saw
+    dropped_new = {}
+    for k in list(new_ids):
+        a, b, s = priors[k]
+        try:
+            f = fit_log(pts[in_patch], a, b, cfg.fit, log_id=k, sigma_a_m=s, sigma_b_m=s)
+            ok = f["coverage"] >= fuse_cfg.min_new_log_coverage
+            why = f"its fit covers {f['coverage'] * 100:.0f} % of it"
+        except ReconstructError as exc:
+            ok, why = False, str(exc)
+        if ok:
+            first_pass[k] = log_spec_from_fit(f, cfg.fit)[0]
+        else:
+            dropped_new[k] = why
+            del new_ids[k], priors[k]
+    lateral = {k: s for k, (_, _, s) in priors.items()}
+
+    def placer(log_id: str, spec, how: str, points: np.ndarray, swapped: bool):
+        ends_k = survey_ends.get(log_id, (None, None))
+        if how == "scan":
+            sig = 0.005  # a fitted axis: a few millimetres across
+        elif how == "partial":
+            sig = max(lateral[log_id], 0.04)  # seen in part: its axis is a few centimetres sure
+        else:
+            sig = max((e.sigma_h_m for e in ends_k if e is not None), default=lateral[log_id])
+        try:
+            return place_log_ends(points, spec, how, ends_k, swapped, sig, fuse_cfg)
+        except FitError as exc:
+            raise FitError(f"log {log_id!r}: {exc}") from exc
+
+    fit = fit_pile(pts[in_patch], {k: (a, b) for k, (a, b, _) in priors.items()}, extent, cfg.fit, progress=say,
+                   georef=georef, notes=f"reconstructed from {scan_dir} and {gnss_path}", first_pass=first_pass,
+                   sigmas={k: (s, s) for k, s in lateral.items()}, place_ends=placer)
     timings["fit_s"] = time.perf_counter() - t
+    fusion = {
+        "scan_logs": [s.to_dict() for s in logs_pile],
+        "matches": {k: m.to_dict() for k, m in matches.items()},
+        "new_logs": {k: new_j for k, new_j in new_ids.items()},
+        "new_logs_dropped": dropped_new,
+        "unmatched_scan_logs": [j for j in unmatched if j not in new_ids.values()],
+    }
 
     t = time.perf_counter()
     say(f"writing {out_dir}")
@@ -843,7 +1062,8 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
     files["compare"] = write_png(out_dir / "compare.png", comparison_image(pts[in_patch], cloud.colours[in_patch], obs))
     timings["outputs_s"] = time.perf_counter() - t
     timings["total_s"] = time.perf_counter() - t_start
-    timings.update({f"stereo_{k}": v for k, v in cloud.timings_s.items()})
+    if pair_pose_source != "given":
+        timings.update({f"stereo_{k}": v for k, v in cloud.timings_s.items()})
     timings.update({f"fit_{k}": v for k, v in fit.timings_s.items()})
 
     report = {
@@ -857,6 +1077,8 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
         "registration": reg_report, "endpoint_scan_distance_m": coverage,
         "survey_warnings": list(survey.warnings),
         "logs": [lf.to_dict() for lf in fit.logs],
+        "fusion": fusion, "weak_ends": weak_ends(fit.logs, fuse_cfg),
+        "contradicted_points": contradicted_points(fit.logs),
         "terrain_coverage": fit.terrain_coverage, "obstacles": fit.obstacles, "moves": fit.moves,
         "timings_s": timings,
     }
@@ -865,6 +1087,29 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
     files["report"] = report_path
     say(f"done in {timings['total_s']:.1f} s")
     return ReconstructionResult(pile=fit.pile, fit=fit, report=report, out_dir=out_dir, files=files, cloud=cloud)
+
+
+def weak_ends(logs: list, cfg: FuseConfig | None = None) -> list[str]:
+    """One line per log end placed on a weak estimate (less certain than ``weak_sigma_m``, or against
+    its survey point): what placed it and how sure it is."""
+    cfg = cfg or FuseConfig()
+    out = []
+    for lf in logs:
+        for end, e in zip("ab", lf.ends or []):
+            if e["sigma_m"] > cfg.weak_sigma_m or e["contradicted"]:
+                out.append(f"{lf.log_id} end {end}: {e['source']} (scan: {e['scan']}), +-{e['sigma_m'] * 100:.0f} cm")
+    return out
+
+
+def contradicted_points(logs: list) -> list[str]:
+    """One line per survey point the scan contradicts (not used): how far it is from the placed end."""
+    out = []
+    for lf in logs:
+        for end, e in zip("ab", lf.ends or []):
+            if e["contradicted"]:
+                out.append(f"{lf.log_id} end {end} ({e['gnss_fix']}): {e['gnss_residual_m'] * 100:.0f} cm from where "
+                           f"the scan puts it ({e['gnss_residual_sigma']:.1f} sigma); check or re-measure it")
+    return out
 
 
 def read_report(path: str | Path) -> dict:

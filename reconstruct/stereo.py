@@ -4,8 +4,9 @@ A *scan folder* holds one stereo pair, or several pairs in sub-folders (the rig 
 carries its own left-camera pose). A pair is what :class:`synth.stereo.StereoPair` writes (and
 what a ZED export converted to it looks like): ``left.png``, ``right.png`` and
 ``calibration.yaml`` (OpenCV FileStorage: ``K1 D1 K2 D2 R T image_size`` and the left camera's
-pose ``T_pile_cam`` in the *scan frame*; read with :func:`synth.stereo.read_calibration_yaml`).
-Other files (``depth_left.npz``, ``meta.json``, ``zed.conf``) are not needed and not read here.
+pose ``T_pile_cam`` in the *scan frame*) and/or the camera's ZED ``SN<serial>.conf`` (or
+``zed.conf``), read at the images' resolution and checked against each other
+(:mod:`reconstruct.calibration`). Other files (``depth_left.npz``, ``meta.json``) are not read.
 
 Every problem with the input is a :class:`~reconstruct.errors.ScanError` naming the file: a
 missing or unreadable image, left and right of different sizes, a calibration whose image size
@@ -106,8 +107,6 @@ def read_pair(folder: str | Path) -> ScanPair:
     """Read one pair folder and check it (sizes of both images and the calibration)."""
     import cv2
 
-    from synth.stereo import StereoFormatError, read_calibration_yaml
-
     folder = Path(folder)
     imgs = []
     for name in ("left.png", "right.png"):
@@ -124,13 +123,10 @@ def read_pair(folder: str | Path) -> ScanPair:
             f"{folder}: left.png is {left.shape[1]}x{left.shape[0]} px but right.png is "
             f"{right.shape[1]}x{right.shape[0]} px; both images of a pair must have the same size"
         )
-    cpath = folder / "calibration.yaml"
-    if not cpath.exists():
-        raise ScanError(f"{cpath} is missing; every pair needs its calibration (K1 D1 K2 D2 R T image_size)")
-    try:
-        calib = read_calibration_yaml(cpath)
-    except StereoFormatError as exc:
-        raise ScanError(str(exc)) from exc
+    from reconstruct.calibration import read_pair_calibration
+
+    calib, cname = read_pair_calibration(folder, (left.shape[1], left.shape[0]))
+    cpath = folder / cname.split(" + ")[0]
     w, h = calib.image_size
     if (w, h) != (left.shape[1], left.shape[0]):
         raise ScanError(

@@ -10,6 +10,8 @@ kept apart::
     DIR/scan/scan_pose.json                 the scan frame in the site frame (the crane's RTK/IMU
                                             camera pose), with a realistic error
     DIR/gnss.csv                            RTK endpoints (SWEREF 99), realistic noise, a few float fixes
+                                            (``n_float``), logs left out (``n_unsurveyed``: chosen among
+                                            those the scan shows most of)
     DIR/truth/pile.json                     the ground-truth pile (georeferenced)
     DIR/truth/pair_NNN_depth.npz            ground-truth depth and instances of each left image
     DIR/truth/poses.json                    true left-camera pose of every pair (T_pile_cam)
@@ -22,6 +24,10 @@ both image axes by ``jitter_tilt_deg``), the calibrations carry no ``T_pile_cam`
 ``calibration.yaml`` nor ``zed.conf``; ``meta.json`` keeps the intrinsics only) and there is no
 ``scan_pose.json``: the reconstruction has to recover the pair poses (SfM) and the scan's place
 in the site frame (from the GNSS end points). The truth keeps the true poses.
+
+Other surveys of the same scan (:func:`write_twin_survey`: all fixed, or degraded: half the ends
+float and a log left out) are drawn from the truth with their own random stream, for benchmarks
+that compare survey conditions on the same images.
 
 It lives in :mod:`reconstruct` (not :mod:`synth`) because the GNSS CSV format is this package's.
 """
@@ -126,6 +132,7 @@ def _strip_pose(pair_dir: Path) -> None:
 def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5), obstacles: tuple[int, int] = (0, 2),
                    packed: bool = False, site: tuple[float, float, float] = DEFAULT_SITE,
                    n_float: int = 2, height_m: float = 3.0, hfov_deg: float = 50.0,
+                   n_unsurveyed: int = 0,
                    grid: tuple[int, int] = (2, 2), spacing_m: tuple[float, float] = (1.4, 1.0),
                    pose_error_m: float = 0.03, pose_error_deg: float = 0.5,
                    unposed: bool = False, handheld: bool | None = None,
@@ -138,7 +145,9 @@ def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5
     docstring). ``handheld`` (default: ``unposed``): the rig moves between pairs (``jitter_*``)
     instead of holding a straight-down grid; the same seed gives the same images with or without
     ``unposed``. ``image_size``: (width, height) [px]. The pile, the survey and the scan pose
-    error depend on ``seed`` only.
+    error depend on ``seed`` only. ``n_float``: survey points with an RTK float fix;
+    ``n_unsurveyed``: logs left out of the survey (among those the scan shows most of,
+    :func:`visible_logs`; the other points are as without it).
 
     Written into a temporary sibling folder and renamed into place (never half-written)."""
     from reconstruct.gnss import pile_endpoints_site, simulate_survey, write_gnss_csv
@@ -205,11 +214,12 @@ def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5
             write_scan_pose(ScanPose(site[0], site[1], site[2], tuple(tuple(float(v) for v in r) for r in T_site_scan)),
                             tmp / "scan" / "scan_pose.json")
         say("simulating the RTK survey of the log ends")
-        survey = simulate_survey(pile_endpoints_site(pile), pile.georef, rng, n_float=n_float)
+        omit = _unsurveyed(tmp, pile, n_unsurveyed, np.random.default_rng(np.random.SeedSequence([int(seed), 0x5CA7, 2])))
+        survey = simulate_survey(pile_endpoints_site(pile), pile.georef, rng, n_float=n_float, omit=omit)
         write_gnss_csv(survey, tmp / "gnss.csv")
         info = {"format": "loggrasp.twin-scan", "format_version": SCAN_FORMAT_VERSION, "seed": seed,
                 "n_logs": n_logs, "n_obstacles": n_obst, "packed": packed, "site": list(site),
-                "n_float": n_float, "rig": rig0.to_dict(), "pairs": nx * ny, "spacing_m": list(spacing_m),
+                "n_float": n_float, "unsurveyed": list(omit), "rig": rig0.to_dict(), "pairs": nx * ny, "spacing_m": list(spacing_m),
                 "pose_error": {"sigma_m": pose_error_m, "sigma_deg": pose_error_deg},
                 "image_size": list(image_size), "unposed": bool(unposed), "handheld": bool(moving),
                 "jitter": ({"m": jitter_m, "height_m": jitter_height_m, "yaw_deg": jitter_yaw_deg,
@@ -222,3 +232,50 @@ def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return out
+
+
+def visible_logs(scan_root: str | Path, n_logs: int) -> np.ndarray:
+    """How many left-image pixels show each log, over all pairs of a twin scan (its
+    ``truth/pair_NNN_depth.npz`` instance maps), shape (n_logs,)."""
+    counts = np.zeros(n_logs)
+    for f in sorted((Path(scan_root) / "truth").glob("pair_*_depth.npz")):
+        with np.load(f) as z:
+            inst = z["instance"]
+        c = np.bincount(np.clip(inst.ravel(), 0, n_logs + 1), minlength=n_logs + 2)
+        counts += c[1:n_logs + 1]
+    return counts
+
+
+def _unsurveyed(scan_root: Path, pile: PileSpec, n: int, rng: np.random.Generator) -> list[str]:
+    """Ids of ``n`` logs to leave out of a survey: chosen at random among those the scan shows at least
+    half as much of as of the most visible log (a log clearly in the scan)."""
+    if n <= 0:
+        return []
+    if n >= pile.n_logs:
+        raise ValueError(f"n_unsurveyed must be below the number of logs ({pile.n_logs}), got {n}")
+    seen = visible_logs(scan_root, pile.n_logs)
+    pool = np.flatnonzero(seen >= 0.5 * seen.max())
+    if len(pool) < n:
+        pool = np.argsort(-seen)[:n]
+    return [f"log{i}" for i in sorted(rng.choice(pool, size=n, replace=False).tolist())]
+
+
+def write_twin_survey(scan_root: str | Path, path: str | Path, n_float: int = 0, n_unsurveyed: int = 0,
+                      seed: int | None = None) -> Path:
+    """Another survey of a twin scan's pile (``scan_root``: a :func:`make_twin_scan` folder): RTK noise
+    as :func:`reconstruct.gnss.simulate_survey` draws it, ``n_float`` float points (``-1``: half the
+    surveyed ends), ``n_unsurveyed`` logs left out (:func:`visible_logs`). Drawn from its own random
+    stream of (``seed``, default the scan's; ``n_float``; ``n_unsurveyed``). Returns the CSV path."""
+    from reconstruct.gnss import pile_endpoints_site, simulate_survey, write_gnss_csv
+    from synth.pile import read_pile
+
+    root = Path(scan_root)
+    pile = read_pile(root / "truth" / "pile.json")
+    if seed is None:
+        seed = int(json.loads((root / "scan.json").read_text())["seed"])
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x5CA7, 3, int(n_float) + 1, int(n_unsurveyed)]))
+    omit = _unsurveyed(root, pile, n_unsurveyed, rng)
+    if n_float < 0:
+        n_float = (2 * (pile.n_logs - len(omit))) // 2
+    survey = simulate_survey(pile_endpoints_site(pile), pile.georef, rng, n_float=n_float, omit=omit)
+    return write_gnss_csv(survey, path)

@@ -270,3 +270,43 @@ def test_obstacle_points_over_a_log_are_the_logs():
     for s in stumps:
         xy = np.array([s.position_m])
         assert s.height_m <= float(_underside_z([log], xy, s.bottom_radius_m)[0]) + 1e-9
+
+
+def _log_with_a_neighbour_against_it(angle_deg: float, seed: int) -> np.ndarray:
+    """Top-view points (3 mm noise) of a log (d 14.5 cm, along x on flat ground) with a thicker one
+    (d 17.2 cm, its axis 2.9 cm higher and 14.3 cm aside, turned ``angle_deg`` across it) lying
+    against its side, over-hanging its flank: that side of the log shows no edge."""
+    rng = np.random.default_rng(seed)
+    r, rn = 0.0725, 0.086
+    x, y = rng.uniform(-0.2, 2.6, 60000), rng.uniform(-0.35, 0.35, 60000)
+    z = np.zeros_like(x)
+    on = (np.abs(y) < r) & (x > 0) & (x < 2.4)
+    z[on] = r + np.sqrt(r * r - y[on] ** 2)
+    dn = y - (-0.143 + math.tan(math.radians(angle_deg)) * (x - 1.2))
+    onn = np.abs(dn) < rn
+    z[onn] = np.maximum(z[onn], r + 0.029 + np.sqrt(rn * rn - dn[onn] ** 2))
+    return np.column_stack([x, y, z]) + rng.normal(0, 0.003, (x.size, 3))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_a_log_with_a_neighbour_against_its_side_keeps_its_diameter(seed):
+    """The neighbour side shows no edge (the neighbour's flank is over it): the cross-sections must not
+    explain it by a wider circle centred toward the neighbour (3.5 cm too thick when the unexplained
+    part of a circle's footprint cost nothing; twin scans: 2.1 cm on test_end_to_end_generated_pile)."""
+    f = fit_log(_log_with_a_neighbour_against_it(3.0, seed), (0.0, 0.01, 0.0725), (2.4, -0.01, 0.0725), FitConfig())
+    assert abs(2 * f["radius_a_m"] - 0.145) < 0.012, 2 * f["radius_a_m"]
+
+
+def test_side_by_side_logs_are_pushed_apart_both():
+    """Two logs side by side that interpenetrate are each moved half the way, horizontally: both fits
+    are as sure, and neither is lifted off the ground or pushed into it."""
+    n = 32
+    flat = TerrainSpec(extent_m=5.0, resolution=n, amplitude_m=0.0,
+                       heights_m=tuple(tuple(0.0 for _ in range(n)) for _ in range(n)))
+    a = LogSpec.from_endpoints((-1.0, 0.0, 0.07), (1.0, 0.0, 0.07), 0.14)
+    b = LogSpec.from_endpoints((-1.0, 0.12, 0.075), (1.0, 0.12, 0.075), 0.15)  # 2.5 cm into a
+    pile, notes, moved = separate_logs(PileSpec(terrain=flat, logs=(a, b)), FitConfig())
+    assert moved[0] > 0.003 and moved[1] > 0.003 and abs(moved[0] - moved[1]) < 0.003, (moved, notes)
+    for before, after in zip((a, b), pile.logs):
+        assert abs(after.centre_m[2] - before.centre_m[2]) < 1e-3, notes
+    assert pile.logs[1].centre_m[1] - pile.logs[0].centre_m[1] > 0.135, notes  # apart to within the tolerance

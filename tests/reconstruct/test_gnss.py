@@ -143,7 +143,7 @@ def test_missing_and_duplicated_ends(tmp_path):
 
 def test_fix_quality(tmp_path):
     p = _write(tmp_path, _rows().replace("250.2,rtk_fixed", "250.2,rtk_float"))
-    with pytest.raises(GnssQualityError, match=r"s\.csv:4: log 'log0' end 'b' is rtk_float.*allow_float=True"):
+    with pytest.raises(GnssQualityError, match=r"s\.csv:4: log 'log0' end 'b' is rtk_float.*--allow-float"):
         gnss.read_gnss_csv(p)
     assert gnss.read_gnss_csv(p, allow_float=True).point("log0", "b").fix == "rtk_float"
     p = _write(tmp_path, _rows().replace("250.2,rtk_fixed", "250.2,single"))

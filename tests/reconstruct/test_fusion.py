@@ -1,0 +1,245 @@
+"""reconstruct.fuse and the pipeline under real survey conditions: float points, logs or ends not
+surveyed, points the scan contradicts, and geometry the survey cannot settle. The scans are exact
+top-view samples of hand-made piles (no stereo), so these run in seconds."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from reconstruct.compare import compare_piles
+from reconstruct.errors import GnssQualityError
+from reconstruct.fit import sample_top_view_points
+from reconstruct.fuse import (
+    AmbiguousSurveyError, EndInterval, FuseConfig, ScanLog, SurveyEnd, absorb_pieces, fuse_end, match_survey,
+    scan_end_interval, seen_end,
+)
+from reconstruct.gnss import GnssPoint, GnssSurvey, write_gnss_csv
+from reconstruct.pipeline import ReconstructConfig, ScanPose, reconstruct, write_scan_pose
+from reconstruct.stereo import ScanCloud
+from synth import geodesy
+from synth.frames import make_T, rot_z
+from synth.pile import Georeference, LogSpec, PileSpec, TerrainSpec
+
+ORIGIN = (64.1, 20.0, 250.0)
+
+
+@pytest.fixture(scope="module")
+def pile() -> PileSpec:
+    """Four logs on flat ground: two side by side, one across both, one apart."""
+    terrain = TerrainSpec(extent_m=5.0, resolution=32, amplitude_m=0.0,
+                          heights_m=tuple(tuple(0.0 for _ in range(32)) for _ in range(32)))
+    logs = (
+        LogSpec.from_endpoints((-1.0, -0.5, 0.08), (1.0, -0.5, 0.08), 0.16),
+        LogSpec.from_endpoints((-0.9, 0.35, 0.07), (1.1, 0.2, 0.07), 0.14),
+        LogSpec.from_endpoints((-0.55, -1.1, 0.23), (-0.35, 0.95, 0.21), 0.14),  # across both
+        LogSpec.from_endpoints((0.2, 1.0, 0.075), (1.9, 1.45, 0.075), 0.15),
+    )
+    T = make_T(rot_z(math.radians(25.0)), (3.0, -2.0, 0.0))
+    return PileSpec(terrain=terrain, logs=logs,
+                    georef=Georeference(*ORIGIN, T_site_pile=tuple(tuple(float(v) for v in r) for r in T)))
+
+
+@pytest.fixture(scope="module")
+def cloud(pile) -> ScanCloud:
+    pts = sample_top_view_points(pile, 500, 0.003, np.random.default_rng(1))
+    return ScanCloud(pts, np.full((len(pts), 3), 0.5, np.float32), camera_positions=np.array([[0.0, 0.0, 3.0]]))
+
+
+def _scan_folder(d: Path, pile: PileSpec, pose_error=None) -> Path:
+    """A scan folder holding what reconstruct() reads besides the cloud: one pair (its calibration
+    carries a pose) and scan_pose.json (the scan frame is the pile frame, ``pose_error`` applied)."""
+    import cv2
+
+    from synth.stereo import StereoRigConfig, write_calibration_yaml
+
+    pair = d / "scan" / "pair_000"
+    pair.mkdir(parents=True)
+    for name in ("left.png", "right.png"):
+        cv2.imwrite(str(pair / name), np.zeros((4, 4, 3), np.uint8))
+    write_calibration_yaml(StereoRigConfig().calibration(), pair / "calibration.yaml")
+    T = pile.georef.matrix() if pose_error is None else pose_error @ pile.georef.matrix()
+    write_scan_pose(ScanPose(*ORIGIN, tuple(tuple(float(v) for v in r) for r in T)), d / "scan")
+    return d / "scan"
+
+
+def _survey(pile: PileSpec, path: Path, spec: dict) -> Path:
+    """A survey CSV of the pile's log ends: ``spec[(i, end)] = (fix, offset_site_m (3,), h_acc, v_acc)``;
+    an end not in ``spec`` is RTK fixed with a small fixed offset; ``None`` leaves it out."""
+    rng = np.random.default_rng(7)
+    points = []
+    for i, log in enumerate(pile.logs):
+        for end, p in zip("ab", log.endpoints_m()):
+            s = spec.get((i, end), ("rtk_fixed", rng.normal(0, [0.007, 0.007, 0.012]), 0.015, 0.025))
+            if s is None:
+                continue
+            fix, offset, h_acc, v_acc = s
+            site = geodesy.pile_to_site(pile.georef, p[None, :])[0] + np.asarray(offset, dtype=float)
+            lat, lon, h = geodesy.site_to_geodetic(ORIGIN, site[None, :])
+            points.append(GnssPoint(f"log{i}", end, float(lat[0]), float(lon[0]), float(h[0]), fix, h_acc, v_acc))
+    return write_gnss_csv(GnssSurvey(tuple(points)), path)
+
+
+def _along_site(pile: PileSpec, i: int, metres: float, outward_end: str = "a") -> np.ndarray:
+    """A site-frame offset of ``metres`` along log ``i``'s axis, out of its end ``outward_end``."""
+    a, b = geodesy.pile_to_site(pile.georef, np.stack(pile.logs[i].endpoints_m()))
+    u = (b - a) / np.linalg.norm(b - a)
+    return (-u if outward_end == "a" else u) * metres
+
+
+def _errors(truth: PileSpec, recon: PileSpec) -> dict[int, float]:
+    c = compare_piles(truth, recon, render=False)
+    assert not c["unmatched_truth"], c["unmatched_truth"]
+    return {e["truth_index"]: e["endpoint_max_err_m"] for e in c["logs"]}
+
+
+def test_float_points_a_log_without_points_and_a_missing_end(pile, cloud, tmp_path):
+    scan = _scan_folder(tmp_path, pile)
+    gnss = _survey(pile, tmp_path / "survey.csv", {
+        (0, "b"): ("rtk_float", (0.20, -0.15, 0.35), 0.25, 0.40),  # seen by the scan: as good as fixed
+        (1, "a"): None, (1, "b"): None,  # not surveyed at all
+        (2, "b"): None,  # one end measured
+        (3, "a"): ("rtk_float", (-0.18, 0.12, -0.30), 0.25, 0.40),
+        (3, "b"): ("rtk_float", (0.15, 0.20, 0.25), 0.25, 0.40),
+    })
+    with pytest.raises(GnssQualityError, match="--allow-float"):  # float points stay an explicit choice
+        reconstruct(scan, gnss, tmp_path / "refused", ReconstructConfig(), cloud=cloud)
+    res = reconstruct(scan, gnss, tmp_path / "out", ReconstructConfig(allow_float=True), cloud=cloud)
+    rep = res.report
+    assert res.pile.n_logs == 4
+    err = _errors(pile, res.pile)
+    assert max(err.values()) < 0.04, err
+    ends = {lf["log_id"]: lf["ends"] for lf in rep["logs"]}
+    assert ends["log0"][1]["source"] == "scan" and ends["log0"][1]["gnss_fix"] == "rtk_float"
+    assert ends["log0"][1]["sigma_m"] < 0.03  # a float point inside the scan: as good as a fixed one
+    assert [e["source"] for e in ends["log3"]] == ["scan", "scan"]
+    assert ends["log2"][1]["gnss_fix"] is None and ends["log2"][1]["source"] in ("scan", "inferred")
+    assert list(rep["fusion"]["new_logs"]) == ["scan0"]  # log1, found in the scan alone
+    assert [e["source"] for e in ends["scan0"]] == ["scan", "scan"]
+    assert rep["weak_ends"] == [] and rep["contradicted_points"] == []
+    assert any("one end measured" in w for w in rep["survey_warnings"])
+
+
+def test_points_the_scan_contradicts_are_reported_and_do_not_drag_the_scan(pile, cloud, tmp_path):
+    err_T = make_T(rot_z(math.radians(0.5)), (0.03, -0.02, 0.01))
+    scan = _scan_folder(tmp_path, pile, pose_error=err_T)
+    lateral = geodesy.pile_to_site(pile.georef, np.array([[0.0, 0.2, 0.0]]))[0] - \
+        geodesy.pile_to_site(pile.georef, np.zeros((1, 3)))[0]
+    gnss = _survey(pile, tmp_path / "survey.csv", {
+        (0, "a"): ("rtk_fixed", _along_site(pile, 0, 0.25, "a"), 0.015, 0.025),  # 25 cm past a seen end
+        (1, "b"): ("rtk_fixed", lateral, 0.015, 0.025),  # 20 cm beside its log: a wrong point
+    })
+    res = reconstruct(scan, gnss, tmp_path / "out", ReconstructConfig(), cloud=cloud)
+    rep = res.report
+    err = _errors(pile, res.pile)
+    assert max(err.values()) < 0.035, err  # placed where the scan shows them, the scan pose corrected
+    outliers = {(o["log_id"], o["end"]) for o in rep["registration"]["outliers"]}
+    assert ("log1", "b") in outliers
+    assert rep["registration"]["weights"]["log1.b"] < 0.1
+    bad = {(lf["log_id"], end) for lf in rep["logs"] for end, e in zip("ab", lf["ends"]) if e["contradicted"]}
+    assert bad == {("log0", "a"), ("log1", "b")}
+    assert len(rep["contradicted_points"]) == 2 and "log0 end a (rtk_fixed)" in rep["contradicted_points"][0]
+
+
+def _scan_log(x0, x1, y, z=0.08, r=0.08) -> ScanLog:
+    return ScanLog(np.array([x0, y, z]), np.array([x1, y, z]), r, abs(x1 - x0), 20.0)
+
+
+def _end(x, y, z=0.08, fix="rtk_float") -> SurveyEnd:
+    s = (0.25, 0.40) if fix == "rtk_float" else (0.015, 0.025)
+    return SurveyEnd(np.array([x, y, z]), s[0] / math.sqrt(2), s[1], fix)
+
+
+def test_only_geometry_the_survey_cannot_settle_stops_and_names_the_log():
+    # a log seen whole, and 30 cm beside it a short piece of one mostly hidden: a surveyed log with
+    # float ends between them could be either, and the piles differ (the piece is kept or dropped)
+    scan_logs = [_scan_log(-1.0, 1.0, 0.0), _scan_log(-0.3, 0.3, 0.3)]
+    floating = {"log7": (_end(-1.0, 0.15), _end(1.0, 0.15))}
+    with pytest.raises(AmbiguousSurveyError, match=r"log 'log7'.*Re-measure log 'log7'"):
+        match_survey(floating, scan_logs)
+    # fixed points settle it
+    fixed = {"log7": (_end(-1.0, 0.0, fix="rtk_fixed"), _end(1.0, 0.01, fix="rtk_fixed"))}
+    matches, unmatched = match_survey(fixed, scan_logs)
+    assert matches["log7"].scan_index == 0 and unmatched == [1]
+    # two whole logs either of which the float log could be: the same pile either way, no error
+    two = [_scan_log(-1.0, 1.0, 0.0), _scan_log(-1.0, 1.0, 0.3)]
+    matches, unmatched = match_survey(floating, two)
+    assert matches["log7"].scan_index in (0, 1) and len(unmatched) == 1
+    # one log seen in two short pieces (something lies over its middle), its ends fixed: either piece
+    # is the same log, no error (twin scan 1100017 stopped here)
+    pieces = [_scan_log(-1.0, -0.4, 0.0), _scan_log(0.7, 1.0, 0.005)]
+    whole = {"log7": (_end(-1.0, 0.0, fix="rtk_fixed"), _end(1.0, 0.0, fix="rtk_fixed"))}
+    matches, unmatched = match_survey(whole, pieces)
+    assert matches["log7"].scan_index in (0, 1)
+    assert absorb_pieces(matches, unmatched, pieces) == []
+
+
+def test_an_end_is_placed_from_what_knows_it_best():
+    cfg = FuseConfig()
+    p0, u = np.zeros(3), np.array([1.0, 0.0, 0.0])
+    seen = EndInterval(2.00, 2.02, "seen")  # the scan sees the end at 2.00 m (the last bin on its top)
+    near = _end(2.15, 0.1)  # float, 15 cm off along: consistent
+    e = fuse_end(p0, u, seen, False, near, 0.005, cfg)
+    assert e.source == "scan" and not e.contradicted and abs(e.position_m[0] - 2.00) < 0.005
+    assert e.sigma_along_m < cfg.scan_end_sigma_m
+    far = _end(2.20, 0.0, fix="rtk_fixed")  # fixed, 19 cm off: the scan contradicts it
+    e = fuse_end(p0, u, seen, False, far, 0.005, cfg)
+    assert e.contradicted and e.source == "scan" and abs(e.position_m[0] - 2.00) < 1e-9
+    agree = _end(2.02, 0.0, fix="rtk_fixed")
+    e = fuse_end(p0, u, seen, False, agree, 0.005, cfg)
+    assert e.source == "fixed" and 2.00 < e.position_m[0] < 2.02
+    under = EndInterval(2.00, 2.30, "occluded")  # a log lies over its end: somewhere in 2.0-2.3 m
+    e = fuse_end(p0, u, under, False, _end(2.21, 0.0), 0.005, cfg)
+    assert e.source == "float" and abs(e.position_m[0] - 2.21) < 1e-9 and e.sigma_along_m < 0.09
+    e = fuse_end(p0, u, under, False, None, 0.005, cfg)
+    assert e.source == "inferred" and abs(e.position_m[0] - 2.15) < 1e-9
+    e = fuse_end(p0, u, EndInterval(2.0, None, "open"), False, None, 0.005, cfg)  # the scan stops
+    assert e.source == "inferred" and e.weak(cfg)
+    e = fuse_end(p0, u, EndInterval(0.02, 0.0, "seen"), True, None, 0.005, cfg)  # end a, toward -t
+    assert e.source == "scan" and abs(e.position_m[0] - 0.02) < 1e-9
+    # a log the scan shows only in part may run on under others past where its top seems to stop: a
+    # fixed point beyond a seen end places it there; one short of it is still contradicted
+    beyond = _end(2.60, 0.0, fix="rtk_fixed")
+    e = fuse_end(p0, u, seen, False, beyond, 0.04, cfg, seen_whole=False)
+    assert e.source == "fixed" and not e.contradicted and abs(e.position_m[0] - 2.60) < 1e-9
+    assert fuse_end(p0, u, seen, False, beyond, 0.005, cfg).contradicted  # a log seen whole: the scan's end
+    short = _end(1.60, 0.0, fix="rtk_fixed")
+    assert fuse_end(p0, u, seen, False, short, 0.04, cfg, seen_whole=False).contradicted
+
+
+def test_a_seen_end_is_where_the_log_ends_not_a_bin_past_it():
+    """A log's top sampled densely up to its end face, the ground beyond it, the end at every offset
+    within a walk bin: the seen end is unbiased (it was the last bin's outer edge: +1 cm on average)."""
+    cfg = FuseConfig()
+    rng = np.random.default_rng(5)
+    r, errors = 0.08, []
+    for end in np.linspace(2.0, 2.0 + cfg.end_bin_m, 11, endpoint=False):
+        x = rng.uniform(0.0, 3.0, 40000)
+        y = rng.uniform(-r, r, x.size)
+        z = np.where(x <= end, r + np.sqrt(np.clip(r * r - y * y, 0, None)), 0.0)  # log top, then the ground
+        P = np.column_stack([x, y, z + rng.normal(0, 0.002, x.size)])
+        p0, p1 = np.array([0.0, 0.0, r]), np.array([end, 0.0, r])
+        iv = scan_end_interval(P, p0, p1, r, toward_p1=True, reach_m=0.5, cfg=cfg)
+        assert iv.state == "seen"
+        errors.append(seen_end(iv) - end)
+    assert abs(float(np.mean(errors))) < 0.003, errors
+    assert max(abs(e) for e in errors) <= 0.5 * cfg.end_bin_m + 1e-9, errors
+
+
+def test_float_points_count_by_their_accuracy_in_the_registration(pile, cloud, tmp_path):
+    # the scan pose is right; five float points share a 10 cm error (well within their 25 cm), three
+    # fixed points are right: weighted by accuracy, the float points do not move the scan (weighted as
+    # fixed ones, they drag it about a centimetre)
+    scan = _scan_folder(tmp_path, pile)
+    bias = (0.08, 0.06, 0.0)
+    floats = {(i, end): ("rtk_float", bias, 0.25, 0.40) for i, end in ((1, "b"), (2, "a"), (2, "b"), (3, "a"), (3, "b"))}
+    exact = {(i, end): ("rtk_fixed", (0.0, 0.0, 0.0), 0.015, 0.025) for i, end in ((0, "a"), (0, "b"), (1, "a"))}
+    gnss = _survey(pile, tmp_path / "survey.csv", floats | exact)
+    res = reconstruct(scan, gnss, tmp_path / "out", ReconstructConfig(allow_float=True), cloud=cloud)
+    reg = res.report["registration"]
+    assert reg["end_points_used"] == 8 and reg["end_points_precise"] == 3
+    assert reg["correction_m"] < 0.004, reg
+    assert max(_errors(pile, res.pile).values()) < 0.03
