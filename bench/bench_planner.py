@@ -191,7 +191,7 @@ def pruning_quality(checkpoint: str | Path | None = None, n_piles: int = 20, cap
     from planner.evaluate import EvalConfig, PlannerSpec, evaluate_pile
     from planner.inference import Objective, load_planner, plan
     from planner.subsets import SubsetPolicy, choose_subsets
-    from synth.dataset import sha256_file
+    from synth.common.files import sha256_file
 
     torch.set_num_threads(threads)
     path = Path(checkpoint or DEFAULT_MODEL)
@@ -252,7 +252,7 @@ def pruning_quality(checkpoint: str | Path | None = None, n_piles: int = 20, cap
                             f"cap{c}_s": p.elapsed_s, f"cap{c}_outcome": recs[f"{obj}/cap{c}"]["outcome"]})
             rows.append(row)
         if cached is not None:
-            from synth.pile import atomic_write_bytes
+            from synth.common.files import atomic_write_bytes
 
             atomic_write_bytes(cached, json.dumps(rows[first:]).encode())
     return {"model": model_note, "rows": rows, "caps": tuple(caps), "objectives": tuple(objectives),

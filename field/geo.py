@@ -41,8 +41,10 @@ import numpy as np
 
 from field.errors import FieldError
 from synth import geodesy
+from synth.common.files import atomic_write_bytes
+from synth.common.formats import VersionedJson
 from synth.grasp import RECT_WIDTH_M, Grasp
-from synth.pile import PileSpec, atomic_write_bytes
+from synth.pile import PileSpec
 
 GEOJSON_FORMAT = "loggrasp.geojson"
 GEOJSON_VERSION = "1.0"
@@ -54,6 +56,10 @@ _TM_CRS_MEMBER = {"type": "name", "properties": {"name": "urn:ogc:def:crs:EPSG::
 class GeoExportError(FieldError, ValueError):
     """Earth coordinates of a pile or grasp could not be produced or failed validation (no
     georeference, coordinates outside Sweden, a malformed or newer-version GeoJSON file)."""
+
+
+#: the ``loggrasp`` member of a GeoJSON file written here (format, version, CRS, plan)
+GEOJSON = VersionedJson(GEOJSON_FORMAT, GEOJSON_VERSION, "GeoJSON", GeoExportError)
 
 
 @dataclass(frozen=True)
@@ -324,13 +330,9 @@ def read_geojson(path: str | Path) -> dict[str, Any]:
     except json.JSONDecodeError as exc:
         raise GeoExportError(f"{path} is not valid JSON: {exc}") from exc
     meta = fc.get("loggrasp") if isinstance(fc, dict) else None
-    if not isinstance(meta, dict) or meta.get("format") != GEOJSON_FORMAT:
+    if not isinstance(meta, dict):
         raise GeoExportError(f"{path} is not a loggrasp GeoJSON (no 'loggrasp' member)")
-    if str(meta.get("format_version", "")).split(".")[0] != GEOJSON_VERSION.split(".")[0]:
-        raise GeoExportError(
-            f"{path}: {GEOJSON_FORMAT} version {meta.get('format_version')!r} is not supported "
-            f"(reads {GEOJSON_VERSION.split('.')[0]}.x); upgrade loggrasp"
-        )
+    GEOJSON.check(meta, path)
     try:
         validate_geojson(fc)
     except GeoExportError as exc:

@@ -50,7 +50,8 @@ import numpy as np
 
 from field.errors import FieldError
 from field.link.messages import DEFAULT_MAX_PILE_AGE_S
-from synth.dataset import sha256_file as sha256_of
+from synth.common.files import sha256_file as sha256_of
+from synth.common.formats import VersionedJson
 
 RECORD_FORMAT = "loggrasp.trial-record"
 RECORD_VERSION = "1.1"  # 1.1: verification, chosen_rank, verified (a 1.0 record was never verified)
@@ -382,7 +383,7 @@ def prepare_trial(scan_dir: str | Path, gnss_path: str | Path, work_dir: str | P
     plan_dir = work / "plan"
     plan_dir.mkdir(parents=True, exist_ok=True)
     from planner.pictures import draw_plan
-    from synth.pile import atomic_write_bytes, dumps_json
+    from synth.common.files import atomic_write_bytes, dumps_json
 
     atomic_write_bytes(plan_dir / "plan.json", the_plan.to_json().encode())
     draw_plan(obs, the_plan, plan_dir / "plan.png", pile=pile, objective=Objective(kind=options.objective),
@@ -506,7 +507,7 @@ def _stage_record(record_dir: Path) -> Path:
         raise TrialAborted(f"trial record {record_dir} already exists; choose a new --record folder", kind="input")
     record_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{record_dir.name}.", suffix=".tmp", dir=record_dir.parent))
-    from synth.pile import apply_umask
+    from synth.common.files import apply_umask
 
     apply_umask(tmp, directory=True)
     return tmp
@@ -529,7 +530,7 @@ def run_trial_record(scan_dir: str | Path, gnss_path: str | Path, link_url: str,
     ``KeyboardInterrupt``). ``confirm`` None means already confirmed (``--yes``); it may raise
     :class:`TrialAborted` (e.g. no answer)."""
     from planner.cli import DEFAULT_MODEL
-    from synth.pile import atomic_write_bytes, json_safe
+    from synth.common.files import atomic_write_bytes, json_safe
 
     say = progress or (lambda s: None)
     scan_dir, gnss_path, record_dir = Path(scan_dir), Path(gnss_path), Path(record_dir)
@@ -647,17 +648,12 @@ class RecordError(FieldError):
     recorded inputs that changed since the trial)."""
 
 
+RECORD = VersionedJson(RECORD_FORMAT, RECORD_VERSION, "trial record", RecordError)
+
+
 def read_record(record_dir: str | Path) -> dict:
-    path = Path(record_dir) / "record.json"
-    try:
-        d = json.loads(path.read_text())
-    except (OSError, ValueError) as exc:
-        raise RecordError(f"{path} is not a readable trial record: {exc}") from exc
-    if not isinstance(d, dict) or d.get("format") != RECORD_FORMAT:
-        raise RecordError(f"{path} is not a loggrasp trial record")
-    if str(d.get("format_version", "")).split(".")[0] != RECORD_VERSION.split(".")[0]:
-        raise RecordError(f"{path}: trial record version {d.get('format_version')!r} is not supported by this loggrasp")
-    return d
+    """``record_dir/record.json``, format and major version checked. Raises :class:`RecordError`."""
+    return RECORD.read(Path(record_dir) / "record.json")
 
 
 def changed_inputs(record_dir: str | Path, rec: dict | None = None) -> list[str]:
@@ -689,7 +685,7 @@ def replay_record(record_dir: str | Path, work_dir: str | Path, progress=None) -
     because no grasp verified is identical when the replay refuses too, with the same plan and
     the same trials."""
     from planner.verify import trial_differences
-    from synth.pile import json_safe
+    from synth.common.files import json_safe
 
     rec = read_record(record_dir)
     if not rec.get("inputs", {}).get("hashes"):

@@ -348,7 +348,7 @@ def eval_command(
     import json
 
     from planner.evaluate import run_evaluation
-    from synth.jobs import parse_range
+    from synth.common.ranges import parse_range
 
     o = Output(as_json)
     if address is not None and engine != "dask":
