@@ -24,6 +24,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from planner.checkpoint import DEFAULT_MODEL  # noqa: E402  (after the sys.path line above)
+
 
 def _load() -> str:
     try:
@@ -137,7 +139,6 @@ def views_markdown(rows: list[dict]) -> list[str]:
     return lines + [f"| {r['views']} | {r['logs']} | {r['wall_s']:.2f} |" for r in rows]
 
 
-DEFAULT_MODEL = ROOT / "planner" / "weights" / "default.safetensors"
 
 
 class _SharedOutputs:

@@ -186,7 +186,7 @@ def _write(path: Path, rec: dict) -> None:
 
 
 def run(args) -> dict:
-    from planner.cli import DEFAULT_MODEL
+    from planner.checkpoint import DEFAULT_MODEL
     from synth.common.files import sha256_file
 
     model = Path(args.model or DEFAULT_MODEL)
@@ -371,7 +371,7 @@ def timing(args) -> list[dict]:
     import torch
 
     from field.real_test import RealTestConfig, prepare_case
-    from planner.cli import DEFAULT_MODEL
+    from planner.checkpoint import DEFAULT_MODEL
     from planner.inference import Objective, load_planner, plan
     from planner.verify import Verifier, VerifyConfig
 

@@ -35,7 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 def main() -> None:
     from field.real_test import RealTestConfig, _execute
-    from planner.cli import DEFAULT_MODEL
+    from planner.checkpoint import DEFAULT_MODEL
     from planner.inference import Objective, load_planner, plan
     from synth.generate import GenerationConfig, generate_pile
     from synth.common.files import atomic_write_bytes

@@ -324,7 +324,7 @@ _WORKER: dict = {}
 
 
 def _model_path(cfg: RealTestConfig) -> Path:
-    from planner.cli import DEFAULT_MODEL
+    from planner.checkpoint import DEFAULT_MODEL
 
     return Path(cfg.model or DEFAULT_MODEL)
 

@@ -299,7 +299,7 @@ def prepare_trial(scan_dir: str | Path, gnss_path: str | Path, work_dir: str | P
     :class:`TrialAborted` (:class:`NotVerified` when no checked grasp succeeded in the twin and
     the operator named no plan rank). ``recorded_verification``: a replay's recorded verification
     (:func:`verify_trial_plan`)."""
-    from planner.cli import DEFAULT_MODEL
+    from planner.checkpoint import DEFAULT_MODEL
     from planner.constraints import Constraints
     from planner.errors import PlannerError
     from planner.inference import Objective, load_planner, plan
@@ -529,7 +529,7 @@ def run_trial_record(scan_dir: str | Path, gnss_path: str | Path, link_url: str,
     ``final_state`` ``NOT SENT`` and the reason, and raises :class:`TrialAborted` (Ctrl-C:
     ``KeyboardInterrupt``). ``confirm`` None means already confirmed (``--yes``); it may raise
     :class:`TrialAborted` (e.g. no answer)."""
-    from planner.cli import DEFAULT_MODEL
+    from planner.checkpoint import DEFAULT_MODEL
     from synth.common.files import atomic_write_bytes, json_safe
 
     say = progress or (lambda s: None)

@@ -20,6 +20,9 @@ from planner.model import UNetConfig
 CHECKPOINT_FORMAT_NAME = "loggrasp.planner.checkpoint"
 CHECKPOINT_FORMAT_VERSION = "1.0"
 
+#: The trained default model shipped with loggrasp (safetensors + config in its header).
+DEFAULT_MODEL = Path(__file__).resolve().parent / "weights" / "default.safetensors"
+
 
 def save_tensors(path: str | Path, tensors: dict, header: dict[str, Any]) -> Path:
     """Write ``tensors`` (name -> torch tensor) and a JSON ``header`` atomically as safetensors."""

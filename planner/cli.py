@@ -12,6 +12,7 @@ from typing import Literal
 import typer
 
 from planner.evaluate import EvalConfig, PlannerSpec
+from planner.checkpoint import DEFAULT_MODEL
 from planner.inference import Objective
 from planner.loss import LossWeights
 from planner.model import UNetConfig
@@ -23,8 +24,6 @@ from synth.cli_common import progress_bar
 from synth.cli_common import (EXIT_TRIAL, CliError, Output, check_input, check_output_dir, check_output_file,
                               field_default, option)
 
-#: The trained default model shipped with loggrasp (safetensors + config in its header).
-DEFAULT_MODEL = Path(__file__).resolve().parent / "weights" / "default.safetensors"
 
 OBJECTIVE_HELP = "f1 (graspability), f2 (+ more logs), f3 (+ balance)."
 MODEL = option("--model", "Checkpoint (.safetensors); default: the shipped model.", default=None, metavar="PATH")
