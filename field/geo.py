@@ -104,6 +104,10 @@ def _georef(pile_or_georef: Any) -> Any:
 def grasp_to_gnss(grasp: Grasp, georef: Any, z_m: float) -> GraspGeo:
     """The grasp ``(x, y, phi, width)`` at pile-frame height ``z_m`` [m] in GNSS coordinates.
 
+    The one conversion from the pile frame to SWEREF 99 TM: the field trial's command, the
+    GeoJSON / map exports and ``GraspCommand.from_pile_grasp`` all use it (inverse:
+    :func:`tm_to_grasp`).
+
     ``georef``: a :class:`~synth.pile.Georeference` (or a pile carrying one)."""
     g = _georef(georef)
     if not math.isfinite(z_m):
@@ -124,16 +128,26 @@ def grasp_to_gnss(grasp: Grasp, georef: Any, z_m: float) -> GraspGeo:
     )
 
 
-def gnss_to_grasp(geo: GraspGeo, georef: Any) -> tuple[Grasp, float]:
-    """Inverse of :func:`grasp_to_gnss`: ``(Grasp in the pile frame, z_m)`` from the TM numbers
-    and the grid heading."""
+def tm_to_grasp(easting_m: float, northing_m: float, h_ell_m: float, heading_grid_deg: float, width_m: float,
+                georef: Any) -> tuple[Grasp, float]:
+    """Inverse of :func:`grasp_to_gnss`: ``(Grasp in the pile frame, z_m)`` of a grasp given in
+    SWEREF 99 TM (easting, northing [m]), ellipsoidal height [m] and grid heading of the closing
+    axis [deg]. The one conversion from TM numbers to the pile frame: the laptop
+    (:func:`gnss_to_grasp`) and the controller twin (``GraspCommand.to_pile_grasp``) use it."""
     g = _georef(georef)
     try:
-        p = geodesy.sweref_tm_to_pile(g, geo.easting_m, geo.northing_m, geo.h_ell_m)
-        phi = geodesy.grid_bearing_to_pile_angle(g, geo.heading_grid_deg, p)
+        p = geodesy.sweref_tm_to_pile(g, easting_m, northing_m, h_ell_m)
+        p = np.asarray(p, dtype=float).reshape(3)
+        phi = float(geodesy.grid_bearing_to_pile_angle(g, heading_grid_deg, p))
     except geodesy.GeodesyError as exc:
         raise GeoExportError(f"cannot map the GNSS grasp into the pile frame: {exc}") from exc
-    return Grasp(float(p[0]), float(p[1]), phi, geo.width_m), float(p[2])
+    return Grasp(float(p[0]), float(p[1]), phi, width_m), float(p[2])
+
+
+def gnss_to_grasp(geo: GraspGeo, georef: Any) -> tuple[Grasp, float]:
+    """Inverse of :func:`grasp_to_gnss`: ``(Grasp in the pile frame, z_m)`` from the TM numbers
+    and the grid heading (:func:`tm_to_grasp`)."""
+    return tm_to_grasp(geo.easting_m, geo.northing_m, geo.h_ell_m, geo.heading_grid_deg, geo.width_m, georef)
 
 
 # -- geometry of a pile in the pile frame ----------------------------------------------------

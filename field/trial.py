@@ -49,7 +49,7 @@ from typing import Callable
 import numpy as np
 
 from field.errors import FieldError
-from field.link.messages import DEFAULT_MAX_PILE_AGE_S
+from field.link.messages import DEFAULT_MAX_PILE_AGE_S, GraspCommand
 from synth.common.files import sha256_file as sha256_of
 from synth.common.formats import VersionedJson
 
@@ -374,12 +374,8 @@ def prepare_trial(scan_dir: str | Path, gnss_path: str | Path, work_dir: str | P
         best = the_plan.grasps[options.operator_rank - 1]
     z = float(pile.terrain.height_at(best.grasp.x_m, best.grasp.y_m))
     geo = grasp_to_gnss(best.grasp, pile.georef, z)
-    command_fields = {
-        "easting_mm": int(round(geo.easting_m * 1000)), "northing_mm": int(round(geo.northing_m * 1000)),
-        "height_mm": int(round(geo.h_ell_m * 1000)), "heading_cdeg": int(round(geo.heading_grid_deg * 100)) % 18000,
-        "opening_width_mm": int(round(best.grasp.width_m * 1000)), "target_log_count": len(best.targets),
-        "plan_timestamp_ms": int(round(captured * 1000)),
-    }
+    command = GraspCommand.from_grasp_geo(1, geo, len(best.targets), captured)  # the id is the link's, at sending
+    command_fields = {k: v for k, v in asdict(command).items() if k != "command_id"}
     plan_dir = work / "plan"
     plan_dir.mkdir(parents=True, exist_ok=True)
     from planner.pictures import draw_plan
@@ -415,7 +411,6 @@ def execute_trial(prepared: PreparedTrial, link_url: str, options: TrialOptions,
     from field.errors import LinkError
     from field.link import open_link
     from field.link.base import LinkConfig
-    from field.link.messages import GraspCommand
     from field.link.safety import SafetyConfig
 
     say = say or (lambda s: None)
