@@ -27,7 +27,7 @@ Guarantees:
   :class:`NoVerifiedGrasp`.
 
 Trials run in-process with one worker, else in a process pool (``spawn``, each worker ends with its
-parent, :func:`synth.jobs.exit_with_parent`).
+parent, :func:`synth.common.processes.exit_with_parent`).
 """
 
 from __future__ import annotations
