@@ -85,7 +85,7 @@ def run(args) -> None:
     rec = json.loads(out.read_text()) if out.exists() else {"piles": []}
     done = {p["seed"] for p in rec["piles"]}
     todo = [s for s in range(args.seed0, args.seed0 + args.piles) if s not in done]
-    from synth.jobs import exit_with_parent
+    from synth.common.processes import exit_with_parent
 
     with ProcessPoolExecutor(max_workers=args.workers, initializer=exit_with_parent) as pool:
         for res in pool.map(bench_pile, todo, [args.max_trials] * len(todo), [args.off] * len(todo)):

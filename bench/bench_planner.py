@@ -24,6 +24,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from planner.checkpoint import DEFAULT_MODEL  # noqa: E402  (after the sys.path line above)
+
 
 def _load() -> str:
     try:
@@ -137,7 +139,6 @@ def views_markdown(rows: list[dict]) -> list[str]:
     return lines + [f"| {r['views']} | {r['logs']} | {r['wall_s']:.2f} |" for r in rows]
 
 
-DEFAULT_MODEL = ROOT / "planner" / "weights" / "default.safetensors"
 
 
 class _SharedOutputs:
@@ -191,7 +192,7 @@ def pruning_quality(checkpoint: str | Path | None = None, n_piles: int = 20, cap
     from planner.evaluate import EvalConfig, PlannerSpec, evaluate_pile
     from planner.inference import Objective, load_planner, plan
     from planner.subsets import SubsetPolicy, choose_subsets
-    from synth.dataset import sha256_file
+    from synth.common.files import sha256_file
 
     torch.set_num_threads(threads)
     path = Path(checkpoint or DEFAULT_MODEL)
@@ -252,7 +253,7 @@ def pruning_quality(checkpoint: str | Path | None = None, n_piles: int = 20, cap
                             f"cap{c}_s": p.elapsed_s, f"cap{c}_outcome": recs[f"{obj}/cap{c}"]["outcome"]})
             rows.append(row)
         if cached is not None:
-            from synth.pile import atomic_write_bytes
+            from synth.common.files import atomic_write_bytes
 
             atomic_write_bytes(cached, json.dumps(rows[first:]).encode())
     return {"model": model_note, "rows": rows, "caps": tuple(caps), "objectives": tuple(objectives),

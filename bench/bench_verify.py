@@ -158,7 +158,7 @@ def _init(model: str) -> None:
     import torch
 
     from planner.inference import load_planner
-    from synth.jobs import exit_with_parent
+    from synth.common.processes import exit_with_parent
 
     exit_with_parent()
     torch.set_num_threads(1)
@@ -179,15 +179,15 @@ def one_pile(seed: int, work_dir: str, logs, obstacles, objectives, ks, copies) 
 
 # -- the record ---------------------------------------------------------------------------------
 def _write(path: Path, rec: dict) -> None:
-    from synth.pile import atomic_write_bytes
+    from synth.common.files import atomic_write_bytes
 
     path.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(path, json.dumps(rec, indent=1, default=float).encode())
 
 
 def run(args) -> dict:
-    from planner.cli import DEFAULT_MODEL
-    from synth.dataset import sha256_file
+    from planner.checkpoint import DEFAULT_MODEL
+    from synth.common.files import sha256_file
 
     model = Path(args.model or DEFAULT_MODEL)
     config = {"piles": args.piles, "seed": args.seed, "logs": list(args.logs), "obstacles": list(args.obstacles),
@@ -371,7 +371,7 @@ def timing(args) -> list[dict]:
     import torch
 
     from field.real_test import RealTestConfig, prepare_case
-    from planner.cli import DEFAULT_MODEL
+    from planner.checkpoint import DEFAULT_MODEL
     from planner.inference import Objective, load_planner, plan
     from planner.verify import Verifier, VerifyConfig
 
@@ -398,7 +398,7 @@ def timing(args) -> list[dict]:
 
 
 def main() -> None:
-    from synth.jobs import parse_range
+    from synth.common.ranges import parse_range
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--piles", type=int, default=40)

@@ -35,10 +35,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 def main() -> None:
     from field.real_test import RealTestConfig, _execute
-    from planner.cli import DEFAULT_MODEL
+    from planner.checkpoint import DEFAULT_MODEL
     from planner.inference import Objective, load_planner, plan
     from synth.generate import GenerationConfig, generate_pile
-    from synth.pile import RockSpec, StumpSpec, atomic_write_bytes
+    from synth.common.files import atomic_write_bytes
+    from synth.pile import RockSpec, StumpSpec
     from synth.render import OrthoRenderConfig, render_ortho
     from synth.world import World
 

@@ -89,7 +89,7 @@ def _pile(seed: int, work_dir: str, objectives: tuple[str, ...], direction_deg: 
 
 def main() -> None:
     from field.real_test import RealTestConfig, _model_path, summarize
-    from synth.pile import atomic_write_bytes
+    from synth.common.files import atomic_write_bytes
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--work-dir", type=Path, required=True, help="a real-test work folder (scans kept)")

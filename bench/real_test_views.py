@@ -57,7 +57,7 @@ def _init(model: str, views: int, k: float) -> None:
     import torch
 
     from planner.inference import load_planner
-    from synth.jobs import exit_with_parent
+    from synth.common.processes import exit_with_parent
 
     exit_with_parent()
     torch.set_num_threads(1)
@@ -231,7 +231,7 @@ def main() -> None:
         log_direction = parse_log_direction(args.log_direction)
     except ValueError as exc:
         raise SystemExit(str(exc)) from None
-    from synth.pile import atomic_write_bytes
+    from synth.common.files import atomic_write_bytes
 
     if not args.work_dir.is_dir():
         raise SystemExit(f"{args.work_dir} is not a folder; make one with bench_reconstruct.py --real-only --work-dir")

@@ -129,7 +129,7 @@ def main() -> None:
         text = out.read_text() + "\n\n---\n\n" + head + "\n\n".join(parts) + "\n"
     else:
         text = head + "\n\n".join(parts) + "\n"
-    from synth.pile import atomic_write_bytes
+    from synth.common.files import atomic_write_bytes
 
     atomic_write_bytes(out, text.encode())
     print(f"wrote {out}")

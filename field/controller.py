@@ -380,7 +380,7 @@ class ControllerJournal:
         self.entries[cid] = entry
 
     def _rewrite(self) -> None:
-        from synth.pile import atomic_write_bytes
+        from synth.common.files import atomic_write_bytes
 
         items = list(self.entries.values())[-self.keep:]
         self.entries = {int(e["command_id"]): e for e in items}

@@ -9,8 +9,10 @@ from __future__ import annotations
 
 from typing import Any
 
+from synth.common.errors import LoggraspError
 
-class FieldError(Exception):
+
+class FieldError(LoggraspError):
     """Root of every error raised by :mod:`field`."""
 
 

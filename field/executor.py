@@ -27,16 +27,9 @@ _CLASS = {
 
 
 def command_to_grasp(cmd: GraspCommand, georef):
-    """(Grasp in the pile frame, grasp-point height z [m]) of a grasp command."""
-    import numpy as np
-
-    from synth.geodesy import grid_bearing_to_pile_angle, sweref_tm_to_pile
-    from synth.grasp import Grasp
-
-    p = np.asarray(sweref_tm_to_pile(georef, cmd.easting_mm / 1000.0, cmd.northing_mm / 1000.0,
-                                     cmd.height_mm / 1000.0), dtype=float).reshape(3)
-    phi = float(grid_bearing_to_pile_angle(georef, cmd.heading_cdeg / 100.0, p))
-    return Grasp(float(p[0]), float(p[1]), phi, cmd.opening_width_mm / 1000.0), float(p[2])
+    """(Grasp in the pile frame, grasp-point height z [m]) of a grasp command: the laptop's own
+    conversion (:meth:`GraspCommand.to_pile_grasp`, i.e. :func:`field.geo.tm_to_grasp`)."""
+    return cmd.to_pile_grasp(georef)
 
 
 class PybulletTrialExecutor:

@@ -41,8 +41,10 @@ import numpy as np
 
 from field.errors import FieldError
 from synth import geodesy
+from synth.common.files import atomic_write_bytes
+from synth.common.formats import VersionedJson
 from synth.grasp import RECT_WIDTH_M, Grasp
-from synth.pile import PileSpec, atomic_write_bytes
+from synth.pile import PileSpec
 
 GEOJSON_FORMAT = "loggrasp.geojson"
 GEOJSON_VERSION = "1.0"
@@ -54,6 +56,10 @@ _TM_CRS_MEMBER = {"type": "name", "properties": {"name": "urn:ogc:def:crs:EPSG::
 class GeoExportError(FieldError, ValueError):
     """Earth coordinates of a pile or grasp could not be produced or failed validation (no
     georeference, coordinates outside Sweden, a malformed or newer-version GeoJSON file)."""
+
+
+#: the ``loggrasp`` member of a GeoJSON file written here (format, version, CRS, plan)
+GEOJSON = VersionedJson(GEOJSON_FORMAT, GEOJSON_VERSION, "GeoJSON", GeoExportError)
 
 
 @dataclass(frozen=True)
@@ -98,6 +104,10 @@ def _georef(pile_or_georef: Any) -> Any:
 def grasp_to_gnss(grasp: Grasp, georef: Any, z_m: float) -> GraspGeo:
     """The grasp ``(x, y, phi, width)`` at pile-frame height ``z_m`` [m] in GNSS coordinates.
 
+    The one conversion from the pile frame to SWEREF 99 TM: the field trial's command, the
+    GeoJSON / map exports and ``GraspCommand.from_pile_grasp`` all use it (inverse:
+    :func:`tm_to_grasp`).
+
     ``georef``: a :class:`~synth.pile.Georeference` (or a pile carrying one)."""
     g = _georef(georef)
     if not math.isfinite(z_m):
@@ -118,16 +128,26 @@ def grasp_to_gnss(grasp: Grasp, georef: Any, z_m: float) -> GraspGeo:
     )
 
 
-def gnss_to_grasp(geo: GraspGeo, georef: Any) -> tuple[Grasp, float]:
-    """Inverse of :func:`grasp_to_gnss`: ``(Grasp in the pile frame, z_m)`` from the TM numbers
-    and the grid heading."""
+def tm_to_grasp(easting_m: float, northing_m: float, h_ell_m: float, heading_grid_deg: float, width_m: float,
+                georef: Any) -> tuple[Grasp, float]:
+    """Inverse of :func:`grasp_to_gnss`: ``(Grasp in the pile frame, z_m)`` of a grasp given in
+    SWEREF 99 TM (easting, northing [m]), ellipsoidal height [m] and grid heading of the closing
+    axis [deg]. The one conversion from TM numbers to the pile frame: the laptop
+    (:func:`gnss_to_grasp`) and the controller twin (``GraspCommand.to_pile_grasp``) use it."""
     g = _georef(georef)
     try:
-        p = geodesy.sweref_tm_to_pile(g, geo.easting_m, geo.northing_m, geo.h_ell_m)
-        phi = geodesy.grid_bearing_to_pile_angle(g, geo.heading_grid_deg, p)
+        p = geodesy.sweref_tm_to_pile(g, easting_m, northing_m, h_ell_m)
+        p = np.asarray(p, dtype=float).reshape(3)
+        phi = float(geodesy.grid_bearing_to_pile_angle(g, heading_grid_deg, p))
     except geodesy.GeodesyError as exc:
         raise GeoExportError(f"cannot map the GNSS grasp into the pile frame: {exc}") from exc
-    return Grasp(float(p[0]), float(p[1]), phi, geo.width_m), float(p[2])
+    return Grasp(float(p[0]), float(p[1]), phi, width_m), float(p[2])
+
+
+def gnss_to_grasp(geo: GraspGeo, georef: Any) -> tuple[Grasp, float]:
+    """Inverse of :func:`grasp_to_gnss`: ``(Grasp in the pile frame, z_m)`` from the TM numbers
+    and the grid heading (:func:`tm_to_grasp`)."""
+    return tm_to_grasp(geo.easting_m, geo.northing_m, geo.h_ell_m, geo.heading_grid_deg, geo.width_m, georef)
 
 
 # -- geometry of a pile in the pile frame ----------------------------------------------------
@@ -324,13 +344,9 @@ def read_geojson(path: str | Path) -> dict[str, Any]:
     except json.JSONDecodeError as exc:
         raise GeoExportError(f"{path} is not valid JSON: {exc}") from exc
     meta = fc.get("loggrasp") if isinstance(fc, dict) else None
-    if not isinstance(meta, dict) or meta.get("format") != GEOJSON_FORMAT:
+    if not isinstance(meta, dict):
         raise GeoExportError(f"{path} is not a loggrasp GeoJSON (no 'loggrasp' member)")
-    if str(meta.get("format_version", "")).split(".")[0] != GEOJSON_VERSION.split(".")[0]:
-        raise GeoExportError(
-            f"{path}: {GEOJSON_FORMAT} version {meta.get('format_version')!r} is not supported "
-            f"(reads {GEOJSON_VERSION.split('.')[0]}.x); upgrade loggrasp"
-        )
+    GEOJSON.check(meta, path)
     try:
         validate_geojson(fc)
     except GeoExportError as exc:

@@ -43,9 +43,11 @@ import numpy as np
 
 from field.errors import FieldError
 from reconstruct.fit import FIT_REVISION
+from synth.common.formats import VersionedJson
 
 REAL_TEST_FORMAT = "loggrasp.real-test"
 REAL_TEST_VERSION = "1.0"
+REAL_TEST = VersionedJson(REAL_TEST_FORMAT, REAL_TEST_VERSION, "real-test record", FieldError)
 OBJECTIVES = ("f1", "f2", "f3")
 
 
@@ -196,7 +198,8 @@ def prepare_case(seed: int, work_dir: str | Path, planner_config: Any, cfg: Real
     from reconstruct.errors import ReconstructError
     from reconstruct.pipeline import ReconstructConfig, read_report, reconstruct
     from reconstruct.twin_scan import make_twin_scan
-    from synth.pile import atomic_write_bytes, read_pile
+    from synth.common.files import atomic_write_bytes
+    from synth.pile import read_pile
     from synth.render import OrthoObservation
 
     work = Path(work_dir)
@@ -321,14 +324,14 @@ _WORKER: dict = {}
 
 
 def _model_path(cfg: RealTestConfig) -> Path:
-    from planner.cli import DEFAULT_MODEL
+    from planner.checkpoint import DEFAULT_MODEL
 
     return Path(cfg.model or DEFAULT_MODEL)
 
 
 def _worker_init(model: str, threads: int | None, views: int = 1, view_spread_k: float = 0.0) -> None:
     from planner.inference import load_planner
-    from synth.jobs import exit_with_parent
+    from synth.common.processes import exit_with_parent
 
     exit_with_parent()  # a killed run's workers must not go on writing into its work folder
     if threads is not None:
@@ -375,7 +378,7 @@ def run_real_test(cfg: RealTestConfig | None = None, work_dir: str | Path | None
     ``record_path``: the record is written there after every pile (an interrupted run keeps what
     it measured), and a record already there from the same test and the same model (by its
     sha256) is resumed: its piles are not run again."""
-    from synth.dataset import sha256_file
+    from synth.common.files import sha256_file
 
     cfg = cfg or RealTestConfig()
     say = progress or (lambda s: None)
@@ -496,7 +499,7 @@ def summarize(rows: list[dict]) -> dict:
 # -- the record --------------------------------------------------------------------------------
 def write_real_test(record: dict, path: str | Path) -> Path:
     """Write a :func:`run_real_test` record as JSON, atomically. Returns the path."""
-    from synth.pile import atomic_write_bytes
+    from synth.common.files import atomic_write_bytes
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -506,14 +509,4 @@ def write_real_test(record: dict, path: str | Path) -> Path:
 
 def read_real_test(path: str | Path) -> dict:
     """Read a record written by :func:`write_real_test` (format and major version checked)."""
-    path = Path(path)
-    try:
-        d = json.loads(path.read_text())
-    except (OSError, ValueError) as exc:
-        raise FieldError(f"{path} is not a readable real-test record: {exc}") from exc
-    if not isinstance(d, dict) or d.get("format") != REAL_TEST_FORMAT:
-        raise FieldError(f"{path} is not a {REAL_TEST_FORMAT} record")
-    if str(d.get("format_version", "")).split(".")[0] != REAL_TEST_VERSION.split(".")[0]:
-        raise FieldError(f"{path}: real-test version {d.get('format_version')!r} is not supported "
-                         f"(reads {REAL_TEST_VERSION.split('.')[0]}.x)")
-    return d
+    return REAL_TEST.read(path)

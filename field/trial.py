@@ -49,8 +49,9 @@ from typing import Callable
 import numpy as np
 
 from field.errors import FieldError
-from field.link.messages import DEFAULT_MAX_PILE_AGE_S
-from synth.dataset import sha256_file as sha256_of
+from field.link.messages import DEFAULT_MAX_PILE_AGE_S, GraspCommand
+from synth.common.files import sha256_file as sha256_of
+from synth.common.formats import VersionedJson
 
 RECORD_FORMAT = "loggrasp.trial-record"
 RECORD_VERSION = "1.1"  # 1.1: verification, chosen_rank, verified (a 1.0 record was never verified)
@@ -307,7 +308,7 @@ def prepare_trial(scan_dir: str | Path, gnss_path: str | Path, work_dir: str | P
     :class:`TrialAborted` (:class:`NotVerified` when no checked grasp succeeded in the twin and
     the operator named no plan rank). ``recorded_verification``: a replay's recorded verification
     (:func:`verify_trial_plan`)."""
-    from planner.cli import DEFAULT_MODEL
+    from planner.checkpoint import DEFAULT_MODEL
     from planner.constraints import Constraints
     from planner.errors import PlannerError
     from planner.inference import Objective, load_planner, plan
@@ -382,16 +383,12 @@ def prepare_trial(scan_dir: str | Path, gnss_path: str | Path, work_dir: str | P
         best = the_plan.grasps[options.operator_rank - 1]
     z = float(pile.terrain.height_at(best.grasp.x_m, best.grasp.y_m))
     geo = grasp_to_gnss(best.grasp, pile.georef, z)
-    command_fields = {
-        "easting_mm": int(round(geo.easting_m * 1000)), "northing_mm": int(round(geo.northing_m * 1000)),
-        "height_mm": int(round(geo.h_ell_m * 1000)), "heading_cdeg": int(round(geo.heading_grid_deg * 100)) % 18000,
-        "opening_width_mm": int(round(best.grasp.width_m * 1000)), "target_log_count": len(best.targets),
-        "plan_timestamp_ms": int(round(captured * 1000)),
-    }
+    command = GraspCommand.from_grasp_geo(1, geo, len(best.targets), captured)  # the id is the link's, at sending
+    command_fields = {k: v for k, v in asdict(command).items() if k != "command_id"}
     plan_dir = work / "plan"
     plan_dir.mkdir(parents=True, exist_ok=True)
     from planner.pictures import draw_plan
-    from synth.pile import atomic_write_bytes, dumps_json
+    from synth.common.files import atomic_write_bytes, dumps_json
 
     atomic_write_bytes(plan_dir / "plan.json", the_plan.to_json().encode())
     draw_plan(obs, the_plan, plan_dir / "plan.png", pile=pile, objective=Objective(kind=options.objective),
@@ -435,7 +432,6 @@ def execute_trial(prepared: PreparedTrial, link_url: str, options: TrialOptions,
     from field.errors import LinkError
     from field.link import open_link
     from field.link.base import LinkConfig
-    from field.link.messages import GraspCommand
     from field.link.safety import SafetyConfig
 
     say = say or (lambda s: None)
@@ -527,7 +523,7 @@ def _stage_record(record_dir: Path) -> Path:
         raise TrialAborted(f"trial record {record_dir} already exists; choose a new --record folder", kind="input")
     record_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{record_dir.name}.", suffix=".tmp", dir=record_dir.parent))
-    from synth.pile import apply_umask
+    from synth.common.files import apply_umask
 
     apply_umask(tmp, directory=True)
     return tmp
@@ -549,8 +545,8 @@ def run_trial_record(scan_dir: str | Path, gnss_path: str | Path, link_url: str,
     ``final_state`` ``NOT SENT`` and the reason, and raises :class:`TrialAborted` (Ctrl-C:
     ``KeyboardInterrupt``). ``confirm`` None means already confirmed (``--yes``); it may raise
     :class:`TrialAborted` (e.g. no answer)."""
-    from planner.cli import DEFAULT_MODEL
-    from synth.pile import atomic_write_bytes, json_safe
+    from planner.checkpoint import DEFAULT_MODEL
+    from synth.common.files import atomic_write_bytes, json_safe
 
     say = progress or (lambda s: None)
     scan_dir, gnss_path, record_dir = Path(scan_dir), Path(gnss_path), Path(record_dir)
@@ -668,17 +664,12 @@ class RecordError(FieldError):
     recorded inputs that changed since the trial)."""
 
 
+RECORD = VersionedJson(RECORD_FORMAT, RECORD_VERSION, "trial record", RecordError)
+
+
 def read_record(record_dir: str | Path) -> dict:
-    path = Path(record_dir) / "record.json"
-    try:
-        d = json.loads(path.read_text())
-    except (OSError, ValueError) as exc:
-        raise RecordError(f"{path} is not a readable trial record: {exc}") from exc
-    if not isinstance(d, dict) or d.get("format") != RECORD_FORMAT:
-        raise RecordError(f"{path} is not a loggrasp trial record")
-    if str(d.get("format_version", "")).split(".")[0] != RECORD_VERSION.split(".")[0]:
-        raise RecordError(f"{path}: trial record version {d.get('format_version')!r} is not supported by this loggrasp")
-    return d
+    """``record_dir/record.json``, format and major version checked. Raises :class:`RecordError`."""
+    return RECORD.read(Path(record_dir) / "record.json")
 
 
 def changed_inputs(record_dir: str | Path, rec: dict | None = None) -> list[str]:
@@ -710,7 +701,7 @@ def replay_record(record_dir: str | Path, work_dir: str | Path, progress=None) -
     because no grasp verified is identical when the replay refuses too, with the same plan and
     the same trials."""
     from planner.verify import trial_differences
-    from synth.pile import json_safe
+    from synth.common.files import json_safe
 
     rec = read_record(record_dir)
     if not rec.get("inputs", {}).get("hashes"):

@@ -21,13 +21,13 @@ repeatable; with another model only the plans (and so the trials) change.
 
 from __future__ import annotations
 
-import json
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from planner.errors import PlannerError
+from synth.common.formats import VersionedJson
 
 CASE_STUDIES_FORMAT = "loggrasp.case-studies"
 CASE_STUDIES_FORMAT_VERSION = "1.0"
@@ -38,6 +38,11 @@ _RANKING, _OBSTACLE, _PACKED, _THICK, _CONICAL = 0, 1000, 2000, 3000, 4000
 
 class CaseStudyError(PlannerError):
     """A case study could not be built (no valid pile, nowhere to place an obstacle...)."""
+
+
+RESULTS = VersionedJson(CASE_STUDIES_FORMAT, CASE_STUDIES_FORMAT_VERSION, "case-study results", CaseStudyError,
+                        fix="re-run scripts/case_studies.py", unreadable_fix="re-run scripts/case_studies.py",
+                        filename="results.json")
 
 
 @dataclass(frozen=True)
@@ -517,7 +522,7 @@ def run_case_studies(planner, out_dir: str | Path, cfg: CaseStudyConfig = CaseSt
     """Build the case studies ``cases`` with ``planner`` (a :class:`planner.inference.Planner`),
     write ``<case>.png``, ``results.json`` and ``README.md`` under ``out_dir``. ``model``
     describes the checkpoint (path, sha256, ...) for the record. Returns the results."""
-    from synth.pile import atomic_write_bytes
+    from synth.common.files import atomic_write_bytes
     from synth.preview import write_png
 
     unknown = set(cases) - set(FIGURES)
@@ -532,29 +537,16 @@ def run_case_studies(planner, out_dir: str | Path, cfg: CaseStudyConfig = CaseSt
         img, recs = FIGURES[name](planner, cfg)
         write_png(out / f"{name}.png", img)
         records += recs
-    results = {"format": CASE_STUDIES_FORMAT, "format_version": CASE_STUDIES_FORMAT_VERSION,
-               "config": asdict(cfg), "model": model or {}, "command": command, "cases": list(cases),
-               "records": records}
-    atomic_write_bytes(out / "results.json", json.dumps(results, indent=1).encode())
+    results = RESULTS.document({"config": asdict(cfg), "model": model or {}, "command": command,
+                                "cases": list(cases), "records": records})
+    RESULTS.write(out, results)
     atomic_write_bytes(out / "README.md", readme_markdown(results).encode())
     return results
 
 
 def read_results(path: str | Path) -> dict:
     """Read a ``results.json`` written by :func:`run_case_studies` (or its folder)."""
-    path = Path(path)
-    if path.is_dir():
-        path = path / "results.json"
-    try:
-        d = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise CaseStudyError(f"cannot read case-study results {path}: {exc}; re-run scripts/case_studies.py") from exc
-    if d.get("format") != CASE_STUDIES_FORMAT:
-        raise CaseStudyError(f"{path} is not a case-study results file")
-    if str(d.get("format_version", "")).split(".")[0] != CASE_STUDIES_FORMAT_VERSION.split(".")[0]:
-        raise CaseStudyError(f"{path}: format version {d.get('format_version')!r} is not supported "
-                             f"(this code reads {CASE_STUDIES_FORMAT_VERSION.split('.')[0]}.x); re-run the script")
-    return d
+    return RESULTS.read(path)
 
 
 _CAPTIONS = {
@@ -611,7 +603,7 @@ def readme_markdown(results: dict) -> str:
 
 def model_record(path: str | Path, planner) -> dict:
     """Path, sha256 and training metadata of a checkpoint, for the results."""
-    from synth.dataset import sha256_file
+    from synth.common.files import sha256_file
 
     meta = getattr(planner, "meta", {}) or {}
     rec = {"path": str(path), "sha256": sha256_file(Path(path))}

@@ -14,17 +14,21 @@ from pathlib import Path
 from typing import Any
 
 from planner.errors import CheckpointError
+from synth.common.formats import VersionedJson
 from planner.model import UNetConfig
 
 CHECKPOINT_FORMAT_NAME = "loggrasp.planner.checkpoint"
 CHECKPOINT_FORMAT_VERSION = "1.0"
+
+#: The trained default model shipped with loggrasp (safetensors + config in its header).
+DEFAULT_MODEL = Path(__file__).resolve().parent / "weights" / "default.safetensors"
 
 
 def save_tensors(path: str | Path, tensors: dict, header: dict[str, Any]) -> Path:
     """Write ``tensors`` (name -> torch tensor) and a JSON ``header`` atomically as safetensors."""
     from safetensors.torch import save
 
-    from synth.pile import atomic_write_bytes
+    from synth.common.files import atomic_write_bytes
 
     path = Path(path)
     flat = {k: v.detach().cpu().contiguous().clone() for k, v in tensors.items()}
@@ -51,12 +55,8 @@ def load_tensors(path: str | Path, expected_format: str) -> tuple[dict, dict]:
     except (SafetensorError, OSError, ValueError, KeyError, TypeError) as exc:
         raise CheckpointError(f"{path} is not a readable loggrasp safetensors file ({exc}); "
                               "it may be truncated or corrupt: use another checkpoint or retrain") from exc
-    if header.get("format") != expected_format:
-        raise CheckpointError(f"{path} holds {header.get('format')!r}, expected {expected_format!r}")
-    major = str(header.get("format_version", "")).split(".")[0]
-    if major != CHECKPOINT_FORMAT_VERSION.split(".")[0]:
-        raise CheckpointError(f"{path}: format version {header.get('format_version')!r} is not supported "
-                              f"(this code reads {CHECKPOINT_FORMAT_VERSION.split('.')[0]}.x); upgrade loggrasp or retrain")
+    VersionedJson(expected_format, CHECKPOINT_FORMAT_VERSION, "checkpoint", CheckpointError,
+                  fix="upgrade loggrasp or retrain").check(header, path)
     return tensors, header
 
 

@@ -13,6 +13,7 @@ import typer
 
 from planner.data import DataConfig
 from planner.evaluate import EvalConfig, PlannerSpec
+from planner.checkpoint import DEFAULT_MODEL
 from planner.inference import Objective
 from planner.loss import LossWeights
 from planner.model import UNetConfig
@@ -24,8 +25,6 @@ from synth.cli_common import progress_bar
 from synth.cli_common import (EXIT_TRIAL, CliError, Output, check_input, check_output_dir, check_output_file,
                               field_default, option)
 
-#: The trained default model shipped with loggrasp (safetensors + config in its header).
-DEFAULT_MODEL = Path(__file__).resolve().parent / "weights" / "default.safetensors"
 
 OBJECTIVE_HELP = "f1 (graspability), f2 (+ more logs), f3 (+ balance)."
 MODEL = option("--model", "Checkpoint (.safetensors); default: the shipped model.", default=None, metavar="PATH")
@@ -353,7 +352,7 @@ def eval_command(
     import json
 
     from planner.evaluate import run_evaluation
-    from synth.jobs import parse_range
+    from synth.common.ranges import parse_range
 
     o = Output(as_json)
     if address is not None and engine != "dask":

@@ -1,7 +1,9 @@
 """Error hierarchy of the grasp planner. Every error says what was wrong and what to do."""
 
+from synth.common.errors import LoggraspError
 
-class PlannerError(Exception):
+
+class PlannerError(LoggraspError):
     """Root of every error raised by :mod:`planner`."""
 
 

@@ -341,7 +341,7 @@ def run_evaluation(specs: list[PlannerSpec], cfg: EvalConfig, out_dir: str | Pat
     to ``records/`` one file per pile, atomically); writes tables (Markdown + JSON) and a figure."""
     import os
 
-    from synth.pile import atomic_write_bytes, dumps_json
+    from synth.common.files import atomic_write_bytes, dumps_json
 
     if not specs:
         raise ValueError("no planner to evaluate")
@@ -417,7 +417,7 @@ def run_evaluation(specs: list[PlannerSpec], cfg: EvalConfig, out_dir: str | Pat
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor, as_completed
 
-        from synth.jobs import exit_with_parent
+        from synth.common.processes import exit_with_parent
 
         with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
                                  initializer=exit_with_parent) as pool:
@@ -440,7 +440,7 @@ def _fingerprint(spec: PlannerSpec) -> str:
     """What a record must match to be reused: the checkpoint's sha256 for a U-Net, '' otherwise."""
     if spec.kind != "unet" or not spec.model:
         return ""
-    from synth.dataset import sha256_file
+    from synth.common.files import sha256_file
 
     try:
         sha = sha256_file(Path(spec.model))

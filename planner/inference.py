@@ -254,7 +254,7 @@ class Plan:
                 "elapsed_s": self.elapsed_s, "rejected": self.rejected, "info": self.info}
 
     def to_json(self) -> str:
-        from synth.pile import dumps_json
+        from synth.common.files import dumps_json
 
         return dumps_json(self.to_dict())
 

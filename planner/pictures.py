@@ -17,7 +17,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from synth.grasp import RECT_WIDTH_M
-from synth.pile import atomic_write_bytes
+from synth.common.files import atomic_write_bytes
 
 TARGET_FILL = "#f0a030"
 LOG_EDGE = "#55a0ff"

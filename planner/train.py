@@ -32,10 +32,12 @@ from planner.data import DataConfig, ShardStream, batches, list_shards
 from planner.errors import CheckpointError, DataError, TrainingError
 from planner.loss import LossWeights, grasp_loss
 from planner.model import UNetConfig
+from synth.common.formats import VersionedJson
 
 TRAIN_FORMAT_NAME = "loggrasp.planner.train_state"
 LOG_FORMAT_NAME = "loggrasp.planner.train_log"
 LOG_FORMAT_VERSION = "1.0"
+TRAIN_LOG = VersionedJson(LOG_FORMAT_NAME, LOG_FORMAT_VERSION, "training log", TrainingError)
 
 
 @dataclass(frozen=True)
@@ -158,23 +160,12 @@ def _load_state(path: Path, model, opt) -> dict:
 
 
 def _write_log(path: Path, history: list[dict], cfg: TrainConfig, extra: dict) -> None:
-    from synth.pile import atomic_write_bytes
-
-    doc = {"format": LOG_FORMAT_NAME, "format_version": LOG_FORMAT_VERSION, "config": cfg.to_dict(), **extra,
-           "epochs": history}
-    atomic_write_bytes(path, json.dumps(doc, indent=1).encode())
+    TRAIN_LOG.write(path, {"config": cfg.to_dict(), **extra, "epochs": history})
 
 
 def read_log(path: str | Path) -> dict:
     """Read ``log.json`` written by :func:`train`."""
-    path = Path(path)
-    try:
-        doc = json.loads(path.read_text())
-    except (OSError, ValueError) as exc:
-        raise TrainingError(f"cannot read training log {path}: {exc}") from exc
-    if doc.get("format") != LOG_FORMAT_NAME or str(doc.get("format_version", "")).split(".")[0] != "1":
-        raise TrainingError(f"{path} is not a loggrasp training log of version 1.x")
-    return doc
+    return TRAIN_LOG.read(path)
 
 
 def plot_curve(history: list[dict], path: Path) -> None:
@@ -186,7 +177,7 @@ def plot_curve(history: list[dict], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from synth.pile import atomic_write_bytes
+    from synth.common.files import atomic_write_bytes
 
     fig, ax = plt.subplots(figsize=(6, 4), dpi=100)
     ep = [h["epoch"] + 1 for h in history]
@@ -262,7 +253,7 @@ def train(data_dir: str | Path | list, out_dir: str | Path, config: TrainConfig 
 
     from planner.checkpoint import save_checkpoint
     from planner.model import build_unet, count_parameters
-    from synth.pile import atomic_write_bytes
+    from synth.common.files import atomic_write_bytes
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -27,7 +27,7 @@ Guarantees:
   :class:`NoVerifiedGrasp`.
 
 Trials run in-process with one worker, else in a process pool (``spawn``, each worker ends with its
-parent, :func:`synth.jobs.exit_with_parent`).
+parent, :func:`synth.common.processes.exit_with_parent`).
 """
 
 from __future__ import annotations
@@ -45,6 +45,7 @@ import numpy as np
 
 from planner.errors import PlannerError
 from planner.inference import Objective, Plan, PlannedGrasp
+from synth.common.formats import VersionedJson
 from synth.grasp import Grasp
 from synth.pile import LogSpec, PileSpec, rotate
 from synth.trial import TrialConfig, TrialResult, run_trial
@@ -65,6 +66,9 @@ TRIAL_ERROR = "trial_error"  # outcome class of a trial whose simulation raised
 class VerificationError(PlannerError):
     """Verification cannot run on this input (no pile, a pile the twin cannot load, a plan made on
     another pile, a time budget too small for one trial)."""
+
+
+VERIFICATION = VersionedJson(VERIFY_FORMAT, VERIFY_VERSION, "verification", VerificationError)
 
 
 class VerificationBudgetError(VerificationError):
@@ -630,7 +634,7 @@ class Verifier:
             import multiprocessing as mp
             from concurrent.futures import ProcessPoolExecutor
 
-            from synth.jobs import exit_with_parent
+            from synth.common.processes import exit_with_parent
 
             self._pool = ProcessPoolExecutor(max_workers=self.config.n_workers(), mp_context=mp.get_context("spawn"),
                                              initializer=exit_with_parent)
@@ -737,19 +741,7 @@ class Verifier:
 def read_verification(path) -> dict:
     """A verification as written from :meth:`Verification.to_dict` (e.g. a trial record's
     ``plan/verification.json``); format and major version checked."""
-    from pathlib import Path
-
-    path = Path(path)
-    try:
-        d = json.loads(path.read_text())
-    except (OSError, ValueError) as exc:
-        raise VerificationError(f"{path} is not a readable verification: {exc}") from exc
-    if not isinstance(d, dict) or d.get("format") != VERIFY_FORMAT:
-        raise VerificationError(f"{path} is not a {VERIFY_FORMAT} file")
-    if str(d.get("format_version", "")).split(".")[0] != VERIFY_VERSION.split(".")[0]:
-        raise VerificationError(f"{path}: verification version {d.get('format_version')!r} is newer than this "
-                                f"loggrasp reads ({VERIFY_VERSION.split('.')[0]}.x); update loggrasp")
-    return d
+    return VERIFICATION.read(path)
 
 
 _TIMES = ("wall_time_s", "cpu_time_s")  # what differs from run to run in a trial's record

@@ -78,7 +78,7 @@ def scan_command(
     """
     from reconstruct.twin_scan import DEFAULT_SITE, make_twin_scan
     from synth.geodesy import check_geodetic
-    from synth.jobs import parse_range
+    from synth.common.ranges import parse_range
 
     o = Output(as_json)
     parts = parse_site(site)

@@ -6,8 +6,10 @@ for new stages next to the GNSS ones below.
 
 from __future__ import annotations
 
+from synth.common.errors import LoggraspError
 
-class ReconstructError(Exception):
+
+class ReconstructError(LoggraspError):
     """Root of every error raised by :mod:`reconstruct`."""
 
 

@@ -47,7 +47,8 @@ from typing import Callable
 import numpy as np
 
 from synth.frames import make_T, rot_z
-from synth.pile import Georeference, PileSpec, apply_umask, atomic_write_bytes, write_pile
+from synth.common.files import apply_umask, atomic_write_bytes
+from synth.pile import Georeference, PileSpec, write_pile
 
 SCAN_FORMAT_VERSION = "1.0"
 DEFAULT_SITE = (64.1, 20.0, 250.0)  # near Umeå inland: lat [deg], lon [deg], ellipsoidal h [m]

@@ -51,7 +51,8 @@ def piles(
     Example: loggrasp synth piles --count 10 --logs 2-7 --obstacles 0-3 --seed 1 --out piles/
     Re-running the same command resumes: finished piles are kept, the rest are made.
     """
-    from synth.jobs import parse_range, run_pile_job
+    from synth.common.ranges import parse_range
+    from synth.jobs import run_pile_job
 
     o = Output(as_json)
     job = PileJob(count=count, logs=parse_range(logs, "--logs"), obstacles=parse_range(obstacles, "--obstacles"),

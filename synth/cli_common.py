@@ -237,8 +237,8 @@ def check_input(path: str | os.PathLike, flag: str, kind: str = "any") -> Path:
 
 # -- output ----------------------------------------------------------------------------------------
 def dumps_json(obj: Any, indent: int | None = 1) -> str:
-    """Strict JSON (NaN as ``null``); see :func:`synth.pile.dumps_json`."""
-    from synth.pile import dumps_json as dumps
+    """Strict JSON (NaN as ``null``); see :func:`synth.common.files.dumps_json`."""
+    from synth.common.files import dumps_json as dumps
 
     return dumps(obj, indent=indent)
 

@@ -42,9 +42,10 @@ from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 
+from synth.common.files import atomic_write_bytes, sha256_file
+from synth.common.formats import VersionedJson, major
 from synth.errors import SynthError
 from synth.grasp import Grasp
-from synth.pile import atomic_write_bytes
 
 DATASET_FORMAT_NAME = "loggrasp.grasp_dataset"
 SHARD_FORMAT_NAME = "loggrasp.grasp_shard"
@@ -67,8 +68,10 @@ class DatasetIntegrityError(DatasetError):
     """The data set disagrees with its manifest (missing shard, checksum or count mismatch)."""
 
 
-def _major(version: Any) -> str:
-    return str(version).split(".")[0]
+MANIFEST = VersionedJson(DATASET_FORMAT_NAME, DATASET_FORMAT_VERSION, "grasp data-set manifest",
+                         DatasetFormatError, fix="regenerate it or upgrade loggrasp", filename=MANIFEST_NAME)
+SHARD_META = VersionedJson(SHARD_FORMAT_NAME, DATASET_FORMAT_VERSION, "grasp shard", DatasetFormatError,
+                           fix="regenerate the data set or upgrade loggrasp")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -165,14 +168,6 @@ def shard_name(worker: str, chunk: int) -> str:
 
 def done_record_path(shard_path: Path) -> Path:
     return shard_path.with_name(shard_path.name[: -len(".npz")] + ".done.json")
-
-
-def sha256_file(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 class ShardWriter:
@@ -299,13 +294,7 @@ def load_shard(path: str | Path) -> list[Sample]:
             f"shard {path} is corrupted or not a loggrasp shard ({type(exc).__name__}: {exc}); "
             "delete it and its .done.json and re-run the data-set job"
         ) from exc
-    if not isinstance(meta, dict) or meta.get("format") != SHARD_FORMAT_NAME:
-        raise DatasetFormatError(f"{path} is not a loggrasp grasp shard")
-    if _major(meta.get("format_version")) != _major(DATASET_FORMAT_VERSION):
-        raise DatasetFormatError(
-            f"{path}: shard format {meta.get('format_version')!r} is not supported "
-            f"(reads {_major(DATASET_FORMAT_VERSION)}.x); regenerate the data set or upgrade loggrasp"
-        )
+    SHARD_META.check(meta, path)
     try:
         piles, renders, subsets = meta["piles"], meta["renders"], meta["subsets"]
         starts, samples = arrays["grasp_start"], arrays["samples"]
@@ -384,22 +373,8 @@ def write_manifest(out_dir: str | Path, manifest: Manifest) -> Path:
 
 def read_manifest(data_dir: str | Path) -> Manifest:
     """Read ``DIR/manifest.json`` (or a path to it). Raises :class:`DatasetFormatError`."""
-    path = Path(data_dir)
-    if path.is_dir():
-        path = path / MANIFEST_NAME
-    try:
-        d = json.loads(path.read_text())
-    except FileNotFoundError as exc:
-        raise DatasetFormatError(f"no data set at {path.parent}: {MANIFEST_NAME} is missing") from exc
-    except (OSError, ValueError) as exc:
-        raise DatasetFormatError(f"cannot read {path}: {exc}") from exc
-    if not isinstance(d, dict) or d.get("format") != DATASET_FORMAT_NAME:
-        raise DatasetFormatError(f"{path} is not a loggrasp grasp data-set manifest")
-    if _major(d.get("format_version")) != _major(DATASET_FORMAT_VERSION):
-        raise DatasetFormatError(
-            f"{path}: data-set format {d.get('format_version')!r} is not supported "
-            f"(reads {_major(DATASET_FORMAT_VERSION)}.x); regenerate it or upgrade loggrasp"
-        )
+    path = MANIFEST.path(data_dir)
+    d = MANIFEST.read(path)
     try:
         return Manifest(params=dict(d["params"]), grid=dict(d["grid"]),
                         shards=[ShardInfo.from_dict(s) for s in d["shards"]], summary=dict(d.get("summary", {})),
@@ -762,7 +737,7 @@ def _prepare(out: Path, job: DatasetJob) -> dict[int, ShardInfo]:
         # a data set of an older minor format version is resumed: every shard carries its own
         # version and is read accordingly (load_shard)
         diff = [k for k in params if k not in ("n_piles", "format_version") and have.get(k) != params[k]]
-        if _major(have.get("format_version")) != _major(params["format_version"]):
+        if major(have.get("format_version")) != major(params["format_version"]):
             diff.append("format_version")
         if diff:
             raise DatasetJobError(
@@ -904,7 +879,7 @@ def _run_pool(todo, args, workers, finished, simulate_factory) -> None:
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    from synth.jobs import exit_with_parent
+    from synth.common.processes import exit_with_parent
 
     with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
                              initializer=exit_with_parent) as pool:

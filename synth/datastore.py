@@ -33,14 +33,19 @@ from pathlib import Path
 from typing import Callable
 
 from synth.dataset import (DatasetFormatError, DatasetIntegrityError, DatasetJob, DatasetJobError,
-                           JobProgress, Manifest, ShardInfo, ShardWriter, SubsetResult, _major, add_pile_samples,
+                           JobProgress, Manifest, ShardInfo, ShardWriter, SubsetResult, add_pile_samples,
                            new_chunk_stats, read_manifest, simulate_subsets, summarise, write_manifest)
-from synth.pile import PileSpec, atomic_write_bytes
+from synth.common.files import atomic_write_bytes
+from synth.common.formats import VersionedJson
+from synth.pile import PileSpec
 
 STORE_FORMAT_NAME = "loggrasp.grasp_store"
 CHUNK_FORMAT_NAME = "loggrasp.grasp_store_chunk"
 STORE_FORMAT_VERSION = "1.0"
 STORE_FILE = "store.json"
+STORE = VersionedJson(STORE_FORMAT_NAME, STORE_FORMAT_VERSION, "data-set store record", DatasetFormatError,
+                      unreadable_fix="restore it from git", filename=STORE_FILE)
+CHUNK = VersionedJson(CHUNK_FORMAT_NAME, STORE_FORMAT_VERSION, "store chunk", DatasetFormatError)
 CHUNK_DIR = "chunks"
 CACHE_DIR = ".cache"
 _CHUNK_RE = re.compile(r"^chunk_(\d{5,})\.json\.gz$")
@@ -91,8 +96,8 @@ def simulate_chunk(job: DatasetJob, chunk: int, simulate_factory: Callable | Non
                       "generation_attempts": report.attempts, "pile": pile.to_dict(),
                       "subsets": [_subset_dict(s) for s in subsets]})
     stats["wall_s"] = time.perf_counter() - t0
-    return {"format": CHUNK_FORMAT_NAME, "format_version": STORE_FORMAT_VERSION, "chunk": chunk,
-            "params_sha256": params_sha256(job.params()), "piles": piles, "stats": stats}
+    return CHUNK.document({"chunk": chunk, "params_sha256": params_sha256(job.params()), "piles": piles,
+                           "stats": stats})
 
 
 def _subset_dict(s: SubsetResult) -> dict:
@@ -127,11 +132,7 @@ def read_chunk(path: str | Path, expect_params_sha256: str | None = None) -> dic
     except (OSError, EOFError, ValueError, UnicodeDecodeError) as exc:
         raise DatasetFormatError(f"store chunk {path} is truncated or corrupt ({type(exc).__name__}: {exc}); "
                                  "delete it and resume the job to make it again") from exc
-    if not isinstance(d, dict) or d.get("format") != CHUNK_FORMAT_NAME:
-        raise DatasetFormatError(f"{path} is not a loggrasp store chunk")
-    if _major(d.get("format_version")) != _major(STORE_FORMAT_VERSION):
-        raise DatasetFormatError(f"{path}: chunk format {d.get('format_version')!r} is not supported "
-                                 f"(reads {_major(STORE_FORMAT_VERSION)}.x); upgrade loggrasp")
+    CHUNK.check(d, path)
     m = _CHUNK_RE.match(path.name)
     if m and int(m.group(1)) != d.get("chunk"):
         raise DatasetFormatError(f"{path} holds chunk {d.get('chunk')}, not the one its name says")
@@ -147,19 +148,11 @@ def read_chunk(path: str | Path, expect_params_sha256: str | None = None) -> dic
 # the store record
 # ---------------------------------------------------------------------------------------------
 def read_store(store_dir: str | Path) -> dict:
+    """The store record ``store_dir/store.json``. Raises :class:`DatasetFormatError`."""
     path = Path(store_dir) / STORE_FILE
-    try:
-        d = json.loads(path.read_text())
-    except FileNotFoundError as exc:
-        raise DatasetFormatError(f"{store_dir} is not a data-set store (no {STORE_FILE})") from exc
-    except (OSError, ValueError) as exc:
-        raise DatasetFormatError(f"{path} is unreadable ({exc}); restore it from git") from exc
-    if not isinstance(d, dict) or d.get("format") != STORE_FORMAT_NAME:
-        raise DatasetFormatError(f"{path} is not a loggrasp data-set store")
-    if _major(d.get("format_version")) != _major(STORE_FORMAT_VERSION):
-        raise DatasetFormatError(f"{path}: store format {d.get('format_version')!r} is not supported "
-                                 f"(reads {_major(STORE_FORMAT_VERSION)}.x); upgrade loggrasp")
-    return d
+    if not path.exists():
+        raise DatasetFormatError(f"{store_dir} is not a data-set store (no {STORE_FILE})")
+    return STORE.read(path)
 
 
 def _write_store(store_dir: Path, job: DatasetJob, chunks: dict[int, dict]) -> None:
@@ -171,9 +164,8 @@ def _write_store(store_dir: Path, job: DatasetJob, chunks: dict[int, dict]) -> N
     summary.update(chunks_done=len(listed), chunks_total=job.n_chunks, complete=len(listed) == job.n_chunks,
                    bytes=sum(e["bytes"] for e in listed))
     params = job.params()
-    rec = {"format": STORE_FORMAT_NAME, "format_version": STORE_FORMAT_VERSION, "params": params,
-           "params_sha256": params_sha256(params), "chunks": listed, "summary": summary}
-    atomic_write_bytes(store_dir / STORE_FILE, json.dumps(rec, indent=1).encode())
+    STORE.write(store_dir / STORE_FILE, {"params": params, "params_sha256": params_sha256(params),
+                                         "chunks": listed, "summary": summary})
 
 
 def _scan_chunks(store_dir: Path, params_sha: str, listed: dict[int, str]) -> dict[int, dict]:
@@ -275,7 +267,7 @@ def build_store(store_dir: str | Path, job: DatasetJob, workers: int = 1,
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor, as_completed
 
-        from synth.jobs import exit_with_parent
+        from synth.common.processes import exit_with_parent
 
         with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
                                  initializer=exit_with_parent) as pool:

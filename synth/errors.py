@@ -1,7 +1,9 @@
 """Error hierarchy of the simulator twin. Every error says what was wrong and what to do."""
 
+from synth.common.errors import LoggraspError
 
-class SynthError(Exception):
+
+class SynthError(LoggraspError):
     """Root of every error raised by :mod:`synth`."""
 
 

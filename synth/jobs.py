@@ -24,30 +24,11 @@ from typing import Callable
 
 import numpy as np
 
+from synth.common.files import atomic_write_bytes
+from synth.common.processes import exit_with_parent
 from synth.errors import OutputError
-from synth.pile import atomic_write_bytes
 
 JOB_FORMAT_VERSION = "1.0"
-
-
-def exit_with_parent(poll_s: float = 1.0) -> None:
-    """Worker-process initializer: end this process when the process that started it dies.
-
-    A killed job's ``ProcessPoolExecutor`` workers otherwise live on (they are not its process
-    group's when it was started in the background) and keep writing into its output folder,
-    racing the next run. A daemon thread notices the parent going (this process re-parented)
-    within ``poll_s`` and exits at once."""
-    import threading
-    import time
-
-    parent = os.getppid()
-
-    def watch() -> None:
-        while os.getppid() == parent:
-            time.sleep(poll_s)
-        os._exit(1)
-
-    threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
 
 
 @dataclass(frozen=True)
@@ -80,19 +61,6 @@ class PileJob:
         pile_seed = int(rng.integers(0, 2**31 - 1))
         return (pile_seed, int(rng.integers(self.logs[0], self.logs[1] + 1)),
                 int(rng.integers(self.obstacles[0], self.obstacles[1] + 1)))
-
-
-def parse_range(text: str, name: str) -> tuple[int, int]:
-    """'A-B' or 'A' -> (A, B); a clear ``ValueError`` otherwise."""
-    try:
-        parts = [int(v) for v in str(text).split("-")]
-    except ValueError:
-        raise ValueError(f"{name} must look like 'A-B' or 'A' with whole numbers, got {text!r}") from None
-    if len(parts) == 1:
-        parts = parts * 2
-    if len(parts) != 2 or parts[0] > parts[1] or parts[0] < 0:
-        raise ValueError(f"{name} must look like 'A-B' with 0 <= A <= B, got {text!r}")
-    return parts[0], parts[1]
 
 
 def pile_dir_name(k: int) -> str:

@@ -17,21 +17,22 @@ Frames and units (written once, here and in :mod:`synth.frames`):
 
 from __future__ import annotations
 
-import json
 import math
-import os
-import tempfile
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from synth.common.files import atomic_write_bytes  # noqa: F401  (re-exported: reconstruct/gnss.py, pipeline.py)
+from synth.common.formats import VersionedJson
 from synth.errors import PileFormatError
 
 #: Format of ``pile.json``. Readers accept any minor version of the same major version.
 PILE_FORMAT_VERSION = "1.0"
 PILE_FORMAT_NAME = "loggrasp.pile"
+PILE = VersionedJson(PILE_FORMAT_NAME, PILE_FORMAT_VERSION, "pile", PileFormatError,
+                     fix="upgrade loggrasp or re-export the pile", filename="pile.json")
 
 Vec3 = tuple[float, float, float]
 Quat = tuple[float, float, float, float]
@@ -341,15 +342,7 @@ def _tup(x: Any) -> Any:
 
 
 def _pile_from_dict(d: dict[str, Any]) -> PileSpec:
-    if not isinstance(d, dict) or d.get("format") != PILE_FORMAT_NAME:
-        raise PileFormatError(f"not a loggrasp pile (expected \"format\": \"{PILE_FORMAT_NAME}\")")
-    version = str(d.get("format_version", ""))
-    major = version.split(".")[0]
-    if major != PILE_FORMAT_VERSION.split(".")[0]:
-        raise PileFormatError(
-            f"pile format version {version!r} is not supported by this loggrasp "
-            f"(reads {PILE_FORMAT_VERSION.split('.')[0]}.x); upgrade loggrasp or re-export the pile"
-        )
+    PILE.check(d)
     try:
         terrain = TerrainSpec(**{k: _tup(v) for k, v in d["terrain"].items()})
         logs = tuple(LogSpec(**{k: _tup(v) for k, v in log.items()}) for log in d["logs"])
@@ -377,93 +370,15 @@ def _pile_from_dict(d: dict[str, Any]) -> PileSpec:
         raise PileFormatError(f"malformed pile: {exc}") from exc
 
 
-def current_umask() -> int:
-    """The process umask, read without changing it (Linux ``/proc``; else set and restored)."""
-    try:
-        with open("/proc/self/status") as f:
-            for line in f:
-                if line.startswith("Umask:"):
-                    return int(line.split()[1], 8)
-    except (OSError, ValueError):
-        pass
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
-
-
-def apply_umask(path: str | Path, directory: bool = False) -> None:
-    """Give a file (0666) or folder (0777) made by :mod:`tempfile` (always 0600 / 0700) the mode
-    the umask asks for, like any other file the user creates."""
-    os.chmod(path, (0o777 if directory else 0o666) & ~current_umask())
-
-
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` atomically (temp file in the same folder + rename); the file
-    gets the mode the umask asks for."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        os.fchmod(fd, 0o666 & ~current_umask())
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
-
-
-def json_safe(obj: Any) -> Any:
-    """``obj`` with NaN / inf as ``None`` (JSON has no NaN) and numpy values, tuples and paths
-    made plain."""
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {str(k): json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [json_safe(v) for v in obj]
-    if isinstance(obj, Path):
-        return str(obj)
-    if isinstance(obj, np.generic):
-        return json_safe(obj.item())
-    if isinstance(obj, np.ndarray):
-        return json_safe(obj.tolist())
-    return obj
-
-
-def dumps_json(obj: Any, indent: int | None = 1) -> str:
-    """Strict JSON for files and standard output: NaN written as ``null``, never as ``NaN``."""
-    return json.dumps(json_safe(obj), indent=indent, allow_nan=False)
-
-
 def write_pile(pile: PileSpec, path: str | Path) -> Path:
     """Write ``pile`` as ``pile.json`` (atomically). Returns the path written."""
-    path = Path(path)
-    if path.is_dir():
-        path = path / "pile.json"
-    text = json.dumps(pile.to_dict(), indent=1, sort_keys=False)
-    atomic_write_bytes(path, text.encode())
-    return path
+    return PILE.write(path, pile.to_dict())
 
 
 def read_pile(path: str | Path) -> PileSpec:
     """Read a ``pile.json`` (or a folder holding one). Raises :class:`PileFormatError`."""
-    path = Path(path)
-    if path.is_dir():
-        path = path / "pile.json"
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise PileFormatError(f"cannot read pile file {path}: {exc.strerror or exc}") from exc
-    try:
-        d = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise PileFormatError(f"{path} is not valid JSON: {exc}") from exc
+    path = PILE.path(path)
+    d = PILE.read(path)
     try:
         return _pile_from_dict(d)
     except PileFormatError as exc:

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from synth.pile import atomic_write_bytes
+from synth.common.files import atomic_write_bytes
 from synth.render import OrthoObservation
 from synth.world import OBSTACLE_BASE
 

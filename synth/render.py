@@ -28,13 +28,16 @@ from typing import Iterable
 
 import numpy as np
 
+from synth.common.files import atomic_write_bytes
+from synth.common.formats import VersionedJson
 from synth.errors import PileFormatError, RenderError
 from synth.frames import OrthoGrid
-from synth.pile import atomic_write_bytes
 from synth.world import GROUND_CODE, OBSTACLE_BASE, World
 
 ORTHO_FORMAT_VERSION = "1.0"
 ORTHO_FORMAT_NAME = "loggrasp.ortho"
+ORTHO = VersionedJson(ORTHO_FORMAT_NAME, ORTHO_FORMAT_VERSION, "orthographic render", PileFormatError,
+                      fix="re-render the pile")
 
 # z row of the orthographic projection (see module docstring)
 _K = -0.1
@@ -122,13 +125,7 @@ class OrthoObservation:
         except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile) as exc:
             raise PileFormatError(f"cannot read orthographic render {path} ({exc or type(exc).__name__}): "
                                   "it is truncated or not an ortho.npz; delete it and render the pile again") from exc
-        if meta.get("format") != ORTHO_FORMAT_NAME:
-            raise PileFormatError(f"{path} is not a loggrasp orthographic render")
-        if str(meta.get("format_version", "")).split(".")[0] != ORTHO_FORMAT_VERSION.split(".")[0]:
-            raise PileFormatError(
-                f"{path}: render format {meta.get('format_version')!r} is not supported "
-                f"(reads {ORTHO_FORMAT_VERSION.split('.')[0]}.x); re-render the pile"
-            )
+        ORTHO.check(meta, path)
         known = {"format", "format_version", "extent_m", "camera_height_m", "n_logs", "n_obstacles",
                  "instance_codes", "pixel_to_pile"}
         return OrthoObservation(

@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import configparser
 import io
-import json
 import math
 import os
 import shutil
@@ -46,7 +45,9 @@ import numpy as np
 
 from synth.errors import OutputError, RenderError, SynthError
 from synth.frames import apply_T, invert_T, make_T
-from synth.pile import PileSpec, atomic_write_bytes
+from synth.common.files import atomic_write_bytes
+from synth.common.formats import VersionedJson
+from synth.pile import PileSpec
 from synth.textures import TextureConfig
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -67,12 +68,13 @@ class StereoFormatError(SynthError):
     """A stereo pair folder or calibration file is missing, malformed or of an unsupported version."""
 
 
-def _check_version(version: Any, supported: str, what: str) -> None:
-    if str(version).split(".")[0] != supported.split(".")[0]:
-        raise StereoFormatError(
-            f"{what} format version {version!r} is not supported (this loggrasp reads "
-            f"{supported.split('.')[0]}.x); upgrade loggrasp or re-export the file"
-        )
+_FIX = "upgrade loggrasp or re-export the file"
+STEREO_PAIR = VersionedJson(STEREO_FORMAT_NAME, STEREO_FORMAT_VERSION, "stereo pair", StereoFormatError, fix=_FIX,
+                            filename="meta.json")
+CALIBRATION = VersionedJson(CALIB_FORMAT_NAME, CALIB_FORMAT_VERSION, "stereo calibration", StereoFormatError,
+                            fix=_FIX)
+ZED_CALIBRATION = VersionedJson(CALIB_FORMAT_NAME + ".zed", CALIB_FORMAT_VERSION, "ZED calibration",
+                                StereoFormatError, fix=_FIX)
 
 
 # -- rig -------------------------------------------------------------------------------------
@@ -261,7 +263,7 @@ def read_calibration_yaml(path: str | Path) -> StereoCalibration:
     try:
         version = fs.getNode("format_version")
         if not version.empty():
-            _check_version(version.string(), CALIB_FORMAT_VERSION, f"calibration {path}")
+            CALIBRATION.check_version(version.string(), path)
         mats = {}
         for key in ("K1", "D1", "K2", "D2", "R", "T", "image_size"):
             m = fs.getNode(key).mat()
@@ -354,7 +356,7 @@ def read_zed_conf(path: str | Path, resolution: str | None = None,
     ours = cfg["LOGGRASP"] if cfg.has_section("LOGGRASP") else None
     try:
         if ours is not None:
-            _check_version(ours.get("format_version", ""), CALIB_FORMAT_VERSION, f"ZED calibration {path}")
+            ZED_CALIBRATION.check_version(ours.get("format_version", ""), path)
         res = resolution or (ours.get("resolution") if ours is not None else None) or "HD"
         if image_size is None:
             if ours is not None and "image_width" in ours:
@@ -626,7 +628,7 @@ class StereoPair:
         try:
             parent.mkdir(parents=True, exist_ok=True)
             tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".tmp", dir=parent))
-            from synth.pile import apply_umask
+            from synth.common.files import apply_umask
 
             apply_umask(tmp, directory=True)
         except OSError as exc:
@@ -643,8 +645,7 @@ class StereoPair:
                 np.savez_compressed(f, depth_m=self.depth_left.astype(np.float32),
                                     instance=self.instance_left.astype(np.int16),
                                     format_version=np.array(STEREO_FORMAT_VERSION))
-            meta = {"format": STEREO_FORMAT_NAME, "format_version": STEREO_FORMAT_VERSION, **self.meta}
-            (tmp / "meta.json").write_text(json.dumps(meta, indent=1, default=_json_default))
+            (tmp / "meta.json").write_text(STEREO_PAIR.dumps(self.meta, default=_json_default))
             old = None
             if folder.exists():
                 old = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".old", dir=parent))
@@ -666,15 +667,7 @@ class StereoPair:
         import cv2
 
         folder = Path(folder)
-        try:
-            meta = json.loads((folder / "meta.json").read_text())
-        except OSError as exc:
-            raise StereoFormatError(f"{folder} is not a stereo pair folder (no readable meta.json)") from exc
-        except json.JSONDecodeError as exc:
-            raise StereoFormatError(f"{folder}/meta.json is not valid JSON: {exc}") from exc
-        if meta.get("format") != STEREO_FORMAT_NAME:
-            raise StereoFormatError(f"{folder} is not a loggrasp stereo pair (format {meta.get('format')!r})")
-        _check_version(meta.get("format_version", ""), STEREO_FORMAT_VERSION, f"stereo pair {folder}")
+        meta = STEREO_PAIR.read(folder / "meta.json")
         imgs = []
         for name in ("left.png", "right.png"):
             img = cv2.imread(str(folder / name), cv2.IMREAD_COLOR)

@@ -292,7 +292,7 @@ def texture_file(kind: str, seed: int, size_px: int, m_per_px: float | None = No
         from synth.errors import RenderError
 
         raise RenderError(f"OpenCV could not encode the {kind} texture as PNG")
-    from synth.pile import atomic_write_bytes
+    from synth.common.files import atomic_write_bytes
 
     atomic_write_bytes(path, buf.tobytes())
     prune_cache(CACHE_MAX_BYTES)

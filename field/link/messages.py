@@ -131,6 +131,14 @@ class GraspCommand:
         )
 
     @classmethod
+    def from_grasp_geo(cls, command_id: int, geo: "object", target_log_count: int,
+                       plan_time_s: float) -> "GraspCommand":
+        """A command from a :class:`field.geo.GraspGeo` (TM position, ellipsoidal height, grid
+        heading, opening width), rounded to the wire resolution by :meth:`from_metres`."""
+        return cls.from_metres(command_id, geo.easting_m, geo.northing_m, geo.h_ell_m, geo.heading_grid_deg,
+                               geo.width_m, target_log_count, plan_time_s)
+
+    @classmethod
     def from_pile_grasp(
         cls,
         command_id: int,
@@ -141,40 +149,22 @@ class GraspCommand:
         plan_time_s: float,
     ) -> "GraspCommand":
         """Build a command from a pile-frame :class:`synth.grasp.Grasp` (``x_m, y_m, phi_rad,
-        width_m``) at pile height ``z_m`` [m], using the pile's :class:`synth.pile.Georeference`.
+        width_m``) at pile height ``z_m`` [m], using the pile's :class:`synth.pile.Georeference`:
+        :func:`field.geo.grasp_to_gnss`, the conversion the field trial uses, then
+        :meth:`from_grasp_geo`."""
+        from field.geo import grasp_to_gnss
 
-        The position goes pile -> site ENU -> SWEREF 99 TM with :mod:`synth.geodesy`
-        (ellipsoidal height). The heading is measured in the projection itself: the grasp
-        centre and a point 1 m along the closing axis are both projected and the grid bearing
-        of that segment (clockwise from grid north) is taken, so meridian convergence and the
-        pile's rotation on site are accounted for without sign conventions.
-        """
-        import numpy as np
-
-        from synth.geodesy import pile_to_sweref_tm
-
-        c, s = math.cos(grasp.phi_rad), math.sin(grasp.phi_rad)
-        pts = np.array([[grasp.x_m, grasp.y_m, z_m], [grasp.x_m + c, grasp.y_m + s, z_m]], dtype=float)
-        e, n, h = pile_to_sweref_tm(georef, pts)
-        heading_deg = math.degrees(math.atan2(float(e[1] - e[0]), float(n[1] - n[0])))
-        return cls.from_metres(
-            command_id, float(e[0]), float(n[0]), float(h[0]), heading_deg, grasp.width_m, target_log_count, plan_time_s
-        )
+        return cls.from_grasp_geo(command_id, grasp_to_gnss(grasp, georef, z_m), target_log_count, plan_time_s)
 
     def to_pile_grasp(self, georef: "object") -> tuple["object", float]:
         """Inverse of :meth:`from_pile_grasp`: ``(synth.grasp.Grasp, z_m)`` in the pile frame of
-        ``georef`` (what a simulator executor needs). Raises ``ValueError`` when the width is
-        outside the grapple's range (the controller rejects such commands before execution)."""
-        import numpy as np
+        ``georef`` (what a simulator executor needs), by :func:`field.geo.tm_to_grasp`. Raises
+        ``ValueError`` when the width is outside the grapple's range (the controller rejects such
+        commands before execution)."""
+        from field.geo import tm_to_grasp
 
-        from synth.geodesy import sweref_tm_to_pile
-        from synth.grasp import Grasp
-
-        e, n, h = self.easting_mm / 1000.0, self.northing_mm / 1000.0, self.height_mm / 1000.0
-        b = math.radians(self.heading_deg)
-        pts = sweref_tm_to_pile(georef, np.array([e, e + math.sin(b)]), np.array([n, n + math.cos(b)]), np.array([h, h]))
-        phi = math.atan2(float(pts[1, 1] - pts[0, 1]), float(pts[1, 0] - pts[0, 0]))
-        return Grasp(float(pts[0, 0]), float(pts[0, 1]), phi, self.opening_width_m), float(pts[0, 2])
+        return tm_to_grasp(self.easting_mm / 1000.0, self.northing_mm / 1000.0, self.height_mm / 1000.0,
+                           self.heading_deg, self.opening_width_m, georef)
 
     @property
     def heading_deg(self) -> float:

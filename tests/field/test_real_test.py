@@ -87,7 +87,7 @@ def test_record_round_trip_and_version_check(tmp_path):
     with pytest.raises(FieldError, match="not supported"):
         read_real_test(tmp_path / "new.json")
     (tmp_path / "bad.json").write_text("{")
-    with pytest.raises(FieldError, match="readable"):
+    with pytest.raises(FieldError, match="not valid JSON"):
         read_real_test(tmp_path / "bad.json")
 
 

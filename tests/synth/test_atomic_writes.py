@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from synth.pile import atomic_write_bytes  # the project's one atomic writer
+from synth.common.files import atomic_write_bytes  # the project's one atomic writer
 
 ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = ("synth", "planner", "reconstruct", "field")
@@ -148,7 +148,7 @@ def test_users_of_the_writer_keep_the_old_file_when_interrupted(tmp_path, user):
 # -- no direct writes in the product code -------------------------------------------------------
 #: (module, function) -> the direct writes it may make, and why they are safe
 ALLOWED_DIRECT_WRITES: dict[tuple[str, str], tuple[Counter, str]] = {
-    ("synth/pile.py", "atomic_write_bytes"): (Counter({"fdopen('wb')": 1}), "the atomic writer itself"),
+    ("synth/common/files.py", "atomic_write_bytes"): (Counter({"fdopen('wb')": 1}), "the atomic writer itself"),
     ("synth/meshes.py", "_write_cached"): (Counter({"fdopen('w')": 1}), "own temp file + os.replace in the mesh cache"),
     ("synth/dataset.py", "_prepare"): (Counter({"write_bytes": 1}), "an empty write probe, deleted at once"),
     ("synth/jobs.py", "_check_out_dir"): (Counter({"write_bytes": 1}), "an empty write probe, deleted at once"),
@@ -254,7 +254,7 @@ def test_product_code_writes_files_only_through_the_atomic_writer():
                 seen.setdefault((rel, func), Counter())[kind] += 1
                 where.setdefault((rel, func), []).append(line)
     bad = [f"{rel}:{where[(rel, func)][0]} {func}() writes directly ({dict(kinds)}); use "
-           "synth.pile.atomic_write_bytes (or add it, with its reason, to ALLOWED_DIRECT_WRITES)"
+           "synth.common.files.atomic_write_bytes (or add it, with its reason, to ALLOWED_DIRECT_WRITES)"
            for (rel, func), kinds in seen.items()
            if kinds != ALLOWED_DIRECT_WRITES.get((rel, func), (Counter(), ""))[0]]
     assert not bad, "\n".join(bad)

@@ -3,7 +3,8 @@ import json
 import pytest
 
 from synth.errors import OutputError
-from synth.jobs import PileJob, parse_range, pile_dir_name, run_pile_job
+from synth.common.ranges import parse_range
+from synth.jobs import PileJob, pile_dir_name, run_pile_job
 from synth.pile import read_pile
 from synth.render import OrthoObservation
 
@@ -69,7 +70,7 @@ _POOL_SCRIPT = """
 import multiprocessing as mp, sys, time
 from concurrent.futures import ProcessPoolExecutor
 sys.path.insert(0, {root!r})
-from synth.jobs import exit_with_parent
+from synth.common.processes import exit_with_parent
 from tests.synth.test_jobs import _sleeper
 
 if __name__ == "__main__":

@@ -1,0 +1,13 @@
+"""Project-wide pieces every loggrasp package uses, written once, at the bottom of the tree.
+
+=====================  ===========================================================================
+:mod:`.files`          atomic writes (bytes and text, umask-respecting), sha256 of a file, strict JSON
+:mod:`.formats`        :class:`VersionedJson`: the one reader/writer of versioned JSON files
+:mod:`.ranges`         :func:`parse_range`: ``'A-B'`` / ``'A'`` command-line ranges
+:mod:`.processes`      :func:`exit_with_parent`: worker processes that die with their parent
+:mod:`.errors`         :class:`LoggraspError`, the root of every package's error tree
+=====================  ===========================================================================
+
+Only the standard library and numpy are imported here (no pybullet, torch or typer), so every
+package, CLI and worker can use these cheaply.
+"""
