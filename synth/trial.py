@@ -18,7 +18,7 @@ The trial (paper, "Simulator"):
 3. *Close* the claws as far as the torque limit allows (until they stop moving).
 4. *Lift* back to the start height, then hold briefly and measure the balance ``cos β``.
 
-Outcomes (checked in this order): COLLISION (the contact force on the grapple from obstacles at
+Outcomes (checked in this order by :func:`classify`): COLLISION (the contact force on the grapple from obstacles at
 any time, or from non-target logs while lowering, averaged over ``collision_window_s``, exceeded
 ``collision_force_n``, under half the grapple's weight: landing on a rock, a stump or a log it
 should not touch is a collision; grazing is not; the claws' squeeze on logs while closing is not), NOT_CLOSED (tip gap after closing above ``max_closed_gap_m``; the lift is
@@ -40,7 +40,7 @@ import numpy as np
 
 from synth.grapple import Grapple, GrappleConfig
 from synth.grasp import Grasp
-from synth.pile import PileSpec
+from synth.pile import PileSpec, height_at, rotate
 from synth.world import PhysicsConfig, World
 
 TRIAL_FORMAT_VERSION = "1.0"
@@ -206,8 +206,6 @@ def trial_pile(pile: PileSpec, terrain_resolution: int | None) -> PileSpec:
     grid = t.height_grid()
     xs = np.linspace(-t.extent_m / 2, t.extent_m / 2, terrain_resolution)
     X, Y = np.meshgrid(xs, xs)  # rows along +y, columns along +x
-    from synth.pile import height_at
-
     h = height_at(grid, t.extent_m, X, Y)
     terrain = replace(t, resolution=terrain_resolution, heights_m=tuple(tuple(float(v) for v in r) for r in h))
     return replace(pile, terrain=terrain)
@@ -245,8 +243,6 @@ def _top_near(pile: PileSpec, grasp: Grasp, radius_m: float) -> float:
         if near.any():
             tops.append(float(pts[near, 2].max() + log.diameter_m / 2))
     for rock in pile.rocks:
-        from synth.pile import rotate
-
         v = np.asarray(rock.vertices_m, dtype=float)
         world = np.array([rotate(rock.orientation, p) for p in v]) + np.asarray(rock.position_m)
         if np.min(np.linalg.norm(world[:, :2] - c, axis=1)) <= radius_m + rock.size_m() / 2:
@@ -296,314 +292,386 @@ def run_trial(
     ``enclosed`` the logs between the claws at that moment (``outcome`` is FEWER_OR_OTHER: the
     trial did not finish). Without it the trial is exactly as before.
     """
-    t_wall, t_cpu = time.perf_counter(), time.process_time()
+    clock = (time.perf_counter(), time.process_time())
     cfg = config or TrialConfig.fast()
     target_idx, n_targets = _parse_targets(pile, targets)
-    g = cfg.grapple
-    dt = cfg.physics.dt_s
-
-    q_open = g.angle_for_gap(grasp.width_m)
-    top = _top_near(pile, grasp, grasp.width_m / 2 + cfg.footprint_margin_m)
-    start_z = top + cfg.start_clearance_m + g.hang_height_m(q_open)
-
     # no visual meshes unless someone will look (pictures): ~25-30 ms less per trial
-    with World(trial_pile(pile, cfg.terrain_resolution), cfg.physics, visuals=on_phase is not None) as world, \
-            _AbortCatcher() as aborted:
-        c = world.client
-        grapple = Grapple(c, g, grasp, start_z, terrain_id=world.terrain_id)
-        log_ids = world.log_ids
-        obstacle_set = set(world.obstacle_ids)
-        log_set = set(log_ids)
-        half_len, radius = _log_segments(pile)
-        lower_depth = cfg.inside_radius_frac * radius + cfg.inside_depth_m
-        start_centres = world.log_poses()[:, :2 + 1].copy()
-        terrain = world.pile.terrain
-        grid, extent = world.height_grid, terrain.extent_m
-        from synth.pile import height_at
+    with World(trial_pile(pile, cfg.terrain_resolution), cfg.physics, visuals=on_phase is not None) as world:
+        run = _TrialRun(world, pile, grasp, cfg, target_idx, n_targets, should_abort, clock)
+        try:
+            ending = run.all_phases(on_phase)
+        except _Aborted as stop:
+            return run.result(stop.ending, Outcome.FEWER_OR_OTHER)
+    closed = ending.final_gap_m <= cfg.max_closed_gap_m
+    outcome = classify(ending.stats.max_collision_force_n, cfg.collision_force_n, closed, ending.grasped,
+                       ending.enclosed, target_idx, n_targets)
+    return run.result(ending, outcome)
 
-        stop_mean = _Mean(round(cfg.stop_window_s / dt))
-        coll_mean = _Mean(round(cfg.collision_window_s / dt))
-        stats = {"max_force": 0.0, "max_coll": 0.0, "pen": 0.0, "speed": 0.0}
-        speed_every = max(1, round(0.05 / dt))
-        phase_s: dict[str, float] = {}
-        steps = 0
 
-        # bodies whose contact counts as a collision: obstacles always, non-target logs while lowering
-        if target_idx is not None:
-            non_target = {log_ids[i] for i in range(len(log_ids)) if i not in set(target_idx)}
-        else:
-            non_target = set()
-        coll_lowering = obstacle_set | non_target
-
-        def contact_step(lowering: bool) -> float:
-            """Step once; update the filtered forces and the stability statistics."""
-            nonlocal steps
-            c.stepSimulation()
-            steps += 1
-            if should_abort is not None and should_abort():
-                raise _Aborted(stopped_now())
-            total = coll = pen = 0.0
-            coll_set = coll_lowering if lowering else obstacle_set
-            for cp in c.getContactPoints(bodyA=grapple.body):
-                other, f = cp[2], cp[9]
-                total += f
-                if other in coll_set:
-                    coll += f
-                if cp[8] < -pen and other in log_set:
-                    pen = -cp[8]
-            fm = stop_mean.push(total)
-            cm = coll_mean.push(coll)
-            if fm > stats["max_force"]:
-                stats["max_force"] = fm
-            if cm > stats["max_coll"]:
-                stats["max_coll"] = cm
-            if pen > stats["pen"]:
-                stats["pen"] = pen
-            if steps % speed_every == 0:
-                stats["speed"] = max(stats["speed"], max_log_speed())
-            return fm
-
-        def log_axes() -> tuple[np.ndarray, np.ndarray]:
-            """Log centres (n, 3) and unit axes (n, 3) in the pile frame."""
-            cen = np.empty((len(log_ids), 3))
-            ax = np.empty((len(log_ids), 3))
-            for i, b in enumerate(log_ids):
-                pos, orn = c.getBasePositionAndOrientation(b)
-                cen[i] = pos
-                x, y, z, w = orn
-                ax[i] = (1 - 2 * (y * y + z * z), 2 * (x * y + z * w), 2 * (x * z - y * w))
-            return cen, ax
-
-        n_samp = 33
-        s_line = np.linspace(-1.0, 1.0, n_samp)
-        v_half = g.claw_width_m / 2 + cfg.inside_margin_v_m
-
-        def inside(depth_m: float | np.ndarray) -> np.ndarray:
-            """Boolean per log: its axis crosses the region between the claws under the rotator.
-
-            The region is the polygon in the closing plane bounded by both claw profiles (at their
-            current angles), the line between the tips raised by ``depth_m`` and the head's bottom,
-            extended ``v_half`` either side of the plane.
-            """
-            o, R = grapple.head_pose()
-            poly = grapple.enclosure_polygon()  # (k, 2) in (u, z)
-            z_lo = float(poly[[grapple.tip_index_neg, grapple.tip_index_pos], 1].max()) + np.broadcast_to(
-                np.asarray(depth_m, dtype=float), (len(log_ids),))[:, None]
-            z_hi = -g.head_drop_m - 0.05
-            cen, ax = log_axes()
-            pts = cen[:, None, :] + ax[:, None, :] * (half_len[:, None, None] * s_line[None, :, None])
-            loc = (pts - o) @ R  # head frame (n, m, 3)
-            # add the exact crossing of the closing plane v = 0, where the axis crosses it
-            p0 = loc[:, 0, :]
-            d = loc[:, -1, :] - p0
-            with np.errstate(divide="ignore", invalid="ignore"):
-                t = np.clip(np.where(np.abs(d[:, 1]) > 1e-9, -p0[:, 1] / d[:, 1], 0.5), 0.0, 1.0)
-            cross = p0 + d * t[:, None]
-            loc = np.concatenate([loc, cross[:, None, :]], axis=1)
-            u, v, z = loc[..., 0], loc[..., 1], loc[..., 2]
-            ok = (np.abs(v) <= v_half) & (z >= z_lo) & (z <= z_hi)
-            ok &= _points_in_polygon(u, z, poly)
-            return ok.any(axis=1)
-
-        def load_is_free(load: set[int]) -> bool:
-            """No log of ``load`` rests on anything but the grapple and the other logs of ``load``
-            harder than ``free_contact_n``: the load hangs in the grapple."""
-            for b in load:
-                for cp in c.getContactPoints(bodyA=b):
-                    if cp[2] != grapple.body and cp[2] not in load and cp[9] > cfg.free_contact_n:
-                        return False
-            return True
-
-        frozen: set[int] = set()
-
-        def freeze_apart_from(load: set[int]) -> None:
-            """``freeze_when_free``: make static, where they lie, the logs that no longer touch the
-            load, directly or through other logs. Such a log costs a contact solve against the
-            terrain every step and cannot change the outcome unless the swinging load hits it,
-            which a static log still models (as an immovable one). Logs are never thawed."""
-            linked, todo = set(load), list(load)
-            while todo:
-                for cp in c.getContactPoints(bodyA=todo.pop()):
-                    if cp[2] in log_set and cp[2] not in linked and cp[2] not in frozen:
-                        linked.add(cp[2])
-                        todo.append(cp[2])
-            for b in sorted(log_set - linked - frozen):
-                c.resetBaseVelocity(b, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0])
-                c.changeDynamics(b, -1, mass=0.0)
-                frozen.add(b)
-
-        def max_log_speed() -> float:
-            best = 0.0
-            for b in log_ids:
-                v = c.getBaseVelocity(b)[0]
-                best = max(best, math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]))
-            return best
-
-        def stopped_now() -> TrialResult:
-            """Abort: hold the boom where it is, stop the claws; the true state at this moment."""
-            grapple.hold_xyz(grasp.x_m, grasp.y_m, grapple.boom_z())
-            grapple.set_claws(float(np.mean(grapple.claw_angles())))
-            cen, _ = log_axes()
-            risen = cen[:, 2] - start_centres[:, 2] >= cfg.held_rise_m
-            held = tuple(int(i) for i in np.flatnonzero(risen & inside(-g.claw_thickness_m)))
-            between = tuple(int(i) for i in np.flatnonzero(inside(-0.5 * g.claw_thickness_m)))
-            return TrialResult(
-                outcome=Outcome.FEWER_OR_OTHER, grasp=grasp, targets=target_idx, n_targets=n_targets, grasped=held,
-                enclosed=between, cos_beta=grapple.cos_beta(), final_gap_m=grapple.gap_m(),
-                max_force_n=stats["max_force"], max_collision_force_n=stats["max_coll"],
-                max_penetration_m=stats["pen"], max_log_speed_m_s=stats["speed"], phase_s=dict(phase_s),
-                sim_time_s=steps * dt, wall_time_s=time.perf_counter() - t_wall,
-                cpu_time_s=time.process_time() - t_cpu, stop_reason="aborted",
-                final_poses=tuple(tuple(float(v) for v in row) for row in world.log_poses()),
-                aborted_in=next((ph for ph in _PHASES if ph not in phase_s), "end"))
-
-        if on_phase:
-            on_phase("start", world, grapple)
-
-        # -- 1. lower: fast through the free air, then at the lowering speed --------------------
-        approach_z = start_z - (cfg.start_clearance_m - cfg.approach_clearance_m)
-        approaching = cfg.approach_speed_m_s > cfg.lower_speed_m_s and approach_z < start_z
-        grapple.move_z(-(cfg.approach_speed_m_s if approaching else cfg.lower_speed_m_s))
-        stop_reason = "timeout"
-        n_lower = int(cfg.max_lower_s / dt)
-        for k in range(n_lower):
-            if approaching and grapple.boom_z() <= approach_z:
-                grapple.move_z(-cfg.lower_speed_m_s)
-                approaching = False
-            fm = contact_step(lowering=True)
-            if fm >= cfg.stop_force_n:
-                stop_reason = "force"
-                break
-            if k % cfg.check_every == 0:
-                tips = grapple.tips_world()
-                ground = height_at(grid, extent, tips[:, 0], tips[:, 1])
-                if np.any(tips[:, 2] <= ground + cfg.ground_clearance_m):
-                    stop_reason = "ground"
-                    break
-                if int(inside(lower_depth).sum()) >= n_targets:
-                    stop_reason = "inside"
-                    break
-        phase_s["lower"] = (k + 1) * dt
-        grasp_xy = (grasp.x_m, grasp.y_m)
-        grapple.hold_xyz(*grasp_xy, grapple.boom_z())
-        if on_phase:
-            on_phase("lowered", world, grapple)
-
-        # -- 2. close --------------------------------------------------------------------------
-        grapple.close()
-        still_needed = max(1, round(cfg.close_still_s / dt))
-        still = 0
-        n_close = int(cfg.close_timeout_s / dt)
-        for k in range(n_close):
-            contact_step(lowering=False)
-            sn, sp = grapple.claw_speeds()
-            still = still + 1 if max(abs(sn), abs(sp)) < cfg.close_still_rad_s else 0
-            if still >= still_needed and k * dt > 0.2:
-                break
-        phase_s["close"] = (k + 1) * dt
-        final_gap = grapple.gap_m()
-        enclosed = np.flatnonzero(inside(-0.5 * g.claw_thickness_m))
-        stats["speed"] = max(stats["speed"], max_log_speed())
-        if on_phase:
-            on_phase("closed", world, grapple)
-
-        cos_beta = float("nan")
-        grasped = tuple(int(i) for i in enclosed)
-        closed = final_gap <= cfg.max_closed_gap_m
-        if closed:
-            # -- 3. lift ---------------------------------------------------------------------
-            z0 = grapple.boom_z()
-            target_z = start_z if cfg.lift_height_m is None else z0 + cfg.lift_height_m
-            target_z = max(target_z, z0 + cfg.min_lift_m)
-            grapple.move_z(cfg.lift_speed_m_s)
-            top_z = target_z + cfg.free_lift_max_m
-            n_lift = int(((top_z - z0) / cfg.lift_speed_m_s + 2.0) / dt)
-            free_every = max(1, round(0.05 / dt))
-            load = {log_ids[i] for i in enclosed}
-            freezing = cfg.freeze_when_free and bool(load)
-            for k in range(n_lift):
-                contact_step(lowering=False)
-                z = grapple.boom_z()
-                if k % free_every:
-                    continue
-                if freezing:
-                    freeze_apart_from(load)
-                if z >= top_z or (z >= target_z and load_is_free(load)):
-                    break
-            target_z = grapple.boom_z()
-            phase_s["lift"] = (k + 1) * dt
-            grapple.hold_xyz(*grasp_xy, target_z)
-            n_hold = int(round(cfg.hold_s / dt))
-            betas = []
-            for k in range(n_hold):
-                contact_step(lowering=False)
-                if k >= n_hold // 2:
-                    betas.append(grapple.cos_beta())
-            phase_s["hold"] = n_hold * dt
-            cos_beta = float(np.mean(betas)) if betas else grapple.cos_beta()
-            stats["speed"] = max(stats["speed"], max_log_speed())
-            cen, _ = log_axes()
-            risen = cen[:, 2] - start_centres[:, 2] >= cfg.held_rise_m
-            now_inside = inside(-g.claw_thickness_m)
-            grasped = tuple(int(i) for i in np.flatnonzero(risen & now_inside))
-        if on_phase:
-            on_phase("end", world, grapple)
-        sim_time = steps * dt
-        final_poses = tuple(tuple(float(v) for v in row) for row in world.log_poses())
-
-    if aborted.result is not None:
-        return aborted.result
-    enclosed_t = tuple(int(i) for i in enclosed)
-    held = set(grasped)
-    wanted_ok = (held == set(target_idx)) if target_idx is not None else (len(held) == n_targets)
-    if stats["max_coll"] > cfg.collision_force_n:
-        outcome = Outcome.COLLISION
-    elif not closed:
-        outcome = Outcome.NOT_CLOSED
-    elif wanted_ok and set(enclosed_t) <= held:
-        outcome = Outcome.SUCCESS
-    elif not set(enclosed_t) <= held:
-        outcome = Outcome.DROPPED
-    elif (target_idx is not None and held > set(target_idx)) or (target_idx is None and len(held) > n_targets):
-        outcome = Outcome.MORE_THAN_INTENDED
-    else:
-        outcome = Outcome.FEWER_OR_OTHER
-    return TrialResult(
-        outcome=outcome, grasp=grasp, targets=target_idx, n_targets=n_targets, grasped=tuple(sorted(held)),
-        enclosed=enclosed_t, cos_beta=cos_beta, final_gap_m=final_gap, max_force_n=stats["max_force"],
-        max_collision_force_n=stats["max_coll"], max_penetration_m=stats["pen"],
-        max_log_speed_m_s=stats["speed"], phase_s=phase_s, sim_time_s=sim_time,
-        wall_time_s=time.perf_counter() - t_wall, cpu_time_s=time.process_time() - t_cpu,
-        stop_reason=stop_reason, final_poses=final_poses,
-    )
+def classify(max_collision_force_n: float, collision_force_n: float, closed: bool, held: Iterable[int],
+             enclosed: Iterable[int], targets: tuple[int, ...] | None, n_targets: int) -> Outcome:
+    """A finished trial's outcome, by the rules in this module's docstring, checked in order:
+    COLLISION (``max_collision_force_n`` above ``collision_force_n``), NOT_CLOSED, SUCCESS (the
+    held set is the targets, or ``n_targets`` logs when ``targets`` is None, and every enclosed
+    log is held), DROPPED (an enclosed log is not held), MORE_THAN_INTENDED (a strict superset of
+    the targets, or more than ``n_targets`` logs), FEWER_OR_OTHER."""
+    held, enclosed = set(held), set(enclosed)
+    if max_collision_force_n > collision_force_n:
+        return Outcome.COLLISION
+    if not closed:
+        return Outcome.NOT_CLOSED
+    wanted_ok = (held == set(targets)) if targets is not None else (len(held) == n_targets)
+    if wanted_ok and enclosed <= held:
+        return Outcome.SUCCESS
+    if not enclosed <= held:
+        return Outcome.DROPPED
+    if (targets is not None and held > set(targets)) or (targets is None and len(held) > n_targets):
+        return Outcome.MORE_THAN_INTENDED
+    return Outcome.FEWER_OR_OTHER
 
 
 #: the phases of a trial in order (``phase_s`` keys); an aborted trial stopped in the first one
 #: that has no time recorded yet
 _PHASES = ("lower", "close", "lift", "hold")
+_SAMPLE_EVERY_S = 0.05  # how often the lift checks for a free load and log speeds are sampled [s]
+_AXIS_SAMPLES = 33  # points along each log's axis tested against the inside region [-]
+_HEAD_CLEARANCE_M = 0.05  # the inside region ends this far below the head's hinge plane [m]
+_MIN_CLOSE_S = 0.2  # closing lasts at least this long, however still the claws [s]
+_LIFT_SLACK_S = 2.0  # the lift's step budget: its travel time plus this [s]
+
+
+@dataclass
+class _Stats:
+    """The running maxima a trial reports (TrialResult fields of the same names)."""
+
+    max_force_n: float = 0.0
+    max_collision_force_n: float = 0.0
+    max_penetration_m: float = 0.0
+    max_log_speed_m_s: float = 0.0
+
+
+@dataclass(frozen=True)
+class _Ending:
+    """The state a trial's phases leave behind: what :func:`classify` and the result need."""
+
+    grasped: tuple[int, ...]
+    enclosed: tuple[int, ...]
+    cos_beta: float
+    final_gap_m: float
+    stop_reason: str
+    stats: _Stats
+    phase_s: dict[str, float]
+    sim_time_s: float
+    final_poses: tuple[tuple[float, ...], ...]
+    aborted_in: str | None = None
 
 
 class _Aborted(Exception):
-    """Raised inside a trial when ``should_abort()`` turned True; carries the result."""
+    """Raised inside a trial when ``should_abort()`` turned True; carries the state at that step."""
 
-    def __init__(self, result: TrialResult):
+    def __init__(self, ending: _Ending):
         super().__init__("trial aborted")
-        self.result = result
+        self.ending = ending
 
 
-class _AbortCatcher:
-    """Context manager ending an aborted trial quietly (the world still closes after it)."""
+def _start_z(pile: PileSpec, grasp: Grasp, cfg: TrialConfig) -> float:
+    """The boom height [m] the trial starts from: claw tips ``start_clearance_m`` above the top."""
+    g = cfg.grapple
+    top = _top_near(pile, grasp, grasp.width_m / 2 + cfg.footprint_margin_m)
+    return top + cfg.start_clearance_m + g.hang_height_m(g.angle_for_gap(grasp.width_m))
 
-    result: TrialResult | None = None
 
-    def __enter__(self) -> "_AbortCatcher":
-        return self
+class _TrialRun:
+    """One trial in its world: the grapple, the force filters, the statistics and the phase times.
 
-    def __exit__(self, exc_type, exc, tb) -> bool:
-        if isinstance(exc, _Aborted):
-            self.result = exc.result
-            return True
-        return False
+    :meth:`all_phases` runs :meth:`lower`, :meth:`close` and, if the claws closed, :meth:`lift`
+    and :meth:`hold`; every simulation step goes through :meth:`step`.
+    """
+
+    def __init__(self, world: World, pile: PileSpec, grasp: Grasp, cfg: TrialConfig,
+                 target_idx: tuple[int, ...] | None, n_targets: int, should_abort: Callable[[], bool] | None,
+                 clock: tuple[float, float]) -> None:
+        self.world, self.grasp, self.cfg, self.g = world, grasp, cfg, cfg.grapple
+        self.target_idx, self.n_targets, self.should_abort, self.clock = target_idx, n_targets, should_abort, clock
+        self.dt = dt = cfg.physics.dt_s
+        self.start_z = _start_z(pile, grasp, cfg)
+        self.c = world.client
+        self.grapple = Grapple(self.c, self.g, grasp, self.start_z, terrain_id=world.terrain_id)
+        self.log_ids = world.log_ids
+        self.obstacle_set = set(world.obstacle_ids)
+        self.log_set = set(self.log_ids)
+        self.half_len, radius = _log_segments(pile)
+        self.lower_depth = cfg.inside_radius_frac * radius + cfg.inside_depth_m
+        self.start_centres = world.log_poses()[:, :3].copy()
+        self.stop_mean = _Mean(round(cfg.stop_window_s / dt))
+        self.coll_mean = _Mean(round(cfg.collision_window_s / dt))
+        self.stats = _Stats()
+        self.speed_every = max(1, round(_SAMPLE_EVERY_S / dt))
+        self.phase_s: dict[str, float] = {}
+        self.steps = 0
+        self.frozen: set[int] = set()
+        self.s_line = np.linspace(-1.0, 1.0, _AXIS_SAMPLES)
+        self.v_half = self.g.claw_width_m / 2 + cfg.inside_margin_v_m
+        # bodies whose contact counts as a collision: obstacles always, non-target logs while lowering
+        non_target = set() if target_idx is None else {
+            b for i, b in enumerate(self.log_ids) if i not in set(target_idx)}
+        self.coll_lowering = self.obstacle_set | non_target
+
+    # -- the phases ---------------------------------------------------------------------------
+    def all_phases(self, on_phase: Callable[[str, World, Grapple], None] | None) -> _Ending:
+        """Lower, close and (if closed) lift and hold; ``on_phase`` between them."""
+        def tell(name: str) -> None:
+            if on_phase:
+                on_phase(name, self.world, self.grapple)
+
+        tell("start")
+        stop_reason = self.lower()
+        tell("lowered")
+        final_gap, enclosed = self.close()
+        tell("closed")
+        cos_beta, grasped = float("nan"), enclosed
+        if final_gap <= self.cfg.max_closed_gap_m:
+            self.lift(enclosed)
+            cos_beta = self.hold()
+            grasped = self.held_now()
+        tell("end")
+        return self.ending(tuple(sorted(set(grasped))), enclosed, cos_beta, final_gap, stop_reason)
+
+    def lower(self) -> str:
+        """Lower fast through the free air, then at the lowering speed, until a stop rule fires;
+        hold the boom there. Returns the stop reason."""
+        cfg, dt, grapple = self.cfg, self.dt, self.grapple
+        approach_z = self.start_z - (cfg.start_clearance_m - cfg.approach_clearance_m)
+        approaching = cfg.approach_speed_m_s > cfg.lower_speed_m_s and approach_z < self.start_z
+        grapple.move_z(-(cfg.approach_speed_m_s if approaching else cfg.lower_speed_m_s))
+        stop_reason = "timeout"
+        for k in range(int(cfg.max_lower_s / dt)):
+            if approaching and grapple.boom_z() <= approach_z:
+                grapple.move_z(-cfg.lower_speed_m_s)
+                approaching = False
+            if self.step(lowering=True) >= cfg.stop_force_n:
+                stop_reason = "force"
+                break
+            if k % cfg.check_every == 0:
+                reached = self._lowered_far_enough()
+                if reached:
+                    stop_reason = reached
+                    break
+        self.phase_s["lower"] = (k + 1) * dt
+        grapple.hold_xyz(self.grasp.x_m, self.grasp.y_m, grapple.boom_z())
+        return stop_reason
+
+    def _lowered_far_enough(self) -> str | None:
+        """The stop reason if lowering should stop here: "ground" (a claw tip reached the ground)
+        or "inside" (enough logs are inside); None to lower on."""
+        tips = self.grapple.tips_world()
+        ground = height_at(self.world.height_grid, self.world.pile.terrain.extent_m, tips[:, 0], tips[:, 1])
+        if np.any(tips[:, 2] <= ground + self.cfg.ground_clearance_m):
+            return "ground"
+        if int(self.inside(self.lower_depth).sum()) >= self.n_targets:
+            return "inside"
+        return None
+
+    def close(self) -> tuple[float, tuple[int, ...]]:
+        """Close the claws until they stop moving. Returns the tip gap [m] and the enclosed logs."""
+        cfg, dt = self.cfg, self.dt
+        self.grapple.close()
+        still_needed = max(1, round(cfg.close_still_s / dt))
+        still = 0
+        for k in range(int(cfg.close_timeout_s / dt)):
+            self.step(lowering=False)
+            sn, sp = self.grapple.claw_speeds()
+            still = still + 1 if max(abs(sn), abs(sp)) < cfg.close_still_rad_s else 0
+            if still >= still_needed and k * dt > _MIN_CLOSE_S:
+                break
+        self.phase_s["close"] = (k + 1) * dt
+        final_gap = self.grapple.gap_m()
+        enclosed = self.between_claws()
+        self.sample_speed()
+        return final_gap, enclosed
+
+    def lift(self, enclosed: tuple[int, ...]) -> None:
+        """Lift to the target height, then on until the load hangs free (at most
+        ``free_lift_max_m`` more); hold the boom there."""
+        cfg, dt, grapple = self.cfg, self.dt, self.grapple
+        z0 = grapple.boom_z()
+        target_z = self.start_z if cfg.lift_height_m is None else z0 + cfg.lift_height_m
+        target_z = max(target_z, z0 + cfg.min_lift_m)
+        grapple.move_z(cfg.lift_speed_m_s)
+        top_z = target_z + cfg.free_lift_max_m
+        n_lift = int(((top_z - z0) / cfg.lift_speed_m_s + _LIFT_SLACK_S) / dt)
+        free_every = max(1, round(_SAMPLE_EVERY_S / dt))
+        load = {self.log_ids[i] for i in enclosed}
+        freezing = cfg.freeze_when_free and bool(load)
+        for k in range(n_lift):
+            self.step(lowering=False)
+            z = grapple.boom_z()
+            if k % free_every:
+                continue
+            if freezing:
+                self.freeze_apart_from(load)
+            if z >= top_z or (z >= target_z and self.load_is_free(load)):
+                break
+        self.phase_s["lift"] = (k + 1) * dt
+        grapple.hold_xyz(self.grasp.x_m, self.grasp.y_m, grapple.boom_z())
+
+    def hold(self) -> float:
+        """Hold ``hold_s``; returns the balance cos β averaged over its second half."""
+        n_hold = int(round(self.cfg.hold_s / self.dt))
+        betas = []
+        for k in range(n_hold):
+            self.step(lowering=False)
+            if k >= n_hold // 2:
+                betas.append(self.grapple.cos_beta())
+        self.phase_s["hold"] = n_hold * self.dt
+        cos_beta = float(np.mean(betas)) if betas else self.grapple.cos_beta()
+        self.sample_speed()
+        return cos_beta
+
+    # -- one step and its statistics ------------------------------------------------------------
+    def step(self, lowering: bool) -> float:
+        """Step once; update the filtered forces and the statistics. Returns the filtered total
+        contact force [N]. Raises :class:`_Aborted` when ``should_abort()`` says so."""
+        self.c.stepSimulation()
+        self.steps += 1
+        if self.should_abort is not None and self.should_abort():
+            raise _Aborted(self.stopped_now())
+        total = coll = pen = 0.0
+        coll_set = self.coll_lowering if lowering else self.obstacle_set
+        for cp in self.c.getContactPoints(bodyA=self.grapple.body):
+            other, f = cp[2], cp[9]
+            total += f
+            if other in coll_set:
+                coll += f
+            if cp[8] < -pen and other in self.log_set:
+                pen = -cp[8]
+        fm = self.stop_mean.push(total)
+        cm = self.coll_mean.push(coll)
+        s = self.stats
+        if fm > s.max_force_n:
+            s.max_force_n = fm
+        if cm > s.max_collision_force_n:
+            s.max_collision_force_n = cm
+        if pen > s.max_penetration_m:
+            s.max_penetration_m = pen
+        if self.steps % self.speed_every == 0:
+            self.sample_speed()
+        return fm
+
+    def sample_speed(self) -> None:
+        """Fold the fastest log's speed now into ``max_log_speed_m_s``."""
+        best = 0.0
+        for b in self.log_ids:
+            v = self.c.getBaseVelocity(b)[0]
+            best = max(best, math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]))
+        self.stats.max_log_speed_m_s = max(self.stats.max_log_speed_m_s, best)
+
+    # -- which logs are where -------------------------------------------------------------------
+    def log_axes(self) -> tuple[np.ndarray, np.ndarray]:
+        """Log centres (n, 3) and unit axes (n, 3) in the pile frame."""
+        cen = np.empty((len(self.log_ids), 3))
+        ax = np.empty((len(self.log_ids), 3))
+        for i, b in enumerate(self.log_ids):
+            pos, orn = self.c.getBasePositionAndOrientation(b)
+            cen[i] = pos
+            x, y, z, w = orn
+            ax[i] = (1 - 2 * (y * y + z * z), 2 * (x * y + z * w), 2 * (x * z - y * w))
+        return cen, ax
+
+    def inside(self, depth_m: float | np.ndarray) -> np.ndarray:
+        """Boolean per log: its axis crosses the region between the claws under the rotator.
+
+        The region is the polygon in the closing plane bounded by both claw profiles (at their
+        current angles), the line between the tips raised by ``depth_m`` and the head's bottom,
+        extended ``v_half`` either side of the plane.
+        """
+        grapple, n = self.grapple, len(self.log_ids)
+        o, R = grapple.head_pose()
+        poly = grapple.enclosure_polygon()  # (k, 2) in (u, z)
+        z_lo = float(poly[[grapple.tip_index_neg, grapple.tip_index_pos], 1].max()) + np.broadcast_to(
+            np.asarray(depth_m, dtype=float), (n,))[:, None]
+        z_hi = -self.g.head_drop_m - _HEAD_CLEARANCE_M
+        cen, ax = self.log_axes()
+        pts = cen[:, None, :] + ax[:, None, :] * (self.half_len[:, None, None] * self.s_line[None, :, None])
+        loc = (pts - o) @ R  # head frame (n, m, 3)
+        # add the exact crossing of the closing plane v = 0, where the axis crosses it
+        p0 = loc[:, 0, :]
+        d = loc[:, -1, :] - p0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.clip(np.where(np.abs(d[:, 1]) > 1e-9, -p0[:, 1] / d[:, 1], 0.5), 0.0, 1.0)
+        cross = p0 + d * t[:, None]
+        loc = np.concatenate([loc, cross[:, None, :]], axis=1)
+        u, v, z = loc[..., 0], loc[..., 1], loc[..., 2]
+        ok = (np.abs(v) <= self.v_half) & (z >= z_lo) & (z <= z_hi)
+        ok &= _points_in_polygon(u, z, poly)
+        return ok.any(axis=1)
+
+    def between_claws(self) -> tuple[int, ...]:
+        """The logs inside the claws (region raised by half a claw thickness)."""
+        return tuple(int(i) for i in np.flatnonzero(self.inside(-0.5 * self.g.claw_thickness_m)))
+
+    def held_now(self) -> tuple[int, ...]:
+        """The logs held: risen ``held_rise_m`` since the start and inside the claws."""
+        cen, _ = self.log_axes()
+        risen = cen[:, 2] - self.start_centres[:, 2] >= self.cfg.held_rise_m
+        return tuple(int(i) for i in np.flatnonzero(risen & self.inside(-self.g.claw_thickness_m)))
+
+    def load_is_free(self, load: set[int]) -> bool:
+        """No log of ``load`` rests on anything but the grapple and the other logs of ``load``
+        harder than ``free_contact_n``: the load hangs in the grapple."""
+        for b in load:
+            for cp in self.c.getContactPoints(bodyA=b):
+                if cp[2] != self.grapple.body and cp[2] not in load and cp[9] > self.cfg.free_contact_n:
+                    return False
+        return True
+
+    def freeze_apart_from(self, load: set[int]) -> None:
+        """``freeze_when_free``: make static, where they lie, the logs that no longer touch the
+        load, directly or through other logs. Such a log costs a contact solve against the
+        terrain every step and cannot change the outcome unless the swinging load hits it,
+        which a static log still models (as an immovable one). Logs are never thawed."""
+        linked, todo = set(load), list(load)
+        while todo:
+            for cp in self.c.getContactPoints(bodyA=todo.pop()):
+                if cp[2] in self.log_set and cp[2] not in linked and cp[2] not in self.frozen:
+                    linked.add(cp[2])
+                    todo.append(cp[2])
+        for b in sorted(self.log_set - linked - self.frozen):
+            self.c.resetBaseVelocity(b, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0])
+            self.c.changeDynamics(b, -1, mass=0.0)
+            self.frozen.add(b)
+
+    # -- endings --------------------------------------------------------------------------------
+    def stopped_now(self) -> _Ending:
+        """Abort: hold the boom where it is, stop the claws; the true state at this moment."""
+        grapple = self.grapple
+        grapple.hold_xyz(self.grasp.x_m, self.grasp.y_m, grapple.boom_z())
+        grapple.set_claws(float(np.mean(grapple.claw_angles())))
+        held = self.held_now()
+        aborted_in = next((ph for ph in _PHASES if ph not in self.phase_s), "end")
+        return self.ending(held, self.between_claws(), grapple.cos_beta(), grapple.gap_m(), "aborted", aborted_in)
+
+    def ending(self, grasped: tuple[int, ...], enclosed: tuple[int, ...], cos_beta: float, final_gap_m: float,
+               stop_reason: str, aborted_in: str | None = None) -> _Ending:
+        """The state now (the world must still be open)."""
+        return _Ending(grasped=grasped, enclosed=enclosed, cos_beta=cos_beta, final_gap_m=final_gap_m,
+                       stop_reason=stop_reason, stats=replace(self.stats), phase_s=dict(self.phase_s),
+                       sim_time_s=self.steps * self.dt,
+                       final_poses=tuple(tuple(float(v) for v in row) for row in self.world.log_poses()),
+                       aborted_in=aborted_in)
+
+    def result(self, e: _Ending, outcome: Outcome) -> TrialResult:
+        """The trial's result; wall and CPU times run from the call's start to now."""
+        t_wall, t_cpu = self.clock
+        s = e.stats
+        return TrialResult(
+            outcome=outcome, grasp=self.grasp, targets=self.target_idx, n_targets=self.n_targets,
+            grasped=e.grasped, enclosed=e.enclosed, cos_beta=e.cos_beta, final_gap_m=e.final_gap_m,
+            max_force_n=s.max_force_n, max_collision_force_n=s.max_collision_force_n,
+            max_penetration_m=s.max_penetration_m, max_log_speed_m_s=s.max_log_speed_m_s, phase_s=e.phase_s,
+            sim_time_s=e.sim_time_s, wall_time_s=time.perf_counter() - t_wall,
+            cpu_time_s=time.process_time() - t_cpu, stop_reason=e.stop_reason, final_poses=e.final_poses,
+            aborted_in=e.aborted_in)
 
 
 def render_view(world: World, look_at_m, distance_m: float = 3.2, yaw_deg: float = 35.0,
