@@ -32,7 +32,7 @@ def share_dir(out: Path, share: float) -> Path:
 
 def train_shares(data: list[str], out: Path, shares, epochs: int, base_channels: int, device: str,
                  precision: str, max_steps_per_epoch: int | None = None, batch_size: int = 16,
-                 progress=print) -> dict[float, Path]:
+                 skip_no_candidates: bool = False, progress=print) -> dict[float, Path]:
     """Train one model per share with the same recipe; returns share -> best checkpoint."""
     from planner.data import DataConfig, list_shards
     from planner.model import UNetConfig
@@ -43,7 +43,7 @@ def train_shares(data: list[str], out: Path, shares, epochs: int, base_channels:
     models = {}
     for s in shares:
         cfg = TrainConfig(model=replace(UNetConfig(), base_channels=base_channels, size_px=size),
-                          data=replace(DataConfig(), train_fraction=s), epochs=epochs, batch_size=batch_size,
+                          data=replace(DataConfig(), train_fraction=s, skip_no_candidates=skip_no_candidates), epochs=epochs, batch_size=batch_size,
                           device=device, precision=precision, max_steps_per_epoch=max_steps_per_epoch)
         progress(f"share {s:g}: training into {share_dir(out, s)}")
         res = train(data if len(data) > 1 else data[0], share_dir(out, s), cfg)
@@ -146,6 +146,8 @@ def main(argv=None) -> int:
     ap.add_argument("--seed-base", type=int, default=910_000_000, help="far from training and other evaluations")
     ap.add_argument("--workers", type=int, default=0)
     ap.add_argument("--train-only", action="store_true")
+    ap.add_argument("--skip-no-candidates", action="store_true",
+                    help="leave out subsets without an admissible candidate (DataConfig.skip_no_candidates)")
     a = ap.parse_args(argv)
     shares = [float(s) for s in a.shares.split(",")]
     if any(not 0 < s <= 1 for s in shares):
@@ -153,7 +155,7 @@ def main(argv=None) -> int:
     objectives = a.objectives.split(",")
     a.out.mkdir(parents=True, exist_ok=True)
     models = train_shares(a.data, a.out, shares, a.epochs, a.base_channels, a.device, a.precision,
-                          a.max_steps_per_epoch, a.batch_size)
+                          a.max_steps_per_epoch, a.batch_size, a.skip_no_candidates)
     if a.train_only:
         print(json.dumps({str(k): str(v) for k, v in models.items()}))
         return 0

@@ -107,6 +107,9 @@ def train_command(
     train_fraction: float = option("--train-fraction", "Use this share of the training piles (nested: a learning "
                                    "curve's smaller shares are subsets of its larger ones; validation unchanged).",
                                    field=(DataConfig, "train_fraction"), min=0.0, max=1.0),
+    skip_no_candidates: bool = option("--skip-no-candidates", "Leave out target subsets that had no admissible "
+                                      "grasp candidate (needs a data set made from a grasp store).",
+                                      field=(DataConfig, "skip_no_candidates")),
     as_json: bool = JSON,
 ) -> None:
     """Train the target-conditioned U-Net; re-running the same command resumes from the last checkpoint.
@@ -130,7 +133,8 @@ def train_command(
     size = int(grid.get("size_px", UNetConfig().size_px))
     cfg = TrainConfig(model=replace(UNetConfig(), base_channels=base_channels, in_channels=in_ch, size_px=size),
                       loss=replace(LossWeights(), u_pos_weight=u_pos_weight),
-                      data=replace(DataConfig(), in_channels=in_ch, train_fraction=train_fraction),
+                      data=replace(DataConfig(), in_channels=in_ch, train_fraction=train_fraction,
+                                   skip_no_candidates=skip_no_candidates),
                       epochs=epochs, batch_size=batch_size,
                       lr=lr, lr_schedule=lr_schedule, seed=seed, device=device, precision=precision,
                       max_steps_per_epoch=max_steps_per_epoch)

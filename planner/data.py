@@ -86,6 +86,8 @@ class DataConfig:
     shuffle_buffer: int = 256  # samples shuffled together across shards [-]
     train_fraction: float = 1.0  # share of the training side's piles used (nested: a smaller share
     # is a subset of a larger one; the validation piles stay the same) [-]
+    skip_no_candidates: bool = False  # leave out subsets that had no admissible grasp candidate
+    # (the paper's 5,491 samples of 9,060 subsets look like this; needs shards with n_candidates) [-]
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.val_fraction < 1.0:
@@ -161,6 +163,14 @@ class ShardStream:
         self.epoch = epoch
 
     def _keep(self, sample) -> bool:
+        if self.config.skip_no_candidates:
+            n = getattr(sample, "n_candidates", None)
+            if n is None:
+                raise DataError(f"sample {sample_pile_id(sample)}/{tuple(sample.subset)} carries no candidate count, "
+                                "so --skip-no-candidates cannot tell which subsets had none; train from a grasp "
+                                "store (its shards are re-made with the counts) or drop the flag")
+            if n == 0:
+                return False
         pile_id = sample_pile_id(sample)
         val = is_validation_pile(pile_id, self.config.split_seed, self.config.val_fraction)
         if self.split == "val":

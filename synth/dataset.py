@@ -91,6 +91,7 @@ class Sample:
     grasps: np.ndarray  # (n, 5) float64: x [m], y [m], phi [rad], width [m], balance [-]
     negative: bool  # True when no successful grasp was found for the subset
     n_logs: int = 0  # logs in the pile [-]
+    n_candidates: int | None = None  # admissible geometric candidates of the subset; None = not recorded [-]
 
     @property
     def tau(self) -> int:
@@ -229,7 +230,8 @@ class ShardWriter:
             self._mask.append(np.asarray(sample.target_mask, dtype=bool))
             self._maps.append(np.asarray(sample.maps, dtype=np.float32))
             self._grasps.append(g)
-            self._subset_meta.append({"pile": p, "subset": list(subset), "negative": bool(sample.negative)})
+            self._subset_meta.append({"pile": p, "subset": list(subset), "negative": bool(sample.negative)}
+                                     | ({} if sample.n_candidates is None else {"n_candidates": int(sample.n_candidates)}))
         k = self._subsets[skey]
         if not np.array_equal(self._grasps[k], g):
             raise ValueError(f"pile {pid} subset {subset} was added twice with different grasps")
@@ -310,6 +312,7 @@ def load_shard(path: str | Path) -> list[Sample]:
                 intensity=arrays["intensity"][q], depth=arrays["depth"][p], target_mask=arrays["target_mask"][k],
                 maps=arrays["maps"][k], grasps=arrays["grasps"][starts[k]:starts[k + 1]],
                 negative=bool(sm["negative"]), n_logs=int(piles[p].get("n_logs", 0)),
+                n_candidates=None if sm.get("n_candidates") is None else int(sm["n_candidates"]),
             ))
     except (KeyError, IndexError, TypeError, ValueError) as exc:
         raise DatasetFormatError(f"shard {path} is inconsistent ({exc}); delete it and re-run the job") from exc
@@ -649,7 +652,7 @@ def add_pile_samples(writer: "ShardWriter", job: "DatasetJob", pile, pile_id: st
         for r in range(job.n_renders):
             writer.add(Sample(pile_id=pile_id, render=r, subset=tuple(sub.targets), intensity=obs.intensity[r],
                               depth=obs.depth, target_mask=mask, maps=maps, grasps=arr,
-                              negative=not len(arr), n_logs=pile.n_logs))
+                              negative=not len(arr), n_logs=pile.n_logs, n_candidates=sub.n_candidates))
 
 
 def build_chunk(out_dir: str, job_dict: dict, chunk: int, worker: str | None = None,

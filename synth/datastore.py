@@ -48,6 +48,9 @@ STORE = VersionedJson(STORE_FORMAT_NAME, STORE_FORMAT_VERSION, "data-set store r
 CHUNK = VersionedJson(CHUNK_FORMAT_NAME, STORE_FORMAT_VERSION, "store chunk", DatasetFormatError)
 CHUNK_DIR = "chunks"
 CACHE_DIR = ".cache"
+#: what the materialised shards hold beyond the chunk (a cached shard of another revision is made
+#: anew): 2 = each subset's admissible candidate count (``Sample.n_candidates``)
+MATERIALIZE_REVISION = 2
 _CHUNK_RE = re.compile(r"^chunk_(\d{5,})\.json\.gz$")
 
 
@@ -295,7 +298,7 @@ def materialize(store_dir: str | Path, cache_dir: str | Path | None = None,
     infos: list[ShardInfo] = []
     for i, c in enumerate(sorted(chunks)):
         entry = chunks[c]
-        worker = f"s{entry['sha256'][:16]}"
+        worker = f"s{entry['sha256'][:14]}m{MATERIALIZE_REVISION}"
         done_path = cache / f"shard_{worker}_{c:05d}.done.json"
         if done_path.exists():
             try:

@@ -69,6 +69,20 @@ def test_train_fraction_takes_nested_shares_of_the_training_piles(tmp_path):
     assert {sample_pile_id(s) for sh in shards for s in load_samples(sh)} >= full
 
 
+def test_skip_no_candidates_leaves_out_exactly_the_subsets_without_candidates(tmp_path):
+    from types import SimpleNamespace
+
+    def sample(pid, n):
+        return SimpleNamespace(pile_id=pid, subset=(0,), n_candidates=n)
+
+    cfg = DataConfig(val_fraction=0.0, skip_no_candidates=True)
+    stream = ShardStream([], "train", cfg)
+    assert [stream._keep(sample("p1", n)) for n in (0, 1, 7)] == [False, True, True]
+    assert ShardStream([], "train", DataConfig(val_fraction=0.0))._keep(sample("p1", 0))  # off: kept
+    with pytest.raises(DataError, match="no candidate count"):
+        stream._keep(sample("p1", None))
+
+
 def _samples(stream):
     """The samples a stream keeps (its own rule, without converting them)."""
     return [s for sh in stream.shards for s in stream.loader(sh) if stream._keep(s)]

@@ -155,3 +155,15 @@ def test_export_over_the_device_budget_is_refused(store, tmp_path):
     with pytest.raises(DatasetJobError, match="over the 0 MiB a device machine takes"):
         export_training(store, tmp_path / "export", max_bytes=1000)
     assert (tmp_path / "export" / "manifest.json").exists()  # the complete export stays
+
+
+def test_materialized_samples_carry_each_subsets_candidate_count(store, tmp_path):
+    """``Sample.n_candidates`` is the store's count for that subset (what --skip-no-candidates reads)."""
+    want = {}
+    for k in (0, 1):
+        d = json.loads(gzip.decompress(chunk_path(store, k).read_bytes()))
+        for p in d["piles"]:
+            for s in p["subsets"]:
+                want[(p["pile_id"], tuple(s["targets"]))] = s["candidates"]
+    got = {(s.pile_id, tuple(s.subset)): s.n_candidates for s in iter_samples(materialize(store, tmp_path / "c"))}
+    assert got == want and all(v is not None for v in got.values())
