@@ -8,7 +8,7 @@ demo: setup
 	.venv/bin/loggrasp demo --out out/demo
 
 test: setup
-	.venv/bin/python -m pytest -q -p no:cacheprovider
+	.venv/bin/python -m pytest -q -p no:cacheprovider -n 2 --dist loadfile
 
 # the link soak at full size on every backend (the default suite runs 10,000 on CAN, 2,000 on Zenoh)
 soak: setup
