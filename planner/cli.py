@@ -194,7 +194,13 @@ def load_observation(path: Path, cfg, warn=None):
         raise ObservationError(f"{path}: neither a pile.json nor an ortho.npz at the network's pixel pitch "
                                f"({100 * cfg.pixel_m:.2f} cm)")
     size = max(16, round(pile.terrain.extent_m / cfg.pixel_m))  # plan() names a patch that does not fit
-    with World(pile) as world:
+    try:
+        world = World(pile)
+    except Exception as exc:  # pybullet and its mesh code raise plain errors (a flat rock: no hull)
+        first = (str(exc).strip().splitlines() or [""])[0][:160]
+        raise ObservationError(f"the twin cannot load the pile {path} to render it ({type(exc).__name__}: {first}); "
+                               "check the pile file (loggrasp synth render PILE)") from exc
+    with world:
         return render_ortho(world, OrthoRenderConfig(size_px=size, n_renders=1), seed=pile.seed or 0), pile
 
 

@@ -314,6 +314,8 @@ def test_plan_verify_bad_input(capsys, work, pile_dir):
                    "vertices_m": [[0, 0, 0], [0.3, 0, 0], [0, 0.3, 0], [0.3, 0.3, 0]]}]
     (work / "flat_rock.json").write_text(json.dumps(d))
     fails(cli(capsys, "plan", work / "flat_rock.json", "--verify", "2"), 2, "the twin cannot load the pile")
+    # ... and without --verify, where the pile is only rendered: the same one line, no traceback
+    fails(cli(capsys, "plan", work / "flat_rock.json"), 2, "the twin cannot load the pile")
 
 
 # -- eval ---------------------------------------------------------------------------------------------
