@@ -338,6 +338,38 @@ def test_eval_tiny_strict_json_and_examples(capsys, work, a_file):
             assert ln.count("|") == md[i - 1].count("|") and md[i + 1].count("|") == ln.count("|"), md[i - 1:i + 2]
 
 
+@pytest.mark.slow
+def test_eval_verify_row_is_a_real_twin_check_on_a_copy(capsys, work):
+    """``eval --verify 2`` adds a verified row that really tries grasps in the twin, on a perturbed
+    copy of the test pile: on this pile the network's best grasp drops on that copy, so the verified
+    row must choose another grasp, one that succeeds on the copy."""
+    from planner.verify import PerturbationConfig, perturb_pile
+    from synth.generate import GenerationConfig, generate_pile
+    from synth.grasp import Grasp
+    from synth.trial import TrialConfig, run_trial
+
+    out = work / "eval_verify"
+    r = cli(capsys, "eval", "--per-cell", "1", "--logs", "3", "--obstacles", "no", "--objectives", "f1",
+            "--baselines", "", "--verify", "2", "--seed-base", "900000003", "--workers", "1", "--out", out, "--json")
+    d = r.json()
+    assert r.code == 0 and set(d["planners"]) == {"unet-f1", "unet-f1-verify2"}
+    seed = 900000003 + 3 * 2 * 100_000  # the cell (3 logs, no obstacles), pile 0
+    recs = {x["planner"]: x for x in json.loads((out / "records" / f"{seed}.json").read_text())}
+    pile, _ = generate_pile(seed, GenerationConfig(n_logs=3, n_obstacles=0))
+    cfg = TrialConfig.fast()
+    copy = perturb_pile(pile, PerturbationConfig(seed=2 * seed), 1, cfg.physics)  # what the row checks on
+    assert copy != pile
+
+    def on_copy(rec):
+        return run_trial(copy, Grasp(**rec["grasp"]), rec["targets"], cfg).outcome.value
+
+    net, ver = recs["unet-f1"], recs["unet-f1-verify2"]
+    assert on_copy(net) != "success", "pick a pile where the network's best grasp fails on the copy"
+    assert ver["grasp"] is not None and ver["grasp"] != net["grasp"]
+    assert on_copy(ver) == "success"
+    assert ver["outcome"] == "success" and d["planners"]["unet-f1-verify2"]["total"]["success_rate"] == 1.0
+
+
 def test_eval_bad_input(capsys, work, a_file):
     for bad, flag in ((["--engine", "spark"], "--engine"), (["--per-cell", "0"], "--per-cell"),
                       (["--workers", "-3"], "--workers"), (["--obstacles", "maybe"], "--obstacles"),
