@@ -393,6 +393,14 @@ def crane_sim(
                 why = REJECT_EXPLANATIONS.get(reason.name, "")
                 o.say(f"command {cid}: REJECTED ({reason.name})" + (f": {why}" if why else ""))
 
+    said_fault = [None]
+
+    def report_fault() -> None:  # the executor's exception, once per fault, with the way out
+        cause = served[0].fault_cause if served else None
+        if cause is not None and cause != said_fault[0]:
+            o.say(f"controller FAULT: {cause}; every command is rejected until the crane is reset")
+        said_fault[0] = cause
+
     def watch(controller) -> None:  # called once the transport is up: only then say "serving"
         served.append(controller)
         o.say(f"crane controller twin serving {link}: base E {base_tm[0]:.3f} N {base_tm[1]:.3f} "
@@ -402,6 +410,7 @@ def crane_sim(
         def loop() -> None:
             while not stop.wait(0.05):
                 report_rejections()
+                report_fault()
 
         threading.Thread(target=loop, name="crane-sim-watch", daemon=True).start()
 
@@ -412,7 +421,8 @@ def crane_sim(
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     report_rejections()  # the last ones, seen just before the stop
-    o.say(f"stopped in state {final.state.name}")
+    cause = final.fault_cause
+    o.say(f"stopped in state {final.state.name}" + (f" ({cause})" if cause else ""))
 
 
 # -- trial ----------------------------------------------------------------------------------------

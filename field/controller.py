@@ -481,6 +481,7 @@ class CraneController:
         self._peers = PeerTracker(self.config.laptop_timeout_s)
         self._lock = threading.RLock()
         self._state = ControllerState.IDLE
+        self._fault_cause: str | None = None  # the executor's exception while FAULT
         self._current = 0
         self._heartbeat = 0
         self._last_outcome: Outcome | None = None
@@ -546,6 +547,13 @@ class CraneController:
         run = self._run or self._last_run
         return None if run is None else run.worker
 
+    @property
+    def fault_cause(self) -> str | None:
+        """Why the controller is in FAULT (the executor's exception), None otherwise. The link's
+        status frame carries only the state; the crane's operator reads the cause here."""
+        with self._lock:
+            return self._fault_cause
+
     def status(self, request_id: int = 0) -> ControllerStatus:
         with self._lock:
             return ControllerStatus(self._state, self._current, self._heartbeat, self._last_outcome, request_id,
@@ -566,6 +574,7 @@ class CraneController:
                 raise ControllerError("cannot reset while the aborted grasp is still winding down; retry")
             if self._state in (ControllerState.ESTOP, ControllerState.FAULT):
                 self._state = ControllerState.IDLE
+                self._fault_cause = None
         self._publish_status()
 
     reset_fault = reset_estop
@@ -780,6 +789,7 @@ class CraneController:
             self._last_run, self._run = run, None
             if fault:
                 self._state = ControllerState.FAULT
+                self._fault_cause = fault
             elif self._state is ControllerState.EXECUTING:
                 self._state = ControllerState.DONE
             if self._journal is not None:
@@ -787,20 +797,21 @@ class CraneController:
         self._publish_frame("Outcome", self._wire(out))
         self._publish_status()
 
-    def _call_executor(self, run: _Run) -> tuple[Outcome, bool]:
-        """(outcome, executor failed); an already aborted command never starts."""
+    def _call_executor(self, run: _Run) -> tuple[Outcome, str | None]:
+        """(outcome, why the executor failed or None); an already aborted command never starts."""
         cmd = run.cmd
         if run.abort.is_set():
-            return Outcome(cmd.command_id, OutcomeClass.ABORTED, 0, 0), False
+            return Outcome(cmd.command_id, OutcomeClass.ABORTED, 0, 0), None
         try:
             execute = getattr(self.executor, "execute", None)
             out = execute(cmd, run.abort.is_set) if callable(execute) else self.executor(cmd)
             if not isinstance(out, Outcome):
                 raise TypeError(f"executor returned {type(out).__name__}, not Outcome")
-            return out, False
-        except Exception:
+            return out, None
+        except Exception as exc:
             log.exception("executor failed on command %d: controller FAULT", cmd.command_id)
-            return Outcome(cmd.command_id, OutcomeClass.ABORTED, 0, 0), True
+            return (Outcome(cmd.command_id, OutcomeClass.ABORTED, 0, 0),
+                    f"executor failed on command {cmd.command_id}: {type(exc).__name__}: {exc}")
 
     @staticmethod
     def _final_outcome(run: _Run, out: Outcome) -> Outcome:

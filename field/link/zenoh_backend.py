@@ -29,6 +29,7 @@ writes every payload as the CAN FD frame it is, so CAN and Zenoh sessions read b
 from __future__ import annotations
 
 import json
+import logging
 import re
 import threading
 from dataclasses import dataclass
@@ -37,6 +38,7 @@ from typing import Any
 from field.errors import LinkError
 from field.link.base import CraneLink, LinkConfig, LinkURL, track_resource, untrack_resource
 
+log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class ZenohKeys:
@@ -282,6 +284,7 @@ class ZenohControllerTransport:
         self.target = target
         self.keys = ZenohKeys(target.prefix)
         self.heartbeat_period_s = heartbeat_period_s
+        self.heartbeat_failures = 0  # heartbeat puts that failed (each logged as a run) [-]
         self.controller: Any = None
         self._session: Any = None
         self._stop = threading.Event()
@@ -335,11 +338,23 @@ class ZenohControllerTransport:
             self.controller.peer_gone(peer)
 
     def _heartbeat_loop(self) -> None:
+        """Put the crane's heartbeat each period. A failed put is not fatal (the laptop's own
+        staleness check covers a silent crane) but is logged with its cause: the first failure of
+        a run of them as a warning, and the recovery with how many were lost."""
+        failed = 0
         while not self._stop.wait(self.heartbeat_period_s):
             try:
                 self._session.put(self.keys.heartbeat, self.controller.heartbeat_frame())
-            except Exception:
-                pass
+            except Exception as exc:
+                if not failed:
+                    log.warning("zenoh heartbeat put on %s failed: %s: %s", self.keys.heartbeat,
+                                type(exc).__name__, exc, exc_info=True)
+                failed += 1
+                self.heartbeat_failures += 1
+                continue
+            if failed:
+                log.warning("zenoh heartbeats on %s resumed after %d failed puts", self.keys.heartbeat, failed)
+                failed = 0
 
     def send(self, kind: str, data: bytes) -> None:
         if self._closed or self._session is None:

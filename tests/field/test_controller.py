@@ -161,10 +161,12 @@ def test_executor_failure_is_a_fault_until_reset(make_cmd):
     assert f.grasp(make_cmd(31)).accepted
     f.wait_idle()
     assert ctl.state is ControllerState.FAULT
+    assert ctl.fault_cause == "executor failed on command 31: RuntimeError: hydraulics"  # the cause is kept
     assert Outcome(31, OutcomeClass.ABORTED, 0, 0) in f.published
     assert f.grasp(make_cmd(32)).reason is RejectReason.FAULT
     ctl.executor = FixedOutcomeExecutor(delay_s=0.0)
     ctl.reset_fault()
+    assert ctl.fault_cause is None
     assert f.grasp(make_cmd(33)).accepted
 
 

@@ -195,3 +195,41 @@ def test_hung_controller_detected_after_the_lease(port, controller_process, make
         cmd = make_cmd(link.new_command_id())
         assert link.send_grasp(cmd, timeout_s=2.0).accepted
         link.wait_outcome(cmd.command_id, 3.0)
+
+
+def test_zenoh_crane_heartbeat_failures_are_logged_with_their_cause_not_swallowed(caplog):
+    """A heartbeat put that fails is not fatal to the crane side, but it must not vanish: the first
+    failure of a run is logged with its exception, the recovery says how many puts were lost."""
+    import logging
+    import threading
+
+    from field.link.zenoh_backend import ZenohControllerTransport, ZenohTarget
+
+    class FlakySession:  # fails three puts, then works; stops the loop after eight
+        def __init__(self):
+            self.puts, self.done = 0, threading.Event()
+
+        def put(self, key, data):
+            self.puts += 1
+            if self.puts >= 8:
+                transport._stop.set()
+                self.done.set()
+            if 2 <= self.puts <= 4:
+                raise OSError("router gone")
+
+    class Crane:
+        def heartbeat_frame(self):
+            return b"hb"
+
+    transport = ZenohControllerTransport(ZenohTarget(crane="x", endpoint="tcp/127.0.0.1:1", config_path=None, prefix="loggrasp/x", lease_ms=1000),
+                                         heartbeat_period_s=0.001)
+    transport._session, transport.controller = FlakySession(), Crane()
+    with caplog.at_level(logging.WARNING, logger="field.link.zenoh_backend"):
+        t = threading.Thread(target=transport._heartbeat_loop)
+        t.start()
+        assert transport._session.done.wait(5.0)
+        t.join(5.0)
+    msgs = [r.getMessage() for r in caplog.records]
+    assert transport.heartbeat_failures == 3
+    assert sum("OSError: router gone" in m for m in msgs) == 1, msgs  # one warning per run, with the cause
+    assert any("resumed after 3 failed puts" in m for m in msgs), msgs
