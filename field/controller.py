@@ -945,9 +945,9 @@ def default_journal_path(link_url: str) -> Path:
 
 def controller_config_from_dict(d: dict[str, Any]) -> ControllerConfig:
     """Build a :class:`ControllerConfig` from plain values (e.g. a JSON file; ``reach`` nested)."""
-    d = dict(d)
-    reach = ReachEnvelope(**d.pop("reach", {}))
-    return ControllerConfig(reach=reach, **d)
+    from synth.common.configs import config_from_dict
+
+    return config_from_dict(ControllerConfig, d, "controller config")
 
 
 def controller_config_to_dict(c: ControllerConfig) -> dict[str, Any]:

@@ -27,7 +27,7 @@ import time
 from dataclasses import asdict, dataclass, field
 from itertools import combinations
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Literal
 
 import numpy as np
 
@@ -41,9 +41,9 @@ PlanFn = Callable[[object, object], "tuple[Grasp, tuple[int, ...]] | None"]
 class PlannerSpec:
     """A picklable recipe for a planner function."""
 
-    kind: str  # "unet", "random", "geometric", "oracle"
+    kind: Literal["unet", "random", "geometric", "oracle"]
     model: str | None = None  # checkpoint path for "unet"
-    objective: str = "f1"  # for "unet"
+    objective: Literal["f1", "f2", "f3"] = "f1"  # for "unet"
     label: str = ""
     verify_k: int = 0  # for "unet": grasps the twin tries on a perturbed copy of the pile (0 = no verification)
     verify_copies: int = 0  # ... and on this many further perturbed copies of that copy [-]
@@ -68,7 +68,7 @@ class EvalConfig:
     max_obstacles: int = 7  # obstacle count drawn from 1..max in "yes" cells [-]
     seed_base: int = 900_000_000  # far from training seeds [-]
     size_px: int = 128  # render size; must match the model [px]
-    trial: str = "fast"  # trial preset: fast or careful
+    trial: Literal["fast", "careful"] = "fast"  # trial preset
     oracle_max_trials: int = 40  # simulation budget of the oracle per pile [-]
 
     def __post_init__(self) -> None:

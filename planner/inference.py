@@ -24,6 +24,7 @@ import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
@@ -44,7 +45,7 @@ OBSTACLE_CODE_BASE = 1000  # instance codes >= this are obstacles (synth.render)
 class Objective:
     """Pixel quality ``Q = f(u, tau, b)`` (the paper's f1, f2, f3)."""
 
-    kind: str = "f1"  # "f1": u; "f2": u tau^mu; "f3": u tau^mu exp(-(b - b_opt)^2 / sigma_b^2)
+    kind: Literal["f1", "f2", "f3"] = "f1"  # "f1": u; "f2": u tau^mu; "f3": u tau^mu exp(-(b - b_opt)^2 / sigma_b^2)
     mu: float = 1.0 / 3.0  # exponent on the number of target logs [-]
     b_opt: float = 1.0  # optimal balance cos(beta) [-]
     sigma_b: float = 0.25  # balance tolerance [-]
@@ -72,8 +73,8 @@ class Planner:
 
     model: object  # torch.nn.Module in eval mode
     config: UNetConfig
-    device: str = "cpu"  # "cpu" or "cuda"
-    precision: str = "bf16"  # "fp32" or "bf16" (autocast; channels-last on CPU)
+    device: Literal["cpu", "cuda"] = "cpu"  # "cpu" or "cuda"
+    precision: Literal["bf16", "fp32"] = "bf16"  # "fp32" or "bf16" (autocast; channels-last on CPU)
     batch_size: int = 64  # target masks per forward pass [-] (64-128 use ~10-15 % less CPU than 32)
     meta: dict = field(default_factory=dict)
     angle_smoothing_px: float = 1.0  # Gaussian sigma for C, S (and W) before decoding [px]

@@ -27,6 +27,7 @@ same way; the input tensor still carries M_T as its last channel.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from typing import Literal
 
 OUTPUT_NAMES = ("C", "S", "W", "U", "B")
 INPUT_NAMES = {3: ("I", "D", "M_T"), 2: ("I", "M_T")}
@@ -42,7 +43,7 @@ class UNetConfig:
     extent_m: float = 5.0  # side of the training images [m]; extent_m / size_px is the pixel pitch it knows
     min_width_m: float = 0.30  # W output range low end [m]
     max_width_m: float = 1.55  # W output range high end [m]
-    mask_injection: str = "input"  # "input": M_T is an input channel (paper); "decoder": see module doc
+    mask_injection: Literal["input", "decoder"] = "input"  # "input": M_T is an input channel (paper); "decoder": see module doc
 
     def __post_init__(self) -> None:
         if not 2 <= self.base_channels <= 256:
@@ -79,11 +80,9 @@ class UNetConfig:
 
     @staticmethod
     def from_dict(d: dict) -> "UNetConfig":
-        known = set(UNetConfig.__dataclass_fields__)
-        unknown = set(d) - known
-        if unknown:
-            raise ValueError(f"unknown UNetConfig fields {sorted(unknown)}")
-        return UNetConfig(**d)
+        from synth.common.configs import config_from_dict
+
+        return config_from_dict(UNetConfig, d)
 
     @staticmethod
     def tiny(**kw) -> "UNetConfig":

@@ -18,6 +18,7 @@ from __future__ import annotations
 import itertools
 import math
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
@@ -26,7 +27,7 @@ from synth.grasp import MAX_WIDTH_M, RECT_WIDTH_M
 
 @dataclass(frozen=True)
 class SubsetPolicy:
-    mode: str = "auto"  # "auto": exhaustive when 2^n-1 <= max_subsets, else "fit"; "exhaustive"; "fit"
+    mode: Literal["auto", "exhaustive", "fit"] = "auto"  # "auto": exhaustive when 2^n-1 <= max_subsets, else "fit"; "exhaustive"; "fit"
     max_subsets: int = 127  # network passes per plan [-]
     max_opening_m: float = MAX_WIDTH_M  # grapple's maximum opening [m]
     rect_width_m: float = RECT_WIDTH_M  # grasp rectangle across the closing axis [m]

@@ -25,7 +25,7 @@ import math
 import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Literal
 
 from planner.augment import AugmentConfig
 from planner.data import DataConfig, ShardStream, batches, list_shards
@@ -46,12 +46,12 @@ class TrainConfig:
     epochs: int = 50  # passes over the training split [-]
     batch_size: int = 16  # samples per step [-]
     lr: float = 1e-3  # Adam learning rate [-]
-    lr_schedule: str = "cosine"  # "cosine" (per epoch, down to lr_min_frac * lr at the end) or "constant"
+    lr_schedule: Literal["cosine", "constant"] = "cosine"  # "cosine" (per epoch, down to lr_min_frac * lr at the end) or "constant"
     lr_min_frac: float = 0.05  # cosine floor as a fraction of lr [-]
     weight_decay: float = 0.0  # Adam weight decay [-]
     seed: int = 0  # initialisation, data order and augmentation [-]
-    device: str = "auto"  # "auto" (cuda if available), "cpu" or "cuda"
-    precision: str = "bf16"  # "bf16" (autocast, channels-last on CPU) or "fp32"
+    device: Literal["auto", "cpu", "cuda"] = "auto"  # "auto" (cuda if available), "cpu" or "cuda"
+    precision: Literal["bf16", "fp32"] = "bf16"  # "bf16" (autocast, channels-last on CPU) or "fp32"
     num_threads: int | None = None  # torch CPU threads; None = torch default
     loss: LossWeights = field(default_factory=LossWeights)
     augment: AugmentConfig = field(default_factory=AugmentConfig)
@@ -83,16 +83,9 @@ class TrainConfig:
 
     @staticmethod
     def from_dict(d: dict) -> "TrainConfig":
-        d = dict(d)
-        sub = {"model": UNetConfig, "loss": LossWeights, "augment": AugmentConfig, "data": DataConfig}
-        for k, cls in sub.items():
-            if k in d:
-                v = dict(d[k])
-                for kk, vv in v.items():
-                    if isinstance(vv, list):
-                        v[kk] = tuple(vv)
-                d[k] = cls(**v)
-        return TrainConfig(**d)
+        from synth.common.configs import config_from_dict
+
+        return config_from_dict(TrainConfig, d)
 
 
 @dataclass

@@ -33,7 +33,7 @@ import logging
 import secrets
 import threading
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from collections.abc import Mapping
 from typing import Any, Callable
 from urllib.parse import parse_qsl, unquote, urlsplit
@@ -928,12 +928,11 @@ def open_link(url_or_config: "str | LinkURL | Mapping[str, Any]", config: LinkCo
         if "url" not in d:
             raise ValueError(f"a link config mapping needs a 'url' key, got keys {sorted(d)}")
         url_or_config = d.pop("url")
-        if "safety" in d:
-            d["safety"] = SafetyConfig(**d["safety"])
-        try:
-            config = replace(config or LinkConfig(), **d)
-        except TypeError as exc:
-            raise ValueError(f"unknown link config keys in {sorted(d)}: {exc}") from exc
+        from synth.common.configs import config_from_dict
+
+        base = asdict(config or LinkConfig())  # the given options, overridden by the mapping's
+        config = config_from_dict(LinkConfig, {**base, **d, "safety": {**base["safety"], **d.get("safety", {})}},
+                                  "link config")
     url = url_or_config if isinstance(url_or_config, LinkURL) else LinkURL.parse(url_or_config)
     cls = load_entry(BACKENDS, url.scheme, "link backend")
     return cls.from_url(url, config, **backend_kwargs)
