@@ -13,11 +13,12 @@ import os
 import re
 import sys
 from pathlib import Path
-from typing import Literal
+from typing import Callable, Literal
 
 import typer
 
 from field.controller import ReachEnvelope
+from field.demo import DEMO_DATA, crane_config, default_crane_base
 from field.trial import TrialOptions
 from planner.cli import MODEL, OBJECTIVE_HELP, VIEW_SPREAD, VIEWS, eval_command, plan_command, train_command
 from reconstruct.cli import compare_command, gnss_crs_warning, reconstruct_command, scan_command
@@ -196,29 +197,7 @@ def link_key_command(path: Path = typer.Argument(..., metavar="KEYFILE",
     Output().say(f"wrote a new key to {written} (mode 0600); copy it to the crane over a secure channel")
 
 
-def with_secoc_key(link: str, key: Path) -> str:
-    """``link`` with ``secoc_key=KEY`` added to its query."""
-    return f"{link}{'&' if '?' in link else '?'}secoc_key={key}"
 
-
-def default_crane_base(pile) -> tuple[float, float, float]:
-    """A crane base 5 m south (site frame) of the pile centre, at ground height."""
-    import numpy as np
-
-    from synth.geodesy import pile_to_site, site_to_tm
-
-    c = np.mean([log.centre_m for log in pile.logs], axis=0)
-    site = pile_to_site(pile.georef, np.array([c[0], c[1], float(pile.terrain.height_at(c[0], c[1]))]))
-    e, n, h = site_to_tm(pile.georef, site + np.array([0.0, -5.0, 0.0]))
-    return float(np.ravel(e)[0]), float(np.ravel(n)[0]), float(np.ravel(h)[0])
-
-
-def crane_config(base_tm, max_reach: float, max_pile_age: float, journal: str | None = None):
-    from field.controller import ControllerConfig
-
-    return ControllerConfig(reach=ReachEnvelope(base_easting_m=base_tm[0], base_northing_m=base_tm[1],
-                                                base_height_m=base_tm[2], max_reach_m=max_reach),
-                            max_pile_age_s=max_pile_age, journal_path=journal)
 
 
 def _trial_options(objective, model, allow_float, max_pile_age, base_tm, max_reach, capacity, views=1,
@@ -421,7 +400,7 @@ def crane_sim(
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     report_rejections()  # the last ones, seen just before the stop
-    cause = final.fault_cause
+    cause = served[0].fault_cause if served else None
     o.say(f"stopped in state {final.state.name}" + (f" ({cause})" if cause else ""))
 
 
@@ -430,13 +409,13 @@ _TRIAL_CODES = {"input": EXIT_INPUT, "link": EXIT_LINK, "refused": EXIT_TRIAL, "
                 "interrupted": EXIT_INTERRUPTED}
 
 
-def _run_trial(o: Output, scan: Path, gnss: Path, link: str, record: Path, opts: TrialOptions, confirm) -> dict:
-    """Run the trial; a trial that stopped before sending becomes a :class:`CliError` saying where
-    its record is."""
-    from field.trial import TrialAborted, run_trial_record
+def _run_trial(o: Output, record: Path, trial: Callable[[], dict]) -> dict:
+    """Run ``trial()`` (a field trial recorded in ``record``); a trial that stopped before sending
+    becomes a :class:`CliError` saying where its record is."""
+    from field.trial import TrialAborted
 
     try:
-        return run_trial_record(scan, gnss, link, record, opts, confirm=confirm, progress=o.progress)
+        return trial()
     except TrialAborted as exc:
         recorded = (Path(record) / "record.json").is_file()
         if recorded:
@@ -560,7 +539,10 @@ def trial_command(
                                "was sent; answer y at the prompt, or pass --yes", kind="declined")
         return answer
 
-    rec = _run_trial(o, scan, gnss, link, record, opts, None if yes else ask)
+    from field.trial import run_trial_record
+
+    rec = _run_trial(o, record, lambda: run_trial_record(scan, gnss, link, record, opts, confirm=None if yes else ask,
+                                                         progress=o.progress))
     _finish_trial(o, rec, record)
 
 
@@ -663,7 +645,6 @@ def _resend(o: Output, rec: dict, link: str, parsed, now: float) -> dict:
 
 
 # -- demo -----------------------------------------------------------------------------------------
-DEMO_DATA = Path(__file__).resolve().parent / "demo_data"
 
 
 @app.command("demo")
@@ -686,14 +667,9 @@ def demo(
     Example: loggrasp demo --out out/demo
     Example: loggrasp demo --out out/demo-unverified --no-verify
     """
-    import shutil
-    import threading
     import time as _time
 
-    from field.controller import run_controller
-    from field.executor import PybulletTrialExecutor
-    from field.trial import captured_time
-    from synth.pile import read_pile
+    from field.demo import demo_options, prepare_demo, run_demo
 
     o = Output(as_json)
     t0 = _time.perf_counter()
@@ -701,58 +677,19 @@ def demo(
     if model is not None:
         check_input(model, "--model", "file")
     check_output_dir(out, "--out")
-    data = DEMO_DATA
-    truth = read_pile(data / "truth" / "pile.json")
-    base = default_crane_base(truth)
-    # the bundled scan was recorded earlier: its staleness limit is set past its age, and said so
-    age = _time.time() - captured_time(data / "scan", data / "gnss.csv")
-    max_age = age + 3600.0
-    o.progress(f"bundled scan recorded {age / 86400:.1f} days ago: staleness limit raised to {max_age:.0f} s "
-               "for the demo")
-    record = Path(out) / "trial"
-    if record.exists():
-        shutil.rmtree(record)
-    from field.link.secoc import generate_key_file
+    setup = prepare_demo(out, link)
+    for note in setup.notes:
+        o.progress(note)
 
-    key = Path(out) / "link.key"
-    if not key.exists():
-        generate_key_file(key)
-    link = with_secoc_key(link, key)
-    journal = Path(out) / "crane-journal.jsonl"
-    o.progress(f"authenticated frames on (SecOC-style MACs, key {key}); crane journal {journal}")
-    stop, ready = threading.Event(), threading.Event()
-    failure: list[BaseException] = []
+    def show(prepared) -> bool:
+        show_plan(prepared)
+        return True
 
-    def crane() -> None:
-        try:
-            run_controller(link, PybulletTrialExecutor(truth), stop,
-                           crane_config(base, field_default(ReachEnvelope, "max_reach_m"), max_age, str(journal)),
-                           ready_event=ready)
-        except BaseException as exc:  # reported by the main thread, as one line
-            failure.append(exc)
-            ready.set()
-
-    thread = threading.Thread(target=crane, daemon=True, name="crane-twin")
-    thread.start()
-    if not ready.wait(30) or failure:
-        stop.set()
-        if failure:
-            raise CliError(f"the crane controller twin could not serve {link}: {failure[0]}", EXIT_LINK) from failure[0]
-        raise CliError(f"the crane controller twin did not start on {link} within 30 s", EXIT_LINK)
-    try:
-        opts = _trial_options("f3", model, False, max_age, base, field_default(ReachEnvelope, "max_reach_m"),
-                              field_default(TrialOptions, "lift_capacity_kg"), **({"verify_k": 0} if no_verify else {}))
-
-        def show(prepared) -> bool:
-            show_plan(prepared)
-            return True
-
-        rec = _run_trial(o, data / "scan", data / "gnss.csv", link, record, opts, show)
-    finally:
-        stop.set()
-        thread.join(10)
-    o.progress(f"record: {record} (plan pictures in {record / 'plan'}); whole chain {_time.perf_counter() - t0:.1f} s")
-    _finish_trial(o, rec, record)
+    options = demo_options(setup, model, verify=not no_verify)
+    rec = _run_trial(o, setup.record_dir, lambda: run_demo(setup, options, confirm=show, progress=o.progress))
+    o.progress(f"record: {setup.record_dir} (plan pictures in {setup.record_dir / 'plan'}); whole chain "
+               f"{_time.perf_counter() - t0:.1f} s")
+    _finish_trial(o, rec, setup.record_dir)
 
 
 # -- the one error handler ------------------------------------------------------------------------

@@ -44,7 +44,7 @@ import tempfile
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Literal
 
 import numpy as np
 
@@ -103,7 +103,7 @@ REJECT_EXPLANATIONS = {
 
 @dataclass(frozen=True)
 class TrialOptions:
-    objective: str = "f3"  # f1, f2 or f3
+    objective: Literal["f1", "f2", "f3"] = "f3"
     model: str | None = None  # checkpoint; None = the shipped default
     views: int = 1  # dihedral views the planner averages (1, 2, 4, 8; planning time grows with it) [-]
     view_spread_k: float = 0.0  # U logit lowered by k x its spread over the views (needs views > 1) [-]

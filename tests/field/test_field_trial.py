@@ -11,7 +11,7 @@ import uuid
 
 import pytest
 
-from field.cli import DEMO_DATA, crane_config, default_crane_base
+from field.demo import DEMO_DATA, crane_config, default_crane_base
 from field.controller import run_controller
 from field.executor import PybulletTrialExecutor
 from field.trial import TrialAborted, TrialOptions, execute_trial, prepare_trial, replay_record, run_trial_record

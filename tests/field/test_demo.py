@@ -1,0 +1,32 @@
+"""field.demo: the demo's wiring as library functions (the CLI only prints and maps errors)."""
+
+from __future__ import annotations
+
+import pytest
+
+from field.demo import DEMO_DATA, crane_twin_served, demo_options, prepare_demo
+from field.errors import LinkError
+
+
+def test_a_crane_twin_that_cannot_serve_is_a_link_error_with_its_cause():
+    from field.controller import ControllerConfig
+
+    with pytest.raises(LinkError, match="could not serve can://virtual/demo-bad: unknown executor 'warp'") as e:
+        with crane_twin_served("can://virtual/demo-bad", "warp", ControllerConfig(), start_timeout_s=5.0):
+            pass
+    assert e.value.__cause__ is not None
+
+
+def test_prepare_demo_makes_key_and_limits_and_replaces_the_old_record(tmp_path):
+    old = tmp_path / "trial"
+    old.mkdir()
+    (old / "record.json").write_text("{}")
+    setup = prepare_demo(tmp_path, "can://virtual/x")
+    assert not old.exists() and setup.record_dir == old
+    assert setup.key_path.is_file() and setup.link_url == f"can://virtual/x?secoc_key={setup.key_path}"
+    assert prepare_demo(tmp_path, "can://virtual/x?a=1").link_url.endswith(f"?a=1&secoc_key={setup.key_path}")
+    assert setup.max_pile_age_s > setup.scan_age_s > 0  # the bundled scan is old: the limit is raised past it
+    key = setup.key_path.read_bytes()
+    assert prepare_demo(tmp_path, "can://virtual/x").key_path.read_bytes() == key  # made once, kept
+    assert demo_options(setup, None).verify_k > 0 and demo_options(setup, None, verify=False).verify_k == 0
+    assert (DEMO_DATA / "truth" / "pile.json").is_file()
