@@ -316,7 +316,6 @@ def prepare_trial(scan_dir: str | Path, gnss_path: str | Path, work_dir: str | P
     from reconstruct.pipeline import ReconstructConfig, reconstruct
     from synth.errors import SynthError
     from synth.geodesy import sweref_tm_to_pile
-    from synth.render import OrthoObservation
 
     from field.geo import draw_grasp_map, grasp_to_gnss, write_geojson_pair
 
@@ -343,7 +342,7 @@ def prepare_trial(scan_dir: str | Path, gnss_path: str | Path, work_dir: str | P
     except (ReconstructError, SynthError, ValueError) as exc:
         raise TrialAborted(f"reconstruction failed: {exc}", kind="input") from exc
     pile = result.pile
-    obs = OrthoObservation.load(work / "reconstruction" / "ortho.npz")
+    obs = result.observation  # as written to reconstruction/ortho.npz, passed on without reading it back
 
     constraints = Constraints(lift_capacity_kg=options.lift_capacity_kg, wood_density_kg_m3=options.wood_density_kg_m3)
     if options.crane_base_tm is not None:

@@ -55,7 +55,7 @@ import math
 import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
@@ -71,6 +71,9 @@ from reconstruct.sfm import SfmConfig
 from reconstruct.stereo import ScanCloud, StereoConfig, scan_cloud
 from synth.frames import apply_T, invert_T, make_T, rot_z
 from synth.pile import Georeference, PileSpec, atomic_write_bytes, write_pile
+
+if TYPE_CHECKING:
+    from synth.render import OrthoObservation
 
 SCAN_POSE_FORMAT = "loggrasp.scan-pose"
 SCAN_POSE_VERSION = "1.0"
@@ -256,6 +259,7 @@ class ReconstructionResult:
     out_dir: Path
     files: dict[str, Path]
     cloud: ScanCloud | None = None  # the scan (scan frame), when kept
+    observation: OrthoObservation | None = None  # the orthographic re-render written to ortho.npz
 
     @property
     def time_s(self) -> float:
@@ -1086,7 +1090,8 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
     atomic_write_bytes(report_path, json.dumps(report, indent=1, default=_json_default).encode())
     files["report"] = report_path
     say(f"done in {timings['total_s']:.1f} s")
-    return ReconstructionResult(pile=fit.pile, fit=fit, report=report, out_dir=out_dir, files=files, cloud=cloud)
+    return ReconstructionResult(pile=fit.pile, fit=fit, report=report, out_dir=out_dir, files=files, cloud=cloud,
+                                observation=obs)
 
 
 def weak_ends(logs: list, cfg: FuseConfig | None = None) -> list[str]:

@@ -171,6 +171,12 @@ def test_reconstruct_a_single_pair(small_scan):
     assert s["mask_iou"]["median"] > 0.8, c["logs"]
     obs = OrthoObservation.load(d / "out" / "ortho.npz")  # the training images' pitch
     assert obs.extent_m / obs.depth.shape[0] == pytest.approx(5.0 / 128)
+    # the result carries the observation it wrote, so the field trial plans on it without reading it back
+    mem = res.observation
+    assert mem is not None and mem.meta == obs.meta and (mem.extent_m, mem.n_logs) == (obs.extent_m, obs.n_logs)
+    for name in ("intensity", "depth", "instance"):
+        a, b = getattr(mem, name), getattr(obs, name)
+        assert a.dtype == b.dtype and np.array_equal(a, b), name
     # the pile frame turned so the logs lie at 45 deg: the same logs on Earth, the same errors
     turned = reconstruct(scan, gnss, d / "turned", ReconstructConfig(log_direction_deg=45.0)).pile
     ends = {i: lg.endpoints_m() for i, lg in enumerate(turned.logs)}
