@@ -244,13 +244,41 @@ def train(data_dir: str | Path | list, out_dir: str | Path, config: TrainConfig 
     ``out_dir`` holds a run with a different configuration."""
     import torch
 
-    from planner.checkpoint import save_checkpoint
-    from planner.model import build_unet, count_parameters
-    from synth.common.files import atomic_write_bytes
+    from planner.model import count_parameters
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     shards, grid = list_shards(data_dir)
+    config = _config_for_grid(config, grid)
+    _check_run_config(out, config)
+    if config.num_threads:
+        torch.set_num_threads(config.num_threads)
+    device = _device(config)
+    run = _Run.start(out, config, device)
+    train_stream = ShardStream(shards, "train", config.data, config.augment, config.seed)
+    val_stream = ShardStream(shards, "val", config.data, config.augment, config.seed)
+    n_params = count_parameters(run.model)
+    meta_common = {"n_parameters": n_params, "data_dir": _data_label(data_dir), "train_config": config.to_dict()}
+
+    run.model.train()
+    for epoch in range(run.position["epoch"], config.epochs):
+        skip = run.position["step"] if epoch == run.position["epoch"] else 0
+        stats = _train_epoch(run, train_stream, epoch, skip, config, device, progress)
+        if stats.n_samples == 0 and skip == 0:
+            raise DataError(f"the training split of {_data_label(data_dir)} is empty (all piles fell into validation?); "
+                            "add piles or lower data.val_fraction")
+        val = evaluate(run.model, val_stream, config, device)
+        entry = _epoch_entry(epoch, config, stats, val, skip)
+        run.end_epoch(entry, config, meta_common, {"n_parameters": n_params, "device": device})
+        if progress:
+            progress({"kind": "epoch", **entry})
+    if not run.model_path.exists():  # resumed after the last epoch had finished
+        raise TrainingError(f"{out} has a finished state but no model.safetensors; delete the folder and retrain")
+    return TrainResult(run.model_path, run.state_path, run.log_path, run.curve_path, run.history, run.resumed)
+
+
+def _config_for_grid(config: TrainConfig, grid: dict) -> TrainConfig:
+    """``config`` with the data set's pitch and camera height; a size that differs is a DataError."""
     size = int(grid.get("size_px", config.model.size_px))
     if size != config.model.size_px:
         raise DataError(f"the data set's images are {size} px but the model is configured for "
@@ -261,6 +289,13 @@ def train(data_dir: str | Path | list, out_dir: str | Path, config: TrainConfig 
     cam_h = float(grid.get("camera_height_m", config.data.camera_height_m))
     if abs(cam_h - config.data.camera_height_m) > 1e-9:
         config = replace(config, data=replace(config.data, camera_height_m=cam_h))
+    return config
+
+
+def _check_run_config(out: Path, config: TrainConfig) -> None:
+    """Write ``train_config.json``, or check that a run there has the same configuration (only
+    ``epochs`` may change, to extend it)."""
+    from synth.common.files import atomic_write_bytes
 
     cfg_path = out / "train_config.json"
     if cfg_path.exists():
@@ -275,96 +310,131 @@ def train(data_dir: str | Path | list, out_dir: str | Path, config: TrainConfig 
             raise TrainingError(f"{out} holds a training run with a different configuration; "
                                 "use another output folder or the same configuration to resume "
                                 "(only 'epochs' may change, to extend a run)")
-        if old.get("epochs") != now["epochs"]:
-            atomic_write_bytes(cfg_path, json.dumps(config.to_dict(), indent=1).encode())
-    else:
-        atomic_write_bytes(cfg_path, json.dumps(config.to_dict(), indent=1).encode())
+        if old.get("epochs") == now["epochs"]:
+            return
+    atomic_write_bytes(cfg_path, json.dumps(config.to_dict(), indent=1).encode())
 
-    if config.num_threads:
-        torch.set_num_threads(config.num_threads)
-    device = _device(config)
-    torch.manual_seed(config.seed)
-    model = build_unet(config.model).to(device)
-    if config.precision == "bf16" and device == "cpu":
-        model = model.to(memory_format=torch.channels_last)
-    opt = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
 
-    state_path, model_path = out / "state.safetensors", out / "model.safetensors"
-    log_path, curve_path = out / "log.json", out / "curve.png"
-    history: list[dict] = []
-    best = math.inf
-    position = {"epoch": 0, "step": 0}
-    resumed = None
-    if state_path.exists():
-        position = _load_state(state_path, model, opt)
-        resumed = dict(position)
-        if log_path.exists():
-            history = [h for h in read_log(log_path)["epochs"] if h["epoch"] < position["epoch"]]
-        vals = [h["val_loss"] for h in history if h.get("val_loss") is not None]
-        best = min(vals) if vals else math.inf
+@dataclass
+class _Run:
+    """A training run's model, optimiser, files and history, started afresh or resumed."""
 
-    train_stream = ShardStream(shards, "train", config.data, config.augment, config.seed)
-    val_stream = ShardStream(shards, "val", config.data, config.augment, config.seed)
-    n_params = count_parameters(model)
-    meta_common = {"n_parameters": n_params, "data_dir": _data_label(data_dir), "train_config": config.to_dict()}
+    model: object
+    opt: object
+    out: Path
+    history: list[dict]
+    best: float  # best validation (or training) loss so far
+    position: dict  # {"epoch", "step"} to continue from
+    resumed: dict | None  # where it resumed, None for a fresh run
 
-    model.train()
-    for epoch in range(position["epoch"], config.epochs):
-        skip = position["step"] if epoch == position["epoch"] else 0
-        train_stream.set_epoch(epoch)
-        for group in opt.param_groups:
-            group["lr"] = epoch_lr(config, epoch)
-        t_epoch, n_samples, loss_sum, parts_sum, step = time.perf_counter(), 0, 0.0, {}, 0
-        t_compute = 0.0
-        for step, (x, y) in enumerate(batches(train_stream, config.batch_size, config.max_steps_per_epoch), start=1):
-            if step <= skip:
-                continue
-            t0 = time.perf_counter()
-            x, y = _prepare_batch(x, y, device, config.precision)
-            with _step_context(device, config.precision):
-                pred = model(x)
-            loss, parts = grasp_loss(pred, y, config.loss)
-            if not torch.isfinite(loss):
-                raise TrainingError(f"loss became {float(loss)} at epoch {epoch} step {step}; lower the learning rate")
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
-            t_compute += time.perf_counter() - t0
-            b = len(x)
-            n_samples += b
-            loss_sum += float(loss.detach()) * b
-            for k, v in parts.items():
-                parts_sum[k] = parts_sum.get(k, 0.0) + v * b
-            if progress:
-                progress({"kind": "step", "epoch": epoch, "step": step, "loss": float(loss.detach()),
-                          "samples_per_s": n_samples / max(time.perf_counter() - t_epoch, 1e-9)})
-            if step % config.checkpoint_every_steps == 0:
-                _save_state(state_path, model, opt, {"epoch": epoch, "step": step}, config)
-        if n_samples == 0 and skip == 0:
-            raise DataError(f"the training split of {_data_label(data_dir)} is empty (all piles fell into validation?); "
-                            "add piles or lower data.val_fraction")
-        wall = time.perf_counter() - t_epoch
-        val = evaluate(model, val_stream, config, device)
-        entry = {"epoch": epoch, "lr": epoch_lr(config, epoch), "train_loss": loss_sum / max(n_samples, 1),
-                 "train_parts": {k: v / max(n_samples, 1) for k, v in parts_sum.items()},
-                 "train_samples": n_samples, "wall_s": wall,
-                 "samples_per_s": n_samples / wall if wall > 0 else None,
-                 "compute_samples_per_s": n_samples / t_compute if t_compute > 0 else None,
-                 "val_loss": None if val is None else val["loss"],
-                 "val_parts": None if val is None else {k: v for k, v in val.items() if k not in ("loss", "samples")},
-                 "val_samples": 0 if val is None else val["samples"], "resumed_at_step": skip or None}
-        history.append(entry)
+    @property
+    def state_path(self) -> Path:
+        return self.out / "state.safetensors"
+
+    @property
+    def model_path(self) -> Path:
+        return self.out / "model.safetensors"
+
+    @property
+    def log_path(self) -> Path:
+        return self.out / "log.json"
+
+    @property
+    def curve_path(self) -> Path:
+        return self.out / "curve.png"
+
+    @staticmethod
+    def start(out: Path, config: TrainConfig, device: str) -> "_Run":
+        import torch
+
+        from planner.model import build_unet
+
+        torch.manual_seed(config.seed)
+        model = build_unet(config.model).to(device)
+        if config.precision == "bf16" and device == "cpu":
+            model = model.to(memory_format=torch.channels_last)
+        opt = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+        run = _Run(model, opt, out, [], math.inf, {"epoch": 0, "step": 0}, None)
+        if run.state_path.exists():
+            run.position = _load_state(run.state_path, model, opt)
+            run.resumed = dict(run.position)
+            if run.log_path.exists():
+                run.history = [h for h in read_log(run.log_path)["epochs"] if h["epoch"] < run.position["epoch"]]
+            vals = [h["val_loss"] for h in run.history if h.get("val_loss") is not None]
+            run.best = min(vals) if vals else math.inf
+        return run
+
+    def end_epoch(self, entry: dict, config: TrainConfig, meta_common: dict, log_meta: dict) -> None:
+        """Keep the checkpoint if it is the best so far, then log, curve and resume state."""
+        from planner.checkpoint import save_checkpoint
+
+        self.history.append(entry)
         score = entry["val_loss"] if entry["val_loss"] is not None else entry["train_loss"]
-        if score < best or not model_path.exists():
-            best = min(best, score)
-            save_checkpoint(model_path, model, config.model,
-                            {**meta_common, "epoch": epoch, "val_loss": entry["val_loss"], "train_loss": entry["train_loss"]})
+        if score < self.best or not self.model_path.exists():
+            self.best = min(self.best, score)
+            save_checkpoint(self.model_path, self.model, config.model,
+                            {**meta_common, "epoch": entry["epoch"], "val_loss": entry["val_loss"],
+                             "train_loss": entry["train_loss"]})
         # log before state: a kill in between replays the epoch and drops its log entry
-        _write_log(log_path, history, config, {"n_parameters": n_params, "device": device})
-        plot_curve(history, curve_path)
-        _save_state(state_path, model, opt, {"epoch": epoch + 1, "step": 0}, config)
+        _write_log(self.log_path, self.history, config, log_meta)
+        plot_curve(self.history, self.curve_path)
+        _save_state(self.state_path, self.model, self.opt, {"epoch": entry["epoch"] + 1, "step": 0}, config)
+
+
+@dataclass
+class _EpochStats:
+    n_samples: int = 0
+    loss_sum: float = 0.0  # sum of sample-weighted losses
+    parts_sum: dict = field(default_factory=dict)  # the same per loss term
+    wall_s: float = 0.0  # the epoch's training wall time [s]
+    compute_s: float = 0.0  # of which forward, backward and step [s]
+
+
+def _train_epoch(run: _Run, stream, epoch: int, skip: int, config: TrainConfig, device: str,
+                 progress: Callable[[dict], None] | None) -> _EpochStats:
+    """One pass over the training split, the first ``skip`` steps (done before a resume) skipped."""
+    import torch
+
+    stream.set_epoch(epoch)
+    for group in run.opt.param_groups:
+        group["lr"] = epoch_lr(config, epoch)
+    st, t_epoch = _EpochStats(), time.perf_counter()
+    for step, (x, y) in enumerate(batches(stream, config.batch_size, config.max_steps_per_epoch), start=1):
+        if step <= skip:
+            continue
+        t0 = time.perf_counter()
+        x, y = _prepare_batch(x, y, device, config.precision)
+        with _step_context(device, config.precision):
+            pred = run.model(x)
+        loss, parts = grasp_loss(pred, y, config.loss)
+        if not torch.isfinite(loss):
+            raise TrainingError(f"loss became {float(loss)} at epoch {epoch} step {step}; lower the learning rate")
+        run.opt.zero_grad(set_to_none=True)
+        loss.backward()
+        run.opt.step()
+        st.compute_s += time.perf_counter() - t0
+        b = len(x)
+        st.n_samples += b
+        st.loss_sum += float(loss.detach()) * b
+        for k, v in parts.items():
+            st.parts_sum[k] = st.parts_sum.get(k, 0.0) + v * b
         if progress:
-            progress({"kind": "epoch", **entry})
-    if not model_path.exists():  # resumed after the last epoch had finished
-        raise TrainingError(f"{out} has a finished state but no model.safetensors; delete the folder and retrain")
-    return TrainResult(model_path, state_path, log_path, curve_path, history, resumed)
+            progress({"kind": "step", "epoch": epoch, "step": step, "loss": float(loss.detach()),
+                      "samples_per_s": st.n_samples / max(time.perf_counter() - t_epoch, 1e-9)})
+        if step % config.checkpoint_every_steps == 0:
+            _save_state(run.state_path, run.model, run.opt, {"epoch": epoch, "step": step}, config)
+    st.wall_s = time.perf_counter() - t_epoch
+    return st
+
+
+def _epoch_entry(epoch: int, config: TrainConfig, st: _EpochStats, val: dict | None, skip: int) -> dict:
+    """The epoch's line in log.json."""
+    n = max(st.n_samples, 1)
+    return {"epoch": epoch, "lr": epoch_lr(config, epoch), "train_loss": st.loss_sum / n,
+            "train_parts": {k: v / n for k, v in st.parts_sum.items()},
+            "train_samples": st.n_samples, "wall_s": st.wall_s,
+            "samples_per_s": st.n_samples / st.wall_s if st.wall_s > 0 else None,
+            "compute_samples_per_s": st.n_samples / st.compute_s if st.compute_s > 0 else None,
+            "val_loss": None if val is None else val["loss"],
+            "val_parts": None if val is None else {k: v for k, v in val.items() if k not in ("loss", "samples")},
+            "val_samples": 0 if val is None else val["samples"], "resumed_at_step": skip or None}
