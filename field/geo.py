@@ -366,9 +366,6 @@ def draw_grasp_map(pile: PileSpec, grasp: Grasp | None, path: str | Path, *,
     matplotlib.use("Agg", force=False)
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
-    from matplotlib.patches import Polygon as MplPolygon
-    from matplotlib.ticker import MultipleLocator, ScalarFormatter
-    from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
 
     g = _georef(pile)
 
@@ -380,6 +377,34 @@ def draw_grasp_map(pile: PileSpec, grasp: Grasp | None, path: str | Path, *,
     FigureCanvasAgg(fig)
     ax = fig.add_axes((0.10, 0.20, 0.62, 0.72))  # the map; compass and legend to its right
     ax.set_anchor("W")
+    _map_obstacles(ax, pile, tm)
+    _map_logs(ax, pile, tm, {int(t) for t in target_logs})
+    extent_pts = [np.asarray(a.get_xy()) for a in ax.patches[1:]]  # all but the scanned area
+    info = ""
+    if grasp is not None:
+        info, pts = _map_grasp(ax, pile, g, grasp, grasp_z_m, tm)
+        extent_pts += pts
+    centre = _map_frame(ax, np.concatenate(extent_pts))
+    _map_north_arrows(fig, ax, centre)
+    fig.legend(*ax.get_legend_handles_labels(), loc="upper left", bbox_to_anchor=(0.74, 0.62),
+               fontsize=8, frameon=True)
+    ax.set_title(title or f"Log pile — {len(pile.logs)} logs (heights ellipsoidal, GRS80)", fontsize=11)
+    if info:
+        fig.text(0.5, 0.035, info, ha="center", va="bottom", fontsize=9.5, family="monospace",
+                 bbox={"fc": "#fff4f4", "ec": "#c00000", "boxstyle": "round,pad=0.5"})
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi,
+                metadata={"Software": f"loggrasp field.geo {GEOJSON_VERSION}",
+                          "Description": "grasp map, SWEREF 99 TM (EPSG:3006)"})
+    path = Path(path)
+    atomic_write_bytes(path, buf.getvalue())
+    return path
+
+
+def _map_obstacles(ax, pile: PileSpec, tm) -> None:
+    """The scanned area's outline (the first patch), stumps and rocks."""
+    from matplotlib.patches import Polygon as MplPolygon
+
     half = pile.terrain.extent_m / 2
     patch = tm(np.array([[-half, -half, 0], [half, -half, 0], [half, half, 0], [-half, half, 0]]))
     ax.add_patch(MplPolygon(patch, closed=True, fill=False, ls="--", lw=0.8, ec="0.5",
@@ -390,7 +415,12 @@ def draw_grasp_map(pile: PileSpec, grasp: Grasp | None, path: str | Path, *,
     for i, r in enumerate(pile.rocks):
         ax.add_patch(MplPolygon(tm(_rock_outline(r)), closed=True, fc="0.55", ec="k", lw=0.6,
                                 label="stump / rock" if (i == 0 and not pile.stumps) else None))
-    targets = {int(t) for t in target_logs}
+
+
+def _map_logs(ax, pile: PileSpec, tm, targets: set[int]) -> None:
+    """Log outlines (lowest first, targets highlighted), axes and numbers near the butts."""
+    from matplotlib.patches import Polygon as MplPolygon
+
     label_done: set[str] = set()
     for i in sorted(range(len(pile.logs)), key=lambda j: pile.logs[j].centre_m[2]):  # low first
         log = pile.logs[i]
@@ -406,26 +436,33 @@ def draw_grasp_map(pile: PileSpec, grasp: Grasp | None, path: str | Path, *,
         tag = ends[0] + 0.12 * (ends[1] - ends[0])  # near the butt: labels of crossing logs part
         ax.text(tag[0], tag[1], str(i), ha="center", va="center", fontsize=8, weight="bold",
                 bbox={"boxstyle": "circle,pad=0.15", "fc": "white", "ec": "#6b4f1d", "lw": 0.6})
-    extent_pts = [np.asarray(a.get_xy()) for a in ax.patches[1:]]  # all but the scanned area
-    info = ""
-    if grasp is not None:
-        z = _grasp_z(pile, grasp, grasp_z_m)
-        geo = grasp_to_gnss(grasp, g, z)
-        rect = tm(np.column_stack([grasp.rectangle(RECT_WIDTH_M), np.full(4, z)]))
-        ax.add_patch(MplPolygon(rect, closed=True, fc=(0.85, 0.1, 0.1, 0.25), ec="#c00000", lw=2.0,
-                                label="grasp (claws close\nalong the long side)"))
-        c = np.array([grasp.x_m, grasp.y_m, z])
-        a = np.r_[grasp.closing_axis(), 0.0] * grasp.width_m / 2
-        tips = tm(np.stack([c - a, c + a]))  # the claw tips when open
-        ax.plot(tips[:, 0], tips[:, 1], color="#c00000", lw=1.2)
-        ax.plot(tips[:, 0], tips[:, 1], "v", color="#c00000", ms=6)
-        ax.plot([geo.easting_m], [geo.northing_m], "+", color="k", ms=14, mew=2, label="grasp point")
-        info = geo.summary()
-        extent_pts += [rect, tips]
-    # extent: the logs, obstacles and grasp with a margin (at least 3 m square); the scanned
-    # area's outline shows where it falls inside
-    allp = np.concatenate(extent_pts)
-    lo, hi = allp.min(axis=0), allp.max(axis=0)
+
+
+def _map_grasp(ax, pile: PileSpec, g, grasp: Grasp, grasp_z_m: float | None, tm) -> tuple[str, list[np.ndarray]]:
+    """The grasp rectangle, open claw tips and grasp point; (its numbers, the points drawn)."""
+    from matplotlib.patches import Polygon as MplPolygon
+
+    z = _grasp_z(pile, grasp, grasp_z_m)
+    geo = grasp_to_gnss(grasp, g, z)
+    rect = tm(np.column_stack([grasp.rectangle(RECT_WIDTH_M), np.full(4, z)]))
+    ax.add_patch(MplPolygon(rect, closed=True, fc=(0.85, 0.1, 0.1, 0.25), ec="#c00000", lw=2.0,
+                            label="grasp (claws close\nalong the long side)"))
+    c = np.array([grasp.x_m, grasp.y_m, z])
+    a = np.r_[grasp.closing_axis(), 0.0] * grasp.width_m / 2
+    tips = tm(np.stack([c - a, c + a]))  # the claw tips when open
+    ax.plot(tips[:, 0], tips[:, 1], color="#c00000", lw=1.2)
+    ax.plot(tips[:, 0], tips[:, 1], "v", color="#c00000", ms=6)
+    ax.plot([geo.easting_m], [geo.northing_m], "+", color="k", ms=14, mew=2, label="grasp point")
+    return geo.summary(), [rect, tips]
+
+
+def _map_frame(ax, points: np.ndarray) -> np.ndarray:
+    """Limits around ``points`` with a margin (at least 3 m square; the scanned area's outline
+    shows where it falls inside), metre ticks, labels and a 1 m scale bar; the map's centre."""
+    from matplotlib.ticker import MultipleLocator, ScalarFormatter
+    from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
+
+    lo, hi = points.min(axis=0), points.max(axis=0)
     centre = (lo + hi) / 2
     half_span = max(1.5, float(np.max(hi - lo)) / 2 + 0.6)
     lo, hi = centre - half_span, centre + half_span
@@ -445,7 +482,11 @@ def draw_grasp_map(pile: PileSpec, grasp: Grasp | None, path: str | Path, *,
     ax.set_ylabel("Northing [m], SWEREF 99 TM")
     ax.add_artist(AnchoredSizeBar(ax.transData, 1.0, "1 m", "lower left", pad=0.6, sep=4,
                                   frameon=True, size_vertical=0.04))
-    # north arrows: grid north is up; true north lies at grid bearing -convergence
+    return centre
+
+
+def _map_north_arrows(fig, ax, centre: np.ndarray) -> None:
+    """Grid north is up; true north lies at grid bearing -convergence at the map's centre."""
     lat_c, lon_c = geodesy.tm_to_geodetic(centre[0], centre[1])
     gamma = float(geodesy.meridian_convergence_deg(lat_c, lon_c))
     fig.text(0.86, 0.925, "North", ha="center", fontsize=10, weight="bold")
@@ -458,16 +499,3 @@ def draw_grasp_map(pile: PileSpec, grasp: Grasp | None, path: str | Path, *,
     ax.annotate(f"true\n({abs(gamma):.2f}° {side}\nof grid N)", xy=(0.91 + L * math.sin(b) * 8.6 / 10.0, 0.72 + L * math.cos(b)),
                 xytext=(0.91, 0.72), xycoords="figure fraction", ha="center", va="top", fontsize=8,
                 color="0.3", arrowprops={"arrowstyle": "-|>", "lw": 1.4, "color": "0.3"})
-    fig.legend(*ax.get_legend_handles_labels(), loc="upper left", bbox_to_anchor=(0.74, 0.62),
-               fontsize=8, frameon=True)
-    ax.set_title(title or f"Log pile — {len(pile.logs)} logs (heights ellipsoidal, GRS80)", fontsize=11)
-    if info:
-        fig.text(0.5, 0.035, info, ha="center", va="bottom", fontsize=9.5, family="monospace",
-                 bbox={"fc": "#fff4f4", "ec": "#c00000", "boxstyle": "round,pad=0.5"})
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=dpi,
-                metadata={"Software": f"loggrasp field.geo {GEOJSON_VERSION}",
-                          "Description": "grasp map, SWEREF 99 TM (EPSG:3006)"})
-    path = Path(path)
-    atomic_write_bytes(path, buf.getvalue())
-    return path

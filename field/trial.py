@@ -308,20 +308,32 @@ def prepare_trial(scan_dir: str | Path, gnss_path: str | Path, work_dir: str | P
     :class:`TrialAborted` (:class:`NotVerified` when no checked grasp succeeded in the twin and
     the operator named no plan rank). ``recorded_verification``: a replay's recorded verification
     (:func:`verify_trial_plan`)."""
-    from planner.checkpoint import DEFAULT_MODEL
-    from planner.constraints import Constraints
-    from planner.errors import PlannerError
-    from planner.inference import Objective, load_planner, plan
-    from reconstruct.errors import ReconstructError
-    from reconstruct.pipeline import ReconstructConfig, reconstruct
-    from synth.errors import SynthError
-    from synth.geodesy import sweref_tm_to_pile
-
-    from field.geo import draw_grasp_map, grasp_to_gnss, write_geojson_pair
+    from field.geo import grasp_to_gnss
 
     say = progress or (lambda s: None)
     scan_dir, gnss_path, work = Path(scan_dir), Path(gnss_path), Path(work_dir)
-    now = time.time() if now is None else now
+    captured, age = _check_age(scan_dir, gnss_path, options, time.time() if now is None else now)
+    planner = _load_trial_planner(options)  # first: a model that cannot load stops before the reconstruction
+    result = _reconstruct_for(planner, scan_dir, gnss_path, work, options, say)
+    pile, obs = result.pile, result.observation  # as written to reconstruction/ortho.npz, not read back
+    constraints = _constraints_for(pile, options)
+    the_plan = _plan_subsets(obs, planner, pile, constraints, options, say)
+    log_fits = [log.get("fit", "scan") for log in result.report.get("logs", [])]
+    best, verification = _choose_grasp(the_plan, pile, options, log_fits, recorded_verification, say)
+    z = float(pile.terrain.height_at(best.grasp.x_m, best.grasp.y_m))
+    geo = grasp_to_gnss(best.grasp, pile.georef, z)
+    command = GraspCommand.from_grasp_geo(1, geo, len(best.targets), captured)  # the id is the link's, at sending
+    command_fields = {k: v for k, v in asdict(command).items() if k != "command_id"}
+    _write_plan_outputs(work / "plan", obs, the_plan, pile, best, verification, constraints, options)
+    return PreparedTrial(pile=pile, plan=the_plan, geo=geo, command_fields=command_fields,
+                         captured_utc_s=captured, work_dir=work,
+                         report={"pile_age_s": age, "survey_warnings": list(result.report.get("survey_warnings", [])),
+                                 "log_fits": log_fits, "log_weak_ends": weak_ends_by_log(result.report)},
+                         verification=verification, chosen=best)
+
+
+def _check_age(scan_dir: Path, gnss_path: Path, options: TrialOptions, now: float) -> tuple[float, float]:
+    """(captured time, age) of the pile data [s]; refused over ``options.max_pile_age_s``."""
     captured = captured_time(scan_dir, gnss_path)
     age = now - captured
     if age > options.max_pile_age_s:
@@ -329,29 +341,54 @@ def prepare_trial(scan_dir: str | Path, gnss_path: str | Path, work_dir: str | P
                            f"{options.max_pile_age_s:.0f} s limit (--max-pile-age): scan the pile again before "
                            "grasping",
                            kind="refused")
-    try:  # first: a model that cannot load stops the trial before the reconstruction's work
-        planner = load_planner(options.model or DEFAULT_MODEL, views=options.views,
-                               view_spread_k=options.view_spread_k)
+    return captured, age
+
+
+def _load_trial_planner(options: TrialOptions):
+    from planner.checkpoint import DEFAULT_MODEL
+    from planner.errors import PlannerError
+    from planner.inference import load_planner
+
+    try:
+        return load_planner(options.model or DEFAULT_MODEL, views=options.views, view_spread_k=options.view_spread_k)
     except PlannerError as exc:
         raise TrialAborted(f"planning failed: {exc}", kind="input") from exc
+
+
+def _reconstruct_for(planner, scan_dir: Path, gnss_path: Path, work: Path, options: TrialOptions, say):
+    """The reconstruction, re-rendered at the network's pixel pitch, into ``work/reconstruction``."""
+    from reconstruct.errors import ReconstructError
+    from reconstruct.pipeline import ReconstructConfig, reconstruct
+    from synth.errors import SynthError
+
     say("reconstructing the pile from the scan and the RTK endpoints")
-    try:  # re-rendered at the network's pixel pitch
-        result = reconstruct(scan_dir, gnss_path, work / "reconstruction",
-                             ReconstructConfig(allow_float=options.allow_float, render_size_px=planner.config.size_px,
-                                               render_extent_m=planner.config.extent_m), progress=say)
+    try:
+        return reconstruct(scan_dir, gnss_path, work / "reconstruction",
+                           ReconstructConfig(allow_float=options.allow_float, render_size_px=planner.config.size_px,
+                                             render_extent_m=planner.config.extent_m), progress=say)
     except (ReconstructError, SynthError, ValueError) as exc:
         raise TrialAborted(f"reconstruction failed: {exc}", kind="input") from exc
-    pile = result.pile
-    obs = result.observation  # as written to reconstruction/ortho.npz, passed on without reading it back
 
-    constraints = Constraints(lift_capacity_kg=options.lift_capacity_kg, wood_density_kg_m3=options.wood_density_kg_m3)
-    if options.crane_base_tm is not None:
-        e, n, h = options.crane_base_tm
-        base_pile = np.asarray(sweref_tm_to_pile(pile.georef, e, n, h), dtype=float).reshape(3)
-        constraints = Constraints(crane_base_xy_m=(float(base_pile[0]), float(base_pile[1])),
-                                  min_reach_m=options.min_reach_m, max_reach_m=options.max_reach_m,
-                                  lift_capacity_kg=options.lift_capacity_kg,
-                                  wood_density_kg_m3=options.wood_density_kg_m3)
+
+def _constraints_for(pile, options: TrialOptions):
+    """Lift capacity, and the reach from the crane base when it is known."""
+    from planner.constraints import Constraints
+    from synth.geodesy import sweref_tm_to_pile
+
+    if options.crane_base_tm is None:
+        return Constraints(lift_capacity_kg=options.lift_capacity_kg, wood_density_kg_m3=options.wood_density_kg_m3)
+    e, n, h = options.crane_base_tm
+    base_pile = np.asarray(sweref_tm_to_pile(pile.georef, e, n, h), dtype=float).reshape(3)
+    return Constraints(crane_base_xy_m=(float(base_pile[0]), float(base_pile[1])),
+                       min_reach_m=options.min_reach_m, max_reach_m=options.max_reach_m,
+                       lift_capacity_kg=options.lift_capacity_kg, wood_density_kg_m3=options.wood_density_kg_m3)
+
+
+def _plan_subsets(obs, planner, pile, constraints, options: TrialOptions, say):
+    """Every target subset through the network; refused when no grasp satisfies the constraints."""
+    from planner.errors import PlannerError
+    from planner.inference import Objective, plan
+
     say("planning: every target subset through the network")
     try:
         the_plan = plan(obs, planner, Objective(kind=options.objective), constraints,
@@ -362,7 +399,12 @@ def prepare_trial(scan_dir: str | Path, gnss_path: str | Path, work_dir: str | P
         why = "; ".join(f"{r['targets']}: {r['constraint']}" for r in the_plan.rejected[:5])
         raise TrialAborted("no grasp satisfies the constraints (reach, lift capacity, keep-out)"
                            + (f": {why}" if why else ""), kind="refused")
-    log_fits = [log.get("fit", "scan") for log in result.report.get("logs", [])]
+    return the_plan
+
+
+def _choose_grasp(the_plan, pile, options: TrialOptions, log_fits, recorded_verification, say):
+    """(the grasp to send, the verification or None): the best that succeeded in the twin, else the
+    operator's named plan rank, else :class:`NotVerified`; the plan's best with verification off."""
     verification = None
     best = the_plan.best
     if options.verify_k:
@@ -380,15 +422,18 @@ def prepare_trial(scan_dir: str | Path, gnss_path: str | Path, work_dir: str | P
             raise TrialAborted(f"operator_rank {options.operator_rank}: the plan has only {len(the_plan.grasps)} "
                                "grasps", kind="input", verification=verification, plan=the_plan)
         best = the_plan.grasps[options.operator_rank - 1]
-    z = float(pile.terrain.height_at(best.grasp.x_m, best.grasp.y_m))
-    geo = grasp_to_gnss(best.grasp, pile.georef, z)
-    command = GraspCommand.from_grasp_geo(1, geo, len(best.targets), captured)  # the id is the link's, at sending
-    command_fields = {k: v for k, v in asdict(command).items() if k != "command_id"}
-    plan_dir = work / "plan"
-    plan_dir.mkdir(parents=True, exist_ok=True)
+    return best, verification
+
+
+def _write_plan_outputs(plan_dir: Path, obs, the_plan, pile, best, verification, constraints,
+                        options: TrialOptions) -> None:
+    """plan.json, the pictures, the GeoJSON pair and verification.json a person checks before sending."""
+    from field.geo import draw_grasp_map, write_geojson_pair
+    from planner.inference import Objective
     from planner.pictures import draw_plan
     from synth.common.files import atomic_write_bytes, dumps_json
 
+    plan_dir.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(plan_dir / "plan.json", the_plan.to_json().encode())
     draw_plan(obs, the_plan, plan_dir / "plan.png", pile=pile, objective=Objective(kind=options.objective),
               constraints=constraints)
@@ -396,11 +441,6 @@ def prepare_trial(scan_dir: str | Path, gnss_path: str | Path, work_dir: str | P
     draw_grasp_map(pile, best.grasp, plan_dir / "grasp_map.png", target_logs=best.targets)
     if verification is not None:
         atomic_write_bytes(plan_dir / "verification.json", dumps_json(verification.to_dict()).encode())
-    return PreparedTrial(pile=pile, plan=the_plan, geo=geo, command_fields=command_fields,
-                         captured_utc_s=captured, work_dir=work,
-                         report={"pile_age_s": age, "survey_warnings": list(result.report.get("survey_warnings", [])),
-                                 "log_fits": log_fits, "log_weak_ends": weak_ends_by_log(result.report)},
-                         verification=verification, chosen=best)
 
 
 def weak_ends_by_log(report: dict) -> list[list[str]]:
@@ -544,80 +584,128 @@ def run_trial_record(scan_dir: str | Path, gnss_path: str | Path, link_url: str,
     ``final_state`` ``NOT SENT`` and the reason, and raises :class:`TrialAborted` (Ctrl-C:
     ``KeyboardInterrupt``). ``confirm`` None means already confirmed (``--yes``); it may raise
     :class:`TrialAborted` (e.g. no answer)."""
-    from planner.checkpoint import DEFAULT_MODEL
-    from synth.common.files import atomic_write_bytes, json_safe
-
     say = progress or (lambda s: None)
     scan_dir, gnss_path, record_dir = Path(scan_dir), Path(gnss_path), Path(record_dir)
     if record_dir.exists():
         raise TrialAborted(f"trial record {record_dir} already exists; choose a new --record folder", kind="input")
     if probe:
         say(f"crane link {link_url}: controller {probe_link(link_url, options)}")
-    tmp = _stage_record(record_dir)
-    where = tmp  # the record's folder now (tmp until renamed)
-    outer_say = say
-    say = lambda text: outer_say(str(text).replace(str(tmp), str(record_dir)))  # noqa: E731 - where it will be
-    record: dict = {"format": RECORD_FORMAT, "format_version": RECORD_VERSION, "versions": _versions(),
-                    "started_utc_s": time.time(), "link": link_url, "options": asdict(options),
-                    "final_state": "PREPARING"}
-
-    def write(**changes) -> None:
-        record.update(changes)
-        atomic_write_bytes(where / "record.json", json.dumps(record, indent=1).encode())
-
-    def publish() -> None:
-        nonlocal where
-        os.replace(tmp, record_dir)
-        where = record_dir
-
+    rec = _TrialRecord(record_dir, _stage_record(record_dir), link_url, options)
+    say = rec.in_final_words(say)
     try:
-        inputs = tmp / "inputs"
+        rec.copy_inputs(scan_dir, gnss_path, say)
+        prepared = rec.prepare(options, say, now)
+        rec.confirm(prepared, confirm)
+        outcome = rec.send(prepared, link_url, options, say)
+        rec.finish(outcome)
+        return rec.record
+    except TrialAborted as exc:
+        rec.stopped(exc)
+        raise
+    except KeyboardInterrupt:
+        rec.interrupted()
+        raise
+    except BaseException as exc:
+        rec.failed(exc)
+        raise
+
+
+_STATES_BEFORE_SENDING = ("SENDING", "AWAITING CONFIRMATION", "CONFIRMED (--yes)")
+
+
+class _TrialRecord:
+    """A field trial's record while it runs: ``record.json`` rewritten atomically at each step, in
+    a temporary folder until the plan is ready (:meth:`publish`), then in ``record_dir``."""
+
+    def __init__(self, record_dir: Path, tmp: Path, link_url: str, options: TrialOptions) -> None:
+        self.record_dir, self.tmp, self.where = record_dir, tmp, tmp
+        self.record: dict = {"format": RECORD_FORMAT, "format_version": RECORD_VERSION, "versions": _versions(),
+                             "started_utc_s": time.time(), "link": link_url, "options": asdict(options),
+                             "final_state": "PREPARING"}
+
+    def in_final_words(self, say: Callable[[str], None]) -> Callable[[str], None]:
+        """``say`` with the temporary folder named as the record folder it becomes."""
+        return lambda text: say(str(text).replace(str(self.tmp), str(self.record_dir)))
+
+    def write(self, **changes) -> None:
+        from synth.common.files import atomic_write_bytes
+
+        self.record.update(changes)
+        atomic_write_bytes(self.where / "record.json", json.dumps(self.record, indent=1).encode())
+
+    def publish(self) -> None:
+        os.replace(self.tmp, self.record_dir)
+        self.where = self.record_dir
+
+    @property
+    def published(self) -> bool:
+        return self.where is not self.tmp
+
+    def copy_inputs(self, scan_dir: Path, gnss_path: Path, say: Callable[[str], None]) -> None:
+        """The scan and survey copied into the record, with their hashes and the model's."""
+        from planner.checkpoint import DEFAULT_MODEL
+
+        inputs = self.tmp / "inputs"
         say("copying the inputs into the record")
         shutil.copytree(scan_dir, inputs / "scan")
         shutil.copy2(gnss_path, inputs / "gnss.csv")
-        model = Path(options.model or DEFAULT_MODEL)
-        record["inputs"] = {"scan": str(scan_dir), "gnss": str(gnss_path),
-                            "hashes": {str(p.relative_to(inputs)): sha256_of(p)
-                                       for p in sorted(inputs.rglob("*")) if p.is_file()}}
-        record["model"] = {"path": str(model), "sha256": sha256_of(model) if model.exists() else None}
+        model = Path(self.record["options"]["model"] or DEFAULT_MODEL)
+        self.record["inputs"] = {"scan": str(scan_dir), "gnss": str(gnss_path),
+                                 "hashes": {str(p.relative_to(inputs)): sha256_of(p)
+                                            for p in sorted(inputs.rglob("*")) if p.is_file()}}
+        self.record["model"] = {"path": str(model), "sha256": sha256_of(model) if model.exists() else None}
+
+    def prepare(self, options: TrialOptions, say: Callable[[str], None], now: float | None) -> PreparedTrial:
+        """:func:`prepare_trial` on the copied inputs; its plan, verification and command recorded
+        and the record published. A trial stopped here is recorded NOT SENT (then re-raised)."""
+        from synth.common.files import json_safe
+
+        inputs = self.tmp / "inputs"
         try:
-            prepared = prepare_trial(inputs / "scan", inputs / "gnss.csv", tmp, options, progress=say, now=now)
+            prepared = prepare_trial(inputs / "scan", inputs / "gnss.csv", self.tmp, options, progress=say, now=now)
         except TrialAborted as exc:
             if exc.verification is not None:  # every trial the twin ran, and the plan they were of
-                record["verification"] = json_safe(exc.verification.to_dict())
+                self.record["verification"] = json_safe(exc.verification.to_dict())
             if exc.plan is not None:
-                record["plan"] = json.loads(exc.plan.to_json())
-            write(final_state="NOT SENT", reason=str(exc), stopped=exc.kind, finished_utc_s=time.time())
-            publish()
+                self.record["plan"] = json.loads(exc.plan.to_json())
+            self.write(final_state="NOT SENT", reason=str(exc), stopped=exc.kind, finished_utc_s=time.time())
+            self.publish()
             raise
-        record["plan"] = json.loads((tmp / "plan" / "plan.json").read_text())
-        record["verification"] = (None if prepared.verification is None
-                                  else json_safe(prepared.verification.to_dict()))
-        record["chosen_rank"] = prepared.chosen_rank
-        record["verified"] = prepared.verified
-        record["command"] = prepared.command_fields
-        record["geo"] = prepared.geo.to_dict()
-        record["pile_age_s"] = prepared.report.get("pile_age_s")
-        record["warnings"] = prepared.warnings()
-        write(final_state="AWAITING CONFIRMATION" if confirm is not None else "CONFIRMED (--yes)")
-        publish()
-        prepared.work_dir = record_dir
-        if confirm is not None:
-            try:
-                ok = confirm(prepared)
-            except TrialAborted as exc:
-                write(final_state="NOT SENT", reason=str(exc), stopped=exc.kind, finished_utc_s=time.time())
-                raise
-            if not ok:
-                write(final_state="NOT SENT", reason="the operator declined", stopped="declined",
-                      finished_utc_s=time.time())
-                raise TrialAborted("the operator declined: nothing was sent", kind="declined")
+        self.record.update({
+            "plan": json.loads(prepared.plan.to_json()),  # what plan/plan.json holds, not read back
+            "verification": None if prepared.verification is None else json_safe(prepared.verification.to_dict()),
+            "chosen_rank": prepared.chosen_rank, "verified": prepared.verified, "command": prepared.command_fields,
+            "geo": prepared.geo.to_dict(), "pile_age_s": prepared.report.get("pile_age_s"),
+            "warnings": prepared.warnings()})
+        return prepared
+
+    def confirm(self, prepared: PreparedTrial, confirm: Callable[[PreparedTrial], bool] | None) -> None:
+        """Publish the record, then ask the operator (None: confirmed already)."""
+        self.write(final_state="AWAITING CONFIRMATION" if confirm is not None else "CONFIRMED (--yes)")
+        self.publish()
+        prepared.work_dir = self.record_dir
+        if confirm is None:
+            return
+        try:
+            ok = confirm(prepared)
+        except TrialAborted as exc:
+            self.write(final_state="NOT SENT", reason=str(exc), stopped=exc.kind, finished_utc_s=time.time())
+            raise
+        if not ok:
+            self.write(final_state="NOT SENT", reason="the operator declined", stopped="declined",
+                       finished_utc_s=time.time())
+            raise TrialAborted("the operator declined: nothing was sent", kind="declined")
+
+    def send(self, prepared: PreparedTrial, link_url: str, options: TrialOptions,
+             say: Callable[[str], None]) -> TrialOutcome:
         traffic = None
         if link_url.startswith("can"):
-            (record_dir / "link").mkdir(exist_ok=True)
-            traffic = record_dir / "link" / "traffic.blf"
-        write(final_state="SENDING", confirmed_utc_s=time.time())
-        outcome = execute_trial(prepared, link_url, options, record_traffic=traffic, say=say)
+            (self.record_dir / "link").mkdir(exist_ok=True)
+            traffic = self.record_dir / "link" / "traffic.blf"
+        self.write(final_state="SENDING", confirmed_utc_s=time.time())
+        return execute_trial(prepared, link_url, options, record_traffic=traffic, say=say)
+
+    def finish(self, outcome: TrialOutcome) -> None:
         changes = {"command_id": outcome.command_id, "accepted": outcome.accepted,
                    "reject_reason": outcome.reject_reason, "outcome": outcome.outcome,
                    "final_state": outcome.final_state, "messages": outcome.messages,
@@ -625,37 +713,38 @@ def run_trial_record(scan_dir: str | Path, gnss_path: str | Path, link_url: str,
         if outcome.reject_reason:
             changes["reason"] = (f"the crane rejected the command ({outcome.reject_reason}): "
                                  + REJECT_EXPLANATIONS.get(outcome.reject_reason, "see the controller"))
-        write(**changes)
-        return record
-    except TrialAborted as exc:
-        if where is tmp:
-            shutil.rmtree(tmp, ignore_errors=True)
-        elif record.get("final_state") in ("SENDING", "AWAITING CONFIRMATION", "CONFIRMED (--yes)"):
-            write(final_state="NOT SENT", reason=str(exc), stopped=exc.kind, finished_utc_s=time.time())
-        raise
-    except KeyboardInterrupt:
-        state = record.get("final_state")
-        if where is tmp and "inputs" not in record:
-            shutil.rmtree(tmp, ignore_errors=True)  # nothing of the trial yet
-            raise
+        self.write(**changes)
+
+    # -- how a trial that stopped is recorded --------------------------------------------------
+    def stopped(self, exc: TrialAborted) -> None:
+        if not self.published:
+            shutil.rmtree(self.tmp, ignore_errors=True)
+        elif self.record.get("final_state") in _STATES_BEFORE_SENDING:
+            self.write(final_state="NOT SENT", reason=str(exc), stopped=exc.kind, finished_utc_s=time.time())
+
+    def interrupted(self) -> None:
+        state = self.record.get("final_state")
+        if not self.published and "inputs" not in self.record:
+            shutil.rmtree(self.tmp, ignore_errors=True)  # nothing of the trial yet
+            return
         sent = state == "SENDING"
-        write(final_state="INTERRUPTED" if sent else "NOT SENT", stopped="interrupted",
-              reason=("interrupted (Ctrl-C) after the command went to the crane: its outcome is unknown here, "
-                      "check the crane" if sent else f"interrupted (Ctrl-C) while {state.lower()}: nothing was sent"),
-              finished_utc_s=time.time())
-        if where is tmp:
-            publish()
-        raise
-    except BaseException as exc:
-        if where is tmp:
-            shutil.rmtree(tmp, ignore_errors=True)
-        elif record.get("final_state") == "SENDING":
-            write(final_state="UNKNOWN", reason=f"the trial stopped after sending ({type(exc).__name__}: {exc}); "
-                  "check the crane", finished_utc_s=time.time())
-        elif record.get("final_state") not in ("NOT SENT",) and "messages" not in record:
-            write(final_state="NOT SENT", reason=f"the trial stopped ({type(exc).__name__}: {exc})",
-                  finished_utc_s=time.time())
-        raise
+        self.write(final_state="INTERRUPTED" if sent else "NOT SENT", stopped="interrupted",
+                   reason=("interrupted (Ctrl-C) after the command went to the crane: its outcome is unknown here, "
+                           "check the crane" if sent else f"interrupted (Ctrl-C) while {state.lower()}: nothing was "
+                           "sent"),
+                   finished_utc_s=time.time())
+        if not self.published:
+            self.publish()
+
+    def failed(self, exc: BaseException) -> None:
+        if not self.published:
+            shutil.rmtree(self.tmp, ignore_errors=True)
+        elif self.record.get("final_state") == "SENDING":
+            self.write(final_state="UNKNOWN", reason=f"the trial stopped after sending ({type(exc).__name__}: {exc}); "
+                       "check the crane", finished_utc_s=time.time())
+        elif self.record.get("final_state") not in ("NOT SENT",) and "messages" not in self.record:
+            self.write(final_state="NOT SENT", reason=f"the trial stopped ({type(exc).__name__}: {exc})",
+                       finished_utc_s=time.time())
 
 
 class RecordError(FieldError):
