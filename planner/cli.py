@@ -247,34 +247,12 @@ def plan_command(
     """
     from rich.console import Console
 
-    from planner.inference import check_views, load_planner, plan
+    from planner.inference import load_planner, plan
 
     o = Output(as_json)
-    check_views(views, view_spread)
-    budget_s = check_verify_flags(verify, verify_budget)
-    if verify is None and verify_copies:
-        raise CliError("--verify-copies needs --verify K")
-    check_input(pile, "PILE")
     path = model or DEFAULT_MODEL
-    check_input(path, "--model", "file")
-    if png is not None:
-        check_output_file(png, "--png", ".png")
-    pile_json = pile if pile.suffix == ".json" else pile / "pile.json" if pile.is_dir() else pile.parent / "pile.json"
-    if verify is not None and not pile_json.is_file():
-        raise CliError(f"--verify needs the pile the plan is made on, and {pile} has no pile.json: give a pile "
-                       "folder with its pile.json, or the pile.json itself (in the field: the reconstruction's)")
-    if pile_json.is_file():
-        from synth.pile import read_pile
-
-        spec = read_pile(pile_json)  # a bad pile file stops the command before the network loads
-        if verify is not None:
-            from planner.verify import check_twin_loads
-
-            check_twin_loads(spec)
-    vcfg = None
-    if verify is not None:
-        vcfg = VerifyConfig(k=verify, time_budget_s=budget_s, workers=verify_workers,
-                            perturbation=PerturbationConfig(copies=verify_copies))
+    pile_json, spec, vcfg = _check_plan_flags(pile, path, png, views, view_spread, verify, verify_copies,
+                                              verify_budget, verify_workers)
     planner = load_planner(path, views=views, view_spread_k=view_spread)
     obs, spec = load_observation(pile, planner.config, warn=o.warn)
     obj = Objective(kind=objective)
@@ -288,15 +266,55 @@ def plan_command(
 
         o.progress(f"verifying: the twin tries the best {vcfg.k} grasps on {pile_json}"
                    + (f", each also on {verify_copies} perturbed copies" if verify_copies else "")
-                   + (f" ({budget_s:g} s)" if budget_s is not None else " (no time limit)"))
+                   + (f" ({vcfg.time_budget_s:g} s)" if vcfg.time_budget_s is not None else " (no time limit)"))
         try:
             verification = verify_plan(result, spec, obj, vcfg)
         except VerificationBudgetError as exc:
-            raise CliError(budget_message(exc, budget_s)) from exc
+            raise CliError(budget_message(exc, vcfg.time_budget_s)) from exc
     if png is not None:
         from planner.pictures import draw_plan
 
         draw_plan(obs, result, png, pile=spec, objective=obj, top=top)
+    _print_plan(o, pile, result, verification, objective, png)
+
+
+def _check_plan_flags(pile: Path, model: Path, png: Path | None, views: int, view_spread: float, verify: int | None,
+                      verify_copies: int, verify_budget: float | None, verify_workers: int):
+    """``plan``'s flags and files checked before the network loads: (pile.json path, its pile or
+    None, the verification config or None)."""
+    from planner.inference import check_views
+
+    check_views(views, view_spread)
+    budget_s = check_verify_flags(verify, verify_budget)
+    if verify is None and verify_copies:
+        raise CliError("--verify-copies needs --verify K")
+    check_input(pile, "PILE")
+    check_input(model, "--model", "file")
+    if png is not None:
+        check_output_file(png, "--png", ".png")
+    pile_json = pile if pile.suffix == ".json" else pile / "pile.json" if pile.is_dir() else pile.parent / "pile.json"
+    if verify is not None and not pile_json.is_file():
+        raise CliError(f"--verify needs the pile the plan is made on, and {pile} has no pile.json: give a pile "
+                       "folder with its pile.json, or the pile.json itself (in the field: the reconstruction's)")
+    spec = None
+    if pile_json.is_file():
+        from synth.pile import read_pile
+
+        spec = read_pile(pile_json)  # a bad pile file stops the command before the network loads
+        if verify is not None:
+            from planner.verify import check_twin_loads
+
+            check_twin_loads(spec)
+    vcfg = None
+    if verify is not None:
+        vcfg = VerifyConfig(k=verify, time_budget_s=budget_s, workers=verify_workers,
+                            perturbation=PerturbationConfig(copies=verify_copies))
+    return pile_json, spec, vcfg
+
+
+def _print_plan(o: Output, pile: Path, result, verification, objective: str, png: Path | None) -> None:
+    """The plan as JSON, its table, the constraints' removals and the verification's verdict
+    (exit 4 when no checked grasp succeeded)."""
     doc = {k: v for k, v in result.to_dict().items() if k != "info"} | {"pile": str(pile)}
     if verification is not None:
         doc["verification"] = verification.to_dict()
