@@ -71,6 +71,7 @@ VOLATILE = {
     ("eval/*", "plan_s"): "wall time", ("eval/*", "trial_s"): "wall time",
     ("dataset/*", "sha256"): "of a shard's zip, which holds its writing time",
     ("dataset/*", "worker"): "the worker's process id", ("dataset/*", "file"): "a shard's name holds the worker",
+    ("dataset/*", "bytes"): "a shard's size: its header holds the worker",
     **{("dataset/manifest.json", k): "worker time" for k in ("worker_s", "trial_worker_s", "worker_s_per_pile",
                                                                "trials_per_worker_s")},
 }
