@@ -75,9 +75,9 @@ def training_throughput(batch: int = 16, steps: int = 3, size: int = 128) -> lis
 
 
 def _pile_observations(n_logs: int, count: int, size: int = 128, seed0: int = 100):
-    from synth.generate import GenerationConfig, generate_pile
-    from synth.render import OrthoRenderConfig, render_ortho
-    from synth.world import World
+    from synth.scene.generate import GenerationConfig, generate_pile
+    from synth.render.ortho import OrthoRenderConfig, render_ortho
+    from synth.physics.world import World
 
     out = []
     for k in range(count):

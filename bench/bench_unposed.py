@@ -65,7 +65,7 @@ def measure(n_piles: int = 3, first_seed: int = 100, workdir: Path | None = None
     from reconstruct.errors import ReconstructError
     from reconstruct.pipeline import reconstruct
     from reconstruct.twin_scan import make_twin_scan
-    from synth.pile import read_pile
+    from synth.scene.pile import read_pile
 
     rows = {"posed": [], "unposed": []}
     failures = []

@@ -37,11 +37,11 @@ def main() -> None:
     from field.real_test import RealTestConfig, _execute
     from planner.checkpoint import DEFAULT_MODEL
     from planner.inference import Objective, load_planner, plan
-    from synth.generate import GenerationConfig, generate_pile
+    from synth.scene.generate import GenerationConfig, generate_pile
     from synth.common.files import atomic_write_bytes
-    from synth.pile import RockSpec, StumpSpec
-    from synth.render import OrthoRenderConfig, render_ortho
-    from synth.world import World
+    from synth.scene.pile import RockSpec, StumpSpec
+    from synth.render.ortho import OrthoRenderConfig, render_ortho
+    from synth.physics.world import World
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--piles", type=int, default=50)
@@ -101,7 +101,7 @@ def _qmul(a, b) -> tuple[float, float, float, float]:
 def turn90(pile):
     """The pile turned a quarter turn counter-clockwise about the pile frame's z axis (exact: the
     terrain grid turns with it; stump root azimuths too)."""
-    from synth.pile import quat_from_euler
+    from synth.scene.pile import quat_from_euler
 
     q = quat_from_euler(0, 0, math.pi / 2)
 

@@ -40,7 +40,7 @@ def T_turned_pile(pile, direction_deg: float) -> np.ndarray:
     """``T_turned_pile``: a turn about z and a shift putting the logs' mean direction at
     ``direction_deg`` and the centre of their end points' bounding box at the origin."""
     from reconstruct.pipeline import logs_direction
-    from synth.frames import make_T, rot_z
+    from synth.geometry.frames import make_T, rot_z
 
     ends = {i: lg.endpoints_m() for i, lg in enumerate(pile.logs)}
     R = rot_z(math.radians(direction_deg) - logs_direction(ends))
@@ -61,7 +61,7 @@ def _pile(seed: int, work_dir: str, objectives: tuple[str, ...], direction_deg: 
     from field.real_test import _execute, _render_truth, grasp_to_truth_frame
     from planner.inference import Objective, plan
     from reconstruct.compare import compare_piles
-    from synth.pile import read_pile
+    from synth.scene.pile import read_pile
 
     work = Path(work_dir)
     if not (work / f"recon_{seed}" / "report.json").exists():

@@ -43,7 +43,7 @@ _W: dict = {}
 def kept_seeds(work_dir: Path, min_logs: int = 1, max_logs: int = 1000) -> list[int]:
     """Seeds whose scan (and reconstruction or its error) the work folder keeps, with
     ``min_logs``..``max_logs`` logs."""
-    from synth.pile import read_pile
+    from synth.scene.pile import read_pile
 
     seeds = []
     for key in sorted(work_dir.glob("scan_*.key.json")):
@@ -76,7 +76,7 @@ def moved(pile, T_new_old: np.ndarray):
     terrain is resampled on the new frame's grid (bilinear), outside the old patch clamped."""
     from real_test_colours import _qmul  # this folder: a script's own folder is on sys.path
 
-    from synth.pile import LogSpec
+    from synth.scene.pile import LogSpec
 
     T = np.asarray(T_new_old, dtype=float)
     yaw = math.atan2(T[1, 0], T[0, 0])
@@ -110,8 +110,8 @@ def _decompose_pile(seed: int, work_dir: str) -> dict | None:
     from field.real_test import _execute, _render_truth, grasp_to_truth_frame
     from planner.inference import Objective, plan
     from reconstruct.compare import _T_truth_recon, compare_piles
-    from synth.pile import LogSpec, read_pile
-    from synth.render import OrthoObservation
+    from synth.scene.pile import LogSpec, read_pile
+    from synth.render.ortho import OrthoObservation
 
     work = Path(work_dir)
     if not (work / f"recon_{seed}" / "report.json").exists():

@@ -315,8 +315,8 @@ def prepare_trial(scan_dir: str | Path, gnss_path: str | Path, work_dir: str | P
     from reconstruct.errors import ReconstructError
     from reconstruct.pipeline import ReconstructConfig, reconstruct
     from synth.errors import SynthError
-    from synth.geodesy import sweref_tm_to_pile
-    from synth.render import OrthoObservation
+    from synth.geometry.geodesy import sweref_tm_to_pile
+    from synth.render.ortho import OrthoObservation
 
     from field.geo import draw_grasp_map, grasp_to_gnss, write_geojson_pair
 

@@ -31,7 +31,7 @@ from typing import Callable
 
 import numpy as np
 
-from synth.grasp import MAX_WIDTH_M, MIN_WIDTH_M, Grasp
+from synth.geometry.grasp import MAX_WIDTH_M, MIN_WIDTH_M, Grasp
 
 EVAL_FORMAT_VERSION = "1.0"
 PlanFn = Callable[[object, object], "tuple[Grasp, tuple[int, ...]] | None"]
@@ -171,8 +171,8 @@ def geometric_planner(max_subset: int = 7, margin_m: float = 0.12, claw_m: float
 def oracle_planner(trial_preset: str = "fast", max_trials: int = 40) -> PlanFn:
     """Ground-truth candidates verified in simulation: largest subsets first, the first subset with a
     successful candidate wins (best balance among its successes). An upper bound, not a planner."""
-    from synth.candidates import generate_candidates
-    from synth.trial import TrialConfig, run_trial
+    from synth.data.candidates import generate_candidates
+    from synth.physics.trial import TrialConfig, run_trial
 
     cfg = TrialConfig.fast() if trial_preset == "fast" else TrialConfig.careful()
 
@@ -224,10 +224,10 @@ def verified_planner(plan_all: Callable[[object, object], object], objective: st
     :func:`planner.verify.perturb_pile` with the default sigmas, seeded by the pile's seed) and, with
     ``copies``, on that many perturbed copies of it; the chosen grasp, or None (declined) when none
     succeeded. Sequential and without a time budget, so that the evaluation is repeatable.
-    ``trial_fn``: the twin trial (default :func:`synth.trial.run_trial`)."""
+    ``trial_fn``: the twin trial (default :func:`synth.physics.trial.run_trial`)."""
     from planner.inference import Objective
     from planner.verify import PerturbationConfig, Verifier, VerifyConfig, perturb_pile
-    from synth.trial import TrialConfig
+    from synth.physics.trial import TrialConfig
 
     obj = Objective(kind=objective)
     trial = TrialConfig.fast() if trial_preset == "fast" else TrialConfig.careful()
@@ -288,7 +288,7 @@ class Record:
     obstacles: bool
     k: int
     seed: int
-    outcome: str  # synth.trial.Outcome value, or "no_grasp"
+    outcome: str  # synth.physics.trial.Outcome value, or "no_grasp"
     targets: list[int] = field(default_factory=list)
     grasped: list[int] = field(default_factory=list)
     cos_beta: float = float("nan")
@@ -300,10 +300,10 @@ class Record:
 def evaluate_pile(task: tuple[int, bool, int, int], specs: list[PlannerSpec], cfg: EvalConfig,
                   planners: dict[str, PlanFn] | None = None) -> list[dict]:
     """Generate test pile ``task``, let every planner choose one grasp, try each in the twin."""
-    from synth.generate import GenerationConfig, generate_pile
-    from synth.render import OrthoRenderConfig, render_ortho
-    from synth.trial import TrialConfig, run_trial
-    from synth.world import World
+    from synth.scene.generate import GenerationConfig, generate_pile
+    from synth.render.ortho import OrthoRenderConfig, render_ortho
+    from synth.physics.trial import TrialConfig, run_trial
+    from synth.physics.world import World
 
     n_logs, with_obst, k, seed = task
     rng = np.random.default_rng([seed, 77])

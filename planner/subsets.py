@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from synth.grasp import MAX_WIDTH_M, RECT_WIDTH_M
+from synth.geometry.grasp import MAX_WIDTH_M, RECT_WIDTH_M
 
 
 @dataclass(frozen=True)

@@ -7,7 +7,7 @@
 
 ``record DIR`` writes into DIR (which must not exist):
 
-* ``trials.json``: :func:`synth.trial.run_trial` on ~50 fixed (pile, grasp) pairs: from
+* ``trials.json``: :func:`synth.physics.trial.run_trial` on ~50 fixed (pile, grasp) pairs: from
   the first chunks of the committed grasp store (``--store``, default data/paper-v3), the first
   few stored trials of each outcome class, at most two from one pile, the first three also with
   ``careful``; on a hand-built one-log pile, a full trial with ``fast`` and ``careful``, a count
@@ -51,10 +51,10 @@ from pathlib import Path
 
 import numpy as np
 
-from synth.datastore import chunk_path, open_store, read_chunk
-from synth.trial import TRIAL_REVISION, TrialConfig, run_trial
-from synth.grasp import Grasp
-from synth.pile import LogSpec, PileSpec, TerrainSpec, quat_from_x_axis
+from synth.data.datastore import chunk_path, open_store, read_chunk
+from synth.physics.trial import TRIAL_REVISION, TrialConfig, run_trial
+from synth.geometry.grasp import Grasp
+from synth.scene.pile import LogSpec, PileSpec, TerrainSpec, quat_from_x_axis
 
 ROOT = Path(__file__).resolve().parents[1]
 CHUNKS = range(4)  # first chunks of the store to draw from

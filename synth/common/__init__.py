@@ -6,8 +6,10 @@
 :mod:`.ranges`         :func:`parse_range`: ``'A-B'`` / ``'A'`` command-line ranges
 :mod:`.processes`      :func:`exit_with_parent`: worker processes that die with their parent
 :mod:`.errors`         :class:`LoggraspError`, the root of every package's error tree
+:mod:`.cli`            what every package's command module shares (flags, errors as one line, output);
+                       only command modules import it
 =====================  ===========================================================================
 
-Only the standard library and numpy are imported here (no pybullet, torch or typer), so every
-package, CLI and worker can use these cheaply.
+Only the standard library and numpy are imported here (no pybullet, torch; typer only in
+:mod:`.cli`), so every package, CLI and worker can use these cheaply.
 """
