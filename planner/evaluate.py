@@ -339,9 +339,8 @@ def run_evaluation(specs: list[PlannerSpec], cfg: EvalConfig, out_dir: str | Pat
                    progress: Callable[[int, int], None] | None = None) -> dict:
     """Evaluate every planner on the same fresh piles; resumable (records per pile are appended
     to ``records/`` one file per pile, atomically); writes tables (Markdown + JSON) and a figure."""
-    import os
-
     from synth.common.files import atomic_write_bytes, dumps_json
+    from synth.common.runner import run_tasks
 
     if not specs:
         raise ValueError("no planner to evaluate")
@@ -393,37 +392,8 @@ def run_evaluation(specs: list[PlannerSpec], cfg: EvalConfig, out_dir: str | Pat
         if progress:
             progress(done, len(tasks))
 
-    workers = workers or os.cpu_count() or 1
-    if engine == "dask":
-        from dask.distributed import Client, LocalCluster, as_completed as dask_completed
-
-        cluster = None
-        if address is None:
-            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, host="127.0.0.1",
-                                   dashboard_address=None, processes=True)
-        client = Client(address or cluster)
-        try:
-            futs = {client.submit(evaluate_pile, t, sp, cfg, pure=False): t for t, sp in todo}
-            for f in dask_completed(futs):
-                finish(futs[f], f.result())
-        finally:
-            client.close()
-            if cluster is not None:
-                cluster.close()
-    elif workers == 1 or len(todo) <= 1:
-        for t, sp in todo:
-            finish(t, evaluate_pile(t, sp, cfg))
-    else:
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor, as_completed
-
-        from synth.common.processes import exit_with_parent
-
-        with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
-                                 initializer=exit_with_parent) as pool:
-            futs = {pool.submit(evaluate_pile, t, sp, cfg): t for t, sp in todo}
-            for f in as_completed(futs):
-                finish(futs[f], f.result())
+    run_tasks(evaluate_pile, {t: (t, missing, cfg) for t, missing in todo}, finish, workers=workers, engine=engine,
+              address=address)
 
     records = [r for t in tasks for r in _read_records(rec_dir / f"{t[3]}.json")]
     tables = summarise(records, cfg, names)

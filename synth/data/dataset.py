@@ -42,7 +42,7 @@ from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 
-from synth.common.files import atomic_write_bytes, sha256_file
+from synth.common.files import atomic_write_bytes, make_writable_dir, sha256_file
 from synth.common.formats import VersionedJson, major
 from synth.errors import SynthError
 from synth.geometry.grasp import Grasp
@@ -728,10 +728,7 @@ def summarise(shards: Sequence[ShardInfo]) -> dict:
 def _prepare(out: Path, job: DatasetJob) -> dict[int, ShardInfo]:
     """Check/record the job's parameters, drop partial shards, return the complete ones by chunk."""
     try:
-        out.mkdir(parents=True, exist_ok=True)
-        probe = out / f".write-test-{os.getpid()}"
-        probe.write_bytes(b"")
-        probe.unlink()
+        make_writable_dir(out)
     except OSError as exc:
         raise DatasetJobError(f"cannot write to output folder {out}: {exc.strerror or exc}; choose another folder") from exc
     params = job.params()
@@ -811,10 +808,9 @@ def build_dataset(out_dir: str | Path, n_piles: int, n_logs: int = 4, obstacles_
     """
     import time
 
-    if engine not in ("local", "dask"):
-        raise ValueError(f"engine must be 'local' or 'dask', got {engine!r}")
-    if not isinstance(workers, int) or workers < 0:
-        raise ValueError(f"workers must be a whole number >= 0 (0 = all cores), got {workers!r}")
+    from synth.common.runner import check_engine, pending, run_tasks
+
+    check_engine(engine, workers)
     if piles_dir is not None:
         pdir = Path(piles_dir)
         if not pdir.is_dir():
@@ -833,13 +829,12 @@ def build_dataset(out_dir: str | Path, n_piles: int, n_logs: int = 4, obstacles_
         write_manifest(out, _manifest_for(job, done))
     except OSError as exc:
         raise DatasetJobError(f"cannot write the manifest in {out}: {exc.strerror or exc}") from exc
-    todo = [c for c in range(job.n_chunks) if c not in done]
+    todo = pending(range(job.n_chunks), done)
     done = {c: s for c, s in done.items() if c < job.n_chunks}
-    workers = workers or os.cpu_count() or 1
     t0 = time.perf_counter()
     run_trials = 0
 
-    def finished(record: dict) -> None:
+    def finished(chunk: int, record: dict) -> None:
         nonlocal run_trials
         info = ShardInfo.from_dict(record)
         done[info.chunk] = info
@@ -851,15 +846,9 @@ def build_dataset(out_dir: str | Path, n_piles: int, n_logs: int = 4, obstacles_
                                  samples=sum(s.n_samples for s in done.values()), trials=run_trials,
                                  trials_per_s=run_trials / el if el > 0 else 0.0, elapsed_s=el))
 
-    args = (str(out), job.to_dict())
+    tasks = {c: (str(out), job.to_dict(), c, None, simulate_factory) for c in todo}
     try:
-        if engine == "dask":
-            _run_dask(todo, args, workers, address, finished, simulate_factory)
-        elif workers == 1 or len(todo) <= 1:
-            for c in todo:
-                finished(build_chunk(*args, c, simulate_factory=simulate_factory))
-        else:
-            _run_pool(todo, args, workers, finished, simulate_factory)
+        run_tasks(build_chunk, tasks, finished, workers=workers, engine=engine, address=address)
     except DatasetJobError:
         raise
     except OSError as exc:
@@ -876,46 +865,3 @@ def build_dataset(out_dir: str | Path, n_piles: int, n_logs: int = 4, obstacles_
             ) from exc
         raise
     return read_manifest(out)
-
-
-def _run_pool(todo, args, workers, finished, simulate_factory) -> None:
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-
-    from synth.common.processes import exit_with_parent
-
-    with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
-                             initializer=exit_with_parent) as pool:
-        futures = [pool.submit(build_chunk, *args, c, None, simulate_factory) for c in todo]
-        try:
-            for f in as_completed(futures):
-                finished(f.result())
-        except BaseException:
-            for f in futures:
-                f.cancel()
-            raise
-
-
-def _run_dask(todo, args, workers, address, finished, simulate_factory) -> None:
-    from distributed import Client, LocalCluster, as_completed
-
-    cluster = None
-    if address is None:
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                               dashboard_address=None)
-        client = Client(cluster)
-    else:
-        client = Client(address)
-    try:
-        futures = [client.submit(build_chunk, *args, c, None, simulate_factory, pure=False, retries=0)
-                   for c in todo]
-        try:
-            for f in as_completed(futures):
-                finished(f.result())
-        except BaseException:
-            client.cancel(futures)
-            raise
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()

@@ -26,7 +26,6 @@ from __future__ import annotations
 import gzip
 import hashlib
 import json
-import os
 import re
 import time
 from pathlib import Path
@@ -37,6 +36,7 @@ from synth.data.dataset import (DatasetFormatError, DatasetIntegrityError, Datas
                            new_chunk_stats, read_manifest, simulate_subsets, summarise, write_manifest)
 from synth.common.files import atomic_write_bytes
 from synth.common.formats import VersionedJson
+from synth.common.runner import pending, run_tasks
 from synth.scene.pile import PileSpec
 
 STORE_FORMAT_NAME = "loggrasp.grasp_store"
@@ -249,10 +249,10 @@ def build_store(store_dir: str | Path, job: DatasetJob, workers: int = 1,
     for tmp in (store_dir / CHUNK_DIR).glob(".chunk_*.tmp"):
         tmp.unlink(missing_ok=True)
     _write_store(store_dir, job, done)
-    todo = [c for c in range(job.n_chunks) if c not in done]
+    todo = pending(range(job.n_chunks), done)
     t0, trials = time.perf_counter(), 0
 
-    def finished(entry: dict) -> None:
+    def finished(chunk: int, entry: dict) -> None:
         nonlocal trials
         done[entry["chunk"]] = entry
         trials += int(entry["stats"].get("trials", 0))
@@ -262,21 +262,8 @@ def build_store(store_dir: str | Path, job: DatasetJob, workers: int = 1,
             progress(JobProgress(chunks_done=len(done), chunks_total=job.n_chunks, samples=0, trials=trials,
                                  trials_per_s=trials / el if el > 0 else 0.0, elapsed_s=el))
 
-    args = (str(store_dir), job.to_dict())
-    if workers <= 1 or len(todo) <= 1:
-        for c in todo:
-            finished(store_chunk(*args, c, simulate_factory))
-    else:
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor, as_completed
-
-        from synth.common.processes import exit_with_parent
-
-        with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
-                                 initializer=exit_with_parent) as pool:
-            futures = [pool.submit(store_chunk, *args, c, simulate_factory) for c in todo]
-            for f in as_completed(futures):
-                finished(f.result())
+    tasks = {c: (str(store_dir), job.to_dict(), c, simulate_factory) for c in todo}
+    run_tasks(store_chunk, tasks, finished, workers=max(1, workers))  # 0 here: in this process
     return read_store(store_dir)
 
 

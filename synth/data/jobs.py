@@ -17,15 +17,14 @@ from __future__ import annotations
 import json
 import os
 import shutil
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
-from synth.common.files import atomic_write_bytes
-from synth.common.processes import exit_with_parent
+from synth.common.files import atomic_write_bytes, make_writable_dir
+from synth.common.runner import run_tasks
 from synth.errors import OutputError
 
 JOB_FORMAT_VERSION = "1.0"
@@ -104,10 +103,7 @@ def build_one(out: str, job: PileJob, k: int) -> dict:
 
 def _check_out_dir(out: Path, job: PileJob) -> None:
     try:
-        out.mkdir(parents=True, exist_ok=True)
-        probe = out / f".write-test-{os.getpid()}"
-        probe.write_bytes(b"")
-        probe.unlink()
+        make_writable_dir(out)
     except OSError as exc:
         raise OutputError(f"cannot write to output folder {out}: {exc.strerror or exc}; choose another --out") from exc
     meta = out / "job.json"
@@ -141,27 +137,15 @@ def run_pile_job(out: str | Path, job: PileJob, workers: int = 0,
     done = job.count - len(todo)
     if progress:
         progress(done, job.count)
-    workers = workers or os.cpu_count() or 1
     stats = {"generated": 0, "skipped": done, "attempts": 0}
-    if workers == 1 or len(todo) <= 1:
-        for k in todo:
-            r = build_one(str(out), job, k)
-            stats["generated"] += 1
-            stats["attempts"] += r.get("attempts", 0)
-            done += 1
-            if progress:
-                progress(done, job.count)
-        return stats
-    import multiprocessing as mp
 
-    with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
-                             initializer=exit_with_parent) as pool:
-        futures = [pool.submit(build_one, str(out), job, k) for k in todo]
-        for f in as_completed(futures):
-            r = f.result()
-            stats["generated"] += 1
-            stats["attempts"] += r.get("attempts", 0)
-            done += 1
-            if progress:
-                progress(done, job.count)
+    def finished(k: int, r: dict) -> None:
+        nonlocal done
+        stats["generated"] += 1
+        stats["attempts"] += r.get("attempts", 0)
+        done += 1
+        if progress:
+            progress(done, job.count)
+
+    run_tasks(build_one, {k: (str(out), job, k) for k in todo}, finished, workers=workers)
     return stats

@@ -150,8 +150,7 @@ def test_users_of_the_writer_keep_the_old_file_when_interrupted(tmp_path, user):
 ALLOWED_DIRECT_WRITES: dict[tuple[str, str], tuple[Counter, str]] = {
     ("synth/common/files.py", "atomic_write_bytes"): (Counter({"fdopen('wb')": 1}), "the atomic writer itself"),
     ("synth/physics/meshes.py", "_write_cached"): (Counter({"fdopen('w')": 1}), "own temp file + os.replace in the mesh cache"),
-    ("synth/data/dataset.py", "_prepare"): (Counter({"write_bytes": 1}), "an empty write probe, deleted at once"),
-    ("synth/data/jobs.py", "_check_out_dir"): (Counter({"write_bytes": 1}), "an empty write probe, deleted at once"),
+    ("synth/common/files.py", "make_writable_dir"): (Counter({"write_bytes": 1}), "an empty write probe, deleted at once"),
     ("synth/render/stereo.py", "StereoPair.save"): (
         Counter({"write_bytes": 1, "open('wb')": 1, "np.savez_compressed": 1, "write_text": 1}),
         "files of a fresh temporary folder that is renamed into place"),
