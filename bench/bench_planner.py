@@ -17,14 +17,12 @@ from __future__ import annotations
 
 import os
 import statistics
-import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from planner.checkpoint import DEFAULT_MODEL
 
-from planner.checkpoint import DEFAULT_MODEL  # noqa: E402  (after the sys.path line above)
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def _load() -> str:

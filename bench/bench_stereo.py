@@ -12,15 +12,12 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from synth.render.stereo import (  # noqa: E402
+from synth.render.stereo import (
     SGBMConfig,
     StereoRenderer,
     StereoRigConfig,

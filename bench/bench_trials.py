@@ -15,7 +15,6 @@ import argparse
 import itertools
 import math
 import os
-import sys
 import time
 from collections import Counter
 from concurrent.futures import ProcessPoolExecutor
@@ -24,11 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from synth.geometry.grasp import MAX_WIDTH_M, MIN_WIDTH_M, Grasp  # noqa: E402
-from synth.scene.pile import PileSpec  # noqa: E402
-from synth.physics.trial import TrialConfig, run_trial  # noqa: E402
+from synth.geometry.grasp import MAX_WIDTH_M, MIN_WIDTH_M, Grasp
+from synth.scene.pile import PileSpec
+from synth.physics.trial import TrialConfig, run_trial
 
 
 def geometric_grasp(pile: PileSpec, targets: tuple[int, ...], margin_m: float, shift_m: float = 0.0,

@@ -132,7 +132,7 @@ def _angle_diff_deg(a: float, b: float) -> float:
 
 
 # -- one pile ----------------------------------------------------------------------------------
-def _render_truth(truth: Any, size_px: int) -> Any:
+def render_truth(truth: Any, size_px: int) -> Any:
     """The true pile's orthographic render with the reconstruction's render settings."""
     from synth.render.ortho import OrthoRenderConfig, render_ortho
     from synth.physics.world import World
@@ -149,9 +149,6 @@ def execute_on_truth(truth: Any, grasp: Any, targets: tuple[int, ...]) -> dict:
     res = run_trial(truth, grasp, targets, TrialConfig.fast())
     return {"success": res.success, "outcome": res.outcome.value, "grasped": list(res.grasped),
             "cos_beta": res.cos_beta, "cpu_s": res.cpu_time_s}
-
-
-_execute = execute_on_truth  # the name the diagnostics in bench/ use
 
 
 @dataclass
@@ -254,7 +251,7 @@ def prepare_case(seed: int, work_dir: str | Path, planner_config: Any, cfg: Real
         cmp = compare_piles(truth, recon, render=False)
         match = {e["recon_index"]: e["truth_index"] for e in cmp["logs"]}
     c0 = time.process_time()
-    obs_t = _render_truth(truth, planner_config.size_px)
+    obs_t = render_truth(truth, planner_config.size_px)
     cpu["render_s"] = time.process_time() - c0
     return RealTestCase(seed, truth, obs_t, recon, obs_r, report, match, recon_error, cpu)
 
@@ -323,7 +320,8 @@ def _execute_row(truth: Any, grasp: Any, targets) -> dict:
 _WORKER: dict = {}
 
 
-def _model_path(cfg: RealTestConfig) -> Path:
+def model_path(cfg: RealTestConfig) -> Path:
+    """The checkpoint the real test plans with: its own, or the shipped default."""
     from planner.checkpoint import DEFAULT_MODEL
 
     return Path(cfg.model or DEFAULT_MODEL)
@@ -382,7 +380,7 @@ def run_real_test(cfg: RealTestConfig | None = None, work_dir: str | Path | None
 
     cfg = cfg or RealTestConfig()
     say = progress or (lambda s: None)
-    model = _model_path(cfg)
+    model = model_path(cfg)
     if not model.exists():
         raise FieldError(f"planner model {model} not found; pass --model PATH to a checkpoint")
     model_sha = sha256_file(model)

@@ -31,7 +31,7 @@ import numpy as np
 from synth.scene.pile import Georeference, LogSpec, PileSpec
 
 
-def _T_truth_recon(truth: PileSpec, recon: PileSpec) -> tuple[np.ndarray | None, str]:
+def T_truth_recon(truth: PileSpec, recon: PileSpec) -> tuple[np.ndarray | None, str]:
     """Transform taking recon-pile points to truth-pile points (None: identity) and how."""
     if truth.georef is None or recon.georef is None:
         return None, "same frame assumed (a pile has no georeference)"
@@ -47,7 +47,7 @@ def _T_truth_recon(truth: PileSpec, recon: PileSpec) -> tuple[np.ndarray | None,
 def _to_truth(points: np.ndarray, truth: PileSpec, recon: PileSpec) -> np.ndarray:
     from synth.geometry import geodesy
 
-    T, how = _T_truth_recon(truth, recon)
+    T, how = T_truth_recon(truth, recon)
     p = np.atleast_2d(np.asarray(points, dtype=np.float64))
     if T is not None:
         return p @ T[:3, :3].T + T[:3, 3]
@@ -115,7 +115,7 @@ def compare_piles(truth: PileSpec, recon: PileSpec, size_px: int = 128, render: 
 
     if not 16 <= size_px <= 2048:
         raise ValueError(f"size_px must be in [16, 2048], got {size_px}")
-    _, how = _T_truth_recon(truth, recon)
+    _, how = T_truth_recon(truth, recon)
     rlogs = _logs_in_truth_frame(truth, recon)
     n_t, n_r = truth.n_logs, len(rlogs)
     cost = np.zeros((n_t, n_r))

@@ -126,6 +126,40 @@ def test_stage_checker_sees_violations(tmp_path):
     assert synth_parts(bad) >= {"scene", "physics"}
 
 
+#: experiment scripts that still edit sys.path, each with its reason
+SYS_PATH_EDITS = {
+    "bench/bench_reconstruct.py": "its sys.path line goes when the recon branch (which rewrites this file) is merged",
+}
+
+
+def experiment_scripts() -> list[Path]:
+    return sorted([*(ROOT / "bench").glob("*.py"), *(ROOT / "scripts").glob("*.py")])
+
+
+def private_imports(path: Path) -> list[str]:
+    """The ``_private`` names ``path`` imports from loggrasp's packages."""
+    tree = ast.parse(path.read_text(), filename=str(path))
+    return [f"{node.module}.{a.name}" for node in ast.walk(tree)
+            if isinstance(node, ast.ImportFrom) and node.module and node.module.split(".")[0] in PACKAGES
+            for a in node.names if a.name.startswith("_")]
+
+
+def test_experiments_use_the_installed_packages_public_functions():
+    """bench/ and scripts/ are thin calls over the packages: no sys.path edits (the package is
+    installed), no private names (what they need is public)."""
+    edits = [str(f.relative_to(ROOT)) for f in experiment_scripts()
+             if "sys.path.insert" in f.read_text() or "sys.path.append" in f.read_text()]
+    assert sorted(set(edits) - set(SYS_PATH_EDITS)) == [], f"{edits} edit sys.path"
+    private = {str(f.relative_to(ROOT)): private_imports(f) for f in experiment_scripts()}
+    assert not {f: p for f, p in private.items() if p}, f"experiments import private names: {private}"
+
+
+def test_private_import_checker_sees_violations(tmp_path):
+    bad = tmp_path / "m.py"
+    bad.write_text("from field.real_test import _execute, summarize\nfrom os import _exit\n")
+    assert private_imports(bad) == ["field.real_test._execute"]
+
+
 #: library files that still read ``format_version`` by hand, each with its reason; every other
 #: versioned JSON file is read through synth.common.formats.VersionedJson
 HAND_VERSION_READS = {

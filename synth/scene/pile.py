@@ -398,6 +398,14 @@ def quat_to_matrix(q: Quat) -> np.ndarray:
     )
 
 
+def quat_multiply(a: Quat, b: Quat) -> Quat:
+    """The rotation ``b`` then ``a`` (Hamilton product ``a * b``)."""
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return (aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz)
+
+
 def rotate(q: Quat, v: Any) -> np.ndarray:
     return quat_to_matrix(q) @ np.asarray(v, dtype=float)
 
