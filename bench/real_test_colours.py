@@ -76,7 +76,8 @@ def main() -> None:
                 g = best.grasp
                 if name == "turned":  # back to the truth's frame: (x, y) -> (y, -x), phi - 90 deg
                     g = replace(g, x_m=g.y_m, y_m=-g.x_m, phi_rad=(g.phi_rad % math.pi) - math.pi / 2)
-                row[name] = {"targets": sorted(best.targets), "grasp": g.to_dict(), **execute_on_truth(pile, g, best.targets)}
+                row[name] = {"targets": sorted(best.targets), "grasp": g.to_dict(),
+                             **execute_on_truth(pile, g, best.targets)}
             rows.append(row)
         print(f"pile {seed} done", file=sys.stderr, flush=True)
     a.out.parent.mkdir(parents=True, exist_ok=True)

@@ -77,9 +77,11 @@ def _pile(seed: int, work_dir: str, objectives: tuple[str, ...], direction_deg: 
         best_t = plan(obs_t, WORKER["planner"], Objective(kind=kind), top_k=1, pile=t_turned).best
         best_r = plan(obs_r, WORKER["planner"], Objective(kind=kind), top_k=1, pile=r_turned).best
         targets_r = [match.get(i) for i in best_r.targets]
-        ok_t = execute_on_truth(truth, grasp_to_truth_frame(best_t.grasp, t_turned, truth), tuple(best_t.targets))["success"]
+        back_t = grasp_to_truth_frame(best_t.grasp, t_turned, truth)
+        ok_t = execute_on_truth(truth, back_t, tuple(best_t.targets))["success"]
         ok_r = (None not in targets_r
-                and execute_on_truth(truth, grasp_to_truth_frame(best_r.grasp, r_turned, truth), tuple(targets_r))["success"])
+                and execute_on_truth(truth, grasp_to_truth_frame(best_r.grasp, r_turned, truth),
+                                     tuple(targets_r))["success"])
         rows.append({"seed": seed, "n_logs": truth.n_logs, "objective": kind,
                      "truth": {"success": bool(ok_t)}, "recon": {"success": bool(ok_r)}})
     return rows

@@ -97,7 +97,8 @@ def moved(pile, T_new_old: np.ndarray):
     stumps = tuple(replace(s, position_m=tuple(float(v) for v in f([*s.position_m, 0.0])[:2]),
                            roots=tuple(replace(r, azimuth_rad=r.azimuth_rad + yaw) for r in s.roots))
                    for s in pile.stumps)
-    rocks = tuple(replace(r, position_m=tuple(float(v) for v in f(r.position_m)), orientation=quat_multiply(q, r.orientation))
+    rocks = tuple(replace(r, position_m=tuple(float(v) for v in f(r.position_m)),
+                          orientation=quat_multiply(q, r.orientation))
                   for r in pile.rocks)
     return replace(pile, logs=tuple(logs), terrain=terrain, stumps=stumps, rocks=rocks)
 

@@ -62,8 +62,8 @@ def main() -> None:
             centres[(name, i)] = (x + w / 2, y + h / 2)
     ax.add_patch(FancyBboxPatch((0.05, -0.75), 11.3, 0.5, boxstyle="round,pad=0.0,rounding_size=0.05",
                                 fc="#eeeeee", ec="#999999"))
-    ax.text(5.7, -0.5, "synth/common/: atomic writes, hashing, one versioned-JSON reader, one job runner, ranges, error root "
-            "(LoggraspError), the CLI helpers\nsynth/geometry/: frames, the grasp, geodesy (SWEREF 99 TM, RH 2000), "
+    ax.text(5.7, -0.5, "synth/common/: atomic writes, hashing, one versioned-JSON reader, one job runner, ranges, "
+            "error root (LoggraspError), the CLI helpers\nsynth/geometry/: frames, the grasp, geodesy (SWEREF 99 TM, RH 2000), "
             "stereo calibration formats — no simulator behind them; used by every package", ha="center",
             va="center", fontsize=8)
     # the demo's data flow: numbered badges on the stages, in order, and the sequence written out

@@ -288,8 +288,8 @@ def npz_diffs(pa: Path, pb: Path, rel: str):
             if x.dtype != y.dtype or x.shape != y.shape:
                 yield f"array {name}: {x.dtype}{x.shape} -> {y.dtype}{y.shape}"
             elif x.tobytes() != y.tobytes():
-                n = int(np.sum(x != y)) if x.dtype.kind != "f" else int(np.sum(~((x == y) | (np.isnan(x) & np.isnan(y)))))
-                yield f"array {name}: {n} of {x.size} values differ"
+                same = (x == y) | (np.isnan(x) & np.isnan(y)) if x.dtype.kind == "f" else x == y
+                yield f"array {name}: {int(np.sum(~same))} of {x.size} values differ"
 
 
 def file_diffs(pa: Path, pb: Path, rel: str):
