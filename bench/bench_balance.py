@@ -2,9 +2,9 @@
 lift) over the grasps Algorithm 1 accepts and over admissible off-centre grasps.
 
 For each 4-log pile (seeds ``--seed0`` ..) and each of its 15 target subsets: the geometric
-candidates (:func:`synth.candidates.generate_candidates`) are reduced by Algorithm 1
-(:func:`synth.candidates.reduce_candidates`, at most ``--max-trials`` trials, the data set's
-setting) with :func:`synth.trial.run_trial` — the *accepted* grasps; and the two admissible
+candidates (:func:`synth.data.candidates.generate_candidates`) are reduced by Algorithm 1
+(:func:`synth.data.candidates.reduce_candidates`, at most ``--max-trials`` trials, the data set's
+setting) with :func:`synth.physics.trial.run_trial` — the *accepted* grasps; and the two admissible
 candidates farthest from the targets' centre of mass along the logs are tried as well — the
 *off-centre* grasps. Writes a JSON record (resumed pile by pile) and, with ``--png``, a histogram.
 
@@ -44,10 +44,10 @@ def bench_pile(seed: int, max_trials: int, n_off: int) -> dict:
     (``max_trials`` 0 skips Algorithm 1: off-centre grasps only)."""
     from itertools import combinations
 
-    from synth.candidates import generate_candidates, reduce_candidates
+    from synth.data.candidates import generate_candidates, reduce_candidates
     from synth.errors import GenerationError
-    from synth.generate import GenerationConfig, generate_pile
-    from synth.trial import TrialConfig, run_trial
+    from synth.scene.generate import GenerationConfig, generate_pile
+    from synth.physics.trial import TrialConfig, run_trial
 
     try:
         pile, _ = generate_pile(seed, GenerationConfig(n_logs=4, n_obstacles=0))

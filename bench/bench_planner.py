@@ -17,14 +17,12 @@ from __future__ import annotations
 
 import os
 import statistics
-import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from planner.checkpoint import DEFAULT_MODEL
 
-from planner.checkpoint import DEFAULT_MODEL  # noqa: E402  (after the sys.path line above)
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def _load() -> str:
@@ -75,9 +73,9 @@ def training_throughput(batch: int = 16, steps: int = 3, size: int = 128) -> lis
 
 
 def _pile_observations(n_logs: int, count: int, size: int = 128, seed0: int = 100):
-    from synth.generate import GenerationConfig, generate_pile
-    from synth.render import OrthoRenderConfig, render_ortho
-    from synth.world import World
+    from synth.scene.generate import GenerationConfig, generate_pile
+    from synth.render.ortho import OrthoRenderConfig, render_ortho
+    from synth.physics.world import World
 
     out = []
     for k in range(count):

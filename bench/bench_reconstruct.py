@@ -53,8 +53,8 @@ def accuracy(n_piles: int = 3, workdir: Path | None = None) -> dict:
     from reconstruct.compare import compare_piles, simulate_scan
     from reconstruct.errors import ReconstructError
     from reconstruct.pipeline import ReconstructConfig, read_scan_pose, reconstruct
-    from synth.frames import make_T, rot_z
-    from synth.generate import GenerationConfig, generate_pile
+    from synth.geometry.frames import make_T, rot_z
+    from synth.scene.generate import GenerationConfig, generate_pile
 
     ep, dia, iou, walls, cpus, regs, failures = [], [], [], [], [], [], []
     det = tot = 0
@@ -110,9 +110,9 @@ def obstacle_visibility(truth, res, comparison: dict, seed: int, min_height_m: f
     point within 3 cm), and whether the reconstruction found it."""
     from scipy.spatial import cKDTree
 
-    from synth.frames import OrthoGrid, apply_T, invert_T
-    from synth.render import OrthoRenderConfig, render_ortho
-    from synth.world import OBSTACLE_BASE, World
+    from synth.geometry.frames import OrthoGrid, apply_T, invert_T
+    from synth.render.ortho import OrthoRenderConfig, render_ortho
+    from synth.physics.world import OBSTACLE_BASE, World
 
     T_truth_scan = invert_T(truth.georef.matrix()) @ np.asarray(res.report["T_site_scan_refined"])
     pts = apply_T(T_truth_scan, res.cloud.points)
@@ -145,7 +145,7 @@ def obstacle_piles(seeds=range(103, 109), n_obstacles: int = 3, clean_seeds=(110
     from reconstruct.compare import compare_piles, simulate_scan
     from reconstruct.errors import ReconstructError
     from reconstruct.pipeline import reconstruct
-    from synth.generate import GenerationConfig, generate_pile
+    from synth.scene.generate import GenerationConfig, generate_pile
 
     rows: list[dict] = []
     fps = {"with": 0, "without": 0}
@@ -277,11 +277,11 @@ def single_pair_speed(repeats: int = 3, workdir: Path | None = None) -> dict:
     """Wall and CPU time of reconstruct() on one pair over a pile of 3 short logs."""
     from reconstruct.compare import simulate_scan
     from reconstruct.pipeline import reconstruct
-    from synth.pile import LogSpec, PileSpec, TerrainSpec
+    from synth.scene.pile import LogSpec, PileSpec, TerrainSpec
 
     terrain = TerrainSpec(seed=7, extent_m=5.0, resolution=64, amplitude_m=0.05)
     g = terrain.height_grid()
-    from synth.pile import height_at
+    from synth.scene.pile import height_at
 
     def ground_log(p0, p1, d):
         z0 = float(height_at(g, 5.0, p0[0], p0[1])) + d / 2 + 0.01
@@ -377,7 +377,8 @@ def survey_bench(n_scans: int, seed0: int, work_dir: Path, out: Path, logs=(3, 7
     from reconstruct.pipeline import ReconstructConfig, reconstruct
     from reconstruct.stereo import ScanCloud, scan_cloud
     from reconstruct.twin_scan import make_twin_scan, write_twin_survey
-    from synth.pile import atomic_write_bytes, read_pile
+    from synth.common.files import atomic_write_bytes
+    from synth.scene.pile import read_pile
 
     key = {"seed0": seed0, "logs": list(logs), "obstacles": list(obstacles), "fit_revision": FIT_REVISION}
     records = out / "scans"
@@ -456,7 +457,7 @@ def read_survey_records(out: Path, key: dict | None = None) -> dict:
     default those of the most records), written to ``out/summary.json`` too."""
     import json
 
-    from synth.pile import atomic_write_bytes
+    from synth.common.files import atomic_write_bytes
 
     rows = [json.loads(p.read_text()) for p in sorted((out / "scans").glob("*.json"))]
     if key is None and rows:

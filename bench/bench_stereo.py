@@ -3,8 +3,8 @@ error of OpenCV SGBM on log pixels for a few rig settings. Prints a Markdown blo
 
     .venv/bin/python bench/bench_stereo.py --piles 3 --repeats 5
 
-Piles come from :func:`synth.generate.generate_pile` (seeds 0..N-1, 6 logs, settled). The depth
-error is |SGBM depth - ground truth| on the left image's log pixels (:func:`synth.stereo.sgbm_depth`,
+Piles come from :func:`synth.scene.generate.generate_pile` (seeds 0..N-1, 6 logs, settled). The depth
+error is |SGBM depth - ground truth| on the left image's log pixels (:func:`synth.render.stereo.sgbm_depth`,
 3-way SGBM, block 5, depth search range height - 1.5 m .. height + 0.5 m).
 """
 
@@ -12,15 +12,12 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from synth.stereo import (  # noqa: E402
+from synth.render.stereo import (
     SGBMConfig,
     StereoRenderer,
     StereoRigConfig,
@@ -44,7 +41,7 @@ def _backends() -> list[str]:
 
 
 def _piles(n: int):
-    from synth.generate import GenerationConfig, generate_pile
+    from synth.scene.generate import GenerationConfig, generate_pile
 
     return [generate_pile(seed, GenerationConfig(n_logs=6))[0] for seed in range(n)]
 

@@ -1,7 +1,7 @@
 """Benchmark of the grasp trial: trials/s per core on 4-log piles, and how often the ``fast``
 preset's outcome agrees with the ``careful`` one on the same grasps.
 
-Piles come from :func:`synth.generate.generate_pile` (seeds 0..N-1, half with obstacles); grasps
+Piles come from :func:`synth.scene.generate.generate_pile` (seeds 0..N-1, half with obstacles); grasps
 are simple geometric ones across target subsets (perpendicular to the targets' mean axis, centred
 on them, opened to their extent + a random margin), plus deliberately offset / narrow variants so
 that every outcome class appears. Prints a Markdown block.
@@ -15,7 +15,6 @@ import argparse
 import itertools
 import math
 import os
-import sys
 import time
 from collections import Counter
 from concurrent.futures import ProcessPoolExecutor
@@ -24,11 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from synth.grasp import MAX_WIDTH_M, MIN_WIDTH_M, Grasp  # noqa: E402
-from synth.pile import PileSpec  # noqa: E402
-from synth.trial import TrialConfig, run_trial  # noqa: E402
+from synth.geometry.grasp import MAX_WIDTH_M, MIN_WIDTH_M, Grasp
+from synth.scene.pile import PileSpec
+from synth.physics.trial import TrialConfig, run_trial
 
 
 def geometric_grasp(pile: PileSpec, targets: tuple[int, ...], margin_m: float, shift_m: float = 0.0,
@@ -66,7 +64,7 @@ def geometric_grasp(pile: PileSpec, targets: tuple[int, ...], margin_m: float, s
 
 def make_cases(n_piles: int, seed0: int = 0, per_pile: int = 8):
     """(pile, grasp, targets) cases on generated 4-log piles."""
-    from synth.generate import GenerationConfig, generate_pile
+    from synth.scene.generate import GenerationConfig, generate_pile
 
     cases = []
     for k in range(n_piles):
@@ -96,7 +94,7 @@ def pictures(out_dir: Path, n_piles: int = 6, seed0: int = 0) -> list[Path]:
     """Before/after PNGs of example trials (one per outcome class found) under ``out_dir``."""
     import cv2
 
-    from synth.trial import render_view
+    from synth.physics.trial import render_view
 
     out_dir.mkdir(parents=True, exist_ok=True)
     written, seen = [], set()

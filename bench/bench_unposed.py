@@ -23,14 +23,12 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
 def _load() -> str:
@@ -65,7 +63,7 @@ def measure(n_piles: int = 3, first_seed: int = 100, workdir: Path | None = None
     from reconstruct.errors import ReconstructError
     from reconstruct.pipeline import reconstruct
     from reconstruct.twin_scan import make_twin_scan
-    from synth.pile import read_pile
+    from synth.scene.pile import read_pile
 
     rows = {"posed": [], "unposed": []}
     failures = []

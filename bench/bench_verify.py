@@ -54,7 +54,7 @@ class CachedTwin:
     simulated once and later calls get the stored result (with the wall time it took then)."""
 
     def __init__(self) -> None:
-        from synth.trial import run_trial
+        from synth.physics.trial import run_trial
 
         self.run_trial = run_trial
         self.cache: dict = {}

@@ -88,7 +88,7 @@ def curve_rows(tables: dict, models: dict[float, Path], objectives, train_piles:
 
 
 def write_curve(rows: list[dict], out: Path) -> None:
-    from synth.pile import atomic_write_bytes, dumps_json
+    from synth.common.files import atomic_write_bytes, dumps_json
 
     lines = ["| share of training piles | training piles | objective | test piles | success (95 % half-width) "
              "| logs / success | beta avg |",

@@ -30,18 +30,17 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
 def main() -> None:
-    from field.real_test import RealTestConfig, _execute
+    from field.real_test import RealTestConfig, execute_on_truth
     from planner.checkpoint import DEFAULT_MODEL
     from planner.inference import Objective, load_planner, plan
-    from synth.generate import GenerationConfig, generate_pile
+    from synth.scene.generate import GenerationConfig, generate_pile
     from synth.common.files import atomic_write_bytes
-    from synth.pile import RockSpec, StumpSpec
-    from synth.render import OrthoRenderConfig, render_ortho
-    from synth.world import World
+    from synth.scene.pile import RockSpec, StumpSpec
+    from synth.render.ortho import OrthoRenderConfig, render_ortho
+    from synth.physics.world import World
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--piles", type=int, default=50)
@@ -77,7 +76,8 @@ def main() -> None:
                 g = best.grasp
                 if name == "turned":  # back to the truth's frame: (x, y) -> (y, -x), phi - 90 deg
                     g = replace(g, x_m=g.y_m, y_m=-g.x_m, phi_rad=(g.phi_rad % math.pi) - math.pi / 2)
-                row[name] = {"targets": sorted(best.targets), "grasp": g.to_dict(), **_execute(pile, g, best.targets)}
+                row[name] = {"targets": sorted(best.targets), "grasp": g.to_dict(),
+                             **execute_on_truth(pile, g, best.targets)}
             rows.append(row)
         print(f"pile {seed} done", file=sys.stderr, flush=True)
     a.out.parent.mkdir(parents=True, exist_ok=True)
@@ -91,17 +91,10 @@ def main() -> None:
                   f"{sum(r['own']['targets'] == r[other]['targets'] for r in rr)}")
 
 
-def _qmul(a, b) -> tuple[float, float, float, float]:
-    ax, ay, az, aw = a
-    bx, by, bz, bw = b
-    return (aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz)
-
-
 def turn90(pile):
     """The pile turned a quarter turn counter-clockwise about the pile frame's z axis (exact: the
     terrain grid turns with it; stump root azimuths too)."""
-    from synth.pile import quat_from_euler
+    from synth.scene.pile import quat_from_euler, quat_multiply
 
     q = quat_from_euler(0, 0, math.pi / 2)
 
@@ -111,12 +104,12 @@ def turn90(pile):
     g = np.rot90(pile.terrain.height_grid(), k=-1)  # rows along +y, columns along +x
     terrain = replace(pile.terrain, heights_m=tuple(tuple(float(v) for v in row) for row in g))
     logs = tuple(replace(lg, centre_m=(*rot(*lg.centre_m[:2]), lg.centre_m[2]),
-                         orientation=tuple(float(v) for v in _qmul(q, lg.orientation))) for lg in pile.logs)
+                         orientation=tuple(float(v) for v in quat_multiply(q, lg.orientation))) for lg in pile.logs)
     stumps = tuple(replace(s, position_m=rot(*s.position_m),
                            roots=tuple(replace(r, azimuth_rad=r.azimuth_rad + math.pi / 2) for r in s.roots))
                    for s in pile.stumps)
     rocks = tuple(replace(r, position_m=(*rot(*r.position_m[:2]), r.position_m[2]),
-                          orientation=tuple(float(v) for v in _qmul(q, r.orientation))) for r in pile.rocks)
+                          orientation=tuple(float(v) for v in quat_multiply(q, r.orientation))) for r in pile.rocks)
     return replace(pile, terrain=terrain, logs=logs, stumps=stumps, rocks=rocks, georef=None)
 
 

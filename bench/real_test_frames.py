@@ -30,17 +30,15 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from real_test_views import _W, _init, kept_seeds, moved  # noqa: E402
+from real_test_views import WORKER, init_worker, kept_seeds, moved
 
 
 def T_turned_pile(pile, direction_deg: float) -> np.ndarray:
     """``T_turned_pile``: a turn about z and a shift putting the logs' mean direction at
     ``direction_deg`` and the centre of their end points' bounding box at the origin."""
     from reconstruct.pipeline import logs_direction
-    from synth.frames import make_T, rot_z
+    from synth.geometry.frames import make_T, rot_z
 
     ends = {i: lg.endpoints_m() for i, lg in enumerate(pile.logs)}
     R = rot_z(math.radians(direction_deg) - logs_direction(ends))
@@ -58,10 +56,10 @@ def turned(pile, direction_deg: float):
 
 
 def _pile(seed: int, work_dir: str, objectives: tuple[str, ...], direction_deg: float) -> list[dict]:
-    from field.real_test import _execute, _render_truth, grasp_to_truth_frame
+    from field.real_test import execute_on_truth, render_truth, grasp_to_truth_frame
     from planner.inference import Objective, plan
     from reconstruct.compare import compare_piles
-    from synth.pile import read_pile
+    from synth.scene.pile import read_pile
 
     work = Path(work_dir)
     if not (work / f"recon_{seed}" / "report.json").exists():
@@ -72,23 +70,25 @@ def _pile(seed: int, work_dir: str, objectives: tuple[str, ...], direction_deg: 
         return []
     match = {e["recon_index"]: e["truth_index"] for e in compare_piles(truth, recon, render=False)["logs"]}
     t_turned, r_turned = turned(truth, direction_deg), turned(recon, direction_deg)
-    size = _W["planner"].config.size_px
-    obs_t, obs_r = _render_truth(t_turned, size), _render_truth(r_turned, size)
+    size = WORKER["planner"].config.size_px
+    obs_t, obs_r = render_truth(t_turned, size), render_truth(r_turned, size)
     rows = []
     for kind in objectives:
-        best_t = plan(obs_t, _W["planner"], Objective(kind=kind), top_k=1, pile=t_turned).best
-        best_r = plan(obs_r, _W["planner"], Objective(kind=kind), top_k=1, pile=r_turned).best
+        best_t = plan(obs_t, WORKER["planner"], Objective(kind=kind), top_k=1, pile=t_turned).best
+        best_r = plan(obs_r, WORKER["planner"], Objective(kind=kind), top_k=1, pile=r_turned).best
         targets_r = [match.get(i) for i in best_r.targets]
-        ok_t = _execute(truth, grasp_to_truth_frame(best_t.grasp, t_turned, truth), tuple(best_t.targets))["success"]
+        back_t = grasp_to_truth_frame(best_t.grasp, t_turned, truth)
+        ok_t = execute_on_truth(truth, back_t, tuple(best_t.targets))["success"]
         ok_r = (None not in targets_r
-                and _execute(truth, grasp_to_truth_frame(best_r.grasp, r_turned, truth), tuple(targets_r))["success"])
+                and execute_on_truth(truth, grasp_to_truth_frame(best_r.grasp, r_turned, truth),
+                                     tuple(targets_r))["success"])
         rows.append({"seed": seed, "n_logs": truth.n_logs, "objective": kind,
                      "truth": {"success": bool(ok_t)}, "recon": {"success": bool(ok_r)}})
     return rows
 
 
 def main() -> None:
-    from field.real_test import RealTestConfig, _model_path, summarize
+    from field.real_test import RealTestConfig, model_path, summarize
     from synth.common.files import atomic_write_bytes
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -105,8 +105,8 @@ def main() -> None:
     objectives = tuple(args.objectives.split(","))
     rec = {"work_dir": str(args.work_dir), "direction_deg": args.direction, "seeds": seeds, "rows": []}
     t0 = time.perf_counter()
-    with ProcessPoolExecutor(args.workers, mp_context=mp.get_context("spawn"), initializer=_init,
-                             initargs=(str(_model_path(RealTestConfig())), 1, 0.0)) as pool:
+    with ProcessPoolExecutor(args.workers, mp_context=mp.get_context("spawn"), initializer=init_worker,
+                             initargs=(str(model_path(RealTestConfig())), 1, 0.0)) as pool:
         futures = [pool.submit(_pile, s, str(args.work_dir), objectives, args.direction) for s in seeds]
         for n, fut in enumerate(as_completed(futures), 1):
             rec["rows"] += fut.result()

@@ -35,15 +35,14 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-_W: dict = {}
+WORKER: dict = {}
 
 
 def kept_seeds(work_dir: Path, min_logs: int = 1, max_logs: int = 1000) -> list[int]:
     """Seeds whose scan (and reconstruction or its error) the work folder keeps, with
     ``min_logs``..``max_logs`` logs."""
-    from synth.pile import read_pile
+    from synth.scene.pile import read_pile
 
     seeds = []
     for key in sorted(work_dir.glob("scan_*.key.json")):
@@ -53,7 +52,7 @@ def kept_seeds(work_dir: Path, min_logs: int = 1, max_logs: int = 1000) -> list[
     return seeds
 
 
-def _init(model: str, views: int, k: float) -> None:
+def init_worker(model: str, views: int, k: float) -> None:
     import torch
 
     from planner.inference import load_planner
@@ -61,22 +60,20 @@ def _init(model: str, views: int, k: float) -> None:
 
     exit_with_parent()
     torch.set_num_threads(1)
-    _W["planner"] = load_planner(model, device="cpu", views=views, view_spread_k=k)
+    WORKER["planner"] = load_planner(model, device="cpu", views=views, view_spread_k=k)
 
 
 def _pile(seed: int, work_dir: str, cfg) -> list[dict]:
     from field.real_test import real_test_pile
 
-    return real_test_pile(seed, work_dir, _W["planner"], cfg)
+    return real_test_pile(seed, work_dir, WORKER["planner"], cfg)
 
 
 # -- hybrids --------------------------------------------------------------------------------------
 def moved(pile, T_new_old: np.ndarray):
     """``pile`` expressed in another frame (``T_new_old``: a turn about z and a shift); the
     terrain is resampled on the new frame's grid (bilinear), outside the old patch clamped."""
-    from real_test_colours import _qmul  # this folder: a script's own folder is on sys.path
-
-    from synth.pile import LogSpec
+    from synth.scene.pile import LogSpec, quat_multiply
 
     T = np.asarray(T_new_old, dtype=float)
     yaw = math.atan2(T[1, 0], T[0, 0])
@@ -100,18 +97,19 @@ def moved(pile, T_new_old: np.ndarray):
     stumps = tuple(replace(s, position_m=tuple(float(v) for v in f([*s.position_m, 0.0])[:2]),
                            roots=tuple(replace(r, azimuth_rad=r.azimuth_rad + yaw) for r in s.roots))
                    for s in pile.stumps)
-    rocks = tuple(replace(r, position_m=tuple(float(v) for v in f(r.position_m)), orientation=_qmul(q, r.orientation))
+    rocks = tuple(replace(r, position_m=tuple(float(v) for v in f(r.position_m)),
+                          orientation=quat_multiply(q, r.orientation))
                   for r in pile.rocks)
     return replace(pile, logs=tuple(logs), terrain=terrain, stumps=stumps, rocks=rocks)
 
 
 def _decompose_pile(seed: int, work_dir: str) -> dict | None:
     """f3 planned on the truth, on hybrids and on the reconstruction; all executed on the truth."""
-    from field.real_test import _execute, _render_truth, grasp_to_truth_frame
+    from field.real_test import execute_on_truth, render_truth, grasp_to_truth_frame
     from planner.inference import Objective, plan
-    from reconstruct.compare import _T_truth_recon, compare_piles
-    from synth.pile import LogSpec, read_pile
-    from synth.render import OrthoObservation
+    from reconstruct.compare import T_truth_recon, compare_piles
+    from synth.scene.pile import LogSpec, read_pile
+    from synth.render.ortho import OrthoObservation
 
     work = Path(work_dir)
     if not (work / f"recon_{seed}" / "report.json").exists():
@@ -119,7 +117,7 @@ def _decompose_pile(seed: int, work_dir: str) -> dict | None:
     truth = read_pile(work / f"scan_{seed}" / "truth" / "pile.json")
     recon = read_pile(work / f"recon_{seed}" / "pile.json")
     match = {e["recon_index"]: e["truth_index"] for e in compare_piles(truth, recon, render=False)["logs"]}
-    T, _ = _T_truth_recon(truth, recon)
+    T, _ = T_truth_recon(truth, recon)
     if T is None or len(match) != truth.n_logs or recon.n_logs != truth.n_logs:
         return None
     in_truth = moved(recon, T)  # the reconstruction in the truth's frame
@@ -142,14 +140,14 @@ def _decompose_pile(seed: int, work_dir: str) -> dict | None:
     row = {"seed": seed, "n_logs": truth.n_logs}
     for name, (pile, frame) in variants.items():
         obs = (OrthoObservation.load(work / f"recon_{seed}" / "ortho.npz") if pile is None
-               else _render_truth(pile, _W["planner"].config.size_px))
-        best = plan(obs, _W["planner"], Objective(kind="f3"), top_k=1, pile=truth).best
+               else render_truth(pile, WORKER["planner"].config.size_px))
+        best = plan(obs, WORKER["planner"], Objective(kind="f3"), top_k=1, pile=truth).best
         grasp, targets = best.grasp, tuple(best.targets)
         if frame is not None:
             grasp = grasp_to_truth_frame(grasp, frame, truth)
         if pile is None:
             targets = tuple(match.get(i, -1) for i in targets)
-        row[name] = bool(-1 not in targets and _execute(truth, grasp, targets)["success"])
+        row[name] = bool(-1 not in targets and execute_on_truth(truth, grasp, targets)["success"])
     return row
 
 
@@ -158,13 +156,13 @@ def run(work_dir: Path, seeds: list[int], views: int, k: float, objectives: tupl
         decompose: bool = False, save=None, log_direction_deg: float | None = 45.0) -> list[dict]:
     """Rows of every pile; ``save(rows)`` is called after each pile (an interrupted run keeps them).
     ``log_direction_deg``: the reconstructions' pile frame (kept ones made otherwise are made again)."""
-    from field.real_test import RealTestConfig, _model_path
+    from field.real_test import RealTestConfig, model_path
 
     cfg = RealTestConfig(objectives=objectives, views=views, view_spread_k=k, log_direction_deg=log_direction_deg)
     rows: list[dict] = []
     t0 = time.perf_counter()
-    with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=_init,
-                             initargs=(str(_model_path(cfg)), views, k)) as pool:
+    with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=init_worker,
+                             initargs=(str(model_path(cfg)), views, k)) as pool:
         futures = [pool.submit(_decompose_pile, s, str(work_dir)) if decompose else
                    pool.submit(_pile, s, str(work_dir), cfg) for s in seeds]
         for n, fut in enumerate(as_completed(futures), 1):

@@ -13,12 +13,10 @@ import os
 import platform
 import statistics
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "bench"))
 
 
 def machine() -> str:
@@ -36,7 +34,7 @@ def machine() -> str:
 
 
 def bench_piles(repeats: int = 5) -> str:
-    from synth.generate import GenerationConfig, generate_pile
+    from synth.scene.generate import GenerationConfig, generate_pile
 
     rows = ["| logs | obstacles | piles | wall s (median) | wall p90 | CPU s (median) | sim s (median) | attempts (mean) |",
             "|---|---|---|---|---|---|---|---|"]
@@ -60,9 +58,9 @@ def bench_piles(repeats: int = 5) -> str:
 
 
 def bench_render(repeats: int = 20) -> str:
-    from synth.generate import GenerationConfig, generate_pile
-    from synth.render import OrthoRenderConfig, render_ortho
-    from synth.world import World
+    from synth.scene.generate import GenerationConfig, generate_pile
+    from synth.render.ortho import OrthoRenderConfig, render_ortho
+    from synth.physics.world import World
 
     pile, _ = generate_pile(3, GenerationConfig(n_logs=7, n_obstacles=3))
     rows = ["| size px | one render wall s (median) | CPU s | 3 renders + depth + instance wall s (median) | CPU s |",

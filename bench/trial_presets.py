@@ -13,17 +13,14 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import sys
 from collections import Counter
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench_trials import make_cases  # noqa: E402
-from synth.trial import TrialConfig, run_trial  # noqa: E402
-from synth.world import PhysicsConfig  # noqa: E402
+from bench_trials import make_cases
+from synth.physics.trial import TrialConfig, run_trial
+from synth.physics.world import PhysicsConfig
 
 
 def _old_fast() -> TrialConfig:  # the preset before 2026-11-22: 32² terrain, tips 0.12 m above the pile

@@ -3,7 +3,7 @@ import happens inside a command so that ``loggrasp --help`` is instant.
 
 :func:`run` is the one place errors are printed: a command (or the library under it) raises, and
 :func:`run` writes one line ``error: …`` on standard error — the problem, with the flag or file
-to fix — and returns the documented exit code (``synth.cli_common.EXIT_CODES``). :func:`main`
+to fix — and returns the documented exit code (``synth.common.cli.EXIT_CODES``). :func:`main`
 (the console script) also keeps C libraries quiet unless ``--verbose``.
 """
 
@@ -24,7 +24,7 @@ from planner.cli import MODEL, OBJECTIVE_HELP, VIEW_SPREAD, VIEWS, eval_command,
 from reconstruct.cli import compare_command, gnss_crs_warning, reconstruct_command, scan_command
 from synth.cli import APP_SETTINGS, JSON
 from synth.cli import app as synth_app
-from synth.cli_common import (EXIT_CODES, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_LINK,
+from synth.common.cli import (EXIT_CODES, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_LINK,
                               EXIT_REPLAY_DIFFERS, EXIT_TRIAL, CliError, Output, check_input, check_output_dir,
                               check_output_file, field_default, flag_of_path, option, to_flags)
 
@@ -110,7 +110,7 @@ def parse_base(text: str | None, flag: str = "--base") -> tuple[float, float, fl
     if len(parts) != 3 or not all(v == v for v in parts):
         raise CliError(f"{flag} must be E,N,H (SWEREF 99 TM easting and northing [m], ellipsoidal height [m]), "
                        f"e.g. 743497.0,7117716.0,249.8; got {text!r}")
-    from synth.geodesy import check_sweref_tm
+    from synth.geometry.geodesy import check_sweref_tm
 
     check_sweref_tm(parts[0], parts[1], flag)
     return parts[0], parts[1], parts[2]
@@ -162,7 +162,7 @@ def base_from_survey(gnss: Path) -> tuple[float, float, float]:
     import numpy as np
 
     from reconstruct.gnss import read_gnss
-    from synth.geodesy import site_to_tm
+    from synth.geometry.geodesy import site_to_tm
 
     survey = read_gnss(gnss, allow_float=True)
     origin = survey.default_origin()
@@ -255,7 +255,7 @@ def show_plan(prepared) -> None:
     """What the operator confirms: the plan table, the grasp in SWEREF 99 TM, the warnings and
     the pictures (paths that exist)."""
     from planner.cli import TWIN_COLUMNS, twin_cells
-    from synth.cli_common import format_table
+    from synth.common.cli import format_table
 
     v = prepared.verification
     shown = max([5, prepared.chosen_rank] + ([] if v is None else [c.rank + 1 for c in v.candidates]))
@@ -738,7 +738,7 @@ def run(argv: list[str] | None = None) -> int:
     from typer import _click as click
     from typer.main import get_command
 
-    from synth.cli_common import FLAG_OF_PATH
+    from synth.common.cli import FLAG_OF_PATH
 
     argv = list(sys.argv[1:] if argv is None else argv)
     verbose = _pop_verbose(argv)
@@ -780,7 +780,7 @@ def run(argv: list[str] | None = None) -> int:
 
 def main() -> None:
     """The console script: C libraries quiet unless --verbose, then :func:`run`."""
-    from synth.cli_common import quiet_c_streams
+    from synth.common.cli import quiet_c_streams
 
     argv = sys.argv[1:]
     if not _pop_verbose(list(argv)):

@@ -39,7 +39,7 @@ def default_crane_base(pile) -> tuple[float, float, float]:
     (site frame) of the pile centre, at ground height."""
     import numpy as np
 
-    from synth.geodesy import pile_to_site, site_to_tm
+    from synth.geometry.geodesy import pile_to_site, site_to_tm
 
     c = np.mean([log.centre_m for log in pile.logs], axis=0)
     site = pile_to_site(pile.georef, np.array([c[0], c[1], float(pile.terrain.height_at(c[0], c[1]))]))
@@ -102,7 +102,7 @@ def prepare_demo(out_dir: str | Path, link_url: str, data: Path = DEMO_DATA) -> 
     """Key, journal and staleness limit for a demo into ``out_dir``; the old record is removed."""
     from field.link.secoc import generate_key_file
     from field.trial import captured_time
-    from synth.pile import read_pile
+    from synth.scene.pile import read_pile
 
     out = Path(out_dir)
     age = time.time() - captured_time(data / "scan", data / "gnss.csv")
@@ -138,7 +138,7 @@ def run_demo(setup: DemoSetup, options: TrialOptions, confirm: Callable | None =
     :class:`field.trial.TrialAborted` with its record written."""
     from field.executor import PybulletTrialExecutor
     from field.trial import run_trial_record
-    from synth.pile import read_pile
+    from synth.scene.pile import read_pile
 
     truth = read_pile(data / "truth" / "pile.json")
     config = crane_config(setup.base_tm, options.max_reach_m, setup.max_pile_age_s, str(setup.journal_path))

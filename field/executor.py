@@ -2,7 +2,7 @@
 
 A :class:`PybulletTrialExecutor` holds the (true, georeferenced) pile the crane stands at. For a
 command it converts the SWEREF 99 TM position and the grid heading back into the pile frame,
-runs :func:`synth.trial.run_trial` from the settled pile and reports the outcome the way a real
+runs :func:`synth.physics.trial.run_trial` from the settled pile and reports the outcome the way a real
 controller would (class, logs held, balance). An abort (e-stop, commanding laptop lost) stops
 the trial within one simulation step and reports the logs the grapple holds at that moment. Registered in
 :data:`field.controller.EXECUTORS` as ``"pybullet"``.
@@ -36,8 +36,8 @@ class PybulletTrialExecutor:
     """Execute commands as grasp trials on ``pile`` (a PileSpec or a pile.json path)."""
 
     def __init__(self, pile, trial: str = "fast") -> None:
-        from synth.pile import PileSpec, read_pile
-        from synth.trial import TrialConfig
+        from synth.scene.pile import PileSpec, read_pile
+        from synth.physics.trial import TrialConfig
 
         self.pile = pile if isinstance(pile, PileSpec) else read_pile(Path(pile))
         if self.pile.georef is None:
@@ -52,7 +52,7 @@ class PybulletTrialExecutor:
         """Run the trial; ``should_abort`` is asked every simulation step. An aborted trial stops
         at once (boom and claws held) and reports ABORTED with the logs between the claws at
         that moment (held or enclosed: what the operator must know before opening the grapple)."""
-        from synth.trial import run_trial
+        from synth.physics.trial import run_trial
 
         grasp, _ = command_to_grasp(cmd, self.pile.georef)
         result = run_trial(self.pile, grasp, int(cmd.target_log_count), self.config, should_abort=should_abort)

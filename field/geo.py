@@ -1,11 +1,11 @@
 """The chosen grasp in GNSS coordinates, for the operator: numbers, GeoJSON and a map picture.
 
-Coordinates (see :mod:`synth.geodesy` for the frames):
+Coordinates (see :mod:`synth.geometry.geodesy` for the frames):
 
 * **SWEREF 99 TM** (``EPSG:3006``) easting/northing [m], rounded to the millimetre (float64):
   what the crane computer and Swedish maps use.
 * **Heights** are ellipsoidal (GRS80) [m], NOT heights above sea level (RH 2000 needs a geoid
-  grid that is not installed; :func:`synth.geodesy.ellipsoidal_to_rh2000` fails loudly).
+  grid that is not installed; :func:`synth.geometry.geodesy.ellipsoidal_to_rh2000` fails loudly).
 * **Latitude/longitude** are SWEREF 99. SWEREF 99 and WGS 84 agree to about 0.5–1 m (plate drift
   since 1999.5, not modelled by PROJ); the WGS 84 GeoJSON below therefore carries SWEREF 99
   values — right for a web map, not for centimetre work: use the EPSG:3006 numbers for that.
@@ -40,11 +40,11 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from field.errors import FieldError
-from synth import geodesy
+from synth.geometry import geodesy
 from synth.common.files import atomic_write_bytes
 from synth.common.formats import VersionedJson
-from synth.grasp import RECT_WIDTH_M, Grasp
-from synth.pile import PileSpec
+from synth.geometry.grasp import RECT_WIDTH_M, Grasp
+from synth.scene.pile import PileSpec
 
 GEOJSON_FORMAT = "loggrasp.geojson"
 GEOJSON_VERSION = "1.0"
@@ -108,7 +108,7 @@ def grasp_to_gnss(grasp: Grasp, georef: Any, z_m: float) -> GraspGeo:
     GeoJSON / map exports and ``GraspCommand.from_pile_grasp`` all use it (inverse:
     :func:`tm_to_grasp`).
 
-    ``georef``: a :class:`~synth.pile.Georeference` (or a pile carrying one)."""
+    ``georef``: a :class:`~synth.scene.pile.Georeference` (or a pile carrying one)."""
     g = _georef(georef)
     if not math.isfinite(z_m):
         raise ValueError(f"z_m must be finite, got {z_m}")
@@ -173,7 +173,7 @@ def _stump_outline(pile: PileSpec, s, n: int = 24) -> np.ndarray:
 def _rock_outline(r) -> np.ndarray:
     from scipy.spatial import ConvexHull
 
-    from synth.pile import quat_to_matrix
+    from synth.scene.pile import quat_to_matrix
 
     v = np.asarray(r.vertices_m, float) @ quat_to_matrix(r.orientation).T + np.asarray(r.position_m)
     hull = ConvexHull(v[:, :2])

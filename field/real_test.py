@@ -13,7 +13,7 @@ pile with known truth, a grid of stereo pairs, an RTK survey of the log ends):
    through the site frame, or through geodetic coordinates when the site origins differ) and
    its target logs as true log indices (logs matched by :func:`reconstruct.compare.compare_piles`;
    a target without a true match makes the grasp fail);
-4. execute both grasps on the TRUE pile in the twin (:func:`synth.trial.run_trial`,
+4. execute both grasps on the TRUE pile in the twin (:func:`synth.physics.trial.run_trial`,
    ``TrialConfig.fast()``), success = exactly the intended logs held.
 
 :func:`run_real_test` returns (and :func:`write_real_test` / :func:`read_real_test` store, format
@@ -100,12 +100,12 @@ class RealTestConfig:
 
 # -- frames ------------------------------------------------------------------------------------
 def grasp_to_truth_frame(grasp: Any, recon: Any, truth: Any) -> Any:
-    """A :class:`synth.grasp.Grasp` in ``recon``'s pile frame expressed in ``truth``'s pile frame
+    """A :class:`synth.geometry.grasp.Grasp` in ``recon``'s pile frame expressed in ``truth``'s pile frame
     through both piles' georeferences (the site frame when the origins agree, else geodetic
     coordinates). The grasp centre sits on the reconstructed terrain; the angle follows the
     closing axis (pi-periodic); the width is kept."""
-    from synth import geodesy
-    from synth.grasp import Grasp
+    from synth.geometry import geodesy
+    from synth.geometry.grasp import Grasp
 
     if recon.georef is None or truth.georef is None:
         raise FieldError("both piles need a georeference to compare grasps across their frames; "
@@ -132,10 +132,10 @@ def _angle_diff_deg(a: float, b: float) -> float:
 
 
 # -- one pile ----------------------------------------------------------------------------------
-def _render_truth(truth: Any, size_px: int) -> Any:
+def render_truth(truth: Any, size_px: int) -> Any:
     """The true pile's orthographic render with the reconstruction's render settings."""
-    from synth.render import OrthoRenderConfig, render_ortho
-    from synth.world import World
+    from synth.render.ortho import OrthoRenderConfig, render_ortho
+    from synth.physics.world import World
 
     with World(truth) as world:
         return render_ortho(world, OrthoRenderConfig(size_px=size_px, n_renders=3), seed=0)
@@ -143,15 +143,12 @@ def _render_truth(truth: Any, size_px: int) -> Any:
 
 def execute_on_truth(truth: Any, grasp: Any, targets: tuple[int, ...]) -> dict:
     """Run ``grasp`` (truth frame) for ``targets`` (true log indices) on the TRUE pile
-    (:func:`synth.trial.run_trial`, ``TrialConfig.fast()``): success, outcome, logs held, cos beta, CPU."""
-    from synth.trial import TrialConfig, run_trial
+    (:func:`synth.physics.trial.run_trial`, ``TrialConfig.fast()``): success, outcome, logs held, cos beta, CPU."""
+    from synth.physics.trial import TrialConfig, run_trial
 
     res = run_trial(truth, grasp, targets, TrialConfig.fast())
     return {"success": res.success, "outcome": res.outcome.value, "grasped": list(res.grasped),
             "cos_beta": res.cos_beta, "cpu_s": res.cpu_time_s}
-
-
-_execute = execute_on_truth  # the name the diagnostics in bench/ use
 
 
 @dataclass
@@ -199,8 +196,8 @@ def prepare_case(seed: int, work_dir: str | Path, planner_config: Any, cfg: Real
     from reconstruct.pipeline import ReconstructConfig, read_report, reconstruct
     from reconstruct.twin_scan import make_twin_scan
     from synth.common.files import atomic_write_bytes
-    from synth.pile import read_pile
-    from synth.render import OrthoObservation
+    from synth.scene.pile import read_pile
+    from synth.render.ortho import OrthoObservation
 
     work = Path(work_dir)
     c0 = time.process_time()
@@ -254,7 +251,7 @@ def prepare_case(seed: int, work_dir: str | Path, planner_config: Any, cfg: Real
         cmp = compare_piles(truth, recon, render=False)
         match = {e["recon_index"]: e["truth_index"] for e in cmp["logs"]}
     c0 = time.process_time()
-    obs_t = _render_truth(truth, planner_config.size_px)
+    obs_t = render_truth(truth, planner_config.size_px)
     cpu["render_s"] = time.process_time() - c0
     return RealTestCase(seed, truth, obs_t, recon, obs_r, report, match, recon_error, cpu)
 
@@ -323,7 +320,8 @@ def _execute_row(truth: Any, grasp: Any, targets) -> dict:
 _WORKER: dict = {}
 
 
-def _model_path(cfg: RealTestConfig) -> Path:
+def model_path(cfg: RealTestConfig) -> Path:
+    """The checkpoint the real test plans with: its own, or the shipped default."""
     from planner.checkpoint import DEFAULT_MODEL
 
     return Path(cfg.model or DEFAULT_MODEL)
@@ -382,7 +380,7 @@ def run_real_test(cfg: RealTestConfig | None = None, work_dir: str | Path | None
 
     cfg = cfg or RealTestConfig()
     say = progress or (lambda s: None)
-    model = _model_path(cfg)
+    model = model_path(cfg)
     if not model.exists():
         raise FieldError(f"planner model {model} not found; pass --model PATH to a checkpoint")
     model_sha = sha256_file(model)

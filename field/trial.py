@@ -373,7 +373,7 @@ def _reconstruct_for(planner, scan_dir: Path, gnss_path: Path, work: Path, optio
 def _constraints_for(pile, options: TrialOptions):
     """Lift capacity, and the reach from the crane base when it is known."""
     from planner.constraints import Constraints
-    from synth.geodesy import sweref_tm_to_pile
+    from synth.geometry.geodesy import sweref_tm_to_pile
 
     if options.crane_base_tm is None:
         return Constraints(lift_capacity_kg=options.lift_capacity_kg, wood_density_kg_m3=options.wood_density_kg_m3)

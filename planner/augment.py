@@ -1,7 +1,7 @@
 """Training augmentation applied consistently to inputs and target maps.
 
 Geometry (the picture is north-up: columns grow with pile +x, rows with pile -y, see
-:mod:`synth.frames`):
+:mod:`synth.geometry.frames`):
 
 * horizontal flip (columns reversed, x -> -x): a grasp at (x, y, phi) becomes (-x, y, -phi), so
   ``C`` = cos 2phi stays and ``S`` = sin 2phi changes sign;

@@ -5,7 +5,7 @@ Four figures, each from fresh, settled, rendered piles and the planner passed in
 * ``ranking.png`` — one pile, the best grasp of *every* target subset, ranked by Q (one block per
   objective, e.g. f1 and f3), each panel titled with rank, targets, q, u, b and the trial outcome;
 * ``obstacle.png`` — piles planned without an obstacle, then with a rock / stump placed at the
-  chosen grasp's claw landing spot (a :class:`synth.pile.PileSpec` edit, checked physical): the
+  chosen grasp's claw landing spot (a :class:`synth.scene.pile.PileSpec` edit, checked physical): the
   chosen grasp and its outcome in each scene, the first grasp retried in the obstacle scene, and
   the network's graspability U for the first targets in both scenes;
 * ``packed.png`` — tightly packed piles (``GenerationConfig(packed=True)``) and one of them spread
@@ -69,7 +69,7 @@ class CaseStudyConfig:
     conical_butt_m: float = 0.28  # mean butt diameter of conical logs [m]
     conical_top_ratio: float = 0.35  # top / butt diameter of conical logs [-]
     objective: str = "f1"  # objective of the obstacle, packed and logs figures
-    trial: str = "fast"  # synth.trial preset: "fast" or "careful"
+    trial: str = "fast"  # synth.physics.trial preset: "fast" or "careful"
     panel_px: int = 256  # panel side [px] (the render is scaled by an integer to about this)
     max_seed_tries: int = 25  # seeds tried per case for a pile whose logs are all visible [-]
 
@@ -106,8 +106,8 @@ class CaseStudyConfig:
 # -- piles and observations -------------------------------------------------------------------
 def observe(pile, size_px: int, seed: int = 0):
     """Render ``pile`` top-down (one render, the pile's own colours) at ``size_px``."""
-    from synth.render import OrthoRenderConfig, render_ortho
-    from synth.world import World
+    from synth.render.ortho import OrthoRenderConfig, render_ortho
+    from synth.physics.world import World
 
     with World(pile) as world:
         return render_ortho(world, OrthoRenderConfig(size_px=size_px, n_renders=1), seed=seed)
@@ -116,8 +116,8 @@ def observe(pile, size_px: int, seed: int = 0):
 def resettle(pile):
     """Drop an edited pile's logs to rest and check it is physical. Raises :class:`CaseStudyError`."""
     from synth.errors import GenerationError, PileValidationError
-    from synth.generate import GenerationConfig, settle
-    from synth.world import World
+    from synth.scene.generate import GenerationConfig, settle
+    from synth.physics.world import World
 
     try:
         with World(pile, visuals=False) as world:
@@ -132,7 +132,7 @@ def visible_pile(seed: int, gen_cfg, size_px: int, tries: int, edit=None):
     """The first pile from seeds ``seed, seed + 1, ...`` whose logs all show in the render
     (after ``edit(pile) -> pile``, if given). Returns ``(seed, pile, observation)``."""
     from synth.errors import SynthError
-    from synth.generate import generate_pile
+    from synth.scene.generate import generate_pile
 
     last = "?"
     for k in range(tries):
@@ -163,8 +163,8 @@ def place_obstacle_near(pile, grasp, kind: str = "rock", cfg: CaseStudyConfig = 
     Returns ``(pile, obstacle centre (x, y) [m])``; raises :class:`CaseStudyError` when no spot
     near the grasp is free."""
     from synth.errors import PileValidationError
-    from synth.generate import validate_pile
-    from synth.pile import RockSpec, StumpSpec, quat_from_euler
+    from synth.scene.generate import validate_pile
+    from synth.scene.pile import RockSpec, StumpSpec, quat_from_euler
 
     radius = cfg.rock_size_m / 2 if kind == "rock" else cfg.stump_radius_m
     half = pile.terrain.extent_m / 2
@@ -242,14 +242,14 @@ def taper_logs(pile, top_ratio: float):
 
 # -- planning, trials and maps ------------------------------------------------------------------
 def trial_config(preset: str):
-    from synth.trial import TrialConfig
+    from synth.physics.trial import TrialConfig
 
     return TrialConfig.fast() if preset == "fast" else TrialConfig.careful()
 
 
 def try_grasp(pile, planned, trial_cfg) -> dict:
     """Run the twin trial of one :class:`~planner.inference.PlannedGrasp`; a JSON-able record."""
-    from synth.trial import run_trial
+    from synth.physics.trial import run_trial
 
     r = run_trial(pile, planned.grasp, planned.targets, trial_cfg)
     return {"targets": list(planned.targets), "q": planned.quality, "u": planned.graspability,
@@ -289,8 +289,8 @@ def _titled(img: np.ndarray, lines: list[str], colour=_WHITE) -> np.ndarray:
 
 
 def _render_panel(obs, grasps, cfg: CaseStudyConfig) -> np.ndarray:
-    """The render (left half of :func:`synth.preview.draw_grasps`) with the grasps drawn."""
-    from synth.preview import draw_grasps
+    """The render (left half of :func:`synth.render.preview.draw_grasps`) with the grasps drawn."""
+    from synth.render.preview import draw_grasps
 
     s = _scale(obs, cfg)
     return draw_grasps(obs, grasps, scale=s)[:, : obs.depth.shape[0] * s]
@@ -363,7 +363,7 @@ def _stack(blocks: list[np.ndarray]) -> np.ndarray:
 def ranking_case(planner, cfg: CaseStudyConfig) -> tuple[np.ndarray, list[dict]]:
     """One pile, the best grasp of every subset ranked by Q, per objective; all tried."""
     from planner.inference import Objective, plan
-    from synth.generate import GenerationConfig
+    from synth.scene.generate import GenerationConfig
 
     size = planner.config.size_px
     seed, pile, obs = visible_pile(cfg.seed + _RANKING, GenerationConfig(n_logs=cfg.ranking_logs), size,
@@ -391,7 +391,7 @@ def ranking_case(planner, cfg: CaseStudyConfig) -> tuple[np.ndarray, list[dict]]
 def obstacle_case(planner, cfg: CaseStudyConfig) -> tuple[np.ndarray, list[dict]]:
     """Piles without, then with an obstacle placed where the first chosen grasp's claw lands."""
     from planner.inference import Objective, plan
-    from synth.generate import GenerationConfig
+    from synth.scene.generate import GenerationConfig
 
     size = planner.config.size_px
     obj = Objective(cfg.objective)
@@ -445,7 +445,7 @@ def packed_case(planner, cfg: CaseStudyConfig) -> tuple[np.ndarray, list[dict]]:
     """Packed piles: the free choice and the best grasp on half of the logs; the first pile
     again with gaps between its logs."""
     from planner.inference import Objective, plan
-    from synth.generate import GenerationConfig
+    from synth.scene.generate import GenerationConfig
 
     size = planner.config.size_px
     obj = Objective(cfg.objective)
@@ -480,7 +480,7 @@ def packed_case(planner, cfg: CaseStudyConfig) -> tuple[np.ndarray, list[dict]]:
 def logs_case(planner, cfg: CaseStudyConfig) -> tuple[np.ndarray, list[dict]]:
     """Thick, short logs and conical logs: best grasp (thick) and the next two (thin)."""
     from planner.inference import Objective, plan
-    from synth.generate import GenerationConfig
+    from synth.scene.generate import GenerationConfig
 
     size = planner.config.size_px
     obj = Objective(cfg.objective)
@@ -523,7 +523,7 @@ def run_case_studies(planner, out_dir: str | Path, cfg: CaseStudyConfig = CaseSt
     write ``<case>.png``, ``results.json`` and ``README.md`` under ``out_dir``. ``model``
     describes the checkpoint (path, sha256, ...) for the record. Returns the results."""
     from synth.common.files import atomic_write_bytes
-    from synth.preview import write_png
+    from synth.render.preview import write_png
 
     unknown = set(cases) - set(FIGURES)
     if unknown:
@@ -579,7 +579,7 @@ def readme_markdown(results: dict) -> str:
              f"- Base seed {cfg['seed']} (ranking +{_RANKING}, obstacle +{_OBSTACLE}, packed +{_PACKED}, "
              f"thick/short +{_THICK}, conical +{_CONICAL}; the first seed whose logs are all visible is used; "
              "the seed of each pile is in the table)",
-             f"- Trials: `synth.trial.run_trial`, preset `{cfg['trial']}`; objective of the obstacle, packed and "
+             f"- Trials: `synth.physics.trial.run_trial`, preset `{cfg['trial']}`; objective of the obstacle, packed and "
              f"logs figures: {cfg['objective']}", ""]
     for name in results["cases"]:
         lines += [f"## {name}", "", f"![{name}]({name}.png)", "", _CAPTIONS[name], ""]

@@ -1,6 +1,6 @@
 """``loggrasp train``, ``plan`` and ``eval``: thin commands over :mod:`planner`.
 
-Flags take their defaults from the config dataclasses (:func:`synth.cli_common.option`); errors
+Flags take their defaults from the config dataclasses (:func:`synth.common.cli.option`); errors
 are raised and printed once by ``field.cli.run``."""
 
 from __future__ import annotations
@@ -21,8 +21,8 @@ from planner.subsets import SubsetPolicy
 from planner.train import TrainConfig
 from planner.verify import PerturbationConfig, VerifyConfig
 from synth.cli import JSON, WORKERS
-from synth.cli_common import progress_bar
-from synth.cli_common import (EXIT_TRIAL, CliError, Output, check_input, check_output_dir, check_output_file,
+from synth.common.cli import progress_bar
+from synth.common.cli import (EXIT_TRIAL, CliError, Output, check_input, check_output_dir, check_output_file,
                               field_default, option)
 
 
@@ -167,9 +167,9 @@ def load_observation(path: Path, cfg, warn=None):
     from planner.errors import ObservationError
     from planner.inference import check_grid
     from synth.errors import PileFormatError
-    from synth.pile import read_pile
-    from synth.render import OrthoObservation, OrthoRenderConfig, render_ortho
-    from synth.world import World
+    from synth.scene.pile import read_pile
+    from synth.render.ortho import OrthoObservation, OrthoRenderConfig, render_ortho
+    from synth.physics.world import World
 
     folder = path if path.is_dir() else path.parent
     pile = None
@@ -298,7 +298,7 @@ def _check_plan_flags(pile: Path, model: Path, png: Path | None, views: int, vie
                        "folder with its pile.json, or the pile.json itself (in the field: the reconstruction's)")
     spec = None
     if pile_json.is_file():
-        from synth.pile import read_pile
+        from synth.scene.pile import read_pile
 
         spec = read_pile(pile_json)  # a bad pile file stops the command before the network loads
         if verify is not None:

@@ -5,7 +5,7 @@
   reach* is returned for each subset.
 * **Lift capacity**: a subset whose estimated mass exceeds ``lift_capacity_kg`` is not evaluated.
   Log mass = volume x ``wood_density_kg_m3``. The volume comes from the pile when it is known
-  (:meth:`synth.pile.LogSpec.volume_m3`); otherwise from the visible mask: a log of length L and
+  (:meth:`synth.scene.pile.LogSpec.volume_m3`); otherwise from the visible mask: a log of length L and
   diameter d seen from above covers A = L d, so V = pi d^2 L / 4 = A pi d / 4 with the assumed
   diameter ``assumed_diameter_m``. Occluded parts are missed, so the mask estimate is low for
   buried logs — set a capacity margin accordingly.
@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from synth.frames import OrthoGrid
+from synth.geometry.frames import OrthoGrid
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,7 @@ Input normalisation (shared by training and :mod:`planner.inference`, one functi
   independent of where the patch lies in the terrain;
 * target mask M_T: 0/1.
 
-The data stream reads the synthetic data set of :mod:`synth.dataset` shard by shard (memory stays
+The data stream reads the synthetic data set of :mod:`synth.data.dataset` shard by shard (memory stays
 at one shard) and splits it 80/20 into training and validation **by pile**: a pile goes to the
 validation side when a stable hash of ``(seed, pile id)`` falls below ``val_fraction``, so the
 same pile is never on both sides, the split is deterministic from the seed, and no global listing
@@ -67,7 +67,7 @@ def in_train_fraction(pile_id, seed: int = 0, fraction: float = 1.0) -> bool:
 
 
 def sample_pile_id(sample) -> str:
-    """The pile identifier of a :mod:`synth.dataset` sample (its ``pile_id`` attribute or metadata)."""
+    """The pile identifier of a :mod:`synth.data.dataset` sample (its ``pile_id`` attribute or metadata)."""
     for obj in (sample, getattr(sample, "meta", None), getattr(sample, "metadata", None)):
         if obj is None:
             continue
@@ -102,7 +102,7 @@ class DataConfig:
 
 def list_shards(data_dir: str | Path | list) -> tuple[list[Path], dict]:
     """Shard files of a data set in manifest order, and the manifest's grid (size_px, extent_m,
-    camera_height_m), via :func:`synth.dataset.read_manifest`. A list of folders gives all their
+    camera_height_m), via :func:`synth.data.dataset.read_manifest`. A list of folders gives all their
     shards (in the order given); their grids must agree."""
     if isinstance(data_dir, (list, tuple)):
         if not data_dir:
@@ -115,8 +115,8 @@ def list_shards(data_dir: str | Path | list) -> tuple[list[Path], dict]:
                                 "data sets trained together must share size_px, extent_m and camera height")
             shards += more
         return shards, grid
-    from synth import dataset as ds
-    from synth.datastore import data_folder
+    from synth.data import dataset as ds
+    from synth.data.datastore import data_folder
 
     try:
         data_dir = data_folder(data_dir)  # a committed store is rendered into its cache first
@@ -130,7 +130,7 @@ def list_shards(data_dir: str | Path | list) -> tuple[list[Path], dict]:
 
 
 def load_samples(shard: Path):
-    from synth import dataset as ds
+    from synth.data import dataset as ds
 
     try:
         return list(ds.load_shard(shard))

@@ -31,7 +31,7 @@ from typing import Callable, Literal
 
 import numpy as np
 
-from synth.grasp import MAX_WIDTH_M, MIN_WIDTH_M, Grasp
+from synth.geometry.grasp import MAX_WIDTH_M, MIN_WIDTH_M, Grasp
 
 EVAL_FORMAT_VERSION = "1.0"
 PlanFn = Callable[[object, object], "tuple[Grasp, tuple[int, ...]] | None"]
@@ -171,8 +171,8 @@ def geometric_planner(max_subset: int = 7, margin_m: float = 0.12, claw_m: float
 def oracle_planner(trial_preset: str = "fast", max_trials: int = 40) -> PlanFn:
     """Ground-truth candidates verified in simulation: largest subsets first, the first subset with a
     successful candidate wins (best balance among its successes). An upper bound, not a planner."""
-    from synth.candidates import generate_candidates
-    from synth.trial import TrialConfig, run_trial
+    from synth.data.candidates import generate_candidates
+    from synth.physics.trial import TrialConfig, run_trial
 
     cfg = TrialConfig.fast() if trial_preset == "fast" else TrialConfig.careful()
 
@@ -224,10 +224,10 @@ def verified_planner(plan_all: Callable[[object, object], object], objective: st
     :func:`planner.verify.perturb_pile` with the default sigmas, seeded by the pile's seed) and, with
     ``copies``, on that many perturbed copies of it; the chosen grasp, or None (declined) when none
     succeeded. Sequential and without a time budget, so that the evaluation is repeatable.
-    ``trial_fn``: the twin trial (default :func:`synth.trial.run_trial`)."""
+    ``trial_fn``: the twin trial (default :func:`synth.physics.trial.run_trial`)."""
     from planner.inference import Objective
     from planner.verify import PerturbationConfig, Verifier, VerifyConfig, perturb_pile
-    from synth.trial import TrialConfig
+    from synth.physics.trial import TrialConfig
 
     obj = Objective(kind=objective)
     trial = TrialConfig.fast() if trial_preset == "fast" else TrialConfig.careful()
@@ -288,7 +288,7 @@ class Record:
     obstacles: bool
     k: int
     seed: int
-    outcome: str  # synth.trial.Outcome value, or "no_grasp"
+    outcome: str  # synth.physics.trial.Outcome value, or "no_grasp"
     targets: list[int] = field(default_factory=list)
     grasped: list[int] = field(default_factory=list)
     cos_beta: float = float("nan")
@@ -300,10 +300,10 @@ class Record:
 def evaluate_pile(task: tuple[int, bool, int, int], specs: list[PlannerSpec], cfg: EvalConfig,
                   planners: dict[str, PlanFn] | None = None) -> list[dict]:
     """Generate test pile ``task``, let every planner choose one grasp, try each in the twin."""
-    from synth.generate import GenerationConfig, generate_pile
-    from synth.render import OrthoRenderConfig, render_ortho
-    from synth.trial import TrialConfig, run_trial
-    from synth.world import World
+    from synth.scene.generate import GenerationConfig, generate_pile
+    from synth.render.ortho import OrthoRenderConfig, render_ortho
+    from synth.physics.trial import TrialConfig, run_trial
+    from synth.physics.world import World
 
     n_logs, with_obst, k, seed = task
     rng = np.random.default_rng([seed, 77])
@@ -339,9 +339,8 @@ def run_evaluation(specs: list[PlannerSpec], cfg: EvalConfig, out_dir: str | Pat
                    progress: Callable[[int, int], None] | None = None) -> dict:
     """Evaluate every planner on the same fresh piles; resumable (records per pile are appended
     to ``records/`` one file per pile, atomically); writes tables (Markdown + JSON) and a figure."""
-    import os
-
     from synth.common.files import atomic_write_bytes, dumps_json
+    from synth.common.runner import run_tasks
 
     if not specs:
         raise ValueError("no planner to evaluate")
@@ -393,37 +392,8 @@ def run_evaluation(specs: list[PlannerSpec], cfg: EvalConfig, out_dir: str | Pat
         if progress:
             progress(done, len(tasks))
 
-    workers = workers or os.cpu_count() or 1
-    if engine == "dask":
-        from dask.distributed import Client, LocalCluster, as_completed as dask_completed
-
-        cluster = None
-        if address is None:
-            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, host="127.0.0.1",
-                                   dashboard_address=None, processes=True)
-        client = Client(address or cluster)
-        try:
-            futs = {client.submit(evaluate_pile, t, sp, cfg, pure=False): t for t, sp in todo}
-            for f in dask_completed(futs):
-                finish(futs[f], f.result())
-        finally:
-            client.close()
-            if cluster is not None:
-                cluster.close()
-    elif workers == 1 or len(todo) <= 1:
-        for t, sp in todo:
-            finish(t, evaluate_pile(t, sp, cfg))
-    else:
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor, as_completed
-
-        from synth.common.processes import exit_with_parent
-
-        with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
-                                 initializer=exit_with_parent) as pool:
-            futs = {pool.submit(evaluate_pile, t, sp, cfg): t for t, sp in todo}
-            for f in as_completed(futs):
-                finish(futs[f], f.result())
+    run_tasks(evaluate_pile, {t: (t, missing, cfg) for t, missing in todo}, finish, workers=workers, engine=engine,
+              address=address)
 
     records = [r for t in tasks for r in _read_records(rec_dir / f"{t[3]}.json")]
     tables = summarise(records, cfg, names)

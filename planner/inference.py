@@ -1,6 +1,6 @@
 """Plan grasps on one observation: every target subset through the network, batched.
 
-For a top-down observation (intensity, depth, instance map of :class:`synth.render.OrthoObservation`)
+For a top-down observation (intensity, depth, instance map of :class:`synth.render.ortho.OrthoObservation`)
 the planner
 
 1. finds the visible logs (instance codes ``i + 1``) and chooses target subsets
@@ -12,7 +12,7 @@ the planner
    takes the best pixel whose grasp rectangle avoids the keep-out zones;
 5. decodes phi = atan2(S, C) / 2 from C and S *smoothed* with a Gaussian around that pixel
    (never by averaging angles), the width [m], and the pile-frame position via
-   :class:`synth.frames.OrthoGrid`.
+   :class:`synth.geometry.frames.OrthoGrid`.
 
 The :class:`Plan` lists the best grasp of each subset, best first.
 """
@@ -33,12 +33,12 @@ from planner.data import make_inputs
 from planner.errors import ObservationError
 from planner.model import OUTPUT_NAMES, UNetConfig
 from planner.subsets import SubsetPolicy, choose_subsets
-from synth.frames import OrthoGrid, wrap_phi
-from synth.grasp import MAX_WIDTH_M, MIN_WIDTH_M, RECT_WIDTH_M, Grasp
+from synth.geometry.frames import OrthoGrid, wrap_phi
+from synth.geometry.grasp import MAX_WIDTH_M, MIN_WIDTH_M, RECT_WIDTH_M, Grasp
 
 PLAN_FORMAT_NAME = "loggrasp.plan"  # plan.json, ``loggrasp plan --json``
 PLAN_FORMAT_VERSION = "1.0"
-OBSTACLE_CODE_BASE = 1000  # instance codes >= this are obstacles (synth.render)
+OBSTACLE_CODE_BASE = 1000  # instance codes >= this are obstacles (synth.render.ortho)
 
 
 @dataclass(frozen=True)
@@ -308,12 +308,12 @@ def _smoothed_at(img: np.ndarray, r: int, c: int, sigma: float) -> float:
 
 def plan(observation, planner: Planner, objective: Objective = Objective(), constraints: Constraints = Constraints(),
          top_k: int | None = None, *, subsets: SubsetPolicy = SubsetPolicy(), pile=None) -> Plan:
-    """Plan multi-log grasps on ``observation`` (an :class:`synth.render.OrthoObservation` or any
+    """Plan multi-log grasps on ``observation`` (an :class:`synth.render.ortho.OrthoObservation` or any
     object with ``intensity`` (H, W) or (R, H, W), ``depth`` (H, W) [m], ``instance`` (H, W),
     ``extent_m``, ``camera_height_m``).
 
     Returns the best grasp of each evaluated subset, best first (``top_k`` of them, all if None).
-    ``pile`` (a :class:`synth.pile.PileSpec`), when known, gives exact log volumes for the lift
+    ``pile`` (a :class:`synth.scene.pile.PileSpec`), when known, gives exact log volumes for the lift
     capacity. Raises :class:`ObservationError` for unusable input."""
     t0 = time.perf_counter()
     inten, depth, inst, extent_m, cam_h = _observation_arrays(observation)

@@ -7,7 +7,7 @@ relative height [m] (see :func:`planner.data.normalise_depth`) and the target ma
 Outputs, in this order (``OUTPUT_NAMES``), all (N, 5, H, W):
 
 * ``C`` = cos 2phi and ``S`` = sin 2phi: ``tanh`` -> (-1, 1); phi is the pile-frame grasp angle
-  (:mod:`synth.frames`);
+  (:mod:`synth.geometry.frames`);
 * ``W`` opening width [m]: ``sigmoid`` scaled to (``min_width_m``, ``max_width_m``) = (0.30, 1.55);
 * ``U`` graspability as a *logit* (train with BCE-with-logits; ``sigmoid`` gives u in (0, 1));
 * ``B`` balance = cos(beta): ``sigmoid`` -> (0, 1) (the grapple never tips past 90 degrees).

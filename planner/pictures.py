@@ -16,7 +16,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from synth.grasp import RECT_WIDTH_M
+from synth.geometry.grasp import RECT_WIDTH_M
 from synth.common.files import atomic_write_bytes
 
 TARGET_FILL = "#f0a030"
@@ -57,7 +57,7 @@ class MapFrame:
         self.matrix = np.eye(3)
         self.gamma_deg = 0.0
         if self.georeferenced:
-            from synth.geodesy import meridian_convergence_deg, pile_to_geodetic, pile_to_sweref_tm
+            from synth.geometry.geodesy import meridian_convergence_deg, pile_to_geodetic, pile_to_sweref_tm
 
             p = np.array([[0.0, 0.0, z_m], [1.0, 0.0, z_m], [0.0, 1.0, z_m]])
             e, n, _ = pile_to_sweref_tm(pile.georef, p)
@@ -115,7 +115,7 @@ def label_positions(obs, avoid_xy: Sequence[Sequence[float]] = (), min_sep_m: fl
     """Where to write each log's number (pile frame): on the log, at least ``min_sep_m`` from the
     other numbers and from ``avoid_xy`` (e.g. grasp centres) where the log allows, else as far as
     it can be; near the log's middle among the points that qualify."""
-    from synth.frames import OrthoGrid
+    from synth.geometry.frames import OrthoGrid
 
     grid = OrthoGrid(obs.depth.shape[0], obs.extent_m)
     placed = [np.asarray(p, dtype=float) for p in avoid_xy]
@@ -321,7 +321,7 @@ def draw_examples(records: list[dict], cfg: Any, path: str | Path, planner: str,
                     fontsize=11, color="0.3")
             continue
         for ci, r in enumerate(recs):
-            from synth.grasp import Grasp
+            from synth.geometry.grasp import Grasp
 
             ax = fig.add_axes((0.02 + ci * (0.96 / cols), 0.49 - 0.41 * ri, 0.96 / cols - 0.01, 0.34))
             obs = render(r)
@@ -344,9 +344,9 @@ def draw_examples(records: list[dict], cfg: Any, path: str | Path, planner: str,
 
 def _eval_observation(r: dict, cfg: Any):
     """The evaluation's test pile of record ``r``, regenerated from its seed and rendered."""
-    from synth.generate import GenerationConfig, generate_pile
-    from synth.render import OrthoRenderConfig, render_ortho
-    from synth.world import World
+    from synth.scene.generate import GenerationConfig, generate_pile
+    from synth.render.ortho import OrthoRenderConfig, render_ortho
+    from synth.physics.world import World
 
     rng = np.random.default_rng([r["seed"], 77])
     n_obst = int(rng.integers(1, cfg.max_obstacles + 1)) if r["obstacles"] else 0

@@ -22,7 +22,7 @@ from typing import Literal
 
 import numpy as np
 
-from synth.grasp import MAX_WIDTH_M, RECT_WIDTH_M
+from synth.geometry.grasp import MAX_WIDTH_M, RECT_WIDTH_M
 
 
 @dataclass(frozen=True)

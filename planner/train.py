@@ -1,4 +1,4 @@
-"""Train the grasp-map network on a :mod:`synth.dataset` data set.
+"""Train the grasp-map network on a :mod:`synth.data.dataset` data set.
 
 ``train(data_dir, out_dir, config)`` writes into ``out_dir``::
 

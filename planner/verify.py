@@ -4,7 +4,7 @@ A :class:`planner.inference.Plan` ranks the best grasp of every target subset by
 quality ``q = f(u, tau, b)``. :func:`verify_plan` (or a reusable :class:`Verifier`, which keeps its
 worker processes between plans) takes the ``k`` best of them that are worth trying (distinct
 subsets or positions, :func:`select_candidates`), runs each as a twin trial on the pile the plan was
-made on (:func:`synth.trial.run_trial`, the same trial code as data generation and evaluation) and
+made on (:func:`synth.physics.trial.run_trial`, the same trial code as data generation and evaluation) and
 chooses, among those whose trial succeeded, the best by the objective computed from what the trial
 *measured* (:func:`measured_quality`: the logs actually held for tau, the measured cos beta, rounded
 to ``BALANCE_STEP``, for b, u = 1). In the field that pile is the reconstruction; its errors are
@@ -46,9 +46,9 @@ import numpy as np
 from planner.errors import PlannerError
 from planner.inference import Objective, Plan, PlannedGrasp
 from synth.common.formats import VersionedJson
-from synth.grasp import Grasp
-from synth.pile import LogSpec, PileSpec, rotate
-from synth.trial import TrialConfig, TrialResult, run_trial
+from synth.geometry.grasp import Grasp
+from synth.scene.pile import LogSpec, PileSpec, rotate
+from synth.physics.trial import TrialConfig, TrialResult, run_trial
 
 log = logging.getLogger(__name__)
 
@@ -226,7 +226,7 @@ class CandidateCheck:
 
     @property
     def outcome(self) -> str:
-        """Outcome class on the pile as given (``synth.trial.Outcome`` value, ``trial_error``), or
+        """Outcome class on the pile as given (``synth.physics.trial.Outcome`` value, ``trial_error``), or
         the status when that trial did not run."""
         t = self.nominal
         return self.status if t is None else t.outcome
@@ -451,7 +451,7 @@ def _jitter_obstacles(pile: PileSpec, rng: np.random.Generator, sigma: float, sc
 def _lift_out(pile: PileSpec, cfg: PerturbationConfig, physics) -> PileSpec | None:
     """Lift logs out of the bodies they were pushed into (the higher of two logs, a log out of the
     terrain or an obstacle), a few rounds in one world; None if still interpenetrating."""
-    from synth.world import World
+    from synth.physics.world import World
 
     with World(pile, physics, visuals=False) as world:
         c = world.client
@@ -520,10 +520,10 @@ def check_pile(plan: Plan, pile: PileSpec | None, physics=None) -> None:
     """:class:`VerificationError` unless ``pile`` is a pile the twin can load and holds every
     target log of ``plan``."""
     if pile is None:
-        raise VerificationError("verification needs the pile the plan was made on (a synth.pile.PileSpec: "
+        raise VerificationError("verification needs the pile the plan was made on (a synth.scene.pile.PileSpec: "
                                 "in the field the reconstruction); plan with pile=... and pass it")
     if not isinstance(pile, PileSpec):
-        raise VerificationError(f"verification needs a synth.pile.PileSpec, got {type(pile).__name__}")
+        raise VerificationError(f"verification needs a synth.scene.pile.PileSpec, got {type(pile).__name__}")
     top = max((max(g.targets) for g in plan.grasps if g.targets), default=-1)
     if top >= pile.n_logs:
         raise VerificationError(f"the plan targets log {top} but the pile has {pile.n_logs} logs: it was made on "
@@ -534,7 +534,7 @@ def check_pile(plan: Plan, pile: PileSpec | None, physics=None) -> None:
 def check_twin_loads(pile: PileSpec, physics=None) -> None:
     """:class:`VerificationError` unless the twin can build a world of ``pile`` (e.g. a rock
     whose vertices are flat has no hull); the message keeps the cause's first line."""
-    from synth.world import World
+    from synth.physics.world import World
 
     try:
         with World(pile, physics, visuals=False):
@@ -624,7 +624,7 @@ class Verifier:
     (``close`` is safe twice); :meth:`verify` is the verification of one plan."""
 
     def __init__(self, config: VerifyConfig | None = None, trial_fn: TrialFn | None = None) -> None:
-        """``trial_fn``: the twin trial, :func:`synth.trial.run_trial` when None."""
+        """``trial_fn``: the twin trial, :func:`synth.physics.trial.run_trial` when None."""
         self.config = config or VerifyConfig()
         self.trial_fn = trial_fn or run_trial
         self._pool = None

@@ -3,10 +3,10 @@
 A pair folder may hold
 
 * ``calibration.yaml``: OpenCV FileStorage (``K1 D1 K2 D2 R T image_size``, optionally the left
-  camera's pose ``T_pile_cam``; :func:`synth.stereo.read_calibration_yaml`);
+  camera's pose ``T_pile_cam``; :func:`synth.geometry.calibration.read_calibration_yaml`);
 * a ZED calibration: the factory ``SN<serial>.conf`` that ZED cameras come with, or ``zed.conf``
   (the same INI layout; the twin writes one with a ``[LOGGRASP]`` section holding the pose;
-  :func:`synth.stereo.read_zed_conf`). A ZED file describes every resolution the camera has
+  :func:`synth.geometry.calibration.read_zed_conf`). A ZED file describes every resolution the camera has
   (``[LEFT_CAM_HD]``, ``[LEFT_CAM_FHD]``...): the section matching the images' size is read
   (1280x720 is ``HD``, 1920x1080 ``FHD``, 2208x1242 ``2K``, 672x376 ``VGA``; a ``[LOGGRASP]``
   section names its own).
@@ -54,11 +54,11 @@ def _one_line(exc: BaseException) -> str:
 
 
 def read_yaml(path: str | Path) -> object:
-    """``calibration.yaml`` as a :class:`synth.stereo.StereoCalibration`; every problem with the file a
+    """``calibration.yaml`` as a :class:`synth.geometry.calibration.StereoCalibration`; every problem with the file a
     one-line :class:`CalibrationError` naming it."""
     import cv2
 
-    from synth.stereo import StereoFormatError, read_calibration_yaml
+    from synth.geometry.calibration import StereoFormatError, read_calibration_yaml
 
     path = Path(path)
     try:
@@ -75,7 +75,7 @@ def read_yaml(path: str | Path) -> object:
 
 def zed_resolution(path: Path, cfg: configparser.ConfigParser, image_size: tuple[int, int]) -> str:
     """The resolution section of a ZED file that matches ``image_size`` (width, height) [px]."""
-    from synth.stereo import ZED_RESOLUTIONS
+    from synth.geometry.calibration import ZED_RESOLUTIONS
 
     have = sorted(s[len("LEFT_CAM_"):] for s in cfg.sections() if s.startswith("LEFT_CAM_"))
     if cfg.has_section("LOGGRASP"):
@@ -98,11 +98,11 @@ def zed_resolution(path: Path, cfg: configparser.ConfigParser, image_size: tuple
 
 def read_zed(path: str | Path, image_size: tuple[int, int]) -> object:
     """A ZED ``SN*.conf`` / ``zed.conf`` at the resolution of ``image_size`` (width, height) [px], as a
-    :class:`synth.stereo.StereoCalibration` (identity pose when the file has none); every problem a
+    :class:`synth.geometry.calibration.StereoCalibration` (identity pose when the file has none); every problem a
     one-line :class:`CalibrationError` naming the file."""
     import cv2
 
-    from synth.stereo import StereoFormatError, read_zed_conf
+    from synth.geometry.calibration import StereoFormatError, read_zed_conf
 
     path = Path(path)
     cfg = configparser.ConfigParser()

@@ -1,6 +1,6 @@
 """``loggrasp synth scan`` (the twin's field scans), ``loggrasp reconstruct`` and ``compare-piles``.
 
-Flags take their defaults from the config dataclasses (:func:`synth.cli_common.option`); errors
+Flags take their defaults from the config dataclasses (:func:`synth.common.cli.option`); errors
 are raised and printed once by ``field.cli.run``."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import typer
 
 from reconstruct.pipeline import ReconstructConfig
 from synth.cli import JSON
-from synth.cli_common import CliError, Output, check_input, check_output_dir, option
+from synth.common.cli import CliError, Output, check_input, check_output_dir, option
 
 SITE_HELP = "Site origin LAT,LON (SWEREF 99) [deg], optional ,H (ellipsoidal) [m]."
 
@@ -77,7 +77,7 @@ def scan_command(
     Degraded survey: loggrasp synth scan --seed 3 --float-fixes 4 --unsurveyed-logs 1 --out scans/s3d
     """
     from reconstruct.twin_scan import DEFAULT_SITE, make_twin_scan
-    from synth.geodesy import check_geodetic
+    from synth.geometry.geodesy import check_geodetic
     from synth.common.ranges import parse_range
 
     o = Output(as_json)
@@ -201,7 +201,7 @@ def compare_command(
     Example: loggrasp compare-piles scans/s3/truth recon/s3 --json
     """
     from reconstruct.compare import compare_piles
-    from synth.pile import read_pile
+    from synth.scene.pile import read_pile
 
     o = Output(as_json)
     check_input(truth, "TRUTH")

@@ -7,17 +7,17 @@ the distance between their axes; a log's two ends may be swapped), and reports p
   ``endpoint_max_err_m``, ``length_err_m``, ``axis_angle_err_deg``;
 * ``diameter_err_m``: reconstructed minus true MEAN diameter (butt and top averaged), and
   ``butt_diameter_err_m``;
-* ``mask_iou``: the log's mask in a 128 px orthographic render (:func:`synth.render.render_ortho`)
+* ``mask_iou``: the log's mask in a 128 px orthographic render (:func:`synth.render.ortho.render_ortho`)
   of a pile made of the TRUE terrain and obstacles with the RECONSTRUCTED logs, against its mask in
   the render of the true pile — the same occluders in both, so only the logs' geometry differs;
 
 plus obstacle matching (nearest, within ``obstacle_match_m`` + half the obstacle's size) and a
 summary (medians, 95th percentiles, worst cases, counts). The reconstructed pile is brought into
-the true pile's frame through both georeferences (:mod:`synth.geodesy`) when both have one,
+the true pile's frame through both georeferences (:mod:`synth.geometry.geodesy`) when both have one,
 otherwise the two frames are taken to be the same. Everything returned is JSON-serialisable.
 
 :func:`simulate_scan` makes the inputs of :func:`reconstruct.pipeline.reconstruct` from a pile:
-stereo pairs rendered by the twin (:mod:`synth.stereo`), the scan pose and a simulated RTK survey.
+stereo pairs rendered by the twin (:mod:`synth.render.stereo`), the scan pose and a simulated RTK survey.
 """
 
 from __future__ import annotations
@@ -28,10 +28,10 @@ from pathlib import Path
 
 import numpy as np
 
-from synth.pile import Georeference, LogSpec, PileSpec
+from synth.scene.pile import Georeference, LogSpec, PileSpec
 
 
-def _T_truth_recon(truth: PileSpec, recon: PileSpec) -> tuple[np.ndarray | None, str]:
+def T_truth_recon(truth: PileSpec, recon: PileSpec) -> tuple[np.ndarray | None, str]:
     """Transform taking recon-pile points to truth-pile points (None: identity) and how."""
     if truth.georef is None or recon.georef is None:
         return None, "same frame assumed (a pile has no georeference)"
@@ -45,9 +45,9 @@ def _T_truth_recon(truth: PileSpec, recon: PileSpec) -> tuple[np.ndarray | None,
 
 
 def _to_truth(points: np.ndarray, truth: PileSpec, recon: PileSpec) -> np.ndarray:
-    from synth import geodesy
+    from synth.geometry import geodesy
 
-    T, how = _T_truth_recon(truth, recon)
+    T, how = T_truth_recon(truth, recon)
     p = np.atleast_2d(np.asarray(points, dtype=np.float64))
     if T is not None:
         return p @ T[:3, :3].T + T[:3, 3]
@@ -78,8 +78,8 @@ def _end_errors(t: LogSpec, r: LogSpec) -> tuple[float, float, bool]:
 
 
 def _render_instances(pile: PileSpec, size_px: int) -> np.ndarray:
-    from synth.render import OrthoRenderConfig, render_ortho
-    from synth.world import World
+    from synth.render.ortho import OrthoRenderConfig, render_ortho
+    from synth.physics.world import World
 
     with World(pile) as world:
         return render_ortho(world, OrthoRenderConfig(size_px=size_px, n_renders=1)).instance
@@ -115,7 +115,7 @@ def compare_piles(truth: PileSpec, recon: PileSpec, size_px: int = 128, render: 
 
     if not 16 <= size_px <= 2048:
         raise ValueError(f"size_px must be in [16, 2048], got {size_px}")
-    _, how = _T_truth_recon(truth, recon)
+    _, how = T_truth_recon(truth, recon)
     rlogs = _logs_in_truth_frame(truth, recon)
     n_t, n_r = truth.n_logs, len(rlogs)
     cost = np.zeros((n_t, n_r))
@@ -226,8 +226,8 @@ def simulate_scan(pile: PileSpec, out_dir: str | Path, *, grid: tuple[int, int] 
     path, the georeferenced true pile)."""
     from reconstruct.gnss import pile_endpoints_site, simulate_survey, write_gnss_csv
     from reconstruct.pipeline import ScanPose, write_scan_pose
-    from synth.frames import make_T, rot_z
-    from synth.stereo import StereoRenderer, StereoRigConfig
+    from synth.geometry.frames import make_T, rot_z
+    from synth.render.stereo import StereoRenderer, StereoRigConfig
 
     out_dir = Path(out_dir)
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x5CA7]))

@@ -78,7 +78,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from reconstruct.errors import FitError, LogNotSeenError
-from synth.pile import LogSpec, PileSpec, RockSpec, StumpSpec, TerrainSpec
+from synth.scene.pile import LogSpec, PileSpec, RockSpec, StumpSpec, TerrainSpec
 
 ENDPOINT_REFS = ("end_centre", "top_surface")
 AXIS_SOURCES = ("fit", "gnss")
@@ -710,7 +710,7 @@ def fit_terrain(ground_candidates: np.ndarray, extent_m: float, cfg: FitConfig |
     w = max(3, int(round(cfg.ground_window_m / step)) | 1)
     opened = ndimage.grey_opening(filled, size=(w, w))
     # ground points: within the band above the opened surface (bilinear)
-    from synth.pile import height_at
+    from synth.scene.pile import height_at
 
     z_open = height_at(opened, extent_m, P[:, 0], P[:, 1])
     is_ground = inside & (P[:, 2] < z_open + cfg.ground_band_m) & (P[:, 2] > z_open - 3 * cfg.ground_band_m)
@@ -1013,7 +1013,7 @@ def separate_logs(pile: PileSpec, cfg: FitConfig | None = None) -> tuple[PileSpe
     Returns the pile, what was done, and how far each log moved [m]. Raises
     :class:`FitError` when a log would have to move more than ``max_move_m``."""
     from synth.errors import PileValidationError
-    from synth.world import World
+    from synth.physics.world import World
 
     cfg = cfg or FitConfig()
     moves = [np.zeros(3) for _ in range(pile.n_logs)]
@@ -1551,9 +1551,9 @@ def sample_top_view_points(pile: PileSpec, size_px: int = 500, noise_m: float = 
     """Points of ``pile`` as seen from straight above (what a downward scanner sees, occlusion
     included): the exact orthographic height map of the twin at ``size_px`` pixels per side,
     one point per pixel, plus Gaussian noise of ``noise_m`` on every coordinate. Pile frame, (N, 3)."""
-    from synth.frames import OrthoGrid
-    from synth.render import OrthoRenderConfig, render_ortho
-    from synth.world import World
+    from synth.geometry.frames import OrthoGrid
+    from synth.render.ortho import OrthoRenderConfig, render_ortho
+    from synth.physics.world import World
 
     with World(pile) as world:
         obs = render_ortho(world, OrthoRenderConfig(size_px=size_px, n_renders=1))

@@ -815,7 +815,7 @@ def place_log_ends(points: np.ndarray, spec: Any, how: str, survey: tuple[Survey
     "hidden") with both ends placed by :func:`fuse_end`, and the two estimates in survey order
     (end a, end b; ``swapped``: end b is the butt). ``points``: the scan points that may lie on it.
     ``lateral_sigma_m``: how well its axis is known across [m]."""
-    from synth.pile import LogSpec
+    from synth.scene.pile import LogSpec
 
     cfg = cfg or FuseConfig()
     butt, top = spec.endpoints_m()

@@ -67,7 +67,7 @@ accepted: metre-level positions are useless for logs), and no point lies more th
 ``max_distance_m`` (default 50 m) horizontally from the median of all points or, when ``area`` is
 given, from the scanned area's origin. Errors name the file, the line and the log id.
 
-The site frame and heights follow :mod:`synth.geodesy` (ellipsoidal heights, ENU at an origin).
+The site frame and heights follow :mod:`synth.geometry.geodesy` (ellipsoidal heights, ENU at an origin).
 """
 
 from __future__ import annotations
@@ -91,8 +91,9 @@ from reconstruct.errors import (
     GnssOutlierError,
     GnssQualityError,
 )
-from synth import geodesy
-from synth.pile import Georeference, PileSpec, atomic_write_bytes
+from synth.geometry import geodesy
+from synth.common.files import atomic_write_bytes
+from synth.scene.pile import Georeference, PileSpec
 
 GNSS_CSV_FORMAT = "loggrasp.gnss-csv"
 GNSS_CSV_VERSION = "1.0"
@@ -190,7 +191,7 @@ class GnssSurvey:
     def endpoints_site(self, origin: Any = None) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """``{log_id: (end_a, end_b)}`` in the site ENU frame [m] (float64 (3,) arrays).
 
-        ``origin``: a :class:`~synth.pile.Georeference` or (lat_deg, lon_deg, h_m); default
+        ``origin``: a :class:`~synth.scene.pile.Georeference` or (lat_deg, lon_deg, h_m); default
         :meth:`default_origin`."""
         site = self.points_site(origin)
         out: dict[str, dict[str, np.ndarray]] = {}
@@ -212,7 +213,7 @@ class GnssSurvey:
 
     def endpoints_pile(self, georef: Georeference) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """``{log_id: (end_a, end_b)}`` in the pile frame of ``georef`` [m] (through its site
-        frame and ``T_site_pile``) — ready for :meth:`synth.pile.LogSpec.from_endpoints`."""
+        frame and ``T_site_pile``) — ready for :meth:`synth.scene.pile.LogSpec.from_endpoints`."""
         site = self.endpoints_site(georef)
         return {k: tuple(geodesy.site_to_pile(georef, np.stack(v))) for k, v in site.items()}
 

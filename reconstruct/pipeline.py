@@ -69,11 +69,12 @@ from reconstruct.fuse import (
 )
 from reconstruct.sfm import SfmConfig
 from reconstruct.stereo import ScanCloud, StereoConfig, scan_cloud
-from synth.frames import apply_T, invert_T, make_T, rot_z
-from synth.pile import Georeference, PileSpec, atomic_write_bytes, write_pile
+from synth.geometry.frames import apply_T, invert_T, make_T, rot_z
+from synth.common.files import atomic_write_bytes
+from synth.scene.pile import Georeference, PileSpec, write_pile
 
 if TYPE_CHECKING:
-    from synth.render import OrthoObservation
+    from synth.render.ortho import OrthoObservation
 
 SCAN_POSE_FORMAT = "loggrasp.scan-pose"
 SCAN_POSE_VERSION = "1.0"
@@ -773,7 +774,7 @@ def _check_coverage(points_xy: np.ndarray, endpoints: dict[str, tuple[Any, Any]]
 def scan_top_view(points: np.ndarray, colours: np.ndarray, extent_m: float, size_px: int) -> np.ndarray:
     """BGR uint8 top view of a coloured cloud (pile frame) on the ortho grid: the highest point
     per pixel; grey where nothing was seen."""
-    from synth.frames import OrthoGrid
+    from synth.geometry.frames import OrthoGrid
 
     g = OrthoGrid(size_px, extent_m)
     r, c = g.pile_to_pixel(points[:, 0], points[:, 1])
@@ -790,7 +791,7 @@ def comparison_image(points: np.ndarray, colours: np.ndarray, obs: Any, scale: i
     """The scan from above (left) beside the re-render with log outlines (right), BGR uint8."""
     import cv2
 
-    from synth.preview import log_colour_bgr
+    from synth.render.preview import log_colour_bgr
 
     n = obs.depth.shape[0]
     size = n * scale
@@ -883,9 +884,9 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
     from reconstruct.calibration import pair_pose_present
     from reconstruct.stereo import find_pairs
     from synth.errors import SynthError
-    from synth.render import OrthoRenderConfig, render_ortho
-    from synth.preview import preview_image, write_png
-    from synth.world import World
+    from synth.render.ortho import OrthoRenderConfig, render_ortho
+    from synth.render.preview import preview_image, write_png
+    from synth.physics.world import World
 
     cfg = config or ReconstructConfig()
     say = progress or (lambda s: None)

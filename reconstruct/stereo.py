@@ -1,7 +1,7 @@
 """Stereo scans to point clouds: read a scan folder, rectify, match (OpenCV SGBM), reproject.
 
 A *scan folder* holds one stereo pair, or several pairs in sub-folders (the rig moved; each pair
-carries its own left-camera pose). A pair is what :class:`synth.stereo.StereoPair` writes (and
+carries its own left-camera pose). A pair is what :class:`synth.render.stereo.StereoPair` writes (and
 what a ZED export converted to it looks like): ``left.png``, ``right.png`` and
 ``calibration.yaml`` (OpenCV FileStorage: ``K1 D1 K2 D2 R T image_size`` and the left camera's
 pose ``T_pile_cam`` in the *scan frame*) and/or the camera's ZED ``SN<serial>.conf`` (or
@@ -70,7 +70,7 @@ class ScanPair:
     folder: Path
     left: np.ndarray
     right: np.ndarray
-    calibration: object  # synth.stereo.StereoCalibration
+    calibration: object  # synth.geometry.calibration.StereoCalibration
 
 
 @dataclass
@@ -148,7 +148,7 @@ def pair_points(pair: ScanPair, config: StereoConfig | None = None) -> tuple[np.
     pixels matched, for one pair."""
     import cv2
 
-    from synth.stereo import rectify_and_match
+    from synth.render.stereo import rectify_and_match
 
     cfg = config or StereoConfig()
     calib = pair.calibration

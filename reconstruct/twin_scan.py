@@ -46,9 +46,9 @@ from typing import Callable
 
 import numpy as np
 
-from synth.frames import make_T, rot_z
+from synth.geometry.frames import make_T, rot_z
 from synth.common.files import apply_umask, atomic_write_bytes
-from synth.pile import Georeference, PileSpec, write_pile
+from synth.scene.pile import Georeference, PileSpec, write_pile
 
 SCAN_FORMAT_VERSION = "1.0"
 DEFAULT_SITE = (64.1, 20.0, 250.0)  # near Umeå inland: lat [deg], lon [deg], ellipsoidal h [m]
@@ -66,7 +66,7 @@ def georeference_pile(pile: PileSpec, site: tuple[float, float, float], rng: np.
 
 def _rig_over_pile(pile: PileSpec, height_m: float, hfov_deg: float,
                    image_size: tuple[int, int] = (1280, 720)):
-    from synth.stereo import StereoRigConfig
+    from synth.render.stereo import StereoRigConfig
 
     ends = np.array([e for log in pile.logs for e in log.endpoints_m()])
     centre = ends.mean(axis=0)
@@ -85,7 +85,7 @@ def _handheld_pose(rig, rng: np.random.Generator, jitter_m: float, jitter_height
     """``T_pile_cam`` of a rig held by hand / on a boom near ``rig``'s straight-down pose: moved
     horizontally (uniform within ``jitter_m``), up or down (``jitter_height_m``), turned about the
     vertical (``jitter_yaw_deg``) and tilted about both image axes (``jitter_tilt_deg``)."""
-    from synth.frames import rot_z
+    from synth.geometry.frames import rot_z
 
     T = rig.camera_pose()
     ax, ay = np.radians(rng.uniform(-jitter_tilt_deg, jitter_tilt_deg, 2))
@@ -103,7 +103,7 @@ def _strip_pose(pair_dir: Path) -> None:
 
     import cv2
 
-    from synth.stereo import CALIB_FORMAT_NAME, CALIB_FORMAT_VERSION, read_calibration_yaml
+    from synth.geometry.calibration import CALIB_FORMAT_NAME, CALIB_FORMAT_VERSION, read_calibration_yaml
 
     calib = read_calibration_yaml(pair_dir / "calibration.yaml")
     fs = cv2.FileStorage("calibration.yaml", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY)
@@ -152,8 +152,8 @@ def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5
 
     Written into a temporary sibling folder and renamed into place (never half-written)."""
     from reconstruct.gnss import pile_endpoints_site, simulate_survey, write_gnss_csv
-    from synth.generate import GenerationConfig, generate_pile
-    from synth.geodesy import check_geodetic
+    from synth.scene.generate import GenerationConfig, generate_pile
+    from synth.geometry.geodesy import check_geodetic
 
     check_geodetic(site[0], site[1], "--site")
     say = progress or (lambda s: None)
@@ -174,7 +174,7 @@ def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5
         import datetime as dt
 
         from reconstruct.pipeline import ScanPose, write_scan_pose
-        from synth.stereo import StereoRenderer
+        from synth.render.stereo import StereoRenderer
 
         captured = dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds").replace("+00:00", "Z")
         rig0 = _rig_over_pile(pile, height_m, hfov_deg, image_size)
@@ -268,7 +268,7 @@ def write_twin_survey(scan_root: str | Path, path: str | Path, n_float: int = 0,
     surveyed ends), ``n_unsurveyed`` logs left out (:func:`visible_logs`). Drawn from its own random
     stream of (``seed``, default the scan's; ``n_float``; ``n_unsurveyed``). Returns the CSV path."""
     from reconstruct.gnss import pile_endpoints_site, simulate_survey, write_gnss_csv
-    from synth.pile import read_pile
+    from synth.scene.pile import read_pile
 
     root = Path(scan_root)
     pile = read_pile(root / "truth" / "pile.json")

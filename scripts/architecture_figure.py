@@ -27,10 +27,10 @@ LANES = [
                                    ("U-Net", "model.py, train.py"),
                                    ("plan: Q = f(U, tau, B)", "inference.py, subsets.py"),
                                    ("verify in the twin", "verify.py, evaluate.py")]),
-    ("synth/", 0.0, "#ece3f4", [("scene", "pile.py, generate.py, terrain.py"),
-                                 ("physics", "world.py, grapple.py, trial.py"),
-                                 ("render", "render.py, stereo.py, textures.py"),
-                                 ("data", "candidates, maps, dataset, datastore")]),
+    ("synth/", 0.0, "#ece3f4", [("scene/", "pile.py, generate.py, terrain.py"),
+                                 ("physics/", "world.py, grapple.py, trial.py"),
+                                 ("render/", "ortho.py, stereo.py, textures.py"),
+                                 ("data/", "candidates, maps, dataset, datastore, jobs")]),
 ]
 
 
@@ -62,8 +62,10 @@ def main() -> None:
             centres[(name, i)] = (x + w / 2, y + h / 2)
     ax.add_patch(FancyBboxPatch((0.05, -0.75), 11.3, 0.5, boxstyle="round,pad=0.0,rounding_size=0.05",
                                 fc="#eeeeee", ec="#999999"))
-    ax.text(5.7, -0.5, "synth/common/: atomic writes, hashing, one versioned-JSON reader, ranges, error root "
-            "(LoggraspError) — used by every package", ha="center", va="center", fontsize=8)
+    ax.text(5.7, -0.5, "synth/common/: atomic writes, hashing, one versioned-JSON reader, one job runner, ranges, "
+            "error root (LoggraspError), the CLI helpers\nsynth/geometry/: frames, the grasp, geodesy (SWEREF 99 TM, RH 2000), "
+            "stereo calibration formats — no simulator behind them; used by every package", ha="center",
+            va="center", fontsize=8)
     # the demo's data flow: numbered badges on the stages, in order, and the sequence written out
     flow = [("reconstruct/", 0), ("reconstruct/", 1), ("reconstruct/", 2), ("reconstruct/", 3), ("synth/", 2),
             ("planner/", 0), ("planner/", 1), ("planner/", 2), ("planner/", 3), ("synth/", 1), ("field/", 0),

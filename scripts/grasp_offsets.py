@@ -19,9 +19,9 @@ SHIFTS = [(0.0, 0.0), (0.1, 0.0), (0.2, 0.0), (0.3, 0.0), (0.0, 0.1), (0.0, 0.2)
 
 
 def _trial(args) -> tuple[float, float, bool]:
-    from synth.grasp import Grasp
-    from synth.pile import read_pile
-    from synth.trial import TrialConfig, run_trial
+    from synth.geometry.grasp import Grasp
+    from synth.scene.pile import read_pile
+    from synth.physics.trial import TrialConfig, run_trial
 
     pile_path, (x, y, phi, w), subset, along, across = args
     g = Grasp(x, y, phi, w)
@@ -39,7 +39,7 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
-    from synth.dataset import load_shard
+    from synth.data.dataset import load_shard
 
     rng = np.random.default_rng(args.seed)
     jobs = []

@@ -11,19 +11,17 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
 def main() -> None:
     from planner.data import is_validation_pile, list_shards, load_samples, make_inputs, sample_arrays
     from planner.inference import load_planner
-    from synth.frames import wrap_phi
-    from synth.maps import decode_at
+    from synth.geometry.frames import wrap_phi
+    from synth.data.maps import decode_at
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("model", type=Path)

@@ -61,26 +61,26 @@ M = Mutation
 # ------------------------------------------------------------------------------------------------
 MUTATIONS: tuple[Mutation, ...] = (
     M("atomic-writer-plain", "the shared atomic writer writes in place",
-      "synth/pile.py", 'fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)',
+      "synth/common/files.py", 'fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)',
       "path.write_bytes(data); return",
-      ("tests/synth/test_atomic_writes.py", "tests/synth/test_pile.py", "tests/synth/test_dataset.py")),
+      ("tests/synth/common/test_atomic_writes.py", "tests/synth/scene/test_pile.py", "tests/synth/data/test_dataset.py")),
     M("dataset-write-plain", "the data set's write seam (shards, done records, manifest) writes in place",
-      "synth/dataset.py", "    atomic_write_bytes(path, data)\n", "    path.write_bytes(data)\n",
-      ("tests/synth/test_atomic_writes.py", "tests/synth/test_dataset.py")),
+      "synth/data/dataset.py", "    atomic_write_bytes(path, data)\n", "    path.write_bytes(data)\n",
+      ("tests/synth/common/test_atomic_writes.py", "tests/synth/data/test_dataset.py")),
     M("pile-write-plain", "write_pile writes pile.json in place",
-      "synth/pile.py", "atomic_write_bytes(path, text.encode())", "path.write_bytes(text.encode())",
-      ("tests/synth/test_atomic_writes.py", "tests/synth/test_pile.py")),
+      "synth/scene/pile.py", "atomic_write_bytes(path, text.encode())", "path.write_bytes(text.encode())",
+      ("tests/synth/common/test_atomic_writes.py", "tests/synth/scene/test_pile.py")),
     M("checkpoint-write-plain", "save_tensors (checkpoints, training state) writes in place",
       "planner/checkpoint.py", "atomic_write_bytes(path, data)", "path.write_bytes(data)",
-      ("tests/synth/test_atomic_writes.py", "tests/planner/test_planner_inference.py")),
+      ("tests/synth/common/test_atomic_writes.py", "tests/planner/test_planner_inference.py")),
     M("geojson-write-plain", "write_geojson writes in place (no behavioural test reaches it)",
       "field/geo.py", 'atomic_write_bytes(path, json.dumps(fc, indent=1).encode("utf-8"))',
       'path.write_bytes(json.dumps(fc, indent=1).encode("utf-8"))',
-      ("tests/synth/test_atomic_writes.py", "tests/field/test_geo.py")),
+      ("tests/synth/common/test_atomic_writes.py", "tests/field/test_geo.py")),
     M("resume-checksum-off", "resuming a data set no longer checks finished shards' sha256",
-      "synth/dataset.py", "_check_shard_file(out / info.file, info, checksum=True)",
+      "synth/data/dataset.py", "_check_shard_file(out / info.file, info, checksum=True)",
       "_check_shard_file(out / info.file, info, checksum=False)",
-      ("tests/synth/test_dataset_resume_checksum.py", "tests/synth/test_dataset.py")),
+      ("tests/synth/data/test_dataset_resume_checksum.py", "tests/synth/data/test_dataset.py")),
     M("loss-lambda-w-dropped", "the lambda_W width term is left out of the loss",
       "planner/loss.py", " + weights.lambda_w * lw", "",
       ("tests/planner/test_loss_terms.py", "tests/planner/test_planner_loss_augment.py")),
@@ -104,13 +104,13 @@ MUTATIONS: tuple[Mutation, ...] = (
       "planner/subsets.py", "R = policy.fit_radius_m + slack", "R = policy.fit_radius_m",
       ("tests/planner/test_subset_slack.py", "tests/planner/test_planner_inference.py")),
     M("rh2000-ballpark", "RH 2000 heights fall back to PROJ's ballpark (ellipsoidal) without the geoid grid",
-      "synth/geodesy.py", "    t = _rh2000_transformer()\n",
+      "synth/geometry/geodesy.py", "    t = _rh2000_transformer()\n",
       '    t = _transformer(EPSG_SWEREF99_3D, f"{EPSG_SWEREF99}+5613")\n',
-      ("tests/synth/test_rh2000_refusal.py", "tests/synth/test_geodesy.py")),
+      ("tests/synth/geometry/test_rh2000_refusal.py", "tests/synth/geometry/test_geodesy.py")),
     M("rh2000-ballpark-on-a-grid-machine", "the same, tested on a machine that has the geoid grid installed",
-      "synth/geodesy.py", "    t = _rh2000_transformer()\n",
+      "synth/geometry/geodesy.py", "    t = _rh2000_transformer()\n",
       '    t = _transformer(EPSG_SWEREF99_3D, f"{EPSG_SWEREF99}+5613")\n',
-      ("tests/synth/test_rh2000_refusal.py", "tests/synth/test_geodesy.py"), env="geoid-grid"),
+      ("tests/synth/geometry/test_rh2000_refusal.py", "tests/synth/geometry/test_geodesy.py"), env="geoid-grid"),
     # -- guards of the tests that could not fail -------------------------------------------------
     M("real-test-angle-half-period", "the real test's angle difference wraps at 90 deg instead of 180",
       "field/real_test.py", "d = (a - b + math.pi / 2) % math.pi - math.pi / 2",
@@ -132,10 +132,10 @@ MUTATIONS: tuple[Mutation, ...] = (
 # ------------------------------------------------------------------------------------------------
 def _geoid_grid_env(copy: Path, scratch: Path) -> dict[str, str]:
     """A machine with the SWEN17_RH2000 geoid grid: a stand-in grid in PROJ's user folder (written
-    by the working tree's tests/synth/geoid_stand_in.py, whatever tests the copy has)."""
+    by the working tree's tests/synth/geometry/geoid_stand_in.py, whatever tests the copy has)."""
     import importlib.util
 
-    spec = importlib.util.spec_from_file_location("geoid_stand_in", REPO / "tests/synth/geoid_stand_in.py")
+    spec = importlib.util.spec_from_file_location("geoid_stand_in", REPO / "tests/synth/geometry/geoid_stand_in.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     folder = scratch / "proj-user"

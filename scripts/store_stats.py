@@ -12,7 +12,7 @@ from __future__ import annotations
 import sys
 from collections import Counter
 
-from synth.datastore import chunk_path, open_store, read_chunk
+from synth.data.datastore import chunk_path, open_store, read_chunk
 
 PAPER = {"piles": 604, "subsets": 604 * 15, "samples": 5491, "grasps": 12124, "negatives": 2039}
 

@@ -1,6 +1,6 @@
 """``loggrasp synth ...``: thin commands over :mod:`synth` (heavy imports stay inside commands).
 
-Flags take their defaults from the config dataclasses (:func:`synth.cli_common.option`); errors
+Flags take their defaults from the config dataclasses (:func:`synth.common.cli.option`); errors
 are raised and printed once by ``field.cli.run``."""
 
 from __future__ import annotations
@@ -11,9 +11,9 @@ from typing import Literal
 
 import typer
 
-from synth.cli_common import CliError, Output, check_input, check_output_dir, option, plural, progress_bar
-from synth.dataset import DatasetJob
-from synth.jobs import PileJob
+from synth.common.cli import CliError, Output, check_input, check_output_dir, option, plural, progress_bar
+from synth.data.dataset import DatasetJob
+from synth.data.jobs import PileJob
 
 #: how every loggrasp Typer app formats help: plain text (units such as [m] kept, no markup), -h
 APP_SETTINGS = dict(no_args_is_help=True, rich_markup_mode=None, add_completion=False, pretty_exceptions_enable=False,
@@ -52,7 +52,7 @@ def piles(
     Re-running the same command resumes: finished piles are kept, the rest are made.
     """
     from synth.common.ranges import parse_range
-    from synth.jobs import run_pile_job
+    from synth.data.jobs import run_pile_job
 
     o = Output(as_json)
     job = PileJob(count=count, logs=parse_range(logs, "--logs"), obstacles=parse_range(obstacles, "--obstacles"),
@@ -79,10 +79,10 @@ def render(
     \b
     Example: loggrasp synth render piles/pile_00000 --out renders/p0
     """
-    from synth.pile import read_pile
-    from synth.preview import preview_image, write_png
-    from synth.render import OrthoRenderConfig, render_ortho
-    from synth.world import World
+    from synth.scene.pile import read_pile
+    from synth.render.preview import preview_image, write_png
+    from synth.render.ortho import OrthoRenderConfig, render_ortho
+    from synth.physics.world import World
 
     o = Output(as_json)
     check_input(pile, "PILE")
@@ -134,7 +134,7 @@ def dataset(
     Re-running resumes: finished shards are kept, partial ones redone. With --engine dask
     --address tcp://HOST:8786 the same job runs on a Dask cluster.
     """
-    from synth.dataset import build_dataset
+    from synth.data.dataset import build_dataset
 
     o = Output(as_json)
     if address is not None and engine != "dask":
@@ -155,7 +155,7 @@ def dataset(
                        info=f"{p.samples} samples, {p.trials} trials, {p.trials_per_s:.1f} trials/s")
 
         if store:
-            from synth.datastore import build_store
+            from synth.data.datastore import build_store
 
             job = DatasetJob(n_piles=piles, n_logs=logs, obstacles_fraction=obstacles_fraction, seed=seed,
                              size_px=size, n_renders=renders, trial_preset=trial,
@@ -194,7 +194,7 @@ def export(
     Then, on a machine with torch but no pybullet: loggrasp train --data out/paper-v3-train ...
     Re-running reuses the shards already made.
     """
-    from synth.datastore import export_training, is_store
+    from synth.data.datastore import export_training, is_store
 
     o = Output(as_json)
     check_input(data, "--data", "dir")

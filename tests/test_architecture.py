@@ -32,10 +32,9 @@ def imported_packages(path: Path) -> set[str]:
 
 
 def is_cli(module: str) -> bool:
-    """A command-line module: ``<package>/cli.py`` (and anything below a ``cli`` folder) or
-    ``synth/cli_common.py``, the helpers those share."""
-    parts = module.split(".")
-    return "cli" in parts or parts[-1] == "cli_common"
+    """A command-line module: ``<package>/cli.py`` (and anything below a ``cli`` folder), e.g.
+    ``synth/common/cli.py``, the helpers those share."""
+    return "cli" in module.split(".")
 
 
 def imported_modules(path: Path) -> set[str]:
@@ -69,9 +68,9 @@ def test_no_library_module_imports_a_cli_module():
 
 def test_cli_checker_sees_violations(tmp_path):
     bad = tmp_path / "m.py"
-    bad.write_text("def f():\n    from planner.cli import DEFAULT_MODEL\nfrom synth import cli_common\n")
-    assert {m for m in imported_modules(bad) if is_cli(m)} >= {"planner.cli", "synth.cli_common"}
-    assert not is_cli("planner.inference") and is_cli("field.cli") and is_cli("synth.cli_common")
+    bad.write_text("def f():\n    from planner.cli import DEFAULT_MODEL\nfrom synth.common import cli\n")
+    assert {m for m in imported_modules(bad) if is_cli(m)} >= {"planner.cli", "synth.common.cli"}
+    assert not is_cli("planner.inference") and is_cli("field.cli") and is_cli("synth.common.cli")
 
 
 @pytest.mark.parametrize("package", PACKAGES)
@@ -89,11 +88,83 @@ def test_checker_sees_violations(tmp_path):
     assert imported_packages(bad) == {"field", "planner"}
 
 
+#: synth's sub-packages, one per stage, and the only modules at its top level
+SYNTH_STAGES = {"common", "geometry", "scene", "physics", "render", "data"}
+SYNTH_TOP_MODULES = {"__init__.py", "cli.py", "errors.py"}
+#: what each synth sub-package may import from synth (besides itself): common and geometry see no
+#: simulator, so reconstruction and the field stack read frames, geodesy and calibrations through them
+SYNTH_ALLOWED = {
+    "common": set(),
+    "geometry": {"common", "errors"},
+}
+
+
+def test_synth_is_split_by_stage():
+    top = {p.name for p in (ROOT / "synth").iterdir() if p.suffix == ".py"}
+    stages = {p.name for p in (ROOT / "synth").iterdir() if p.is_dir() and (p / "__init__.py").exists()}
+    assert top == SYNTH_TOP_MODULES, f"synth/ has modules outside its stages: {sorted(top - SYNTH_TOP_MODULES)}"
+    assert stages == SYNTH_STAGES, f"synth's sub-packages are {sorted(stages)}, want {sorted(SYNTH_STAGES)}"
+
+
+def synth_parts(path: Path) -> set[str]:
+    """The synth sub-packages (or top-level modules) ``path`` imports: ``synth.scene.pile`` -> scene."""
+    return {m.split(".")[1] for m in imported_modules(path) if m.startswith("synth.") and len(m.split(".")) > 1}
+
+
+@pytest.mark.parametrize("stage", sorted(SYNTH_ALLOWED))
+def test_shared_stages_do_not_reach_into_the_simulator(stage):
+    for f in sorted((ROOT / "synth" / stage).rglob("*.py")):
+        if is_cli(".".join(f.relative_to(ROOT).with_suffix("").parts)):
+            continue
+        bad = synth_parts(f) - SYNTH_ALLOWED[stage] - {stage}
+        assert not bad, f"{f.relative_to(ROOT)} imports synth.{sorted(bad)}, which synth.{stage} must not use"
+
+
+def test_stage_checker_sees_violations(tmp_path):
+    bad = tmp_path / "m.py"
+    bad.write_text("from synth.scene.pile import PileSpec\ndef f():\n    import synth.physics.world\n")
+    assert synth_parts(bad) >= {"scene", "physics"}
+
+
+#: experiment scripts that still edit sys.path, each with its reason
+SYS_PATH_EDITS = {
+    "bench/bench_reconstruct.py": "its sys.path line goes when the recon branch (which rewrites this file) is merged",
+}
+
+
+def experiment_scripts() -> list[Path]:
+    return sorted([*(ROOT / "bench").glob("*.py"), *(ROOT / "scripts").glob("*.py")])
+
+
+def private_imports(path: Path) -> list[str]:
+    """The ``_private`` names ``path`` imports from loggrasp's packages."""
+    tree = ast.parse(path.read_text(), filename=str(path))
+    return [f"{node.module}.{a.name}" for node in ast.walk(tree)
+            if isinstance(node, ast.ImportFrom) and node.module and node.module.split(".")[0] in PACKAGES
+            for a in node.names if a.name.startswith("_")]
+
+
+def test_experiments_use_the_installed_packages_public_functions():
+    """bench/ and scripts/ are thin calls over the packages: no sys.path edits (the package is
+    installed), no private names (what they need is public)."""
+    edits = [str(f.relative_to(ROOT)) for f in experiment_scripts()
+             if "sys.path.insert" in f.read_text() or "sys.path.append" in f.read_text()]
+    assert sorted(set(edits) - set(SYS_PATH_EDITS)) == [], f"{edits} edit sys.path"
+    private = {str(f.relative_to(ROOT)): private_imports(f) for f in experiment_scripts()}
+    assert not {f: p for f, p in private.items() if p}, f"experiments import private names: {private}"
+
+
+def test_private_import_checker_sees_violations(tmp_path):
+    bad = tmp_path / "m.py"
+    bad.write_text("from field.real_test import _execute, summarize\nfrom os import _exit\n")
+    assert private_imports(bad) == ["field.real_test._execute"]
+
+
 #: library files that still read ``format_version`` by hand, each with its reason; every other
 #: versioned JSON file is read through synth.common.formats.VersionedJson
 HAND_VERSION_READS = {
     "synth/common/formats.py": "the one reader",
-    "synth/dataset.py": "a minor-version detail: 1.0 shards are re-encoded on load",
+    "synth/data/dataset.py": "a minor-version detail: 1.0 shards are re-encoded on load",
     "reconstruct/pipeline.py": "read_scan_pose, read_report: to move to VersionedJson once the recon branch is merged",
 }
 

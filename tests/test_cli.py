@@ -344,9 +344,9 @@ def test_eval_verify_row_is_a_real_twin_check_on_a_copy(capsys, work):
     copy of the test pile: on this pile the network's best grasp drops on that copy, so the verified
     row must choose another grasp, one that succeeds on the copy."""
     from planner.verify import PerturbationConfig, perturb_pile
-    from synth.generate import GenerationConfig, generate_pile
-    from synth.grasp import Grasp
-    from synth.trial import TrialConfig, run_trial
+    from synth.scene.generate import GenerationConfig, generate_pile
+    from synth.geometry.grasp import Grasp
+    from synth.physics.trial import TrialConfig, run_trial
 
     out = work / "eval_verify"
     r = cli(capsys, "eval", "--per-cell", "1", "--logs", "3", "--obstacles", "no", "--objectives", "f1",

@@ -9,7 +9,7 @@ import sys
 HEAVY = ("torch", "pybullet", "cv2", "open3d", "zenoh", "can", "pyproj", "pycolmap", "scipy", "matplotlib")
 # CPU time of the project's part (the CLI framework -- typer, click, rich, ~0.15 s -- is imported
 # first and not counted): the flags take their defaults from the config dataclasses, whose modules
-# (numpy, field.trial, synth.dataset, ...) cost 0.44-0.65 s on the 2-core machine under load 10;
+# (numpy, field.trial, synth.data.dataset, ...) cost 0.44-0.65 s on the 2-core machine under load 10;
 # torch alone is ~2.2 s (and is in HEAVY, checked by name)
 CPU_LIMIT_S = 1.0
 

@@ -148,8 +148,8 @@ class GraspCommand:
         target_log_count: int,
         plan_time_s: float,
     ) -> "GraspCommand":
-        """Build a command from a pile-frame :class:`synth.grasp.Grasp` (``x_m, y_m, phi_rad,
-        width_m``) at pile height ``z_m`` [m], using the pile's :class:`synth.pile.Georeference`:
+        """Build a command from a pile-frame :class:`synth.geometry.grasp.Grasp` (``x_m, y_m, phi_rad,
+        width_m``) at pile height ``z_m`` [m], using the pile's :class:`synth.scene.pile.Georeference`:
         :func:`field.geo.grasp_to_gnss`, the conversion the field trial uses, then
         :meth:`from_grasp_geo`."""
         from field.geo import grasp_to_gnss
@@ -157,7 +157,7 @@ class GraspCommand:
         return cls.from_grasp_geo(command_id, grasp_to_gnss(grasp, georef, z_m), target_log_count, plan_time_s)
 
     def to_pile_grasp(self, georef: "object") -> tuple["object", float]:
-        """Inverse of :meth:`from_pile_grasp`: ``(synth.grasp.Grasp, z_m)`` in the pile frame of
+        """Inverse of :meth:`from_pile_grasp`: ``(synth.geometry.grasp.Grasp, z_m)`` in the pile frame of
         ``georef`` (what a simulator executor needs), by :func:`field.geo.tm_to_grasp`. Raises
         ``ValueError`` when the width is outside the grapple's range (the controller rejects such
         commands before execution)."""

@@ -60,6 +60,16 @@ def atomic_write_text(path: str | Path, text: str) -> None:
     atomic_write_bytes(path, text.encode("utf-8"))
 
 
+def make_writable_dir(path: str | Path) -> None:
+    """Create folder ``path`` (and its parents) and check that a file can be written in it (an
+    empty probe, deleted at once). Raises ``OSError``; the caller names the flag to change."""
+    path = Path(path)
+    path.mkdir(parents=True, exist_ok=True)
+    probe = path / f".write-test-{os.getpid()}"
+    probe.write_bytes(b"")
+    probe.unlink()
+
+
 def sha256_file(path: str | Path) -> str:
     """The hex sha256 of a file's bytes, read in 1 MiB blocks."""
     h = hashlib.sha256()

@@ -15,7 +15,7 @@ from field.demo import DEMO_DATA, crane_config, default_crane_base
 from field.controller import run_controller
 from field.executor import PybulletTrialExecutor
 from field.trial import TrialAborted, TrialOptions, execute_trial, prepare_trial, replay_record, run_trial_record
-from synth.pile import read_pile
+from synth.scene.pile import read_pile
 
 pytestmark = pytest.mark.slow
 TRUTH = read_pile(DEMO_DATA / "truth" / "pile.json")

@@ -11,10 +11,10 @@ import pytest
 
 from field import geo
 from field.errors import FieldError
-from synth import geodesy
-from synth.frames import make_T, rot_z
-from synth.grasp import Grasp
-from synth.pile import Georeference, LogSpec, PileSpec, RockSpec, StumpSpec, TerrainSpec
+from synth.geometry import geodesy
+from synth.geometry.frames import make_T, rot_z
+from synth.geometry.grasp import Grasp
+from synth.scene.pile import Georeference, LogSpec, PileSpec, RockSpec, StumpSpec, TerrainSpec
 
 
 def _georef(yaw=0.5, tilt=0.0, lat=64.1, lon=20.0):

@@ -19,8 +19,8 @@ import pytest
 from field import geo as G
 from field.executor import command_to_grasp
 from field.link.messages import GraspCommand
-from synth.grasp import Grasp
-from synth.pile import Georeference
+from synth.geometry.grasp import Grasp
+from synth.scene.pile import Georeference
 
 ROOT = Path(__file__).resolve().parents[2]
 GOLDEN = json.loads((ROOT / "tests" / "data" / "grasp_sweref_golden.json").read_text())
@@ -90,7 +90,7 @@ def test_round_trip_through_the_wire(c):
 #: a grasp conversion needs a heading: who may turn pile-frame angles into grid bearings and back
 #: (points may be converted anywhere; grasps only through field.geo.grasp_to_gnss / tm_to_grasp)
 CONVERSIONS = {"pile_angle_to_bearings", "grid_bearing_to_pile_angle"}
-ALLOWED = {"synth/geodesy.py": "defines them", "field/geo.py": "the one grasp conversion"}
+ALLOWED = {"synth/geometry/geodesy.py": "defines them", "field/geo.py": "the one grasp conversion"}
 
 
 def test_no_other_grasp_sweref_conversion():

@@ -334,9 +334,9 @@ def test_command_from_pile_grasp_uses_grid_bearing():
 
     import numpy as np
 
-    from synth.geodesy import sweref_tm_to_pile
-    from synth.grasp import Grasp
-    from synth.pile import Georeference
+    from synth.geometry.geodesy import sweref_tm_to_pile
+    from synth.geometry.grasp import Grasp
+    from synth.scene.pile import Georeference
 
     geo = Georeference(64.1, 20.0, 50.0)  # meridian convergence ~4.49 deg here
     east = GraspCommand.from_pile_grasp(1, Grasp(1.0, -2.0, 0.0, 0.9), 0.4, geo, 2, time.time())
@@ -351,8 +351,8 @@ def test_command_from_pile_grasp_uses_grid_bearing():
 def test_pile_grasp_round_trip():
     import math
 
-    from synth.grasp import Grasp
-    from synth.pile import Georeference
+    from synth.geometry.grasp import Grasp
+    from synth.scene.pile import Georeference
 
     geo = Georeference(63.5, 17.2, 120.0, T_site_pile=((0.0, -1.0, 0.0, 3.0), (1.0, 0.0, 0.0, -4.0),
                                                          (0.0, 0.0, 1.0, 0.5), (0.0, 0.0, 0.0, 1.0)))

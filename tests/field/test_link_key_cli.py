@@ -16,7 +16,7 @@ def test_link_key_help():
 
 def test_link_key_writes_a_private_key_once(tmp_path, capsys):
     from field.cli import run
-    from synth.cli_common import EXIT_INPUT
+    from synth.common.cli import EXIT_INPUT
 
     path = tmp_path / "keys" / "crane1.key"
     code = run(["link-key", str(path)])

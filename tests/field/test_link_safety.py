@@ -197,9 +197,9 @@ def test_pybullet_twin_stops_at_once_and_reports_the_log_it_holds():
     import itertools
 
     from field.executor import PybulletTrialExecutor
-    from synth.grasp import Grasp
-    from synth.pile import Georeference
-    from tests.synth.test_trial_abort import one_log_pile
+    from synth.geometry.grasp import Grasp
+    from synth.scene.pile import Georeference
+    from tests.synth.physics.test_trial_abort import one_log_pile
 
     geo = Georeference(64.1, 20.0, 50.0)
     ex = PybulletTrialExecutor(replace(one_log_pile(), georef=geo))

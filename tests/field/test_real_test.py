@@ -15,9 +15,9 @@ from field.errors import FieldError
 from field.real_test import (REAL_TEST_FORMAT, RealTestConfig, grasp_to_truth_frame, read_real_test, real_test_pile,
                              run_real_test, summarize, write_real_test)
 from planner.model import UNetConfig
-from synth.frames import make_T, rot_z
-from synth.grasp import Grasp
-from synth.pile import Georeference, LogSpec, PileSpec, TerrainSpec
+from synth.geometry.frames import make_T, rot_z
+from synth.geometry.grasp import Grasp
+from synth.scene.pile import Georeference, LogSpec, PileSpec, TerrainSpec
 
 
 def _pile(T_site_pile: np.ndarray, origin=(64.1, 20.0, 250.0)) -> PileSpec:
@@ -39,7 +39,7 @@ def test_grasp_goes_through_the_site_frame():
     assert out.width_m == g.width_m
     # the same reconstructed frame under another site origin (100 m north): through geodetic
     # coordinates, the same grasp to a millimetre
-    from synth import geodesy
+    from synth.geometry import geodesy
 
     origin2 = tuple(float(v[0]) for v in geodesy.site_to_geodetic((64.1, 20.0, 250.0), np.array([[0.0, 100.0, 0.0]])))
     ends = geodesy.geodetic_to_site(origin2, *geodesy.site_to_geodetic(

@@ -20,8 +20,8 @@ from field.cli import run, twin_url
 from field.demo import DEMO_DATA, default_crane_base
 from field.trial import NotVerified, TrialAborted, TrialOptions, replay_record, run_trial_record
 from planner.verify import read_verification
-from synth.pile import read_pile
-from synth.trial import Outcome, TrialResult
+from synth.scene.pile import read_pile
+from synth.physics.trial import Outcome, TrialResult
 
 pytestmark = pytest.mark.slow
 SCAN, GNSS = DEMO_DATA / "scan", DEMO_DATA / "gnss.csv"

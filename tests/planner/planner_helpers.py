@@ -6,11 +6,11 @@ import math
 
 import numpy as np
 
-from synth.dataset import Manifest, Sample, ShardWriter, write_manifest
-from synth.frames import OrthoGrid
-from synth.grasp import Grasp
-from synth.maps import encode_grasps
-from synth.render import OrthoObservation
+from synth.data.dataset import Manifest, Sample, ShardWriter, write_manifest
+from synth.geometry.frames import OrthoGrid
+from synth.geometry.grasp import Grasp
+from synth.data.maps import encode_grasps
+from synth.render.ortho import OrthoObservation
 
 
 def bar_pile(n_logs: int, size: int = 32, extent: float = 5.0, seed: int = 0, spacing_px: int | None = None,

@@ -10,8 +10,8 @@ from planner.case_studies import (
 )
 from planner.inference import Planner
 from planner.model import UNetConfig, build_unet
-from synth.generate import GenerationConfig, generate_pile
-from synth.grasp import Grasp
+from synth.scene.generate import GenerationConfig, generate_pile
+from synth.geometry.grasp import Grasp
 
 OUTCOMES = {"success", "more_than_intended", "fewer_or_other", "collision", "not_closed", "dropped"}
 

@@ -6,10 +6,10 @@ import math
 import pytest
 
 from planner.evaluate import EvalConfig, PlannerSpec, evaluate_pile, geometric_planner, run_evaluation
-from synth.generate import GenerationConfig, generate_pile
-from synth.grasp import Grasp
-from synth.render import OrthoRenderConfig, render_ortho
-from synth.world import World
+from synth.scene.generate import GenerationConfig, generate_pile
+from synth.geometry.grasp import Grasp
+from synth.render.ortho import OrthoRenderConfig, render_ortho
+from synth.physics.world import World
 
 
 def test_geometric_planner_grasps_across_an_isolated_pair():
@@ -114,9 +114,9 @@ def test_the_verified_row_checks_on_a_perturbed_copy_never_on_the_test_pile():
     (on the pile itself it would be the oracle) and returns the grasp that succeeded there."""
     from planner.evaluate import verified_planner
     from planner.inference import Objective, Plan, PlannedGrasp
-    from synth.trial import Outcome, TrialResult
+    from synth.physics.trial import Outcome, TrialResult
 
-    from synth.pile import LogSpec, PileSpec, TerrainSpec, quat_from_x_axis
+    from synth.scene.pile import LogSpec, PileSpec, TerrainSpec, quat_from_x_axis
 
     flat = tuple(tuple(0.0 for _ in range(32)) for _ in range(32))
     pile = PileSpec(terrain=TerrainSpec(resolution=32, heights_m=flat), seed=5,

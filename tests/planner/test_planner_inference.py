@@ -12,7 +12,7 @@ from planner.errors import CheckpointError, ObservationError
 from planner.inference import Objective, Planner, plan
 from planner.model import UNetConfig, build_unet, prepare_for_inference
 from planner.subsets import SubsetPolicy, all_subsets, choose_subsets, feasible_subsets
-from synth.frames import OrthoGrid
+from synth.geometry.frames import OrthoGrid
 from planner_helpers import bar_pile, observation
 
 TINY = UNetConfig.tiny()
@@ -370,7 +370,7 @@ def test_view_spread_lowers_u_where_the_views_disagree():
 
 def test_a_wider_pile_is_rendered_at_the_networks_pitch(tmp_path):
     from planner.cli import load_observation
-    from synth.pile import LogSpec, PileSpec, TerrainSpec, write_pile
+    from synth.scene.pile import LogSpec, PileSpec, TerrainSpec, write_pile
 
     pile = PileSpec(terrain=TerrainSpec(seed=1, extent_m=10.0, resolution=32, amplitude_m=0.0),
                     logs=(LogSpec.from_endpoints((-4.0, 0.0, 0.15), (4.0, 0.0, 0.15), 0.3),))

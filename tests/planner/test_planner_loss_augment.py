@@ -6,9 +6,9 @@ import torch
 
 from planner.augment import AugmentConfig, augment, flip_lr, rotate
 from planner.loss import LossWeights, grasp_loss
-from synth.frames import OrthoGrid, wrap_phi
-from synth.grasp import Grasp
-from synth.maps import decode_maps, encode_grasps
+from synth.geometry.frames import OrthoGrid, wrap_phi
+from synth.geometry.grasp import Grasp
+from synth.data.maps import decode_maps, encode_grasps
 
 GRID = OrthoGrid(64, 5.0)
 
@@ -76,7 +76,7 @@ def test_rotated_flipped_sample_decodes_to_transformed_grasp(theta, flip):
     assert math.hypot(dx - x, dy - y) < 0.6 * GRID.pixel_m + 1e-6
     assert _angle_diff(dphi, phi) < 0.02
     assert dw == pytest.approx(0.9, abs=1e-5)
-    # the whole-image decoder of synth.maps agrees with the transformed angle on every U pixel
+    # the whole-image decoder of synth.data.maps agrees with the transformed angle on every U pixel
     phis, _, u, _ = decode_maps(maps)
     assert all(_angle_diff(p, phi) < 1e-4 for p in phis[u > 0.5])
     # the region keeps its orientation: its long axis (closing axis) lies along the new phi

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from planner.subsets import SubsetPolicy, choose_subsets, distance_maps, feasible_subsets
-from synth.frames import OrthoGrid
+from synth.geometry.frames import OrthoGrid
 
 GRID = OrthoGrid(128, 5.0)  # 3.9 cm pixels: candidate centres on every second pixel
 

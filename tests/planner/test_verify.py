@@ -20,9 +20,9 @@ from planner.verify import (
     NOT_CHECKED, PRUNED, NoVerifiedGrasp, PerturbationConfig, VerificationBudgetError, VerificationError,
     VerifyConfig, measured_quality, perturb_pile, select_candidates, verify_plan,
 )
-from synth.grasp import Grasp
-from synth.pile import LogSpec, PileSpec, RockSpec, TerrainSpec, quat_from_x_axis
-from synth.trial import Outcome, TrialResult
+from synth.geometry.grasp import Grasp
+from synth.scene.pile import LogSpec, PileSpec, RockSpec, TerrainSpec, quat_from_x_axis
+from synth.physics.trial import Outcome, TrialResult
 
 
 # -- a stand-in twin --------------------------------------------------------------------------
@@ -237,7 +237,7 @@ def test_perturbed_copies_are_repeatable_physical_and_about_sigma_away():
     moved = [np.linalg.norm(np.subtract(x.endpoints_m()[0], y.endpoints_m()[0])[:2])
              for p in (a, c) for x, y in zip(p.logs, pile.logs)]
     assert 0.001 < float(np.median(moved)) < 0.08
-    from synth.world import World
+    from synth.physics.world import World
 
     for p in (a, c):
         assert p.n_logs == pile.n_logs

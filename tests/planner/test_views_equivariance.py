@@ -19,10 +19,10 @@ import torch
 from planner.augment import flip_lr, rotate
 from planner.inference import Objective, Planner, _view, _view_back, _view_list, plan
 from planner.model import UNetConfig, build_unet
-from synth.frames import OrthoGrid, wrap_phi
-from synth.grasp import Grasp
-from synth.maps import decode_maps, encode_grasps
-from synth.render import OrthoObservation
+from synth.geometry.frames import OrthoGrid, wrap_phi
+from synth.geometry.grasp import Grasp
+from synth.data.maps import decode_maps, encode_grasps
+from synth.render.ortho import OrthoObservation
 
 TINY = UNetConfig.tiny()  # 32 px over 5 m
 GRID = OrthoGrid(TINY.size_px, TINY.extent_m)

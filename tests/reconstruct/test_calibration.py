@@ -19,7 +19,7 @@ HD = (1280, 720)
 
 
 def _calib(fx: float = 1372.5, baseline_m: float = 0.12, size=HD, pose=None):
-    from synth.stereo import StereoCalibration
+    from synth.geometry.calibration import StereoCalibration
 
     w, h = size
     K = np.array([[fx, 0, w / 2 - 3.5], [0, fx, h / 2 + 2.25], [0, 0, 1.0]])
@@ -30,7 +30,7 @@ def _calib(fx: float = 1372.5, baseline_m: float = 0.12, size=HD, pose=None):
 
 def _factory_conf(hd_fx: float = 1372.5) -> str:
     """A ZED factory SN<serial>.conf: every resolution, no [LOGGRASP] section, no pose."""
-    from synth.stereo import zed_conf_text
+    from synth.geometry.calibration import zed_conf_text
 
     text = zed_conf_text(_calib(fx=hd_fx))
     src = configparser.ConfigParser()
@@ -94,7 +94,7 @@ def test_a_zed_factory_file_alone_is_read_at_the_images_resolution(tmp_path):
 
 
 def test_calibration_yaml_and_zed_conf_that_disagree_name_both_values(tmp_path):
-    from synth.stereo import write_calibration_yaml
+    from synth.geometry.calibration import write_calibration_yaml
 
     p = _images(tmp_path / "pair")
     write_calibration_yaml(_calib(fx=1372.5), p / "calibration.yaml")
@@ -114,7 +114,7 @@ def test_calibration_yaml_and_zed_conf_that_disagree_name_both_values(tmp_path):
 
 
 def test_a_pose_in_the_twins_zed_conf_is_found(tmp_path):
-    from synth.stereo import write_zed_conf
+    from synth.geometry.calibration import write_zed_conf
 
     pose = np.eye(4)
     pose[:3, 3] = (0.5, -0.25, 3.0)
@@ -126,7 +126,7 @@ def test_a_pose_in_the_twins_zed_conf_is_found(tmp_path):
 
 
 def _corruptions(tmp_path: Path) -> dict[str, tuple[str, bytes]]:
-    from synth.stereo import calibration_yaml_text
+    from synth.geometry.calibration import calibration_yaml_text
 
     yaml = calibration_yaml_text(_calib())
     conf = _factory_conf()

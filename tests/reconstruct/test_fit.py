@@ -10,7 +10,7 @@ import pytest
 
 from reconstruct.errors import FitError, LogNotSeenError, ReconstructError
 from reconstruct.fit import FitConfig, fit_log, fit_pile, natural_key, sample_top_view_points, separate_logs
-from synth.pile import LogSpec, PileSpec, RockSpec, StumpSpec, TerrainSpec, quat_from_euler
+from synth.scene.pile import LogSpec, PileSpec, RockSpec, StumpSpec, TerrainSpec, quat_from_euler
 
 SLOPE = 0.02  # terrain z = SLOPE * x
 
@@ -194,7 +194,7 @@ def test_ground_under_a_log_stays_under_it_between_samples(angle_deg):
     log lies across the grid: at 45 deg the triangles span a cell diagonal under its round
     underside, where holding only the samples under it left the surface 1-2 cm inside."""
     from reconstruct.fit import _clamp_under_logs
-    from synth.world import World
+    from synth.physics.world import World
 
     n, extent = 64, 5.0
     a = math.radians(angle_deg)

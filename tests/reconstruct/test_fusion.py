@@ -20,9 +20,9 @@ from reconstruct.fuse import (
 from reconstruct.gnss import GnssPoint, GnssSurvey, write_gnss_csv
 from reconstruct.pipeline import ReconstructConfig, ScanPose, reconstruct, write_scan_pose
 from reconstruct.stereo import ScanCloud
-from synth import geodesy
-from synth.frames import make_T, rot_z
-from synth.pile import Georeference, LogSpec, PileSpec, TerrainSpec
+from synth.geometry import geodesy
+from synth.geometry.frames import make_T, rot_z
+from synth.scene.pile import Georeference, LogSpec, PileSpec, TerrainSpec
 
 ORIGIN = (64.1, 20.0, 250.0)
 
@@ -54,7 +54,9 @@ def _scan_folder(d: Path, pile: PileSpec, pose_error=None) -> Path:
     carries a pose) and scan_pose.json (the scan frame is the pile frame, ``pose_error`` applied)."""
     import cv2
 
-    from synth.stereo import StereoRigConfig, write_calibration_yaml
+    from synth.geometry.calibration import write_calibration_yaml
+
+    from synth.render.stereo import StereoRigConfig
 
     pair = d / "scan" / "pair_000"
     pair.mkdir(parents=True)

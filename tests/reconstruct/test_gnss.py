@@ -17,9 +17,9 @@ from reconstruct.errors import (
     GnssQualityError,
     ReconstructError,
 )
-from synth import geodesy
-from synth.frames import make_T, rot_z
-from synth.pile import Georeference
+from synth.geometry import geodesy
+from synth.geometry.frames import make_T, rot_z
+from synth.scene.pile import Georeference
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "gnss"
 GEOREF = Georeference(64.1, 20.0, 250.0, tuple(tuple(float(v) for v in r) for r in make_T(rot_z(0.2), (0.5, -0.3, 0.1))))

@@ -11,7 +11,7 @@ import pytest
 from reconstruct.compare import compare_piles, simulate_scan
 from reconstruct.fit import FitConfig, find_obstacles
 from reconstruct.pipeline import reconstruct
-from synth.pile import LogSpec, PileSpec, RockSpec, StumpSpec, TerrainSpec, height_at, quat_from_euler
+from synth.scene.pile import LogSpec, PileSpec, RockSpec, StumpSpec, TerrainSpec, height_at, quat_from_euler
 
 EXTENT = 5.0
 STUMP_XY = (1.0, -0.35)

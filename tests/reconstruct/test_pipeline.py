@@ -19,16 +19,18 @@ from reconstruct.pipeline import (
     write_scan_pose,
 )
 from reconstruct.stereo import find_pairs, read_pair, scan_cloud
-from synth.frames import apply_T, make_T, rot_z
-from synth.pile import LogSpec, PileSpec, TerrainSpec, read_pile
-from synth.render import OrthoObservation
+from synth.geometry.frames import apply_T, make_T, rot_z
+from synth.scene.pile import LogSpec, PileSpec, TerrainSpec, read_pile
+from synth.render.ortho import OrthoObservation
 
 
 # -- scan folders ----------------------------------------------------------------------------
 def _write_pair(folder: Path, size=(320, 180), right_size=None, calib_size=None) -> Path:
     import cv2
 
-    from synth.stereo import StereoRigConfig, write_calibration_yaml
+    from synth.geometry.calibration import write_calibration_yaml
+
+    from synth.render.stereo import StereoRigConfig
 
     folder.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(0)
@@ -227,14 +229,14 @@ def _rows(path: Path) -> list[str]:
 def test_a_pile_the_twin_cannot_render_is_a_fit_error(small_scan, tmp_path, monkeypatch):
     """A reconstructed pile the twin cannot re-render (a render with holes) is a FitError naming
     the cause, and nothing is written: no pile.json that the planner could not use."""
-    import synth.render
+    import synth.render.ortho
     from reconstruct.errors import FitError
     from synth.errors import RenderError
 
     def holes(*a, **k):
         raise RenderError("the orthographic render has holes (pixels that see nothing)")
 
-    monkeypatch.setattr(synth.render, "render_ortho", holes)
+    monkeypatch.setattr(synth.render.ortho, "render_ortho", holes)
     scan, gnss, truth, d = small_scan
     with pytest.raises(FitError, match="cannot be re-rendered .*holes"):
         reconstruct(scan, gnss, tmp_path / "o")
@@ -287,7 +289,7 @@ def test_scan_without_pose_is_refused(small_scan, tmp_path):
 @pytest.mark.slow
 def test_end_to_end_generated_pile(tmp_path):
     """A generated, settled pile with an obstacle, scanned by a 2x2 grid of pairs."""
-    from synth.generate import GenerationConfig, generate_pile
+    from synth.scene.generate import GenerationConfig, generate_pile
 
     pile, _ = generate_pile(3, GenerationConfig(n_logs=5, n_obstacles=2))
     scan, gnss, truth = simulate_scan(pile, tmp_path, grid=(2, 2), seed=3)
@@ -315,8 +317,8 @@ def test_end_to_end_generated_pile(tmp_path):
 
 def test_compare_across_site_origins(crossed):
     """Both piles georeferenced, at different site origins: compared through SWEREF 99."""
-    from synth import geodesy
-    from synth.pile import Georeference
+    from synth.geometry import geodesy
+    from synth.scene.pile import Georeference
 
     T = make_T(rot_z(0.4), (3.0, -2.0, 0.5))
     g = Georeference(64.1, 20.0, 250.0, tuple(tuple(float(v) for v in r) for r in T))

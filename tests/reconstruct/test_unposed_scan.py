@@ -15,8 +15,8 @@ import pytest
 from reconstruct.errors import CoarseRegistrationError, ReconstructError, SfmRegistrationError
 from reconstruct.pipeline import CoarseConfig, ReconstructConfig, coarse_scan_pose, read_report, reconstruct
 from reconstruct.sfm import SfmConfig
-from synth.frames import apply_T, invert_T, make_T, rot_z
-from synth.pile import LogSpec, PileSpec, TerrainSpec
+from synth.geometry.frames import apply_T, invert_T, make_T, rot_z
+from synth.scene.pile import LogSpec, PileSpec, TerrainSpec
 
 
 # -- coarse georegistration on exact geometry -----------------------------------------------------
@@ -139,7 +139,7 @@ def test_unposed_scan_files(scans):
 @pytest.mark.slow
 def test_unposed_scan_reconstructs_like_the_posed_one(scans):
     from reconstruct.compare import compare_piles
-    from synth.pile import read_pile
+    from synth.scene.pile import read_pile
 
     u, p, d = scans
     truth = read_pile(u / "truth" / "pile.json")
