@@ -168,7 +168,7 @@ ALLOWED_DIRECT_WRITES: dict[tuple[str, str], tuple[Counter, str]] = {
         Counter({"os.open": 1, "fdopen('w')": 1}), "a new key file created exclusively with mode 0600"),
     ("synth/common/cli.py", "quiet_c_streams"): (
         Counter({"fdopen('w')": 2}), "C-level stdout/stderr pointed at /dev/null, not a file written"),
-    ("field/trial.py", "run_trial_record"): (
+    ("field/trial.py", "_TrialRecord.copy_inputs"): (
         Counter({"shutil.copytree": 1, "shutil.copy2": 1}),
         "inputs copied into a temporary record folder renamed into place"),
 }
