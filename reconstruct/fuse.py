@@ -420,15 +420,16 @@ class Match:
 
 
 def _match_cost(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, cfg: FuseConfig,
-                ) -> tuple[float, bool]:
-    """Summed squared normalised distances of a surveyed log's points from a scan log (+inf when a
-    point is beyond the gate), and whether its end ``a`` lies at the scan log's end."""
+                ) -> tuple[float, bool, int]:
+    """Summed squared normalised distances of a surveyed log's points from a scan log (+inf when every
+    point is beyond the gate), whether its end ``a`` lies at the scan log's end, and how many of its
+    points lie beyond the gate (gross errors, if this is its log)."""
     p0, p1 = log.start_m, log.end_m
     d = p1[:2] - p0[:2]
     L = max(float(np.linalg.norm(d)), 1e-6)
     u = d / L
     n = np.array([-u[1], u[0]])
-    best = (math.inf, False)
+    best = (math.inf, False, 0)
     for rev in (False, True):
         total, outliers = 0.0, 0
         for k, e in enumerate(ends):
@@ -456,7 +457,7 @@ def _match_cost(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, c
         if outliers and outliers == sum(e is not None for e in ends):
             total = math.inf
         if total < best[0]:
-            best = (total, rev)
+            best = (total, rev, outliers)
     return best
 
 
@@ -472,9 +473,10 @@ def match_survey(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]]
     n_s, n_k = len(ids), len(scan_logs)
     cost = np.full((n_s, n_k), math.inf)
     rev = np.zeros((n_s, n_k), dtype=bool)
+    n_out = np.zeros((n_s, n_k), dtype=np.int64)
     for i, k in enumerate(ids):
         for j, log in enumerate(scan_logs):
-            cost[i, j], rev[i, j] = _match_cost(survey[k], log, cfg)
+            cost[i, j], rev[i, j], n_out[i, j] = _match_cost(survey[k], log, cfg)
     # a surveyed log may match nothing (hidden, outside the scan): as costly as a point at the gate
     n_pts = np.array([sum(e is not None for e in survey[k]) for k in ids], dtype=float)
     none_cost = cfg.gate_sigma ** 2 * np.maximum(n_pts, 1)
@@ -515,8 +517,13 @@ def match_survey(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]]
         used |= {j for j in range(n_k) if j not in used and scan_logs[j].seen_m >= cfg.min_new_log_m}
         return frozenset(group[j] for j in used), frozenset(ids[i] for i, j in enumerate(p) if j is None)
 
+    def gross_errors(p: list[int | None]) -> int:
+        """Survey points a matching has to call wrong (beyond the gate of the scan log their log took)."""
+        return int(sum(n_out[i, j] for i, j in enumerate(p) if j is not None))
+
     taken = {j for j in pick if j is not None}
     best_content = content(pick)
+    best_gross = gross_errors(pick)
     for i, k in enumerate(ids):
         if n_k == 0 or pick[i] is None:
             continue
@@ -526,17 +533,28 @@ def match_survey(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]]
         delta = alt - best
         choice = "nothing" if alt_pick[i] is None else f"scan log {alt_pick[i]}"
         matches[k].alternative = f"{choice} (chi2 +{delta:.1f})"
-        if delta < cfg.ambiguity_chi2 and content(alt_pick) != best_content:
+        # the chi^2 margin is for noise: an alternative that has to call more survey points wrong (an outlier
+        # costs a constant, whatever its accuracy) is no equal explanation (twin scan 1100039: both ends
+        # of a log RTK fixed, "as good" on a 15 cm scrap of ridge with one of them wrong)
+        if (delta < cfg.ambiguity_chi2 and content(alt_pick) != best_content
+                and gross_errors(alt_pick) <= best_gross):
             e = survey[k]
             pts = ", ".join(f"{end} ({p.fix}, +-{p.sigma_h_m * math.sqrt(2) * 100:.0f} cm)"
                             for end, p in zip("ab", e) if p is not None)
             j, j2 = pick[i], alt_pick[i]
             where = _where(scan_logs[j])
             other = "being hidden under other logs" if j2 is None else f"the scan's log {_where(scan_logs[j2])}"
+            if all(p is None or p.fix == "rtk_fixed" for p in e):
+                # fixed points are not made better by measuring them again with a fixed solution
+                todo = (f"Check that log {k!r}'s points were taken at its end centres (re-measure them), and survey "
+                        "the neighbouring logs' ends")
+            else:
+                todo = (f"Re-measure log {k!r}'s "
+                        + " and ".join(f"end {end}" for end, p in zip("ab", e) if p is not None and p.fix != "rtk_fixed")
+                        + " with an RTK fixed solution (or survey the neighbouring logs)")
             raise AmbiguousSurveyError(
                 f"log {k!r} fits the scan's log {where} and {other} almost equally well (chi2 differs by "
-                f"{delta:.1f}; its points: {pts}), and the two make different piles. Re-measure log {k!r}'s ends "
-                "with an RTK fixed solution (or survey the neighbouring logs)")
+                f"{delta:.1f}; its points: {pts}), and the two make different piles. {todo}")
     unmatched = [j for j in range(n_k) if j not in taken]
     return matches, unmatched
 

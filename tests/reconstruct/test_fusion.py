@@ -243,3 +243,38 @@ def test_float_points_count_by_their_accuracy_in_the_registration(pile, cloud, t
     assert reg["end_points_used"] == 8 and reg["end_points_precise"] == 3
     assert reg["correction_m"] < 0.004, reg
     assert max(_errors(pile, res.pile).values()) < 0.03
+
+
+def _slanted_scan_log(p0, p1, r=0.08, seen=None) -> ScanLog:
+    p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
+    return ScanLog(p0, p1, r, float(np.linalg.norm(p1[:2] - p0[:2])) if seen is None else seen, 20.0)
+
+
+def test_a_fixed_log_is_not_ambiguous_with_a_scrap_that_needs_one_of_its_points_wrong():
+    # twin scan 1100039: the ridge of a log runs 0.5 m on past its end b over the touching neighbour's end,
+    # so its fixed point b lies inside the ridge (chi2 ~13); a 15 cm scrap of ridge at b, across the log,
+    # explains b and calls a wrong (gate + 1 = 17). The chi2 margin is for noise: no ambiguity, and the
+    # log is the long one
+    scan_logs = [_scan_log(-1.0, 1.5, 0.0), _slanted_scan_log((1.0, 0.01, 0.08), (1.2, 0.25, 0.08), seen=0.15)]
+    survey = {"log4": (_end(-1.0, 0.0, fix="rtk_fixed"), _end(1.0, 0.0, fix="rtk_fixed"))}
+    matches, unmatched = match_survey(survey, scan_logs)
+    assert matches["log4"].scan_index == 0 and unmatched == [1]
+    assert "scan log 1" in matches["log4"].alternative  # the scrap was the next best, within chi2 4
+    assert float(matches["log4"].alternative.split("+")[1].rstrip(")")) < FuseConfig().ambiguity_chi2
+
+
+def test_an_ambiguity_between_fixed_points_does_not_ask_for_a_fixed_solution():
+    # two parallel scan logs 6 cm apart, the shorter one only seen in the middle; fixed points half-way
+    # between: either log, and the piles differ (the short one kept or dropped). Measuring the points
+    # RTK fixed again settles nothing: the message says to check them and survey the neighbours
+    scan_logs = [_scan_log(-1.0, 1.0, 0.0), _scan_log(-0.3, 0.3, 0.06)]
+    survey = {"log2": (_end(-1.0, 0.03, fix="rtk_fixed"), _end(1.0, 0.03, fix="rtk_fixed"))}
+    with pytest.raises(AmbiguousSurveyError) as err:
+        match_survey(survey, scan_logs)
+    msg = str(err.value)
+    assert "log 'log2'" in msg and "RTK fixed solution" not in msg
+    assert "Check that log 'log2''s points were taken at its end centres" in msg
+    # with one float point, that one point is named to re-measure
+    survey = {"log2": (_end(-1.0, 0.03, fix="rtk_fixed"), _end(1.0, 0.03))}
+    with pytest.raises(AmbiguousSurveyError, match=r"Re-measure log 'log2''s end b with an RTK fixed solution"):
+        match_survey(survey, scan_logs)
