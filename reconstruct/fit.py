@@ -96,8 +96,10 @@ AXIS_SOURCES = ("fit", "gnss")
 #: registration walks a log's end over the points on no other log, as the ends' placement does. 7: a
 #: cross-section circle pays for the part of its footprint it does not explain (a log with a neighbour
 #: against its side was fitted up to 2-3.5 cm too thick); two logs side by side that interpenetrate are
-#: each pushed half the way apart (only the upper one was moved).
-FIT_REVISION = 7
+#: each pushed half the way apart (only the upper one was moved). 8: a log's ends are walked over the
+#: points farther than ``FitConfig.end_walk_band_m`` (3 cm, was the fit's 1.5 cm band) from every other
+#: log (a neighbour's top at the height of a covered end's extension made it run on past its fixed point).
+FIT_REVISION = 8
 # a cross-section circle loses this much score per footprint bin it does not explain (the profile
 # there lies above it or off it): where a neighbour lies against a log, or the stereo fills the
 # valley between them, that side shows no edge, and without this a wider circle, centred toward
@@ -122,6 +124,10 @@ class FitConfig:
     profile_bin_m: float = 0.01  # lateral bin of the cross-section profile; search step x2 [m]
     chunk_length_m: float = 0.5  # cross-section profiles are taken over this axial length [m]
     inlier_band_m: float = 0.015  # points within this of the surface are used by the 3-D fit [m]
+    end_walk_band_m: float = 0.03  # where a log's end is looked for, points this close to another fitted
+    #                                log's surface are that log's (its fit error plus stereo noise: at the
+    #                                fit's own band, half a neighbour's top stayed in the walk and a log
+    #                                covered at its end ran on over it) [m]
     max_angle_deg: float = 60.0  # ... and at most this far round from the top (not the flanks,
     #                              where neighbours, ground and occluders meet the log) [deg]
     loss_scale_m: float = 0.01  # soft-L1 scale of the 3-D fit [m]
@@ -181,7 +187,7 @@ class FitConfig:
             raise ValueError(f"axis_source must be one of {AXIS_SOURCES}, got {self.axis_source!r}")
         if not 0 < self.min_radius_m < self.max_radius_m <= 1.0:
             raise ValueError("need 0 < min_radius_m < max_radius_m <= 1 m")
-        for name in ("axis_tolerance_m", "profile_tolerance_m", "inlier_band_m", "loss_scale_m",
+        for name in ("axis_tolerance_m", "profile_tolerance_m", "inlier_band_m", "end_walk_band_m", "loss_scale_m",
                      "gnss_sigma_m", "log_clearance_m", "ground_window_m", "ground_band_m",
                      "obstacle_min_height_m", "dbscan_eps_m", "obstacle_min_size_m", "obstacle_voxel_m",
                      "obstacle_merge_gap_m", "obstacle_sliver_m", "obstacle_flank_height_m",
@@ -1473,7 +1479,7 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
         place_hidden(i, hidden[i])
     placed: dict[int, tuple] = {}
     if place_ends is not None:
-        mine = points_on_no_other_log(P, [fitted[i][1] for i in range(len(ids))], cfg.inlier_band_m)
+        mine = points_on_no_other_log(P, [fitted[i][1] for i in range(len(ids))], cfg.end_walk_band_m)
         for i, log_id in enumerate(ids):
             f, spec, swapped = fitted[i]
             spec, ends_info = place_ends(log_id, spec, how[i], P[mine[i]], bool(swapped))

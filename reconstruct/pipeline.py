@@ -351,7 +351,7 @@ def refine_registration(points: np.ndarray, endpoints: dict, cfg: ReconstructCon
     S = np.full((len(targets), 3), np.nan)
     SA = np.ones(len(targets))
     mine = dict(zip(ids, points_on_no_other_log(points, [log_spec_from_fit(axes[k][2], fcfg)[0] for k in ids],
-                                                fcfg.inlier_band_m)))
+                                                fcfg.end_walk_band_m)))
     for i, (k, end, e) in enumerate(targets):
         f = axes[k][2]
         p0, p1 = f["ends"]

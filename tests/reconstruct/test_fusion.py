@@ -278,3 +278,31 @@ def test_an_ambiguity_between_fixed_points_does_not_ask_for_a_fixed_solution():
     survey = {"log2": (_end(-1.0, 0.03, fix="rtk_fixed"), _end(1.0, 0.03))}
     with pytest.raises(AmbiguousSurveyError, match=r"Re-measure log 'log2''s end b with an RTK fixed solution"):
         match_survey(survey, scan_logs)
+
+
+def test_a_neighbours_top_against_a_logs_end_is_not_that_log(tmp_path):
+    # log 0 ends against the side of log 1, a thinner one lying across it; stereo smears log 1's top
+    # 2.5 cm up there, to log 0's top height. Those points lie farther from log 1's fitted surface than
+    # the fit's own 1.5 cm band: walked as log 0's, they ran its end on over log 1 and against its fixed
+    # point (twin scan 1100021: 0.5 m past its end, the pile then failed its check)
+    terrain = TerrainSpec(extent_m=5.0, resolution=32, amplitude_m=0.0,
+                          heights_m=tuple(tuple(0.0 for _ in range(32)) for _ in range(32)))
+    r1 = 0.0675
+    x1 = 0.5 + r1 + 0.01
+    logs = (LogSpec.from_endpoints((-1.0, 0.0, 0.08), (0.5, 0.0, 0.08), 0.16),
+            LogSpec.from_endpoints((x1, -0.8, r1), (x1, 0.8, r1), 2 * r1),
+            LogSpec.from_endpoints((-1.0, 0.6, 0.075), (0.3, 0.9, 0.075), 0.15))
+    pile = PileSpec(terrain=terrain, logs=logs, georef=Georeference(
+        *ORIGIN, T_site_pile=tuple(tuple(float(v) for v in r) for r in make_T(rot_z(0.4), (1.0, 2.0, 0.0)))))
+    pts = sample_top_view_points(pile, 500, 0.003, np.random.default_rng(3))
+    gx, gy = np.meshgrid(np.arange(x1 - 0.045, x1 + 0.046, 0.01), np.arange(-0.06, 0.061, 0.01))
+    smear = np.column_stack([gx.ravel(), gy.ravel(), r1 + np.sqrt(r1 ** 2 - (gx.ravel() - x1) ** 2) + 0.025])
+    pts = np.vstack([pts, smear])
+    cloud = ScanCloud(pts, np.full((len(pts), 3), 0.5, np.float32), camera_positions=np.array([[0.0, 0.0, 3.0]]))
+    scan = _scan_folder(tmp_path, pile)
+    gnss = _survey(pile, tmp_path / "survey.csv", {})
+    res = reconstruct(scan, gnss, tmp_path / "out", ReconstructConfig(), cloud=cloud)
+    err = _errors(pile, res.pile)
+    assert err[0] < 0.03, err
+    end_b = next(lf for lf in res.report["logs"] if lf["log_id"] == "log0")["ends"][1]
+    assert not end_b["contradicted"] and end_b["source"] in ("fixed", "scan"), end_b
