@@ -73,7 +73,7 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import asdict, dataclass, field, replace
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Collection, Mapping, Sequence
 
 import numpy as np
 
@@ -98,7 +98,9 @@ AXIS_SOURCES = ("fit", "gnss")
 #: against its side was fitted up to 2-3.5 cm too thick); two logs side by side that interpenetrate are
 #: each pushed half the way apart (only the upper one was moved). 8: a log's ends are walked over the
 #: points farther than ``FitConfig.end_walk_band_m`` (3 cm, was the fit's 1.5 cm band) from every other
-#: log (a neighbour's top at the height of a covered end's extension made it run on past its fixed point).
+#: log (a neighbour's top at the height of a covered end's extension made it run on past its fixed point);
+#: a log found in the scan alone that has no points of its own once the others took theirs is left out
+#: (``fit_pile(optional=...)``); a matching that calls more survey points wrong is no ambiguity.
 FIT_REVISION = 8
 # a cross-section circle loses this much score per footprint bin it does not explain (the profile
 # there lies above it or off it): where a neighbour lies against a log, or the stereo fills the
@@ -255,6 +257,7 @@ class PileFit:
     obstacles: list[dict] = field(default_factory=list)  # kind, position, size, n_points
     moves: list[str] = field(default_factory=list)  # what the validation moved
     timings_s: dict = field(default_factory=dict)
+    dropped: dict = field(default_factory=dict)  # optional logs left out: {log id: why}
 
 
 # -- helpers ---------------------------------------------------------------------------------
@@ -1336,6 +1339,7 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
              first_pass: Mapping[str, LogSpec] | None = None,
              sigmas: Mapping[str, tuple[float, float]] | None = None,
              place_ends: Callable[[str, LogSpec, str, np.ndarray, bool], tuple[LogSpec, Any]] | None = None,
+             optional: Collection[str] = (),
              ) -> PileFit:
     """Fit a whole pile to scan ``points`` ((N, 3), pile frame) and GNSS ``endpoints``
     (``{log_id: (end_a, end_b)}``, pile frame: where each log is searched for). ``extent_m``: side
@@ -1347,6 +1351,10 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
     the log with its ends moved and what placed them (two dicts, ends a and b, kept in
     ``LogFit.ends``; their ``source`` becomes ``LogFit.end_source``) — how
     :mod:`reconstruct.fuse` places each end from the scan and the survey by their accuracies.
+
+    ``optional``: ids of logs found in the scan alone (no survey): one that has no scan points of its
+    own once the other logs have taken theirs (a ridge made of other logs' pieces) is left out, with
+    the reason in ``PileFit.dropped``, instead of failing the pile; it cannot be hidden, it was seen.
     """
     import time
 
@@ -1437,6 +1445,7 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
             f"({whence})")
 
     on_axis: list[int] = []  # logs seen only in part: placed once the others are fitted
+    dropped: dict[str, str] = {}  # optional logs left out, and why
     for i in sorted(range(len(ids)), key=lambda k: suspect[k]):  # trusted logs first
         if i in hidden:
             continue
@@ -1451,6 +1460,12 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
             astray = _axis_shift(spec, a, b) > cfg.suspect_shift_m
         except LogNotSeenError:  # its first fit took a neighbour's points: none are left to it
             astray = True
+        except FitError as exc:
+            if log_id not in optional:
+                raise
+            dropped[log_id] = f"no log fits the scan points left to it once the other logs took theirs ({exc})"
+            say(f"log {log_id}: left out, {dropped[log_id]}")
+            continue
         if astray and not suspect[i] and i in first_fits:
             # the refit on the points left to it strayed where its first fit had not (a log
             # mostly hidden: its few points let the refit tilt): the first fit stands
@@ -1476,18 +1491,25 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
         fitted[i], how[i] = (f, within_room(spec, i, slack_m=cfg.gnss_sigma_m), swapped), "partial"
         say(f"log {log_id}: seen only in part; axis from GNSS, diameter {fitted[i][1].diameter_m * 100:.1f} cm")
     for i in sorted(hidden):
+        if ids[i] in optional:
+            dropped[ids[i]] = f"no scan points of its own once the other logs took theirs ({hidden[i]})"
+            say(f"log {ids[i]}: left out, {dropped[ids[i]]}")
+            continue
         place_hidden(i, hidden[i])
+    keep = [i for i in range(len(ids)) if ids[i] not in dropped]
     placed: dict[int, tuple] = {}
     if place_ends is not None:
-        mine = points_on_no_other_log(P, [fitted[i][1] for i in range(len(ids))], cfg.end_walk_band_m)
-        for i, log_id in enumerate(ids):
+        mine = dict(zip(keep, points_on_no_other_log(P, [fitted[i][1] for i in keep], cfg.end_walk_band_m)))
+        for i in keep:
+            log_id = ids[i]
             f, spec, swapped = fitted[i]
             spec, ends_info = place_ends(log_id, spec, how[i], P[mine[i]], bool(swapped))
             fitted[i] = (f, spec, swapped)
             placed[i] = tuple(e if isinstance(e, dict) else e.to_dict() for e in ends_info)
     fits: list[LogFit] = []
     logs: list[LogSpec] = []
-    for i, log_id in enumerate(ids):
+    for index, i in enumerate(keep):
+        log_id = ids[i]
         f, spec, swapped = fitted[i]
         a, b = endpoints[log_id]
         logs.append(spec)
@@ -1495,7 +1517,7 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
         p0, p1 = np.asarray(a, float), np.asarray(b, float)
         ends = f["ends"]
         fits.append(LogFit(
-            log_id=log_id, index=i, butt_m=tuple(float(v) for v in butt), top_m=tuple(float(v) for v in top),
+            log_id=log_id, index=index, butt_m=tuple(float(v) for v in butt), top_m=tuple(float(v) for v in top),
             length_m=spec.length_m, diameter_m=spec.diameter_m, top_diameter_m=spec.top_diameter_m,
             n_points=f["n_points"], rms_m=f["rms_m"], coverage=f["coverage"],
             gnss_residual_a_m=f["residual_a_m"], gnss_residual_b_m=f["residual_b_m"],
@@ -1548,7 +1570,8 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
                 lf.top_m = tuple(float(v) for v in top)
         timings["validate_s"] = time.perf_counter() - t3
     return PileFit(pile=pile, logs=fits, terrain_coverage=coverage, n_ground_points=int(is_ground.sum()),
-                   n_obstacle_points=int(len(above)), obstacles=info, moves=move_notes, timings_s=timings)
+                   n_obstacle_points=int(len(above)), obstacles=info, moves=move_notes, timings_s=timings,
+                   dropped=dropped)
 
 
 # -- synthetic scans (tests, benchmarks) -----------------------------------------------------

@@ -1035,7 +1035,10 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
 
     fit = fit_pile(pts[in_patch], {k: (a, b) for k, (a, b, _) in priors.items()}, extent, cfg.fit, progress=say,
                    georef=georef, notes=f"reconstructed from {scan_dir} and {gnss_path}", first_pass=first_pass,
-                   sigmas={k: (s, s) for k, s in lateral.items()}, place_ends=placer)
+                   sigmas={k: (s, s) for k, s in lateral.items()}, place_ends=placer, optional=set(new_ids))
+    for k, why in fit.dropped.items():  # a log the survey missed whose points the other logs took: not a log
+        dropped_new[k] = why
+        del new_ids[k]
     timings["fit_s"] = time.perf_counter() - t
     fusion = {
         "scan_logs": [s.to_dict() for s in logs_pile],

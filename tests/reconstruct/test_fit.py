@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 
 from reconstruct.errors import FitError, LogNotSeenError, ReconstructError
-from reconstruct.fit import FitConfig, fit_log, fit_pile, natural_key, sample_top_view_points, separate_logs
+from reconstruct.fit import (
+    FitConfig, fit_log, fit_pile, log_spec_from_fit, natural_key, sample_top_view_points, separate_logs,
+)
 from synth.pile import LogSpec, PileSpec, RockSpec, StumpSpec, TerrainSpec, quat_from_euler
 
 SLOPE = 0.02  # terrain z = SLOPE * x
@@ -310,3 +312,20 @@ def test_side_by_side_logs_are_pushed_apart_both():
     for before, after in zip((a, b), pile.logs):
         assert abs(after.centre_m[2] - before.centre_m[2]) < 1e-3, notes
     assert pile.logs[1].centre_m[1] - pile.logs[0].centre_m[1] > 0.135, notes  # apart to within the tolerance
+
+
+def test_a_log_found_in_the_scan_alone_whose_points_other_logs_take_is_left_out(truth, points):
+    # twin scan 1100020: a ridge made of two surveyed logs' pieces was taken for a log the survey missed;
+    # once the surveyed logs took their points none were left to it, and the whole pile failed
+    survey = _survey(truth)
+    dup = log_spec_from_fit(fit_log(points, *survey["log1"], FitConfig()), FitConfig())[0]
+    survey["scan0"] = tuple(np.asarray(p) for p in dup.endpoints_m())
+    fit = fit_pile(points, survey, 5.0, FitConfig(validate=False), first_pass={"scan0": dup}, optional={"scan0"})
+    assert list(fit.dropped) == ["scan0"] and "other logs took theirs" in fit.dropped["scan0"]
+    assert [lf.log_id for lf in fit.logs] == ["log0", "log1", "log2", "log3"]
+    assert [lf.index for lf in fit.logs] == [0, 1, 2, 3] and fit.pile.n_logs == 4
+    # not optional (a surveyed log), it stays: under log1, where the scan shows log1 (the phantom that
+    # then failed the pile's separation check or the fit)
+    kept = fit_pile(points, survey, 5.0, FitConfig(validate=False), first_pass={"scan0": dup})
+    assert kept.dropped == {} and [lf.log_id for lf in kept.logs][-1] == "scan0"
+    assert kept.logs[-1].fit in ("hidden", "partial")
