@@ -100,7 +100,9 @@ AXIS_SOURCES = ("fit", "gnss")
 #: points farther than ``FitConfig.end_walk_band_m`` (3 cm, was the fit's 1.5 cm band) from every other
 #: log (a neighbour's top at the height of a covered end's extension made it run on past its fixed point);
 #: a log found in the scan alone that has no points of its own once the others took theirs is left out
-#: (``fit_pile(optional=...)``); a matching that calls more survey points wrong is no ambiguity.
+#: (``fit_pile(optional=...)``); a matching that calls more survey points wrong is no ambiguity; on a log
+#: seen only in part an RTK fixed point places a covered or open end, and the log is thinned to the room
+#: around its placed ends.
 FIT_REVISION = 8
 # a cross-section circle loses this much score per footprint bin it does not explain (the profile
 # there lies above it or off it): where a neighbour lies against a log, or the stereo fills the
@@ -1504,6 +1506,9 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
             log_id = ids[i]
             f, spec, swapped = fitted[i]
             spec, ends_info = place_ends(log_id, spec, how[i], P[mine[i]], bool(swapped))
+            if how[i] == "partial":
+                # its ends may have moved out (to its survey points): still no thicker than the room left
+                spec = within_room(spec, i, slack_m=cfg.gnss_sigma_m)
             fitted[i] = (f, spec, swapped)
             placed[i] = tuple(e if isinstance(e, dict) else e.to_dict() for e in ends_info)
     fits: list[LogFit] = []

@@ -767,7 +767,13 @@ def fuse_end(p0: np.ndarray, u: np.ndarray, interval: EndInterval, at_start: boo
         if abs(t_g - t_s) / math.hypot(ss, sg) > cfg.contradiction_sigma and sign * (t_g - t_s) > 0:
             seen, hi = False, None
     contradicted = False
-    if seen:  # the top stops at lo; the scan sees below it a little farther out (hi)
+    if not seen_whole and survey is not None and sg <= ss and interval.state != "seen":
+        # a log the scan shows only in part: its axis is the survey's and its radius a guess from a piece of
+        # its top, so where the scan seems to see past its top (or on it) beyond a covered end is no match
+        # for a point at least as precise as a seen end (twin scan 1100028: a radius 5 cm too large made the
+        # true top look 'below' it; two RTK fixed points were dropped for ends 41-48 cm off)
+        t, sa, source = t_g, sg, survey.label
+    elif seen:  # the top stops at lo; the scan sees below it a little farther out (hi)
         t_s = seen_end(interval)
         if survey is not None:
             z = abs(t_g - t_s) / math.hypot(ss, sg)

@@ -329,3 +329,39 @@ def test_a_log_found_in_the_scan_alone_whose_points_other_logs_take_is_left_out(
     kept = fit_pile(points, survey, 5.0, FitConfig(validate=False), first_pass={"scan0": dup})
     assert kept.dropped == {} and [lf.log_id for lf in kept.logs][-1] == "scan0"
     assert kept.logs[-1].fit in ("hidden", "partial")
+
+
+def test_a_log_seen_in_part_fits_the_room_left_around_its_placed_ends():
+    # twin scan 1100028: a log seen only in part, 10 cm too thick, had its ends moved out to its fixed
+    # points after its diameter had been cut to the room around its shorter fitted axis; the longer log
+    # then ran into its neighbours and the pile failed its check. The room is taken again once the ends
+    # are placed
+    n = 32
+    terrain = TerrainSpec(extent_m=5.0, resolution=n, amplitude_m=0.0,
+                          heights_m=tuple(tuple(0.0 for _ in range(n)) for _ in range(n)))
+    lower = LogSpec.from_endpoints((-1.3, 0.0, 0.06), (1.3, 0.0, 0.06), 0.12)
+
+    def resting_z(y_off: float) -> float:
+        return 0.06 + math.sqrt(0.145 ** 2 - y_off ** 2) + 0.02
+
+    upper = LogSpec.from_endpoints((-1.2, 0.13, resting_z(0.13)), (1.2, 0.036, resting_z(0.036)), 0.17)
+    across = LogSpec.from_endpoints((1.6, -0.8, 0.08), (1.6, 0.8, 0.08), 0.16)  # 10 cm past lower's end + 0.2 m
+    truth = PileSpec(terrain=terrain, logs=(upper, lower, across))
+    pts = sample_top_view_points(truth, size_px=400, noise_m=0.003, rng=np.random.default_rng(0))
+
+    def place_ends(log_id, spec, how, points, swapped):  # log1's end b surveyed 0.2 m farther out
+        if log_id != "log1":
+            return spec, ({"source": "scan"}, {"source": "scan"})
+        a, b = spec.endpoints_m()
+        if b[0] < a[0]:
+            a, b = b, a
+        out = LogSpec.from_endpoints(a, b + np.array([0.2, 0.0, 0.0]), spec.diameter_m, spec.top_diameter_m)
+        return out, ({"source": "fixed"}, {"source": "fixed"})
+
+    fit = fit_pile(pts, _survey(truth, seed=2), 5.0, FitConfig(validate=False), place_ends=place_ends)
+    assert fit.logs[1].fit == "partial"
+    got, other = fit.pile.logs[1], fit.pile.logs[2]
+    p0, p1 = got.endpoints_m()
+    room = float(np.linalg.norm(np.cross(other.endpoints_m()[1] - other.endpoints_m()[0], p1 - other.endpoints_m()[0]))
+                 / np.linalg.norm(other.endpoints_m()[1] - other.endpoints_m()[0])) - other.mean_diameter_m / 2
+    assert got.mean_diameter_m / 2 <= room + FitConfig().gnss_sigma_m + 1e-6, (got.mean_diameter_m, room)

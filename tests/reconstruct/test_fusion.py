@@ -306,3 +306,23 @@ def test_a_neighbours_top_against_a_logs_end_is_not_that_log(tmp_path):
     assert err[0] < 0.03, err
     end_b = next(lf for lf in res.report["logs"] if lf["log_id"] == "log0")["ends"][1]
     assert not end_b["contradicted"] and end_b["source"] in ("fixed", "scan"), end_b
+
+
+def test_on_a_log_seen_in_part_a_fixed_point_beyond_a_covered_end_stands():
+    # twin scan 1100028: on logs seen only in part (axis from the survey, radius from a piece of top, 5 cm
+    # too large), the scan seemed to see below the top past a covered end; the RTK fixed points 41-48 cm
+    # farther out were called contradicted and the ends put in the interval's middle
+    cfg = FuseConfig()
+    p0, u = np.zeros(3), np.array([1.0, 0.0, 0.0])
+    covered = EndInterval(1.50, 1.70, "occluded")
+    fixed = _end(2.10, 0.0, fix="rtk_fixed")
+    e = fuse_end(p0, u, covered, False, fixed, 0.04, cfg, seen_whole=False)
+    assert e.source == "fixed" and not e.contradicted and abs(e.position_m[0] - 2.10) < 0.005
+    # and from inside an open end: the log's visible top there may be another's
+    e = fuse_end(p0, u, EndInterval(2.40, None, "open"), False, fixed, 0.04, cfg, seen_whole=False)
+    assert e.source == "fixed" and abs(e.position_m[0] - 2.10) < 0.005
+    # a float point there is still held to the scan's bounds, and on a log seen whole the scan decides
+    e = fuse_end(p0, u, covered, False, _end(2.10, 0.0), 0.04, cfg, seen_whole=False)
+    assert e.source == "float" and 1.5 <= e.position_m[0] <= 1.7
+    e = fuse_end(p0, u, covered, False, fixed, 0.005, cfg, seen_whole=True)
+    assert e.contradicted and e.source == "inferred"
