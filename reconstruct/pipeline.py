@@ -331,7 +331,7 @@ def refine_registration(points: np.ndarray, endpoints: dict, cfg: ReconstructCon
         except ReconstructError as exc:
             failures[log_id] = str(exc)
             continue
-        axes[log_id] = (f["centre"], f["axis"], f)
+        axes[log_id] = (f.centre, f.axis, f)
     if not axes:
         raise RegistrationError("no log could be fitted to the scan around its GNSS axis: "
                                 + "; ".join(failures.values()))
@@ -354,8 +354,8 @@ def refine_registration(points: np.ndarray, endpoints: dict, cfg: ReconstructCon
                                                 fcfg.end_walk_band_m)))
     for i, (k, end, e) in enumerate(targets):
         f = axes[k][2]
-        p0, p1 = f["ends"]
-        r = 0.5 * (f["radius_a_m"] + f["radius_b_m"])
+        p0, p1 = f.ends
+        r = 0.5 * (f.radius_a_m + f.radius_b_m)
         iv = scan_end_interval(points[mine[k]], p0, p1, r, toward_p1=(end == "b"), reach_m=cfg.fuse.end_search_m,
                                cfg=cfg.fuse)
         if iv.state == "seen":
@@ -447,9 +447,8 @@ def refine_registration(points: np.ndarray, endpoints: dict, cfg: ReconstructCon
     }
     fitted = {}
     for k in ids:
-        f = dict(axes[k][2])
-        f["ends"] = apply_T(T, f["ends"])
-        fitted[k] = log_spec_from_fit(f, fcfg)[0]
+        f = axes[k][2]
+        fitted[k] = log_spec_from_fit(f.with_ends(apply_T(T, f.ends)), fcfg)[0]
     if shift > cfg.max_correction_m or angle > cfg.max_correction_deg:
         raise RegistrationError(
             f"the scan pose needs a correction of {shift:.2f} m / {angle:.1f} deg to match the GNSS end "
@@ -1009,8 +1008,8 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
         a, b, s = priors[k]
         try:
             f = fit_log(pts[in_patch], a, b, cfg.fit, log_id=k, sigma_a_m=s, sigma_b_m=s)
-            ok = f["coverage"] >= fuse_cfg.min_new_log_coverage
-            why = f"its fit covers {f['coverage'] * 100:.0f} % of it"
+            ok = f.coverage >= fuse_cfg.min_new_log_coverage
+            why = f"its fit covers {f.coverage * 100:.0f} % of it"
         except ReconstructError as exc:
             ok, why = False, str(exc)
         if ok:

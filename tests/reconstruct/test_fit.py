@@ -119,9 +119,9 @@ def test_top_surface_endpoints(truth, points):
     butt, top = log.endpoints_m()
     up = np.array([0.0, 0.0, log.diameter_m / 2])
     f = fit_log(points, butt + up, top + up, FitConfig(endpoint_ref="top_surface", fit_taper=False))
-    assert abs(2 * f["radius_a_m"] - log.diameter_m) < 0.006
+    assert abs(2 * f.radius_a_m - log.diameter_m) < 0.006
     # the fitted axis passes through the true end centres, not the surveyed top points
-    assert np.linalg.norm(f["ends"][0] - butt) < 0.02
+    assert np.linalg.norm(f.ends[0] - butt) < 0.02
 
 
 def test_log_outside_the_scan_is_named(points, truth):
@@ -296,7 +296,7 @@ def test_a_log_with_a_neighbour_against_its_side_keeps_its_diameter(seed):
     explain it by a wider circle centred toward the neighbour (3.5 cm too thick when the unexplained
     part of a circle's footprint cost nothing; twin scans: 2.1 cm on test_end_to_end_generated_pile)."""
     f = fit_log(_log_with_a_neighbour_against_it(3.0, seed), (0.0, 0.01, 0.0725), (2.4, -0.01, 0.0725), FitConfig())
-    assert abs(2 * f["radius_a_m"] - 0.145) < 0.012, 2 * f["radius_a_m"]
+    assert abs(2 * f.radius_a_m - 0.145) < 0.012, 2 * f.radius_a_m
 
 
 def test_side_by_side_logs_are_pushed_apart_both():
