@@ -163,6 +163,7 @@ class FitConfig:
     min_points: int = 60  # fewer inlier points than this: the log is not in the scan [-]
     max_points_per_log: int = 6000  # random subsample for the 3-D fit [-]
     log_clearance_m: float = 0.04  # points this close to a fitted log surface are log [m]
+    terrain_log_pad_m: float = 0.10  # ... also this far past its ends, for the terrain [m]
     footprint_margin_m: float = 0.03  # ground points are this far outside log footprints [m]
     terrain_resolution: int = 64  # heightfield samples per side [-]
     ground_window_m: float = 1.0  # opening window; wider than any obstacle [m]
@@ -213,7 +214,8 @@ class FitConfig:
         for name in ("axis_tolerance_m", "profile_tolerance_m", "inlier_band_m", "end_walk_band_m",
                      "chunk_line_band_m", "chunk_line_min_span_m", "min_survey_length_m", "coverage_bin_m",
                      "taper_section_m", "taper_min_significance", "max_taper_per_m", "widened_tolerance_max_m",
-                     "widened_chunk_length_m", "widened_reach_max_m", "top_surface_vertical_prior_weight", "loss_scale_m",
+                     "widened_chunk_length_m", "widened_reach_max_m", "top_surface_vertical_prior_weight",
+                     "terrain_log_pad_m", "loss_scale_m",
                      "gnss_sigma_m", "log_clearance_m", "ground_window_m", "ground_band_m",
                      "obstacle_min_height_m", "dbscan_eps_m", "obstacle_min_size_m", "obstacle_voxel_m",
                      "obstacle_merge_gap_m", "obstacle_sliver_m", "obstacle_flank_height_m",
@@ -1445,6 +1447,271 @@ def _underside_z(logs: Sequence[LogSpec], xy: np.ndarray, reach_m: float = 0.0) 
 
 
 # -- the whole pile --------------------------------------------------------------------------
+@dataclass
+class _PlacedLog:
+    """One log of :func:`fit_pile` as placed: its fit, its LogSpec, whether end b is the butt, and how
+    (``"scan"``, ``"partial"`` or ``"hidden"``)."""
+
+    fit: CylinderFit
+    spec: LogSpec
+    swapped: bool
+    how: str
+
+
+@dataclass
+class _FirstPass:
+    """:func:`fit_pile`'s first pass: each log on its own."""
+
+    specs: list[LogSpec | None]  # per log (None: hidden, until placed)
+    fits: dict[int, CylinderFit]  # the logs fitted here (not given as ``first_pass``)
+    hidden: dict[int, LogNotSeenError]  # logs with no scan points on them, under others
+
+
+@dataclass
+class _Ground:
+    """Terrain and obstacles under the placed logs."""
+
+    terrain: TerrainSpec
+    is_ground: np.ndarray
+    coverage: float
+    stumps: list
+    rocks: list
+    info: list
+    n_above: int
+
+
+def _check_endpoints(endpoints: Mapping[str, tuple[Any, Any]], ids: Sequence[str], extent_m: float) -> None:
+    half = extent_m / 2
+    for log_id in ids:
+        for end, p in zip("ab", endpoints[log_id]):
+            p = np.asarray(p, dtype=float)
+            if p.shape != (3,) or not np.all(np.isfinite(p)):
+                raise ValueError(f"log {log_id!r} end {end!r}: need a finite 3-D point, got {p!r}")
+            if abs(p[0]) > half or abs(p[1]) > half:
+                raise FitError(f"log {log_id!r} end {end!r} at ({p[0]:.2f}, {p[1]:.2f}) m lies outside "
+                               f"the {extent_m:g} m terrain patch; enlarge extent_m or check the point")
+
+
+def _first_pass(P: np.ndarray, ids: Sequence[str], endpoints: Mapping[str, tuple[Any, Any]], cfg: FitConfig,
+                rng: np.random.Generator, given: Mapping[str, LogSpec] | None,
+                sigmas: Mapping[str, tuple[float, float]] | None, say: Callable[[str], None]) -> _FirstPass:
+    """Each log on its own around its axis (or as ``given``); a log with no scan points on it is hidden
+    when scan points stand over its axis, else the error stands."""
+    out = _FirstPass([], {}, {})
+    for i, log_id in enumerate(ids):
+        if given is not None and log_id in given:
+            out.specs.append(given[log_id])
+            continue
+        say(f"fitting log {log_id}")
+        sa, sb = (sigmas or {}).get(log_id, (None, None))
+        try:
+            out.fits[i] = fit_log(P, *endpoints[log_id], cfg, log_id=log_id, rng=rng, sigma_a_m=sa, sigma_b_m=sb)
+            out.specs.append(log_spec_from_fit(out.fits[i], cfg)[0])
+        except LogNotSeenError as exc:
+            if not _covered_by_others(P, *endpoints[log_id], cfg):
+                raise  # nothing over it either: outside the scan, or wrong end points
+            out.hidden[i] = exc
+            out.specs.append(None)
+    if out.hidden and len(out.hidden) == len(ids):
+        raise next(iter(out.hidden.values()))
+    return out
+
+
+class _Placement:
+    """:func:`fit_pile`'s second pass: every log placed among the ones placed before it. Trusted logs
+    first, each refitted on the points it owns; logs seen only in part on their survey axes; hidden ones
+    between the ground and the logs over them. ``placed``, ``dropped`` hold the result."""
+
+    def __init__(self, P: np.ndarray, ids: Sequence[str], endpoints: Mapping[str, tuple[Any, Any]],
+                 cfg: FitConfig, rng: np.random.Generator, sigmas: Mapping[str, tuple[float, float]] | None,
+                 optional: Collection[str], say: Callable[[str], None]):
+        self.P, self.ids, self.endpoints, self.cfg, self.rng = P, ids, endpoints, cfg, rng
+        self.sigmas, self.optional, self.say = sigmas or {}, optional, say
+        self.placed: dict[int, _PlacedLog] = {}
+        self.dropped: dict[str, str] = {}  # optional logs left out, and why
+        self.typical_d = math.nan
+
+    def neighbours(self, i: int) -> list[LogSpec]:
+        """The other logs placed so far."""
+        return [self.placed[j].spec for j in self.placed if j != i]
+
+    def room_m(self, p0: np.ndarray, p1: np.ndarray, i: int) -> float:
+        """The largest radius a log on axis p0 -> p1 has between the others placed so far [m]."""
+        return min((_segment_distance_3d(p0, p1, *o.endpoints_m()) - o.mean_diameter_m / 2 for o in self.neighbours(i)),
+                   default=math.inf)
+
+    def within_room(self, spec: LogSpec, i: int, slack_m: float = 0.0) -> LogSpec:
+        """``spec`` thinned to the room its neighbours leave, plus ``slack_m`` (their surfaces
+        and its axis are surveyed to a few cm: a little overlap is for the twin check to lift)."""
+        p0, p1 = spec.endpoints_m()
+        room = self.room_m(p0, p1, i) + slack_m
+        return (LogSpec.from_endpoints(p0, p1, 2 * room) if self.cfg.min_radius_m <= room < spec.mean_diameter_m / 2
+                else spec)
+
+    def place_hidden(self, i: int, why: LogNotSeenError) -> None:
+        cfg, P = self.cfg, self.P
+        a, b = self.endpoints[self.ids[i]]
+        if not _covered_by_others(P, a, b, cfg):
+            raise why  # nothing over it either: outside the scan, or wrong end points
+        spec = _sandwiched_log(P, a, b, self.neighbours(i), cfg)
+        whence = "as thick as the gap between the ground and the logs over it"
+        if spec is None:  # not lying between the ground and logs over it: the survey's axis
+            spec = self.within_room(_survey_log(a, b, self.typical_d, cfg), i)
+            whence = f"the pile's typical {self.typical_d * 100:.1f} cm within the room left; heights surveyed"
+        ab = np.array([a, b], dtype=float)
+        f = CylinderFit(centre=ab.mean(axis=0), axis=(ab[1] - ab[0]) / np.linalg.norm(ab[1] - ab[0]), ends=ab,
+                        radius_a_m=spec.diameter_m / 2, radius_b_m=spec.diameter_m / 2, n_points=0, rms_m=math.nan,
+                        coverage=0.0, residual_a_m=0.0, residual_b_m=0.0)
+        self.placed[i] = _PlacedLog(f, spec, False, "hidden")
+        self.say(f"log {self.ids[i]}: hidden under others ({why}); axis from GNSS, diameter {spec.diameter_m * 100:.1f} cm "
+                 f"({whence})")
+
+    def run(self, first: _FirstPass) -> None:
+        cfg, P, ids, endpoints = self.cfg, self.P, self.ids, self.endpoints
+        hidden = dict(first.hidden)
+        specs = list(first.specs)
+        # until it is placed (place_hidden), a hidden log is the pile's typical one on its survey axis
+        self.typical_d = float(np.median([log.mean_diameter_m for log in specs if log is not None]))
+        for i in hidden:
+            specs[i] = _survey_log(*endpoints[ids[i]], self.typical_d, cfg)
+        # a first fit this far off its GNSS axis (several sigma of RTK noise) took another surface,
+        # most likely: a neighbour's (a log lying under another) or the ground beside it. Its refit
+        # gets only the points no other log explains
+        suspect = [i in hidden or _axis_shift(log, *endpoints[log_id]) > cfg.suspect_shift_m
+                   for i, (log, log_id) in enumerate(zip(specs, ids))]
+        owner = _owners(P, specs, cfg.inlier_band_m, suspect)
+        on_axis: list[int] = []  # logs seen only in part: placed once the others are fitted
+        for i in sorted(range(len(ids)), key=lambda k: suspect[k]):  # trusted logs first
+            if i in hidden:
+                continue
+            log_id = ids[i]
+            a, b = endpoints[log_id]
+            sa, sb = self.sigmas.get(log_id, (None, None))
+            mine = P[(owner == i) | (owner < 0)]
+            trusted = [self.placed[j].spec for j in self.placed if not suspect[j]]
+            try:
+                f = fit_log(mine, a, b, cfg, log_id=log_id, rng=self.rng, sigma_a_m=sa, sigma_b_m=sb)
+                spec, swapped = log_spec_from_fit(f, cfg)
+                astray = _axis_shift(spec, a, b) > cfg.suspect_shift_m
+            except LogNotSeenError:  # its first fit took a neighbour's points: none are left to it
+                astray = True
+            except FitError as exc:
+                if log_id not in self.optional:
+                    raise
+                self.dropped[log_id] = f"no log fits the scan points left to it once the other logs took theirs ({exc})"
+                self.say(f"log {log_id}: left out, {self.dropped[log_id]}")
+                continue
+            if astray and not suspect[i] and i in first.fits:
+                # the refit on the points left to it strayed where its first fit had not (a log
+                # mostly hidden: its few points let the refit tilt): the first fit stands
+                f = first.fits[i]
+                spec, swapped = log_spec_from_fit(f, cfg)
+                astray = False
+            if astray or suspect[i] and any(_interpenetration(spec, o) > cfg.penetration_tolerance_m for o in trusted):
+                # still astray, or inside a trusted neighbour: the log is seen only in part (under another)
+                on_axis.append(i)
+                continue
+            self.placed[i] = _PlacedLog(f, spec, swapped, "scan")
+        for i in on_axis:
+            # its axis is the survey's, its radius what the scan shows of its top, at most the room
+            # its neighbours leave around that axis
+            log_id = ids[i]
+            a, b = endpoints[log_id]
+            try:
+                f = fit_radius_on_axis(P[(owner == i) | (owner < 0)], a, b, cfg, log_id=log_id)
+            except LogNotSeenError as exc:
+                hidden[i] = exc
+                continue
+            spec, swapped = log_spec_from_fit(f, cfg)
+            self.placed[i] = _PlacedLog(f, self.within_room(spec, i, slack_m=cfg.gnss_sigma_m), swapped, "partial")
+            self.say(f"log {log_id}: seen only in part; axis from GNSS, diameter {self.placed[i].spec.diameter_m * 100:.1f} cm")
+        for i in sorted(hidden):
+            if ids[i] in self.optional:
+                self.dropped[ids[i]] = f"no scan points of its own once the other logs took theirs ({hidden[i]})"
+                self.say(f"log {ids[i]}: left out, {self.dropped[ids[i]]}")
+                continue
+            self.place_hidden(i, hidden[i])
+
+    def place_ends(self, keep: Sequence[int],
+                   place: Callable[[str, LogSpec, str, np.ndarray, bool], tuple[LogSpec, Any]]) -> dict[int, tuple]:
+        """Each kept log's ends placed by ``place`` on the points on no other log (a log seen only in
+        part thinned again to the room around its placed ends); returns what placed them, per log."""
+        cfg = self.cfg
+        mine = dict(zip(keep, points_on_no_other_log(self.P, [self.placed[i].spec for i in keep], cfg.end_walk_band_m)))
+        ends_info: dict[int, tuple] = {}
+        for i in keep:
+            pl = self.placed[i]
+            spec, info = place(self.ids[i], pl.spec, pl.how, self.P[mine[i]], bool(pl.swapped))
+            if pl.how == "partial":
+                # its ends may have moved out (to its survey points): still no thicker than the room left
+                spec = self.within_room(spec, i, slack_m=cfg.gnss_sigma_m)
+            pl.spec = spec
+            ends_info[i] = tuple(e if isinstance(e, dict) else e.to_dict() for e in info)
+        return ends_info
+
+
+def _log_fits(placement: _Placement, keep: Sequence[int], ends_info: Mapping[int, tuple]) -> list[LogFit]:
+    """The per-log report of the kept logs, indexed as in the pile."""
+    fits: list[LogFit] = []
+    for index, i in enumerate(keep):
+        log_id = placement.ids[i]
+        pl = placement.placed[i]
+        f, spec, swapped = pl.fit, pl.spec, pl.swapped
+        a, b = placement.endpoints[log_id]
+        butt, top = spec.endpoints_m()
+        p0, p1 = np.asarray(a, float), np.asarray(b, float)
+        ends = f.ends
+        lf = LogFit(
+            log_id=log_id, index=index, butt_m=tuple(float(v) for v in butt), top_m=tuple(float(v) for v in top),
+            length_m=spec.length_m, diameter_m=spec.diameter_m, top_diameter_m=spec.top_diameter_m,
+            n_points=f.n_points, rms_m=f.rms_m, coverage=f.coverage,
+            gnss_residual_a_m=f.residual_a_m, gnss_residual_b_m=f.residual_b_m,
+            axis_shift_m=float(max(np.linalg.norm(ends[0] - p0), np.linalg.norm(ends[1] - p1))),
+            swapped=bool(swapped), end_source=tuple(reversed(f.end_source)) if swapped else tuple(f.end_source),
+            fit=pl.how,
+        )
+        if i in ends_info:
+            lf.ends = [dict(e) for e in ends_info[i]]
+            srcs = tuple(e["source"] for e in ends_info[i])
+            lf.end_source = tuple(reversed(srcs)) if swapped else srcs
+            # each survey point's distance from the placed log's axis (NaN: no point)
+            lf.gnss_residual_a_m, lf.gnss_residual_b_m = (
+                float(e.get("gnss_axis_distance_m", math.nan) if e.get("gnss_axis_distance_m") is not None
+                      else math.nan) for e in ends_info[i])
+        fits.append(lf)
+    return fits
+
+
+def _ground(P: np.ndarray, logs: Sequence[LogSpec], extent_m: float, cfg: FitConfig,
+            timings: dict[str, float], say: Callable[[str], None]) -> _Ground:
+    """The terrain from the points off the logs (held under their undersides), then the obstacles
+    standing on it."""
+    import time
+
+    half = extent_m / 2
+    t1 = time.perf_counter()
+    say("fitting terrain")
+    dist = _distance_to_logs(P, logs, pad_m=cfg.terrain_log_pad_m)
+    # not log, and not inside a log's top-view footprint (stereo smears log edges down there)
+    rest = P[(dist > cfg.log_clearance_m) & (_footprint_distance(P[:, :2], logs) > cfg.footprint_margin_m)]
+    terrain, is_ground, coverage = fit_terrain(rest, extent_m, cfg)
+    terrain = _clamp_under_logs(terrain, logs)
+    timings["terrain_s"] = time.perf_counter() - t1
+    t2 = time.perf_counter()
+    say("finding obstacles")
+    z_ground = terrain.height_at(rest[:, 0], rest[:, 1])
+    above = rest[(~is_ground) & (rest[:, 2] > z_ground + cfg.obstacle_min_height_m)
+                 & (np.abs(rest[:, 0]) < half) & (np.abs(rest[:, 1]) < half)]
+    flank = rest[(rest[:, 2] > z_ground + cfg.obstacle_flank_height_m)
+                 & (rest[:, 2] <= z_ground + cfg.obstacle_min_height_m)
+                 & (np.abs(rest[:, 0]) < half) & (np.abs(rest[:, 1]) < half)]
+    if logs and len(flank):
+        flank = flank[_footprint_distance(flank[:, :2], logs) > cfg.obstacle_flank_log_gap_m]
+    stumps, rocks, info = find_obstacles(above, terrain, cfg, logs, flank_points=flank)
+    timings["obstacles_s"] = time.perf_counter() - t2
+    return _Ground(terrain, is_ground, coverage, stumps, rocks, info, int(len(above)))
+
+
 def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], extent_m: float,
              cfg: FitConfig | None = None, progress: Callable[[str], None] | None = None,
              georef: Any = None, notes: str = "",
@@ -1467,6 +1734,10 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
     ``optional``: ids of logs found in the scan alone (no survey): one that has no scan points of its
     own once the other logs have taken theirs (a ridge made of other logs' pieces) is left out, with
     the reason in ``PileFit.dropped``, instead of failing the pile; it cannot be hidden, it was seen.
+
+    Steps: :func:`_first_pass` (each log on its own), :class:`_Placement` (each scan point to the log
+    whose surface it lies on, then each log refitted among the others; its ends placed), :func:`_ground`
+    (terrain, obstacles), :func:`separate_logs` (the twin's check).
     """
     import time
 
@@ -1482,197 +1753,17 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     ids = sorted(endpoints, key=natural_key)
-    half = extent_m / 2
-    for log_id in ids:
-        for end, p in zip("ab", endpoints[log_id]):
-            p = np.asarray(p, dtype=float)
-            if p.shape != (3,) or not np.all(np.isfinite(p)):
-                raise ValueError(f"log {log_id!r} end {end!r}: need a finite 3-D point, got {p!r}")
-            if abs(p[0]) > half or abs(p[1]) > half:
-                raise FitError(f"log {log_id!r} end {end!r} at ({p[0]:.2f}, {p[1]:.2f}) m lies outside "
-                               f"the {extent_m:g} m terrain patch; enlarge extent_m or check the point")
-    # pass 1: each log on its own; pass 2: each scan point belongs to the log whose fitted
-    # surface it lies on (so a neighbour's flank never bends this log's fit), then refit
-    first: list[LogSpec | None] = []
-    first_fits: dict[int, CylinderFit] = {}
-    hidden: dict[int, LogNotSeenError] = {}  # logs with no scan points on them, under others
-    for i, log_id in enumerate(ids):
-        if first_pass is not None and log_id in first_pass:
-            first.append(first_pass[log_id])
-            continue
-        say(f"fitting log {log_id}")
-        sa, sb = (sigmas or {}).get(log_id, (None, None))
-        try:
-            first_fits[i] = fit_log(P, *endpoints[log_id], cfg, log_id=log_id, rng=rng, sigma_a_m=sa, sigma_b_m=sb)
-            first.append(log_spec_from_fit(first_fits[i], cfg)[0])
-        except LogNotSeenError as exc:
-            if not _covered_by_others(P, *endpoints[log_id], cfg):
-                raise  # nothing over it either: outside the scan, or wrong end points
-            hidden[i] = exc
-            first.append(None)
-    if hidden and len(hidden) == len(ids):
-        raise next(iter(hidden.values()))
-    # until it is placed (place_hidden), a hidden log is the pile's typical one on its survey axis
-    typical_d = float(np.median([log.mean_diameter_m for log in first if log is not None]))
-    for i in hidden:
-        first[i] = _survey_log(*endpoints[ids[i]], typical_d, cfg)
-    # a first fit this far off its GNSS axis (several sigma of RTK noise) took another surface,
-    # most likely: a neighbour's (a log lying under another) or the ground beside it. Its refit
-    # gets only the points no other log explains
-    suspect = [i in hidden or _axis_shift(log, *endpoints[log_id]) > cfg.suspect_shift_m
-               for i, (log, log_id) in enumerate(zip(first, ids))]
-    owner = _owners(P, first, cfg.inlier_band_m, suspect)
-    fitted: dict[int, tuple[dict, LogSpec, bool]] = {}
-    how: dict[int, str] = {}
-
-    def neighbours(i: int) -> list[LogSpec]:
-        """The other logs placed so far."""
-        return [fitted[j][1] for j in fitted if j != i]
-
-    def room_m(p0: np.ndarray, p1: np.ndarray, i: int) -> float:
-        """The largest radius a log on axis p0 -> p1 has between the others placed so far [m]."""
-        return min((_segment_distance_3d(p0, p1, *o.endpoints_m()) - o.mean_diameter_m / 2 for o in neighbours(i)),
-                   default=math.inf)
-
-    def within_room(spec: LogSpec, i: int, slack_m: float = 0.0) -> LogSpec:
-        """``spec`` thinned to the room its neighbours leave, plus ``slack_m`` (their surfaces
-        and its axis are surveyed to a few cm: a little overlap is for the twin check to lift)."""
-        p0, p1 = spec.endpoints_m()
-        room = room_m(p0, p1, i) + slack_m
-        return LogSpec.from_endpoints(p0, p1, 2 * room) if cfg.min_radius_m <= room < spec.mean_diameter_m / 2 else spec
-
-    def place_hidden(i: int, why: LogNotSeenError) -> None:
-        a, b = endpoints[ids[i]]
-        if not _covered_by_others(P, a, b, cfg):
-            raise why  # nothing over it either: outside the scan, or wrong end points
-        spec = _sandwiched_log(P, a, b, neighbours(i), cfg)
-        whence = "as thick as the gap between the ground and the logs over it"
-        if spec is None:  # not lying between the ground and logs over it: the survey's axis
-            spec = within_room(_survey_log(a, b, typical_d, cfg), i)
-            whence = f"the pile's typical {typical_d * 100:.1f} cm within the room left; heights surveyed"
-        ab = np.array([a, b], dtype=float)
-        f = CylinderFit(centre=ab.mean(axis=0), axis=(ab[1] - ab[0]) / np.linalg.norm(ab[1] - ab[0]), ends=ab,
-                        radius_a_m=spec.diameter_m / 2, radius_b_m=spec.diameter_m / 2, n_points=0, rms_m=math.nan,
-                        coverage=0.0, residual_a_m=0.0, residual_b_m=0.0)
-        fitted[i], how[i] = (f, spec, False), "hidden"
-        say(f"log {ids[i]}: hidden under others ({why}); axis from GNSS, diameter {spec.diameter_m * 100:.1f} cm "
-            f"({whence})")
-
-    on_axis: list[int] = []  # logs seen only in part: placed once the others are fitted
-    dropped: dict[str, str] = {}  # optional logs left out, and why
-    for i in sorted(range(len(ids)), key=lambda k: suspect[k]):  # trusted logs first
-        if i in hidden:
-            continue
-        log_id = ids[i]
-        a, b = endpoints[log_id]
-        sa, sb = (sigmas or {}).get(log_id, (None, None))
-        mine = P[(owner == i) | (owner < 0)]
-        trusted = [fitted[j][1] for j in fitted if not suspect[j]]
-        try:
-            f = fit_log(mine, a, b, cfg, log_id=log_id, rng=rng, sigma_a_m=sa, sigma_b_m=sb)
-            spec, swapped = log_spec_from_fit(f, cfg)
-            astray = _axis_shift(spec, a, b) > cfg.suspect_shift_m
-        except LogNotSeenError:  # its first fit took a neighbour's points: none are left to it
-            astray = True
-        except FitError as exc:
-            if log_id not in optional:
-                raise
-            dropped[log_id] = f"no log fits the scan points left to it once the other logs took theirs ({exc})"
-            say(f"log {log_id}: left out, {dropped[log_id]}")
-            continue
-        if astray and not suspect[i] and i in first_fits:
-            # the refit on the points left to it strayed where its first fit had not (a log
-            # mostly hidden: its few points let the refit tilt): the first fit stands
-            f = first_fits[i]
-            spec, swapped = log_spec_from_fit(f, cfg)
-            astray = False
-        if astray or suspect[i] and any(_interpenetration(spec, o) > cfg.penetration_tolerance_m for o in trusted):
-            # still astray, or inside a trusted neighbour: the log is seen only in part (under another)
-            on_axis.append(i)
-            continue
-        fitted[i], how[i] = (f, spec, swapped), "scan"
-    for i in on_axis:
-        # its axis is the survey's, its radius what the scan shows of its top, at most the room
-        # its neighbours leave around that axis
-        log_id = ids[i]
-        a, b = endpoints[log_id]
-        try:
-            f = fit_radius_on_axis(P[(owner == i) | (owner < 0)], a, b, cfg, log_id=log_id)
-        except LogNotSeenError as exc:
-            hidden[i] = exc
-            continue
-        spec, swapped = log_spec_from_fit(f, cfg)
-        fitted[i], how[i] = (f, within_room(spec, i, slack_m=cfg.gnss_sigma_m), swapped), "partial"
-        say(f"log {log_id}: seen only in part; axis from GNSS, diameter {fitted[i][1].diameter_m * 100:.1f} cm")
-    for i in sorted(hidden):
-        if ids[i] in optional:
-            dropped[ids[i]] = f"no scan points of its own once the other logs took theirs ({hidden[i]})"
-            say(f"log {ids[i]}: left out, {dropped[ids[i]]}")
-            continue
-        place_hidden(i, hidden[i])
-    keep = [i for i in range(len(ids)) if ids[i] not in dropped]
-    placed: dict[int, tuple] = {}
-    if place_ends is not None:
-        mine = dict(zip(keep, points_on_no_other_log(P, [fitted[i][1] for i in keep], cfg.end_walk_band_m)))
-        for i in keep:
-            log_id = ids[i]
-            f, spec, swapped = fitted[i]
-            spec, ends_info = place_ends(log_id, spec, how[i], P[mine[i]], bool(swapped))
-            if how[i] == "partial":
-                # its ends may have moved out (to its survey points): still no thicker than the room left
-                spec = within_room(spec, i, slack_m=cfg.gnss_sigma_m)
-            fitted[i] = (f, spec, swapped)
-            placed[i] = tuple(e if isinstance(e, dict) else e.to_dict() for e in ends_info)
-    fits: list[LogFit] = []
-    logs: list[LogSpec] = []
-    for index, i in enumerate(keep):
-        log_id = ids[i]
-        f, spec, swapped = fitted[i]
-        a, b = endpoints[log_id]
-        logs.append(spec)
-        butt, top = spec.endpoints_m()
-        p0, p1 = np.asarray(a, float), np.asarray(b, float)
-        ends = f.ends
-        fits.append(LogFit(
-            log_id=log_id, index=index, butt_m=tuple(float(v) for v in butt), top_m=tuple(float(v) for v in top),
-            length_m=spec.length_m, diameter_m=spec.diameter_m, top_diameter_m=spec.top_diameter_m,
-            n_points=f.n_points, rms_m=f.rms_m, coverage=f.coverage,
-            gnss_residual_a_m=f.residual_a_m, gnss_residual_b_m=f.residual_b_m,
-            axis_shift_m=float(max(np.linalg.norm(ends[0] - p0), np.linalg.norm(ends[1] - p1))),
-            swapped=bool(swapped), end_source=tuple(reversed(f.end_source)) if swapped else tuple(f.end_source),
-            fit=how[i],
-        ))
-        if i in placed:
-            lf = fits[-1]
-            lf.ends = [dict(e) for e in placed[i]]
-            srcs = tuple(e["source"] for e in placed[i])
-            lf.end_source = tuple(reversed(srcs)) if swapped else srcs
-            # each survey point's distance from the placed log's axis (NaN: no point)
-            lf.gnss_residual_a_m, lf.gnss_residual_b_m = (
-                float(e.get("gnss_axis_distance_m", math.nan) if e.get("gnss_axis_distance_m") is not None
-                      else math.nan) for e in placed[i])
+    _check_endpoints(endpoints, ids, extent_m)
+    first = _first_pass(P, ids, endpoints, cfg, rng, first_pass, sigmas, say)
+    placement = _Placement(P, ids, endpoints, cfg, rng, sigmas, optional, say)
+    placement.run(first)
+    keep = [i for i in range(len(ids)) if ids[i] not in placement.dropped]
+    ends_info = placement.place_ends(keep, place_ends) if place_ends is not None else {}
+    fits = _log_fits(placement, keep, ends_info)
+    logs = [placement.placed[i].spec for i in keep]
     timings["logs_s"] = time.perf_counter() - t0
-    t1 = time.perf_counter()
-    say("fitting terrain")
-    dist = _distance_to_logs(P, logs, pad_m=0.10)
-    # not log, and not inside a log's top-view footprint (stereo smears log edges down there)
-    rest = P[(dist > cfg.log_clearance_m) & (_footprint_distance(P[:, :2], logs) > cfg.footprint_margin_m)]
-    terrain, is_ground, coverage = fit_terrain(rest, extent_m, cfg)
-    terrain = _clamp_under_logs(terrain, logs)
-    timings["terrain_s"] = time.perf_counter() - t1
-    t2 = time.perf_counter()
-    say("finding obstacles")
-    z_ground = terrain.height_at(rest[:, 0], rest[:, 1])
-    above = rest[(~is_ground) & (rest[:, 2] > z_ground + cfg.obstacle_min_height_m)
-                 & (np.abs(rest[:, 0]) < half) & (np.abs(rest[:, 1]) < half)]
-    flank = rest[(rest[:, 2] > z_ground + cfg.obstacle_flank_height_m)
-                 & (rest[:, 2] <= z_ground + cfg.obstacle_min_height_m)
-                 & (np.abs(rest[:, 0]) < half) & (np.abs(rest[:, 1]) < half)]
-    if logs and len(flank):
-        flank = flank[_footprint_distance(flank[:, :2], logs) > cfg.obstacle_flank_log_gap_m]
-    stumps, rocks, info = find_obstacles(above, terrain, cfg, logs, flank_points=flank)
-    timings["obstacles_s"] = time.perf_counter() - t2
-    pile = PileSpec(terrain=terrain, logs=tuple(logs), stumps=tuple(stumps), rocks=tuple(rocks),
+    ground = _ground(P, logs, extent_m, cfg, timings, say)
+    pile = PileSpec(terrain=ground.terrain, logs=tuple(logs), stumps=tuple(ground.stumps), rocks=tuple(ground.rocks),
                     georef=georef, source="reconstructed", notes=notes)
     move_notes: list[str] = []
     if cfg.validate:
@@ -1686,9 +1777,9 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
                 lf.butt_m = tuple(float(v) for v in butt)
                 lf.top_m = tuple(float(v) for v in top)
         timings["validate_s"] = time.perf_counter() - t3
-    return PileFit(pile=pile, logs=fits, terrain_coverage=coverage, n_ground_points=int(is_ground.sum()),
-                   n_obstacle_points=int(len(above)), obstacles=info, moves=move_notes, timings_s=timings,
-                   dropped=dropped)
+    return PileFit(pile=pile, logs=fits, terrain_coverage=ground.coverage, n_ground_points=int(ground.is_ground.sum()),
+                   n_obstacle_points=ground.n_above, obstacles=ground.info, moves=move_notes, timings_s=timings,
+                   dropped=dict(placement.dropped))
 
 
 # -- synthetic scans (tests, benchmarks) -----------------------------------------------------
