@@ -636,11 +636,15 @@ class EndInterval:
 
 
 def scan_end_interval(points: np.ndarray, p0: np.ndarray, p1: np.ndarray, radius_m: float, toward_p1: bool,
-                      reach_m: float, cfg: FuseConfig | None = None, t_from: float | None = None) -> EndInterval:
+                      reach_m: float, cfg: FuseConfig | None = None, t_from: float | None = None,
+                      on_mask: np.ndarray | None = None) -> EndInterval:
     """Walk along the log axis ``p0`` -> ``p1`` from its middle (or ``t_from`` [m from p0]) toward
     ``p1`` (``toward_p1``) or ``p0``, up to ``reach_m`` past that end, and find where the log ends
     (see the module docstring). ``points``: scan points (N, 3), same frame (without those on other
-    logs: a neighbour's top where it touches this log's end is not this log)."""
+    logs: a neighbour's top where it touches this log's end is not this log). ``on_mask`` (per point):
+    which points may show the log's top (default all); the others still show where the scan sees below
+    it (a neighbour's surface near this log's end, a few cm off its own fit, is not this log's top, but
+    seen lower than that top it shows the log is not there)."""
     cfg = cfg or FuseConfig()
     P = np.asarray(points, dtype=np.float64)
     d = np.asarray(p1, float) - np.asarray(p0, float)
@@ -656,13 +660,15 @@ def scan_end_interval(points: np.ndarray, p0: np.ndarray, p1: np.ndarray, radius
     r = float(radius_m)
     lo_t, hi_t = -reach_m, L + reach_m
     m = (np.abs(s) < 0.5 * r) & (t > lo_t) & (t < hi_t)
+    may_be_on = np.ones(int(m.sum()), bool) if on_mask is None else np.asarray(on_mask, bool)[m]
     t, s, h = t[m], s[m], (perp[m] @ up)
     expected = np.sqrt(np.clip(r * r - s * s, 0.0, None))  # the top's height over the axis there
     e = h - expected
     step = cfg.end_bin_m
     nb = int(math.ceil((hi_t - lo_t) / step))
     bi = np.clip(((t - lo_t) / step).astype(np.int64), 0, nb - 1)
-    on = np.bincount(bi, weights=(np.abs(e) < cfg.on_band_m).astype(float), minlength=nb) >= cfg.min_on_points
+    on = np.bincount(bi, weights=((np.abs(e) < cfg.on_band_m) & may_be_on).astype(float),
+                     minlength=nb) >= cfg.min_on_points
     top = np.full(nb, -np.inf)
     np.maximum.at(top, bi, e)
     count = np.bincount(bi, minlength=nb)
@@ -834,10 +840,11 @@ def fuse_end(p0: np.ndarray, u: np.ndarray, interval: EndInterval, at_start: boo
 
 def place_log_ends(points: np.ndarray, spec: Any, how: str, survey: tuple[SurveyEnd | None, SurveyEnd | None],
                    swapped: bool, lateral_sigma_m: float, cfg: FuseConfig | None = None,
-                   ) -> tuple[Any, tuple[EndEstimate, EndEstimate]]:
+                   on_mask: np.ndarray | None = None) -> tuple[Any, tuple[EndEstimate, EndEstimate]]:
     """A fitted log (:class:`synth.pile.LogSpec` ``spec``, placed ``how``: "scan", "partial" or
     "hidden") with both ends placed by :func:`fuse_end`, and the two estimates in survey order
-    (end a, end b; ``swapped``: end b is the butt). ``points``: the scan points that may lie on it.
+    (end a, end b; ``swapped``: end b is the butt). ``points``: the scan points that may lie on it;
+    ``on_mask``: which of them may show its top (:func:`scan_end_interval`).
     ``lateral_sigma_m``: how well its axis is known across [m]."""
     from synth.pile import LogSpec
 
@@ -853,7 +860,9 @@ def place_log_ends(points: np.ndarray, spec: Any, how: str, survey: tuple[Survey
     t2 = (P[:, :2] - pa[:2]) @ d2 / max(float(d2 @ d2), 1e-12)
     across = np.abs((P[:, :2] - pa[:2]) @ np.array([-d2[1], d2[0]])) / max(float(np.linalg.norm(d2)), 1e-12)
     reach_t = 2.5 / max(float(np.linalg.norm(d2)), 1e-6)
-    points = P[(across < r + 0.05) & (t2 > -reach_t) & (t2 < 1.0 + reach_t)]
+    over = (across < r + 0.05) & (t2 > -reach_t) & (t2 < 1.0 + reach_t)
+    points = P[over]
+    on_mask = None if on_mask is None else np.asarray(on_mask, bool)[over]
     ests = []
     for k, e in enumerate(survey):
         # past the fitted end, as far as the survey point (and three of its sigmas) or, with none, a log
@@ -867,7 +876,7 @@ def place_log_ends(points: np.ndarray, spec: Any, how: str, survey: tuple[Survey
         if how == "hidden":
             iv = EndInterval(None, None, "none")
         else:
-            iv = scan_end_interval(points, pa, pb, r, toward_p1=(k == 1), reach_m=reach, cfg=cfg)
+            iv = scan_end_interval(points, pa, pb, r, toward_p1=(k == 1), reach_m=reach, cfg=cfg, on_mask=on_mask)
         ests.append(fuse_end(pa, u, iv, k == 0, e, lateral_sigma_m, cfg, seen_whole=(how == "scan")))
     a, b = ests
     for est, e in zip(ests, survey):

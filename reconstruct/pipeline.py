@@ -350,14 +350,15 @@ def refine_registration(points: np.ndarray, endpoints: dict, cfg: ReconstructCon
     # where it touches this log's end is not this log)
     S = np.full((len(targets), 3), np.nan)
     SA = np.ones(len(targets))
-    mine = dict(zip(ids, points_on_no_other_log(points, [log_spec_from_fit(axes[k][2], fcfg)[0] for k in ids],
-                                                fcfg.end_walk_band_m)))
+    specs = [log_spec_from_fit(axes[k][2], fcfg)[0] for k in ids]
+    mine = dict(zip(ids, points_on_no_other_log(points, specs, fcfg.inlier_band_m)))
+    clear = dict(zip(ids, points_on_no_other_log(points, specs, fcfg.end_walk_band_m)))
     for i, (k, end, e) in enumerate(targets):
         f = axes[k][2]
         p0, p1 = f.ends
         r = 0.5 * (f.radius_a_m + f.radius_b_m)
         iv = scan_end_interval(points[mine[k]], p0, p1, r, toward_p1=(end == "b"), reach_m=cfg.fuse.end_search_m,
-                               cfg=cfg.fuse)
+                               cfg=cfg.fuse, on_mask=clear[k][mine[k]])
         if iv.state == "seen":
             u_k = (p1 - p0) / max(float(np.linalg.norm(p1 - p0)), 1e-9)
             S[i] = p0 + u_k * seen_end(iv)
@@ -1019,7 +1020,7 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
             del new_ids[k], priors[k]
     lateral = {k: s for k, (_, _, s) in priors.items()}
 
-    def placer(log_id: str, spec, how: str, points: np.ndarray, swapped: bool):
+    def placer(log_id: str, spec, how: str, points: np.ndarray, swapped: bool, on_mask: np.ndarray):
         ends_k = survey_ends.get(log_id, (None, None))
         if how == "scan":
             sig = 0.005  # a fitted axis: a few millimetres across
@@ -1028,7 +1029,7 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
         else:
             sig = max((e.sigma_h_m for e in ends_k if e is not None), default=lateral[log_id])
         try:
-            return place_log_ends(points, spec, how, ends_k, swapped, sig, fuse_cfg)
+            return place_log_ends(points, spec, how, ends_k, swapped, sig, fuse_cfg, on_mask=on_mask)
         except FitError as exc:
             raise FitError(f"log {log_id!r}: {exc}") from exc
 

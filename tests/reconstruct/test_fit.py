@@ -349,7 +349,7 @@ def test_a_log_seen_in_part_fits_the_room_left_around_its_placed_ends():
     truth = PileSpec(terrain=terrain, logs=(upper, lower, across))
     pts = sample_top_view_points(truth, size_px=400, noise_m=0.003, rng=np.random.default_rng(0))
 
-    def place_ends(log_id, spec, how, points, swapped):  # log1's end b surveyed 0.2 m farther out
+    def place_ends(log_id, spec, how, points, swapped, on_mask):  # log1's end b surveyed 0.2 m farther out
         if log_id != "log1":
             return spec, ({"source": "scan"}, {"source": "scan"})
         a, b = spec.endpoints_m()
