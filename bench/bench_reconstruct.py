@@ -1,7 +1,7 @@
 """Reconstruction accuracy and speed on twin scans (``make bench`` section "reconstruct"; run
 alone: ``.venv/bin/python bench/bench_reconstruct.py --piles 3``).
 
-For each seed: a settled pile (:func:`synth.generate.generate_pile`, 5 logs, 2 obstacles), a
+For each seed: a settled pile (:func:`synth.scene.generate.generate_pile`, 5 logs, 2 obstacles), a
 2x2 grid of ZED 2-like pairs 3 m above it (1280x720, 50 deg, 0.12 m baseline; one pair does not
 cover a 5-log pile of 2.5 m logs), an RTK survey of the log end centres (1.5 cm horizontal,
 2.5 cm vertical, 1 sigma), :func:`reconstruct.pipeline.reconstruct`, then
@@ -34,8 +34,6 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
 def _load() -> str:
@@ -358,7 +356,7 @@ SURVEY_BENCH_FORMAT = "loggrasp.bench-survey-conditions"
 
 
 def survey_bench(n_scans: int, seed0: int, work_dir: Path, out: Path, logs=(3, 7), obstacles=(0, 3),
-                 progress=print) -> dict:
+                 progress=print, shard: tuple[int, int] = (0, 1)) -> dict:
     """Reconstruction under the three survey conditions (:data:`SURVEY_CONDITIONS`) on ``n_scans``
     fresh twin scans (``loggrasp synth scan`` piles, seeds ``seed0``...): the stereo cloud of each scan
     is matched once and reconstructed with each survey; every log is measured against the truth (worst
@@ -367,7 +365,8 @@ def survey_bench(n_scans: int, seed0: int, work_dir: Path, out: Path, logs=(3, 7
     ``out`` is a folder: one record per scan (``scans/<seed>.json``, written when the scan is done) and
     ``summary.json``. A run with the same settings skips the scans it has records of, so the same
     command with a larger ``n_scans`` extends the run. ``work_dir`` keeps each scan's images and
-    stereo cloud (not needed to resume). One process."""
+    stereo cloud (not needed to resume). ``shard`` (k, n): this process does the scans whose
+    ``seed - seed0`` is k modulo n, so n processes with the same settings share one ``out``."""
     import json
     import os
 
@@ -384,7 +383,8 @@ def survey_bench(n_scans: int, seed0: int, work_dir: Path, out: Path, logs=(3, 7
     records = out / "scans"
     records.mkdir(parents=True, exist_ok=True)
     work_dir.mkdir(parents=True, exist_ok=True)
-    for seed in range(seed0, seed0 + n_scans):
+    k_shard, n_shard = shard
+    for seed in range(seed0 + k_shard, seed0 + n_scans, n_shard):
         path = records / f"{seed}.json"
         if path.exists() and json.loads(path.read_text()).get("key") == key:
             continue
@@ -411,7 +411,7 @@ def survey_bench(n_scans: int, seed0: int, work_dir: Path, out: Path, logs=(3, 7
             atomic_write_bytes(kept_t, json.dumps(list(stereo)).encode())
         row = {"format": SURVEY_BENCH_FORMAT, "format_version": "2.0", "key": key,
                "seed": seed, "n_logs": truth.n_logs, "n_obstacles": len(truth.stumps) + len(truth.rocks),
-               "n_pairs": int(len(cloud.camera_positions)), "cpus": os.cpu_count(),
+               "n_pairs": int(len(cloud.camera_positions)), "cpus": os.cpu_count(), "processes": n_shard,
                "stereo_wall_s": stereo[0], "stereo_cpu_s": stereo[1], "scan_make_s": make_s,
                "load": os.getloadavg()[0], "conditions": {}}
         for cond, gnss in surveys.items():
@@ -525,7 +525,8 @@ def survey_markdown(rec: dict, figure: Path | None = None) -> list[str]:
         f"(fitting revision {rec['key']['fit_revision']}). Per log: worst end error (the farther of its two ends "
         "from the truth), absolute mean-diameter error, mask IoU (128 px). Targets (issue 18): <= 1 % failures, "
         "worst end <= 3 cm median and <= 8 cm p95, diameter <= 1 cm median, <= 15 s per 4-pair scan. "
-        f"One process on {rec['scans'][0].get('cpus', '?')} cores; load average {min(loads):.1f}-{max(loads):.1f} "
+        f"{max(r.get('processes', 1) for r in rec['scans'])} bench process(es) on {rec['scans'][0].get('cpus', '?')} cores; "
+        f"load average {min(loads):.1f}-{max(loads):.1f} "
         f"(median {statistics.median(loads):.1f}) while it ran.\n",
         "| survey | scans | failures | logs | not reconstructed | worst end median [cm] | p95 | max | "
         "abs diameter median [cm] | p95 | mask IoU median | p5 |",
@@ -615,6 +616,9 @@ if __name__ == "__main__":
     ap.add_argument("--survey-out", type=Path, default=Path("docs/results/survey-conditions"),
                     help="its record: a folder with one JSON per scan (kept: the same command with more "
                          "--survey-scans extends the run) and summary.json")
+    ap.add_argument("--survey-shard", default="0/1", metavar="K/N",
+                    help="do only the survey scans whose seed - --survey-seed is K modulo N (run N processes, "
+                         "K = 0..N-1, on one --survey-out)")
     ap.add_argument("--figure", type=Path, default=None, help="write the error-distribution figure here")
     ap.add_argument("--survey-report", action="store_true",
                     help="print the markdown (and write --figure) of an existing --survey-out record, run nothing")
@@ -622,8 +626,15 @@ if __name__ == "__main__":
     if args.survey_scans > 0 or args.survey_report:
         import json
 
+        try:
+            shard = tuple(int(v) for v in args.survey_shard.split("/"))
+            if len(shard) != 2 or not 0 <= shard[0] < shard[1]:
+                raise ValueError
+        except ValueError:
+            raise SystemExit(f"--survey-shard must be K/N with 0 <= K < N, got {args.survey_shard!r}") from None
+
         rec = (read_survey_records(args.survey_out) if args.survey_report else
-               survey_bench(args.survey_scans, args.survey_seed, args.survey_work, args.survey_out,
+               survey_bench(args.survey_scans, args.survey_seed, args.survey_work, args.survey_out, shard=shard,
                             progress=lambda s: print(s, file=sys.stderr, flush=True)))
         fig = survey_figure(rec, args.figure) if args.figure is not None else None
         print("\n".join(survey_markdown(rec, fig)))

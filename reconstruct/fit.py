@@ -1,7 +1,7 @@
 """Model fitting: a scan point cloud plus GNSS log end points become a :class:`PileSpec`.
 
 Everything here works in ONE frame, the *pile frame* of the pile being built (metres, z up, origin
-at the centre of the terrain patch; see :mod:`synth.pile`). :mod:`reconstruct.pipeline` moves the
+at the centre of the terrain patch; see :mod:`synth.scene.pile`). :mod:`reconstruct.pipeline` moves the
 scan and the endpoints into that frame first.
 
 Logs
@@ -62,7 +62,7 @@ flat, circular top at least its radius high, covering the cluster, is a stump (:
 not visible), any other a rock (:class:`RockSpec`, the convex hull of its points extended down
 into the ground).
 
-The assembled pile is loaded into the twin (:func:`synth.generate.validate_pile`-style check);
+The assembled pile is loaded into the twin (:func:`synth.scene.generate.validate_pile`-style check);
 logs that interpenetrate a little (fit noise) are moved out along the contact normal by the
 penetration depth (lifted when stacked, pushed apart when side by side), and every move is
 reported.
@@ -73,7 +73,7 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import asdict, dataclass, field, replace
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Collection, Mapping, Sequence
 
 import numpy as np
 
@@ -96,8 +96,16 @@ AXIS_SOURCES = ("fit", "gnss")
 #: registration walks a log's end over the points on no other log, as the ends' placement does. 7: a
 #: cross-section circle pays for the part of its footprint it does not explain (a log with a neighbour
 #: against its side was fitted up to 2-3.5 cm too thick); two logs side by side that interpenetrate are
-#: each pushed half the way apart (only the upper one was moved).
-FIT_REVISION = 7
+#: each pushed half the way apart (only the upper one was moved). 8: a log's ends are walked over the
+#: points farther than ``FitConfig.end_walk_band_m`` (3 cm, was the fit's 1.5 cm band) from every other
+#: log (a neighbour's top at the height of a covered end's extension made it run on past its fixed point);
+#: a log found in the scan alone that has no points of its own once the others took theirs is left out
+#: (``fit_pile(optional=...)``); a matching that calls more survey points wrong is no ambiguity; on a log
+#: seen only in part an RTK fixed point places a covered or open end, and the log is thinned to the room
+#: around its placed ends. 9: the points near another log (within ``end_walk_band_m``, not within
+#: ``inlier_band_m``) do not show a log's top but still show where the scan sees below it (at 8, logs the
+#: survey missed lost their 'seen' end where they touched a neighbour: 1.9 -> 10.8 cm, 2.3 -> 15.5 cm).
+FIT_REVISION = 9
 # a cross-section circle loses this much score per footprint bin it does not explain (the profile
 # there lies above it or off it): where a neighbour lies against a log, or the stereo fills the
 # valley between them, that side shows no edge, and without this a wider circle, centred toward
@@ -121,7 +129,22 @@ class FitConfig:
     profile_tolerance_m: float = 0.01  # profile bins this close to a half-circle fit it [m]
     profile_bin_m: float = 0.01  # lateral bin of the cross-section profile; search step x2 [m]
     chunk_length_m: float = 0.5  # cross-section profiles are taken over this axial length [m]
+    chunk_min_points: int = 20  # a chunk with fewer scan points gives no profile [-]
+    chunk_min_circle_bins: int = 3  # a chunk's circle explains at least this many profile bins [-]
+    chunk_line_band_m: float = 0.02  # chunk centres this close to the line through them agree with it
+    #                                  (at least 2 profile_tolerance_m) [m]
+    chunk_line_min_span_m: float = 0.2  # a line through chunk centres spans at least this along the log [m]
+    min_survey_length_m: float = 0.1  # a log's two survey points at least this far apart [m]
+    max_fit_evaluations: int = 60  # least-squares function evaluations per cylinder fit [-]
+    top_surface_vertical_prior_weight: float = 0.1  # with top-surface points, the vertical tie to the survey
+    #                                                 counts this much (the radius is not known a priori) [-]
+    coverage_bin_m: float = 0.1  # a log's coverage: the share of bins this long holding fitted points [m]
     inlier_band_m: float = 0.015  # points within this of the surface are used by the 3-D fit [m]
+    end_walk_band_m: float = 0.03  # where a log's end is looked for, points this close to another fitted
+    #                                log's surface do not show this log's top (its fit error plus stereo
+    #                                noise: at the fit's own band, half a neighbour's top stayed in the walk
+    #                                and a log covered at its end ran on over it); they still show where the
+    #                                scan sees below its top (points within inlier_band_m are left out) [m]
     max_angle_deg: float = 60.0  # ... and at most this far round from the top (not the flanks,
     #                              where neighbours, ground and occluders meet the log) [deg]
     loss_scale_m: float = 0.01  # soft-L1 scale of the 3-D fit [m]
@@ -131,9 +154,19 @@ class FitConfig:
     #                           above: the taper trades off against the axis pitch; off by default)
     taper_min_m: float = 0.02  # smaller butt-top diameter differences give a cylinder [m]
     taper_min_coverage: float = 0.7  # a taper needs scan points over this share of the length [-]
+    taper_section_m: float = 0.25  # a taper is judged from the radii of sections this long [m]
+    taper_section_min_points: int = 20  # ... each of at least this many points [-]
+    taper_min_significance: float = 3.0  # ... changing linearly by this many standard errors [-]
+    max_taper_per_m: float = 0.2  # largest radius change along a fitted taper [m/m]
+    widened_tolerance_max_m: float = 0.4  # widen_search: the axis tolerance at most [m]
+    widened_chunk_length_m: float = 0.25  # ... its chunks at most this long [m]
+    widened_reach_max_m: float = 0.5  # ... looking at most this far past an imprecise end [m]
+    scan_end_percentile: float = 0.5  # widen_search: the scan's end of a log is this percentile of its
+    #                                   fitted points along the axis (and 100 less it) [%]
     min_points: int = 60  # fewer inlier points than this: the log is not in the scan [-]
     max_points_per_log: int = 6000  # random subsample for the 3-D fit [-]
     log_clearance_m: float = 0.04  # points this close to a fitted log surface are log [m]
+    terrain_log_pad_m: float = 0.10  # ... also this far past its ends, for the terrain [m]
     footprint_margin_m: float = 0.03  # ground points are this far outside log footprints [m]
     terrain_resolution: int = 64  # heightfield samples per side [-]
     ground_window_m: float = 1.0  # opening window; wider than any obstacle [m]
@@ -181,7 +214,11 @@ class FitConfig:
             raise ValueError(f"axis_source must be one of {AXIS_SOURCES}, got {self.axis_source!r}")
         if not 0 < self.min_radius_m < self.max_radius_m <= 1.0:
             raise ValueError("need 0 < min_radius_m < max_radius_m <= 1 m")
-        for name in ("axis_tolerance_m", "profile_tolerance_m", "inlier_band_m", "loss_scale_m",
+        for name in ("axis_tolerance_m", "profile_tolerance_m", "inlier_band_m", "end_walk_band_m",
+                     "chunk_line_band_m", "chunk_line_min_span_m", "min_survey_length_m", "coverage_bin_m",
+                     "taper_section_m", "taper_min_significance", "max_taper_per_m", "widened_tolerance_max_m",
+                     "widened_chunk_length_m", "widened_reach_max_m", "top_surface_vertical_prior_weight",
+                     "terrain_log_pad_m", "loss_scale_m",
                      "gnss_sigma_m", "log_clearance_m", "ground_window_m", "ground_band_m",
                      "obstacle_min_height_m", "dbscan_eps_m", "obstacle_min_size_m", "obstacle_voxel_m",
                      "obstacle_merge_gap_m", "obstacle_sliver_m", "obstacle_flank_height_m",
@@ -197,6 +234,12 @@ class FitConfig:
             raise ValueError(f"profile_bin_m must be in [0.002, 0.05] m, got {self.profile_bin_m}")
         if self.min_points < 10 or self.max_points_per_log < 100:
             raise ValueError("min_points >= 10, max_points_per_log >= 100 needed")
+        if min(self.chunk_min_points, self.chunk_min_circle_bins, self.taper_section_min_points,
+               self.max_fit_evaluations) < 1:
+            raise ValueError("chunk_min_points, chunk_min_circle_bins, taper_section_min_points and "
+                             "max_fit_evaluations must be >= 1")
+        if not 0 <= self.scan_end_percentile < 50:
+            raise ValueError(f"scan_end_percentile must be in [0, 50) %, got {self.scan_end_percentile}")
         if not 8 <= self.terrain_resolution <= 512:
             raise ValueError(f"terrain_resolution must be in [8, 512], got {self.terrain_resolution}")
 
@@ -249,6 +292,7 @@ class PileFit:
     obstacles: list[dict] = field(default_factory=list)  # kind, position, size, n_points
     moves: list[str] = field(default_factory=list)  # what the validation moved
     timings_s: dict = field(default_factory=dict)
+    dropped: dict = field(default_factory=dict)  # optional logs left out: {log id: why}
 
 
 # -- helpers ---------------------------------------------------------------------------------
@@ -349,29 +393,68 @@ def _row_medians(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return out
 
 
-def fit_log(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = None,
-            log_id: str = "log", rng: np.random.Generator | None = None,
-            sigma_a_m: float | None = None, sigma_b_m: float | None = None) -> dict:
-    """Fit one log to scan points (pile frame) around its GNSS axis ``end_a`` → ``end_b``.
+@dataclass(frozen=True)
+class CylinderFit:
+    """One log fitted to the scan (:func:`fit_log`, :func:`fit_radius_on_axis`), pile frame."""
 
-    ``sigma_a_m``/``sigma_b_m``: 1-sigma accuracy of each GNSS point (default
-    ``cfg.gnss_sigma_m``). An imprecise point (an RTK float fix) widens the search around the
-    axis, weakens the prior, and its end is taken from the scan (the extent of the log's points
-    along the fitted axis) when the scan shows it better than the point does.
+    centre: np.ndarray  # (3,) a point on the fitted axis [m]
+    axis: np.ndarray  # (3,) unit axis direction, end a -> end b [-]
+    ends: np.ndarray  # (2, 3) ends a, b: the survey points projected on the fitted axis (or the survey's) [m]
+    radius_a_m: float  # radius at end a [m]
+    radius_b_m: float  # ... at end b [m]
+    n_points: int  # scan points on the fitted surface [-]
+    rms_m: float  # their RMS distance from it [m]
+    coverage: float  # share of 10 cm bins along the log holding such points [-]
+    residual_a_m: float  # survey point a -> its projection on the fitted axis [m]
+    residual_b_m: float  # ... point b [m]
+    end_source: tuple[str, str] = ("gnss", "gnss")  # what placed each end: "gnss" or "scan"
+    taper_significance: float = 0.0  # fitted taper over its standard error [-]
+    inliers: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # indices into the points
 
-    Returns a dict with ``centre`` (a point on the fitted axis, (3,)), ``axis`` (unit, a → b),
-    ``ends`` ((2, 3): the GNSS points projected on the fitted axis, or the GNSS axis ends),
-    ``radius_a_m``, ``radius_b_m`` (radius at each end), ``n_points``, ``rms_m``, ``coverage``,
-    ``residual_a_m``, ``residual_b_m``, ``inliers`` (indices into ``points``).
-    Raises :class:`FitError` naming ``log_id`` when the scan does not cover the log.
-    """
-    from scipy.optimize import least_squares
+    def with_ends(self, ends: np.ndarray) -> "CylinderFit":
+        return replace(self, ends=np.asarray(ends, dtype=np.float64))
 
-    cfg = cfg or FitConfig()
-    rng = rng or np.random.default_rng(cfg.seed)
+
+@dataclass(frozen=True)
+class _SearchRegion:
+    """Where :func:`fit_log` looks for a log: the survey's axis a -> b, its frame, the scan points near it."""
+
+    a: np.ndarray  # (3,) end a [m]
+    b: np.ndarray  # (3,) end b [m]
+    length_m: float  # |b - a| [m]
+    u0: np.ndarray  # unit survey axis [-]
+    e1: np.ndarray  # cross-section frame: horizontal-ish [-]
+    e2: np.ndarray  # ... up-ish [-]
+    t: np.ndarray  # every point's place along the axis from a [m]
+    cand: np.ndarray  # indices of the points near the axis
+    sw: np.ndarray  # (len(cand), 2) their cross-section coordinates [m]
+    cfg: FitConfig  # the config in use (widened around imprecise ends)
+    cfg_r: FitConfig  # ... with the cross-section search tolerance for the endpoint reference
+    tol0_m: float  # the configured axis tolerance [m]
+    sig_a_m: float  # survey accuracy of end a [m]
+    sig_b_m: float  # ... end b [m]
+    ext_a_m: float  # how far the search looks past end a (imprecise end) [m]
+    ext_b_m: float  # ... past end b [m]
+    prior: np.ndarray  # (2,) prior circle centre in the cross-section [m]
+
+
+@dataclass(frozen=True)
+class _Cylinder:
+    """The least-squares cylinder of :func:`fit_log` (parameters about the axis midpoint)."""
+
+    x: np.ndarray  # [shift e1, shift e2, tilt e1, tilt e2, radius, radius slope]
+    sel: np.ndarray  # indices of the points on its surface
+    centre: np.ndarray  # (3,) [m]
+    u: np.ndarray  # (3,) unit axis [-]
+    res: np.ndarray  # the selected points' distances from its surface [m]
+
+
+def _search_region(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig, log_id: str,
+                   sigma_a_m: float | None, sigma_b_m: float | None) -> tuple[np.ndarray, _SearchRegion]:
+    """The points (as float64) and where to look for the log among them."""
     a, b = np.asarray(end_a, dtype=np.float64), np.asarray(end_b, dtype=np.float64)
     L = float(np.linalg.norm(b - a))
-    if L < 0.1:
+    if L < cfg.min_survey_length_m:
         raise FitError(f"log {log_id!r}: its two GNSS points are only {L * 100:.1f} cm apart; "
                        "check that they are the two ends of one log")
     u0 = (b - a) / L
@@ -384,11 +467,11 @@ def fit_log(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = 
     sig_b = cfg.gnss_sigma_m if sigma_b_m is None or not np.isfinite(sigma_b_m) else max(float(sigma_b_m), 1e-3)
     tol0 = cfg.axis_tolerance_m
     if cfg.widen_search and max(sig_a, sig_b) * 3 > tol0:  # imprecise ends: search wider, shorter chunks
-        cfg = replace(cfg, axis_tolerance_m=min(0.4, 3 * max(sig_a, sig_b)),
-                      chunk_length_m=min(cfg.chunk_length_m, 0.25))
+        cfg = replace(cfg, axis_tolerance_m=min(cfg.widened_tolerance_max_m, 3 * max(sig_a, sig_b)),
+                      chunk_length_m=min(cfg.chunk_length_m, cfg.widened_chunk_length_m))
     # look past an imprecise end (its position along the axis then comes from the scan)
-    ext_a = min(3 * sig_a, 0.5) if cfg.widen_search and sig_a > 2 * cfg.gnss_sigma_m else 0.0
-    ext_b = min(3 * sig_b, 0.5) if cfg.widen_search and sig_b > 2 * cfg.gnss_sigma_m else 0.0
+    ext_a = min(3 * sig_a, cfg.widened_reach_max_m) if cfg.widen_search and sig_a > 2 * cfg.gnss_sigma_m else 0.0
+    ext_b = min(3 * sig_b, cfg.widened_reach_max_m) if cfg.widen_search and sig_b > 2 * cfg.gnss_sigma_m else 0.0
     near = (t > cfg.end_margin_m - ext_a) & (t < L - cfg.end_margin_m + ext_b)
     near &= np.einsum("ij,ij->i", q, q) < (cfg.max_radius_m + cfg.axis_tolerance_m) ** 2
     cand = np.flatnonzero(near)
@@ -408,36 +491,47 @@ def fit_log(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = 
         cfg_r = replace(cfg, axis_tolerance_m=tol)
     else:
         cfg_r = cfg
-    # half-circle profiles in axial chunks (the GNSS axis direction is off by up to a few cm over the
-    # length, which would smear one cross-section of the whole log), then a line through their
-    # centres: the initial axis
-    tc = t[cand]
+    return P, _SearchRegion(a, b, L, u0, e1, e2, t, cand, sw, cfg, cfg_r, tol0, sig_a, sig_b, ext_a, ext_b, prior)
+
+
+def _chunk_circles(s: _SearchRegion, log_id: str) -> np.ndarray:
+    """Half-circle profiles in axial chunks (the survey's axis direction is off by up to a few cm over
+    the length, which would smear one cross-section of the whole log): rows of (place along the axis
+    about its middle [m], centre e1 [m], centre e2 [m], radius [m], weight [1/m^2])."""
+    cfg, cfg_r, L = s.cfg, s.cfg_r, s.length_m
+    tc = s.t[s.cand]
     n_chunks = max(1, int((L - 2 * cfg.end_margin_m) // cfg.chunk_length_m))
     edges = np.linspace(cfg.end_margin_m, L - cfg.end_margin_m, n_chunks + 1)
     chunk = []
     for k in range(n_chunks):
         m = (tc >= edges[k]) & (tc < edges[k + 1])
-        if m.sum() < 20:
+        if m.sum() < cfg.chunk_min_points:
             continue
         # the search around the GNSS axis is as wide as the axis is uncertain THERE: tight near a
         # precise end, wide near an imprecise one
         f = 0.5 * (edges[k] + edges[k + 1]) / L
-        tol_k = float(np.clip(3 * (sig_a + (sig_b - sig_a) * f), tol0, cfg.axis_tolerance_m))
+        tol_k = float(np.clip(3 * (s.sig_a_m + (s.sig_b_m - s.sig_a_m) * f), s.tol0_m, cfg.axis_tolerance_m))
         try:
-            c2, rk, n_on = _profile_circle(sw[m], prior, replace(cfg_r, axis_tolerance_m=tol_k + (
+            c2, rk, n_on = _profile_circle(s.sw[m], s.prior, replace(cfg_r, axis_tolerance_m=tol_k + (
                 cfg_r.axis_tolerance_m - cfg.axis_tolerance_m)))
         except FitError:
             continue
-        if n_on >= 3:
+        if n_on >= cfg.chunk_min_circle_bins:
             chunk.append((0.5 * (edges[k] + edges[k + 1]) - L / 2, c2[0], c2[1], rk, n_on / tol_k ** 2))
     if not chunk:
         raise FitError(f"log {log_id!r}: no cylinder of radius {cfg.min_radius_m}-{cfg.max_radius_m} m "
                        "near its GNSS axis fits the scan; the log is hidden, outside the scanned area, "
                        "or its endpoints are wrong")
-    ch = np.asarray(chunk, dtype=np.float64)
-    band = max(0.02, 2 * cfg.profile_tolerance_m)
+    return np.asarray(chunk, dtype=np.float64)
+
+
+def _initial_axis(ch: np.ndarray, s: _SearchRegion) -> np.ndarray:
+    """A line through the chunk centres (robust where an end is imprecise): the cylinder's start
+    parameters [shift e1, shift e2, tilt e1, tilt e2, radius, radius slope]."""
+    cfg = s.cfg
+    band = max(cfg.chunk_line_band_m, 2 * cfg.profile_tolerance_m)
     keep = np.ones(len(ch), bool)
-    if len(ch) >= 3 and max(sig_a, sig_b) > 2 * cfg.gnss_sigma_m:
+    if len(ch) >= 3 and max(s.sig_a_m, s.sig_b_m) > 2 * cfg.gnss_sigma_m:
         # an imprecise (RTK float) end: the line through two chunk centres that most chunks
         # (weighted) agree with, so chunks that latched onto a neighbour or the ground near the
         # imprecise end do not bend the axis
@@ -445,7 +539,7 @@ def fit_log(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = 
         for i in range(len(ch)):
             for j in range(i + 1, len(ch)):
                 dt_ = ch[j, 0] - ch[i, 0]
-                if abs(dt_) < 0.2:
+                if abs(dt_) < cfg.chunk_line_min_span_m:
                     continue
                 slope = (ch[j, 1:3] - ch[i, 1:3]) / dt_
                 pred = ch[i, 1:3][None, :] + np.outer(ch[:, 0] - ch[i, 0], slope)
@@ -455,7 +549,7 @@ def fit_log(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = 
                     best_score, keep = score, ok
     coef = np.zeros((2, 2))  # [s0, s1], [w0, w1]
     for _ in range(3):
-        if keep.sum() >= 2 and np.ptp(ch[keep, 0]) > 0.2:
+        if keep.sum() >= 2 and np.ptp(ch[keep, 0]) > cfg.chunk_line_min_span_m:
             A = np.column_stack([np.ones(keep.sum()), ch[keep, 0]])
             wts = np.sqrt(ch[keep, 4])
             for j, col in enumerate((1, 2)):
@@ -470,9 +564,19 @@ def fit_log(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = 
             break
         keep = new_keep
     r0 = float(np.median(ch[keep, 3])) if keep.any() else float(np.median(ch[:, 3]))
-    x_init = np.array([coef[0, 0], coef[1, 0], coef[0, 1], coef[1, 1], r0, 0.0])
-    mid = a + u0 * (L / 2)
-    prior_mid = np.array([prior[0], prior[1]])
+    return np.array([coef[0, 0], coef[1, 0], coef[0, 1], coef[1, 1], r0, 0.0])
+
+
+def _fit_cylinder(P: np.ndarray, s: _SearchRegion, x_init: np.ndarray, rng: np.random.Generator,
+                  log_id: str) -> _Cylinder:
+    """The cylinder (soft-L1 least squares, analytic Jacobian) through the points on its visible top,
+    weakly tied to the survey's axis by each end's accuracy; the top band re-selected and refitted once."""
+    from scipy.optimize import least_squares
+
+    cfg, L, u0, e1, e2, cand = s.cfg, s.length_m, s.u0, s.e1, s.e2, s.cand
+    sig_a, sig_b = s.sig_a_m, s.sig_b_m
+    mid = s.a + u0 * (L / 2)
+    prior_mid = np.array([s.prior[0], s.prior[1]])
 
     def model(x):
         c = x[0] * e1 + x[1] * e2
@@ -517,7 +621,7 @@ def fit_log(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = 
         end_off = np.array([w_b * (x[0] - prior_mid[0] + x[2] * L / 2), w_b * (x[1] - prior_mid[1] + x[3] * L / 2),
                             w_a * (x[0] - prior_mid[0] - x[2] * L / 2), w_a * (x[1] - prior_mid[1] - x[3] * L / 2)])
         if cfg.endpoint_ref == "top_surface":
-            end_off[[1, 3]] *= 0.1  # the vertical prior is loose: the radius is not known a priori
+            end_off[[1, 3]] *= cfg.top_surface_vertical_prior_weight
         return np.concatenate([res, end_off])
 
     def jacobian(x):
@@ -544,23 +648,21 @@ def fit_log(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = 
         J[-2, [0, 2]] = w_a, -w_a * L / 2
         J[-1, [1, 3]] = w_a, -w_a * L / 2
         if cfg.endpoint_ref == "top_surface":
-            J[[-3, -1]] *= 0.1
+            J[[-3, -1]] *= cfg.top_surface_vertical_prior_weight
         return J
 
     x0 = x_init.copy()
     x0[4] = float(np.clip(x0[4], cfg.min_radius_m + 1e-6, cfg.max_radius_m - 1e-6))
     r_lo = max(cfg.min_radius_m, x0[4] - cfg.radius_window_m)  # about the profiles' radius
     r_hi = min(cfg.max_radius_m, x0[4] + cfg.radius_window_m)
-    if not cfg.fit_taper:
-        lb = [-np.inf] * 4 + [r_lo, -1e-9]
-        ub = [np.inf] * 4 + [r_hi, 1e-9]
-    else:
-        lb = [-np.inf] * 4 + [r_lo, -0.2]
-        ub = [np.inf] * 4 + [r_hi, 0.2]
+    slope = cfg.max_taper_per_m if cfg.fit_taper else 1e-9
+    lb = [-np.inf] * 4 + [r_lo, -slope]
+    ub = [np.inf] * 4 + [r_hi, slope]
     sol = None
     for _ in range(2):  # fit, re-select the band around the fitted surface, refit
         sol = least_squares(residuals, x0, jac=jacobian, loss="soft_l1", f_scale=cfg.loss_scale_m, tr_solver="lsmr",
-                            bounds=(lb, ub), x_scale=[0.01, 0.01, 0.01, 0.01, 0.01, 0.01], max_nfev=60)
+                            bounds=(lb, ub), x_scale=[0.01, 0.01, 0.01, 0.01, 0.01, 0.01],
+                            max_nfev=cfg.max_fit_evaluations)
         new_sel = select(sol.x)
         if new_sel.size < cfg.min_points:
             break
@@ -569,74 +671,101 @@ def fit_log(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = 
         x0 = sol.x
     x = sol.x
     c, u = model(x)
-    centre = mid + c
-    res = residuals(x)[: len(sel)]
-    rms = float(np.sqrt(np.mean(res ** 2)))
+    return _Cylinder(x, sel, mid + c, u, residuals(x)[: len(sel)])
+
+
+def _end_radii(cyl: _Cylinder, tt_sel: np.ndarray, ta: float, tb: float, coverage: float, L: float,
+               cfg: FitConfig) -> tuple[float, float, float]:
+    """Radius at ends a and b, and the taper's significance: a taper is kept only when the radii of
+    ``taper_section_m`` sections along the log (mean surface residual + fitted radius) change linearly
+    by more than ``taper_min_significance`` standard errors of their own scatter (stereo errors are
+    correlated over a section, so the scatter between sections, not between points, measures it)."""
+    x = cyl.x
+    if not cfg.fit_taper:
+        return float(x[4]), float(x[4]), 0.0
+    r_a = float(x[4] + x[5] * ta)
+    r_b = float(x[4] + x[5] * tb)
+    sec = np.floor((tt_sel + L / 2) / cfg.taper_section_m).astype(np.int64)
+    ts, rs = [], []
+    for k in np.unique(sec):
+        m = sec == k
+        if m.sum() >= cfg.taper_section_min_points:
+            ts.append(float(np.mean(tt_sel[m])))
+            rs.append(float(np.mean(x[4] + x[5] * tt_sel[m] + cyl.res[m])))
+    taper_sig = 0.0
+    if len(ts) >= 4:
+        A = np.column_stack([np.ones(len(ts)), ts])
+        coef_r, *_ = np.linalg.lstsq(A, np.asarray(rs), rcond=None)
+        resid = np.asarray(rs) - A @ coef_r
+        dof = max(len(ts) - 2, 1)
+        s2 = float(resid @ resid) / dof
+        try:
+            se = math.sqrt(max(s2 * np.linalg.inv(A.T @ A)[1, 1], 1e-12))
+        except np.linalg.LinAlgError:
+            se = math.inf
+        taper_sig = abs(coef_r[1]) / se
+    if taper_sig < cfg.taper_min_significance or coverage < cfg.taper_min_coverage:
+        r_a = r_b = float(x[4] + x[5] * np.mean(tt_sel))
+    return r_a, r_b, taper_sig
+
+
+def fit_log(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = None,
+            log_id: str = "log", rng: np.random.Generator | None = None,
+            sigma_a_m: float | None = None, sigma_b_m: float | None = None) -> CylinderFit:
+    """Fit one log to scan points (pile frame) around its GNSS axis ``end_a`` → ``end_b``.
+
+    ``sigma_a_m``/``sigma_b_m``: 1-sigma accuracy of each GNSS point (default
+    ``cfg.gnss_sigma_m``). An imprecise point (an RTK float fix) widens the search around the
+    axis, weakens the prior, and its end is taken from the scan (the extent of the log's points
+    along the fitted axis) when the scan shows it better than the point does.
+
+    Steps: :func:`_search_region` (the points near the survey's axis), :func:`_chunk_circles`
+    (cross-section circles along it), :func:`_initial_axis` (a line through their centres),
+    :func:`_fit_cylinder` (least squares on the visible top), :func:`_end_radii` (taper), then the ends.
+    Raises :class:`FitError` naming ``log_id`` when the scan does not cover the log.
+    """
+    cfg = cfg or FitConfig()
+    rng = rng or np.random.default_rng(cfg.seed)
+    P, s = _search_region(points, end_a, end_b, cfg, log_id, sigma_a_m, sigma_b_m)
+    cfg, a, b, L = s.cfg, s.a, s.b, s.length_m
+    ch = _chunk_circles(s, log_id)
+    cyl = _fit_cylinder(P, s, _initial_axis(ch, s), rng, log_id)
+    centre, u, sel = cyl.centre, cyl.u, cyl.sel
+    rms = float(np.sqrt(np.mean(cyl.res ** 2)))
     tt_sel = (P[sel] - centre) @ u
-    # coverage in 10 cm bins over the length
-    nb = max(1, int(round(L / 0.1)))
+    # coverage in coverage_bin_m bins over the length
+    nb = max(1, int(round(L / cfg.coverage_bin_m)))
     hist, _ = np.histogram(tt_sel, bins=nb, range=(-L / 2, L / 2))
     coverage = float(np.mean(hist > 0))
     # radius at the ends (GNSS a at t = -L/2 about the fitted centre)
     ta = float((a - centre) @ u)
     tb = float((b - centre) @ u)
-    r_a = float(x[4] + x[5] * ta)
-    r_b = float(x[4] + x[5] * tb)
-    taper_sig = 0.0
-    if cfg.fit_taper:
-        # keep the taper only when it is significant: the radii of 25 cm sections along the log
-        # (mean surface residual + fitted radius) must change linearly by more than 3 standard
-        # errors of their own scatter (stereo errors are correlated over a section, so the
-        # scatter between sections, not between points, measures the uncertainty)
-        res_pts = res
-        sec = np.floor((tt_sel + L / 2) / 0.25).astype(np.int64)
-        ts, rs = [], []
-        for k in np.unique(sec):
-            m = sec == k
-            if m.sum() >= 20:
-                ts.append(float(np.mean(tt_sel[m])))
-                rs.append(float(np.mean(x[4] + x[5] * tt_sel[m] + res_pts[m])))
-        taper_sig = 0.0
-        if len(ts) >= 4:
-            A = np.column_stack([np.ones(len(ts)), ts])
-            coef_r, *_ = np.linalg.lstsq(A, np.asarray(rs), rcond=None)
-            resid = np.asarray(rs) - A @ coef_r
-            dof = max(len(ts) - 2, 1)
-            s2 = float(resid @ resid) / dof
-            try:
-                se = math.sqrt(max(s2 * np.linalg.inv(A.T @ A)[1, 1], 1e-12))
-            except np.linalg.LinAlgError:
-                se = math.inf
-            taper_sig = abs(coef_r[1]) / se
-        if taper_sig < 3.0 or coverage < cfg.taper_min_coverage:
-            r_a = r_b = float(x[4] + x[5] * np.mean(tt_sel))
-    else:
-        r_a = r_b = float(x[4])
+    r_a, r_b, taper_sig = _end_radii(cyl, tt_sel, ta, tb, coverage, L, cfg)
     proj_a, proj_b = centre + ta * u, centre + tb * u
     res_a, res_b = float(np.linalg.norm(a - proj_a)), float(np.linalg.norm(b - proj_b))
     end_source = ["gnss", "gnss"]
-    if ext_a or ext_b:  # an imprecise end: where the scan shows the log end, if it does
+    if s.ext_a_m or s.ext_b_m:  # an imprecise end: where the scan shows the log end, if it does
         t_in = (P[sel] - centre) @ u
-        if ext_a and t_in.size:
-            t_lo = float(np.percentile(t_in, 0.5))
-            if abs(t_lo - ta) < 3 * sig_a:
+        lo_q, hi_q = cfg.scan_end_percentile, 100.0 - cfg.scan_end_percentile
+        if s.ext_a_m and t_in.size:
+            t_lo = float(np.percentile(t_in, lo_q))
+            if abs(t_lo - ta) < 3 * s.sig_a_m:
                 proj_a, end_source[0] = centre + t_lo * u, "scan"
-        if ext_b and t_in.size:
-            t_hi = float(np.percentile(t_in, 99.5))
-            if abs(t_hi - tb) < 3 * sig_b:
+        if s.ext_b_m and t_in.size:
+            t_hi = float(np.percentile(t_in, hi_q))
+            if abs(t_hi - tb) < 3 * s.sig_b_m:
                 proj_b, end_source[1] = centre + t_hi * u, "scan"
     if cfg.axis_source == "fit":
         ends = np.stack([proj_a, proj_b])
     elif cfg.endpoint_ref == "top_surface":
         r_mean = 0.5 * (r_a + r_b)
-        ends = np.stack([a, b]) - r_mean * e2
+        ends = np.stack([a, b]) - r_mean * s.e2
     else:
         ends = np.stack([a, b])
-    return {
-        "centre": centre, "axis": u, "ends": ends, "radius_a_m": max(r_a, cfg.min_radius_m),
-        "radius_b_m": max(r_b, cfg.min_radius_m), "n_points": int(sel.size), "rms_m": rms,
-        "coverage": coverage, "taper_significance": taper_sig, "end_source": end_source, "residual_a_m": res_a, "residual_b_m": res_b, "inliers": sel,
-    }
+    return CylinderFit(centre=centre, axis=u, ends=ends, radius_a_m=max(r_a, cfg.min_radius_m),
+                       radius_b_m=max(r_b, cfg.min_radius_m), n_points=int(sel.size), rms_m=rms, coverage=coverage,
+                       residual_a_m=res_a, residual_b_m=res_b, end_source=tuple(end_source),
+                       taper_significance=taper_sig, inliers=sel)
 
 
 def _distance_to_logs(P: np.ndarray, logs: Sequence[LogSpec], pad_m: float) -> np.ndarray:
@@ -1078,15 +1207,15 @@ def separate_logs(pile: PileSpec, cfg: FitConfig | None = None) -> tuple[PileSpe
 
 
 def fit_radius_on_axis(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = None,
-                       log_id: str = "log") -> dict:
+                       log_id: str = "log") -> CylinderFit:
     """Radius of a log whose axis is taken from its GNSS points, from the scan points on its
     visible top (within ``max_angle_deg`` of straight up): for a log lying mostly under another,
-    whose free fit would wander onto the upper one. Returns :func:`fit_log`'s dict (the ends are
+    whose free fit would wander onto the upper one. Returns a :class:`CylinderFit` (the ends are
     the GNSS points). Raises :class:`FitError` naming ``log_id`` when too few points show it."""
     cfg = cfg or FitConfig()
     a, b = np.asarray(end_a, dtype=np.float64), np.asarray(end_b, dtype=np.float64)
     L = float(np.linalg.norm(b - a))
-    if L < 0.1:
+    if L < cfg.min_survey_length_m:
         raise FitError(f"log {log_id!r}: its two GNSS points are only {L * 100:.1f} cm apart")
     u = (b - a) / L
     P = np.asarray(points, dtype=np.float64)
@@ -1127,22 +1256,19 @@ def fit_radius_on_axis(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfi
     res = np.abs(off_circle(x))
     sel = arc[res < cfg.inlier_band_m]
     tt = t[sel]
-    nb = max(1, int(round(L / 0.1)))
+    nb = max(1, int(round(L / cfg.coverage_bin_m)))
     hist, _ = np.histogram(tt, bins=nb, range=(0.0, L))
     rms = float(np.sqrt(np.mean(res[res < cfg.inlier_band_m] ** 2))) if sel.size else math.nan
-    return {
-        "centre": 0.5 * (a + b), "axis": (b - a) / np.linalg.norm(b - a), "ends": np.stack([a, b]),
-        "radius_a_m": rad, "radius_b_m": rad,
-        "n_points": int(sel.size), "rms_m": rms, "coverage": float(np.mean(hist > 0)), "taper_significance": 0.0,
-        "end_source": ["gnss", "gnss"], "residual_a_m": 0.0, "residual_b_m": 0.0, "inliers": sel,
-    }
+    return CylinderFit(centre=0.5 * (a + b), axis=(b - a) / np.linalg.norm(b - a), ends=np.stack([a, b]),
+                       radius_a_m=rad, radius_b_m=rad, n_points=int(sel.size), rms_m=rms,
+                       coverage=float(np.mean(hist > 0)), residual_a_m=0.0, residual_b_m=0.0, inliers=sel)
 
 
-def log_spec_from_fit(f: dict, cfg: FitConfig) -> tuple[LogSpec, bool]:
+def log_spec_from_fit(f: CylinderFit, cfg: FitConfig) -> tuple[LogSpec, bool]:
     """A :class:`LogSpec` from :func:`fit_log`'s result (butt = the thicker end) and whether
     end ``b`` became the butt."""
-    ra, rb = f["radius_a_m"], f["radius_b_m"]
-    ends = f["ends"]
+    ra, rb = f.radius_a_m, f.radius_b_m
+    ends = f.ends
     taper = cfg.fit_taper and abs(ra - rb) * 2 >= cfg.taper_min_m
     swapped = bool(taper and rb > ra)
     if taper:
@@ -1324,38 +1450,40 @@ def _underside_z(logs: Sequence[LogSpec], xy: np.ndarray, reach_m: float = 0.0) 
 
 
 # -- the whole pile --------------------------------------------------------------------------
-def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], extent_m: float,
-             cfg: FitConfig | None = None, progress: Callable[[str], None] | None = None,
-             georef: Any = None, notes: str = "",
-             first_pass: Mapping[str, LogSpec] | None = None,
-             sigmas: Mapping[str, tuple[float, float]] | None = None,
-             place_ends: Callable[[str, LogSpec, str, np.ndarray, bool], tuple[LogSpec, Any]] | None = None,
-             ) -> PileFit:
-    """Fit a whole pile to scan ``points`` ((N, 3), pile frame) and GNSS ``endpoints``
-    (``{log_id: (end_a, end_b)}``, pile frame: where each log is searched for). ``extent_m``: side
-    of the terrain patch, centred on the origin. Returns a :class:`PileFit` whose ``pile`` has
-    ``source="reconstructed"``.
+@dataclass
+class _PlacedLog:
+    """One log of :func:`fit_pile` as placed: its fit, its LogSpec, whether end b is the butt, and how
+    (``"scan"``, ``"partial"`` or ``"hidden"``)."""
 
-    ``place_ends``: called once every log is placed, before the terrain, with (log id, its
-    LogSpec, how it was placed, the scan points on no other log, whether end b is its butt); returns
-    the log with its ends moved and what placed them (two dicts, ends a and b, kept in
-    ``LogFit.ends``; their ``source`` becomes ``LogFit.end_source``) — how
-    :mod:`reconstruct.fuse` places each end from the scan and the survey by their accuracies.
-    """
-    import time
+    fit: CylinderFit
+    spec: LogSpec
+    swapped: bool
+    how: str
 
-    cfg = cfg or FitConfig()
-    say = progress or (lambda s: None)
-    P = np.asarray(points, dtype=np.float64)
-    if P.ndim != 2 or P.shape[1] != 3 or len(P) == 0:
-        raise ValueError(f"points must be a non-empty (N, 3) array, got shape {P.shape}")
-    P = P[np.all(np.isfinite(P), axis=1)]
-    if not endpoints:
-        raise ValueError("no log endpoints given; the survey is empty")
-    rng = np.random.default_rng(cfg.seed)
-    timings: dict[str, float] = {}
-    t0 = time.perf_counter()
-    ids = sorted(endpoints, key=natural_key)
+
+@dataclass
+class _FirstPass:
+    """:func:`fit_pile`'s first pass: each log on its own."""
+
+    specs: list[LogSpec | None]  # per log (None: hidden, until placed)
+    fits: dict[int, CylinderFit]  # the logs fitted here (not given as ``first_pass``)
+    hidden: dict[int, LogNotSeenError]  # logs with no scan points on them, under others
+
+
+@dataclass
+class _Ground:
+    """Terrain and obstacles under the placed logs."""
+
+    terrain: TerrainSpec
+    is_ground: np.ndarray
+    coverage: float
+    stumps: list
+    rocks: list
+    info: list
+    n_above: int
+
+
+def _check_endpoints(endpoints: Mapping[str, tuple[Any, Any]], ids: Sequence[str], extent_m: float) -> None:
     half = extent_m / 2
     for log_id in ids:
         for end, p in zip("ab", endpoints[log_id]):
@@ -1365,151 +1493,213 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
             if abs(p[0]) > half or abs(p[1]) > half:
                 raise FitError(f"log {log_id!r} end {end!r} at ({p[0]:.2f}, {p[1]:.2f}) m lies outside "
                                f"the {extent_m:g} m terrain patch; enlarge extent_m or check the point")
-    # pass 1: each log on its own; pass 2: each scan point belongs to the log whose fitted
-    # surface it lies on (so a neighbour's flank never bends this log's fit), then refit
-    first: list[LogSpec | None] = []
-    first_fits: dict[int, dict] = {}
-    hidden: dict[int, LogNotSeenError] = {}  # logs with no scan points on them, under others
+
+
+def _first_pass(P: np.ndarray, ids: Sequence[str], endpoints: Mapping[str, tuple[Any, Any]], cfg: FitConfig,
+                rng: np.random.Generator, given: Mapping[str, LogSpec] | None,
+                sigmas: Mapping[str, tuple[float, float]] | None, say: Callable[[str], None]) -> _FirstPass:
+    """Each log on its own around its axis (or as ``given``); a log with no scan points on it is hidden
+    when scan points stand over its axis, else the error stands."""
+    out = _FirstPass([], {}, {})
     for i, log_id in enumerate(ids):
-        if first_pass is not None and log_id in first_pass:
-            first.append(first_pass[log_id])
+        if given is not None and log_id in given:
+            out.specs.append(given[log_id])
             continue
         say(f"fitting log {log_id}")
         sa, sb = (sigmas or {}).get(log_id, (None, None))
         try:
-            first_fits[i] = fit_log(P, *endpoints[log_id], cfg, log_id=log_id, rng=rng, sigma_a_m=sa, sigma_b_m=sb)
-            first.append(log_spec_from_fit(first_fits[i], cfg)[0])
+            out.fits[i] = fit_log(P, *endpoints[log_id], cfg, log_id=log_id, rng=rng, sigma_a_m=sa, sigma_b_m=sb)
+            out.specs.append(log_spec_from_fit(out.fits[i], cfg)[0])
         except LogNotSeenError as exc:
             if not _covered_by_others(P, *endpoints[log_id], cfg):
                 raise  # nothing over it either: outside the scan, or wrong end points
-            hidden[i] = exc
-            first.append(None)
-    if hidden and len(hidden) == len(ids):
-        raise next(iter(hidden.values()))
-    # until it is placed (place_hidden), a hidden log is the pile's typical one on its survey axis
-    typical_d = float(np.median([log.mean_diameter_m for log in first if log is not None]))
-    for i in hidden:
-        first[i] = _survey_log(*endpoints[ids[i]], typical_d, cfg)
-    # a first fit this far off its GNSS axis (several sigma of RTK noise) took another surface,
-    # most likely: a neighbour's (a log lying under another) or the ground beside it. Its refit
-    # gets only the points no other log explains
-    suspect = [i in hidden or _axis_shift(log, *endpoints[log_id]) > cfg.suspect_shift_m
-               for i, (log, log_id) in enumerate(zip(first, ids))]
-    owner = _owners(P, first, cfg.inlier_band_m, suspect)
-    fitted: dict[int, tuple[dict, LogSpec, bool]] = {}
-    how: dict[int, str] = {}
+            out.hidden[i] = exc
+            out.specs.append(None)
+    if out.hidden and len(out.hidden) == len(ids):
+        raise next(iter(out.hidden.values()))
+    return out
 
-    def neighbours(i: int) -> list[LogSpec]:
+
+class _Placement:
+    """:func:`fit_pile`'s second pass: every log placed among the ones placed before it. Trusted logs
+    first, each refitted on the points it owns; logs seen only in part on their survey axes; hidden ones
+    between the ground and the logs over them. ``placed``, ``dropped`` hold the result."""
+
+    def __init__(self, P: np.ndarray, ids: Sequence[str], endpoints: Mapping[str, tuple[Any, Any]],
+                 cfg: FitConfig, rng: np.random.Generator, sigmas: Mapping[str, tuple[float, float]] | None,
+                 optional: Collection[str], say: Callable[[str], None]):
+        self.P, self.ids, self.endpoints, self.cfg, self.rng = P, ids, endpoints, cfg, rng
+        self.sigmas, self.optional, self.say = sigmas or {}, optional, say
+        self.placed: dict[int, _PlacedLog] = {}
+        self.dropped: dict[str, str] = {}  # optional logs left out, and why
+        self.typical_d = math.nan
+
+    def neighbours(self, i: int) -> list[LogSpec]:
         """The other logs placed so far."""
-        return [fitted[j][1] for j in fitted if j != i]
+        return [self.placed[j].spec for j in self.placed if j != i]
 
-    def room_m(p0: np.ndarray, p1: np.ndarray, i: int) -> float:
+    def room_m(self, p0: np.ndarray, p1: np.ndarray, i: int) -> float:
         """The largest radius a log on axis p0 -> p1 has between the others placed so far [m]."""
-        return min((_segment_distance_3d(p0, p1, *o.endpoints_m()) - o.mean_diameter_m / 2 for o in neighbours(i)),
+        return min((_segment_distance_3d(p0, p1, *o.endpoints_m()) - o.mean_diameter_m / 2 for o in self.neighbours(i)),
                    default=math.inf)
 
-    def within_room(spec: LogSpec, i: int, slack_m: float = 0.0) -> LogSpec:
+    def within_room(self, spec: LogSpec, i: int, slack_m: float = 0.0) -> LogSpec:
         """``spec`` thinned to the room its neighbours leave, plus ``slack_m`` (their surfaces
         and its axis are surveyed to a few cm: a little overlap is for the twin check to lift)."""
         p0, p1 = spec.endpoints_m()
-        room = room_m(p0, p1, i) + slack_m
-        return LogSpec.from_endpoints(p0, p1, 2 * room) if cfg.min_radius_m <= room < spec.mean_diameter_m / 2 else spec
+        room = self.room_m(p0, p1, i) + slack_m
+        return (LogSpec.from_endpoints(p0, p1, 2 * room) if self.cfg.min_radius_m <= room < spec.mean_diameter_m / 2
+                else spec)
 
-    def place_hidden(i: int, why: LogNotSeenError) -> None:
-        a, b = endpoints[ids[i]]
+    def place_hidden(self, i: int, why: LogNotSeenError) -> None:
+        cfg, P = self.cfg, self.P
+        a, b = self.endpoints[self.ids[i]]
         if not _covered_by_others(P, a, b, cfg):
             raise why  # nothing over it either: outside the scan, or wrong end points
-        spec = _sandwiched_log(P, a, b, neighbours(i), cfg)
+        spec = _sandwiched_log(P, a, b, self.neighbours(i), cfg)
         whence = "as thick as the gap between the ground and the logs over it"
         if spec is None:  # not lying between the ground and logs over it: the survey's axis
-            spec = within_room(_survey_log(a, b, typical_d, cfg), i)
-            whence = f"the pile's typical {typical_d * 100:.1f} cm within the room left; heights surveyed"
-        f = {"n_points": 0, "rms_m": math.nan, "coverage": 0.0, "residual_a_m": 0.0, "residual_b_m": 0.0,
-             "ends": np.array([a, b], dtype=float), "end_source": ("gnss", "gnss")}
-        fitted[i], how[i] = (f, spec, False), "hidden"
-        say(f"log {ids[i]}: hidden under others ({why}); axis from GNSS, diameter {spec.diameter_m * 100:.1f} cm "
-            f"({whence})")
+            spec = self.within_room(_survey_log(a, b, self.typical_d, cfg), i)
+            whence = f"the pile's typical {self.typical_d * 100:.1f} cm within the room left; heights surveyed"
+        ab = np.array([a, b], dtype=float)
+        f = CylinderFit(centre=ab.mean(axis=0), axis=(ab[1] - ab[0]) / np.linalg.norm(ab[1] - ab[0]), ends=ab,
+                        radius_a_m=spec.diameter_m / 2, radius_b_m=spec.diameter_m / 2, n_points=0, rms_m=math.nan,
+                        coverage=0.0, residual_a_m=0.0, residual_b_m=0.0)
+        self.placed[i] = _PlacedLog(f, spec, False, "hidden")
+        self.say(f"log {self.ids[i]}: hidden under others ({why}); axis from GNSS, diameter {spec.diameter_m * 100:.1f} cm "
+                 f"({whence})")
 
-    on_axis: list[int] = []  # logs seen only in part: placed once the others are fitted
-    for i in sorted(range(len(ids)), key=lambda k: suspect[k]):  # trusted logs first
-        if i in hidden:
-            continue
-        log_id = ids[i]
-        a, b = endpoints[log_id]
-        sa, sb = (sigmas or {}).get(log_id, (None, None))
-        mine = P[(owner == i) | (owner < 0)]
-        trusted = [fitted[j][1] for j in fitted if not suspect[j]]
-        try:
-            f = fit_log(mine, a, b, cfg, log_id=log_id, rng=rng, sigma_a_m=sa, sigma_b_m=sb)
+    def run(self, first: _FirstPass) -> None:
+        cfg, P, ids, endpoints = self.cfg, self.P, self.ids, self.endpoints
+        hidden = dict(first.hidden)
+        specs = list(first.specs)
+        # until it is placed (place_hidden), a hidden log is the pile's typical one on its survey axis
+        self.typical_d = float(np.median([log.mean_diameter_m for log in specs if log is not None]))
+        for i in hidden:
+            specs[i] = _survey_log(*endpoints[ids[i]], self.typical_d, cfg)
+        # a first fit this far off its GNSS axis (several sigma of RTK noise) took another surface,
+        # most likely: a neighbour's (a log lying under another) or the ground beside it. Its refit
+        # gets only the points no other log explains
+        suspect = [i in hidden or _axis_shift(log, *endpoints[log_id]) > cfg.suspect_shift_m
+                   for i, (log, log_id) in enumerate(zip(specs, ids))]
+        owner = _owners(P, specs, cfg.inlier_band_m, suspect)
+        on_axis: list[int] = []  # logs seen only in part: placed once the others are fitted
+        for i in sorted(range(len(ids)), key=lambda k: suspect[k]):  # trusted logs first
+            if i in hidden:
+                continue
+            log_id = ids[i]
+            a, b = endpoints[log_id]
+            sa, sb = self.sigmas.get(log_id, (None, None))
+            mine = P[(owner == i) | (owner < 0)]
+            trusted = [self.placed[j].spec for j in self.placed if not suspect[j]]
+            try:
+                f = fit_log(mine, a, b, cfg, log_id=log_id, rng=self.rng, sigma_a_m=sa, sigma_b_m=sb)
+                spec, swapped = log_spec_from_fit(f, cfg)
+                astray = _axis_shift(spec, a, b) > cfg.suspect_shift_m
+            except LogNotSeenError:  # its first fit took a neighbour's points: none are left to it
+                astray = True
+            except FitError as exc:
+                if log_id not in self.optional:
+                    raise
+                self.dropped[log_id] = f"no log fits the scan points left to it once the other logs took theirs ({exc})"
+                self.say(f"log {log_id}: left out, {self.dropped[log_id]}")
+                continue
+            if astray and not suspect[i] and i in first.fits:
+                # the refit on the points left to it strayed where its first fit had not (a log
+                # mostly hidden: its few points let the refit tilt): the first fit stands
+                f = first.fits[i]
+                spec, swapped = log_spec_from_fit(f, cfg)
+                astray = False
+            if astray or suspect[i] and any(_interpenetration(spec, o) > cfg.penetration_tolerance_m for o in trusted):
+                # still astray, or inside a trusted neighbour: the log is seen only in part (under another)
+                on_axis.append(i)
+                continue
+            self.placed[i] = _PlacedLog(f, spec, swapped, "scan")
+        for i in on_axis:
+            # its axis is the survey's, its radius what the scan shows of its top, at most the room
+            # its neighbours leave around that axis
+            log_id = ids[i]
+            a, b = endpoints[log_id]
+            try:
+                f = fit_radius_on_axis(P[(owner == i) | (owner < 0)], a, b, cfg, log_id=log_id)
+            except LogNotSeenError as exc:
+                hidden[i] = exc
+                continue
             spec, swapped = log_spec_from_fit(f, cfg)
-            astray = _axis_shift(spec, a, b) > cfg.suspect_shift_m
-        except LogNotSeenError:  # its first fit took a neighbour's points: none are left to it
-            astray = True
-        if astray and not suspect[i] and i in first_fits:
-            # the refit on the points left to it strayed where its first fit had not (a log
-            # mostly hidden: its few points let the refit tilt): the first fit stands
-            f = first_fits[i]
-            spec, swapped = log_spec_from_fit(f, cfg)
-            astray = False
-        if astray or suspect[i] and any(_interpenetration(spec, o) > cfg.penetration_tolerance_m for o in trusted):
-            # still astray, or inside a trusted neighbour: the log is seen only in part (under another)
-            on_axis.append(i)
-            continue
-        fitted[i], how[i] = (f, spec, swapped), "scan"
-    for i in on_axis:
-        # its axis is the survey's, its radius what the scan shows of its top, at most the room
-        # its neighbours leave around that axis
-        log_id = ids[i]
-        a, b = endpoints[log_id]
-        try:
-            f = fit_radius_on_axis(P[(owner == i) | (owner < 0)], a, b, cfg, log_id=log_id)
-        except LogNotSeenError as exc:
-            hidden[i] = exc
-            continue
-        spec, swapped = log_spec_from_fit(f, cfg)
-        fitted[i], how[i] = (f, within_room(spec, i, slack_m=cfg.gnss_sigma_m), swapped), "partial"
-        say(f"log {log_id}: seen only in part; axis from GNSS, diameter {fitted[i][1].diameter_m * 100:.1f} cm")
-    for i in sorted(hidden):
-        place_hidden(i, hidden[i])
-    placed: dict[int, tuple] = {}
-    if place_ends is not None:
-        mine = points_on_no_other_log(P, [fitted[i][1] for i in range(len(ids))], cfg.inlier_band_m)
-        for i, log_id in enumerate(ids):
-            f, spec, swapped = fitted[i]
-            spec, ends_info = place_ends(log_id, spec, how[i], P[mine[i]], bool(swapped))
-            fitted[i] = (f, spec, swapped)
-            placed[i] = tuple(e if isinstance(e, dict) else e.to_dict() for e in ends_info)
+            self.placed[i] = _PlacedLog(f, self.within_room(spec, i, slack_m=cfg.gnss_sigma_m), swapped, "partial")
+            self.say(f"log {log_id}: seen only in part; axis from GNSS, diameter {self.placed[i].spec.diameter_m * 100:.1f} cm")
+        for i in sorted(hidden):
+            if ids[i] in self.optional:
+                self.dropped[ids[i]] = f"no scan points of its own once the other logs took theirs ({hidden[i]})"
+                self.say(f"log {ids[i]}: left out, {self.dropped[ids[i]]}")
+                continue
+            self.place_hidden(i, hidden[i])
+
+    def place_ends(self, keep: Sequence[int],
+                   place: Callable[[str, LogSpec, str, np.ndarray, bool, np.ndarray], tuple[LogSpec, Any]],
+                   ) -> dict[int, tuple]:
+        """Each kept log's ends placed by ``place`` on the points on no other log (within
+        ``inlier_band_m``), those within ``end_walk_band_m`` of another log marked as not showing its
+        top; a log seen only in part thinned again to the room around its placed ends. Returns what
+        placed them, per log."""
+        cfg = self.cfg
+        specs = [self.placed[i].spec for i in keep]
+        mine = dict(zip(keep, points_on_no_other_log(self.P, specs, cfg.inlier_band_m)))
+        clear = dict(zip(keep, points_on_no_other_log(self.P, specs, cfg.end_walk_band_m)))
+        ends_info: dict[int, tuple] = {}
+        for i in keep:
+            pl = self.placed[i]
+            spec, info = place(self.ids[i], pl.spec, pl.how, self.P[mine[i]], bool(pl.swapped), clear[i][mine[i]])
+            if pl.how == "partial":
+                # its ends may have moved out (to its survey points): still no thicker than the room left
+                spec = self.within_room(spec, i, slack_m=cfg.gnss_sigma_m)
+            pl.spec = spec
+            ends_info[i] = tuple(e if isinstance(e, dict) else e.to_dict() for e in info)
+        return ends_info
+
+
+def _log_fits(placement: _Placement, keep: Sequence[int], ends_info: Mapping[int, tuple]) -> list[LogFit]:
+    """The per-log report of the kept logs, indexed as in the pile."""
     fits: list[LogFit] = []
-    logs: list[LogSpec] = []
-    for i, log_id in enumerate(ids):
-        f, spec, swapped = fitted[i]
-        a, b = endpoints[log_id]
-        logs.append(spec)
+    for index, i in enumerate(keep):
+        log_id = placement.ids[i]
+        pl = placement.placed[i]
+        f, spec, swapped = pl.fit, pl.spec, pl.swapped
+        a, b = placement.endpoints[log_id]
         butt, top = spec.endpoints_m()
         p0, p1 = np.asarray(a, float), np.asarray(b, float)
-        ends = f["ends"]
-        fits.append(LogFit(
-            log_id=log_id, index=i, butt_m=tuple(float(v) for v in butt), top_m=tuple(float(v) for v in top),
+        ends = f.ends
+        lf = LogFit(
+            log_id=log_id, index=index, butt_m=tuple(float(v) for v in butt), top_m=tuple(float(v) for v in top),
             length_m=spec.length_m, diameter_m=spec.diameter_m, top_diameter_m=spec.top_diameter_m,
-            n_points=f["n_points"], rms_m=f["rms_m"], coverage=f["coverage"],
-            gnss_residual_a_m=f["residual_a_m"], gnss_residual_b_m=f["residual_b_m"],
+            n_points=f.n_points, rms_m=f.rms_m, coverage=f.coverage,
+            gnss_residual_a_m=f.residual_a_m, gnss_residual_b_m=f.residual_b_m,
             axis_shift_m=float(max(np.linalg.norm(ends[0] - p0), np.linalg.norm(ends[1] - p1))),
-            swapped=bool(swapped), end_source=tuple(reversed(f["end_source"])) if swapped else tuple(f["end_source"]),
-            fit=how[i],
-        ))
-        if i in placed:
-            lf = fits[-1]
-            lf.ends = [dict(e) for e in placed[i]]
-            srcs = tuple(e["source"] for e in placed[i])
+            swapped=bool(swapped), end_source=tuple(reversed(f.end_source)) if swapped else tuple(f.end_source),
+            fit=pl.how,
+        )
+        if i in ends_info:
+            lf.ends = [dict(e) for e in ends_info[i]]
+            srcs = tuple(e["source"] for e in ends_info[i])
             lf.end_source = tuple(reversed(srcs)) if swapped else srcs
             # each survey point's distance from the placed log's axis (NaN: no point)
             lf.gnss_residual_a_m, lf.gnss_residual_b_m = (
                 float(e.get("gnss_axis_distance_m", math.nan) if e.get("gnss_axis_distance_m") is not None
-                      else math.nan) for e in placed[i])
-    timings["logs_s"] = time.perf_counter() - t0
+                      else math.nan) for e in ends_info[i])
+        fits.append(lf)
+    return fits
+
+
+def _ground(P: np.ndarray, logs: Sequence[LogSpec], extent_m: float, cfg: FitConfig,
+            timings: dict[str, float], say: Callable[[str], None]) -> _Ground:
+    """The terrain from the points off the logs (held under their undersides), then the obstacles
+    standing on it."""
+    import time
+
+    half = extent_m / 2
     t1 = time.perf_counter()
     say("fitting terrain")
-    dist = _distance_to_logs(P, logs, pad_m=0.10)
+    dist = _distance_to_logs(P, logs, pad_m=cfg.terrain_log_pad_m)
     # not log, and not inside a log's top-view footprint (stereo smears log edges down there)
     rest = P[(dist > cfg.log_clearance_m) & (_footprint_distance(P[:, :2], logs) > cfg.footprint_margin_m)]
     terrain, is_ground, coverage = fit_terrain(rest, extent_m, cfg)
@@ -1527,7 +1717,62 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
         flank = flank[_footprint_distance(flank[:, :2], logs) > cfg.obstacle_flank_log_gap_m]
     stumps, rocks, info = find_obstacles(above, terrain, cfg, logs, flank_points=flank)
     timings["obstacles_s"] = time.perf_counter() - t2
-    pile = PileSpec(terrain=terrain, logs=tuple(logs), stumps=tuple(stumps), rocks=tuple(rocks),
+    return _Ground(terrain, is_ground, coverage, stumps, rocks, info, int(len(above)))
+
+
+def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], extent_m: float,
+             cfg: FitConfig | None = None, progress: Callable[[str], None] | None = None,
+             georef: Any = None, notes: str = "",
+             first_pass: Mapping[str, LogSpec] | None = None,
+             sigmas: Mapping[str, tuple[float, float]] | None = None,
+             place_ends: Callable[[str, LogSpec, str, np.ndarray, bool, np.ndarray], tuple[LogSpec, Any]] | None = None,
+             optional: Collection[str] = (),
+             ) -> PileFit:
+    """Fit a whole pile to scan ``points`` ((N, 3), pile frame) and GNSS ``endpoints``
+    (``{log_id: (end_a, end_b)}``, pile frame: where each log is searched for). ``extent_m``: side
+    of the terrain patch, centred on the origin. Returns a :class:`PileFit` whose ``pile`` has
+    ``source="reconstructed"``.
+
+    ``place_ends``: called once every log is placed, before the terrain, with (log id, its
+    LogSpec, how it was placed, the scan points on no other log, whether end b is its butt, which of
+    those points may show its top: not within ``end_walk_band_m`` of another log); returns
+    the log with its ends moved and what placed them (two dicts, ends a and b, kept in
+    ``LogFit.ends``; their ``source`` becomes ``LogFit.end_source``) — how
+    :mod:`reconstruct.fuse` places each end from the scan and the survey by their accuracies.
+
+    ``optional``: ids of logs found in the scan alone (no survey): one that has no scan points of its
+    own once the other logs have taken theirs (a ridge made of other logs' pieces) is left out, with
+    the reason in ``PileFit.dropped``, instead of failing the pile; it cannot be hidden, it was seen.
+
+    Steps: :func:`_first_pass` (each log on its own), :class:`_Placement` (each scan point to the log
+    whose surface it lies on, then each log refitted among the others; its ends placed), :func:`_ground`
+    (terrain, obstacles), :func:`separate_logs` (the twin's check).
+    """
+    import time
+
+    cfg = cfg or FitConfig()
+    say = progress or (lambda s: None)
+    P = np.asarray(points, dtype=np.float64)
+    if P.ndim != 2 or P.shape[1] != 3 or len(P) == 0:
+        raise ValueError(f"points must be a non-empty (N, 3) array, got shape {P.shape}")
+    P = P[np.all(np.isfinite(P), axis=1)]
+    if not endpoints:
+        raise ValueError("no log endpoints given; the survey is empty")
+    rng = np.random.default_rng(cfg.seed)
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    ids = sorted(endpoints, key=natural_key)
+    _check_endpoints(endpoints, ids, extent_m)
+    first = _first_pass(P, ids, endpoints, cfg, rng, first_pass, sigmas, say)
+    placement = _Placement(P, ids, endpoints, cfg, rng, sigmas, optional, say)
+    placement.run(first)
+    keep = [i for i in range(len(ids)) if ids[i] not in placement.dropped]
+    ends_info = placement.place_ends(keep, place_ends) if place_ends is not None else {}
+    fits = _log_fits(placement, keep, ends_info)
+    logs = [placement.placed[i].spec for i in keep]
+    timings["logs_s"] = time.perf_counter() - t0
+    ground = _ground(P, logs, extent_m, cfg, timings, say)
+    pile = PileSpec(terrain=ground.terrain, logs=tuple(logs), stumps=tuple(ground.stumps), rocks=tuple(ground.rocks),
                     georef=georef, source="reconstructed", notes=notes)
     move_notes: list[str] = []
     if cfg.validate:
@@ -1541,8 +1786,9 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
                 lf.butt_m = tuple(float(v) for v in butt)
                 lf.top_m = tuple(float(v) for v in top)
         timings["validate_s"] = time.perf_counter() - t3
-    return PileFit(pile=pile, logs=fits, terrain_coverage=coverage, n_ground_points=int(is_ground.sum()),
-                   n_obstacle_points=int(len(above)), obstacles=info, moves=move_notes, timings_s=timings)
+    return PileFit(pile=pile, logs=fits, terrain_coverage=ground.coverage, n_ground_points=int(ground.is_ground.sum()),
+                   n_obstacle_points=ground.n_above, obstacles=ground.info, moves=move_notes, timings_s=timings,
+                   dropped=dict(placement.dropped))
 
 
 # -- synthetic scans (tests, benchmarks) -----------------------------------------------------

@@ -420,15 +420,16 @@ class Match:
 
 
 def _match_cost(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, cfg: FuseConfig,
-                ) -> tuple[float, bool]:
-    """Summed squared normalised distances of a surveyed log's points from a scan log (+inf when a
-    point is beyond the gate), and whether its end ``a`` lies at the scan log's end."""
+                ) -> tuple[float, bool, int]:
+    """Summed squared normalised distances of a surveyed log's points from a scan log (+inf when every
+    point is beyond the gate), whether its end ``a`` lies at the scan log's end, and how many of its
+    points lie beyond the gate (gross errors, if this is its log)."""
     p0, p1 = log.start_m, log.end_m
     d = p1[:2] - p0[:2]
     L = max(float(np.linalg.norm(d)), 1e-6)
     u = d / L
     n = np.array([-u[1], u[0]])
-    best = (math.inf, False)
+    best = (math.inf, False, 0)
     for rev in (False, True):
         total, outliers = 0.0, 0
         for k, e in enumerate(ends):
@@ -456,7 +457,7 @@ def _match_cost(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, c
         if outliers and outliers == sum(e is not None for e in ends):
             total = math.inf
         if total < best[0]:
-            best = (total, rev)
+            best = (total, rev, outliers)
     return best
 
 
@@ -472,9 +473,10 @@ def match_survey(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]]
     n_s, n_k = len(ids), len(scan_logs)
     cost = np.full((n_s, n_k), math.inf)
     rev = np.zeros((n_s, n_k), dtype=bool)
+    n_out = np.zeros((n_s, n_k), dtype=np.int64)
     for i, k in enumerate(ids):
         for j, log in enumerate(scan_logs):
-            cost[i, j], rev[i, j] = _match_cost(survey[k], log, cfg)
+            cost[i, j], rev[i, j], n_out[i, j] = _match_cost(survey[k], log, cfg)
     # a surveyed log may match nothing (hidden, outside the scan): as costly as a point at the gate
     n_pts = np.array([sum(e is not None for e in survey[k]) for k in ids], dtype=float)
     none_cost = cfg.gate_sigma ** 2 * np.maximum(n_pts, 1)
@@ -515,8 +517,13 @@ def match_survey(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]]
         used |= {j for j in range(n_k) if j not in used and scan_logs[j].seen_m >= cfg.min_new_log_m}
         return frozenset(group[j] for j in used), frozenset(ids[i] for i, j in enumerate(p) if j is None)
 
+    def gross_errors(p: list[int | None]) -> int:
+        """Survey points a matching has to call wrong (beyond the gate of the scan log their log took)."""
+        return int(sum(n_out[i, j] for i, j in enumerate(p) if j is not None))
+
     taken = {j for j in pick if j is not None}
     best_content = content(pick)
+    best_gross = gross_errors(pick)
     for i, k in enumerate(ids):
         if n_k == 0 or pick[i] is None:
             continue
@@ -526,17 +533,28 @@ def match_survey(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]]
         delta = alt - best
         choice = "nothing" if alt_pick[i] is None else f"scan log {alt_pick[i]}"
         matches[k].alternative = f"{choice} (chi2 +{delta:.1f})"
-        if delta < cfg.ambiguity_chi2 and content(alt_pick) != best_content:
+        # the chi^2 margin is for noise: an alternative that has to call more survey points wrong (an outlier
+        # costs a constant, whatever its accuracy) is no equal explanation (twin scan 1100039: both ends
+        # of a log RTK fixed, "as good" on a 15 cm scrap of ridge with one of them wrong)
+        if (delta < cfg.ambiguity_chi2 and content(alt_pick) != best_content
+                and gross_errors(alt_pick) <= best_gross):
             e = survey[k]
             pts = ", ".join(f"{end} ({p.fix}, +-{p.sigma_h_m * math.sqrt(2) * 100:.0f} cm)"
                             for end, p in zip("ab", e) if p is not None)
             j, j2 = pick[i], alt_pick[i]
             where = _where(scan_logs[j])
             other = "being hidden under other logs" if j2 is None else f"the scan's log {_where(scan_logs[j2])}"
+            if all(p is None or p.fix == "rtk_fixed" for p in e):
+                # fixed points are not made better by measuring them again with a fixed solution
+                todo = (f"Check that log {k!r}'s points were taken at its end centres (re-measure them), and survey "
+                        "the neighbouring logs' ends")
+            else:
+                todo = (f"Re-measure log {k!r}'s "
+                        + " and ".join(f"end {end}" for end, p in zip("ab", e) if p is not None and p.fix != "rtk_fixed")
+                        + " with an RTK fixed solution (or survey the neighbouring logs)")
             raise AmbiguousSurveyError(
                 f"log {k!r} fits the scan's log {where} and {other} almost equally well (chi2 differs by "
-                f"{delta:.1f}; its points: {pts}), and the two make different piles. Re-measure log {k!r}'s ends "
-                "with an RTK fixed solution (or survey the neighbouring logs)")
+                f"{delta:.1f}; its points: {pts}), and the two make different piles. {todo}")
     unmatched = [j for j in range(n_k) if j not in taken]
     return matches, unmatched
 
@@ -618,11 +636,15 @@ class EndInterval:
 
 
 def scan_end_interval(points: np.ndarray, p0: np.ndarray, p1: np.ndarray, radius_m: float, toward_p1: bool,
-                      reach_m: float, cfg: FuseConfig | None = None, t_from: float | None = None) -> EndInterval:
+                      reach_m: float, cfg: FuseConfig | None = None, t_from: float | None = None,
+                      on_mask: np.ndarray | None = None) -> EndInterval:
     """Walk along the log axis ``p0`` -> ``p1`` from its middle (or ``t_from`` [m from p0]) toward
     ``p1`` (``toward_p1``) or ``p0``, up to ``reach_m`` past that end, and find where the log ends
     (see the module docstring). ``points``: scan points (N, 3), same frame (without those on other
-    logs: a neighbour's top where it touches this log's end is not this log)."""
+    logs: a neighbour's top where it touches this log's end is not this log). ``on_mask`` (per point):
+    which points may show the log's top (default all); the others still show where the scan sees below
+    it (a neighbour's surface near this log's end, a few cm off its own fit, is not this log's top, but
+    seen lower than that top it shows the log is not there)."""
     cfg = cfg or FuseConfig()
     P = np.asarray(points, dtype=np.float64)
     d = np.asarray(p1, float) - np.asarray(p0, float)
@@ -638,13 +660,15 @@ def scan_end_interval(points: np.ndarray, p0: np.ndarray, p1: np.ndarray, radius
     r = float(radius_m)
     lo_t, hi_t = -reach_m, L + reach_m
     m = (np.abs(s) < 0.5 * r) & (t > lo_t) & (t < hi_t)
+    may_be_on = np.ones(int(m.sum()), bool) if on_mask is None else np.asarray(on_mask, bool)[m]
     t, s, h = t[m], s[m], (perp[m] @ up)
     expected = np.sqrt(np.clip(r * r - s * s, 0.0, None))  # the top's height over the axis there
     e = h - expected
     step = cfg.end_bin_m
     nb = int(math.ceil((hi_t - lo_t) / step))
     bi = np.clip(((t - lo_t) / step).astype(np.int64), 0, nb - 1)
-    on = np.bincount(bi, weights=(np.abs(e) < cfg.on_band_m).astype(float), minlength=nb) >= cfg.min_on_points
+    on = np.bincount(bi, weights=((np.abs(e) < cfg.on_band_m) & may_be_on).astype(float),
+                     minlength=nb) >= cfg.min_on_points
     top = np.full(nb, -np.inf)
     np.maximum.at(top, bi, e)
     count = np.bincount(bi, minlength=nb)
@@ -749,7 +773,13 @@ def fuse_end(p0: np.ndarray, u: np.ndarray, interval: EndInterval, at_start: boo
         if abs(t_g - t_s) / math.hypot(ss, sg) > cfg.contradiction_sigma and sign * (t_g - t_s) > 0:
             seen, hi = False, None
     contradicted = False
-    if seen:  # the top stops at lo; the scan sees below it a little farther out (hi)
+    if not seen_whole and survey is not None and sg <= ss and interval.state != "seen":
+        # a log the scan shows only in part: its axis is the survey's and its radius a guess from a piece of
+        # its top, so where the scan seems to see past its top (or on it) beyond a covered end is no match
+        # for a point at least as precise as a seen end (twin scan 1100028: a radius 5 cm too large made the
+        # true top look 'below' it; two RTK fixed points were dropped for ends 41-48 cm off)
+        t, sa, source = t_g, sg, survey.label
+    elif seen:  # the top stops at lo; the scan sees below it a little farther out (hi)
         t_s = seen_end(interval)
         if survey is not None:
             z = abs(t_g - t_s) / math.hypot(ss, sg)
@@ -810,10 +840,11 @@ def fuse_end(p0: np.ndarray, u: np.ndarray, interval: EndInterval, at_start: boo
 
 def place_log_ends(points: np.ndarray, spec: Any, how: str, survey: tuple[SurveyEnd | None, SurveyEnd | None],
                    swapped: bool, lateral_sigma_m: float, cfg: FuseConfig | None = None,
-                   ) -> tuple[Any, tuple[EndEstimate, EndEstimate]]:
-    """A fitted log (:class:`synth.pile.LogSpec` ``spec``, placed ``how``: "scan", "partial" or
+                   on_mask: np.ndarray | None = None) -> tuple[Any, tuple[EndEstimate, EndEstimate]]:
+    """A fitted log (:class:`synth.scene.pile.LogSpec` ``spec``, placed ``how``: "scan", "partial" or
     "hidden") with both ends placed by :func:`fuse_end`, and the two estimates in survey order
-    (end a, end b; ``swapped``: end b is the butt). ``points``: the scan points that may lie on it.
+    (end a, end b; ``swapped``: end b is the butt). ``points``: the scan points that may lie on it;
+    ``on_mask``: which of them may show its top (:func:`scan_end_interval`).
     ``lateral_sigma_m``: how well its axis is known across [m]."""
     from synth.scene.pile import LogSpec
 
@@ -829,7 +860,9 @@ def place_log_ends(points: np.ndarray, spec: Any, how: str, survey: tuple[Survey
     t2 = (P[:, :2] - pa[:2]) @ d2 / max(float(d2 @ d2), 1e-12)
     across = np.abs((P[:, :2] - pa[:2]) @ np.array([-d2[1], d2[0]])) / max(float(np.linalg.norm(d2)), 1e-12)
     reach_t = 2.5 / max(float(np.linalg.norm(d2)), 1e-6)
-    points = P[(across < r + 0.05) & (t2 > -reach_t) & (t2 < 1.0 + reach_t)]
+    over = (across < r + 0.05) & (t2 > -reach_t) & (t2 < 1.0 + reach_t)
+    points = P[over]
+    on_mask = None if on_mask is None else np.asarray(on_mask, bool)[over]
     ests = []
     for k, e in enumerate(survey):
         # past the fitted end, as far as the survey point (and three of its sigmas) or, with none, a log
@@ -843,7 +876,7 @@ def place_log_ends(points: np.ndarray, spec: Any, how: str, survey: tuple[Survey
         if how == "hidden":
             iv = EndInterval(None, None, "none")
         else:
-            iv = scan_end_interval(points, pa, pb, r, toward_p1=(k == 1), reach_m=reach, cfg=cfg)
+            iv = scan_end_interval(points, pa, pb, r, toward_p1=(k == 1), reach_m=reach, cfg=cfg, on_mask=on_mask)
         ests.append(fuse_end(pa, u, iv, k == 0, e, lateral_sigma_m, cfg, seen_whole=(how == "scan")))
     a, b = ests
     for est, e in zip(ests, survey):

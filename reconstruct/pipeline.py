@@ -336,7 +336,7 @@ def refine_registration(points: np.ndarray, endpoints: dict, cfg: ReconstructCon
         except ReconstructError as exc:
             failures[log_id] = str(exc)
             continue
-        axes[log_id] = (f["centre"], f["axis"], f)
+        axes[log_id] = (f.centre, f.axis, f)
     if not axes:
         raise RegistrationError("no log could be fitted to the scan around its GNSS axis: "
                                 + "; ".join(failures.values()))
@@ -355,14 +355,15 @@ def refine_registration(points: np.ndarray, endpoints: dict, cfg: ReconstructCon
     # where it touches this log's end is not this log)
     S = np.full((len(targets), 3), np.nan)
     SA = np.ones(len(targets))
-    mine = dict(zip(ids, points_on_no_other_log(points, [log_spec_from_fit(axes[k][2], fcfg)[0] for k in ids],
-                                                fcfg.inlier_band_m)))
+    specs = [log_spec_from_fit(axes[k][2], fcfg)[0] for k in ids]
+    mine = dict(zip(ids, points_on_no_other_log(points, specs, fcfg.inlier_band_m)))
+    clear = dict(zip(ids, points_on_no_other_log(points, specs, fcfg.end_walk_band_m)))
     for i, (k, end, e) in enumerate(targets):
         f = axes[k][2]
-        p0, p1 = f["ends"]
-        r = 0.5 * (f["radius_a_m"] + f["radius_b_m"])
+        p0, p1 = f.ends
+        r = 0.5 * (f.radius_a_m + f.radius_b_m)
         iv = scan_end_interval(points[mine[k]], p0, p1, r, toward_p1=(end == "b"), reach_m=cfg.fuse.end_search_m,
-                               cfg=cfg.fuse)
+                               cfg=cfg.fuse, on_mask=clear[k][mine[k]])
         if iv.state == "seen":
             u_k = (p1 - p0) / max(float(np.linalg.norm(p1 - p0)), 1e-9)
             S[i] = p0 + u_k * seen_end(iv)
@@ -452,9 +453,8 @@ def refine_registration(points: np.ndarray, endpoints: dict, cfg: ReconstructCon
     }
     fitted = {}
     for k in ids:
-        f = dict(axes[k][2])
-        f["ends"] = apply_T(T, f["ends"])
-        fitted[k] = log_spec_from_fit(f, fcfg)[0]
+        f = axes[k][2]
+        fitted[k] = log_spec_from_fit(f.with_ends(apply_T(T, f.ends)), fcfg)[0]
     if shift > cfg.max_correction_m or angle > cfg.max_correction_deg:
         raise RegistrationError(
             f"the scan pose needs a correction of {shift:.2f} m / {angle:.1f} deg to match the GNSS end "
@@ -1014,8 +1014,8 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
         a, b, s = priors[k]
         try:
             f = fit_log(pts[in_patch], a, b, cfg.fit, log_id=k, sigma_a_m=s, sigma_b_m=s)
-            ok = f["coverage"] >= fuse_cfg.min_new_log_coverage
-            why = f"its fit covers {f['coverage'] * 100:.0f} % of it"
+            ok = f.coverage >= fuse_cfg.min_new_log_coverage
+            why = f"its fit covers {f.coverage * 100:.0f} % of it"
         except ReconstructError as exc:
             ok, why = False, str(exc)
         if ok:
@@ -1025,7 +1025,7 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
             del new_ids[k], priors[k]
     lateral = {k: s for k, (_, _, s) in priors.items()}
 
-    def placer(log_id: str, spec, how: str, points: np.ndarray, swapped: bool):
+    def placer(log_id: str, spec, how: str, points: np.ndarray, swapped: bool, on_mask: np.ndarray):
         ends_k = survey_ends.get(log_id, (None, None))
         if how == "scan":
             sig = 0.005  # a fitted axis: a few millimetres across
@@ -1034,13 +1034,16 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
         else:
             sig = max((e.sigma_h_m for e in ends_k if e is not None), default=lateral[log_id])
         try:
-            return place_log_ends(points, spec, how, ends_k, swapped, sig, fuse_cfg)
+            return place_log_ends(points, spec, how, ends_k, swapped, sig, fuse_cfg, on_mask=on_mask)
         except FitError as exc:
             raise FitError(f"log {log_id!r}: {exc}") from exc
 
     fit = fit_pile(pts[in_patch], {k: (a, b) for k, (a, b, _) in priors.items()}, extent, cfg.fit, progress=say,
                    georef=georef, notes=f"reconstructed from {scan_dir} and {gnss_path}", first_pass=first_pass,
-                   sigmas={k: (s, s) for k, s in lateral.items()}, place_ends=placer)
+                   sigmas={k: (s, s) for k, s in lateral.items()}, place_ends=placer, optional=set(new_ids))
+    for k, why in fit.dropped.items():  # a log the survey missed whose points the other logs took: not a log
+        dropped_new[k] = why
+        del new_ids[k]
     timings["fit_s"] = time.perf_counter() - t
     fusion = {
         "scan_logs": [s.to_dict() for s in logs_pile],

@@ -127,9 +127,7 @@ def test_stage_checker_sees_violations(tmp_path):
 
 
 #: experiment scripts that still edit sys.path, each with its reason
-SYS_PATH_EDITS = {
-    "bench/bench_reconstruct.py": "its sys.path line goes when the recon branch (which rewrites this file) is merged",
-}
+SYS_PATH_EDITS: dict[str, str] = {}
 
 
 def experiment_scripts() -> list[Path]:
