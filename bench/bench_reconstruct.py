@@ -372,10 +372,10 @@ def survey_bench(n_scans: int, seed0: int, work_dir: Path, out: Path, logs=(3, 7
 
     from reconstruct.compare import compare_piles
     from reconstruct.errors import ReconstructError
-    from reconstruct.fit import FIT_REVISION
+    from reconstruct.fitting.fit import FIT_REVISION
     from reconstruct.pipeline import ReconstructConfig, reconstruct
-    from reconstruct.stereo import ScanCloud, scan_cloud
-    from reconstruct.twin_scan import make_twin_scan, write_twin_survey
+    from reconstruct.scan.stereo import ScanCloud, scan_cloud
+    from reconstruct.scan.twin_scan import make_twin_scan, write_twin_survey
     from synth.common.files import atomic_write_bytes
     from synth.scene.pile import read_pile
 

@@ -10,7 +10,7 @@ log ends (no float fixes). The *same images* are reconstructed twice:
 * **posed**: the calibrations carry the true pair poses and ``scan_pose.json`` the scan's pose
   with the crane's usual error (3 cm / 0.5 deg, 1 sigma) -> refinement only;
 * **unposed**: no pose anywhere -> pair poses by pycolmap SfM anchored to the pairs' stereo
-  depth (:mod:`reconstruct.sfm`), the scan placed from the GNSS end points alone
+  depth (:mod:`reconstruct.scan.sfm`), the scan placed from the GNSS end points alone
   (:func:`reconstruct.pipeline.coarse_scan_pose`) and then refined as usual.
 
 Both are compared with the truth (:func:`reconstruct.compare.compare_piles`); the SfM pair
@@ -62,7 +62,7 @@ def measure(n_piles: int = 3, first_seed: int = 100, workdir: Path | None = None
     from reconstruct.compare import compare_piles
     from reconstruct.errors import ReconstructError
     from reconstruct.pipeline import reconstruct
-    from reconstruct.twin_scan import make_twin_scan
+    from reconstruct.scan.twin_scan import make_twin_scan
     from synth.scene.pile import read_pile
 
     rows = {"posed": [], "unposed": []}

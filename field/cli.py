@@ -161,7 +161,7 @@ def base_from_survey(gnss: Path) -> tuple[float, float, float]:
     height: the twin crane's default position, known before the reconstruction."""
     import numpy as np
 
-    from reconstruct.gnss import read_gnss
+    from reconstruct.survey.gnss import read_gnss
     from synth.geometry.geodesy import site_to_tm
 
     survey = read_gnss(gnss, allow_float=True)

@@ -96,7 +96,7 @@ def _georef(pile_or_georef: Any) -> Any:
     if g is None or not hasattr(g, "T_site_pile"):
         raise GeoExportError(
             "the pile has no georeference (PileSpec.georef is None); survey the log ends with RTK "
-            "GNSS (reconstruct.gnss) or give the site origin before asking for GNSS coordinates"
+            "GNSS (reconstruct.survey.gnss) or give the site origin before asking for GNSS coordinates"
         )
     return g
 

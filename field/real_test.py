@@ -1,7 +1,7 @@
 """The real test of a reconstruction: does a grasp planned on the reconstructed pile succeed on the
 real pile as often as one planned on the real pile itself?
 
-For each of ``n_piles`` twin scans (:func:`reconstruct.twin_scan.make_twin_scan`: a generated
+For each of ``n_piles`` twin scans (:func:`reconstruct.scan.twin_scan.make_twin_scan`: a generated
 pile with known truth, a grid of stereo pairs, an RTK survey of the log ends):
 
 1. reconstruct the pile (:func:`reconstruct.pipeline.reconstruct`; its own pile frame and its
@@ -42,7 +42,7 @@ from typing import Any, Callable
 import numpy as np
 
 from field.errors import FieldError
-from reconstruct.fit import FIT_REVISION
+from reconstruct.fitting.fit import FIT_REVISION
 from synth.common.formats import VersionedJson
 
 REAL_TEST_FORMAT = "loggrasp.real-test"
@@ -194,7 +194,7 @@ def prepare_case(seed: int, work_dir: str | Path, planner_config: Any, cfg: Real
     from reconstruct.compare import compare_piles
     from reconstruct.errors import ReconstructError
     from reconstruct.pipeline import ReconstructConfig, read_report, reconstruct
-    from reconstruct.twin_scan import make_twin_scan
+    from reconstruct.scan.twin_scan import make_twin_scan
     from synth.common.files import atomic_write_bytes
     from synth.scene.pile import read_pile
     from synth.render.ortho import OrthoObservation

@@ -445,8 +445,8 @@ def _write_plan_outputs(plan_dir: Path, obs, the_plan, pile, best, verification,
 
 def weak_ends_by_log(report: dict) -> list[list[str]]:
     """Per log of a reconstruction report, its ends placed on a weak estimate
-    (:meth:`reconstruct.fuse.EndEstimate.weak`), e.g. ``"end b (rtk_float, scan: open, +-23 cm)"``."""
-    from reconstruct.fuse import FuseConfig
+    (:meth:`reconstruct.fitting.fuse.EndEstimate.weak`), e.g. ``"end b (rtk_float, scan: open, +-23 cm)"``."""
+    from reconstruct.fitting.fuse import FuseConfig
 
     limit = FuseConfig().weak_sigma_m
     return [[f"end {end} ({e['source']}, scan: {e['scan']}, +-{e['sigma_m'] * 100:.0f} cm"

@@ -76,7 +76,7 @@ def scan_command(
     Unposed (SfM + GNSS georegistration): loggrasp synth scan --seed 3 --unposed --out scans/s3u
     Degraded survey: loggrasp synth scan --seed 3 --float-fixes 4 --unsurveyed-logs 1 --out scans/s3d
     """
-    from reconstruct.twin_scan import DEFAULT_SITE, make_twin_scan
+    from reconstruct.scan.twin_scan import DEFAULT_SITE, make_twin_scan
     from synth.geometry.geodesy import check_geodetic
     from synth.common.ranges import parse_range
 

@@ -224,7 +224,7 @@ def simulate_scan(pile: PileSpec, out_dir: str | Path, *, grid: tuple[int, int] 
     random horizontal shift and yaw) and an RTK survey of the log end centres
     (``out_dir/survey.csv``, noise ``sigma_h_m``/``sigma_v_m``). Returns (scan folder, survey
     path, the georeferenced true pile)."""
-    from reconstruct.gnss import pile_endpoints_site, simulate_survey, write_gnss_csv
+    from reconstruct.survey.gnss import pile_endpoints_site, simulate_survey, write_gnss_csv
     from reconstruct.pipeline import ScanPose, write_scan_pose
     from synth.geometry.frames import make_T, rot_z
     from synth.render.stereo import StereoRenderer, StereoRigConfig

@@ -13,7 +13,7 @@ class ReconstructError(LoggraspError):
     """Root of every error raised by :mod:`reconstruct`."""
 
 
-# --- GNSS surveys of log ends (reconstruct.gnss) ---------------------------------------------
+# --- GNSS surveys of log ends (reconstruct.survey.gnss) ---------------------------------------------
 
 
 class GnssError(ReconstructError):
@@ -39,7 +39,7 @@ class GnssOutlierError(GnssError):
     log id, a point measured elsewhere, a typo in a coordinate)."""
 
 
-# --- stereo scans, fitting and registration (reconstruct.stereo / fit / pipeline) -------------
+# --- stereo scans, fitting and registration (reconstruct.scan.stereo / fit / pipeline) -------------
 
 
 class ScanError(ReconstructError):
@@ -59,7 +59,7 @@ class FitError(ReconstructError):
 
 class LogNotSeenError(FitError):
     """(Almost) no scan points lie on a log around its GNSS axis: it is hidden under other logs,
-    outside the scanned area, or its end points are wrong. :func:`reconstruct.fit.fit_pile`
+    outside the scanned area, or its end points are wrong. :func:`reconstruct.fitting.fit.fit_pile`
     places a log hidden under others from its survey alone; any other case is an error."""
 
 
@@ -68,7 +68,7 @@ class RegistrationError(ReconstructError):
     residuals too large, too few logs to constrain the transform)."""
 
 
-# --- unposed scans: pair poses from SfM (reconstruct.sfm), coarse georegistration (pipeline) ---
+# --- unposed scans: pair poses from SfM (reconstruct.scan.sfm), coarse georegistration (pipeline) ---
 
 
 class SfmError(ScanError):

@@ -2,13 +2,13 @@
 
 ``reconstruct(scan_dir, gnss_path, out_dir)`` runs every stage and writes its results:
 
-1. **Survey** (:mod:`reconstruct.gnss`): the log end points, checked (RTK fixed unless
+1. **Survey** (:mod:`reconstruct.survey.gnss`): the log end points, checked (RTK fixed unless
    ``allow_float``; no outliers; a log with one end measured is admitted), in the *site frame* (ENU
-   at ``site_origin``), each with its accuracy (:func:`reconstruct.fuse.point_accuracy`).
-2. **Scan** (:mod:`reconstruct.stereo`): the fused point cloud of every pair, in the *scan
+   at ``site_origin``), each with its accuracy (:func:`reconstruct.fitting.fuse.point_accuracy`).
+2. **Scan** (:mod:`reconstruct.scan.stereo`): the fused point cloud of every pair, in the *scan
    frame* (the frame of the calibrations' ``T_pile_cam``). When the pairs carry no pose (a
    handheld/boom camera without a pose sensor; ``pair_poses``), their poses come from pycolmap
-   SfM anchored to each pair's stereo depth (:mod:`reconstruct.sfm`) and the scan frame is the
+   SfM anchored to each pair's stereo depth (:mod:`reconstruct.scan.sfm`) and the scan frame is the
    first pair's left camera.
 3. **Scan pose**: ``T_site_scan`` places the scan in the site frame. It comes from the config,
    or from ``scan_pose.json`` in the scan folder (:func:`write_scan_pose` /
@@ -20,7 +20,7 @@
    GNSS end point must then lie within ``max_endpoint_distance_m`` (horizontally; four sigma for an
    imprecise point) of scan points — otherwise the scan and the survey are of different places, or
    a log id is wrong, and the error names the point.
-4. **Logs in the scan, matched to the survey** (:mod:`reconstruct.fuse`): the logs the scan shows
+4. **Logs in the scan, matched to the survey** (:mod:`reconstruct.fitting.fuse`): the logs the scan shows
    (ridges of its top view), each surveyed log matched to one of them by its points' accuracies;
    where each log is fitted comes from the scan's axis (and from the survey for a log the scan
    does not show). A log the survey missed but the scan shows is kept (``scan0``...); geometry two
@@ -32,11 +32,11 @@
    pose is right to ``scan_pose_sigma_m`` / ``scan_pose_sigma_deg``. Its size, the residuals and the
    points it did not believe (``outliers``) are reported; a correction beyond ``max_correction_m`` /
    ``max_correction_deg`` is an error.
-6. **Fit** (:mod:`reconstruct.fit`): logs, terrain and obstacles in the new *pile frame* (the
+6. **Fit** (:mod:`reconstruct.fitting.fit`): logs, terrain and obstacles in the new *pile frame* (the
    site frame turned about the vertical so the logs' mean direction lies at ``log_direction_deg``
    when that is set, shifted to the centre of the logs, at ground level; a square patch
    of the training images' pixel pitch, :func:`patch_extent`), each log's ends placed from the scan
-   where it sees them and from the survey where it does not (:func:`reconstruct.fuse.place_log_ends`:
+   where it sees them and from the survey where it does not (:func:`reconstruct.fitting.fuse.place_log_ends`:
    per end a source — scan, fixed, float, inferred — and a 1-sigma uncertainty), the pile checked in
    the twin.
 7. **Outputs** in ``out_dir``: ``pile.json`` (with the site georeference), ``ortho.npz`` (the
@@ -60,15 +60,15 @@ from typing import TYPE_CHECKING, Any, Callable
 import numpy as np
 
 from reconstruct.errors import FitError, ReconstructError, RegistrationError, ScanError
-from reconstruct.fit import (
+from reconstruct.fitting.fit import (
     FitConfig, PileFit, fit_log, fit_pile, log_spec_from_fit, natural_key, points_on_no_other_log,
 )
-from reconstruct.fuse import (
+from reconstruct.fitting.fuse import (
     FuseConfig, SurveyEnd, absorb_pieces, find_scan_logs, match_survey, place_log_ends, point_accuracy, prior_axis,
     scan_end_interval, seen_end,
 )
-from reconstruct.sfm import SfmConfig
-from reconstruct.stereo import ScanCloud, StereoConfig, scan_cloud
+from reconstruct.scan.sfm import SfmConfig
+from reconstruct.scan.stereo import ScanCloud, StereoConfig, scan_cloud
 from synth.geometry.frames import apply_T, invert_T, make_T, rot_z
 from synth.common.files import atomic_write_bytes
 from synth.scene.pile import Georeference, PileSpec, write_pile
@@ -151,7 +151,7 @@ class ReconstructConfig:
     fit: FitConfig = field(default_factory=FitConfig)
     scan_pose: ScanPose | None = None  # None: read scan_pose.json from the scan folder
     pair_poses: str = "auto"  # "auto": the calibrations' T_pile_cam when every pair has one, else
-    #                           SfM; "calibration"; "sfm" (pycolmap, reconstruct.sfm)
+    #                           SfM; "calibration"; "sfm" (pycolmap, reconstruct.scan.sfm)
     georegister: str = "auto"  # "auto": the scan pose (scan_pose / scan_pose.json); for an unposed
     #                            scan (no pair poses, no scan pose) from the GNSS end points;
     #                            "scan-pose": a scan pose is required; "gnss": from the GNSS end points
@@ -269,9 +269,9 @@ class ReconstructionResult:
 
 # -- registration ------------------------------------------------------------------------------
 def _survey_ends_from(endpoints: dict, sigmas: dict | None) -> dict:
-    """:class:`reconstruct.fuse.SurveyEnd` pairs from plain end points and 1-sigma 3-D accuracies
+    """:class:`reconstruct.fitting.fuse.SurveyEnd` pairs from plain end points and 1-sigma 3-D accuracies
     (``sigmas``: ``{log_id: (sigma_a, sigma_b)}``; default RTK fixed)."""
-    from reconstruct.fuse import SurveyEnd
+    from reconstruct.fitting.fuse import SurveyEnd
 
     out = {}
     for k, ends in endpoints.items():
@@ -710,7 +710,7 @@ def coarse_scan_pose(points: np.ndarray, camera_positions: np.ndarray,
 
 def _survey_ends(survey: Any, origin: Any) -> dict[str, tuple[SurveyEnd | None, SurveyEnd | None]]:
     """Every surveyed log's ends in the site frame at ``origin`` with their accuracies
-    (:func:`reconstruct.fuse.point_accuracy`); ``None`` for an end not measured."""
+    (:func:`reconstruct.fitting.fuse.point_accuracy`); ``None`` for an end not measured."""
     site = survey.ends_site(origin)
     out = {}
     for k, (a, b) in site.items():
@@ -739,7 +739,7 @@ def _new_log_ids(indices: list[int], survey: dict) -> dict[str, int]:
 
 def _check_coverage(points_xy: np.ndarray, endpoints: dict[str, tuple[Any, Any]],
                     limit_m: float) -> dict[str, list[float | None]]:
-    """Horizontal distance from every end point (a :class:`~reconstruct.fuse.SurveyEnd`, a point, or
+    """Horizontal distance from every end point (a :class:`~reconstruct.fitting.fuse.SurveyEnd`, a point, or
     None: not surveyed) to the nearest scan point; an error beyond ``limit_m`` (or four times an
     imprecise point's accuracy)."""
     from scipy.spatial import cKDTree
@@ -834,9 +834,9 @@ def _pose(scan_dir: Path, cfg: ReconstructConfig, unposed: bool = False) -> tupl
 def _scan(scan_dir: Path, cfg: ReconstructConfig, say: Callable[[str], None]) -> tuple[ScanCloud, str, dict | None]:
     """The fused cloud (scan frame), where the pair poses came from ("calibration", "sfm",
     "single pair") and the SfM report (None without SfM)."""
-    from reconstruct.calibration import pair_pose_present
-    from reconstruct.sfm import camera_clouds, estimate_pair_poses, fuse_pairs
-    from reconstruct.stereo import find_pairs, read_pair
+    from reconstruct.scan.calibration import pair_pose_present
+    from reconstruct.scan.sfm import camera_clouds, estimate_pair_poses, fuse_pairs
+    from reconstruct.scan.stereo import find_pairs, read_pair
 
     folders = find_pairs(scan_dir)
     posed = [pair_pose_present(f) for f in folders]
@@ -871,7 +871,7 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
 
     ``scan_dir``: one pair folder (``left.png``, ``right.png``, ``calibration.yaml``) or a folder
     of pair folders, plus ``scan_pose.json`` unless ``config.scan_pose`` is given.
-    ``gnss_path``: a survey CSV (:func:`reconstruct.gnss.read_gnss`). ``out_dir``: created; gets
+    ``gnss_path``: a survey CSV (:func:`reconstruct.survey.gnss.read_gnss`). ``out_dir``: created; gets
     ``pile.json``, ``ortho.npz``, ``preview.png``, ``compare.png``, ``report.json``.
     ``progress``: called with a short line per stage. ``cloud``: this scan's fused cloud from an
     earlier run (``ReconstructionResult.cloud``), to reconstruct it again with another survey or
@@ -880,9 +880,9 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
     Raises a :class:`~reconstruct.errors.ReconstructError` subclass (``ScanError``,
     ``GnssError``, ``RegistrationError``, ``FitError``) naming the file, log or point at fault.
     """
-    from reconstruct.gnss import read_gnss
-    from reconstruct.calibration import pair_pose_present
-    from reconstruct.stereo import find_pairs
+    from reconstruct.survey.gnss import read_gnss
+    from reconstruct.scan.calibration import pair_pose_present
+    from reconstruct.scan.stereo import find_pairs
     from synth.errors import SynthError
     from synth.render.ortho import OrthoRenderConfig, render_ortho
     from synth.render.preview import preview_image, write_png

@@ -106,6 +106,20 @@ def test_synth_is_split_by_stage():
     assert stages == SYNTH_STAGES, f"synth's sub-packages are {sorted(stages)}, want {sorted(SYNTH_STAGES)}"
 
 
+#: reconstruct's stages, and what sits at its top: the pipeline (registration and the outputs) that
+#: runs them, the comparison with a true pile, the command line and the errors
+RECONSTRUCT_STAGES = {"scan", "survey", "fitting"}
+RECONSTRUCT_TOP_MODULES = {"__init__.py", "cli.py", "errors.py", "pipeline.py", "compare.py"}
+
+
+def test_reconstruct_is_split_by_stage():
+    root = ROOT / "reconstruct"
+    top = {p.name for p in root.iterdir() if p.suffix == ".py"}
+    stages = {p.name for p in root.iterdir() if p.is_dir() and (p / "__init__.py").exists()}
+    assert top == RECONSTRUCT_TOP_MODULES, f"modules outside reconstruct's stages: {sorted(top - RECONSTRUCT_TOP_MODULES)}"
+    assert stages == RECONSTRUCT_STAGES, f"reconstruct's sub-packages: {sorted(stages)}, want {sorted(RECONSTRUCT_STAGES)}"
+
+
 def synth_parts(path: Path) -> set[str]:
     """The synth sub-packages (or top-level modules) ``path`` imports: ``synth.scene.pile`` -> scene."""
     return {m.split(".")[1] for m in imported_modules(path) if m.startswith("synth.") and len(m.split(".")) > 1}

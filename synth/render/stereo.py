@@ -484,7 +484,7 @@ def rectify_and_match(left: np.ndarray, right: np.ndarray, calib: StereoCalibrat
     """Rectify a pair (``cv2.stereoRectify`` + ``initUndistortRectifyMap``) and match it with
     OpenCV's 3-way semi-global matcher, searching the disparities of depths ``cfg.z_min_m`` ..
     ``cfg.z_max_m``. ``cfg`` needs ``z_min_m, z_max_m, block_size, uniqueness, speckle_window,
-    speckle_range, disp12_max_diff`` (:class:`SGBMConfig`, ``reconstruct.stereo.StereoConfig``).
+    speckle_range, disp12_max_diff`` (:class:`SGBMConfig`, ``reconstruct.scan.stereo.StereoConfig``).
     The one place loggrasp turns a stereo pair into disparities."""
     import cv2
 

@@ -118,12 +118,12 @@ def test_one_twin_scan_end_to_end(tmp_path, monkeypatch):
     # a new record on the same work folder reuses the scan and its reconstruction: same rows,
     # no new scan, no new reconstruction
     import reconstruct.pipeline
-    import reconstruct.twin_scan
+    import reconstruct.scan.twin_scan
 
     def refuse(*a, **k):
         raise AssertionError("the kept scan should have been reused")
 
-    monkeypatch.setattr(reconstruct.twin_scan, "make_twin_scan", refuse)
+    monkeypatch.setattr(reconstruct.scan.twin_scan, "make_twin_scan", refuse)
     monkeypatch.setattr(reconstruct.pipeline, "reconstruct", refuse)
     reused = run_real_test(cfg, work_dir=tmp_path / "work", record_path=tmp_path / "real2.json")
     def strip(x):  # CPU times differ from run to run
@@ -148,7 +148,7 @@ def test_one_twin_scan_end_to_end(tmp_path, monkeypatch):
         real_test_pile(700000, tmp_path / "work", SimpleNamespace(config=UNetConfig()), cfg)
     assert not rt._same_test(rec, cfg, rec["model"]["sha256"])
     monkeypatch.undo()
-    monkeypatch.setattr(reconstruct.twin_scan, "make_twin_scan", refuse)
+    monkeypatch.setattr(reconstruct.scan.twin_scan, "make_twin_scan", refuse)
     monkeypatch.setattr(reconstruct.pipeline, "reconstruct", reconstructed_again)
     # a folder that kept only the truth of a scan makes the scan again
     shutil.rmtree(tmp_path / "work" / "scan_700000" / "scan")

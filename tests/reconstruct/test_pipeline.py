@@ -1,4 +1,4 @@
-"""reconstruct.stereo / pipeline / compare: bad inputs fail loudly and by name; a twin scan is
+"""reconstruct.scan.stereo / pipeline / compare: bad inputs fail loudly and by name; a twin scan is
 reconstructed end to end and measured against its ground truth."""
 
 from __future__ import annotations
@@ -13,12 +13,12 @@ import pytest
 
 from reconstruct.compare import compare_piles, simulate_scan
 from reconstruct.errors import GnssFormatError, ReconstructError, RegistrationError, ScanError
-from reconstruct.fit import FitConfig, sample_top_view_points
+from reconstruct.fitting.fit import FitConfig, sample_top_view_points
 from reconstruct.pipeline import (
     ReconstructConfig, ScanPose, logs_direction, patch_extent, read_report, read_scan_pose, reconstruct, refine_registration,
     write_scan_pose,
 )
-from reconstruct.stereo import find_pairs, read_pair, scan_cloud
+from reconstruct.scan.stereo import find_pairs, read_pair, scan_cloud
 from synth.geometry.frames import apply_T, make_T, rot_z
 from synth.scene.pile import LogSpec, PileSpec, TerrainSpec, read_pile
 from synth.render.ortho import OrthoObservation
@@ -253,7 +253,7 @@ def test_survey_problems_are_named(small_scan, tmp_path):
         reconstruct(scan, dup, tmp_path / "o1")
     missing = tmp_path / "missing.csv"
     missing.write_text("\n".join(line for i, line in enumerate(lines) if i != data[1]) + "\n")
-    from reconstruct.gnss import read_gnss
+    from reconstruct.survey.gnss import read_gnss
 
     with pytest.raises(GnssFormatError, match="log 'log1' has no end 'b'"):  # the reader alone is strict
         read_gnss(missing)
@@ -263,7 +263,7 @@ def test_survey_problems_are_named(small_scan, tmp_path):
 
 
 def test_endpoints_far_from_the_scan_are_named(small_scan, tmp_path):
-    from reconstruct.gnss import pile_endpoints_site, simulate_survey, write_gnss_csv
+    from reconstruct.survey.gnss import pile_endpoints_site, simulate_survey, write_gnss_csv
 
     scan, gnss, truth, d = small_scan
     ends = dict(zip(["log0", "log1", "log2"], pile_endpoints_site(truth)))

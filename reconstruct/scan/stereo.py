@@ -6,7 +6,7 @@ what a ZED export converted to it looks like): ``left.png``, ``right.png`` and
 ``calibration.yaml`` (OpenCV FileStorage: ``K1 D1 K2 D2 R T image_size`` and the left camera's
 pose ``T_pile_cam`` in the *scan frame*) and/or the camera's ZED ``SN<serial>.conf`` (or
 ``zed.conf``), read at the images' resolution and checked against each other
-(:mod:`reconstruct.calibration`). Other files (``depth_left.npz``, ``meta.json``) are not read.
+(:mod:`reconstruct.scan.calibration`). Other files (``depth_left.npz``, ``meta.json``) are not read.
 
 Every problem with the input is a :class:`~reconstruct.errors.ScanError` naming the file: a
 missing or unreadable image, left and right of different sizes, a calibration whose image size
@@ -123,7 +123,7 @@ def read_pair(folder: str | Path) -> ScanPair:
             f"{folder}: left.png is {left.shape[1]}x{left.shape[0]} px but right.png is "
             f"{right.shape[1]}x{right.shape[0]} px; both images of a pair must have the same size"
         )
-    from reconstruct.calibration import read_pair_calibration
+    from reconstruct.scan.calibration import read_pair_calibration
 
     calib, cname = read_pair_calibration(folder, (left.shape[1], left.shape[0]))
     cpath = folder / cname.split(" + ")[0]

@@ -1,4 +1,4 @@
-"""reconstruct.fit on point clouds sampled from a known pile: what a downward scanner sees (the
+"""reconstruct.fitting.fit on point clouds sampled from a known pile: what a downward scanner sees (the
 twin's exact top-view height map, occlusion included) plus noise, with RTK-like noisy ends."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from reconstruct.errors import FitError, LogNotSeenError, ReconstructError
-from reconstruct.fit import (
+from reconstruct.fitting.fit import (
     FitConfig, fit_log, fit_pile, log_spec_from_fit, natural_key, sample_top_view_points, separate_logs,
 )
 from synth.scene.pile import LogSpec, PileSpec, RockSpec, StumpSpec, TerrainSpec, quat_from_euler
@@ -195,7 +195,7 @@ def test_ground_under_a_log_stays_under_it_between_samples(angle_deg):
     terrain (linear over grid triangles) does not cut into the log anywhere, whichever way the
     log lies across the grid: at 45 deg the triangles span a cell diagonal under its round
     underside, where holding only the samples under it left the surface 1-2 cm inside."""
-    from reconstruct.fit import _clamp_under_logs
+    from reconstruct.fitting.fit import _clamp_under_logs
     from synth.physics.world import World
 
     n, extent = 64, 5.0
@@ -252,7 +252,7 @@ def test_obstacle_points_over_a_log_are_the_logs():
     """Points standing over a log's footprint higher than its underside (stereo smear at a stack
     of log ends) are not an obstacle; a stump beside the log stays, and a stump reaching under a
     log stands no higher than the log's underside over it."""
-    from reconstruct.fit import _underside_z, find_obstacles
+    from reconstruct.fitting.fit import _underside_z, find_obstacles
 
     terrain = _flat(64)
     log = LogSpec.from_endpoints((-1.0, 0.0, 0.4), (1.0, 0.0, 0.4), 0.2)  # resting on something

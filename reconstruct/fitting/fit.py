@@ -8,11 +8,11 @@ Logs
 ----
 The two RTK points of a log give its axis and length (:func:`fit_pile` is given where to look for each
 log: with :mod:`reconstruct.pipeline` the scan's own axis of the log, its ends placed afterwards from
-the scan and the survey by their accuracies, :mod:`reconstruct.fuse`). What the points are is a parameter
+the scan and the survey by their accuracies, :mod:`reconstruct.fitting.fuse`). What the points are is a parameter
 (``FitConfig.endpoint_ref``):
 
 * ``"end_centre"`` (default): the rover pole stood on the centre of each end face — the points
-  lie ON the axis (this is what :func:`reconstruct.gnss.simulate_survey` measures);
+  lie ON the axis (this is what :func:`reconstruct.survey.gnss.simulate_survey` measures);
 * ``"top_surface"``: the points were taken on top of the log at each end — the axis lies one
   radius below them (perpendicular to the axis, in the vertical plane through it).
 
@@ -90,7 +90,7 @@ AXIS_SOURCES = ("fit", "gnss")
 #: strays keeps the first fit; logs hidden under others are placed from their survey. 4: a log
 #: seen only in part gets a circle through its top arc (axis within two sigma of the survey's)
 #: instead of the lower quartile of distances from the survey's axis (diameters 7.5 cm too small).
-#: 5: logs are fitted around the scan's own axes (:mod:`reconstruct.fuse`), their ends placed from the
+#: 5: logs are fitted around the scan's own axes (:mod:`reconstruct.fitting.fuse`), their ends placed from the
 #: scan where it sees them and from the survey where it does not, by their accuracies. 6: a seen end is the
 #: middle of the last bin on the log's top, not that bin's outer edge (+9 mm outward on twin scans); the
 #: registration walks a log's end over the points on no other log, as the ends' placement does. 7: a
@@ -265,7 +265,7 @@ class LogFit:
     moved_m: float = 0.0  # how far it was moved to separate it from other bodies [m]
     end_source: tuple[str, str] = ("gnss", "gnss")  # butt, top: "gnss" point or "scan" extent; with the
     #                                                 survey fused (fit_pile's place_ends): scan, fixed, float, inferred
-    ends: list[dict] | None = None  # ends a, b as placed (reconstruct.fuse.EndEstimate.to_dict), when fused
+    ends: list[dict] | None = None  # ends a, b as placed (reconstruct.fitting.fuse.EndEstimate.to_dict), when fused
     fit: str = "scan"  # "scan": fitted to its points; "partial": seen only in part, a circle through its
     #                    visible top near the survey's axis; "hidden": no points on it (under other logs),
     #                    the survey's axis, as thick as the gap between the ground and the logs over it
@@ -1738,7 +1738,7 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
     those points may show its top: not within ``end_walk_band_m`` of another log); returns
     the log with its ends moved and what placed them (two dicts, ends a and b, kept in
     ``LogFit.ends``; their ``source`` becomes ``LogFit.end_source``) — how
-    :mod:`reconstruct.fuse` places each end from the scan and the survey by their accuracies.
+    :mod:`reconstruct.fitting.fuse` places each end from the scan and the survey by their accuracies.
 
     ``optional``: ids of logs found in the scan alone (no survey): one that has no scan points of its
     own once the other logs have taken theirs (a ridge made of other logs' pieces) is left out, with

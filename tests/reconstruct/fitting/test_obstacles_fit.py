@@ -1,6 +1,6 @@
 """Obstacles in reconstructions: a stereo twin scan of a pile with a stump and a rock in view finds
 both (position, size, kind); one without obstacles finds none. Plus the two cluster rules of
-:func:`reconstruct.fit.find_obstacles` on hand-made clusters: parts of one rock that a log lies
+:func:`reconstruct.fitting.fit.find_obstacles` on hand-made clusters: parts of one rock that a log lies
 across are one rock, and a strip of log surface the fitted log leaves unexplained is no obstacle."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from reconstruct.compare import compare_piles, simulate_scan
-from reconstruct.fit import FitConfig, find_obstacles
+from reconstruct.fitting.fit import FitConfig, find_obstacles
 from reconstruct.pipeline import reconstruct
 from synth.scene.pile import LogSpec, PileSpec, RockSpec, StumpSpec, TerrainSpec, height_at, quat_from_euler
 

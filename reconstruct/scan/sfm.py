@@ -22,8 +22,8 @@ calibrations carry no ``T_pile_cam`` (:func:`pair_has_pose`). :func:`estimate_pa
 
 The result is ``T_scan_cam`` of every pair's left camera in the *scan frame* = the first pair's
 left camera frame (OpenCV axes: x right, y down, z forward). :func:`fuse_pairs` turns pairs and
-poses into the fused :class:`~reconstruct.stereo.ScanCloud` (as
-:func:`reconstruct.stereo.scan_cloud` does with the calibrations' own poses).
+poses into the fused :class:`~reconstruct.scan.stereo.ScanCloud` (as
+:func:`reconstruct.scan.stereo.scan_cloud` does with the calibrations' own poses).
 
 Errors are :class:`~reconstruct.errors.SfmError` subclasses that name the pair at fault and say
 what to do.
@@ -42,7 +42,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from reconstruct.errors import SfmError, SfmRegistrationError, SfmScaleError
-from reconstruct.stereo import ScanCloud, ScanPair, StereoConfig, pair_points
+from reconstruct.scan.stereo import ScanCloud, ScanPair, StereoConfig, pair_points
 
 POSE_KEY = "T_pile_cam"
 
@@ -563,7 +563,7 @@ def fuse_pairs(pairs: Sequence[ScanPair], T_scan_cam: dict[str, np.ndarray], con
                progress: Callable[[str], None] | None = None) -> ScanCloud:
     """Every pair's points placed by ``T_scan_cam`` (pair folder name -> 4x4) and fused in the
     scan frame: per-pair and joint voxel downsampling, statistical outlier removal (open3d), as
-    :func:`reconstruct.stereo.scan_cloud` does with the calibrations' poses. ``clouds``:
+    :func:`reconstruct.scan.stereo.scan_cloud` does with the calibrations' poses. ``clouds``:
     :func:`camera_clouds` of the pairs when already computed."""
     import open3d as o3d
 

@@ -151,7 +151,7 @@ def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5
     :func:`visible_logs`; the other points are as without it).
 
     Written into a temporary sibling folder and renamed into place (never half-written)."""
-    from reconstruct.gnss import pile_endpoints_site, simulate_survey, write_gnss_csv
+    from reconstruct.survey.gnss import pile_endpoints_site, simulate_survey, write_gnss_csv
     from synth.scene.generate import GenerationConfig, generate_pile
     from synth.geometry.geodesy import check_geodetic
 
@@ -264,10 +264,10 @@ def _unsurveyed(scan_root: Path, pile: PileSpec, n: int, rng: np.random.Generato
 def write_twin_survey(scan_root: str | Path, path: str | Path, n_float: int = 0, n_unsurveyed: int = 0,
                       seed: int | None = None) -> Path:
     """Another survey of a twin scan's pile (``scan_root``: a :func:`make_twin_scan` folder): RTK noise
-    as :func:`reconstruct.gnss.simulate_survey` draws it, ``n_float`` float points (``-1``: half the
+    as :func:`reconstruct.survey.gnss.simulate_survey` draws it, ``n_float`` float points (``-1``: half the
     surveyed ends), ``n_unsurveyed`` logs left out (:func:`visible_logs`). Drawn from its own random
     stream of (``seed``, default the scan's; ``n_float``; ``n_unsurveyed``). Returns the CSV path."""
-    from reconstruct.gnss import pile_endpoints_site, simulate_survey, write_gnss_csv
+    from reconstruct.survey.gnss import pile_endpoints_site, simulate_survey, write_gnss_csv
     from synth.scene.pile import read_pile
 
     root = Path(scan_root)

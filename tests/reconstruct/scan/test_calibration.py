@@ -1,4 +1,4 @@
-"""reconstruct.calibration: a pair's calibration from calibration.yaml and/or the camera's ZED
+"""reconstruct.scan.calibration: a pair's calibration from calibration.yaml and/or the camera's ZED
 SN*.conf (the section of the images' resolution); disagreeing files and corrupt ones are one-line
 errors naming the file."""
 
@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from reconstruct.calibration import pair_pose_present, read_pair_calibration
+from reconstruct.scan.calibration import pair_pose_present, read_pair_calibration
 from reconstruct.errors import CalibrationError, ScanError
-from reconstruct.stereo import read_pair
+from reconstruct.scan.stereo import read_pair
 
 HD = (1280, 720)
 

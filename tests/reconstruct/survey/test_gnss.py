@@ -1,4 +1,4 @@
-"""reconstruct.gnss: survey CSV reader/writer, raw NMEA/UBX logs with time windows, checks."""
+"""reconstruct.survey.gnss: survey CSV reader/writer, raw NMEA/UBX logs with time windows, checks."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from reconstruct import gnss
+from reconstruct.survey import gnss
 from reconstruct.errors import (
     GnssFileError,
     GnssFormatError,
@@ -21,7 +21,7 @@ from synth.geometry import geodesy
 from synth.geometry.frames import make_T, rot_z
 from synth.scene.pile import Georeference
 
-DATA = Path(__file__).resolve().parents[1] / "data" / "gnss"
+DATA = Path(__file__).resolve().parents[2] / "data" / "gnss"
 GEOREF = Georeference(64.1, 20.0, 250.0, tuple(tuple(float(v) for v in r) for r in make_T(rot_z(0.2), (0.5, -0.3, 0.1))))
 HEADER = "log_id,end,lat_deg,lon_deg,h_ell_m,fix,h_acc_m,v_acc_m,time_utc"
 

@@ -1,4 +1,4 @@
-"""reconstruct.fuse and the pipeline under real survey conditions: float points, logs or ends not
+"""reconstruct.fitting.fuse and the pipeline under real survey conditions: float points, logs or ends not
 surveyed, points the scan contradicts, and geometry the survey cannot settle. The scans are exact
 top-view samples of hand-made piles (no stereo), so these run in seconds."""
 
@@ -12,14 +12,14 @@ import pytest
 
 from reconstruct.compare import compare_piles
 from reconstruct.errors import GnssQualityError
-from reconstruct.fit import sample_top_view_points
-from reconstruct.fuse import (
+from reconstruct.fitting.fit import sample_top_view_points
+from reconstruct.fitting.fuse import (
     AmbiguousSurveyError, EndInterval, FuseConfig, ScanLog, SurveyEnd, absorb_pieces, fuse_end, match_survey,
     scan_end_interval, seen_end,
 )
-from reconstruct.gnss import GnssPoint, GnssSurvey, write_gnss_csv
+from reconstruct.survey.gnss import GnssPoint, GnssSurvey, write_gnss_csv
 from reconstruct.pipeline import ReconstructConfig, ScanPose, reconstruct, write_scan_pose
-from reconstruct.stereo import ScanCloud
+from reconstruct.scan.stereo import ScanCloud
 from synth.geometry import geodesy
 from synth.geometry.frames import make_T, rot_z
 from synth.scene.pile import Georeference, LogSpec, PileSpec, TerrainSpec
@@ -359,7 +359,7 @@ def test_a_neighbours_points_show_where_a_log_is_not_but_never_its_top():
         got[log_id] = (len(points), int((~on_mask).sum()))
         return spec, ({"source": "scan"}, {"source": "scan"})
 
-    from reconstruct.fit import FitConfig, fit_pile
+    from reconstruct.fitting.fit import FitConfig, fit_pile
     terrain = TerrainSpec(extent_m=5.0, resolution=32, amplitude_m=0.0,
                           heights_m=tuple(tuple(0.0 for _ in range(32)) for _ in range(32)))
     logs = (LogSpec.from_endpoints((-1.0, 0.0, 0.08), (0.5, 0.0, 0.08), 0.16),

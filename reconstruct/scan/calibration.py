@@ -189,7 +189,7 @@ def read_pair_calibration(folder: str | Path, image_size: tuple[int, int]) -> tu
 
 def yaml_has_pose(path: str | Path) -> bool:
     """Whether a ``calibration.yaml`` holds the camera's pose (``T_pile_cam``)."""
-    from reconstruct.sfm import pair_has_pose
+    from reconstruct.scan.sfm import pair_has_pose
 
     return pair_has_pose(path)
 

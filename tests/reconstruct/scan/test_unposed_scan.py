@@ -14,7 +14,7 @@ import pytest
 
 from reconstruct.errors import CoarseRegistrationError, ReconstructError, SfmRegistrationError
 from reconstruct.pipeline import CoarseConfig, ReconstructConfig, coarse_scan_pose, read_report, reconstruct
-from reconstruct.sfm import SfmConfig
+from reconstruct.scan.sfm import SfmConfig
 from synth.geometry.frames import apply_T, invert_T, make_T, rot_z
 from synth.scene.pile import LogSpec, PileSpec, TerrainSpec
 
@@ -28,7 +28,7 @@ def _flat(extent: float = 5.0) -> TerrainSpec:
 def _scan_of(pile: PileSpec, T_site_pile: np.ndarray, noise_m: float = 0.003):
     """Top-view points of ``pile`` in a camera-like scan frame (z down, turned, tilted 3 deg,
     shifted), the camera position there, and the GNSS ends in the site frame."""
-    from reconstruct.fit import sample_top_view_points
+    from reconstruct.fitting.fit import sample_top_view_points
 
     pts = sample_top_view_points(pile, 250, noise_m, np.random.default_rng(1))
     tilt = math.radians(3.0)
@@ -110,7 +110,7 @@ def scans(tmp_path_factory):
     from typer.testing import CliRunner
 
     from field.cli import app
-    from reconstruct.twin_scan import make_twin_scan
+    from reconstruct.scan.twin_scan import make_twin_scan
 
     d = tmp_path_factory.mktemp("unposed")
     res = CliRunner().invoke(app, ["synth", "scan", "--out", str(d / "u"), "--seed", str(SEED), "--logs", "3-3",
@@ -121,7 +121,7 @@ def scans(tmp_path_factory):
 
 
 def test_unposed_scan_files(scans):
-    from reconstruct.sfm import pair_has_pose
+    from reconstruct.scan.sfm import pair_has_pose
 
     u, p, _ = scans
     assert not (u / "scan" / "scan_pose.json").exists() and (p / "scan" / "scan_pose.json").exists()
@@ -168,7 +168,7 @@ def test_unposed_scan_reconstructs_like_the_posed_one(scans):
 
 
 def test_a_pair_that_overlaps_nothing_is_named(scans, tmp_path):
-    from reconstruct.twin_scan import make_twin_scan
+    from reconstruct.scan.twin_scan import make_twin_scan
 
     u, _, _ = scans
     bad = tmp_path / "bad"
@@ -190,7 +190,7 @@ def test_a_pair_that_overlaps_nothing_is_named(scans, tmp_path):
 def test_pairs_tied_only_among_themselves_are_an_error():
     from types import SimpleNamespace
 
-    from reconstruct.sfm import _check_linked
+    from reconstruct.scan.sfm import _check_linked
 
     pairs = [SimpleNamespace(folder=Path(f"scan/pair_00{k}")) for k in range(4)]
     labels = [p.folder.name for p in pairs]

@@ -122,7 +122,7 @@ class SurveyEnd:
     position_m: np.ndarray  # (3,) in the frame in use [m]
     sigma_h_m: float  # 1 sigma per horizontal axis [m] (the receiver's radial accuracy / sqrt 2)
     sigma_v_m: float  # 1 sigma vertical [m]
-    fix: str  # reconstruct.gnss.FIXES
+    fix: str  # reconstruct.survey.gnss.FIXES
 
     @property
     def label(self) -> str:
@@ -144,7 +144,7 @@ class SurveyEnd:
 
 
 def point_accuracy(p: Any) -> tuple[float, float]:
-    """(horizontal radial, vertical) 1-sigma accuracy [m] of a :class:`reconstruct.gnss.GnssPoint`:
+    """(horizontal radial, vertical) 1-sigma accuracy [m] of a :class:`reconstruct.survey.gnss.GnssPoint`:
     the receiver's estimates, at least the scatter of its averaged epochs; typical values of its fix
     when it reports none (:data:`TYPICAL_ACCURACY_M`)."""
     th, tv = TYPICAL_ACCURACY_M.get(p.fix, TYPICAL_ACCURACY_M["none"])
@@ -388,10 +388,10 @@ def _scan_log_from_run(P: np.ndarray, c: np.ndarray, u: np.ndarray, t0: float, t
 
 def _profile_radius(s: np.ndarray, dz: np.ndarray) -> float | None:
     """Radius [m] of the log whose cross-section (``s`` across [m], ``dz`` height below the ridge's top
-    line [m]) the scan shows: :func:`reconstruct.fit._profile_circle`'s search for the upper
+    line [m]) the scan shows: :func:`reconstruct.fitting.fit._profile_circle`'s search for the upper
     half-circle that best explains the visible profile, its centre within 15 cm of one 10 cm under the
     top. ``None`` when the profile explains no circle."""
-    from reconstruct.fit import FitConfig, _profile_circle
+    from reconstruct.fitting.fit import FitConfig, _profile_circle
 
     if len(s) < 30:
         return None

@@ -1,0 +1,1 @@
+"""The survey stage: RTK GNSS log-end points with their reported accuracies (:mod:`.gnss`)."""
