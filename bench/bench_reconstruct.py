@@ -16,7 +16,7 @@ area above 8 cm (orthographic instance render of the truth, 2 cm pixels) that is
 logs and that the scan covers. Detection is counted over all obstacles and over those with at
 least 0.01 m^2 so seen.
 
-The real test (:mod:`field.real_test`): twin scans with 3-6 logs and 0-2 obstacles (seeds
+The real test (:mod:`experiments.real_test`): twin scans with 3-6 logs and 0-2 obstacles (seeds
 700000+), reconstructed; the shipped planner (or ``--model``) plans on the reconstruction's
 re-render and on the truth's render; both grasps are executed on the TRUE pile. Run alone:
 ``.venv/bin/python bench/bench_reconstruct.py --real-only --real-piles 24 --model PATH``.
@@ -168,11 +168,11 @@ def obstacle_piles(seeds=range(103, 109), n_obstacles: int = 3, clean_seeds=(110
 
 
 def real_test(cfg, out: Path | None = None, work_dir: Path | None = None) -> dict:
-    """The real test (:func:`field.real_test.run_real_test` with ``cfg``, a
-    :class:`field.real_test.RealTestConfig`); the record is kept in ``out`` when given (written
+    """The real test (:func:`experiments.real_test.run_real_test` with ``cfg``, a
+    :class:`experiments.real_test.RealTestConfig`); the record is kept in ``out`` when given (written
     after every pile; a run of the same test and model there is resumed); scans and reconstructions
     kept in ``work_dir`` when given (reused by later runs)."""
-    from field.real_test import run_real_test
+    from experiments.real_test import run_real_test
 
     return run_real_test(cfg, record_path=out,
                          work_dir=work_dir, progress=lambda s: print(s, file=sys.stderr, flush=True))
@@ -303,9 +303,9 @@ def single_pair_speed(repeats: int = 3, workdir: Path | None = None) -> dict:
 
 def markdown(n_piles: int = 3, repeats: int = 3, real_cfg=None, real_out: Path | None = None,
              work_dir: Path | None = None, real_piles: int = 24) -> str:
-    """The section; the real test runs with ``real_cfg`` (a :class:`field.real_test.RealTestConfig`),
+    """The section; the real test runs with ``real_cfg`` (a :class:`experiments.real_test.RealTestConfig`),
     or when it is None on ``real_piles`` scans with the defaults (0: skipped)."""
-    from field.real_test import RealTestConfig
+    from experiments.real_test import RealTestConfig
 
     if real_cfg is None and real_piles > 0:
         real_cfg = RealTestConfig(n_piles=real_piles, workers=2)
@@ -645,7 +645,7 @@ if __name__ == "__main__":
         log_direction = parse_log_direction(args.log_direction)
     except ValueError as exc:
         raise SystemExit(str(exc)) from None
-    from field.real_test import RealTestConfig
+    from experiments.real_test import RealTestConfig
 
     real_cfg = None if args.real_piles <= 0 else RealTestConfig(
         n_piles=args.real_piles, model=args.model, workers=args.workers, views=args.views,

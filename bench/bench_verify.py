@@ -1,7 +1,7 @@
 """The real test with verified planning (issue 17): reconstruct, plan on the reconstruction, let the
 twin verify the best grasps on the reconstruction, execute the chosen one on the TRUE pile.
 
-For each twin scan (:func:`field.real_test.prepare_case`: seeds ``--seed`` + k, kept in and reused
+For each twin scan (:func:`experiments.real_test.prepare_case`: seeds ``--seed`` + k, kept in and reused
 from ``--work-dir``) and objective, side by side on the same pile:
 
 * ``truth-planned``: the network alone on the truth's render (the real test's reference);
@@ -70,7 +70,7 @@ class CachedTwin:
 
 def pile_rows(case, net, objectives, ks, copies) -> list[dict]:
     """Every variant on one prepared case (see the module docstring): one row per objective."""
-    from field.real_test import execute_on_truth
+    from experiments.real_test import execute_on_truth
     from planner.errors import PlannerError
     from planner.inference import Objective, plan
     from planner.verify import PerturbationConfig, Verifier, VerifyConfig, perturbation_for_fits
@@ -167,7 +167,7 @@ def _init(model: str) -> None:
 
 def one_pile(seed: int, work_dir: str, logs, obstacles, objectives, ks, copies) -> list[dict]:
     """Every variant on twin scan ``seed`` (made or reused in ``work_dir``); a failure is a row saying so."""
-    from field.real_test import RealTestConfig, prepare_case
+    from experiments.real_test import RealTestConfig, prepare_case
 
     net = _NET["net"]
     try:
@@ -235,7 +235,7 @@ def run(args) -> dict:
 # -- summary ------------------------------------------------------------------------------------
 def paired(a: np.ndarray, b: np.ndarray) -> tuple[float, float, float]:
     """Difference of success rates b - a [pp] on the same piles, and its 95 % interval (standard
-    error from the discordant piles, each count plus one half, as field.real_test.summarize)."""
+    error from the discordant piles, each count plus one half, as experiments.real_test.summarize)."""
     n = len(a)
     lo_b = float(((a == 1) & (b == 0)).sum()) + 0.5
     hi_c = float(((a == 0) & (b == 1)).sum()) + 0.5
@@ -370,7 +370,7 @@ def timing(args) -> list[dict]:
     kept between piles, its workers started before the first), f3, no time budget."""
     import torch
 
-    from field.real_test import RealTestConfig, prepare_case
+    from experiments.real_test import RealTestConfig, prepare_case
     from planner.checkpoint import DEFAULT_MODEL
     from planner.inference import Objective, load_planner, plan
     from planner.verify import Verifier, VerifyConfig

@@ -7,7 +7,7 @@ things that are not reconstruction errors?
 * frame: the reconstruction is rendered in the site frame, turned against the truth's pile frame,
   and the U-Net is not exactly rotation-equivariant.
 
-Each truth pile of the real test (same seeds and pile sizes as :mod:`field.real_test`) is planned
+Each truth pile of the real test (same seeds and pile sizes as :mod:`experiments.real_test`) is planned
 with its own colours ("own"), with the reconstruction's default colours ("plain") and turned a
 quarter turn ("turned"; the grasp turned back), and every grasp is executed on the truth. Run:
 
@@ -33,7 +33,7 @@ import numpy as np
 
 
 def main() -> None:
-    from field.real_test import RealTestConfig, execute_on_truth
+    from experiments.real_test import RealTestConfig, execute_on_truth
     from planner.checkpoint import DEFAULT_MODEL
     from planner.inference import Objective, load_planner, plan
     from synth.scene.generate import GenerationConfig, generate_pile

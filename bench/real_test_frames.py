@@ -56,7 +56,7 @@ def turned(pile, direction_deg: float):
 
 
 def _pile(seed: int, work_dir: str, objectives: tuple[str, ...], direction_deg: float) -> list[dict]:
-    from field.real_test import execute_on_truth, render_truth, grasp_to_truth_frame
+    from experiments.real_test import execute_on_truth, render_truth, grasp_to_truth_frame
     from planner.inference import Objective, plan
     from reconstruct.compare import compare_piles
     from synth.scene.pile import read_pile
@@ -88,7 +88,7 @@ def _pile(seed: int, work_dir: str, objectives: tuple[str, ...], direction_deg: 
 
 
 def main() -> None:
-    from field.real_test import RealTestConfig, model_path, summarize
+    from experiments.real_test import RealTestConfig, model_path, summarize
     from synth.common.files import atomic_write_bytes
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])

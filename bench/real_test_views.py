@@ -11,7 +11,7 @@ the more the winner is one whose U was over-estimated (a winner's curse). Averag
 views lowers the noise; lowering U by its spread over the views prefers grasps the views agree on.
 
 Scans and reconstructions come from a real-test work folder (``bench_reconstruct.py --work-dir``;
-:func:`field.real_test.real_test_pile` reuses them), so a variant costs only planning and trials.
+:func:`experiments.real_test.real_test_pile` reuses them), so a variant costs only planning and trials.
 Run (2 cores, 2 workers: 178 piles of 5–6 logs took 65 min for f1 and f3 with 8 views, on a loaded CPU):
 
     .venv/bin/python bench/bench_reconstruct.py --real-only --real-piles 500 --work-dir runs/rt-work
@@ -64,7 +64,7 @@ def init_worker(model: str, views: int, k: float) -> None:
 
 
 def _pile(seed: int, work_dir: str, cfg) -> list[dict]:
-    from field.real_test import real_test_pile
+    from experiments.real_test import real_test_pile
 
     return real_test_pile(seed, work_dir, WORKER["planner"], cfg)
 
@@ -105,7 +105,7 @@ def moved(pile, T_new_old: np.ndarray):
 
 def _decompose_pile(seed: int, work_dir: str) -> dict | None:
     """f3 planned on the truth, on hybrids and on the reconstruction; all executed on the truth."""
-    from field.real_test import execute_on_truth, render_truth, grasp_to_truth_frame
+    from experiments.real_test import execute_on_truth, render_truth, grasp_to_truth_frame
     from planner.inference import Objective, plan
     from reconstruct.compare import T_truth_recon, compare_piles
     from synth.scene.pile import LogSpec, read_pile
@@ -156,7 +156,7 @@ def run(work_dir: Path, seeds: list[int], views: int, k: float, objectives: tupl
         decompose: bool = False, save=None, log_direction_deg: float | None = 45.0) -> list[dict]:
     """Rows of every pile; ``save(rows)`` is called after each pile (an interrupted run keeps them).
     ``log_direction_deg``: the reconstructions' pile frame (kept ones made otherwise are made again)."""
-    from field.real_test import RealTestConfig, model_path
+    from experiments.real_test import RealTestConfig, model_path
 
     cfg = RealTestConfig(objectives=objectives, views=views, view_spread_k=k, log_direction_deg=log_direction_deg)
     rows: list[dict] = []
@@ -177,7 +177,7 @@ def run(work_dir: Path, seeds: list[int], views: int, k: float, objectives: tupl
 
 
 def markdown(rec: dict) -> list[str]:
-    from field.real_test import summarize
+    from experiments.real_test import summarize
 
     lines = []
     if rec.get("decompose"):

@@ -7,7 +7,7 @@ Usage (a few minutes on one core):
         --out docs/results/case-studies
 
 Writes ranking.png, obstacle.png, packed.png, logs.png, results.json and README.md under --out.
-All logic is in :mod:`planner.case_studies`.
+All logic is in :mod:`experiments.case_studies`.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def main(argv: list[str] | None = None) -> int:
-    from planner.case_studies import FIGURES, CaseStudyConfig, model_record, run_case_studies
+    from experiments.case_studies import FIGURES, CaseStudyConfig, model_record, run_case_studies
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--model", type=Path, default=ROOT / "planner" / "weights" / "default.safetensors",

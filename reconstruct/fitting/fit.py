@@ -84,7 +84,7 @@ ENDPOINT_REFS = ("end_centre", "top_surface")
 AXIS_SOURCES = ("fit", "gnss")
 
 #: Revision of the fitting: raised whenever a change here makes different piles from the same
-#: scan, so that kept reconstructions (``field.real_test``) are made again. 2: the terrain under a
+#: scan, so that kept reconstructions (``experiments.real_test``) are made again. 2: the terrain under a
 #: log is held under its round underside between the grid samples too (:func:`_clamp_under_logs`).
 #: 3: obstacle points over a log's footprint above its underside are the log's; a refit that
 #: strays keeps the first fit; logs hidden under others are placed from their survey. 4: a log

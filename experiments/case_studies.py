@@ -569,7 +569,7 @@ def readme_markdown(results: dict) -> str:
     """The case studies' README: command, seeds, model, figures and a table of outcomes."""
     cfg, model, recs = results["config"], results["model"], results["records"]
     lines = ["# Case studies (the paper's \"Results\" figures) in the twin", "",
-             "Written by `scripts/case_studies.py` (library: `planner/case_studies.py`); re-run it after the model "
+             "Written by `scripts/case_studies.py` (library: `experiments/case_studies.py`); re-run it after the model "
              "changes, the pictures, `results.json` and this file are rewritten.", "",
              f"- Command: `{results['command']}`" if results.get("command") else "- Command: (library call)",
              f"- Model: `{model.get('path', '?')}`, sha256 `{model.get('sha256', '?')}`"

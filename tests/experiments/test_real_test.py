@@ -1,4 +1,4 @@
-"""field.real_test: grasps across pile frames, the summary's arithmetic, the record, and one real
+"""experiments.real_test: grasps across pile frames, the summary's arithmetic, the record, and one real
 twin scan end to end (scan, reconstruction, two plans, two trials on the truth)."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from field.errors import FieldError
-from field.real_test import (REAL_TEST_FORMAT, RealTestConfig, grasp_to_truth_frame, read_real_test, real_test_pile,
+from experiments.real_test import (REAL_TEST_FORMAT, RealTestConfig, grasp_to_truth_frame, read_real_test, real_test_pile,
                              run_real_test, summarize, write_real_test)
 from planner.model import UNetConfig
 from synth.geometry.frames import make_T, rot_z
@@ -141,7 +141,7 @@ def test_one_twin_scan_end_to_end(tmp_path, monkeypatch):
         real_test_pile(700000, tmp_path / "work", SimpleNamespace(config=UNetConfig()),
                        RealTestConfig(logs=(3, 3), obstacles=(0, 0), log_direction_deg=None))
     # a later fitting revision makes kept reconstructions again, and does not resume older records
-    import field.real_test as rt
+    import experiments.real_test as rt
 
     monkeypatch.setattr(rt, "FIT_REVISION", rt.FIT_REVISION + 1)
     with pytest.raises(AssertionError, match="reconstructed again"):

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from planner.case_studies import (
+from experiments.case_studies import (
     CaseStudyConfig, CaseStudyError, place_obstacle_near, read_results, run_case_studies, spread_logs,
 )
 from planner.inference import Planner

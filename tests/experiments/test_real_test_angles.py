@@ -5,7 +5,7 @@ import math
 
 import pytest
 
-from field.real_test import _angle_diff_deg
+from experiments.real_test import _angle_diff_deg
 
 
 @pytest.mark.parametrize("a_deg,b_deg,want_deg", [
