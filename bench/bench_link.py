@@ -43,4 +43,8 @@ def markdown(n: int = 500) -> str:
 
 
 if __name__ == "__main__":
-    print(markdown(int(sys.argv[1]) if len(sys.argv) > 1 else 500))
+    import argparse
+
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("commands", nargs="?", type=int, default=500, help="commands per backend and mode (default 500)")
+    print(markdown(ap.parse_args().commands))
