@@ -513,13 +513,26 @@ def _stats(v: list[float], low: bool = False) -> dict:
     return d
 
 
+def _seed_ranges(rec: dict) -> str:
+    """The recorded scans' seeds as ranges, e.g. ``1100000..1100129, 1100131``: a run stopped and
+    resumed out of order leaves gaps that ``first..first + n - 1`` would hide."""
+    seeds = sorted(int(r["seed"]) for r in rec["scans"])
+    runs: list[list[int]] = []
+    for x in seeds:
+        if runs and x == runs[-1][1] + 1:
+            runs[-1][1] = x
+        else:
+            runs.append([x, x])
+    return ", ".join(f"{a}..{b}" if b > a else f"{a}" for a, b in runs) or "-"
+
+
 def survey_markdown(rec: dict, figure: Path | None = None) -> list[str]:
     s = survey_summary(rec)
     n = len(rec["scans"])
     loads = [r["load"] for r in rec["scans"]]
     lines = [
         "#### Reconstruction under three survey conditions (the same scans)",
-        f"{n} fresh twin scans (`loggrasp synth scan` piles, seeds {rec['key']['seed0']}..{rec['key']['seed0'] + n - 1}, "
+        f"{n} fresh twin scans (`loggrasp synth scan` piles, seeds {_seed_ranges(rec)}, "
         f"{rec['key']['logs'][0]}-{rec['key']['logs'][1]} logs, {rec['key']['obstacles'][0]}-{rec['key']['obstacles'][1]} "
         "obstacles, 2x2 pairs at 3 m), each reconstructed with three surveys of its pile "
         f"(fitting revision {rec['key']['fit_revision']}). Per log: worst end error (the farther of its two ends "
