@@ -71,6 +71,7 @@ from reconstruct.scan.sfm import SfmConfig
 from reconstruct.scan.stereo import ScanCloud, StereoConfig, scan_cloud
 from synth.geometry.frames import apply_T, invert_T, make_T, rot_z
 from synth.common.files import atomic_write_bytes
+from synth.common.formats import VersionedJson
 from synth.scene.pile import Georeference, PileSpec, write_pile
 
 if TYPE_CHECKING:
@@ -81,6 +82,11 @@ SCAN_POSE_VERSION = "1.0"
 REPORT_FORMAT = "loggrasp.reconstruction-report"
 REPORT_VERSION = "1.2"  # 1.1: per-log "fit" (scan, partial, hidden); 1.2: per-end "ends" (source, sigma), "fusion",
 #                       "weak_ends", "contradicted_points"
+SCAN_POSE = VersionedJson(SCAN_POSE_FORMAT, SCAN_POSE_VERSION, "scan pose", RegistrationError,
+                          unreadable_fix="give the scan's scan_pose.json, or --georegister gnss",
+                          filename="scan_pose.json")
+REPORT = VersionedJson(REPORT_FORMAT, REPORT_VERSION, "reconstruction report", ReconstructError,
+                       unreadable_fix="reconstruct the scan again", filename="report.json")
 PAIR_POSES = ("auto", "calibration", "sfm")
 GEOREGISTER = ("auto", "scan-pose", "gnss")
 RENDER_PX_MULTIPLE = 16  # re-render sides are a multiple of this (a depth-4 U-Net pools 4 times) [px]
@@ -110,31 +116,13 @@ class ScanPose:
 
 def write_scan_pose(pose: ScanPose, path: str | Path) -> Path:
     """Write ``scan_pose.json`` (a folder: inside it) atomically. Returns the path."""
-    path = Path(path)
-    if path.is_dir():
-        path = path / "scan_pose.json"
-    d = {"format": SCAN_POSE_FORMAT, "format_version": SCAN_POSE_VERSION, **asdict(pose)}
-    d["T_site_scan"] = [list(r) for r in pose.T_site_scan]
-    atomic_write_bytes(path, json.dumps(d, indent=1).encode())
-    return path
+    return SCAN_POSE.write(path, {**asdict(pose), "T_site_scan": [list(r) for r in pose.T_site_scan]})
 
 
 def read_scan_pose(path: str | Path) -> ScanPose:
     """Read ``scan_pose.json`` (or a folder holding one). Raises :class:`RegistrationError`."""
-    path = Path(path)
-    if path.is_dir():
-        path = path / "scan_pose.json"
-    try:
-        d = json.loads(path.read_text())
-    except OSError as exc:
-        raise RegistrationError(f"cannot read scan pose {path}: {exc.strerror or exc}") from exc
-    except json.JSONDecodeError as exc:
-        raise RegistrationError(f"{path} is not valid JSON: {exc}") from exc
-    if not isinstance(d, dict) or d.get("format") != SCAN_POSE_FORMAT:
-        raise RegistrationError(f"{path} is not a loggrasp scan pose (format {SCAN_POSE_FORMAT})")
-    if str(d.get("format_version", "")).split(".")[0] != SCAN_POSE_VERSION.split(".")[0]:
-        raise RegistrationError(f"{path}: scan pose version {d.get('format_version')!r} is not supported "
-                                f"(reads {SCAN_POSE_VERSION.split('.')[0]}.x)")
+    path = SCAN_POSE.path(path)
+    d = SCAN_POSE.read(path)
     try:
         return ScanPose(float(d["origin_lat_deg"]), float(d["origin_lon_deg"]), float(d["origin_h_m"]),
                         tuple(tuple(float(v) for v in row) for row in d["T_site_scan"]))
@@ -1123,16 +1111,7 @@ def contradicted_points(logs: list) -> list[str]:
 
 def read_report(path: str | Path) -> dict:
     """Read a ``report.json`` written by :func:`reconstruct` (the version is checked)."""
-    path = Path(path)
-    if path.is_dir():
-        path = path / "report.json"
-    try:
-        d = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise ReconstructError(f"cannot read reconstruction report {path}: {exc}") from exc
-    if d.get("format") != REPORT_FORMAT or str(d.get("format_version", "")).split(".")[0] != REPORT_VERSION.split(".")[0]:
-        raise ReconstructError(f"{path} is not a {REPORT_FORMAT} {REPORT_VERSION.split('.')[0]}.x report")
-    return d
+    return REPORT.read(path)
 
 
 def _json_default(o: Any) -> Any:

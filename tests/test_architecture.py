@@ -179,7 +179,6 @@ def test_private_import_checker_sees_violations(tmp_path):
 HAND_VERSION_READS = {
     "synth/common/formats.py": "the one reader",
     "synth/data/dataset.py": "a minor-version detail: 1.0 shards are re-encoded on load",
-    "reconstruct/pipeline.py": "read_scan_pose, read_report: to move to VersionedJson once the recon branch is merged",
 }
 
 

@@ -91,6 +91,9 @@ def test_scan_pose_round_trip(tmp_path):
     (tmp_path / "scan_pose.json").write_text(json.dumps(d))
     with pytest.raises(RegistrationError, match="not supported"):
         read_scan_pose(tmp_path)
+    (tmp_path / "scan_pose.json").write_text('{"format": "loggrasp.scan-pose", "format_')  # truncated
+    with pytest.raises(RegistrationError, match="scan pose .* is not valid JSON.*--georegister gnss"):
+        read_scan_pose(tmp_path)
     with pytest.raises(ValueError):
         ScanPose(164.1, 20.0, 250.0, pose.T_site_scan)
 
