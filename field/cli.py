@@ -18,7 +18,7 @@ from typing import Callable, Literal
 import typer
 
 from field.controller import ReachEnvelope
-from field.demo import DEMO_DATA, crane_config, default_crane_base
+from field.demo import CRANE_OFFSET_SOUTH_M, DEMO_DATA, crane_config, default_crane_base
 from field.trial import TrialOptions
 from planner.cli import MODEL, OBJECTIVE_HELP, VIEW_SPREAD, VIEWS, eval_command, plan_command, train_command
 from reconstruct.cli import compare_command, gnss_crs_warning, reconstruct_command, scan_command
@@ -157,8 +157,9 @@ def twin_url(url: str, base_tm, max_reach_m: float, max_pile_age_s: float) -> st
 
 
 def base_from_survey(gnss: Path) -> tuple[float, float, float]:
-    """A crane base 5 m south (site frame) of the surveyed log ends' centre, at about ground
-    height: the twin crane's default position, known before the reconstruction."""
+    """A crane base :data:`field.demo.CRANE_OFFSET_SOUTH_M` south (site frame) of the surveyed log
+    ends' centre, at about ground height: the twin crane's default position, known before the
+    reconstruction."""
     import numpy as np
 
     from reconstruct.survey.gnss import read_gnss
@@ -168,7 +169,7 @@ def base_from_survey(gnss: Path) -> tuple[float, float, float]:
     origin = survey.default_origin()
     ends = np.array([p for a_b in survey.endpoints_site(origin).values() for p in a_b], dtype=float)
     c = ends.mean(axis=0)
-    point = np.array([c[0], c[1] - 5.0, float(ends[:, 2].min()) - 0.3])
+    point = np.array([c[0], c[1] - CRANE_OFFSET_SOUTH_M, float(ends[:, 2].min()) - 0.3])
     e, n, h = site_to_tm(origin, point)
     return float(np.ravel(e)[0]), float(np.ravel(n)[0]), float(np.ravel(h)[0])
 
@@ -645,8 +646,6 @@ def _resend(o: Output, rec: dict, link: str, parsed, now: float) -> dict:
 
 
 # -- demo -----------------------------------------------------------------------------------------
-
-
 @app.command("demo")
 def demo(
     out: Path = option("--out", "Output folder (trial record, pictures); its trial/ is replaced.",

@@ -46,6 +46,7 @@ Run as its own process with :func:`run_controller` (a CLI calls it).
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import json
 import logging
@@ -56,7 +57,7 @@ import threading
 import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable, Protocol, runtime_checkable
+from typing import Any, Callable, Iterator, Protocol, runtime_checkable
 
 from field.errors import ControllerError, ProtocolError
 from field.link.messages import (
@@ -931,6 +932,38 @@ def run_controller(
         controller.close()
         transport.close()
     return controller.status()
+
+
+@contextlib.contextmanager
+def controller_in_thread(link_url: str, executor: GraspExecutor | Callable[[GraspCommand], Outcome] | str = "fixed",
+                         config: ControllerConfig | None = None,
+                         start_timeout_s: float = 30.0) -> Iterator[None]:
+    """:func:`run_controller` on a thread of this process for the ``with`` block (a twin crane beside
+    the laptop: the demo, benchmarks, tests); :class:`LinkError` when it cannot serve (with the cause)
+    or is not serving within ``start_timeout_s``."""
+    from field.errors import LinkError
+
+    stop, ready = threading.Event(), threading.Event()
+    failure: list[BaseException] = []
+
+    def serve() -> None:
+        try:
+            run_controller(link_url, executor, stop, config, ready_event=ready)
+        except BaseException as exc:  # raised in the caller's thread below
+            failure.append(exc)
+            ready.set()
+
+    thread = threading.Thread(target=serve, daemon=True, name="crane-controller")
+    thread.start()
+    try:
+        if not ready.wait(start_timeout_s) or failure:
+            if failure:
+                raise LinkError(f"the crane controller twin could not serve {link_url}: {failure[0]}") from failure[0]
+            raise LinkError(f"the crane controller twin did not start on {link_url} within {start_timeout_s:g} s")
+        yield
+    finally:
+        stop.set()
+        thread.join(10)
 
 
 def default_journal_path(link_url: str) -> Path:

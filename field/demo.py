@@ -6,22 +6,19 @@ pile), then :func:`field.trial.run_trial_record` reconstructs the scan, plans, v
 twin on the reconstruction, sends the SWEREF 99 TM grasp and records everything. The CLI command
 only checks flags, prints and maps errors to exit codes.
 
-:func:`default_crane_base`, :func:`crane_config` and :func:`crane_twin_served` are the pieces
-``crane-sim``, the demo and the tests share.
+:func:`default_crane_base` and :func:`crane_config` are the pieces ``crane-sim``, the demo and
+the tests share; the crane twin is served by :func:`field.controller.controller_in_thread`.
 """
 
 from __future__ import annotations
 
 import shutil
-import threading
 import time
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from field.controller import ControllerConfig, ReachEnvelope
-from field.errors import LinkError
+from field.controller import ControllerConfig, ReachEnvelope, controller_in_thread
 from field.trial import TrialOptions
 
 #: The bundled recorded field scan: stereo pair, calibration, scan pose, RTK endpoint CSV and the
@@ -29,7 +26,6 @@ from field.trial import TrialOptions
 DEMO_DATA = Path(__file__).resolve().parent / "demo_data"
 
 CRANE_OFFSET_SOUTH_M = 5.0  # the twin crane's default base: this far south of the pile centre [m]
-CRANE_START_TIMEOUT_S = 30.0  # a crane twin that is not serving by then is an error [s]
 #: the bundled scan is old: its staleness limit is set this far past its age [s]
 DEMO_AGE_MARGIN_S = 3600.0
 
@@ -54,40 +50,12 @@ def crane_config(base_tm, max_reach_m: float, max_pile_age_s: float, journal: st
                             max_pile_age_s=max_pile_age_s, journal_path=journal)
 
 
-@contextmanager
-def crane_twin_served(link_url: str, executor, config: ControllerConfig,
-                      start_timeout_s: float = CRANE_START_TIMEOUT_S) -> Iterator[None]:
-    """Serve a crane controller twin on ``link_url`` in a thread of this process for the ``with``
-    block; :class:`LinkError` when it cannot serve (with the cause) or does not start in time."""
-    from field.controller import run_controller
-
-    stop, ready = threading.Event(), threading.Event()
-    failure: list[BaseException] = []
-
-    def crane() -> None:
-        try:
-            run_controller(link_url, executor, stop, config, ready_event=ready)
-        except BaseException as exc:  # raised in the caller's thread below
-            failure.append(exc)
-            ready.set()
-
-    thread = threading.Thread(target=crane, daemon=True, name="crane-twin")
-    thread.start()
-    try:
-        if not ready.wait(start_timeout_s) or failure:
-            if failure:
-                raise LinkError(f"the crane controller twin could not serve {link_url}: {failure[0]}") from failure[0]
-            raise LinkError(f"the crane controller twin did not start on {link_url} within {start_timeout_s:g} s")
-        yield
-    finally:
-        stop.set()
-        thread.join(10)
-
-
 @dataclass(frozen=True)
 class DemoSetup:
     """What the demo runs with, decided before anything is sent."""
 
+    data: Path  # the recorded scan, survey and true pile (:data:`DEMO_DATA`)
+    truth: object  # the true pile (synth.scene.pile.PileSpec) the crane twin executes on
     record_dir: Path  # the trial record (replaced)
     link_url: str  # the link, with the SecOC key
     key_path: Path  # the link's pre-shared key (made once)
@@ -118,8 +86,8 @@ def prepare_demo(out_dir: str | Path, link_url: str, data: Path = DEMO_DATA) -> 
     notes = [f"bundled scan recorded {age / 86400:.1f} days ago: staleness limit raised to {max_age:.0f} s "
              "for the demo",
              f"authenticated frames on (SecOC-style MACs, key {key}); crane journal {journal}"]
-    base = default_crane_base(read_pile(data / "truth" / "pile.json"))
-    return DemoSetup(record, link, key, journal, base, age, max_age, notes)
+    truth = read_pile(data / "truth" / "pile.json")
+    return DemoSetup(data, truth, record, link, key, journal, default_crane_base(truth), age, max_age, notes)
 
 
 def demo_options(setup: DemoSetup, model: str | Path | None, verify: bool = True) -> TrialOptions:
@@ -132,16 +100,14 @@ def demo_options(setup: DemoSetup, model: str | Path | None, verify: bool = True
 
 
 def run_demo(setup: DemoSetup, options: TrialOptions, confirm: Callable | None = None,
-             progress: Callable[[str], None] | None = None, data: Path = DEMO_DATA) -> dict:
+             progress: Callable[[str], None] | None = None) -> dict:
     """The whole chain on the bundled scan, against a crane twin served here on the true pile;
     the trial record (also written to ``setup.record_dir``). A trial stopped before sending raises
     :class:`field.trial.TrialAborted` with its record written."""
     from field.executor import PybulletTrialExecutor
     from field.trial import run_trial_record
-    from synth.scene.pile import read_pile
 
-    truth = read_pile(data / "truth" / "pile.json")
     config = crane_config(setup.base_tm, options.max_reach_m, setup.max_pile_age_s, str(setup.journal_path))
-    with crane_twin_served(setup.link_url, PybulletTrialExecutor(truth), config):
-        return run_trial_record(data / "scan", data / "gnss.csv", setup.link_url, setup.record_dir, options,
-                                confirm=confirm, progress=progress)
+    with controller_in_thread(setup.link_url, PybulletTrialExecutor(setup.truth), config):
+        return run_trial_record(setup.data / "scan", setup.data / "gnss.csv", setup.link_url, setup.record_dir,
+                                options, confirm=confirm, progress=progress)

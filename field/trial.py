@@ -594,9 +594,9 @@ def run_trial_record(scan_dir: str | Path, gnss_path: str | Path, link_url: str,
     say = rec.in_final_words(say)
     try:
         rec.copy_inputs(scan_dir, gnss_path, say)
-        prepared = rec.prepare(options, say, now)
+        prepared = rec.prepare(say, now)
         rec.confirm(prepared, confirm)
-        outcome = rec.send(prepared, link_url, options, say)
+        outcome = rec.send(prepared, say)
         rec.finish(outcome)
         return rec.record
     except TrialAborted as exc:
@@ -619,6 +619,7 @@ class _TrialRecord:
 
     def __init__(self, record_dir: Path, tmp: Path, link_url: str, options: TrialOptions) -> None:
         self.record_dir, self.tmp, self.where = record_dir, tmp, tmp
+        self.options, self.link_url = options, link_url
         self.record: dict = {"format": RECORD_FORMAT, "format_version": RECORD_VERSION, "versions": _versions(),
                              "started_utc_s": time.time(), "link": link_url, "options": asdict(options),
                              "final_state": "PREPARING"}
@@ -649,20 +650,21 @@ class _TrialRecord:
         say("copying the inputs into the record")
         shutil.copytree(scan_dir, inputs / "scan")
         shutil.copy2(gnss_path, inputs / "gnss.csv")
-        model = Path(self.record["options"]["model"] or DEFAULT_MODEL)
+        model = Path(self.options.model or DEFAULT_MODEL)
         self.record["inputs"] = {"scan": str(scan_dir), "gnss": str(gnss_path),
                                  "hashes": {str(p.relative_to(inputs)): sha256_of(p)
                                             for p in sorted(inputs.rglob("*")) if p.is_file()}}
         self.record["model"] = {"path": str(model), "sha256": sha256_of(model) if model.exists() else None}
 
-    def prepare(self, options: TrialOptions, say: Callable[[str], None], now: float | None) -> PreparedTrial:
+    def prepare(self, say: Callable[[str], None], now: float | None) -> PreparedTrial:
         """:func:`prepare_trial` on the copied inputs; its plan, verification and command recorded
         and the record published. A trial stopped here is recorded NOT SENT (then re-raised)."""
         from synth.common.files import json_safe
 
         inputs = self.tmp / "inputs"
         try:
-            prepared = prepare_trial(inputs / "scan", inputs / "gnss.csv", self.tmp, options, progress=say, now=now)
+            prepared = prepare_trial(inputs / "scan", inputs / "gnss.csv", self.tmp, self.options, progress=say,
+                                     now=now)
         except TrialAborted as exc:
             if exc.verification is not None:  # every trial the twin ran, and the plan they were of
                 self.record["verification"] = json_safe(exc.verification.to_dict())
@@ -696,14 +698,13 @@ class _TrialRecord:
                        finished_utc_s=time.time())
             raise TrialAborted("the operator declined: nothing was sent", kind="declined")
 
-    def send(self, prepared: PreparedTrial, link_url: str, options: TrialOptions,
-             say: Callable[[str], None]) -> TrialOutcome:
+    def send(self, prepared: PreparedTrial, say: Callable[[str], None]) -> TrialOutcome:
         traffic = None
-        if link_url.startswith("can"):
+        if self.link_url.startswith("can"):
             (self.record_dir / "link").mkdir(exist_ok=True)
             traffic = self.record_dir / "link" / "traffic.blf"
         self.write(final_state="SENDING", confirmed_utc_s=time.time())
-        return execute_trial(prepared, link_url, options, record_traffic=traffic, say=say)
+        return execute_trial(prepared, self.link_url, self.options, record_traffic=traffic, say=say)
 
     def finish(self, outcome: TrialOutcome) -> None:
         changes = {"command_id": outcome.command_id, "accepted": outcome.accepted,

@@ -158,20 +158,11 @@ def _local_controller(backend: str, delay_s: float, secoc_key: str | None) -> It
         yield _keyed(f"twin://?delay_ms={delay_s * 1000:g}", secoc_key)
         return
     if backend == "can-virtual":
-        from field.controller import FixedOutcomeExecutor, run_controller
+        from field.controller import FixedOutcomeExecutor, controller_in_thread
 
         url = _keyed(f"can://virtual/lat-{uuid.uuid4().hex[:8]}", secoc_key)
-        stop, ready = threading.Event(), threading.Event()
-        th = threading.Thread(target=run_controller, args=(url, FixedOutcomeExecutor(delay_s=delay_s), stop),
-                              kwargs={"ready_event": ready}, daemon=True)
-        th.start()
-        try:
-            if not ready.wait(10):
-                raise LinkError("in-process controller did not start")
+        with controller_in_thread(url, FixedOutcomeExecutor(delay_s=delay_s), start_timeout_s=10.0):
             yield url
-        finally:
-            stop.set()
-            th.join(10)
         return
     if backend == "can-remote":
         port, channel = _free_port(), f"lat-{uuid.uuid4().hex[:8]}"

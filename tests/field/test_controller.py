@@ -240,3 +240,29 @@ def test_run_controller_serves_until_stopped(make_cmd):
     assert not th.is_alive()
     assert result[0].last_outcome.command_id == cmd.command_id
 
+
+
+def test_a_controller_in_a_thread_that_cannot_serve_is_a_link_error_with_its_cause():
+    from field.controller import controller_in_thread
+    from field.errors import LinkError
+
+    with pytest.raises(LinkError, match="could not serve can://virtual/ctl-bad: unknown executor 'warp'") as e:
+        with controller_in_thread("can://virtual/ctl-bad", "warp", ControllerConfig(), start_timeout_s=5.0):
+            pass
+    assert e.value.__cause__ is not None
+
+
+def test_a_controller_in_a_thread_serves_for_the_block_and_stops_after(make_cmd):
+    import uuid
+
+    from field.controller import controller_in_thread
+    from field.errors import LinkError
+    from field.link import open_link
+    from field.link.base import LinkConfig
+
+    url = f"can://virtual/ctl-{uuid.uuid4().hex[:8]}"
+    with controller_in_thread(url, "fixed", ControllerConfig(), start_timeout_s=10.0):
+        with open_link(url) as link:
+            assert link.send_grasp(make_cmd(link.new_command_id())).accepted
+    with pytest.raises(LinkError):  # nobody serves the channel after the block
+        open_link(url, LinkConfig(connect_timeout_s=0.3)).close()

@@ -5,14 +5,13 @@ And the safety gates: nothing is sent on stale data, float fixes, out-of-reach p
 from __future__ import annotations
 
 import json
-import threading
 import time
 import uuid
 
 import pytest
 
+from field.controller import controller_in_thread
 from field.demo import DEMO_DATA, crane_config, default_crane_base
-from field.controller import run_controller
 from field.executor import PybulletTrialExecutor
 from field.trial import TrialAborted, TrialOptions, execute_trial, prepare_trial, replay_record, run_trial_record
 from synth.scene.pile import read_pile
@@ -35,18 +34,14 @@ class Crane:
             self.calls += 1
             return inner(cmd)
 
-        self.stop, self.ready = threading.Event(), threading.Event()
-        self.thread = threading.Thread(target=run_controller, args=(url, counted, self.stop, crane_config(BASE, 10.0, AGE)),
-                                       kwargs={"ready_event": self.ready}, daemon=True)
+        self._served = controller_in_thread(url, counted, crane_config(BASE, 10.0, AGE), start_timeout_s=20.0)
 
     def __enter__(self) -> "Crane":
-        self.thread.start()
-        assert self.ready.wait(20), "controller twin did not start"
+        self._served.__enter__()
         return self
 
     def __exit__(self, *exc) -> None:
-        self.stop.set()
-        self.thread.join(10)
+        self._served.__exit__(*exc)
 
 
 def options(**kw) -> TrialOptions:
