@@ -20,16 +20,10 @@ import statistics
 import time
 from pathlib import Path
 
+from experiments.measure import load_average
 from planner.checkpoint import DEFAULT_MODEL
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def _load() -> str:
-    try:
-        return "load average " + " ".join(Path("/proc/loadavg").read_text().split()[:3])
-    except OSError:
-        return "load average ?"
 
 
 def training_throughput(batch: int = 16, steps: int = 3, size: int = 128) -> list[dict]:
@@ -133,10 +127,8 @@ def views_latency(n_logs=(4, 7), views=(1, 4, 8), repeats: int = 3) -> list[dict
 
 def views_markdown(rows: list[dict]) -> list[str]:
     lines = [f"Planning with averaged test-time views (`--views V --view-spread 2`), shipped model, f3, all subsets, "
-             f"2 threads, median of 3 ({_load()}):", "", "| views | logs | wall s |", "|---|---|---|"]
+             f"2 threads, median of 3 ({load_average()}):", "", "| views | logs | wall s |", "|---|---|---|"]
     return lines + [f"| {r['views']} | {r['logs']} | {r['wall_s']:.2f} |" for r in rows]
-
-
 
 
 class _SharedOutputs:
@@ -256,7 +248,7 @@ def pruning_quality(checkpoint: str | Path | None = None, n_piles: int = 20, cap
             atomic_write_bytes(cached, json.dumps(rows[first:]).encode())
     return {"model": model_note, "rows": rows, "caps": tuple(caps), "objectives": tuple(objectives),
             "seed0": seed0, "n_piles": n_piles, "seeds": sorted({r["seed"] for r in rows}), "wall_s": time.perf_counter() - t0,
-            "cpu_s": time.process_time() - c0, "load": _load()}
+            "cpu_s": time.process_time() - c0, "load": load_average()}
 
 
 def pruning_markdown(pc: dict) -> list[str]:
@@ -320,13 +312,13 @@ def fit_note(r: dict) -> str:
 def markdown(repeats: int = 3) -> str:
     parts = ["### Planner (U-Net) — training throughput, planning latency, cost of subset pre-selection", ""]
     t = training_throughput()
-    parts += [f"Training step (forward + backward + Adam, batch 16, 128 px, 2 threads; {_load()}):", "",
+    parts += [f"Training step (forward + backward + Adam, batch 16, 128 px, 2 threads; {load_average()}):", "",
               "| model | parameters | mode | samples/s | CPU s per sample |", "|---|---|---|---|---|"]
     parts += [f"| {r['model']} | {r['params'] / 1e6:.2f} M | {r['mode']} | {r['samples_per_s']:.1f} | "
               f"{r['cpu_s_per_sample']:.3f} |" for r in t]
     lat = planning_latency(repeats=repeats)
     parts += ["", f"Planning one settled, rendered pile (2 obstacles), bf16 + BN folded, "
-              f"all subsets batched, median of {repeats} ({_load()}). Targets: 7 logs (127 subsets) < 1 s; 12 logs with "
+              f"all subsets batched, median of {repeats} ({load_average()}). Targets: 7 logs (127 subsets) < 1 s; 12 logs with "
               "pre-selection < 2 s.", "",
               "| model | mask injection | logs | subsets evaluated | selection | wall s | CPU s |",
               "|---|---|---|---|---|---|---|"]

@@ -35,16 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-
-def _load() -> str:
-    try:
-        return "load average " + " ".join(Path("/proc/loadavg").read_text().split()[:3])
-    except OSError:
-        return "load average ?"
-
-
-def _pct(values: list[float], q: float) -> float:
-    return float(np.percentile(np.asarray(values, dtype=float), q)) if values else math.nan
+from experiments.measure import load_average, percentile
 
 
 def accuracy(n_piles: int = 3, workdir: Path | None = None) -> dict:
@@ -309,24 +300,24 @@ def markdown(n_piles: int = 3, repeats: int = 3, real_cfg=None, real_out: Path |
 
     if real_cfg is None and real_piles > 0:
         real_cfg = RealTestConfig(n_piles=real_piles, workers=2)
-    load0 = _load()
+    load0 = load_average()
     a = accuracy(n_piles)
     o = obstacle_piles()
     s = single_pair_speed(repeats)
     rec = real_test(real_cfg, real_out, work_dir) if real_cfg is not None else None
-    load1 = _load()
+    load1 = load_average()
     lines = [
         "### Reconstruction (stereo scan + RTK ends -> PileSpec), twin scans",
         f"{a['n']} generated piles (5 logs, 2 obstacles each), 2x2 pairs at 3 m, RTK noise 1.5/2.5 cm. "
         f"Targets: diameter error <= 1 cm median, log mask IoU >= 0.9, < 10 s per single-pair scan. "
         f"{load0} before, {load1} after.\n",
         "| measure | median | p95 | max | n |", "|---|---|---|---|---|",
-        f"| end point error [m] | {_pct(a['ep'], 50):.3f} | {_pct(a['ep'], 95):.3f} | {max(a['ep'], default=math.nan):.3f} | {len(a['ep'])} |",
-        f"| abs mean-diameter error [m] | {_pct(a['dia'], 50):.4f} | {_pct(a['dia'], 95):.4f} | {max(a['dia'], default=math.nan):.4f} | {len(a['dia'])} |",
-        f"| log mask IoU (128 px) | {_pct(a['iou'], 50):.3f} | p5 {_pct(a['iou'], 5):.3f} | min {min(a['iou'], default=math.nan):.3f} | {len(a['iou'])} |",
-        f"| GNSS end -> fitted axis RMS after registration [m] | {_pct(a['regs'], 50):.3f} | | {max(a['regs'], default=math.nan):.3f} | {len(a['regs'])} |",
-        f"| reconstruct() wall, 4 pairs [s] | {_pct(a['walls'], 50):.1f} | | {max(a['walls'], default=math.nan):.1f} | {len(a['walls'])} |",
-        f"| reconstruct() CPU of this process, 4 pairs [s] | {_pct(a['cpus'], 50):.1f} | | {max(a['cpus'], default=math.nan):.1f} | {len(a['cpus'])} |",
+        f"| end point error [m] | {percentile(a['ep'], 50):.3f} | {percentile(a['ep'], 95):.3f} | {max(a['ep'], default=math.nan):.3f} | {len(a['ep'])} |",
+        f"| abs mean-diameter error [m] | {percentile(a['dia'], 50):.4f} | {percentile(a['dia'], 95):.4f} | {max(a['dia'], default=math.nan):.4f} | {len(a['dia'])} |",
+        f"| log mask IoU (128 px) | {percentile(a['iou'], 50):.3f} | p5 {percentile(a['iou'], 5):.3f} | min {min(a['iou'], default=math.nan):.3f} | {len(a['iou'])} |",
+        f"| GNSS end -> fitted axis RMS after registration [m] | {percentile(a['regs'], 50):.3f} | | {max(a['regs'], default=math.nan):.3f} | {len(a['regs'])} |",
+        f"| reconstruct() wall, 4 pairs [s] | {percentile(a['walls'], 50):.1f} | | {max(a['walls'], default=math.nan):.1f} | {len(a['walls'])} |",
+        f"| reconstruct() CPU of this process, 4 pairs [s] | {percentile(a['cpus'], 50):.1f} | | {max(a['cpus'], default=math.nan):.1f} | {len(a['cpus'])} |",
     ]
     lines += obstacle_markdown(a, o)
     if a["pose"]:

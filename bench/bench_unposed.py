@@ -29,17 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-
-
-def _load() -> str:
-    try:
-        return "load average " + " ".join(Path("/proc/loadavg").read_text().split()[:3])
-    except OSError:
-        return "load average ?"
-
-
-def _pct(values: list[float], q: float) -> float:
-    return float(np.percentile(np.asarray(values, dtype=float), q)) if values else math.nan
+from experiments.measure import load_average, percentile
 
 
 def _pose_errors(scan: Path, report: dict) -> tuple[list[float], list[float]]:
@@ -107,9 +97,9 @@ def measure(n_piles: int = 3, first_seed: int = 100, workdir: Path | None = None
 
 
 def markdown(n_piles: int = 3) -> str:
-    load0 = _load()
+    load0 = load_average()
     m = measure(n_piles)
-    load1 = _load()
+    load1 = load_average()
     lines = [
         "### Unposed scans (pycolmap SfM + GNSS georegistration) vs posed, twin scans",
         f"{n_piles} generated piles (seeds 100-{99 + n_piles}; 5 logs, 2 obstacles), 2x2 handheld pairs (the same "
@@ -125,7 +115,7 @@ def markdown(n_piles: int = 3) -> str:
         for mode in ("posed", "unposed"):
             vals = [v for r in m["rows"][mode] for v in (r[key] if isinstance(r.get(key), list) else [r.get(key)])
                     if v is not None and np.isfinite(v)]
-            out.append((vals, f"{_pct(vals, 50):{fmt}}", f"{_pct(vals, 95):{fmt}}"))
+            out.append((vals, f"{percentile(vals, 50):{fmt}}", f"{percentile(vals, 95):{fmt}}"))
         return (f"| {out[0][1]} | {out[0][2]} | {out[1][1]} | {out[1][2]} | {len(out[0][0])}/{len(out[1][0])} |")
 
     lines += [
@@ -146,8 +136,8 @@ def markdown(n_piles: int = 3) -> str:
         rot = [v for r in un for v in r.get("pose_rot", [])]
         lines += ["", "Unposed path details:", "",
                   f"- SfM pair poses vs truth (relative to the first pair, {len(pos)} poses): position error median "
-                  f"{_pct(pos, 50) * 1000:.1f} mm, max {max(pos, default=math.nan) * 1000:.1f} mm; rotation error "
-                  f"median {_pct(rot, 50):.3f} deg, max {max(rot, default=math.nan):.3f} deg.",
+                  f"{percentile(pos, 50) * 1000:.1f} mm, max {max(pos, default=math.nan) * 1000:.1f} mm; rotation error "
+                  f"median {percentile(rot, 50):.3f} deg, max {max(rot, default=math.nan):.3f} deg.",
                   "- per pile: " + "; ".join(
                       f"seed {r['seed']}: scale spread {r.get('scale_spread', math.nan) * 100:.2f} %, anchor RMS "
                       f"{max(r.get('anchor_rms', [math.nan])) * 1000:.1f} mm, yaw support {r.get('support', math.nan):.2f} "

@@ -38,15 +38,10 @@ from pathlib import Path
 
 import numpy as np
 
+from experiments.measure import load_average
+
 FORMAT = "loggrasp.bench-verify"
 VERSION = "1.0"
-
-
-def _load() -> str:
-    try:
-        return " ".join(Path("/proc/loadavg").read_text().split()[:3])
-    except OSError:
-        return "?"
 
 
 class CachedTwin:
@@ -203,17 +198,17 @@ def run(args) -> dict:
     done = {r["seed"] for r in rec["rows"]}
     args.work_dir.mkdir(parents=True, exist_ok=True)
     todo = [args.seed + k for k in range(args.piles) if args.seed + k not in done]
-    print(f"{len(done)} piles done, {len(todo)} to go; load {_load()}", file=sys.stderr, flush=True)
+    print(f"{len(done)} piles done, {len(todo)} to go; load {load_average('')}", file=sys.stderr, flush=True)
     job = (str(args.work_dir), args.logs, args.obstacles, args.objectives, args.ks, args.copies)
     t0 = time.perf_counter()
 
     def keep(n: int, seed: int, rows: list[dict]) -> None:
         rec["rows"] += rows
-        rec["loads"].append({"seed": seed, "load": _load(), "since_start_s": time.perf_counter() - t0,
+        rec["loads"].append({"seed": seed, "load": load_average(''), "since_start_s": time.perf_counter() - t0,
                              "workers": args.workers})
         rec["config"]["piles"] = max(args.piles, rec["config"].get("piles", 0))
         _write(args.out, rec)
-        print(f"pile {n}/{len(todo)} seed {seed}: {time.perf_counter() - t0:.0f} s so far, load {_load()}",
+        print(f"pile {n}/{len(todo)} seed {seed}: {time.perf_counter() - t0:.0f} s so far, load {load_average('')}",
               file=sys.stderr, flush=True)
 
     if args.workers == 1:
@@ -392,7 +387,7 @@ def timing(args) -> list[dict]:
                 t2 = time.perf_counter()
                 out.append({"k": k, "seed": case.seed, "n_logs": case.recon.n_logs, "plan_s": t1 - t0,
                             "verify_s": t2 - t1, "trials": sum(len(c.trials) for c in res.candidates),
-                            "ok": res.ok, "load": _load()})
+                            "ok": res.ok, "load": load_average('')})
                 print(out[-1], file=sys.stderr, flush=True)
     return out
 

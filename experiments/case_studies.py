@@ -260,9 +260,9 @@ def try_grasp(pile, planned, trial_cfg) -> dict:
 def graspability_map(obs, planner, targets) -> np.ndarray:
     """The network's U (sigmoid of the graspability output) for one target subset, (H, W)."""
     from planner.data import make_inputs
-    from planner.inference import _observation_arrays
+    from planner.inference import observation_arrays
 
-    inten, depth, inst, _, cam_h = _observation_arrays(obs)
+    inten, depth, inst, _, cam_h = observation_arrays(obs)
     mask = np.isin(inst, [t + 1 for t in targets])
     out = planner.predict(make_inputs(inten, depth, mask[None], planner.config.in_channels, cam_h))
     return 1.0 / (1.0 + np.exp(-out[0, 3]))

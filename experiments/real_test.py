@@ -44,6 +44,7 @@ import numpy as np
 from field.errors import FieldError
 from reconstruct.fitting.fit import FIT_REVISION
 from synth.common.formats import VersionedJson
+from synth.common.runner import run_tasks
 
 REAL_TEST_FORMAT = "loggrasp.real-test"
 REAL_TEST_VERSION = "1.0"
@@ -327,20 +328,24 @@ def model_path(cfg: RealTestConfig) -> Path:
     return Path(cfg.model or DEFAULT_MODEL)
 
 
-def _worker_init(model: str, threads: int | None, views: int = 1, view_spread_k: float = 0.0) -> None:
-    from planner.inference import load_planner
-    from synth.common.processes import exit_with_parent
+def _worker_planner(model: str, threads: int | None, views: int, view_spread_k: float):
+    """This process's planner, loaded once (a pool worker keeps it for all its piles)."""
+    key = (model, threads, views, view_spread_k)
+    if _WORKER.get("key") != key:
+        from planner.inference import load_planner
 
-    exit_with_parent()  # a killed run's workers must not go on writing into its work folder
-    if threads is not None:
-        import torch
+        if threads is not None:
+            import torch
 
-        torch.set_num_threads(threads)
-    _WORKER["planner"] = load_planner(model, device="cpu", views=views, view_spread_k=view_spread_k)
+            torch.set_num_threads(threads)
+        _WORKER["planner"] = load_planner(model, device="cpu", views=views, view_spread_k=view_spread_k)
+        _WORKER["key"] = key
+    return _WORKER["planner"]
 
 
-def _worker_pile(seed: int, work_dir: str, cfg: RealTestConfig) -> list[dict]:
-    return real_test_pile(seed, work_dir, _WORKER["planner"], cfg)
+def _worker_pile(seed: int, work_dir: str, cfg: RealTestConfig, model: str, threads: int | None) -> list[dict]:
+    planner = _worker_planner(model, threads, cfg.views, cfg.view_spread_k)
+    return real_test_pile(seed, work_dir, planner, cfg)
 
 
 def _record(cfg: RealTestConfig, model: Path, model_sha: str, rows: list[dict], failures: list[str],
@@ -408,30 +413,25 @@ def run_real_test(cfg: RealTestConfig | None = None, work_dir: str | Path | None
         work_dir = tmp
     Path(work_dir).mkdir(parents=True, exist_ok=True)
     try:
-        if cfg.workers == 1 and seeds:
-            _worker_init(str(model), None, cfg.views, cfg.view_spread_k)
-            for k, seed in enumerate(seeds):
-                say(f"pile {k + 1}/{len(seeds)} (seed {seed})")
-                try:
-                    rows += _worker_pile(seed, str(work_dir), cfg)
-                except Exception as exc:  # a pile the generator or the twin could not make
-                    failures.append(f"seed {seed}: {type(exc).__name__}: {exc}")
-                save()
-        elif seeds:
-            from concurrent.futures import ProcessPoolExecutor, as_completed
-            import multiprocessing as mp
+        threads = None if cfg.workers == 1 or len(seeds) == 1 else 1  # one torch thread a pool worker
+        tasks = {seed: (seed, str(work_dir), cfg, str(model), threads) for seed in seeds}
 
-            with ProcessPoolExecutor(cfg.workers, mp_context=mp.get_context("spawn"), initializer=_worker_init,
-                                     initargs=(str(model), 1, cfg.views, cfg.view_spread_k)) as pool:
-                futures = {pool.submit(_worker_pile, s, str(work_dir), cfg): s for s in seeds}
-                for k, fut in enumerate(as_completed(futures)):
-                    seed = futures[fut]
-                    try:
-                        rows += fut.result()
-                    except Exception as exc:
-                        failures.append(f"seed {seed}: {type(exc).__name__}: {exc}")
-                    save()
-                    say(f"pile {k + 1}/{len(seeds)} (seed {seed}) done")
+        def finished(seed: int, pile_rows: list[dict]) -> None:
+            rows.extend(pile_rows)
+            save()
+            say(f"pile {len(rows_done) + 1}/{len(seeds)} (seed {seed}) done")
+            rows_done.append(seed)
+
+        def failed(seed: int, exc: Exception) -> None:  # a pile the generator or the twin could not make
+            from concurrent.futures.process import BrokenProcessPool
+
+            if isinstance(exc, BrokenProcessPool):  # a dead worker, not the pile: stop, the re-run resumes
+                raise exc
+            failures.append(f"seed {seed}: {type(exc).__name__}: {exc}")
+            finished(seed, [])
+
+        rows_done: list[int] = []
+        run_tasks(_worker_pile, tasks, finished, workers=cfg.workers, on_error=failed)
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)

@@ -342,67 +342,85 @@ def crane_sim(
 
     import field.controller
     from field.executor import PybulletTrialExecutor
-    from field.trial import REJECT_EXPLANATIONS
 
     o = Output()
     check_link(link, serve=True)
     check_input(pile, "--pile", "file")
     base_tm = parse_base(base)
-    if no_journal and journal is not None:
-        raise CliError("give --journal PATH or --no-journal, not both")
-    if journal is not None:
-        check_input(journal.parent if str(journal.parent) else Path("."), "--journal", "dir")
-    elif not no_journal:
-        journal = field.controller.default_journal_path(link)
+    journal = _crane_journal(link, journal, no_journal)
     executor = PybulletTrialExecutor(pile, trial=trial)
     base_tm = base_tm or default_crane_base(executor.pile)
     config = crane_config(base_tm, max_reach, max_pile_age, None if journal is None else str(journal))
     stop = threading.Event()
     previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
-
-    served: list = []
-    lock = threading.Lock()
-    seen = [0]
-
-    def report_rejections() -> None:
-        with lock:
-            rejections = served[0].rejections if served else []
-            while seen[0] < len(rejections):
-                cid, reason = rejections[seen[0]]
-                seen[0] += 1
-                why = REJECT_EXPLANATIONS.get(reason.name, "")
-                o.say(f"command {cid}: REJECTED ({reason.name})" + (f": {why}" if why else ""))
-
-    said_fault = [None]
-
-    def report_fault() -> None:  # the executor's exception, once per fault, with the way out
-        cause = served[0].fault_cause if served else None
-        if cause is not None and cause != said_fault[0]:
-            o.say(f"controller FAULT: {cause}; every command is rejected until the crane is reset")
-        said_fault[0] = cause
-
-    def watch(controller) -> None:  # called once the transport is up: only then say "serving"
-        served.append(controller)
-        o.say(f"crane controller twin serving {link}: base E {base_tm[0]:.3f} N {base_tm[1]:.3f} "
-              f"h {base_tm[2]:.3f} m, reach {max_reach:g} m, pile age limit {max_pile_age:g} s; "
-              f"journal {journal or 'OFF (ids forgotten on restart)'}; Ctrl-C stops")
-
-        def loop() -> None:
-            while not stop.wait(0.05):
-                report_rejections()
-                report_fault()
-
-        threading.Thread(target=loop, name="crane-sim-watch", daemon=True).start()
-
+    watch = _CraneSimWatch(o, stop, f"crane controller twin serving {link}: base E {base_tm[0]:.3f} N {base_tm[1]:.3f} "
+                           f"h {base_tm[2]:.3f} m, reach {max_reach:g} m, pile age limit {max_pile_age:g} s; "
+                           f"journal {journal or 'OFF (ids forgotten on restart)'}; Ctrl-C stops")
     try:
-        final = field.controller.run_controller(link, _Announcing(executor, o.say), stop, config, on_serve=watch)
+        final = field.controller.run_controller(link, _Announcing(executor, o.say), stop, config,
+                                                on_serve=watch.serving)
     finally:
         stop.set()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
-    report_rejections()  # the last ones, seen just before the stop
-    cause = served[0].fault_cause if served else None
+    watch.report_rejections()  # the last ones, seen just before the stop
+    cause = watch.controller.fault_cause if watch.controller else None
     o.say(f"stopped in state {final.state.name}" + (f" ({cause})" if cause else ""))
+
+
+def _crane_journal(link: str, journal: Path | None, no_journal: bool) -> Path | None:
+    """crane-sim's command-id journal: --journal, none with --no-journal, else the link's default file."""
+    import field.controller
+
+    if no_journal and journal is not None:
+        raise CliError("give --journal PATH or --no-journal, not both")
+    if journal is not None:
+        check_input(journal.parent if str(journal.parent) else Path("."), "--journal", "dir")
+        return journal
+    return None if no_journal else field.controller.default_journal_path(link)
+
+
+class _CraneSimWatch:
+    """What crane-sim says while it serves: "serving" once the transport is up, then each rejection
+    (with its explanation) and each new executor fault (with the way out), from a watcher thread."""
+
+    def __init__(self, o: Output, stop, serving_line: str) -> None:
+        import threading
+
+        self.o, self.stop, self.serving_line = o, stop, serving_line
+        self.controller = None
+        self._lock = threading.Lock()
+        self._seen = 0
+        self._said_fault = None
+
+    def serving(self, controller) -> None:
+        import threading
+
+        self.controller = controller
+        self.o.say(self.serving_line)
+        threading.Thread(target=self._loop, name="crane-sim-watch", daemon=True).start()
+
+    def _loop(self) -> None:
+        while not self.stop.wait(0.05):
+            self.report_rejections()
+            self.report_fault()
+
+    def report_rejections(self) -> None:
+        from field.trial import REJECT_EXPLANATIONS
+
+        with self._lock:
+            rejections = self.controller.rejections if self.controller else []
+            while self._seen < len(rejections):
+                cid, reason = rejections[self._seen]
+                self._seen += 1
+                why = REJECT_EXPLANATIONS.get(reason.name, "")
+                self.o.say(f"command {cid}: REJECTED ({reason.name})" + (f": {why}" if why else ""))
+
+    def report_fault(self) -> None:  # the executor's exception, once per fault, with the way out
+        cause = self.controller.fault_cause if self.controller else None
+        if cause is not None and cause != self._said_fault:
+            self.o.say(f"controller FAULT: {cause}; every command is rejected until the crane is reset")
+        self._said_fault = cause
 
 
 # -- trial ----------------------------------------------------------------------------------------
@@ -503,20 +521,13 @@ def trial_command(
     Example: loggrasp trial --scan s3/scan --gnss s3/gnss.csv --link can://virtual/ch0 --record trials/t3 \\
                --verify 16 --verify-copies 3 --verify-budget 30
     """
-    from dataclasses import replace
-
+    from field.trial import run_trial_record
     from planner.inference import check_views
 
     o = Output(as_json)
     parsed = check_link(link)
     base_tm = parse_base(base)
-    check_input(scan, "--scan", "dir")
-    check_input(gnss, "--gnss", "file")
-    if model is not None:
-        check_input(model, "--model", "file")
-    if record.exists():
-        raise CliError(f"--record {record} already exists; choose a new --record folder")
-    check_output_dir(record, "--record")
+    _check_trial_paths(scan, gnss, model, record)
     check_views(views, view_spread)
     opts = _trial_options(objective, model, allow_float, max_pile_age, base_tm, max_reach, capacity, views, view_spread,
                           **verify_fields(verify, no_verify, verify_copies, verify_budget, verify_workers, send_rank))
@@ -524,27 +535,44 @@ def trial_command(
     if warning:
         o.warn(warning)
     if parsed.scheme == "twin":
-        base_tm = base_tm or base_from_survey(gnss)
-        link = twin_url(link, base_tm, max_reach, max_pile_age)
-        opts = replace(opts, crane_base_tm=base_tm)
-        o.progress(f"twin crane at E {base_tm[0]:.3f} N {base_tm[1]:.3f} h {base_tm[2]:.3f} m, reach {max_reach:g} m, "
-                   f"pile age limit {max_pile_age:g} s ({link})")
-
-    def ask(prepared) -> bool:
-        from field.trial import TrialAborted
-
-        show_plan(prepared)
-        answer = ask_yes_no("send this grasp to the crane?")
-        if answer is None:
-            raise TrialAborted("no answer at the confirmation prompt (standard input closed or interrupted): nothing "
-                               "was sent; answer y at the prompt, or pass --yes", kind="declined")
-        return answer
-
-    from field.trial import run_trial_record
-
-    rec = _run_trial(o, record, lambda: run_trial_record(scan, gnss, link, record, opts, confirm=None if yes else ask,
-                                                         progress=o.progress))
+        link, opts = _twin_crane(o, link, gnss, opts)
+    rec = _run_trial(o, record, lambda: run_trial_record(scan, gnss, link, record, opts,
+                                                         confirm=None if yes else _ask_to_send, progress=o.progress))
     _finish_trial(o, rec, record)
+
+
+def _check_trial_paths(scan: Path, gnss: Path, model: Path | None, record: Path) -> None:
+    check_input(scan, "--scan", "dir")
+    check_input(gnss, "--gnss", "file")
+    if model is not None:
+        check_input(model, "--model", "file")
+    if record.exists():
+        raise CliError(f"--record {record} already exists; choose a new --record folder")
+    check_output_dir(record, "--record")
+
+
+def _twin_crane(o: Output, link: str, gnss: Path, opts):
+    """A twin:// link: the crane stands at --base (default: south of the surveyed pile) with the
+    trial's reach and staleness limit; returns the full twin URL and the options with that base."""
+    from dataclasses import replace
+
+    base_tm = opts.crane_base_tm or base_from_survey(gnss)
+    link = twin_url(link, base_tm, opts.max_reach_m, opts.max_pile_age_s)
+    o.progress(f"twin crane at E {base_tm[0]:.3f} N {base_tm[1]:.3f} h {base_tm[2]:.3f} m, reach {opts.max_reach_m:g} m, "
+               f"pile age limit {opts.max_pile_age_s:g} s ({link})")
+    return link, replace(opts, crane_base_tm=base_tm)
+
+
+def _ask_to_send(prepared) -> bool:
+    """The operator's confirmation: the plan table, then y/n; no answer is a declined trial."""
+    from field.trial import TrialAborted
+
+    show_plan(prepared)
+    answer = ask_yes_no("send this grasp to the crane?")
+    if answer is None:
+        raise TrialAborted("no answer at the confirmation prompt (standard input closed or interrupted): nothing "
+                           "was sent; answer y at the prompt, or pass --yes", kind="declined")
+    return answer
 
 
 # -- replay ----------------------------------------------------------------------------------------

@@ -459,7 +459,7 @@ def _map_grasp(ax, pile: PileSpec, g, grasp: Grasp, grasp_z_m: float | None, tm)
 def _map_frame(ax, points: np.ndarray) -> np.ndarray:
     """Limits around ``points`` with a margin (at least 3 m square; the scanned area's outline
     shows where it falls inside), metre ticks, labels and a 1 m scale bar; the map's centre."""
-    from matplotlib.ticker import MultipleLocator, ScalarFormatter
+    from planner.pictures import metre_ticks
     from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
 
     lo, hi = points.min(axis=0), points.max(axis=0)
@@ -470,13 +470,7 @@ def _map_frame(ax, points: np.ndarray) -> np.ndarray:
     ax.set_ylim(lo[1], hi[1])
     ax.set_aspect("equal")
     step = 1.0 if half_span <= 6 else 5.0
-    for axis in (ax.xaxis, ax.yaxis):
-        fmt = ScalarFormatter(useOffset=False)
-        fmt.set_scientific(False)
-        axis.set_major_formatter(fmt)
-        axis.set_major_locator(MultipleLocator(step))
-    ax.tick_params(axis="x", labelrotation=30, labelsize=7)
-    ax.tick_params(axis="y", labelsize=7)
+    metre_ticks(ax, step)
     ax.grid(True, lw=0.3, color="0.8")
     ax.set_xlabel("Easting [m], SWEREF 99 TM (EPSG:3006)")
     ax.set_ylabel("Northing [m], SWEREF 99 TM")

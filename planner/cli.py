@@ -388,33 +388,7 @@ def eval_command(
     lo, hi = parse_range(logs, "--logs")
     obs = {"yes": (True,), "no": (False,), "both": (True, False)}[obstacles]
     cfg = EvalConfig(logs=tuple(range(lo, hi + 1)), obstacles=obs, per_cell=per_cell, trial=trial, seed_base=seed_base)
-    path = str(model or DEFAULT_MODEL)
-    objs = [x.strip() for x in objectives.split(",") if x.strip()]
-    bad = [x for x in objs if x not in ("f1", "f2", "f3")]
-    if bad:
-        raise CliError(f"--objectives must be a comma-separated list of f1, f2, f3, got {objectives!r}")
-    specs = [PlannerSpec("unet", model=path, objective=x) for x in objs]
-    check_verify_flags(verify, None)
-    if verify is not None:
-        specs += [PlannerSpec("unet", model=path, objective=x, verify_k=verify, verify_copies=verify_copies)
-                  for x in objs]
-    elif verify_copies:
-        raise CliError("--verify-copies needs --verify K")
-    for item in extra_model:
-        label, _, p = item.partition("=")
-        if not p or not label:
-            raise CliError(f"--extra-model must be LABEL=PATH, got {item!r}")
-        specs.append(PlannerSpec("unet", model=p, objective="f1", label=label))
-    names = [b.strip() for b in baselines.split(",") if b.strip()]
-    unknown = [b for b in names if b not in ("random", "geometric", "oracle")]
-    if unknown:
-        raise CliError(f"--baselines must be a comma-separated list of random, geometric, oracle, got {baselines!r}")
-    specs += [PlannerSpec(b) for b in names]
-    if not specs:
-        raise CliError("nothing to evaluate: give --objectives, --baselines or --extra-model")
-    for s in specs:
-        if s.kind == "unet":
-            check_input(s.model, "--model" if s.label == "" else "--extra-model", "file")
+    specs = _eval_specs(str(model or DEFAULT_MODEL), objectives, baselines, extra_model, verify, verify_copies)
     check_output_dir(out, "--out")
     with progress_bar() as bar:
         task = bar.add_task("piles", total=len(cfg.tasks()), info="")
@@ -425,3 +399,38 @@ def eval_command(
     else:
         o.say((Path(out) / "results.md").read_text().rstrip())
     o.say(f"results: {Path(out) / 'results.md'}, {Path(out) / 'results.json'}; examples: {Path(out) / 'examples.png'}")
+
+
+def _csv(text: str) -> list[str]:
+    return [x.strip() for x in text.split(",") if x.strip()]
+
+
+def _eval_specs(model: str, objectives: str, baselines: str, extra_model: list[str], verify: int | None,
+                verify_copies: int) -> list[PlannerSpec]:
+    """eval's planner rows: the U-Net per objective (and verified, with --verify), each --extra-model
+    (f1), then the baselines; every model file checked."""
+    objs = _csv(objectives)
+    if any(x not in ("f1", "f2", "f3") for x in objs):
+        raise CliError(f"--objectives must be a comma-separated list of f1, f2, f3, got {objectives!r}")
+    specs = [PlannerSpec("unet", model=model, objective=x) for x in objs]
+    check_verify_flags(verify, None)
+    if verify is not None:
+        specs += [PlannerSpec("unet", model=model, objective=x, verify_k=verify, verify_copies=verify_copies)
+                  for x in objs]
+    elif verify_copies:
+        raise CliError("--verify-copies needs --verify K")
+    for item in extra_model:
+        label, _, p = item.partition("=")
+        if not p or not label:
+            raise CliError(f"--extra-model must be LABEL=PATH, got {item!r}")
+        specs.append(PlannerSpec("unet", model=p, objective="f1", label=label))
+    names = _csv(baselines)
+    if any(b not in ("random", "geometric", "oracle") for b in names):
+        raise CliError(f"--baselines must be a comma-separated list of random, geometric, oracle, got {baselines!r}")
+    specs += [PlannerSpec(b) for b in names]
+    if not specs:
+        raise CliError("nothing to evaluate: give --objectives, --baselines or --extra-model")
+    for s in specs:
+        if s.kind == "unet":
+            check_input(s.model, "--model" if s.label == "" else "--extra-model", "file")
+    return specs

@@ -260,7 +260,10 @@ class Plan:
         return dumps_json(self.to_dict())
 
 
-def _observation_arrays(observation) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
+def observation_arrays(observation) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
+    """An observation's checked planner inputs: intensity (first render), depth [m] and instance
+    masks as (H, W) arrays, its extent [m] and camera height [m]; :class:`ObservationError` for
+    arrays of other shapes or depth with holes."""
     inten = np.asarray(observation.intensity, dtype=np.float32)
     if inten.ndim == 3:
         inten = inten[0]  # first render (the pile's own colours)
@@ -316,7 +319,7 @@ def plan(observation, planner: Planner, objective: Objective = Objective(), cons
     ``pile`` (a :class:`synth.scene.pile.PileSpec`), when known, gives exact log volumes for the lift
     capacity. Raises :class:`ObservationError` for unusable input."""
     t0 = time.perf_counter()
-    inten, depth, inst, extent_m, cam_h = _observation_arrays(observation)
+    inten, depth, inst, extent_m, cam_h = observation_arrays(observation)
     cfg = planner.config
     check_grid(depth.shape[0], extent_m, cfg)
     grid = OrthoGrid(depth.shape[0], extent_m)

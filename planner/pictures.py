@@ -188,7 +188,6 @@ def _draw_scene(ax, obs, frame: MapFrame, targets: Sequence[int], grasps: Sequen
 
 def _frame_axes(ax, frame: MapFrame, pts: np.ndarray, min_half_m: float = 1.5, margin_m: float = 0.5,
                 ticks: bool = True, compact: bool = False) -> None:
-    from matplotlib.ticker import MultipleLocator, ScalarFormatter
     from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
 
     lo, hi = pts.min(axis=0), pts.max(axis=0)
@@ -200,13 +199,7 @@ def _frame_axes(ax, frame: MapFrame, pts: np.ndarray, min_half_m: float = 1.5, m
     ax.set_facecolor("0.85")
     if ticks:
         step = 1.0 if half <= 4 else 2.0 if half <= 8 else 5.0
-        for axis in (ax.xaxis, ax.yaxis):
-            fmt = ScalarFormatter(useOffset=False)
-            fmt.set_scientific(False)
-            axis.set_major_formatter(fmt)
-            axis.set_major_locator(MultipleLocator(step))
-        ax.tick_params(axis="x", labelrotation=30, labelsize=7)
-        ax.tick_params(axis="y", labelsize=7)
+        metre_ticks(ax, step)
         xl, yl = frame.axis_labels()
         ax.set_xlabel(xl, fontsize=8)
         ax.set_ylabel(yl, fontsize=8)
@@ -353,3 +346,17 @@ def _eval_observation(r: dict, cfg: Any):
     pile, _ = generate_pile(r["seed"], GenerationConfig(n_logs=r["n_logs"], n_obstacles=n_obst))
     with World(pile) as world:
         return render_ortho(world, OrthoRenderConfig(size_px=cfg.size_px, n_renders=1), seed=r["seed"])
+
+
+def metre_ticks(ax, step_m: float) -> None:
+    """Plain metre tick labels (no offset, no exponent: site coordinates read as they are) every
+    ``step_m`` on both axes of ``ax``, small, the x ones slanted."""
+    from matplotlib.ticker import MultipleLocator, ScalarFormatter
+
+    for axis in (ax.xaxis, ax.yaxis):
+        fmt = ScalarFormatter(useOffset=False)
+        fmt.set_scientific(False)
+        axis.set_major_formatter(fmt)
+        axis.set_major_locator(MultipleLocator(step_m))
+    ax.tick_params(axis="x", labelrotation=30, labelsize=7)
+    ax.tick_params(axis="y", labelsize=7)

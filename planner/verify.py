@@ -546,6 +546,66 @@ def check_twin_loads(pile: PileSpec, physics=None) -> None:
                                 "file (loggrasp synth render PILE)") from exc
 
 
+class _Run:
+    """One verification's trials, run as the schedule says until it is done or the deadline
+    passes (then ``timed_out`` if trials were left); each finished trial is recorded in the
+    schedule and its CPU time summed."""
+
+    def __init__(self, trial_fn: TrialFn, cands: list[tuple[int, PlannedGrasp]], piles: list[PileSpec],
+                 sched: "_Schedule", trial: TrialConfig, deadline: float) -> None:
+        self.trial_fn, self.cands, self.piles, self.sched, self.trial = trial_fn, cands, piles, sched, trial
+        self.deadline = deadline
+        self.cpu_s = 0.0
+        self.timed_out = False
+
+    def _next(self) -> tuple[int, int] | None:
+        """The next (candidate, copy) to try; None when none is left or the deadline has passed."""
+        if time.perf_counter() >= self.deadline:
+            self.timed_out = self.sched.has_work()
+            return None
+        return self.sched.next()
+
+    def _args(self, task: tuple[int, int]) -> tuple:
+        j, c = task
+        pg = self.cands[j][1]
+        return self.trial_fn, self.piles[c], pg.grasp, tuple(pg.targets), self.trial
+
+    def _take(self, task: tuple[int, int], trial: TwinTrial) -> None:
+        j, c = task
+        trial = replace(trial, copy=c)
+        if trial.error is not None:
+            rank, pg = self.cands[j]
+            log.warning("twin trial of plan rank %d (logs %s) on pile copy %d raised: %s",
+                        rank + 1, list(pg.targets), c, trial.error)
+        elif trial.result is not None:
+            self.cpu_s += float(trial.result.cpu_time_s)
+        self.sched.record(j, c, trial)
+
+    def serial(self) -> None:
+        while (task := self._next()) is not None:
+            self._take(task, _run_one(*self._args(task)))
+
+    def pooled(self, pool, workers: int) -> None:
+        """Up to ``workers`` trials in flight in ``pool``; a new one starts as one finishes."""
+        from concurrent.futures import FIRST_COMPLETED, wait
+
+        inflight: dict = {}
+        while True:
+            while not self.timed_out and len(inflight) < workers and (task := self._next()) is not None:
+                inflight[pool.submit(_run_one, *self._args(task))] = task
+            if not inflight:  # nothing running and nothing (more) to start
+                return
+            done, _ = wait(list(inflight), return_when=FIRST_COMPLETED)
+            for f in done:
+                task = inflight.pop(f)
+                try:
+                    trial = f.result()
+                except Exception as exc:  # the worker process died (not the trial: _run_one catches that)
+                    raise VerificationError(f"a twin worker process failed ({type(exc).__name__}: {exc}); "
+                                            "run with workers=1 to see the cause") from exc
+                self._take(task, trial)
+
+
 class _Schedule:
     """Which trial to run next: candidates in plan order, each first on the pile as given and, if
     that succeeded, on its perturbed copies; with ``prune``, a candidate whose best reachable key
@@ -674,60 +734,13 @@ class Verifier:
         # the budget is the trials' (loading the pile and making its copies come before it)
         deadline = math.inf if cfg.time_budget_s is None else time.perf_counter() + cfg.time_budget_s
         sched = _Schedule(cands, cfg.perturbation.copies, objective, cfg.prune)
-        cpu = 0.0
-        timed_out = False
-
-        def take(j: int, c: int, trial: TwinTrial) -> None:
-            nonlocal cpu
-            trial = replace(trial, copy=c)
-            if trial.error is not None:
-                rank, pg = cands[j]
-                log.warning("twin trial of plan rank %d (logs %s) on pile copy %d raised: %s",
-                            rank + 1, list(pg.targets), c, trial.error)
-            elif trial.result is not None:
-                cpu += float(trial.result.cpu_time_s)
-            sched.record(j, c, trial)
-
+        run = _Run(self.trial_fn, cands, piles, sched, cfg.trial, deadline)
         workers = min(cfg.n_workers(), max(1, len(cands) * (cfg.perturbation.copies + 1)))
         if workers == 1:
-            while True:
-                if time.perf_counter() >= deadline:
-                    timed_out = sched.has_work()
-                    break
-                task = sched.next()
-                if task is None:
-                    break
-                j, c = task
-                pg = cands[j][1]
-                take(j, c, _run_one(self.trial_fn, piles[c], pg.grasp, tuple(pg.targets), cfg.trial))
+            run.serial()
         else:
-            from concurrent.futures import FIRST_COMPLETED, wait
-
-            pool = self._executor()
-            inflight: dict = {}
-            while True:
-                while not timed_out and len(inflight) < workers:
-                    if time.perf_counter() >= deadline:
-                        timed_out = sched.has_work()
-                        break
-                    task = sched.next()
-                    if task is None:
-                        break
-                    j, c = task
-                    pg = cands[j][1]
-                    inflight[pool.submit(_run_one, self.trial_fn, piles[c], pg.grasp, tuple(pg.targets),
-                                         cfg.trial)] = task
-                if not inflight:  # nothing running and nothing (more) to start
-                    break
-                done, _ = wait(list(inflight), return_when=FIRST_COMPLETED)
-                for f in done:
-                    j, c = inflight.pop(f)
-                    try:
-                        trial = f.result()
-                    except Exception as exc:  # the worker process died (not the trial: _run_one catches that)
-                        raise VerificationError(f"a twin worker process failed ({type(exc).__name__}: {exc}); "
-                                                "run with workers=1 to see the cause") from exc
-                    take(j, c, trial)
+            run.pooled(self._executor(), workers)
+        cpu, timed_out = run.cpu_s, run.timed_out
         sched.settle()
         checks = sched.checks()
         chosen = choose(checks, objective)

@@ -168,6 +168,18 @@ def test_experiments_use_the_installed_packages_public_functions():
     assert not {f: p for f, p in private.items() if p}, f"experiments import private names: {private}"
 
 
+def test_no_package_imports_another_packages_private_names():
+    """What one package needs of another is public: a ``_name`` is free to change inside its own
+    package (experiments/ reached into planner.inference's ``_observation_arrays`` before)."""
+    crossing = {}
+    for package in PACKAGES:
+        for f in (ROOT / package).rglob("*.py"):
+            names = [n for n in private_imports(f) if n.split(".")[0] != package]
+            if names:
+                crossing[str(f.relative_to(ROOT))] = names
+    assert not crossing, f"private names imported across packages: {crossing}"
+
+
 def test_private_import_checker_sees_violations(tmp_path):
     bad = tmp_path / "m.py"
     bad.write_text("from experiments.real_test import _execute, summarize\nfrom os import _exit\n")

@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Callable, Iterable, Sequence
+from typing import Callable, Iterable, Iterator, Sequence
 
 import numpy as np
 
@@ -272,75 +272,114 @@ def generate_candidates(pile: PileSpec | PlaneScene, targets: Iterable[int],
     if T[0] < 0 or T[-1] >= len(scene.logs):
         raise ValueError(f"target indices {T} outside the pile's {len(scene.logs)} logs")
     tl = [scene.logs[i] for i in T]
-    # mean axis direction (sign-aligned: axes are undirected)
-    dirs = []
-    for lg in tl:
-        d = lg.b2 - lg.a2
-        n = np.linalg.norm(d)
-        if n < 1e-6:
-            return []  # a log standing on end has no usable axis in the plane
-        d = d / n
-        if dirs and d @ dirs[0] < 0:
-            d = -d
-        dirs.append(d)
-    dbar = np.mean(dirs, axis=0)
-    if np.linalg.norm(dbar) < 1e-6:
+    axis = _common_axis(tl)
+    if axis is None:
         return []
-    dbar /= np.linalg.norm(dbar)
-    origin = np.mean([(lg.a2 + lg.b2) / 2 for lg in tl], axis=0)
-    # common extent along dbar
-    lo, hi = -np.inf, np.inf
-    for lg in tl:
-        s0, s1 = sorted(((lg.a2 - origin) @ dbar, (lg.b2 - origin) @ dbar))
-        lo, hi = max(lo, s0 + config.end_margin_m), min(hi, s1 - config.end_margin_m)
-    if lo > hi:
+    dbar, origin = axis
+    s_values = _stretch_positions(tl, dbar, origin, config)
+    if s_values is None:
         return []
-    n_s = int(math.floor((hi - lo) / config.step_m)) + 1
-    s_values = lo + (hi - lo - (n_s - 1) * config.step_m) / 2 + config.step_m * np.arange(n_s)
     phi0 = math.atan2(dbar[1], dbar[0]) + math.pi / 2
     dphis = np.linspace(-config.max_dphi_rad, config.max_dphi_rad, config.n_phi) if config.n_phi > 1 else [0.0]
     others = [i for i in range(len(scene.logs)) if i not in T]
-
     out: list[Grasp] = []
-    seen = set()
+    seen: set = set()
     for dphi in dphis:
         phi = phi0 + dphi
         a = np.array([math.cos(phi), math.sin(phi)])
         b = np.array([-a[1], a[0]])
         for s in s_values:
             p = origin + dbar * s
-            crossings = []
-            for lg in tl:
-                cr = _crossing(p, a, lg)
-                if cr is None:
-                    break
-                t, sl, z = cr
-                L = float(np.linalg.norm(lg.b2 - lg.a2))
-                if not (config.end_margin_m / L <= sl <= 1 - config.end_margin_m / L):
-                    break
-                crossings.append((t, lg.radius_m, z))
-            else:
-                t_lo = min(t - r for t, r, _ in crossings) - config.side_margin_m
-                t_hi = max(t + r for t, r, _ in crossings) + config.side_margin_m
-                z_min = min(z for _, _, z in crossings)
-                span = max(t_hi - t_lo, MIN_WIDTH_M)
-                mid = (t_lo + t_hi) / 2
-                for extra in config.extra_widths_m:
-                    width = span + extra
-                    if width > MAX_WIDTH_M + 1e-9:
-                        continue
-                    for shift in sorted({0.0, -extra / 2, extra / 2}):
-                        c = p + a * (mid + shift)
-                        key = (round(float(c[0]), 4), round(float(c[1]), 4), round(float(phi), 4), round(width, 4))
-                        if key in seen:
-                            continue
-                        seen.add(key)
-                        if _admissible(scene, c, a, b, width, others, z_min, config):
-                            out.append(Grasp(float(c[0]), float(c[1]), float(phi), float(min(width, MAX_WIDTH_M))))
+            crossings = _crossings_within(p, a, tl, config)
+            if crossings is None:
+                continue
+            for c, width in _closings(p, a, phi, crossings, seen, config):
+                if _admissible(scene, c, a, b, width, others, crossings.z_min, config):
+                    out.append(Grasp(float(c[0]), float(c[1]), float(phi), float(min(width, MAX_WIDTH_M))))
     out.sort(key=lambda g: g.width_m)
     if config.max_candidates is not None:
         out = out[: config.max_candidates]
     return out
+
+
+def _common_axis(tl: list) -> tuple[np.ndarray, np.ndarray] | None:
+    """The targets' mean axis direction in the plane (sign-aligned: axes are undirected) and the
+    mean of their centres; None when a log stands on end or the axes cancel."""
+    dirs = []
+    for lg in tl:
+        d = lg.b2 - lg.a2
+        n = np.linalg.norm(d)
+        if n < 1e-6:
+            return None  # a log standing on end has no usable axis in the plane
+        d = d / n
+        if dirs and d @ dirs[0] < 0:
+            d = -d
+        dirs.append(d)
+    dbar = np.mean(dirs, axis=0)
+    if np.linalg.norm(dbar) < 1e-6:
+        return None
+    dbar /= np.linalg.norm(dbar)
+    return dbar, np.mean([(lg.a2 + lg.b2) / 2 for lg in tl], axis=0)
+
+
+def _stretch_positions(tl: list, dbar: np.ndarray, origin: np.ndarray, config: CandidateConfig) -> np.ndarray | None:
+    """Positions along ``dbar`` (from ``origin``, every ``step_m``, centred) on the stretch all
+    targets share, ``end_margin_m`` in from their ends; None when they share none."""
+    lo, hi = -np.inf, np.inf
+    for lg in tl:
+        s0, s1 = sorted(((lg.a2 - origin) @ dbar, (lg.b2 - origin) @ dbar))
+        lo, hi = max(lo, s0 + config.end_margin_m), min(hi, s1 - config.end_margin_m)
+    if lo > hi:
+        return None
+    n_s = int(math.floor((hi - lo) / config.step_m)) + 1
+    return lo + (hi - lo - (n_s - 1) * config.step_m) / 2 + config.step_m * np.arange(n_s)
+
+
+@dataclass(frozen=True)
+class _Crossings:
+    """Where a closing line crosses the targets: its extent along the line with the side margins
+    [m] and the lowest axis height under it [m]."""
+
+    t_lo: float
+    t_hi: float
+    z_min: float
+
+
+def _crossings_within(p: np.ndarray, a: np.ndarray, tl: list, config: CandidateConfig) -> _Crossings | None:
+    """The line through ``p`` along ``a`` across every target, each crossed ``end_margin_m`` in
+    from its ends; None when it misses one."""
+    crossings = []
+    for lg in tl:
+        cr = _crossing(p, a, lg)
+        if cr is None:
+            return None
+        t, sl, z = cr
+        L = float(np.linalg.norm(lg.b2 - lg.a2))
+        if not (config.end_margin_m / L <= sl <= 1 - config.end_margin_m / L):
+            return None
+        crossings.append((t, lg.radius_m, z))
+    return _Crossings(t_lo=min(t - r for t, r, _ in crossings) - config.side_margin_m,
+                      t_hi=max(t + r for t, r, _ in crossings) + config.side_margin_m,
+                      z_min=min(z for _, _, z in crossings))
+
+
+def _closings(p: np.ndarray, a: np.ndarray, phi: float, crossings: _Crossings, seen: set,
+              config: CandidateConfig) -> Iterator[tuple[np.ndarray, float]]:
+    """Grapple centres and widths on this line not tried before (``seen``): each of the
+    ``extra_widths_m`` over the targets' span, centred and shifted by half the extra each way."""
+    span = max(crossings.t_hi - crossings.t_lo, MIN_WIDTH_M)
+    mid = (crossings.t_lo + crossings.t_hi) / 2
+    for extra in config.extra_widths_m:
+        width = span + extra
+        if width > MAX_WIDTH_M + 1e-9:
+            continue
+        for shift in sorted({0.0, -extra / 2, extra / 2}):
+            c = p + a * (mid + shift)
+            key = (round(float(c[0]), 4), round(float(c[1]), 4), round(float(phi), 4), round(width, 4))
+            if key in seen:
+                continue
+            seen.add(key)
+            yield c, width
 
 
 def _admissible(scene: PlaneScene, c: np.ndarray, a: np.ndarray, b: np.ndarray, width: float,

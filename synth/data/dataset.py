@@ -806,23 +806,14 @@ def build_dataset(out_dir: str | Path, n_piles: int, n_logs: int = 4, obstacles_
     (a dead worker, a full disk, a pile that fails to load) raise :class:`DatasetJobError` with
     the data set still consistent with its manifest.
     """
-    import time
-
     from synth.common.runner import check_engine, pending, run_tasks
 
     check_engine(engine, workers)
-    if piles_dir is not None:
-        pdir = Path(piles_dir)
-        if not pdir.is_dir():
-            raise DatasetJobError(f"piles folder {pdir} does not exist; run `loggrasp synth piles` first")
-        have = len(list(pdir.glob("pile_[0-9]*")))
-        if have < n_piles:
-            raise DatasetJobError(f"{pdir} holds {have} piles, {n_piles} were asked for")
-        piles_dir = str(pdir.resolve())
     job = DatasetJob(n_piles=n_piles, n_logs=n_logs, obstacles_fraction=obstacles_fraction,
                      max_obstacles=max_obstacles, seed=seed, size_px=size_px, n_renders=n_renders,
                      piles_per_shard=piles_per_shard, max_trials_per_subset=max_trials_per_subset,
-                     max_candidates=max_candidates, trial_preset=trial_config, piles_dir=piles_dir)
+                     max_candidates=max_candidates, trial_preset=trial_config,
+                     piles_dir=None if piles_dir is None else _checked_piles_dir(piles_dir, n_piles))
     out = Path(out_dir)
     done = _prepare(out, job)
     try:
@@ -831,37 +822,66 @@ def build_dataset(out_dir: str | Path, n_piles: int, n_logs: int = 4, obstacles_
         raise DatasetJobError(f"cannot write the manifest in {out}: {exc.strerror or exc}") from exc
     todo = pending(range(job.n_chunks), done)
     done = {c: s for c, s in done.items() if c < job.n_chunks}
-    t0 = time.perf_counter()
-    run_trials = 0
-
-    def finished(chunk: int, record: dict) -> None:
-        nonlocal run_trials
-        info = ShardInfo.from_dict(record)
-        done[info.chunk] = info
-        run_trials += int(info.stats.get("trials", 0))
-        write_manifest(out, _manifest_for(job, done))
-        if progress:
-            el = time.perf_counter() - t0
-            progress(JobProgress(chunks_done=len(done), chunks_total=job.n_chunks,
-                                 samples=sum(s.n_samples for s in done.values()), trials=run_trials,
-                                 trials_per_s=run_trials / el if el > 0 else 0.0, elapsed_s=el))
-
+    finished = _ChunkDone(out, job, done, progress)
     tasks = {c: (str(out), job.to_dict(), c, None, simulate_factory) for c in todo}
     try:
         run_tasks(build_chunk, tasks, finished, workers=workers, engine=engine, address=address)
     except DatasetJobError:
         raise
-    except OSError as exc:
-        raise DatasetJobError(
-            f"writing the data set failed ({exc.strerror or exc}); {len(done)} of {job.n_chunks} chunks are "
-            "complete and listed in the manifest — free space / fix the folder and re-run the same job to resume"
-        ) from exc
     except Exception as exc:
-        name = type(exc).__name__
-        if name in ("BrokenProcessPool", "KilledWorker", "CommClosedError") or isinstance(exc, (ConnectionError, TimeoutError)):
-            raise DatasetJobError(
-                f"a worker died ({name}: {exc}); {len(done)} of {job.n_chunks} chunks are complete and listed "
-                "in the manifest — re-run the same job to resume"
-            ) from exc
-        raise
+        failed = _job_failure(exc, len(done), job.n_chunks)
+        if failed is None:
+            raise
+        raise failed from exc
     return read_manifest(out)
+
+
+def _checked_piles_dir(piles_dir: str | Path, n_piles: int) -> str:
+    """A ``synth piles`` folder holding at least ``n_piles`` piles, as an absolute path."""
+    pdir = Path(piles_dir)
+    if not pdir.is_dir():
+        raise DatasetJobError(f"piles folder {pdir} does not exist; run `loggrasp synth piles` first")
+    have = len(list(pdir.glob("pile_[0-9]*")))
+    if have < n_piles:
+        raise DatasetJobError(f"{pdir} holds {have} piles, {n_piles} were asked for")
+    return str(pdir.resolve())
+
+
+class _ChunkDone:
+    """build_dataset's per-chunk callback: the chunk joins ``done``, the manifest is rewritten from
+    the completed shards, and ``progress`` hears the totals."""
+
+    def __init__(self, out: Path, job: DatasetJob, done: dict, progress: Callable[[JobProgress], None] | None):
+        import time
+
+        self.out, self.job, self.done, self.progress = out, job, done, progress
+        self.t0 = time.perf_counter()
+        self.run_trials = 0
+
+    def __call__(self, chunk: int, record: dict) -> None:
+        import time
+
+        info = ShardInfo.from_dict(record)
+        self.done[info.chunk] = info
+        self.run_trials += int(info.stats.get("trials", 0))
+        write_manifest(self.out, _manifest_for(self.job, self.done))
+        if self.progress:
+            el = time.perf_counter() - self.t0
+            self.progress(JobProgress(chunks_done=len(self.done), chunks_total=self.job.n_chunks,
+                                      samples=sum(s.n_samples for s in self.done.values()), trials=self.run_trials,
+                                      trials_per_s=self.run_trials / el if el > 0 else 0.0, elapsed_s=el))
+
+
+def _job_failure(exc: Exception, n_done: int, n_chunks: int) -> DatasetJobError | None:
+    """The job error for a full disk or a dead worker, saying how much is kept and how to resume;
+    None for anything else (a bug: raised as it is)."""
+    if isinstance(exc, OSError) and not isinstance(exc, (ConnectionError, TimeoutError)):
+        return DatasetJobError(
+            f"writing the data set failed ({exc.strerror or exc}); {n_done} of {n_chunks} chunks are "
+            "complete and listed in the manifest — free space / fix the folder and re-run the same job to resume")
+    name = type(exc).__name__
+    if name in ("BrokenProcessPool", "KilledWorker", "CommClosedError") or isinstance(exc, (ConnectionError, TimeoutError)):
+        return DatasetJobError(
+            f"a worker died ({name}: {exc}); {n_done} of {n_chunks} chunks are complete and listed "
+            "in the manifest — re-run the same job to resume")
+    return None

@@ -16,6 +16,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from synth.common.closing import Closing
 from synth.errors import PileValidationError
 from synth.scene.pile import LogSpec, PileSpec, quat_from_x_axis, rotate
 
@@ -69,7 +70,7 @@ def _quiet_stdout():
         os.close(devnull)
 
 
-class World:
+class World(Closing):
     """One pile in its own pybullet DIRECT client. Use as a context manager; ``close`` is idempotent."""
 
     def __init__(self, pile: PileSpec, physics: PhysicsConfig | None = None, visuals: bool = True,
@@ -302,17 +303,6 @@ class World:
             except Exception:  # already gone
                 pass
 
-    def __enter__(self) -> "World":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
-    def __del__(self) -> None:  # pragma: no cover - safety net
-        try:
-            self.close()
-        except Exception:
-            pass
 
 
 def log_axis_xy(log: LogSpec) -> np.ndarray:

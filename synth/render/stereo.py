@@ -41,6 +41,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from synth.common.closing import Closing
 from synth.common.formats import VersionedJson
 from synth.errors import OutputError, RenderError, SynthError
 from synth.geometry.calibration import (FIX, StereoCalibration, StereoFormatError, read_calibration_yaml,
@@ -205,7 +206,7 @@ def egl_plugin_path() -> str | None:
     return None if loader is None else loader.get_filename()
 
 
-class StereoRenderer:
+class StereoRenderer(Closing):
     """Renders stereo pairs in a private pybullet client (EGL when available, else TinyRenderer).
 
     Keep one for many renders of a pile (the scene is kept while the pile and the texture config
@@ -336,17 +337,6 @@ class StereoRenderer:
                 self._world.close()
                 self._world = None
 
-    def __enter__(self) -> "StereoRenderer":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
-    def __del__(self) -> None:  # pragma: no cover - safety net
-        try:
-            self.close()
-        except Exception:
-            pass
 
 
 def render_stereo(scene: "World | PileSpec", rig: StereoRigConfig | None = None,
