@@ -293,6 +293,20 @@ def test_dead_worker_is_reported_and_the_job_resumes(tmp_path):
     assert man.summary["complete"] and man.summary["piles"] == 4
 
 
+def test_job_failures_say_what_is_kept_and_how_to_resume():
+    """A full disk is a write failure, a lost connection to a worker (an OSError too) a dead worker,
+    anything else is not the job's to explain."""
+    import errno
+
+    from synth.data.dataset import _job_failure
+
+    disk = _job_failure(OSError(errno.ENOSPC, "No space left on device"), 3, 10)
+    assert "writing the data set failed (No space left on device)" in str(disk) and "3 of 10 chunks" in str(disk)
+    for exc in (ConnectionResetError("peer gone"), TimeoutError("no answer")):
+        assert "a worker died" in str(_job_failure(exc, 1, 4)) and "re-run the same job to resume" in str(_job_failure(exc, 1, 4))
+    assert _job_failure(ValueError("a bug"), 0, 4) is None
+
+
 def test_dask_engine_on_a_local_cluster(tmp_path):
     pytest.importorskip("distributed")
     seen = []
