@@ -85,7 +85,7 @@ def make_cases(n_piles: int, seed0: int = 0, per_pile: int = 8):
 
 def _run(args):
     pile, grasp, targets, which = args
-    cfg = TrialConfig.fast() if which == "fast" else TrialConfig.careful()
+    cfg = TrialConfig.preset(which)
     r = run_trial(pile, grasp, targets, cfg)
     return r.outcome.name, r.cpu_time_s, r.sim_time_s, r.max_penetration_m, r.wall_time_s
 

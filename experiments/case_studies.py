@@ -244,7 +244,7 @@ def taper_logs(pile, top_ratio: float):
 def trial_config(preset: str):
     from synth.physics.trial import TrialConfig
 
-    return TrialConfig.fast() if preset == "fast" else TrialConfig.careful()
+    return TrialConfig.preset(preset)
 
 
 def try_grasp(pile, planned, trial_cfg) -> dict:

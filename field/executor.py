@@ -45,7 +45,7 @@ class PybulletTrialExecutor:
                                   "SWEREF 99 TM commands on it; give it a georeferenced pile.json")
         if trial not in ("fast", "careful"):
             raise ControllerError(f"trial preset must be 'fast' or 'careful', got {trial!r}")
-        self.config = TrialConfig.fast() if trial == "fast" else TrialConfig.careful()
+        self.config = TrialConfig.preset(trial)
         self.last_result = None
 
     def execute(self, cmd: GraspCommand, should_abort: Callable[[], bool]) -> Outcome:

@@ -174,7 +174,7 @@ def oracle_planner(trial_preset: str = "fast", max_trials: int = 40) -> PlanFn:
     from synth.data.candidates import generate_candidates
     from synth.physics.trial import TrialConfig, run_trial
 
-    cfg = TrialConfig.fast() if trial_preset == "fast" else TrialConfig.careful()
+    cfg = TrialConfig.preset(trial_preset)
 
     def plan_fn(obs, pile):
         n = pile.n_logs
@@ -230,7 +230,7 @@ def verified_planner(plan_all: Callable[[object, object], object], objective: st
     from synth.physics.trial import TrialConfig
 
     obj = Objective(kind=objective)
-    trial = TrialConfig.fast() if trial_preset == "fast" else TrialConfig.careful()
+    trial = TrialConfig.preset(trial_preset)
 
     def plan_fn(obs, pile):
         result = plan_all(obs, pile)
@@ -311,7 +311,7 @@ def evaluate_pile(task: tuple[int, bool, int, int], specs: list[PlannerSpec], cf
     pile, _ = generate_pile(seed, GenerationConfig(n_logs=n_logs, n_obstacles=n_obst))
     with World(pile) as world:
         obs = render_ortho(world, OrthoRenderConfig(size_px=cfg.size_px, n_renders=1), seed=seed)
-    trial_cfg = TrialConfig.fast() if cfg.trial == "fast" else TrialConfig.careful()
+    trial_cfg = TrialConfig.preset(cfg.trial)
     out = []
     for spec in specs:
         fn = (planners or {}).get(spec.name) or build_planner(spec, cfg.trial, cfg.oracle_max_trials)

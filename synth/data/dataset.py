@@ -494,7 +494,7 @@ class DatasetJob:
     def trial_config(self):
         from synth.physics.trial import TrialConfig
 
-        return TrialConfig.fast() if self.trial_preset == "fast" else TrialConfig.careful()
+        return TrialConfig.preset(self.trial_preset)
 
     def to_dict(self) -> dict:
         from dataclasses import asdict

@@ -124,6 +124,15 @@ class TrialConfig:
             raise ValueError("hold_s and free_lift_max_m must be >= 0 and free_contact_n > 0")
 
     @staticmethod
+    def preset(name: str) -> "TrialConfig":
+        """The named preset: ``"fast"`` (:meth:`fast`) or ``"careful"`` (:meth:`careful`)."""
+        if name == "fast":
+            return TrialConfig.fast()
+        if name == "careful":
+            return TrialConfig.careful()
+        raise ValueError(f"trial preset must be 'fast' or 'careful', got {name!r}")
+
+    @staticmethod
     def careful() -> "TrialConfig":
         """Reference settings: dt 1/240 s, 50 solver iterations, the pile's own terrain (64²)."""
         return TrialConfig(physics=PhysicsConfig(dt_s=1 / 240, solver_iterations=50), hold_s=2.0)

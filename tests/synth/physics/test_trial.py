@@ -172,3 +172,12 @@ def test_the_approach_through_free_air_is_faster_and_changes_nothing():
     assert slow.phase_s["lower"] - quick.phase_s["lower"] == pytest.approx(0.2, abs=0.03)
     with pytest.raises(ValueError, match="approach_clearance_m"):
         replace(FAST, approach_clearance_m=0.5)
+
+
+def test_trial_presets_by_name():
+    from synth.physics.trial import TrialConfig
+
+    assert TrialConfig.preset("fast") == TrialConfig.fast()
+    assert TrialConfig.preset("careful") == TrialConfig.careful()
+    with pytest.raises(ValueError, match="'fast' or 'careful'"):
+        TrialConfig.preset("Fast")
