@@ -225,7 +225,7 @@ def simulate_scan(pile: PileSpec, out_dir: str | Path, *, grid: tuple[int, int] 
     (``out_dir/survey.csv``, noise ``sigma_h_m``/``sigma_v_m``). Returns (scan folder, survey
     path, the georeferenced true pile)."""
     from reconstruct.survey.gnss import pile_endpoints_site, simulate_survey, write_gnss_csv
-    from reconstruct.pipeline import ScanPose, write_scan_pose
+    from reconstruct.registration import ScanPose, write_scan_pose
     from synth.geometry.frames import make_T, rot_z
     from synth.render.stereo import StereoRenderer, StereoRigConfig
 

@@ -11,10 +11,10 @@
    SfM anchored to each pair's stereo depth (:mod:`reconstruct.scan.sfm`) and the scan frame is the
    first pair's left camera.
 3. **Scan pose**: ``T_site_scan`` places the scan in the site frame. It comes from the config,
-   or from ``scan_pose.json`` in the scan folder (:func:`write_scan_pose` /
-   :func:`read_scan_pose`; e.g. the crane's own RTK/IMU pose of the camera, or a survey of the
+   or from ``scan_pose.json`` in the scan folder (:func:`reconstruct.registration.write_scan_pose` /
+   :func:`~reconstruct.registration.read_scan_pose`; e.g. the crane's own RTK/IMU pose of the camera, or a survey of the
    rig), or — for an unposed scan, or ``georegister="gnss"`` — from the GNSS end points alone
-   (:func:`coarse_scan_pose`: ground plane, yaw and shift search; the site origin is then the
+   (:func:`reconstruct.registration.coarse_scan_pose`: ground plane, yaw and shift search; the site origin is then the
    mean surveyed point, and the refinement below runs in 6 DoF). ``report.json`` names the
    source (``scan_pose_source``: "config", the scan_pose.json path, or "gnss-coarse"). Every
    GNSS end point must then lie within ``max_endpoint_distance_m`` (horizontally; four sigma for an
@@ -25,7 +25,7 @@
    where each log is fitted comes from the scan's axis (and from the survey for a log the scan
    does not show). A log the survey missed but the scan shows is kept (``scan0``...); geometry two
    matchings explain nearly equally well is an error naming the logs to re-measure.
-5. **Registration refinement** (:func:`refine_registration`): each matched log is fitted around
+5. **Registration refinement** (:func:`reconstruct.registration.refine_registration`): each matched log is fitted around
    its scan axis; the correction (4 DoF: yaw + translation, or 6 DoF after a coarse pose; translation
    only for parallel logs) that brings the fitted axes — and the ends the scan sees — through the
    survey points, each weighted by its accuracy, robustly (Cauchy), against the prior that the scan
@@ -53,20 +53,18 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
 from reconstruct.errors import FitError, ReconstructError, RegistrationError, ScanError
-from reconstruct.fitting.fit import (
-    FitConfig, PileFit, fit_log, fit_pile, log_spec_from_fit, natural_key, points_on_no_other_log,
-)
+from reconstruct.fitting.fit import FitConfig, PileFit, fit_log, fit_pile, log_spec_from_fit
 from reconstruct.fitting.fuse import (
     FuseConfig, SurveyEnd, absorb_pieces, find_scan_logs, match_survey, place_log_ends, point_accuracy, prior_axis,
-    scan_end_interval, seen_end,
 )
+from reconstruct.registration import CoarseConfig, ScanPose, coarse_scan_pose, read_scan_pose, refine_registration
 from reconstruct.scan.sfm import SfmConfig
 from reconstruct.scan.stereo import ScanCloud, StereoConfig, scan_cloud
 from synth.geometry.frames import apply_T, invert_T, make_T, rot_z
@@ -77,57 +75,15 @@ from synth.scene.pile import Georeference, PileSpec, write_pile
 if TYPE_CHECKING:
     from synth.render.ortho import OrthoObservation
 
-SCAN_POSE_FORMAT = "loggrasp.scan-pose"
-SCAN_POSE_VERSION = "1.0"
 REPORT_FORMAT = "loggrasp.reconstruction-report"
 REPORT_VERSION = "1.2"  # 1.1: per-log "fit" (scan, partial, hidden); 1.2: per-end "ends" (source, sigma), "fusion",
 #                       "weak_ends", "contradicted_points"
-SCAN_POSE = VersionedJson(SCAN_POSE_FORMAT, SCAN_POSE_VERSION, "scan pose", RegistrationError,
-                          unreadable_fix="give the scan's scan_pose.json, or --georegister gnss",
-                          filename="scan_pose.json")
 REPORT = VersionedJson(REPORT_FORMAT, REPORT_VERSION, "reconstruction report", ReconstructError,
                        unreadable_fix="reconstruct the scan again", filename="report.json")
 PAIR_POSES = ("auto", "calibration", "sfm")
 GEOREGISTER = ("auto", "scan-pose", "gnss")
 RENDER_PX_MULTIPLE = 16  # re-render sides are a multiple of this (a depth-4 U-Net pools 4 times) [px]
 MAX_EXTENT_M = 100.0  # largest pile patch [m]
-
-
-# -- the scan pose sidecar ---------------------------------------------------------------------
-@dataclass(frozen=True)
-class ScanPose:
-    """Where a scan lies on Earth: the site origin and the scan frame's pose in that site frame."""
-
-    origin_lat_deg: float  # SWEREF 99 [deg]
-    origin_lon_deg: float  # SWEREF 99 [deg]
-    origin_h_m: float  # ellipsoidal height [m]
-    T_site_scan: tuple[tuple[float, ...], ...]  # 4x4, scan frame -> site ENU frame
-
-    def __post_init__(self) -> None:
-        Georeference(self.origin_lat_deg, self.origin_lon_deg, self.origin_h_m, self.T_site_scan)
-
-    @property
-    def origin(self) -> tuple[float, float, float]:
-        return (self.origin_lat_deg, self.origin_lon_deg, self.origin_h_m)
-
-    def matrix(self) -> np.ndarray:
-        return np.asarray(self.T_site_scan, dtype=np.float64)
-
-
-def write_scan_pose(pose: ScanPose, path: str | Path) -> Path:
-    """Write ``scan_pose.json`` (a folder: inside it) atomically. Returns the path."""
-    return SCAN_POSE.write(path, {**asdict(pose), "T_site_scan": [list(r) for r in pose.T_site_scan]})
-
-
-def read_scan_pose(path: str | Path) -> ScanPose:
-    """Read ``scan_pose.json`` (or a folder holding one). Raises :class:`RegistrationError`."""
-    path = SCAN_POSE.path(path)
-    d = SCAN_POSE.read(path)
-    try:
-        return ScanPose(float(d["origin_lat_deg"]), float(d["origin_lon_deg"]), float(d["origin_h_m"]),
-                        tuple(tuple(float(v) for v in row) for row in d["T_site_scan"]))
-    except (KeyError, TypeError, ValueError) as exc:
-        raise RegistrationError(f"malformed scan pose {path}: {exc}") from exc
 
 
 # -- configuration and result ------------------------------------------------------------------
@@ -144,7 +100,7 @@ class ReconstructConfig:
     #                            scan (no pair poses, no scan pose) from the GNSS end points;
     #                            "scan-pose": a scan pose is required; "gnss": from the GNSS end points
     sfm: SfmConfig = field(default_factory=SfmConfig)
-    coarse: "CoarseConfig" = field(default_factory=lambda: CoarseConfig())
+    coarse: CoarseConfig = field(default_factory=CoarseConfig)
     allow_float: bool = False  # accept RTK float end points
     max_endpoint_distance_m: float = 1.0  # an end point this far from every scan point is an error [m]
     refine: bool = True  # refine the scan pose against the GNSS end points
@@ -253,447 +209,6 @@ class ReconstructionResult:
     @property
     def time_s(self) -> float:
         return float(self.report["timings_s"]["total_s"])
-
-
-# -- registration ------------------------------------------------------------------------------
-def _survey_ends_from(endpoints: dict, sigmas: dict | None) -> dict:
-    """:class:`reconstruct.fitting.fuse.SurveyEnd` pairs from plain end points and 1-sigma 3-D accuracies
-    (``sigmas``: ``{log_id: (sigma_a, sigma_b)}``; default RTK fixed)."""
-    from reconstruct.fitting.fuse import SurveyEnd
-
-    out = {}
-    for k, ends in endpoints.items():
-        pair = []
-        for end, p in zip("ab", ends):
-            if p is None:
-                pair.append(None)
-                continue
-            s = (sigmas or {}).get(k, (None, None))["ab".index(end)]
-            s = 0.02 if s is None or not np.isfinite(s) else float(s)
-            pair.append(SurveyEnd(np.asarray(p, dtype=float), s / math.sqrt(3.0), s / math.sqrt(3.0),
-                                  "rtk_fixed" if s <= 0.05 else "rtk_float"))
-        out[k] = tuple(pair)
-    return out
-
-
-def _correction(x: np.ndarray, mode: str, with_scale: bool, pivot: np.ndarray) -> np.ndarray:
-    """The 4x4 correction of parameters ``x`` (small rotation about ``pivot``, translation, log scale)."""
-    import cv2
-
-    if mode == "6dof":
-        rvec, t = x[:3], x[3:6]
-    elif mode == "4dof":
-        rvec, t = np.array([0.0, 0.0, x[0]]), x[1:4]
-    else:
-        rvec, t = np.zeros(3), x[:3]
-    R = cv2.Rodrigues(np.asarray(rvec, dtype=np.float64).reshape(3, 1))[0]
-    s = math.exp(float(x[-1])) if with_scale else 1.0
-    T = np.eye(4)
-    T[:3, :3] = s * R
-    T[:3, 3] = pivot + np.asarray(t, dtype=float) - s * R @ pivot
-    return T
-
-
-def refine_registration(points: np.ndarray, endpoints: dict, cfg: ReconstructConfig,
-                        sigmas: dict | None = None, priors: dict | None = None, survey: dict | None = None,
-                        ) -> tuple[np.ndarray, dict, dict]:
-    """Correction ``T`` (4x4, applied to ``points``) that brings the logs fitted to the scan
-    through their surveyed end points, a report and the fitted logs (``{log_id: LogSpec}``, moved by
-    ``T``). Points and end points in the same frame.
-
-    Each log is fitted around its ``priors`` axis (``{log_id: (a, b)}``; default ``endpoints``);
-    the survey points (``survey``: ``{log_id: (SurveyEnd | None, SurveyEnd | None)}``, or
-    ``endpoints`` with ``sigmas``, 1-sigma 3-D [m]) are the targets. Each point's distance from its
-    fitted axis counts by its own accuracy, robustly (Cauchy-weighted least squares: a float or wrong
-    point cannot drag the scan), against a prior that the given scan pose is right to
-    ``scan_pose_sigma_m`` / ``scan_pose_sigma_deg``. With one log (or parallel ones) a rotation about
-    their common direction is unobservable: translation only. Points whose normalised residual stays
-    above ``registration_outlier_sigma`` are reported (``outliers``)."""
-    from scipy.optimize import least_squares
-
-    fcfg = cfg.fit
-    survey = survey if survey is not None else _survey_ends_from(endpoints, sigmas)
-    priors = priors if priors is not None else {k: v for k, v in endpoints.items() if all(p is not None for p in v)}
-    axes, failures = {}, {}
-    rng = np.random.default_rng(fcfg.seed)
-    for log_id in sorted(priors, key=natural_key):
-        a, b = priors[log_id]
-        try:
-            f = fit_log(points, a, b, fcfg, log_id=log_id, rng=rng, sigma_a_m=cfg.registration_prior_sigma_m,
-                        sigma_b_m=cfg.registration_prior_sigma_m)
-        except ReconstructError as exc:
-            failures[log_id] = str(exc)
-            continue
-        axes[log_id] = (f.centre, f.axis, f)
-    if not axes:
-        raise RegistrationError("no log could be fitted to the scan around its GNSS axis: "
-                                + "; ".join(failures.values()))
-    ids = list(axes)
-    targets = [(k, end, e) for k in ids if k in survey for end, e in zip("ab", survey[k]) if e is not None]
-    if not targets:
-        raise RegistrationError("no surveyed end point lies on a log fitted to the scan: nothing to register to")
-    C = np.array([axes[k][0] for k, _, _ in targets])
-    U = np.array([axes[k][1] for k, _, _ in targets])
-    G = np.array([e.position_m for _, _, e in targets])
-    SH = np.array([e.sigma_h_m for _, _, e in targets])
-    SV = np.array([e.sigma_v_m for _, _, e in targets])
-    # where the scan itself sees a surveyed end (its top stops, the scan sees below it): the survey point's
-    # place along the axis counts too, which fixes the shift along parallel logs
-    # (walked over the points on no other fitted log, as the ends are placed later: a neighbour's top
-    # where it touches this log's end is not this log)
-    S = np.full((len(targets), 3), np.nan)
-    SA = np.ones(len(targets))
-    specs = [log_spec_from_fit(axes[k][2], fcfg)[0] for k in ids]
-    mine = dict(zip(ids, points_on_no_other_log(points, specs, fcfg.inlier_band_m)))
-    clear = dict(zip(ids, points_on_no_other_log(points, specs, fcfg.end_walk_band_m)))
-    for i, (k, end, e) in enumerate(targets):
-        f = axes[k][2]
-        p0, p1 = f.ends
-        r = 0.5 * (f.radius_a_m + f.radius_b_m)
-        iv = scan_end_interval(points[mine[k]], p0, p1, r, toward_p1=(end == "b"), reach_m=cfg.fuse.end_search_m,
-                               cfg=cfg.fuse, on_mask=clear[k][mine[k]])
-        if iv.state == "seen":
-            u_k = (p1 - p0) / max(float(np.linalg.norm(p1 - p0)), 1e-9)
-            S[i] = p0 + u_k * seen_end(iv)
-            SA[i] = math.hypot(e.sigma_along(u_k), cfg.fuse.scan_end_sigma_m)
-    seen = np.isfinite(S[:, 0])
-    directions = np.array([axes[k][1] for k in ids])
-    spread = np.degrees(np.arccos(np.clip(np.abs(directions @ directions.T), 0, 1))).max() if len(ids) > 1 else 0.0
-    full = len(ids) >= 2 and spread > 10.0
-    mode = cfg.refine_dof if full else "translation"
-    with_scale = bool(cfg.refine_with_scale and full)
-    pivot = C.mean(axis=0)
-    n_rot = {"6dof": 3, "4dof": 1, "translation": 0}[mode]
-    x0 = np.zeros(n_rot + 3 + (1 if with_scale else 0))
-    sig_rot = math.radians(cfg.scan_pose_sigma_deg)
-
-    def point_residuals(x: np.ndarray) -> np.ndarray:
-        """(3 per point) the point's offset from its fitted axis across and up, and along it from the end
-        the scan sees (0 where it sees none), in sigmas."""
-        T = _correction(x, mode, with_scale, pivot)
-        c = C @ T[:3, :3].T + T[:3, 3]
-        u = U @ T[:3, :3].T
-        u /= np.linalg.norm(u, axis=1, keepdims=True)
-        d = G - c
-        d -= u * np.einsum("ij,ij->i", d, u)[:, None]
-        n_h = np.cross(u, [0.0, 0.0, 1.0])
-        n_h /= np.maximum(np.linalg.norm(n_h, axis=1, keepdims=True), 1e-9)
-        n_v = np.cross(n_h, u)
-        s_v = np.sqrt(SH ** 2 * (n_v[:, 0] ** 2 + n_v[:, 1] ** 2) + SV ** 2 * n_v[:, 2] ** 2)
-        along = np.zeros(len(G))
-        if seen.any():
-            s_end = S[seen] @ T[:3, :3].T + T[:3, 3]
-            along[seen] = np.einsum("ij,ij->i", G[seen] - s_end, u[seen]) / SA[seen]
-        return np.column_stack([np.einsum("ij,ij->i", d, n_h) / SH, np.einsum("ij,ij->i", d, n_v) / s_v, along])
-
-    def prior(x: np.ndarray) -> np.ndarray:
-        r = [x[:n_rot] / sig_rot, x[n_rot:n_rot + 3] / cfg.scan_pose_sigma_m]
-        if with_scale:
-            r.append(x[-1:] / 0.02)
-        return np.concatenate(r)
-
-    w = np.ones(len(targets))
-    c_robust = cfg.registration_robust_sigma
-    x = x0
-    for _ in range(cfg.refine_iterations):
-        sw = np.sqrt(w)[:, None]
-        sol = least_squares(lambda v: np.concatenate([(point_residuals(v) * sw).ravel(), prior(v)]), x,
-                            x_scale=[0.01] * len(x0), max_nfev=100)
-        moved = float(np.max(np.abs(sol.x - x)))
-        x = sol.x
-        r = np.linalg.norm(point_residuals(x), axis=1)
-        w_new = 1.0 / (1.0 + (r / c_robust) ** 2)  # Cauchy weights
-        if moved < 1e-6 and np.allclose(w_new, w, atol=1e-3):
-            break
-        w = w_new
-    T = _correction(x, mode, with_scale, pivot)
-
-    def metric(Tm: np.ndarray) -> np.ndarray:
-        c = C @ Tm[:3, :3].T + Tm[:3, 3]
-        u = U @ Tm[:3, :3].T
-        u /= np.linalg.norm(u, axis=1, keepdims=True)
-        d = G - c
-        d -= u * np.einsum("ij,ij->i", d, u)[:, None]
-        return np.linalg.norm(d, axis=1)
-
-    before, after = metric(np.eye(4)), metric(T)
-    norm_after = np.linalg.norm(point_residuals(x), axis=1)
-    good = np.array([e.sigma_h_m * math.sqrt(2) <= cfg.registration_max_sigma_m for _, _, e in targets])
-    if not good.any():
-        good[:] = True
-    scale = float(np.cbrt(abs(np.linalg.det(T[:3, :3]))))
-    R = T[:3, :3] / scale
-    angle = math.degrees(math.acos(float(np.clip((np.trace(R) - 1) / 2, -1, 1))))
-    shift = float(np.linalg.norm(T[:3, 3] + T[:3, :3] @ pivot - pivot))  # at the logs' centre
-    outliers = [{"log_id": k, "end": end, "fix": e.fix, "residual_m": float(after[i]),
-                 "residual_sigma": float(norm_after[i])}
-                for i, (k, end, e) in enumerate(targets) if norm_after[i] > cfg.registration_outlier_sigma]
-    report = {
-        "mode": mode, "with_scale": with_scale, "scale": scale,
-        "correction_m": shift, "correction_deg": angle,
-        # RMS over the precise points (RTK fixed): the float ones are metres of noise in comparison
-        "residual_rms_before_m": float(np.sqrt(np.mean(before[good] ** 2))),
-        "residual_rms_after_m": float(np.sqrt(np.mean(after[good] ** 2))),
-        "residual_max_after_m": float(after[good].max()),
-        "logs_used": ids, "logs_not_fitted": failures, "end_points_used": int(len(targets)),
-        "end_points_precise": int(good.sum()), "end_points_seen": int(seen.sum()), "weights": {f"{k}.{end}": float(wi) for (k, end, _), wi in zip(targets, w)},
-        "outliers": outliers, "T_correction": T.tolist(),
-    }
-    fitted = {}
-    for k in ids:
-        f = axes[k][2]
-        fitted[k] = log_spec_from_fit(f.with_ends(apply_T(T, f.ends)), fcfg)[0]
-    if shift > cfg.max_correction_m or angle > cfg.max_correction_deg:
-        raise RegistrationError(
-            f"the scan pose needs a correction of {shift:.2f} m / {angle:.1f} deg to match the GNSS end "
-            f"points (limits {cfg.max_correction_m} m / {cfg.max_correction_deg} deg); the scan pose "
-            "is wrong, or the survey belongs to another pile"
-        )
-    return T, report, fitted
-
-
-# -- coarse georegistration: the scan placed from the GNSS end points alone -----------------------
-@dataclass(frozen=True)
-class CoarseConfig:
-    """Coarse placement of a scan in the site frame from the GNSS end points alone (no scan pose):
-    ground plane -> vertical; yaw and horizontal shift by matching the surveyed log axes to the
-    scan's raised points; height from the ground under the logs (units in the names/comments)."""
-
-    voxel_m: float = 0.03  # cloud thinned to this first [m]
-    ground_distance_m: float = 0.04  # RANSAC ground-plane inlier distance [m]
-    ground_iterations: int = 2000  # RANSAC iterations [-]
-    min_ground_fraction: float = 0.15  # the dominant plane must hold this share of the points [-]
-    log_min_height_m: float = 0.05  # points this far above the ground plane may be logs [m]
-    log_max_height_m: float = 2.0  # ... and at most this far [m]
-    cell_m: float = 0.02  # raster cell of the yaw/shift search [m]
-    band_m: float = 0.05  # support of an axis sample: its depth inside the raised region, full at this [m]
-    end_trim_m: float = 0.15  # axis samples this close to a surveyed end are not used [m]
-    yaw_step_deg: float = 2.0  # coarse yaw grid [deg]
-    fine_step_deg: float = 0.25  # refined yaw grid around the best coarse yaw [deg]
-    min_support: float = 0.4  # mean support of the axis samples needed [-]
-    ambiguity_ratio: float = 0.9  # a distinct second yaw scoring this share of the best: error [-]
-    peak_separation_deg: float = 15.0  # yaws closer than this belong to one peak [deg]
-    height_ambiguity_ratio: float = 1.5  # ambiguous yaws: the chosen one's height spread must be
-    #                                      this many times smaller than every other's [-]
-    refine_dof: str = "6dof"  # refinement after the coarse pose: the vertical came from the ground plane
-    max_correction_m: float = 0.30  # refinement limits after the coarse pose [m]
-    max_correction_deg: float = 5.0  # [deg]
-    pose_sigma_m: float = 0.15  # the coarse pose is right to this (1 sigma, the refinement's prior) [m]
-    pose_sigma_deg: float = 3.0  # [deg]
-    seed: int = 0  # RANSAC seed [-]
-
-    def __post_init__(self) -> None:
-        for name in ("voxel_m", "ground_distance_m", "log_min_height_m", "cell_m", "band_m", "yaw_step_deg",
-                     "fine_step_deg", "peak_separation_deg", "max_correction_m", "max_correction_deg", "pose_sigma_m",
-                     "pose_sigma_deg"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
-        if not self.log_max_height_m > self.log_min_height_m:
-            raise ValueError("log_max_height_m must be > log_min_height_m")
-        if self.end_trim_m < 0 or self.ground_iterations < 10:
-            raise ValueError("end_trim_m must be >= 0 and ground_iterations >= 10")
-        if not self.height_ambiguity_ratio >= 1:
-            raise ValueError(f"height_ambiguity_ratio must be >= 1, got {self.height_ambiguity_ratio}")
-        for name in ("min_ground_fraction", "min_support", "ambiguity_ratio"):
-            if not 0 < getattr(self, name) <= 1:
-                raise ValueError(f"{name} must be in (0, 1], got {getattr(self, name)}")
-        if self.refine_dof not in ("4dof", "6dof"):
-            raise ValueError(f"refine_dof must be '4dof' or '6dof', got {self.refine_dof!r}")
-
-
-def _rot_z(a: float) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, -s], [s, c]])
-
-
-def _axis_samples(ends: dict[str, tuple[np.ndarray, np.ndarray]], step_m: float,
-                  trim_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """Points along every surveyed axis (site frame, (N, 3)) and their log index."""
-    pts, owner = [], []
-    for k, (a, b) in enumerate(ends.values()):
-        L = float(np.linalg.norm(b[:2] - a[:2]))
-        if L <= 2 * trim_m:
-            continue
-        t = np.arange(trim_m, L - trim_m + 1e-9, step_m) / L
-        pts.append(a + np.outer(t, b - a))
-        owner.append(np.full(len(t), k))
-    if not pts:
-        raise RegistrationError("the surveyed logs are too short to place the scan from them")
-    return np.concatenate(pts), np.concatenate(owner)
-
-
-def coarse_scan_pose(points: np.ndarray, camera_positions: np.ndarray,
-                     ends_site: dict[str, tuple[np.ndarray, np.ndarray]],
-                     cfg: CoarseConfig | None = None) -> tuple[np.ndarray, dict]:
-    """``T_site_scan`` (4x4) of a scan whose pose is unknown, from the GNSS end points alone.
-
-    ``points``: the fused cloud (scan frame); ``camera_positions``: the pairs' left cameras
-    (scan frame; they tell which side of the ground is up); ``ends_site``: ``{log_id: (a, b)}``
-    log end centres in the site frame. Steps: the ground is the dominant plane (open3d
-    ``segment_plane``) -> the vertical; points raised above it are rasterised; for every yaw on
-    a grid the surveyed axes are rasterised and slid over that raster
-    (``cv2.matchTemplate``): the yaw and horizontal shift putting the most axis samples on
-    raised points wins (then a finer yaw grid); the height puts the lowest log on the ground
-    (a log's axis lies half its seen top height above the ground under it). Returns the pose and
-    a report (ground, scores, peaks). Raises :class:`CoarseRegistrationError` when there is no
-    ground plane, the best yaw supports too few axis samples, or a distinct second yaw scores
-    nearly as well (a symmetric pile: survey another log, or give a scan pose)."""
-    import cv2
-    import open3d as o3d
-
-    from reconstruct.errors import CoarseRegistrationError
-
-    cfg = cfg or CoarseConfig()
-    o3d.utility.random.seed(cfg.seed)
-    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, dtype=np.float64)))
-    pc = pc.voxel_down_sample(cfg.voxel_m)
-    P = np.asarray(pc.points)
-    if len(P) < 100:
-        raise CoarseRegistrationError(f"only {len(P)} scan points: too few to find the ground")
-    plane, inl = pc.segment_plane(cfg.ground_distance_m, 3, cfg.ground_iterations)
-    frac = len(inl) / len(P)
-    if frac < cfg.min_ground_fraction:
-        raise CoarseRegistrationError(
-            f"no dominant ground plane in the scan (the best plane holds {frac * 100:.0f} % of the points, need "
-            f"{cfg.min_ground_fraction * 100:.0f} %): the scan must show the ground around the pile, or give a "
-            "scan pose (scan_pose.json)")
-    n, d = np.asarray(plane[:3], dtype=np.float64), float(plane[3])
-    norm = float(np.linalg.norm(n))
-    n, d = n / norm, d / norm
-    cams = np.atleast_2d(np.asarray(camera_positions, dtype=np.float64))
-    if len(cams) and np.median(cams @ n + d) < 0:  # the cameras are above the ground
-        n, d = -n, -d
-    # R_level: the shortest rotation taking n to +z
-    z = np.array([0.0, 0.0, 1.0])
-    v, c = np.cross(n, z), float(n @ z)
-    vx = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
-    R_level = np.eye(3) + vx + vx @ vx / (1 + c) if c > -0.999999 else np.diag([1.0, -1.0, -1.0])
-    T_level_scan = make_T(R_level, (0.0, 0.0, d))  # level z = height above the ground plane
-    Q = apply_T(T_level_scan, P)
-    raised = Q[(Q[:, 2] > cfg.log_min_height_m) & (Q[:, 2] < cfg.log_max_height_m)]
-    if len(raised) < 50:
-        raise CoarseRegistrationError("the scan shows (almost) nothing above the ground plane: no logs to match")
-    # raster of raised points (level frame), dilated by the band
-    lo = raised[:, :2].min(0) - 0.5
-    hi = raised[:, :2].max(0) + 0.5
-    shape = tuple(int(v) for v in np.ceil((hi - lo) / cfg.cell_m)[::-1] + 1)  # rows (y), cols (x)
-    occ = np.zeros(shape, np.uint8)
-    ij = np.floor((raised[:, :2] - lo) / cfg.cell_m).astype(np.int64)
-    occ[ij[:, 1], ij[:, 0]] = 1
-    occ = cv2.morphologyEx(occ, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
-    # how deep inside the raised region a cell lies: largest on a log's centre line (its axis seen from
-    # above), so a surveyed axis scores most when it runs along the middle of a log, not just across one
-    inside = cv2.distanceTransform(occ, cv2.DIST_L2, 5) * cfg.cell_m
-    occ = (np.clip(inside, 0.0, cfg.band_m) / cfg.band_m).astype(np.float32)
-    samples, owner = _axis_samples(ends_site, cfg.cell_m, cfg.end_trim_m)
-    centre = samples[:, :2].mean(0)
-    rel = samples[:, :2] - centre
-
-    def score(yaw: float) -> tuple[float, np.ndarray]:
-        a = rel @ _rot_z(-yaw).T  # axis samples in the level frame, up to a shift
-        amin = a.min(0)
-        idx = np.floor((a - amin) / cfg.cell_m).astype(np.int64)
-        th, tw = int(idx[:, 1].max()) + 1, int(idx[:, 0].max()) + 1
-        if th >= occ.shape[0] or tw >= occ.shape[1]:
-            return 0.0, np.zeros(2)
-        tmpl = np.zeros((th, tw), np.float32)
-        np.add.at(tmpl, (idx[:, 1], idx[:, 0]), 1.0)
-        res = cv2.matchTemplate(occ, tmpl, cv2.TM_CCORR)
-        _, best, _, loc = cv2.minMaxLoc(res)
-        # level position of the samples' centre: template origin + (centre - amin)
-        u = lo + np.array(loc, dtype=np.float64) * cfg.cell_m - amin
-        return float(best) / len(a), u
-
-    from scipy.spatial import cKDTree
-
-    tree = cKDTree(raised[:, :2])
-
-    def height_spread(yaw: float, u: np.ndarray) -> float:
-        """Median absolute deviation [m] of (surveyed axis height - scan top height under it) over
-        the axis samples: nearly constant (a radius and the ground offset) at the right yaw; at a
-        wrong one the survey's high logs land on low scan points and the other way round."""
-        R2 = _rot_z(yaw)
-        lvl = (samples[:, :2] - (centre - R2 @ u)) @ R2
-        nb = tree.query_ball_point(lvl, 0.03)
-        d = np.array([samples[k, 2] - float(np.max(raised[j, 2])) for k, j in enumerate(nb) if len(j)])
-        if len(d) < 0.3 * len(samples):
-            return math.inf
-        return float(np.median(np.abs(d - np.median(d))))
-
-    def refine_yaw(y0: float) -> tuple[float, float, np.ndarray]:
-        fine = np.radians(np.arange(-cfg.yaw_step_deg, cfg.yaw_step_deg + 1e-9, cfg.fine_step_deg)) + y0
-        y, (b, u) = max(((float(y), score(float(y))) for y in fine), key=lambda t: t[1][0])
-        return y, b, u
-
-    yaws = np.radians(np.arange(-180.0, 180.0, cfg.yaw_step_deg))
-    coarse = [score(float(y)) for y in yaws]
-    sc = np.array([c[0] for c in coarse])
-    i_best = int(np.argmax(sc))
-    sep = np.radians(cfg.peak_separation_deg)
-    dist = np.abs((yaws - yaws[i_best] + np.pi) % (2 * np.pi) - np.pi)
-    peak = (sc >= np.roll(sc, 1)) & (sc >= np.roll(sc, -1))  # local maxima (circular)
-    other = peak & (dist > sep)
-    second = float(sc[other].max()) if other.any() else 0.0
-    y_second = float(yaws[other][int(np.argmax(sc[other]))]) if other.any() else math.nan
-    best_yaw, best, u = refine_yaw(float(yaws[i_best]))
-    report = {
-        "ground_plane_scan": [float(v) for v in (*n, d)], "ground_fraction": float(frac),
-        "raised_points": int(len(raised)), "axis_samples": int(len(samples)),
-        "yaw_deg": math.degrees(best_yaw), "support": best,
-        "second_peak_yaw_deg": math.degrees(y_second) if np.isfinite(y_second) else None,
-        "second_peak_support": second,
-        "yaw_scores": {"step_deg": cfg.yaw_step_deg, "support": [round(float(v), 4) for v in sc]},
-    }
-    if best < cfg.min_support:
-        raise CoarseRegistrationError(
-            f"no yaw puts the surveyed logs on the scan: at best {best * 100:.0f} % of the axis samples lie on "
-            f"raised scan points (need {cfg.min_support * 100:.0f} %). The survey belongs to another pile, the "
-            "scan misses part of it, or the ground was not found; give a scan pose (scan_pose.json)")
-    if second >= cfg.ambiguity_ratio * best:
-        # the top view alone cannot tell: every yaw peak scoring nearly as well is placed and judged by
-        # the heights (the survey's 3-D ends against the scan's tops); one must be clearly more consistent
-        cand_yaws = [float(yaws[i_best])]
-        for i in np.argsort(-sc):
-            far = all(abs((yaws[i] - y + np.pi) % (2 * np.pi) - np.pi) > sep for y in cand_yaws)
-            if peak[i] and far and sc[i] >= cfg.ambiguity_ratio * sc[i_best]:
-                cand_yaws.append(float(yaws[i]))
-        cands = []
-        for y0 in cand_yaws:
-            y, b, uu = refine_yaw(y0)
-            cands.append((height_spread(y, uu), y, b, uu))
-        cands.sort(key=lambda c: c[0])
-        report["height_spread_m"] = {f"{math.degrees(c[1]):.1f}": c[0] for c in cands}
-        (h1, y1, b1, u1), (h2, y2, b2, _) = cands[0], cands[1]
-        if not (math.isfinite(h1) and h1 * cfg.height_ambiguity_ratio <= h2):
-            raise CoarseRegistrationError(
-                f"the scan fits the surveyed logs almost equally well at yaw {math.degrees(best_yaw):.0f} deg "
-                f"({best * 100:.0f} % support) and {math.degrees(y_second):.0f} deg ({second * 100:.0f} %), and "
-                f"the heights do not tell them apart either ({h1 * 100:.1f} vs {h2 * 100:.1f} cm spread): the "
-                "pile looks (nearly) symmetric. Survey a log that breaks the symmetry, or give a scan pose "
-                "(scan_pose.json)")
-        best_yaw, best, u = y1, b1, u1
-        report.update(yaw_deg=math.degrees(best_yaw), support=best, resolved_by="heights")
-    # height: a log's axis lies half its seen top height above the ground under it, if it lies on the
-    # ground; logs on other logs give higher grounds, so the lowest log sets the height
-    R2 = _rot_z(best_yaw)
-    t_xy = centre - R2 @ u  # site_xy = R2 @ level_xy + t_xy
-    lvl = (samples[:, :2] - t_xy) @ R2  # = R2.T @ (site - t)
-    grounds = []
-    for k in np.unique(owner):
-        sel = owner == k
-        nb = tree.query_ball_point(lvl[sel], 0.03)
-        tops = [float(np.max(raised[j, 2])) for j in nb if len(j)]
-        if len(tops) >= 5:
-            h_top = float(np.median(tops))
-            grounds.append(float(np.median(samples[sel, 2])) - h_top / 2)
-    if not grounds:
-        raise CoarseRegistrationError("no surveyed log has raised scan points along its axis")
-    dz = float(min(grounds))
-    T_site_level = np.eye(4)
-    T_site_level[:2, :2] = R2
-    T_site_level[:3, 3] = (t_xy[0], t_xy[1], dz)
-    report["ground_height_site_m"] = dz
-    return T_site_level @ T_level_scan, report
 
 
 def _survey_ends(survey: Any, origin: Any) -> dict[str, tuple[SurveyEnd | None, SurveyEnd | None]]:
@@ -812,7 +327,7 @@ def _pose(scan_dir: Path, cfg: ReconstructConfig, unposed: bool = False) -> tupl
             return None, "gnss-coarse"
         raise RegistrationError(
             f"{scan_dir} has no scan_pose.json and no scan pose was given: the scan cannot be placed in "
-            "the site frame. Write one with reconstruct.pipeline.write_scan_pose (site origin + "
+            "the site frame. Write one with reconstruct.registration.write_scan_pose (site origin + "
             "T_site_scan of the scan frame), pass ReconstructConfig(scan_pose=...), or place it from the "
             "GNSS end points (ReconstructConfig(georegister='gnss'), loggrasp reconstruct --georegister gnss)"
         )
@@ -868,19 +383,103 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
     Raises a :class:`~reconstruct.errors.ReconstructError` subclass (``ScanError``,
     ``GnssError``, ``RegistrationError``, ``FitError``) naming the file, log or point at fault.
     """
-    from reconstruct.survey.gnss import read_gnss
-    from reconstruct.scan.calibration import pair_pose_present
-    from reconstruct.scan.stereo import find_pairs
-    from synth.errors import SynthError
-    from synth.render.ortho import OrthoRenderConfig, render_ortho
-    from synth.render.preview import preview_image, write_png
-    from synth.physics.world import World
-
     cfg = config or ReconstructConfig()
     say = progress or (lambda s: None)
     scan_dir, out_dir = Path(scan_dir), Path(out_dir)
-    timings: dict[str, float] = {}
-    t_start = time.perf_counter()
+    clock = _Clock()
+    survey, pose, pose_source, origin, survey_site = _read_survey(scan_dir, gnss_path, cfg, say)
+    clock.lap("survey_s")
+    if cloud is None:
+        say(f"matching stereo pairs in {scan_dir}")
+        cloud, pair_pose_source, sfm_report = _scan(scan_dir, cfg, say)
+    else:
+        pair_pose_source, sfm_report = "given", None
+    clock.lap("stereo_s")
+    if sfm_report is not None:
+        clock.timings["sfm_s"] = float(sfm_report["timings_s"].get("total_s", math.nan))
+    placed = _Placed(pose, None, cfg, cfg.fuse)
+    if pose is None:
+        placed = _place_from_gnss(cloud, survey_site, origin, cfg, say)
+        clock.lap("georegistration_s")
+    T_site_scan = placed.pose.matrix()
+    pts_site = apply_T(T_site_scan, cloud.points)
+    coverage = _check_coverage(pts_site[:, :2], survey_site, cfg.max_endpoint_distance_m)
+    clock.reset()
+    say("finding the logs in the scan and matching them to the survey")
+    matching = _match_logs(pts_site, survey_site, placed.fuse_cfg)
+    clock.lap("matching_s")
+    frame = _pile_frame(pts_site, matching.priors(survey_site, matching.scan_logs, placed.fuse_cfg), cfg)
+    pts = apply_T(frame.T_pile_site, pts_site)
+    survey_ends = {k: tuple(None if e is None else e.moved(frame.T_pile_site) for e in v) for k, v in survey_site.items()}
+    logs_pile = [s.moved(frame.T_pile_site) for s in matching.scan_logs]
+    clock.reset()
+    T_corr, reg_report, first_pass = _refine(pts[frame.near], matching, survey_ends, logs_pile, placed, cfg, say)
+    if reg_report["mode"] != "none":
+        pts = apply_T(T_corr, pts)
+    clock.lap("registration_s")
+    T_site_scan_refined = frame.T_site_pile @ T_corr @ frame.T_pile_site @ T_site_scan  # site <- pile <- scan
+    logs_pile = [s.moved(T_corr) for s in logs_pile]
+    in_patch = np.all(np.abs(pts[:, :2]) < frame.extent / 2, axis=1)
+    fit, fusion = _fit(pts[in_patch], matching, survey_ends, logs_pile, first_pass, frame, placed, cfg, say,
+                       notes=f"reconstructed from {scan_dir} and {gnss_path}", georef=frame.georef(placed.pose))
+    clock.lap("fit_s")
+    say(f"writing {out_dir}")
+    obs, files = _write_outputs(fit, frame.render_px, cfg, out_dir, pts[in_patch], cloud.colours[in_patch])
+    clock.lap("outputs_s")
+    timings = clock.total()
+    if pair_pose_source != "given":
+        timings.update({f"stereo_{k}": v for k, v in cloud.timings_s.items()})
+    timings.update({f"fit_{k}": v for k, v in fit.timings_s.items()})
+    report = {
+        "format": REPORT_FORMAT, "format_version": REPORT_VERSION,
+        "scan_dir": str(scan_dir), "gnss": str(gnss_path), "pairs": cloud.pairs,
+        "n_points": int(len(cloud.points)), "matched_fraction": cloud.valid_fractions,
+        "scan_pose_source": pose_source, "site_origin": list(placed.pose.origin),
+        "pair_poses_source": pair_pose_source, "sfm": sfm_report, "coarse_registration": placed.coarse_report,
+        "T_site_scan_given": T_site_scan.tolist(), "T_site_scan_refined": T_site_scan_refined.tolist(),
+        "T_site_pile": frame.T_site_pile.tolist(), "extent_m": frame.extent,
+        "registration": reg_report, "endpoint_scan_distance_m": coverage,
+        "survey_warnings": list(survey.warnings),
+        "logs": [lf.to_dict() for lf in fit.logs],
+        "fusion": fusion, "weak_ends": weak_ends(fit.logs, placed.fuse_cfg),
+        "contradicted_points": contradicted_points(fit.logs),
+        "terrain_coverage": fit.terrain_coverage, "obstacles": fit.obstacles, "moves": fit.moves,
+        "timings_s": timings,
+    }
+    report_path = out_dir / "report.json"
+    atomic_write_bytes(report_path, json.dumps(report, indent=1, default=_json_default).encode())
+    files["report"] = report_path
+    say(f"done in {timings['total_s']:.1f} s")
+    return ReconstructionResult(pile=fit.pile, fit=fit, report=report, out_dir=out_dir, files=files, cloud=cloud,
+                                observation=obs)
+
+
+class _Clock:
+    """The stage timings of one reconstruction [s]: ``lap(name)`` records the time since the last
+    lap (or ``reset``); ``total()`` adds ``total_s`` since the start."""
+
+    def __init__(self) -> None:
+        self.start = self.t = time.perf_counter()
+        self.timings: dict[str, float] = {}
+
+    def reset(self) -> None:
+        self.t = time.perf_counter()
+
+    def lap(self, name: str) -> None:
+        self.timings[name] = time.perf_counter() - self.t
+        self.t = time.perf_counter()
+
+    def total(self) -> dict[str, float]:
+        self.timings["total_s"] = time.perf_counter() - self.start
+        return self.timings
+
+
+def _read_survey(scan_dir: Path, gnss_path: str | Path, cfg: ReconstructConfig, say: Callable[[str], None]):
+    """The survey, the given scan pose (None: to be found from the survey) and its source, the site
+    origin, and every surveyed log's ends in the site frame with their accuracies."""
+    from reconstruct.scan.calibration import pair_pose_present
+    from reconstruct.scan.stereo import find_pairs
+    from reconstruct.survey.gnss import read_gnss
 
     say(f"reading survey {gnss_path}")
     unposed = not any(pair_pose_present(f) for f in find_pairs(scan_dir))
@@ -888,44 +487,62 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
     survey = read_gnss(gnss_path, allow_float=cfg.allow_float, area=None if pose is None else pose.origin,
                        require_both_ends=False)
     origin = survey.default_origin() if pose is None else pose.origin
-    survey_site = _survey_ends(survey, origin)
+    return survey, pose, pose_source, origin, _survey_ends(survey, origin)
+
+
+@dataclass(frozen=True)
+class _Placed:
+    """The scan's pose in the site frame, the coarse placement's report (None: the pose was given)
+    and the refinement and fusion settings that go with how sure that pose is."""
+
+    pose: ScanPose
+    coarse_report: dict | None
+    reg_cfg: ReconstructConfig
+    fuse_cfg: FuseConfig
+
+
+def _place_from_gnss(cloud: ScanCloud, survey_site: dict, origin, cfg: ReconstructConfig,
+                     say: Callable[[str], None]) -> _Placed:
+    """The scan placed from the GNSS end points alone (:func:`coarse_scan_pose`); the refinement then
+    runs with the coarse pose's looser prior and limits."""
+    say("placing the scan from the GNSS end points (ground plane, yaw search)")
     ends_site = {k: (e[0].position_m, e[1].position_m) for k, e in survey_site.items() if None not in e}
-    timings["survey_s"] = time.perf_counter() - t_start
+    if not ends_site:
+        raise RegistrationError("no log has both ends surveyed: the scan cannot be placed from the survey alone; "
+                                "give a scan pose (scan_pose.json)")
+    T_coarse, coarse_report = coarse_scan_pose(cloud.points, cloud.camera_positions, ends_site, cfg.coarse)
+    pose = ScanPose(*origin, T_site_scan=tuple(tuple(float(v) for v in r) for r in T_coarse))
+    reg_cfg = replace(cfg, refine_dof=cfg.coarse.refine_dof, max_correction_m=cfg.coarse.max_correction_m,
+                      max_correction_deg=cfg.coarse.max_correction_deg, scan_pose_sigma_m=cfg.coarse.pose_sigma_m,
+                      scan_pose_sigma_deg=cfg.coarse.pose_sigma_deg)
+    fuse_cfg = replace(cfg.fuse, pose_sigma_m=max(cfg.fuse.pose_sigma_m, cfg.coarse.pose_sigma_m / 2))
+    return _Placed(pose, coarse_report, reg_cfg, fuse_cfg)
 
-    t = time.perf_counter()
-    if cloud is None:
-        say(f"matching stereo pairs in {scan_dir}")
-        cloud, pair_pose_source, sfm_report = _scan(scan_dir, cfg, say)
-    else:
-        pair_pose_source, sfm_report = "given", None
-    timings["stereo_s"] = time.perf_counter() - t
-    if sfm_report is not None:
-        timings["sfm_s"] = float(sfm_report["timings_s"].get("total_s", math.nan))
 
-    coarse_report = None
-    reg_cfg = cfg
-    fuse_cfg = cfg.fuse
-    if pose is None:
-        t = time.perf_counter()
-        say("placing the scan from the GNSS end points (ground plane, yaw search)")
-        if not ends_site:
-            raise RegistrationError("no log has both ends surveyed: the scan cannot be placed from the survey alone; "
-                                    "give a scan pose (scan_pose.json)")
-        T_coarse, coarse_report = coarse_scan_pose(cloud.points, cloud.camera_positions, ends_site, cfg.coarse)
-        pose = ScanPose(*origin, T_site_scan=tuple(tuple(float(v) for v in r) for r in T_coarse))
-        reg_cfg = replace(cfg, refine_dof=cfg.coarse.refine_dof, max_correction_m=cfg.coarse.max_correction_m,
-                          max_correction_deg=cfg.coarse.max_correction_deg, scan_pose_sigma_m=cfg.coarse.pose_sigma_m,
-                          scan_pose_sigma_deg=cfg.coarse.pose_sigma_deg)
-        fuse_cfg = replace(cfg.fuse, pose_sigma_m=max(cfg.fuse.pose_sigma_m, cfg.coarse.pose_sigma_m / 2))
-        timings["georegistration_s"] = time.perf_counter() - t
+@dataclass
+class _Matching:
+    """The logs the scan shows, each surveyed log's match among them, the scan logs left unmatched
+    and the ids of those kept as logs the survey missed (``{log_id: scan index}``; fitting may drop
+    some)."""
 
-    T_site_scan = pose.matrix()
-    pts_site = apply_T(T_site_scan, cloud.points)
-    coverage = _check_coverage(pts_site[:, :2], survey_site, cfg.max_endpoint_distance_m)
+    scan_logs: list
+    matches: dict
+    unmatched: list
+    new_ids: dict[str, int]
 
-    # the logs in the scan, matched to the survey: where each log is fitted
-    t = time.perf_counter()
-    say("finding the logs in the scan and matching them to the survey")
+    def priors(self, survey_ends: dict, logs_found: list, fuse_cfg: FuseConfig) -> dict:
+        """Each log's prior axis ``(a, b, lateral sigma)``: from its match in ``logs_found`` and its
+        survey points, or for a new log from the scan alone."""
+        out = {}
+        for k, m in self.matches.items():
+            found = None if m.scan_index is None else logs_found[m.scan_index]
+            out[k] = prior_axis(survey_ends[k], found, m.reversed, fuse_cfg)
+        for k, j in self.new_ids.items():
+            out[k] = (logs_found[j].start_m.copy(), logs_found[j].end_m.copy(), fuse_cfg.axis_sigma_m)
+        return out
+
+
+def _match_logs(pts_site: np.ndarray, survey_site: dict, fuse_cfg: FuseConfig) -> _Matching:
     scan_logs = find_scan_logs(pts_site, fuse_cfg)
     matches, unmatched = match_survey(survey_site, scan_logs, fuse_cfg)
     unmatched = absorb_pieces(matches, unmatched, scan_logs)
@@ -935,21 +552,28 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
             raise FitError(f"log {k!r} has no end {end!r} in the survey and the scan shows no log near its other end: "
                            f"measure both ends of log {k!r}, or remove it from the survey")
     new_ids = _new_log_ids([j for j in unmatched if scan_logs[j].seen_m >= fuse_cfg.min_new_log_m], survey_site)
-    timings["matching_s"] = time.perf_counter() - t
+    return _Matching(scan_logs, matches, unmatched, new_ids)
 
-    def priors_for(logs_found: list) -> dict:
-        out = {}
-        for k, m in matches.items():
-            found = None if m.scan_index is None else logs_found[m.scan_index]
-            out[k] = prior_axis(survey_ends[k], found, m.reversed, fuse_cfg)
-        for k, j in new_ids.items():
-            out[k] = (logs_found[j].start_m.copy(), logs_found[j].end_m.copy(), fuse_cfg.axis_sigma_m)
-        return out
 
-    survey_ends = survey_site
-    priors_site = priors_for(scan_logs)
-    # the pile frame: the site frame turned (log_direction_deg) and shifted to the centre of the logs, at
-    # ground level
+@dataclass(frozen=True)
+class _PileFrame:
+    """The pile frame (``T_site_pile``: the site frame turned so the logs lie at ``log_direction_deg``,
+    shifted to their centre at ground level), the square patch's side [m] and re-render size [px],
+    and which scan points lie on the patch (``near``)."""
+
+    T_site_pile: np.ndarray
+    T_pile_site: np.ndarray
+    extent: float
+    render_px: int
+    near: np.ndarray
+
+    def georef(self, pose: ScanPose) -> Georeference:
+        return Georeference(origin_lat_deg=pose.origin_lat_deg, origin_lon_deg=pose.origin_lon_deg,
+                            origin_h_m=pose.origin_h_m,
+                            T_site_pile=tuple(tuple(float(v) for v in row) for row in self.T_site_pile))
+
+
+def _pile_frame(pts_site: np.ndarray, priors_site: dict, cfg: ReconstructConfig) -> _PileFrame:
     prior_ends = {k: (a, b) for k, (a, b, _) in priors_site.items()}
     yaw = 0.0 if cfg.log_direction_deg is None else logs_direction(prior_ends) - math.radians(cfg.log_direction_deg)
     R_site_pile = rot_z(yaw)
@@ -963,45 +587,64 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
         raise RegistrationError(f"only {int(near.sum())} scan points lie on the {extent} m patch around the logs")
     z0 = float(np.percentile(pts_site[near, 2], 10))
     T_site_pile = make_T(R_site_pile, R_site_pile @ np.array([centre_xy[0], centre_xy[1], z0]))
-    T_pile_site = invert_T(T_site_pile)
-    pts = apply_T(T_pile_site, pts_site)
-    survey_ends = {k: tuple(None if e is None else e.moved(T_pile_site) for e in v) for k, v in survey_site.items()}
-    logs_pile = [s.moved(T_pile_site) for s in scan_logs]
+    return _PileFrame(T_site_pile, invert_T(T_site_pile), extent, render_px, near)
 
-    t = time.perf_counter()
-    reg_report: dict = {"mode": "none"}
-    first_pass: dict = {}
-    T_corr = np.eye(4)
-    # registration: the logs the scan and the survey both show, fitted around their scan axes
-    matched = {k: m for k, m in matches.items() if m.scan_index is not None and any(survey_ends[k])}
-    if cfg.refine and matched:
-        # the fits start from the scan's own log axes, which move with the scan: one round (fit, then the
-        # correction) is all; a second would fit the same points the same way
-        say("refining the scan pose against the GNSS end points")
-        pri = {key: prior_axis(survey_ends[key], logs_pile[m.scan_index], m.reversed, fuse_cfg)[:2]
-               for key, m in matched.items()}
-        T_corr, reg_report, first_pass = refine_registration(pts[near], {}, reg_cfg, priors=pri,
-                                                             survey={key: survey_ends[key] for key in matched})
-        reg_report.update({"total_correction_m": reg_report["correction_m"],
-                           "total_correction_deg": reg_report["correction_deg"]})
-        pts = apply_T(T_corr, pts)
-    timings["registration_s"] = time.perf_counter() - t
-    # T_site_scan after refinement: site <- pile <- (corrected) <- scan
-    T_site_scan_refined = T_site_pile @ T_corr @ T_pile_site @ T_site_scan
-    logs_pile = [s.moved(T_corr) for s in logs_pile]
 
-    t = time.perf_counter()
-    georef = Georeference(origin_lat_deg=pose.origin_lat_deg, origin_lon_deg=pose.origin_lon_deg,
-                          origin_h_m=pose.origin_h_m,
-                          T_site_pile=tuple(tuple(float(v) for v in row) for row in T_site_pile))
-    in_patch = np.all(np.abs(pts[:, :2]) < extent / 2, axis=1)
-    priors = priors_for(logs_pile)
-    # logs the survey missed: kept when the scan shows a log there, fitted over most of what it saw
-    dropped_new = {}
+def _refine(pts_near: np.ndarray, matching: _Matching, survey_ends: dict, logs_pile: list, placed: _Placed,
+            cfg: ReconstructConfig, say: Callable[[str], None]) -> tuple[np.ndarray, dict, dict]:
+    """The registration correction (pile frame), its report and the first-pass fits of the logs
+    the scan and the survey both show, fitted around their scan axes (identity and no fits with
+    ``refine`` off or no such log). The fits start from the scan's own log axes, which move with
+    the scan: one round (fit, then the correction) is all; a second would fit the same points the
+    same way."""
+    matched = {k: m for k, m in matching.matches.items() if m.scan_index is not None and any(survey_ends[k])}
+    if not (cfg.refine and matched):
+        return np.eye(4), {"mode": "none"}, {}
+    say("refining the scan pose against the GNSS end points")
+    pri = {key: prior_axis(survey_ends[key], logs_pile[m.scan_index], m.reversed, placed.fuse_cfg)[:2]
+           for key, m in matched.items()}
+    T_corr, reg_report, first_pass = refine_registration(pts_near, {}, placed.reg_cfg, priors=pri,
+                                                         survey={key: survey_ends[key] for key in matched})
+    reg_report.update({"total_correction_m": reg_report["correction_m"],
+                       "total_correction_deg": reg_report["correction_deg"]})
+    return T_corr, reg_report, first_pass
+
+
+def _fit(pts: np.ndarray, matching: _Matching, survey_ends: dict, logs_pile: list, first_pass: dict,
+         frame: _PileFrame, placed: _Placed, cfg: ReconstructConfig, say: Callable[[str], None], notes: str,
+         georef: Georeference) -> tuple[PileFit, dict]:
+    """The pile fitted on the patch's points (pile frame): new logs kept where the scan shows one,
+    every log's ends placed (:class:`_EndPlacer`), terrain and obstacles; and the fusion report."""
+    priors = matching.priors(survey_ends, logs_pile, placed.fuse_cfg)
+    new_ids = dict(matching.new_ids)
+    dropped_new = _fit_new_logs(pts, new_ids, priors, first_pass, cfg, placed.fuse_cfg)
+    lateral = {k: s for k, (_, _, s) in priors.items()}
+    fit = fit_pile(pts, {k: (a, b) for k, (a, b, _) in priors.items()}, frame.extent, cfg.fit, progress=say,
+                   georef=georef, notes=notes, first_pass=first_pass,
+                   sigmas={k: (s, s) for k, s in lateral.items()},
+                   place_ends=_EndPlacer(survey_ends, lateral, placed.fuse_cfg), optional=set(new_ids))
+    for k, why in fit.dropped.items():  # a log the survey missed whose points the other logs took: not a log
+        dropped_new[k] = why
+        del new_ids[k]
+    fusion = {
+        "scan_logs": [s.to_dict() for s in logs_pile],
+        "matches": {k: m.to_dict() for k, m in matching.matches.items()},
+        "new_logs": {k: new_j for k, new_j in new_ids.items()},
+        "new_logs_dropped": dropped_new,
+        "unmatched_scan_logs": [j for j in matching.unmatched if j not in new_ids.values()],
+    }
+    return fit, fusion
+
+
+def _fit_new_logs(pts: np.ndarray, new_ids: dict, priors: dict, first_pass: dict, cfg: ReconstructConfig,
+                  fuse_cfg: FuseConfig) -> dict[str, str]:
+    """Logs the survey missed: kept (a first-pass fit) when the scan shows a log there, fitted over
+    most of what it saw; the others leave ``new_ids`` and ``priors``. Returns why each was dropped."""
+    dropped = {}
     for k in list(new_ids):
         a, b, s = priors[k]
         try:
-            f = fit_log(pts[in_patch], a, b, cfg.fit, log_id=k, sigma_a_m=s, sigma_b_m=s)
+            f = fit_log(pts, a, b, cfg.fit, log_id=k, sigma_a_m=s, sigma_b_m=s)
             ok = f.coverage >= fuse_cfg.min_new_log_coverage
             why = f"its fit covers {f.coverage * 100:.0f} % of it"
         except ReconstructError as exc:
@@ -1009,45 +652,48 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
         if ok:
             first_pass[k] = log_spec_from_fit(f, cfg.fit)[0]
         else:
-            dropped_new[k] = why
+            dropped[k] = why
             del new_ids[k], priors[k]
-    lateral = {k: s for k, (_, _, s) in priors.items()}
+    return dropped
 
-    def placer(log_id: str, spec, how: str, points: np.ndarray, swapped: bool, on_mask: np.ndarray):
-        ends_k = survey_ends.get(log_id, (None, None))
+
+class _EndPlacer:
+    """``fit_pile``'s ``place_ends``: a log's ends from the scan where it sees them, else from its
+    survey points (:func:`place_log_ends`), its axis as sure as how it was fitted."""
+
+    SCAN_AXIS_SIGMA_M = 0.005  # a fitted axis: a few millimetres across [m]
+    PARTIAL_AXIS_SIGMA_M = 0.04  # seen in part: its axis is a few centimetres sure (at least) [m]
+
+    def __init__(self, survey_ends: dict, lateral: dict[str, float], fuse_cfg: FuseConfig) -> None:
+        self.survey_ends, self.lateral, self.fuse_cfg = survey_ends, lateral, fuse_cfg
+
+    def __call__(self, log_id: str, spec, how: str, points: np.ndarray, swapped: bool, on_mask: np.ndarray):
+        ends_k = self.survey_ends.get(log_id, (None, None))
         if how == "scan":
-            sig = 0.005  # a fitted axis: a few millimetres across
+            sig = self.SCAN_AXIS_SIGMA_M
         elif how == "partial":
-            sig = max(lateral[log_id], 0.04)  # seen in part: its axis is a few centimetres sure
+            sig = max(self.lateral[log_id], self.PARTIAL_AXIS_SIGMA_M)
         else:
-            sig = max((e.sigma_h_m for e in ends_k if e is not None), default=lateral[log_id])
+            sig = max((e.sigma_h_m for e in ends_k if e is not None), default=self.lateral[log_id])
         try:
-            return place_log_ends(points, spec, how, ends_k, swapped, sig, fuse_cfg, on_mask=on_mask)
+            return place_log_ends(points, spec, how, ends_k, swapped, sig, self.fuse_cfg, on_mask=on_mask)
         except FitError as exc:
             raise FitError(f"log {log_id!r}: {exc}") from exc
 
-    fit = fit_pile(pts[in_patch], {k: (a, b) for k, (a, b, _) in priors.items()}, extent, cfg.fit, progress=say,
-                   georef=georef, notes=f"reconstructed from {scan_dir} and {gnss_path}", first_pass=first_pass,
-                   sigmas={k: (s, s) for k, s in lateral.items()}, place_ends=placer, optional=set(new_ids))
-    for k, why in fit.dropped.items():  # a log the survey missed whose points the other logs took: not a log
-        dropped_new[k] = why
-        del new_ids[k]
-    timings["fit_s"] = time.perf_counter() - t
-    fusion = {
-        "scan_logs": [s.to_dict() for s in logs_pile],
-        "matches": {k: m.to_dict() for k, m in matches.items()},
-        "new_logs": {k: new_j for k, new_j in new_ids.items()},
-        "new_logs_dropped": dropped_new,
-        "unmatched_scan_logs": [j for j in unmatched if j not in new_ids.values()],
-    }
 
-    t = time.perf_counter()
-    say(f"writing {out_dir}")
+def _write_outputs(fit: PileFit, render_px: int, cfg: ReconstructConfig, out_dir: Path, pts: np.ndarray,
+                   colours: np.ndarray) -> tuple["OrthoObservation", dict[str, Path]]:
+    """The re-render (nothing is written for a pile the twin cannot show), then pile.json,
+    ortho.npz, preview.png and compare.png in ``out_dir``."""
+    from synth.errors import SynthError
+    from synth.physics.world import World
+    from synth.render.ortho import OrthoRenderConfig, render_ortho
+    from synth.render.preview import preview_image, write_png
+
     try:
         with World(fit.pile) as world:
-            obs = render_ortho(world, OrthoRenderConfig(size_px=render_px, n_renders=cfg.render_n),
-                               seed=cfg.seed)
-    except SynthError as exc:  # nothing written: no pile that the twin cannot show
+            obs = render_ortho(world, OrthoRenderConfig(size_px=render_px, n_renders=cfg.render_n), seed=cfg.seed)
+    except SynthError as exc:
         raise FitError(f"the reconstructed pile cannot be re-rendered ({exc}); check the per-log fits "
                        "(a log seen only in part may have been fitted astray) and the GNSS end points") from exc
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -1055,35 +701,8 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
     obs.meta["source"] = "reconstructed"
     files["ortho"] = obs.save(out_dir / "ortho.npz")
     files["preview"] = write_png(out_dir / "preview.png", preview_image(obs))
-    files["compare"] = write_png(out_dir / "compare.png", comparison_image(pts[in_patch], cloud.colours[in_patch], obs))
-    timings["outputs_s"] = time.perf_counter() - t
-    timings["total_s"] = time.perf_counter() - t_start
-    if pair_pose_source != "given":
-        timings.update({f"stereo_{k}": v for k, v in cloud.timings_s.items()})
-    timings.update({f"fit_{k}": v for k, v in fit.timings_s.items()})
-
-    report = {
-        "format": REPORT_FORMAT, "format_version": REPORT_VERSION,
-        "scan_dir": str(scan_dir), "gnss": str(gnss_path), "pairs": cloud.pairs,
-        "n_points": int(len(cloud.points)), "matched_fraction": cloud.valid_fractions,
-        "scan_pose_source": pose_source, "site_origin": list(pose.origin),
-        "pair_poses_source": pair_pose_source, "sfm": sfm_report, "coarse_registration": coarse_report,
-        "T_site_scan_given": T_site_scan.tolist(), "T_site_scan_refined": T_site_scan_refined.tolist(),
-        "T_site_pile": T_site_pile.tolist(), "extent_m": extent,
-        "registration": reg_report, "endpoint_scan_distance_m": coverage,
-        "survey_warnings": list(survey.warnings),
-        "logs": [lf.to_dict() for lf in fit.logs],
-        "fusion": fusion, "weak_ends": weak_ends(fit.logs, fuse_cfg),
-        "contradicted_points": contradicted_points(fit.logs),
-        "terrain_coverage": fit.terrain_coverage, "obstacles": fit.obstacles, "moves": fit.moves,
-        "timings_s": timings,
-    }
-    report_path = out_dir / "report.json"
-    atomic_write_bytes(report_path, json.dumps(report, indent=1, default=_json_default).encode())
-    files["report"] = report_path
-    say(f"done in {timings['total_s']:.1f} s")
-    return ReconstructionResult(pile=fit.pile, fit=fit, report=report, out_dir=out_dir, files=files, cloud=cloud,
-                                observation=obs)
+    files["compare"] = write_png(out_dir / "compare.png", comparison_image(pts, colours, obs))
+    return obs, files
 
 
 def weak_ends(logs: list, cfg: FuseConfig | None = None) -> list[str]:

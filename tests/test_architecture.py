@@ -108,10 +108,11 @@ def test_synth_is_split_by_stage():
     assert stages == SYNTH_STAGES, f"synth's sub-packages are {sorted(stages)}, want {sorted(SYNTH_STAGES)}"
 
 
-#: reconstruct's stages, and what sits at its top: the pipeline (registration and the outputs) that
-#: runs them, the comparison with a true pile, the command line and the errors
+#: reconstruct's stages, and what sits at its top: georegistration (scan pose, coarse placement,
+#: refinement), the pipeline that runs the stages, the comparison with a true pile, the command line
+#: and the errors
 RECONSTRUCT_STAGES = {"scan", "survey", "fitting"}
-RECONSTRUCT_TOP_MODULES = {"__init__.py", "cli.py", "errors.py", "pipeline.py", "compare.py"}
+RECONSTRUCT_TOP_MODULES = {"__init__.py", "cli.py", "errors.py", "registration.py", "pipeline.py", "compare.py"}
 
 
 def test_reconstruct_is_split_by_stage():

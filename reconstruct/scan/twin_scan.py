@@ -173,7 +173,7 @@ def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5
         write_pile(pile, tmp / "truth" / "pile.json")
         import datetime as dt
 
-        from reconstruct.pipeline import ScanPose, write_scan_pose
+        from reconstruct.registration import ScanPose, write_scan_pose
         from synth.render.stereo import StereoRenderer
 
         captured = dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds").replace("+00:00", "Z")

@@ -13,14 +13,11 @@ import pytest
 
 from reconstruct.compare import compare_piles, simulate_scan
 from reconstruct.errors import GnssFormatError, ReconstructError, RegistrationError, ScanError
-from reconstruct.fitting.fit import FitConfig, sample_top_view_points
-from reconstruct.pipeline import (
-    ReconstructConfig, ScanPose, logs_direction, patch_extent, read_report, read_scan_pose, reconstruct, refine_registration,
-    write_scan_pose,
-)
+from reconstruct.fitting.fit import FitConfig
+from reconstruct.pipeline import ReconstructConfig, logs_direction, patch_extent, read_report, reconstruct
 from reconstruct.scan.stereo import find_pairs, read_pair, scan_cloud
 from synth.geometry.frames import apply_T, make_T, rot_z
-from synth.scene.pile import LogSpec, PileSpec, TerrainSpec, read_pile
+from synth.scene.pile import LogSpec, read_pile
 from synth.render.ortho import OrthoObservation
 
 
@@ -78,53 +75,6 @@ def test_missing_unreadable_and_mismatched_inputs(tmp_path):
     cv2.imwrite(str(p / "right.png"), (np.random.default_rng(9).random((180, 320, 3)) * 255).astype(np.uint8))
     with pytest.raises(ScanError, match="found depth for only"):
         scan_cloud(p)
-
-
-def test_scan_pose_round_trip(tmp_path):
-    T = make_T(rot_z(0.3), (1.0, 2.0, 3.0))
-    pose = ScanPose(64.1, 20.0, 250.0, tuple(tuple(float(v) for v in r) for r in T))
-    write_scan_pose(pose, tmp_path)
-    back = read_scan_pose(tmp_path)
-    assert back == pose
-    d = json.loads((tmp_path / "scan_pose.json").read_text())
-    d["format_version"] = "2.0"
-    (tmp_path / "scan_pose.json").write_text(json.dumps(d))
-    with pytest.raises(RegistrationError, match="not supported"):
-        read_scan_pose(tmp_path)
-    (tmp_path / "scan_pose.json").write_text('{"format": "loggrasp.scan-pose", "format_')  # truncated
-    with pytest.raises(RegistrationError, match="scan pose .* is not valid JSON.*--georegister gnss"):
-        read_scan_pose(tmp_path)
-    with pytest.raises(ValueError):
-        ScanPose(164.1, 20.0, 250.0, pose.T_site_scan)
-
-
-# -- registration and comparison on exact geometry ---------------------------------------------
-@pytest.fixture(scope="module")
-def crossed() -> PileSpec:
-    terrain = TerrainSpec(extent_m=5.0, resolution=32, amplitude_m=0.0,
-                          heights_m=tuple(tuple(0.0 for _ in range(32)) for _ in range(32)))
-    logs = (
-        LogSpec.from_endpoints((-1.0, -0.4, 0.08), (1.0, -0.4, 0.08), 0.16),
-        LogSpec.from_endpoints((-0.9, 0.5, 0.07), (1.1, 0.3, 0.07), 0.14),
-        LogSpec.from_endpoints((-0.6, -1.0, 0.233), (-0.4, 1.0, 0.233), 0.14),  # across both
-    )
-    return PileSpec(terrain=terrain, logs=logs)
-
-
-def test_refinement_recovers_a_small_pose_error(crossed):
-    pts = sample_top_view_points(crossed, 300, 0.002, np.random.default_rng(0))
-    ends = {f"log{i}": log.endpoints_m() for i, log in enumerate(crossed.logs)}
-    wrong = make_T(rot_z(math.radians(1.0)), (0.03, -0.02, 0.015))
-    T, rep, fitted = refine_registration(apply_T(wrong, pts), ends, ReconstructConfig())
-    assert sorted(fitted) == ["log0", "log1", "log2"]
-    assert rep["mode"] == "4dof"
-    assert rep["residual_rms_after_m"] < rep["residual_rms_before_m"]
-    assert rep["residual_rms_after_m"] < 0.01
-    probe = np.array([[1.0, 1.0, 0.1], [-1.0, -1.0, 0.1]])
-    err = np.linalg.norm(apply_T(T @ wrong, probe) - probe, axis=1)
-    assert err.max() < 0.01, err
-    with pytest.raises(RegistrationError, match="correction"):
-        refine_registration(apply_T(wrong, pts), ends, ReconstructConfig(max_correction_m=0.01))
 
 
 def test_compare_is_order_and_direction_independent(crossed):

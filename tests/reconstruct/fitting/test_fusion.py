@@ -18,7 +18,8 @@ from reconstruct.fitting.fuse import (
     scan_end_interval, seen_end,
 )
 from reconstruct.survey.gnss import GnssPoint, GnssSurvey, write_gnss_csv
-from reconstruct.pipeline import ReconstructConfig, ScanPose, reconstruct, write_scan_pose
+from reconstruct.pipeline import ReconstructConfig, reconstruct
+from reconstruct.registration import ScanPose, write_scan_pose
 from reconstruct.scan.stereo import ScanCloud
 from synth.geometry import geodesy
 from synth.geometry.frames import make_T, rot_z

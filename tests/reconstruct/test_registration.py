@@ -1,0 +1,50 @@
+"""reconstruct.registration: the scan pose sidecar and the refinement against the survey (the coarse
+placement from the GNSS alone: tests/reconstruct/scan/test_unposed_scan.py)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from reconstruct.errors import RegistrationError
+from reconstruct.fitting.fit import sample_top_view_points
+from reconstruct.pipeline import ReconstructConfig
+from reconstruct.registration import ScanPose, read_scan_pose, refine_registration, write_scan_pose
+from synth.geometry.frames import apply_T, make_T, rot_z
+
+
+def test_scan_pose_round_trip(tmp_path):
+    T = make_T(rot_z(0.3), (1.0, 2.0, 3.0))
+    pose = ScanPose(64.1, 20.0, 250.0, tuple(tuple(float(v) for v in r) for r in T))
+    write_scan_pose(pose, tmp_path)
+    back = read_scan_pose(tmp_path)
+    assert back == pose
+    d = json.loads((tmp_path / "scan_pose.json").read_text())
+    d["format_version"] = "2.0"
+    (tmp_path / "scan_pose.json").write_text(json.dumps(d))
+    with pytest.raises(RegistrationError, match="not supported"):
+        read_scan_pose(tmp_path)
+    (tmp_path / "scan_pose.json").write_text('{"format": "loggrasp.scan-pose", "format_')  # truncated
+    with pytest.raises(RegistrationError, match="scan pose .* is not valid JSON.*--georegister gnss"):
+        read_scan_pose(tmp_path)
+    with pytest.raises(ValueError):
+        ScanPose(164.1, 20.0, 250.0, pose.T_site_scan)
+
+
+def test_refinement_recovers_a_small_pose_error(crossed):
+    pts = sample_top_view_points(crossed, 300, 0.002, np.random.default_rng(0))
+    ends = {f"log{i}": log.endpoints_m() for i, log in enumerate(crossed.logs)}
+    wrong = make_T(rot_z(math.radians(1.0)), (0.03, -0.02, 0.015))
+    T, rep, fitted = refine_registration(apply_T(wrong, pts), ends, ReconstructConfig())
+    assert sorted(fitted) == ["log0", "log1", "log2"]
+    assert rep["mode"] == "4dof"
+    assert rep["residual_rms_after_m"] < rep["residual_rms_before_m"]
+    assert rep["residual_rms_after_m"] < 0.01
+    probe = np.array([[1.0, 1.0, 0.1], [-1.0, -1.0, 0.1]])
+    err = np.linalg.norm(apply_T(T @ wrong, probe) - probe, axis=1)
+    assert err.max() < 0.01, err
+    with pytest.raises(RegistrationError, match="correction"):
+        refine_registration(apply_T(wrong, pts), ends, ReconstructConfig(max_correction_m=0.01))
