@@ -20,7 +20,7 @@ LANES = [
                                  ("controller twin", "controller.py, executor.py"),
                                  ("record + replay", "trial.py, cli.py")]),
     ("reconstruct/", 2.0, "#d6e4f0", [("scan/", "stereo.py, calibration.py, sfm.py"),
-                                       ("survey/", "gnss.py"),
+                                       ("survey/ + registration", "gnss.py, registration.py"),
                                        ("fitting/", "fuse.py, fit.py"),
                                        ("pile", "pipeline.py")]),
     ("planner/", 1.0, "#dcefd6", [("inputs", "data.py, augment.py"),
