@@ -111,95 +111,109 @@ def compare_piles(truth: PileSpec, recon: PileSpec, size_px: int = 128, render: 
     ``unmatched_truth``, ``unmatched_recon``, ``obstacles`` (matches, detection rate, false
     positives), ``frame`` (how the frames were related) and ``summary``.
     ``render=False`` skips the mask IoU (no pybullet)."""
-    from scipy.optimize import linear_sum_assignment
-
     if not 16 <= size_px <= 2048:
         raise ValueError(f"size_px must be in [16, 2048], got {size_px}")
     _, how = T_truth_recon(truth, recon)
     rlogs = _logs_in_truth_frame(truth, recon)
     n_t, n_r = truth.n_logs, len(rlogs)
-    cost = np.zeros((n_t, n_r))
-    for i, t in enumerate(truth.logs):
-        for j, r in enumerate(rlogs):
-            cost[i, j] = _end_errors(t, r)[0]
-    rows, cols = linear_sum_assignment(cost)
-    # a "match" farther than half a log length is no match
-    pairs = [(int(i), int(j)) for i, j in zip(rows, cols)
-             if cost[i, j] < 0.5 * max(truth.logs[i].length_m, 0.5)]
-    inst_t = inst_r = None
-    iou_note = "not rendered"
-    if render:
-        try:
-            inst_t = _render_instances(truth, size_px)
-            hybrid = replace(truth, logs=tuple(rlogs))
-            inst_r = _render_instances(hybrid, size_px)
-            iou_note = f"{size_px} px orthographic renders, true terrain and obstacles in both"
-        except ValueError as exc:  # a reconstructed log off the true terrain patch
-            iou_note = f"not rendered: {exc}"
-    logs = []
-    for i, j in pairs:
-        t, r = truth.logs[i], rlogs[j]
-        mean_e, max_e, swapped = _end_errors(t, r)
-        cosang = abs(float(t.axis() @ r.axis()))
-        entry = {
-            "truth_index": i, "recon_index": j, "ends_swapped": swapped,
-            "endpoint_err_m": mean_e, "endpoint_max_err_m": max_e,
-            "length_err_m": float(r.length_m - t.length_m),
-            "axis_angle_err_deg": float(math.degrees(math.acos(min(1.0, cosang)))),
-            "diameter_err_m": float(r.mean_diameter_m - t.mean_diameter_m),
-            "butt_diameter_err_m": float(r.diameter_m - t.diameter_m),
-            "true_diameter_m": t.mean_diameter_m, "recon_diameter_m": r.mean_diameter_m,
-            "mask_iou": None,
-        }
-        if inst_t is not None:
-            mt, mr = inst_t == i + 1, inst_r == j + 1
-            union = int((mt | mr).sum())
-            entry["mask_iou"] = float((mt & mr).sum() / union) if union else None
-            entry["true_mask_px"] = int(mt.sum())
-        logs.append(entry)
-    # obstacles
-    obs_t = _obstacles(truth)
-    obs_r = _obstacles(recon)
+    pairs = _match_logs(truth, rlogs)
+    inst_t, inst_r, iou_note = _instance_masks(truth, rlogs, size_px) if render else (None, None, "not rendered")
+    logs = [_log_errors(truth.logs[i], rlogs[j], i, j, inst_t, inst_r) for i, j in pairs]
+    obs_t, obs_r = _obstacles(truth), _obstacles(recon)
     for o in obs_r:
         o["xy"] = _to_truth(np.array([[o["xy"][0], o["xy"][1], 0.0]]), truth, recon)[0, :2]
-    used: set[int] = set()
-    obstacle_matches = []
-    for k, o in enumerate(obs_t):
-        best, best_d = None, math.inf
-        for m, q in enumerate(obs_r):
-            d = float(np.linalg.norm(o["xy"] - q["xy"]))
-            if m not in used and d < best_d:
-                best, best_d = m, d
-        if best is not None and best_d < obstacle_match_m + o["size_m"] / 2:
-            used.add(best)
-            obstacle_matches.append({"truth_index": k, "recon_index": best, "kind": o["kind"],
-                                     "recon_kind": obs_r[best]["kind"], "distance_m": best_d})
-        else:
-            obstacle_matches.append({"truth_index": k, "recon_index": None, "kind": o["kind"],
-                                     "recon_kind": None, "distance_m": None})
-    detected = sum(m["recon_index"] is not None for m in obstacle_matches)
-    ep = [e["endpoint_err_m"] for e in logs]
-    de = [abs(e["diameter_err_m"]) for e in logs]
-    iou = [e["mask_iou"] for e in logs]
-    summary = {
-        "n_truth_logs": n_t, "n_recon_logs": n_r, "n_matched": len(logs),
-        "endpoint_err_m": _stats(ep), "abs_diameter_err_m": _stats(de),
-        "mask_iou": {**_stats(iou), "min": (min(v for v in iou if v is not None)
-                                            if any(v is not None for v in iou) else None)},
-        "n_truth_obstacles": len(obs_t), "n_recon_obstacles": len(obs_r),
-        "obstacles_detected": detected,
-        "obstacle_detection_rate": (detected / len(obs_t)) if obs_t else None,
-        "obstacle_false_positives": len(obs_r) - len(used),
-        "obstacle_kind_agreement": (sum(m["kind"] == m["recon_kind"] for m in obstacle_matches if m["recon_index"] is not None)
-                                    / detected) if detected else None,
-    }
+    obstacle_matches = _match_obstacles(obs_t, obs_r, obstacle_match_m)
     matched_t = {i for i, _ in pairs}
     matched_r = {j for _, j in pairs}
     return {
         "frame": how, "mask_iou_method": iou_note, "logs": logs,
         "unmatched_truth": [i for i in range(n_t) if i not in matched_t],
         "unmatched_recon": [j for j in range(n_r) if j not in matched_r],
-        "obstacles": obstacle_matches, "summary": summary,
+        "obstacles": obstacle_matches, "summary": _summary(logs, obstacle_matches, n_t, n_r, len(obs_t), len(obs_r)),
+    }
+
+
+def _match_logs(truth: PileSpec, rlogs: list) -> list[tuple[int, int]]:
+    """(truth index, recon index) pairs by the least total end error; a "match" farther than half
+    a log length is no match."""
+    from scipy.optimize import linear_sum_assignment
+
+    cost = np.zeros((truth.n_logs, len(rlogs)))
+    for i, t in enumerate(truth.logs):
+        for j, r in enumerate(rlogs):
+            cost[i, j] = _end_errors(t, r)[0]
+    rows, cols = linear_sum_assignment(cost)
+    return [(int(i), int(j)) for i, j in zip(rows, cols) if cost[i, j] < 0.5 * max(truth.logs[i].length_m, 0.5)]
+
+
+def _instance_masks(truth: PileSpec, rlogs: list, size_px: int):
+    """Instance renders of the true pile and of the reconstructed logs on the true terrain and
+    obstacles, and how they were made (None, None and why when they could not be)."""
+    try:
+        inst_t = _render_instances(truth, size_px)
+        inst_r = _render_instances(replace(truth, logs=tuple(rlogs)), size_px)
+    except ValueError as exc:  # a reconstructed log off the true terrain patch
+        return None, None, f"not rendered: {exc}"
+    return inst_t, inst_r, f"{size_px} px orthographic renders, true terrain and obstacles in both"
+
+
+def _log_errors(t, r, i: int, j: int, inst_t, inst_r) -> dict:
+    """One matched log's errors (recon ``r`` against truth ``t``) and, with the renders, its mask IoU."""
+    mean_e, max_e, swapped = _end_errors(t, r)
+    cosang = abs(float(t.axis() @ r.axis()))
+    entry = {
+        "truth_index": i, "recon_index": j, "ends_swapped": swapped,
+        "endpoint_err_m": mean_e, "endpoint_max_err_m": max_e,
+        "length_err_m": float(r.length_m - t.length_m),
+        "axis_angle_err_deg": float(math.degrees(math.acos(min(1.0, cosang)))),
+        "diameter_err_m": float(r.mean_diameter_m - t.mean_diameter_m),
+        "butt_diameter_err_m": float(r.diameter_m - t.diameter_m),
+        "true_diameter_m": t.mean_diameter_m, "recon_diameter_m": r.mean_diameter_m,
+        "mask_iou": None,
+    }
+    if inst_t is not None:
+        mt, mr = inst_t == i + 1, inst_r == j + 1
+        union = int((mt | mr).sum())
+        entry["mask_iou"] = float((mt & mr).sum() / union) if union else None
+        entry["true_mask_px"] = int(mt.sum())
+    return entry
+
+
+def _match_obstacles(obs_t: list[dict], obs_r: list[dict], match_m: float) -> list[dict]:
+    """Each true obstacle's nearest unused reconstructed one within ``match_m`` plus half its size."""
+    used: set[int] = set()
+    out = []
+    for k, o in enumerate(obs_t):
+        best, best_d = None, math.inf
+        for m, q in enumerate(obs_r):
+            d = float(np.linalg.norm(o["xy"] - q["xy"]))
+            if m not in used and d < best_d:
+                best, best_d = m, d
+        if best is not None and best_d < match_m + o["size_m"] / 2:
+            used.add(best)
+            out.append({"truth_index": k, "recon_index": best, "kind": o["kind"],
+                        "recon_kind": obs_r[best]["kind"], "distance_m": best_d})
+        else:
+            out.append({"truth_index": k, "recon_index": None, "kind": o["kind"], "recon_kind": None,
+                        "distance_m": None})
+    return out
+
+
+def _summary(logs: list[dict], obstacle_matches: list[dict], n_t: int, n_r: int, n_obs_t: int, n_obs_r: int) -> dict:
+    detected = sum(m["recon_index"] is not None for m in obstacle_matches)
+    iou = [e["mask_iou"] for e in logs]
+    return {
+        "n_truth_logs": n_t, "n_recon_logs": n_r, "n_matched": len(logs),
+        "endpoint_err_m": _stats([e["endpoint_err_m"] for e in logs]),
+        "abs_diameter_err_m": _stats([abs(e["diameter_err_m"]) for e in logs]),
+        "mask_iou": {**_stats(iou), "min": (min(v for v in iou if v is not None)
+                                            if any(v is not None for v in iou) else None)},
+        "n_truth_obstacles": n_obs_t, "n_recon_obstacles": n_obs_r,
+        "obstacles_detected": detected,
+        "obstacle_detection_rate": (detected / n_obs_t) if n_obs_t else None,
+        "obstacle_false_positives": n_obs_r - detected,
+        "obstacle_kind_agreement": (sum(m["kind"] == m["recon_kind"] for m in obstacle_matches if m["recon_index"] is not None)
+                                    / detected) if detected else None,
     }
 
 
