@@ -171,38 +171,15 @@ def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5
         apply_umask(tmp, directory=True)
         (tmp / "truth").mkdir()
         write_pile(pile, tmp / "truth" / "pile.json")
-        import datetime as dt
-
         from reconstruct.registration import ScanPose, write_scan_pose
-        from synth.render.stereo import StereoRenderer
 
-        captured = dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds").replace("+00:00", "Z")
         rig0 = _rig_over_pile(pile, height_m, hfov_deg, image_size)
-        yaw = math.radians(rig0.yaw_deg)
-        along, across = np.array([math.cos(yaw), math.sin(yaw)]), np.array([-math.sin(yaw), math.cos(yaw)])
-        nx, ny = grid
-        centre = np.asarray(rig0.target_m[:2])
         moving = unposed if handheld is None else bool(handheld)
         # the rig's motion has its own stream: pile, survey and pose error do not depend on it
-        rig_rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x5CA7, 1]))
-        poses = {}
-        with StereoRenderer(rig0.renderer) as renderer:
-            for iy in range(ny):
-                for ix in range(nx):
-                    k = iy * nx + ix
-                    xy = centre + along * (ix - (nx - 1) / 2) * spacing_m[0] + across * (iy - (ny - 1) / 2) * spacing_m[1]
-                    rig = replace(rig0, target_m=(float(xy[0]), float(xy[1]), float(pile.terrain.height_at(*xy))))
-                    if moving:
-                        T = _handheld_pose(rig, rig_rng, jitter_m, jitter_height_m, jitter_yaw_deg, jitter_tilt_deg)
-                        rig = replace(rig, T_pile_cam=tuple(tuple(float(v) for v in r) for r in T))
-                    say(f"rendering stereo pair {k + 1} of {nx * ny}")
-                    pair = renderer.render(pile, rig)
-                    pair.meta.update({"camera": "ZED 2 (twin)", "captured_utc": captured})
-                    pair_dir = pair.save(tmp / "scan" / f"pair_{k:03d}")
-                    os.replace(pair_dir / "depth_left.npz", tmp / "truth" / f"pair_{k:03d}_depth.npz")
-                    poses[f"pair_{k:03d}"] = pair.calibration.T_pile_cam.tolist()
-                    if unposed:
-                        _strip_pose(pair_dir)
+        jitter = (np.random.default_rng(np.random.SeedSequence([int(seed), 0x5CA7, 1])),
+                  jitter_m, jitter_height_m, jitter_yaw_deg, jitter_tilt_deg) if moving else None
+        poses = _render_pairs(tmp, pile, rig0, grid, spacing_m, jitter, unposed, say)
+        nx, ny = grid
         atomic_write_bytes(tmp / "truth" / "poses.json", json.dumps(
             {"format": "loggrasp.twin-scan-poses", "format_version": SCAN_FORMAT_VERSION,
              "frame": "pile (truth/pile.json)", "T_pile_cam": poses}, indent=1).encode())
@@ -233,6 +210,42 @@ def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return out
+
+
+def _render_pairs(tmp: Path, pile, rig0, grid: tuple[int, int], spacing_m: tuple[float, float], jitter,
+                  unposed: bool, say: Callable[[str], None]) -> dict[str, list]:
+    """Render the grid of stereo pairs over the pile into ``tmp/scan`` (their true depth and
+    instance maps into ``tmp/truth``); ``jitter``: (rng, m, height m, yaw deg, tilt deg) of a rig
+    that moves between pairs, or None for a straight-down grid. Returns each pair's true
+    ``T_pile_cam``."""
+    import datetime as dt
+
+    from synth.render.stereo import StereoRenderer
+
+    captured = dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds").replace("+00:00", "Z")
+    yaw = math.radians(rig0.yaw_deg)
+    along, across = np.array([math.cos(yaw), math.sin(yaw)]), np.array([-math.sin(yaw), math.cos(yaw)])
+    nx, ny = grid
+    centre = np.asarray(rig0.target_m[:2])
+    poses = {}
+    with StereoRenderer(rig0.renderer) as renderer:
+        for iy in range(ny):
+            for ix in range(nx):
+                k = iy * nx + ix
+                xy = centre + along * (ix - (nx - 1) / 2) * spacing_m[0] + across * (iy - (ny - 1) / 2) * spacing_m[1]
+                rig = replace(rig0, target_m=(float(xy[0]), float(xy[1]), float(pile.terrain.height_at(*xy))))
+                if jitter is not None:
+                    T = _handheld_pose(rig, *jitter)
+                    rig = replace(rig, T_pile_cam=tuple(tuple(float(v) for v in r) for r in T))
+                say(f"rendering stereo pair {k + 1} of {nx * ny}")
+                pair = renderer.render(pile, rig)
+                pair.meta.update({"camera": "ZED 2 (twin)", "captured_utc": captured})
+                pair_dir = pair.save(tmp / "scan" / f"pair_{k:03d}")
+                os.replace(pair_dir / "depth_left.npz", tmp / "truth" / f"pair_{k:03d}_depth.npz")
+                poses[f"pair_{k:03d}"] = pair.calibration.T_pile_cam.tolist()
+                if unposed:
+                    _strip_pose(pair_dir)
+    return poses
 
 
 def visible_logs(scan_root: str | Path, n_logs: int) -> np.ndarray:
