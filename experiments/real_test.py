@@ -415,22 +415,19 @@ def run_real_test(cfg: RealTestConfig | None = None, work_dir: str | Path | None
     try:
         threads = None if cfg.workers == 1 or len(seeds) == 1 else 1  # one torch thread a pool worker
         tasks = {seed: (seed, str(work_dir), cfg, str(model), threads) for seed in seeds}
+        n_done = 0
 
         def finished(seed: int, pile_rows: list[dict]) -> None:
+            nonlocal n_done
             rows.extend(pile_rows)
             save()
-            say(f"pile {len(rows_done) + 1}/{len(seeds)} (seed {seed}) done")
-            rows_done.append(seed)
+            n_done += 1
+            say(f"pile {n_done}/{len(seeds)} (seed {seed}) done")
 
         def failed(seed: int, exc: Exception) -> None:  # a pile the generator or the twin could not make
-            from concurrent.futures.process import BrokenProcessPool
-
-            if isinstance(exc, BrokenProcessPool):  # a dead worker, not the pile: stop, the re-run resumes
-                raise exc
             failures.append(f"seed {seed}: {type(exc).__name__}: {exc}")
             finished(seed, [])
 
-        rows_done: list[int] = []
         run_tasks(_worker_pile, tasks, finished, workers=cfg.workers, on_error=failed)
     finally:
         if tmp is not None:

@@ -16,7 +16,8 @@ Engines:
 
 On an error (a task raising, a worker dying) the tasks not yet started are cancelled and the
 error propagates; results handed over before it stay handed over. With ``on_error``, a task that
-raises an ``Exception`` is handed to ``on_error(key, exc)`` instead and the others go on.
+raises an ``Exception`` is handed to ``on_error(key, exc)`` instead and the others go on; a worker
+that died (a killed pool process, a lost Dask worker) is not the task's error and still propagates.
 """
 
 from __future__ import annotations
@@ -73,9 +74,17 @@ class _Hand:
         try:
             value = result()
         except Exception as exc:  # the caller records it (on_error) and the job goes on
+            if worker_died(exc):
+                raise
             self.on_error(key, exc)
             return
         self.on_result(key, value)
+
+
+def worker_died(exc: BaseException) -> bool:
+    """Whether ``exc`` says the process running a task died (a pool's ``BrokenProcessPool``, Dask's
+    ``KilledWorker`` / ``CommClosedError``), not that the task raised."""
+    return type(exc).__name__ in ("BrokenProcessPool", "KilledWorker", "CommClosedError")
 
 
 def _run_pool(fn, tasks, hand: _Hand, workers: int) -> None:

@@ -44,6 +44,7 @@ import numpy as np
 
 from synth.common.files import atomic_write_bytes, make_writable_dir, sha256_file
 from synth.common.formats import VersionedJson, major
+from synth.common.runner import worker_died
 from synth.errors import SynthError
 from synth.geometry.grasp import Grasp
 
@@ -880,7 +881,7 @@ def _job_failure(exc: Exception, n_done: int, n_chunks: int) -> DatasetJobError 
             f"writing the data set failed ({exc.strerror or exc}); {n_done} of {n_chunks} chunks are "
             "complete and listed in the manifest — free space / fix the folder and re-run the same job to resume")
     name = type(exc).__name__
-    if name in ("BrokenProcessPool", "KilledWorker", "CommClosedError") or isinstance(exc, (ConnectionError, TimeoutError)):
+    if worker_died(exc) or isinstance(exc, (ConnectionError, TimeoutError)):
         return DatasetJobError(
             f"a worker died ({name}: {exc}); {n_done} of {n_chunks} chunks are complete and listed "
             "in the manifest — re-run the same job to resume")

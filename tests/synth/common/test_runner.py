@@ -55,3 +55,16 @@ def test_bad_engine_or_workers_fail_in_one_line(engine, workers):
 
 def test_pending_keeps_order_and_drops_the_done():
     assert pending(range(5), {3, 0, 9}) == [1, 2, 4]
+
+
+def _die() -> None:
+    os._exit(1)  # the worker process dies: not an error this task raised
+
+
+def test_a_dead_worker_propagates_even_with_on_error():
+    """on_error is for a task that raised; a pool whose worker died stops the job (the caller
+    resumes it) instead of recording the task as failed."""
+    from concurrent.futures.process import BrokenProcessPool
+
+    with pytest.raises(BrokenProcessPool):
+        collect({"a": (), "b": ()}, fn=_die, workers=2, catch=True)
