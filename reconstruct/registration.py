@@ -253,11 +253,7 @@ class _CorrectionModel:
         """(3 per point) the point's offset from its fitted axis across and up, and along it from the end
         the scan sees (0 where it sees none), in sigmas."""
         T = _correction(x, self.mode, self.with_scale, self.pivot)
-        c = t.C @ T[:3, :3].T + T[:3, 3]
-        u = t.U @ T[:3, :3].T
-        u /= np.linalg.norm(u, axis=1, keepdims=True)
-        d = t.G - c
-        d -= u * np.einsum("ij,ij->i", d, u)[:, None]
+        u, d = _axis_offsets(t, T)
         n_h = np.cross(u, [0.0, 0.0, 1.0])
         n_h /= np.maximum(np.linalg.norm(n_h, axis=1, keepdims=True), 1e-9)
         n_v = np.cross(n_h, u)
@@ -298,14 +294,19 @@ class _CorrectionModel:
         return x, w
 
 
-def _axis_distances(t: _Targets, Tm: np.ndarray) -> np.ndarray:
-    """Each survey point's distance [m] from its fitted axis moved by ``Tm``."""
+def _axis_offsets(t: _Targets, Tm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The fitted axes' directions moved by ``Tm`` and each survey point's offset [m] across its axis."""
     c = t.C @ Tm[:3, :3].T + Tm[:3, 3]
     u = t.U @ Tm[:3, :3].T
     u /= np.linalg.norm(u, axis=1, keepdims=True)
     d = t.G - c
     d -= u * np.einsum("ij,ij->i", d, u)[:, None]
-    return np.linalg.norm(d, axis=1)
+    return u, d
+
+
+def _axis_distances(t: _Targets, Tm: np.ndarray) -> np.ndarray:
+    """Each survey point's distance [m] from its fitted axis moved by ``Tm``."""
+    return np.linalg.norm(_axis_offsets(t, Tm)[1], axis=1)
 
 
 def _refinement_report(t: _Targets, model: _CorrectionModel, x: np.ndarray, w: np.ndarray, T: np.ndarray,
