@@ -426,10 +426,7 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
     say(f"writing {out_dir}")
     obs, files = _write_outputs(fit, frame.render_px, cfg, out_dir, pts[in_patch], cloud.colours[in_patch])
     clock.lap("outputs_s")
-    timings = clock.total()
-    if pair_pose_source != "given":
-        timings.update({f"stereo_{k}": v for k, v in cloud.timings_s.items()})
-    timings.update({f"fit_{k}": v for k, v in fit.timings_s.items()})
+    timings = _timings(clock, None if pair_pose_source == "given" else cloud, fit)
     report = {
         "format": REPORT_FORMAT, "format_version": REPORT_VERSION,
         "scan_dir": str(scan_dir), "gnss": str(gnss_path), "pairs": cloud.pairs,
@@ -446,12 +443,20 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
         "terrain_coverage": fit.terrain_coverage, "obstacles": fit.obstacles, "moves": fit.moves,
         "timings_s": timings,
     }
-    report_path = out_dir / "report.json"
-    atomic_write_bytes(report_path, json.dumps(report, indent=1, default=_json_default).encode())
-    files["report"] = report_path
+    files["report"] = out_dir / "report.json"
+    atomic_write_bytes(files["report"], json.dumps(report, indent=1, default=_json_default).encode())
     say(f"done in {timings['total_s']:.1f} s")
     return ReconstructionResult(pile=fit.pile, fit=fit, report=report, out_dir=out_dir, files=files, cloud=cloud,
                                 observation=obs)
+
+
+def _timings(clock: "_Clock", cloud: ScanCloud | None, fit: PileFit) -> dict[str, float]:
+    """The stages' wall times [s], with the stereo matching's (``cloud``: matched in this run) and the fit's."""
+    timings = clock.total()
+    if cloud is not None:
+        timings.update({f"stereo_{k}": v for k, v in cloud.timings_s.items()})
+    timings.update({f"fit_{k}": v for k, v in fit.timings_s.items()})
+    return timings
 
 
 class _Clock:

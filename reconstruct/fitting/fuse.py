@@ -229,120 +229,151 @@ def find_scan_logs(points: np.ndarray, cfg: FuseConfig | None = None) -> list[Sc
 
     See the module docstring. Each ridge line is split where it is broken for more than
     ``max_gap_m``; runs shorter than ``min_segment_m`` are dropped."""
-    from scipy import ndimage
-
     cfg = cfg or FuseConfig()
     P = np.asarray(points, dtype=np.float64)
     P = P[np.all(np.isfinite(P), axis=1)]
     if len(P) < 100:
         return []
-    cell = cfg.cell_m
-    H, have, lo = _height_raster(P, cell)
-    strength, normal, Hf = _ridges(H, have, cfg)
-    ys, xs = np.nonzero(strength > 0)
-    if len(xs) < 10:
+    H, have, lo = _height_raster(P, cfg.cell_m)
+    px = _RidgePixels(H, have, lo, cfg)
+    if px.n < 10:
         return []
-    w = np.minimum(strength[ys, xs], 5 * cfg.min_curvature_per_m * 2)  # a few sharp pixels do not dominate
-    X = lo[0] + (xs + 0.5) * cell
-    Y = lo[1] + (ys + 0.5) * cell
-    th_p = np.mod(normal[ys, xs], math.pi)
-    c0 = np.array([X.mean(), Y.mean()])
-    Xc, Yc = X - c0[0], Y - c0[1]
-    r_max = float(np.hypot(Xc, Yc).max()) + 0.1
-    n_rho = int(2 * r_max / cell) + 1
-    n_th = 180
-    spread = 3  # each pixel votes for lines within +-3 deg of its own normal
-    th_bin = np.rint(np.degrees(th_p)).astype(np.int64)
-    alive = np.ones(len(X), dtype=bool)
-    band_px = max(1, int(round(cfg.band_m / cell)))
-    max_ang = math.radians(cfg.max_angle_deg)
-    min_votes = cfg.min_segment_m / cell * cfg.min_curvature_per_m * 2  # a short line of weak ridge pixels
-    z_top = ndimage.gaussian_filter(Hf, 1.0)[ys, xs]  # heights at the ridge pixels: the top line
     out: list[ScanLog] = []
+    for _ in range(4 * cfg.max_logs):
+        if len(out) >= cfg.max_logs or px.alive.sum() < 10:
+            break
+        peak = px.strongest_line()
+        if peak is None:
+            break
+        line = px.take_line(*peak)
+        if line is None:
+            continue
+        for t0, t1, run, seen in px.runs(*line):
+            mean_strength = float(np.mean(px.strength[run]))
+            if mean_strength < cfg.min_strength_per_m:
+                continue
+            c, u, _, tt = line
+            log = _scan_log_from_run(P, c + px.c0, u, t0, t1, tt[run], px.z_top[run], seen, mean_strength, cfg)
+            if log is not None:
+                out.append(log)
+    out.sort(key=lambda s: -s.seen_m)
+    return out
 
-    cos_t, sin_t = np.cos(np.radians(np.arange(n_th))), np.sin(np.radians(np.arange(n_th)))
 
-    def accumulate() -> np.ndarray:
-        idx = np.flatnonzero(alive)
-        tb = np.mod(th_bin[idx][:, None] + np.arange(-spread, spread + 1)[None, :], n_th)
-        rho = Xc[idx][:, None] * cos_t[tb] + Yc[idx][:, None] * sin_t[tb]
-        ri = np.clip(np.rint((rho + r_max) / cell).astype(np.int64), 0, n_rho - 1)
-        acc = np.bincount((tb * n_rho + ri).ravel(), weights=np.repeat(w[idx], 2 * spread + 1),
+def _ang_diff(a: np.ndarray, b: float) -> np.ndarray:
+    """|a - b| for line directions (mod pi) [rad]."""
+    return np.abs(np.mod(a - b + 0.5 * math.pi, math.pi) - 0.5 * math.pi)
+
+
+class _RidgePixels:
+    """The ridge pixels of a height raster (about their mean ``c0``), the Hough votes they cast for
+    log-top lines, and which of them are still ``alive`` (not yet taken by a line)."""
+
+    N_THETA = 180  # 1 deg line-direction bins
+    SPREAD = 3  # each pixel votes for lines within +-3 deg of its own normal
+    RUN_BIN_M = 0.05  # bins along a line, for its runs [m]
+
+    def __init__(self, H: np.ndarray, have: np.ndarray, lo: np.ndarray, cfg: FuseConfig):
+        from scipy import ndimage
+
+        self.H, self.have, self.lo, self.cfg, self.cell = H, have, lo, cfg, cfg.cell_m
+        strength, normal, Hf = _ridges(H, have, cfg)
+        ys, xs = np.nonzero(strength > 0)
+        self.n = len(xs)
+        if self.n < 10:
+            return
+        cell = self.cell
+        self.strength = strength[ys, xs]
+        self.w = np.minimum(self.strength, 5 * cfg.min_curvature_per_m * 2)  # a few sharp pixels do not dominate
+        X, Y = lo[0] + (xs + 0.5) * cell, lo[1] + (ys + 0.5) * cell
+        self.th_p = np.mod(normal[ys, xs], math.pi)
+        self.c0 = np.array([X.mean(), Y.mean()])
+        self.Xc, self.Yc = X - self.c0[0], Y - self.c0[1]
+        self.r_max = float(np.hypot(self.Xc, self.Yc).max()) + 0.1
+        self.n_rho = int(2 * self.r_max / cell) + 1
+        self.th_bin = np.rint(np.degrees(self.th_p)).astype(np.int64)
+        self.alive = np.ones(self.n, dtype=bool)
+        self.band_px = max(1, int(round(cfg.band_m / cell)))
+        self.max_ang = math.radians(cfg.max_angle_deg)
+        self.min_votes = cfg.min_segment_m / cell * cfg.min_curvature_per_m * 2  # a short line of weak ridge pixels
+        self.z_top = ndimage.gaussian_filter(Hf, 1.0)[ys, xs]  # heights at the ridge pixels: the top line
+        deg = np.radians(np.arange(self.N_THETA))
+        self.cos_t, self.sin_t = np.cos(deg), np.sin(deg)
+
+    def accumulate(self) -> np.ndarray:
+        """The alive pixels' votes, (direction bin, offset bin), summed over a band's width."""
+        from scipy import ndimage
+
+        sp, n_th, n_rho = self.SPREAD, self.N_THETA, self.n_rho
+        idx = np.flatnonzero(self.alive)
+        tb = np.mod(self.th_bin[idx][:, None] + np.arange(-sp, sp + 1)[None, :], n_th)
+        rho = self.Xc[idx][:, None] * self.cos_t[tb] + self.Yc[idx][:, None] * self.sin_t[tb]
+        ri = np.clip(np.rint((rho + self.r_max) / self.cell).astype(np.int64), 0, n_rho - 1)
+        acc = np.bincount((tb * n_rho + ri).ravel(), weights=np.repeat(self.w[idx], 2 * sp + 1),
                           minlength=n_th * n_rho).reshape(n_th, n_rho)
         # a log's top is a band of ridge pixels: lines through its middle collect the most
-        return ndimage.uniform_filter1d(acc, 2 * band_px + 1, axis=1, mode="constant")
+        return ndimage.uniform_filter1d(acc, 2 * self.band_px + 1, axis=1, mode="constant")
 
-    def ang_diff(a: np.ndarray, b: float) -> np.ndarray:
-        return np.abs(np.mod(a - b + 0.5 * math.pi, math.pi) - 0.5 * math.pi)
+    def strongest_line(self) -> tuple[int, int] | None:
+        """The (direction, offset) bins with the most votes; None when that is less than a short weak line."""
+        acc = self.accumulate()
+        ti, ri = np.unravel_index(int(np.argmax(acc)), acc.shape)
+        return None if acc[ti, ri] * (2 * self.band_px + 1) < self.min_votes else (int(ti), int(ri))
 
-    for _ in range(4 * cfg.max_logs):
-        if len(out) >= cfg.max_logs or alive.sum() < 10:
-            break
-        acc = accumulate()
-        k = int(np.argmax(acc))
-        ti, ri = np.unravel_index(k, acc.shape)
-        if acc[ti, ri] * (2 * band_px + 1) < min_votes:
-            break
+    def take_line(self, ti: int, ri: int):
+        """The line through the middle of that peak's band (weighted principal axis) and its pixels
+        again: (point c about c0, unit direction u, its pixels' mask, every pixel's place along it);
+        its pixels and those it suppresses are no longer alive. None: too few pixels on it."""
+        cfg, max_ang = self.cfg, self.max_ang
         th = math.radians(ti)
         n = np.array([math.cos(th), math.sin(th)])
-        rho = ri * cell - r_max
-        lat = Xc * n[0] + Yc * n[1] - rho
-        m = alive & (np.abs(lat) < cfg.band_m) & (ang_diff(th_p, th) < max_ang)
+        lat = self.Xc * n[0] + self.Yc * n[1] - (ri * self.cell - self.r_max)
+        m = self.alive & (np.abs(lat) < cfg.band_m) & (_ang_diff(self.th_p, th) < max_ang)
         if m.sum() < 5:
-            alive[np.abs(lat) < cfg.band_m] = False
-            continue
-        # the line through the band's middle (weighted principal axis), then its pixels again
-        pts = np.column_stack([Xc[m], Yc[m]])
-        ww = w[m]
+            self.alive[np.abs(lat) < cfg.band_m] = False
+            return None
+        pts = np.column_stack([self.Xc[m], self.Yc[m]])
+        ww = self.w[m]
         c = (pts * ww[:, None]).sum(0) / ww.sum()
         C = ((pts - c) * ww[:, None]).T @ (pts - c) / ww.sum()
         u = np.linalg.eigh(C)[1][:, 1]
         n = np.array([-u[1], u[0]])
         th2 = math.atan2(n[1], n[0])
-        rel = np.column_stack([Xc, Yc]) - c
+        rel = np.column_stack([self.Xc, self.Yc]) - c
         lat, tt = rel @ n, rel @ u
-        m = alive & (np.abs(lat) < cfg.band_m) & (ang_diff(th_p, th2) < max_ang)
-        taken = alive & (np.abs(lat) < cfg.suppress_m) & (ang_diff(th_p, th2) < 2 * max_ang)
-        alive &= ~(taken | m)
-        if m.sum() < 5:
-            continue
-        # runs along the line: 5 cm bins holding a band's worth of ridge pixels (scattered ones do not
-        # bridge a gap), broken where more than max_gap_m is empty
+        m = self.alive & (np.abs(lat) < cfg.band_m) & (_ang_diff(self.th_p, th2) < max_ang)
+        taken = self.alive & (np.abs(lat) < cfg.suppress_m) & (_ang_diff(self.th_p, th2) < 2 * max_ang)
+        self.alive &= ~(taken | m)
+        return None if m.sum() < 5 else (c, u, m, tt)
+
+    def runs(self, c: np.ndarray, u: np.ndarray, m: np.ndarray, tt: np.ndarray):
+        """The runs along a line, (t0, t1, their pixels, length seen [m]), at least ``min_segment_m``
+        long: bins holding a band's worth of ridge pixels (scattered ones do not bridge a gap), broken
+        where more than ``max_gap_m`` is empty and nothing lies over the line along the gap."""
+        cfg, bw, cell = self.cfg, self.RUN_BIN_M, self.cell
         idx_m = np.flatnonzero(m)
         t_m = tt[idx_m]
-        bw = 0.05
         b0 = math.floor(t_m.min() / bw)
         counts = np.bincount(np.floor(t_m / bw).astype(np.int64) - b0)
         full_bins = np.flatnonzero(counts >= max(3, int(0.4 * bw / cell * cfg.band_m / cell)))
         if not len(full_bins):
-            continue
+            return
         breaks = np.flatnonzero(np.diff(full_bins) * bw > cfg.max_gap_m)
-        # a longer gap with something lying over the line all along it (logs across, at a shallow angle)
-        # is still one log; a gap where the scan sees below the log's top is two
-        keep_breaks = []
-        for k_b in breaks:
-            g0, g1 = (b0 + full_bins[k_b] + 1) * bw, (b0 + full_bins[k_b + 1]) * bw
-            near_a = idx_m[(t_m >= g0 - 0.3) & (t_m < g0)]
-            near_b = idx_m[(t_m >= g1) & (t_m < g1 + 0.3)]
-            if (g1 - g0 > cfg.max_occluded_gap_m or not len(near_a) or not len(near_b)
-                    or not _covered(H, have, lo, cell, c + c0, u, g0, g1,
-                                    min(float(np.median(z_top[near_a])), float(np.median(z_top[near_b]))))):
-                keep_breaks.append(k_b)
-        breaks = np.asarray(keep_breaks, dtype=np.int64)
+        breaks = np.asarray([k for k in breaks if self._real_break(c, u, idx_m, t_m, (b0 + full_bins[k] + 1) * bw,
+                                                                    (b0 + full_bins[k + 1]) * bw)], dtype=np.int64)
         for s_, e_ in zip(np.r_[0, breaks + 1], np.r_[breaks, len(full_bins) - 1]):
             t0, t1 = (b0 + full_bins[s_]) * bw, (b0 + full_bins[e_] + 1) * bw
-            if t1 - t0 < cfg.min_segment_m:
-                continue
-            run = idx_m[(t_m >= t0) & (t_m < t1)]
-            mean_strength = float(np.mean(strength[ys[run], xs[run]]))
-            if mean_strength < cfg.min_strength_per_m:
-                continue
-            seen = float(e_ - s_ + 1) * bw
-            log = _scan_log_from_run(P, c + c0, u, t0, t1, tt[run], z_top[run], seen, mean_strength, cfg)
-            if log is not None:
-                out.append(log)
-    out.sort(key=lambda s: -s.seen_m)
-    return out
+            if t1 - t0 >= cfg.min_segment_m:
+                yield t0, t1, idx_m[(t_m >= t0) & (t_m < t1)], float(e_ - s_ + 1) * bw
+
+    def _real_break(self, c, u, idx_m, t_m, g0: float, g1: float) -> bool:
+        """A gap g0..g1 along the line splits it, unless something lies over the line all along it (logs
+        across, at a shallow angle): a gap where the scan sees below the log's top is two logs."""
+        near_a = idx_m[(t_m >= g0 - 0.3) & (t_m < g0)]
+        near_b = idx_m[(t_m >= g1) & (t_m < g1 + 0.3)]
+        return (g1 - g0 > self.cfg.max_occluded_gap_m or not len(near_a) or not len(near_b)
+                or not _covered(self.H, self.have, self.lo, self.cell, c + self.c0, u, g0, g1,
+                                min(float(np.median(self.z_top[near_a])), float(np.median(self.z_top[near_b])))))
 
 
 def _covered(H: np.ndarray, have: np.ndarray, lo: np.ndarray, cell: float, c: np.ndarray, u: np.ndarray,
@@ -466,35 +497,14 @@ def match_survey(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]]
     """Match every surveyed log to at most one scan log (see the module docstring). Returns the
     matches by log id and the indices of scan logs no surveyed log took. Raises
     :class:`AmbiguousSurveyError` when another matching nearly as good would change which logs exist."""
-    from scipy.optimize import linear_sum_assignment
-
     cfg = cfg or FuseConfig()
     ids = list(survey)
-    n_s, n_k = len(ids), len(scan_logs)
-    cost = np.full((n_s, n_k), math.inf)
-    rev = np.zeros((n_s, n_k), dtype=bool)
-    n_out = np.zeros((n_s, n_k), dtype=np.int64)
-    for i, k in enumerate(ids):
-        for j, log in enumerate(scan_logs):
-            cost[i, j], rev[i, j], n_out[i, j] = _match_cost(survey[k], log, cfg)
+    n_k = len(scan_logs)
+    cost, rev, n_out = _match_costs(survey, ids, scan_logs, cfg)
     # a surveyed log may match nothing (hidden, outside the scan): as costly as a point at the gate
     n_pts = np.array([sum(e is not None for e in survey[k]) for k in ids], dtype=float)
     none_cost = cfg.gate_sigma ** 2 * np.maximum(n_pts, 1)
-
-    def solve(c: np.ndarray) -> tuple[float, list[int | None]]:
-        big = 1e9
-        full = np.full((n_s, n_k + n_s), big)
-        full[:, :n_k] = np.where(np.isfinite(c), c, big)
-        full[np.arange(n_s), n_k + np.arange(n_s)] = none_cost
-        rows, cols = linear_sum_assignment(full)
-        pick: list[int | None] = [None] * n_s
-        total = 0.0
-        for r, col in zip(rows, cols):
-            total += float(full[r, col])
-            pick[r] = int(col) if col < n_k and full[r, col] < big else None
-        return total, pick
-
-    best, pick = solve(cost)
+    best, pick = _assign(cost, none_cost)
     matches = {}
     for i, k in enumerate(ids):
         j = pick[i]
@@ -503,14 +513,7 @@ def match_survey(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]]
     # is another matching nearly as good that makes another pile? The pile holds the scan logs matched or
     # long enough to stand alone, and the surveyed logs matched to none (placed from their points); two
     # matchings that only swap which surveyed log sits on which scan log make the same pile
-    # pieces of one log (collinear scan logs: a log seen in two pieces with a stretch under others
-    # between) are one log: a surveyed log on either piece makes the same pile
-    group = list(range(n_k))
-    for j in range(n_k):
-        for j2 in range(j):
-            if _same_line(scan_logs[j], scan_logs[j2]):
-                old, new = group[j], group[j2]
-                group = [new if g == old else g for g in group]
+    group = _line_groups(scan_logs)
 
     def content(p: list[int | None]) -> tuple[frozenset, frozenset]:
         used = {j for j in p if j is not None}
@@ -521,15 +524,13 @@ def match_survey(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]]
         """Survey points a matching has to call wrong (beyond the gate of the scan log their log took)."""
         return int(sum(n_out[i, j] for i, j in enumerate(p) if j is not None))
 
-    taken = {j for j in pick if j is not None}
-    best_content = content(pick)
-    best_gross = gross_errors(pick)
+    best_content, best_gross = content(pick), gross_errors(pick)
     for i, k in enumerate(ids):
         if n_k == 0 or pick[i] is None:
             continue
         c2 = cost.copy()
         c2[i, pick[i]] = math.inf
-        alt, alt_pick = solve(c2)
+        alt, alt_pick = _assign(c2, none_cost)
         delta = alt - best
         choice = "nothing" if alt_pick[i] is None else f"scan log {alt_pick[i]}"
         matches[k].alternative = f"{choice} (chi2 +{delta:.1f})"
@@ -538,25 +539,74 @@ def match_survey(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]]
         # of a log RTK fixed, "as good" on a 15 cm scrap of ridge with one of them wrong)
         if (delta < cfg.ambiguity_chi2 and content(alt_pick) != best_content
                 and gross_errors(alt_pick) <= best_gross):
-            e = survey[k]
-            pts = ", ".join(f"{end} ({p.fix}, +-{p.sigma_h_m * math.sqrt(2) * 100:.0f} cm)"
-                            for end, p in zip("ab", e) if p is not None)
-            j, j2 = pick[i], alt_pick[i]
-            where = _where(scan_logs[j])
-            other = "being hidden under other logs" if j2 is None else f"the scan's log {_where(scan_logs[j2])}"
-            if all(p is None or p.fix == "rtk_fixed" for p in e):
-                # fixed points are not made better by measuring them again with a fixed solution
-                todo = (f"Check that log {k!r}'s points were taken at its end centres (re-measure them), and survey "
-                        "the neighbouring logs' ends")
-            else:
-                todo = (f"Re-measure log {k!r}'s "
-                        + " and ".join(f"end {end}" for end, p in zip("ab", e) if p is not None and p.fix != "rtk_fixed")
-                        + " with an RTK fixed solution (or survey the neighbouring logs)")
-            raise AmbiguousSurveyError(
-                f"log {k!r} fits the scan's log {where} and {other} almost equally well (chi2 differs by "
-                f"{delta:.1f}; its points: {pts}), and the two make different piles. {todo}")
-    unmatched = [j for j in range(n_k) if j not in taken]
-    return matches, unmatched
+            raise _ambiguity(k, survey[k], scan_logs[pick[i]], None if alt_pick[i] is None else scan_logs[alt_pick[i]],
+                             delta)
+    taken = {j for j in pick if j is not None}
+    return matches, [j for j in range(n_k) if j not in taken]
+
+
+def _match_costs(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]], ids: list[str],
+                 scan_logs: Sequence[ScanLog], cfg: FuseConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per (surveyed log, scan log): the match's chi^2 (inf: gated out), whether it runs b -> a, and
+    how many of its survey points it calls wrong (:func:`_match_cost`)."""
+    cost = np.full((len(ids), len(scan_logs)), math.inf)
+    rev = np.zeros(cost.shape, dtype=bool)
+    n_out = np.zeros(cost.shape, dtype=np.int64)
+    for i, k in enumerate(ids):
+        for j, log in enumerate(scan_logs):
+            cost[i, j], rev[i, j], n_out[i, j] = _match_cost(survey[k], log, cfg)
+    return cost, rev, n_out
+
+
+def _assign(c: np.ndarray, none_cost: np.ndarray) -> tuple[float, list[int | None]]:
+    """The cheapest matching of rows (surveyed logs) to columns (scan logs) or to nothing at
+    ``none_cost``: its total cost and each row's column (None: nothing)."""
+    from scipy.optimize import linear_sum_assignment
+
+    n_s, n_k = c.shape
+    big = 1e9
+    full = np.full((n_s, n_k + n_s), big)
+    full[:, :n_k] = np.where(np.isfinite(c), c, big)
+    full[np.arange(n_s), n_k + np.arange(n_s)] = none_cost
+    rows, cols = linear_sum_assignment(full)
+    pick: list[int | None] = [None] * n_s
+    total = 0.0
+    for r, col in zip(rows, cols):
+        total += float(full[r, col])
+        pick[r] = int(col) if col < n_k and full[r, col] < big else None
+    return total, pick
+
+
+def _line_groups(scan_logs: Sequence[ScanLog]) -> list[int]:
+    """A group per scan log: pieces of one log (collinear scan logs: a log seen in two pieces with a
+    stretch under others between) share one, so a surveyed log on either piece makes the same pile."""
+    group = list(range(len(scan_logs)))
+    for j in range(len(scan_logs)):
+        for j2 in range(j):
+            if _same_line(scan_logs[j], scan_logs[j2]):
+                old, new = group[j], group[j2]
+                group = [new if g == old else g for g in group]
+    return group
+
+
+def _ambiguity(log_id: str, ends: tuple[SurveyEnd | None, SurveyEnd | None], chosen: ScanLog,
+               other: ScanLog | None, delta: float) -> AmbiguousSurveyError:
+    """The error for a surveyed log that fits ``chosen`` and ``other`` (None: hidden) almost equally
+    well, saying what to re-measure."""
+    pts = ", ".join(f"{end} ({p.fix}, +-{p.sigma_h_m * math.sqrt(2) * 100:.0f} cm)"
+                    for end, p in zip("ab", ends) if p is not None)
+    alt = "being hidden under other logs" if other is None else f"the scan's log {_where(other)}"
+    if all(p is None or p.fix == "rtk_fixed" for p in ends):
+        # fixed points are not made better by measuring them again with a fixed solution
+        todo = (f"Check that log {log_id!r}'s points were taken at its end centres (re-measure them), and survey "
+                "the neighbouring logs' ends")
+    else:
+        todo = (f"Re-measure log {log_id!r}'s "
+                + " and ".join(f"end {end}" for end, p in zip("ab", ends) if p is not None and p.fix != "rtk_fixed")
+                + " with an RTK fixed solution (or survey the neighbouring logs)")
+    return AmbiguousSurveyError(
+        f"log {log_id!r} fits the scan's log {_where(chosen)} and {alt} almost equally well (chi2 differs by "
+        f"{delta:.1f}; its points: {pts}), and the two make different piles. {todo}")
 
 
 def _where(log: ScanLog) -> str:
@@ -751,14 +801,11 @@ def fuse_end(p0: np.ndarray, u: np.ndarray, interval: EndInterval, at_start: boo
     sees something lower: a log bending down under a crossing one)."""
     cfg = cfg or FuseConfig()
     u = np.asarray(u, dtype=float)
-    sign = -1.0 if at_start else 1.0  # outward along t
-    lo = interval.last_on_m
-    hi = interval.first_off_m
     t_g = sg = None
     if survey is not None:
         t_g = float((survey.position_m - p0) @ u)
         sg = survey.sigma_along(u)
-    if lo is None:  # the scan shows nothing of this log's top: where its survey point lies along it
+    if interval.last_on_m is None:  # the scan shows nothing of this log's top: where its survey point lies along it
         if survey is None:
             raise FitError("an end with neither scan points nor a survey point cannot be placed")
         pos = np.asarray(p0, float) + u * t_g
@@ -766,65 +813,9 @@ def fuse_end(p0: np.ndarray, u: np.ndarray, interval: EndInterval, at_start: boo
         sig = math.sqrt(sg ** 2 + 2 * lateral_sigma_m ** 2)
         return EndEstimate(pos, float(sig), float(sg), survey.label, interval.state, survey.fix, res,
                            res / math.sqrt(survey.sigma_3d_m ** 2 + sig ** 2))
-    seen = interval.state == "seen"
-    ss = cfg.scan_end_sigma_m
-    if seen and not seen_whole and survey is not None:
-        t_s = seen_end(interval)
-        if abs(t_g - t_s) / math.hypot(ss, sg) > cfg.contradiction_sigma and sign * (t_g - t_s) > 0:
-            seen, hi = False, None
-    contradicted = False
-    if not seen_whole and survey is not None and sg <= ss and interval.state != "seen":
-        # a log the scan shows only in part: its axis is the survey's and its radius a guess from a piece of
-        # its top, so where the scan seems to see past its top (or on it) beyond a covered end is no match
-        # for a point at least as precise as a seen end (twin scan 1100028: a radius 5 cm too large made the
-        # true top look 'below' it; two RTK fixed points were dropped for ends 41-48 cm off)
-        t, sa, source = t_g, sg, survey.label
-    elif seen:  # the top stops at lo; the scan sees below it a little farther out (hi)
-        t_s = seen_end(interval)
-        if survey is not None:
-            z = abs(t_g - t_s) / math.hypot(ss, sg)
-            if z > cfg.contradiction_sigma:
-                contradicted = True
-                t, sa, source = t_s, ss, "scan"
-            else:
-                wg, ws = 1.0 / sg ** 2, 1.0 / ss ** 2
-                t = (wg * t_g + ws * t_s) / (wg + ws)
-                sa = 1.0 / math.sqrt(wg + ws)
-                source = "scan" if ss <= sg else survey.label
-        else:
-            t, sa, source = t_s, ss, "scan"
-    else:
-        # the end lies past the last bin on the log (lo; the scan's own end of the log, to ss), and short of
-        # hi when the scan sees below the top there (something lay over the end)
-        inner = sign * lo
-        outer = math.inf if hi is None else sign * hi
-        width = None if hi is None else abs(hi - lo)
-        tol = None if survey is None else cfg.contradiction_sigma * math.hypot(sg, ss)
-        if survey is not None and inner - tol <= sign * t_g <= outer + tol:
-            # a point more precise than the scan's bounds stands; a less precise one is kept within them
-            t = t_g if sg <= ss else sign * float(np.clip(sign * t_g, inner, outer))
-            sa = max(min(sg, width / math.sqrt(12.0)) if width is not None else sg, min(sg, ss))
-            source = survey.label
-        else:
-            contradicted = survey is not None
-            if width is not None and width <= 2 * cfg.end_search_m:
-                t, sa = 0.5 * (lo + hi), max(width / math.sqrt(12.0), ss)
-            else:
-                t, sa = lo, cfg.inferred_sigma_m
-            source = "inferred"
-    pos = np.asarray(p0, float) + u * t
-    # across the axis: the fitted axis (less sure the farther the end lies past what the scan shows of the
-    # log); for a log the scan shows only in part or not at all, also the survey point, each by its
-    # accuracy (an axis fitted to the scan is better than any survey point: measured, pulling it toward
-    # fixed points by their accuracy cost 0.017 in median mask IoU on test_end_to_end_generated_pile)
-    lat = lateral_sigma_m + cfg.extrapolation_sigma_per_m * abs(t - lo)
-    if survey is not None and not contradicted and lateral_sigma_m >= cfg.axis_sigma_m:
-        off = survey.position_m - pos
-        off -= (off @ u) * u  # the point's offset from the axis, across it
-        sg_across = math.sqrt(0.5 * (survey.sigma_h_m ** 2 + survey.sigma_v_m ** 2))
-        w = lat ** 2 / (lat ** 2 + sg_across ** 2)
-        pos = pos + w * off
-        lat = math.sqrt(1.0 / (1.0 / lat ** 2 + 1.0 / sg_across ** 2))
+    t, sa, source, contradicted = _end_along(interval, -1.0 if at_start else 1.0, survey, t_g, sg, seen_whole, cfg)
+    pos, lat = _end_across(np.asarray(p0, float) + u * t, u, abs(t - interval.last_on_m), survey, contradicted,
+                           lateral_sigma_m, cfg)
     sigma = math.sqrt(sa ** 2 + 2 * lat ** 2)
     est = EndEstimate(pos, float(sigma), float(sa), source, interval.state, None if survey is None else survey.fix,
                       contradicted=contradicted)
@@ -836,6 +827,65 @@ def fuse_end(p0: np.ndarray, u: np.ndarray, interval: EndInterval, at_start: boo
         if est.gnss_residual_sigma > cfg.contradiction_sigma * math.sqrt(3.0):  # chi with 3 dof, ~3 sigma each
             est.contradicted = True
     return est
+
+
+def _end_along(interval: EndInterval, sign: float, survey: SurveyEnd | None, t_g: float | None, sg: float | None,
+               seen_whole: bool, cfg: FuseConfig) -> tuple[float, float, str, bool]:
+    """Where an end the scan shows something of lies along the axis: (t [m], its sigma [m], its
+    source, whether the survey point is contradicted). ``sign``: outward along t."""
+    lo, hi = interval.last_on_m, interval.first_off_m
+    seen = interval.state == "seen"
+    ss = cfg.scan_end_sigma_m
+    if seen and not seen_whole and survey is not None:
+        t_s = seen_end(interval)
+        if abs(t_g - t_s) / math.hypot(ss, sg) > cfg.contradiction_sigma and sign * (t_g - t_s) > 0:
+            seen, hi = False, None
+    if not seen_whole and survey is not None and sg <= ss and interval.state != "seen":
+        # a log the scan shows only in part: its axis is the survey's and its radius a guess from a piece of
+        # its top, so where the scan seems to see past its top (or on it) beyond a covered end is no match
+        # for a point at least as precise as a seen end (twin scan 1100028: a radius 5 cm too large made the
+        # true top look 'below' it; two RTK fixed points were dropped for ends 41-48 cm off)
+        return t_g, sg, survey.label, False
+    if seen:  # the top stops at lo; the scan sees below it a little farther out (hi)
+        t_s = seen_end(interval)
+        if survey is None:
+            return t_s, ss, "scan", False
+        if abs(t_g - t_s) / math.hypot(ss, sg) > cfg.contradiction_sigma:
+            return t_s, ss, "scan", True
+        wg, ws = 1.0 / sg ** 2, 1.0 / ss ** 2
+        return (wg * t_g + ws * t_s) / (wg + ws), 1.0 / math.sqrt(wg + ws), ("scan" if ss <= sg else survey.label), False
+    # the end lies past the last bin on the log (lo; the scan's own end of the log, to ss), and short of
+    # hi when the scan sees below the top there (something lay over the end)
+    inner = sign * lo
+    outer = math.inf if hi is None else sign * hi
+    width = None if hi is None else abs(hi - lo)
+    tol = None if survey is None else cfg.contradiction_sigma * math.hypot(sg, ss)
+    if survey is not None and inner - tol <= sign * t_g <= outer + tol:
+        # a point more precise than the scan's bounds stands; a less precise one is kept within them
+        t = t_g if sg <= ss else sign * float(np.clip(sign * t_g, inner, outer))
+        sa = max(min(sg, width / math.sqrt(12.0)) if width is not None else sg, min(sg, ss))
+        return t, sa, survey.label, False
+    if width is not None and width <= 2 * cfg.end_search_m:
+        return 0.5 * (lo + hi), max(width / math.sqrt(12.0), ss), "inferred", survey is not None
+    return lo, cfg.inferred_sigma_m, "inferred", survey is not None
+
+
+def _end_across(pos: np.ndarray, u: np.ndarray, past_m: float, survey: SurveyEnd | None, contradicted: bool,
+                lateral_sigma_m: float, cfg: FuseConfig) -> tuple[np.ndarray, float]:
+    """An end's place across the axis and its sigma there [m]: the fitted axis (less sure the farther,
+    ``past_m``, the end lies past what the scan shows of the log); for a log the scan shows only in part
+    or not at all, also the survey point, each by its accuracy (an axis fitted to the scan is better
+    than any survey point: measured, pulling it toward fixed points by their accuracy cost 0.017 in
+    median mask IoU on test_end_to_end_generated_pile)."""
+    lat = lateral_sigma_m + cfg.extrapolation_sigma_per_m * past_m
+    if survey is not None and not contradicted and lateral_sigma_m >= cfg.axis_sigma_m:
+        off = survey.position_m - pos
+        off -= (off @ u) * u  # the point's offset from the axis, across it
+        sg_across = math.sqrt(0.5 * (survey.sigma_h_m ** 2 + survey.sigma_v_m ** 2))
+        w = lat ** 2 / (lat ** 2 + sg_across ** 2)
+        pos = pos + w * off
+        lat = math.sqrt(1.0 / (1.0 / lat ** 2 + 1.0 / sg_across ** 2))
+    return pos, lat
 
 
 def place_log_ends(points: np.ndarray, spec: Any, how: str, survey: tuple[SurveyEnd | None, SurveyEnd | None],

@@ -261,6 +261,37 @@ def estimate_pair_poses(pairs: Sequence[ScanPair], config: SfmConfig | None = No
     t0 = time.perf_counter()
     names = [f"p{k:03d}" for k in range(len(pairs))]
     label = {n: p.folder.name for n, p in zip(names, pairs)}
+    labels = [label[n] for n in names]
+    rec, timings = _sfm_model(pairs, names, cfg, say)
+    poses = _placed_images(rec, names, label, len(pairs))
+    T_w_cam = [poses[_image_name(n, "left")] for n in names]
+    baseline_ratio, rot_err = _rig_check(poses, names, label, pairs)
+    # metric scale: the stereo depth of each pair (its calibrated baseline) against SfM's depth
+    t = time.perf_counter()
+    say("anchoring the pair poses to their stereo depth")
+    clouds = list(clouds) if clouds is not None else camera_clouds(pairs)
+    tracks, who, Y = _track_observations(rec, names, pairs, clouds, cfg)
+    _check_correspondences(who, pairs, cfg)
+    _check_linked(tracks, who, labels, pairs, cfg)
+    pair_scales, scale, spread = _metric_scale(rec, names, labels, pairs, clouds, cfg)
+    for T in T_w_cam:
+        T[:3, 3] *= scale
+    T_anchor, anchor = _stereo_anchor(T_w_cam, tracks, who, Y, cfg, labels)
+    T_scan_cam = _scan_frame_poses(T_w_cam, T_anchor, anchor, labels)
+    _check_anchor(anchor, cfg)
+    result = PairPoses(
+        T_scan_cam=T_scan_cam, scale=scale, pair_scales=pair_scales, scale_spread=spread,
+        n_images=2 * len(pairs), n_registered=int(rec.num_reg_images()), n_points3d=int(rec.num_points3D()),
+        reprojection_error_px=float(rec.compute_mean_reprojection_error()), right_rotation_deg=rot_err,
+        baseline_ratio=baseline_ratio, anchor=anchor, timings_s=dict(timings),
+    )
+    result.timings_s["anchor_s"] = time.perf_counter() - t
+    result.timings_s["total_s"] = time.perf_counter() - t0
+    return result
+
+
+def _sfm_model(pairs: Sequence[ScanPair], names: list[str], cfg: SfmConfig, say: Callable[[str], None]):
+    """pycolmap's reconstruction of all the pairs' images (in a temporary folder) and its timings."""
     work = Path(tempfile.mkdtemp(prefix="loggrasp-sfm-"))
     try:
         say(f"SfM (pycolmap) on {2 * len(pairs)} images")
@@ -272,6 +303,11 @@ def estimate_pair_poses(pairs: Sequence[ScanPair], config: SfmConfig | None = No
             shutil.copytree(work, cfg.keep_workdir, dirs_exist_ok=True)
     finally:
         shutil.rmtree(work, ignore_errors=True)
+    return rec, timings
+
+
+def _placed_images(rec, names: list[str], label: dict[str, str], n_pairs: int) -> dict[str, np.ndarray]:
+    """``T_world_cam`` of every image SfM placed; an error naming the pairs' images it did not place."""
     poses = {}
     if rec is not None:
         for img in dict(rec.images).values():
@@ -282,39 +318,45 @@ def estimate_pair_poses(pairs: Sequence[ScanPair], config: SfmConfig | None = No
     missing = [label[n] + f" ({side})" for n in names for side in ("left", "right")
                if _image_name(n, side) not in poses]
     if missing:
-        placed = len(poses)
         raise SfmRegistrationError(
-            f"SfM placed {placed} of {2 * len(pairs)} images; not placed: {', '.join(missing)}. These pairs do "
+            f"SfM placed {len(poses)} of {2 * n_pairs} images; not placed: {', '.join(missing)}. These pairs do "
             "not overlap the others enough (or see too little texture): take pairs that overlap their "
             "neighbours by about a third of the image, remove the stray pairs, or give the pairs their "
             "poses (T_pile_cam in calibration.yaml)"
         )
-    labels = [label[n] for n in names]
-    T_w_cam = [poses[_image_name(n, "left")] for n in names]
-    # the rig's right camera as SfM placed it vs the calibration (R, T): the metric check
+    return poses
+
+
+def _rig_check(poses: dict[str, np.ndarray], names: list[str], label: dict[str, str],
+               pairs: Sequence[ScanPair]) -> tuple[dict[str, float], dict[str, float]]:
+    """The rig's right camera as SfM placed it vs the calibration (R, T), the metric check: per pair,
+    SfM's baseline over the calibrated one [-] and the rotation between them [deg]."""
     baseline_ratio, rot_err = {}, {}
     for n, p in zip(names, pairs):
         Tl, Tr = poses[_image_name(n, "left")], poses[_image_name(n, "right")]
         baseline_ratio[label[n]] = float(np.linalg.norm(Tl[:3, 3] - Tr[:3, 3])) / p.calibration.baseline_m
         rot_err[label[n]] = _angle_deg((Tr[:3, :3].T @ Tl[:3, :3]) @ p.calibration.R.T)
-    # metric scale: the stereo depth of each pair (its calibrated baseline) against SfM's depth
-    t = time.perf_counter()
-    say("anchoring the pair poses to their stereo depth")
-    clouds = list(clouds) if clouds is not None else camera_clouds(pairs)
-    tracks, who, Y = _track_observations(rec, names, pairs, clouds, cfg)
-    pair_scales = {}
-    for i, lab in enumerate(labels):
-        sel = who == i
-        if sel.sum() < cfg.min_correspondences:
+    return baseline_ratio, rot_err
+
+
+def _check_correspondences(who: np.ndarray, pairs: Sequence[ScanPair], cfg: SfmConfig) -> None:
+    """Every pair has ``min_correspondences`` SfM points seen by another pair, with stereo depth."""
+    for i, pair in enumerate(pairs):
+        n = int((who == i).sum())
+        if n < cfg.min_correspondences:
             raise SfmRegistrationError(
-                f"{pairs[i].folder}: only {int(sel.sum())} SfM points of its left image are also seen by another "
+                f"{pair.folder}: only {n} SfM points of its left image are also seen by another "
                 f"pair and have stereo depth (need {cfg.min_correspondences}); it overlaps the other pairs too "
                 "little. Re-take it overlapping its neighbours by about a third, drop it, or give the pairs "
                 "their poses"
             )
-    _check_linked(tracks, who, labels, pairs, cfg)
-    for lab, sc in zip(labels, _pair_scales(rec, names, pairs, clouds)):
-        pair_scales[lab] = sc
+
+
+def _metric_scale(rec, names: list[str], labels: list[str], pairs: Sequence[ScanPair], clouds,
+                  cfg: SfmConfig) -> tuple[dict[str, float], float, float]:
+    """Each pair's scale (stereo depth / SfM depth), their median and relative spread; an error when
+    they disagree by more than ``max_scale_spread``."""
+    pair_scales = dict(zip(labels, _pair_scales(rec, names, pairs, clouds)))
     vals = np.array([v for v in pair_scales.values() if np.isfinite(v)])
     scale = float(np.median(vals)) if vals.size else math.nan
     spread = float((vals.max() - vals.min()) / scale) if vals.size else math.nan
@@ -325,18 +367,27 @@ def estimate_pair_poses(pairs: Sequence[ScanPair], config: SfmConfig | None = No
             f"{cfg.max_scale_spread * 100:.0f} %; worst: {worst}): the SfM model is distorted, or a pair's "
             "calibration (baseline T) is not its camera's. Check the calibrations, or give the pairs their poses"
         )
-    for T in T_w_cam:
-        T[:3, 3] *= scale
-    T_anchor, anchor = _stereo_anchor(T_w_cam, tracks, who, Y, cfg, labels)
+    return pair_scales, scale, spread
+
+
+def _scan_frame_poses(T_w_cam: list[np.ndarray], T_anchor: list[np.ndarray], anchor: dict[str, dict],
+                      labels: list[str]) -> dict[str, np.ndarray]:
+    """The anchored poses in the scan frame (the first pair's left camera); each pair's ``anchor``
+    entry gets how far the anchoring moved it from SfM's (metric) pose."""
     T0_inv = np.linalg.inv(T_anchor[0])
-    T_scan_cam = {}
     S0_inv = np.linalg.inv(T_w_cam[0])
+    T_scan_cam = {}
     for i, lab in enumerate(labels):
         T_scan_cam[lab] = T0_inv @ T_anchor[i]
         sfm_rel = S0_inv @ T_w_cam[i]
         d = np.linalg.inv(sfm_rel) @ T_scan_cam[lab]
         anchor[lab].update({"sfm_correction_m": float(np.linalg.norm(T_scan_cam[lab][:3, 3] - sfm_rel[:3, 3])),
                             "sfm_correction_deg": _angle_deg(d[:3, :3])})
+    return T_scan_cam
+
+
+def _check_anchor(anchor: dict[str, dict], cfg: SfmConfig) -> None:
+    """Each pair's stereo points of shared features lie within ``max_anchor_rms_m`` of the others'."""
     for lab, a in anchor.items():
         if a["residual_rms_m"] > cfg.max_anchor_rms_m:
             raise SfmError(
@@ -344,15 +395,6 @@ def estimate_pair_poses(pairs: Sequence[ScanPair], config: SfmConfig | None = No
                 f"the other pairs' (limit {cfg.max_anchor_rms_m * 100:.0f} cm): its pose cannot be trusted. Check "
                 "its images and calibration, or drop it"
             )
-    result = PairPoses(
-        T_scan_cam=T_scan_cam, scale=scale, pair_scales=pair_scales, scale_spread=spread,
-        n_images=2 * len(pairs), n_registered=int(rec.num_reg_images()), n_points3d=int(rec.num_points3D()),
-        reprojection_error_px=float(rec.compute_mean_reprojection_error()), right_rotation_deg=rot_err,
-        baseline_ratio=baseline_ratio, anchor=anchor, timings_s=dict(timings),
-    )
-    result.timings_s["anchor_s"] = time.perf_counter() - t
-    result.timings_s["total_s"] = time.perf_counter() - t0
-    return result
 
 
 def _depth_map(points_cam: np.ndarray, K: np.ndarray, size: tuple[int, int]) -> np.ndarray:

@@ -157,7 +157,7 @@ ALLOWED_DIRECT_WRITES: dict[tuple[str, str], tuple[Counter, str]] = {
     ("planner/evaluate.py", "run_evaluation"): (
         Counter({"write_text": 1}), "examples.err: a note that a picture failed"),
     ("reconstruct/scan/sfm.py", "_run_colmap"): (Counter({"imwrite": 1}), "images in SfM's temporary work folder"),
-    ("reconstruct/scan/sfm.py", "estimate_pair_poses"): (Counter({"shutil.copytree": 1}), "keep_workdir: a debugging copy"),
+    ("reconstruct/scan/sfm.py", "_sfm_model"): (Counter({"shutil.copytree": 1}), "keep_workdir: a debugging copy"),
     ("field/controller.py", "FixedOutcomeExecutor.__init__"): (
         Counter({"open('w')": 1}), "the crane twin's append-only execution log (its header line)"),
     ("field/controller.py", "FixedOutcomeExecutor._log_start"): (
