@@ -48,3 +48,35 @@ def test_refinement_recovers_a_small_pose_error(crossed):
     assert err.max() < 0.01, err
     with pytest.raises(RegistrationError, match="correction"):
         refine_registration(apply_T(wrong, pts), ends, ReconstructConfig(max_correction_m=0.01))
+
+
+# -- the ground plane ---------------------------------------------------------------------------
+def _ground_and_clutter(seed: int = 0):
+    rng = np.random.default_rng(seed)
+    n = np.array([0.05, -0.03, 1.0])
+    n /= np.linalg.norm(n)
+    xy = rng.uniform(-2.0, 2.0, (3000, 2))
+    ground = np.c_[xy, -(n[0] * xy[:, 0] + n[1] * xy[:, 1] + 0.4) / n[2]] + rng.normal(0, 0.005, (3000, 1)) * n
+    clutter = np.c_[rng.uniform(-2.0, 2.0, (2000, 2)), rng.uniform(-0.3, 0.3, 2000)]  # logs, stumps over it
+    return np.r_[ground, clutter], n, 0.4
+
+
+def test_ransac_plane_finds_the_ground_under_clutter():
+    from reconstruct.registration import ransac_plane
+
+    P, n, d = _ground_and_clutter()
+    plane, inl = ransac_plane(P, 0.02, 500, np.random.default_rng(0))
+    sign = np.sign(plane[:3] @ n)
+    assert math.degrees(math.acos(min(1.0, abs(plane[:3] @ n)))) < 0.5
+    assert abs(sign * plane[3] - d) < 0.005
+    assert np.isin(np.arange(3000), inl).mean() > 0.99  # the ground points
+    assert (inl >= 3000).sum() < 0.1 * 2000  # few clutter points (those lying within 2 cm of it)
+
+
+def test_ransac_plane_is_deterministic():
+    from reconstruct.registration import ransac_plane
+
+    P, _, _ = _ground_and_clutter(1)
+    runs = [ransac_plane(P, 0.04, 60, np.random.default_rng(3)) for _ in range(3)]
+    for plane, inl in runs[1:]:
+        assert plane.tobytes() == runs[0][0].tobytes() and np.array_equal(inl, runs[0][1])
