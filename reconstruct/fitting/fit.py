@@ -105,12 +105,19 @@ AXIS_SOURCES = ("fit", "gnss")
 #: around its placed ends. 9: the points near another log (within ``end_walk_band_m``, not within
 #: ``inlier_band_m``) do not show a log's top but still show where the scan sees below it (at 8, logs the
 #: survey missed lost their 'seen' end where they touched a neighbour: 1.9 -> 10.8 cm, 2.3 -> 15.5 cm).
-FIT_REVISION = 9
+#: 10: a 3-D fit whose radius ends on the edge of ``radius_window_m`` about the chunk profiles' takes the
+#: profiles' radius and fits only the axis when that explains the top points about as well
+#: (``radius_profile_max_rms_rise``; a 20 cm log came out 18 or 19 cm, by which 2.5 mm grid step the
+#: profiles took; ``LogFit.radius_source``); the ground plane of a coarse registration is found by a
+#: seeded RANSAC of our own (open3d's gave another plane from run to run). (The roll search of the reverted branch 4042e48 would be 11.)
+FIT_REVISION = 10
 # a cross-section circle loses this much score per footprint bin it does not explain (the profile
 # there lies above it or off it): where a neighbour lies against a log, or the stereo fills the
 # valley between them, that side shows no edge, and without this a wider circle, centred toward
 # the neighbour, explained as many bins as the true one [-]
 PROFILE_UNSEEN_WEIGHT = 0.5
+# a 3-D fit's radius this close to its window's edge is on it (the bound is active) [m]
+RADIUS_EDGE_M = 1e-4
 # a contact between two logs whose normal is at least this horizontal (squared horizontal part of the
 # unit normal; 0.5: within 45 deg of horizontal) is side by side: both are pushed apart [-]
 SIDE_CONTACT_MIN_H2 = 0.5
@@ -199,6 +206,9 @@ class FitConfig:
     #                                (robust, they see the flanks and the ground) [m]: from above, the top
     #                                strip alone hardly fixes the curvature, and one noisy scan let
     #                                the fit slide to 0.031 m for a 0.07 m log
+    radius_profile_max_rms_rise: float = 0.10  # a 3-D fit ending on that window's edge takes the profiles'
+    #                                radius when it explains the top points within this share of the fit's RMS
+    #                                (twin stereo: 1.03, the top arc cannot tell; an exact top view: 1.32) [-]
     suspect_shift_m: float = 0.08  # a first fit whose axis lies this far from a GNSS point (~3 sigma
     #                                of RTK noise) took another surface, most likely (a log lying
     #                                under another): the refit gets only points no other log
@@ -206,6 +216,8 @@ class FitConfig:
     seed: int = 0  # subsampling seed [-]
 
     def __post_init__(self) -> None:
+        if not 0 <= self.radius_profile_max_rms_rise <= 1.0:
+            raise ValueError(f"radius_profile_max_rms_rise must be in [0, 1], got {self.radius_profile_max_rms_rise}")
         if not 0 < self.radius_window_m <= 1.0:
             raise ValueError(f"radius_window_m must be in (0, 1] m, got {self.radius_window_m}")
         if self.endpoint_ref not in ENDPOINT_REFS:
@@ -266,6 +278,7 @@ class LogFit:
     end_source: tuple[str, str] = ("gnss", "gnss")  # butt, top: "gnss" point or "scan" extent; with the
     #                                                 survey fused (fit_pile's place_ends): scan, fixed, float, inferred
     ends: list[dict] | None = None  # ends a, b as placed (reconstruct.fitting.fuse.EndEstimate.to_dict), when fused
+    radius_source: str = "fit"  # see CylinderFit.radius_source ("fit" also for partial and hidden logs)
     fit: str = "scan"  # "scan": fitted to its points; "partial": seen only in part, a circle through its
     #                    visible top near the survey's axis; "hidden": no points on it (under other logs),
     #                    the survey's axis, as thick as the gap between the ground and the logs over it
@@ -409,6 +422,8 @@ class CylinderFit:
     residual_b_m: float  # ... point b [m]
     end_source: tuple[str, str] = ("gnss", "gnss")  # what placed each end: "gnss" or "scan"
     taper_significance: float = 0.0  # fitted taper over its standard error [-]
+    radius_source: str = "fit"  # "fit": the 3-D fit's; "profiles": the cross-section profiles' (the fit
+    #                             ended on the edge of FitConfig.radius_window_m about them)
     inliers: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # indices into the points
 
     def with_ends(self, ends: np.ndarray) -> "CylinderFit":
@@ -447,6 +462,7 @@ class _Cylinder:
     centre: np.ndarray  # (3,) [m]
     u: np.ndarray  # (3,) unit axis [-]
     res: np.ndarray  # the selected points' distances from its surface [m]
+    radius_source: str = "fit"  # "fit", or "profiles" where the fit ended on the radius window's edge
 
 
 def _search_region(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig, log_id: str,
@@ -567,111 +583,136 @@ def _initial_axis(ch: np.ndarray, s: _SearchRegion) -> np.ndarray:
     return np.array([coef[0, 0], coef[1, 0], coef[0, 1], coef[1, 1], r0, 0.0])
 
 
-def _fit_cylinder(P: np.ndarray, s: _SearchRegion, x_init: np.ndarray, rng: np.random.Generator,
-                  log_id: str) -> _Cylinder:
-    """The cylinder (soft-L1 least squares, analytic Jacobian) through the points on its visible top,
-    weakly tied to the survey's axis by each end's accuracy; the top band re-selected and refitted once."""
-    from scipy.optimize import least_squares
+class _CylinderModel:
+    """The cylinder of :func:`_fit_cylinder` about the survey axis' midpoint: parameters
+    [shift e1, shift e2, tilt e1, tilt e2, radius, radius slope], the points on its visible top, and
+    its residuals (distances from the surface, then the weak ties of its ends to the survey)."""
 
-    cfg, L, u0, e1, e2, cand = s.cfg, s.length_m, s.u0, s.e1, s.e2, s.cand
-    sig_a, sig_b = s.sig_a_m, s.sig_b_m
-    mid = s.a + u0 * (L / 2)
-    prior_mid = np.array([s.prior[0], s.prior[1]])
+    def __init__(self, P: np.ndarray, s: _SearchRegion):
+        self.s, self.cfg, self.L = s, s.cfg, s.length_m
+        self.mid = s.a + s.u0 * (s.length_m / 2)
+        self.prior_mid = np.array([s.prior[0], s.prior[1]])
+        self.P, self.Pc = P, P[s.cand]
+        cfg = s.cfg
+        self.w_a, self.w_b = cfg.loss_scale_m / s.sig_a_m, cfg.loss_scale_m / s.sig_b_m
+        self.vertical = cfg.top_surface_vertical_prior_weight if cfg.endpoint_ref == "top_surface" else 1.0
 
-    def model(x):
-        c = x[0] * e1 + x[1] * e2
-        u = u0 + x[2] * e1 + x[3] * e2
-        u = u / np.linalg.norm(u)
-        return c, u
+    def axis(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        s = self.s
+        u = s.u0 + x[2] * s.e1 + x[3] * s.e2
+        return x[0] * s.e1 + x[1] * s.e2, u / np.linalg.norm(u)
 
-    Pc = P[cand]
-
-    def select(x):
+    def select(self, x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Candidates on the visible top of cylinder ``x``, away from its flanks."""
-        c, u = model(x)
+        cfg = self.cfg
+        c, u = self.axis(x)
         f1, f2 = _frame(u)
-        d = Pc - (mid + c)
+        d = self.Pc - (self.mid + c)
         tt = d @ u
         perp = d - np.outer(tt, u)
-        rr = x[4] + x[5] * tt
         rad = np.linalg.norm(perp, axis=1)
         # select by the angle from the top (tangential: unlike a cut on the lateral offset it
         # does not correlate with the radial noise, so it does not bias the radius)
         ang = np.arctan2(np.abs(perp @ f1), perp @ f2)
-        ok = (np.abs(rad - rr) < cfg.inlier_band_m) & (ang < math.radians(cfg.max_angle_deg))
-        out = cand[ok]
+        ok = (np.abs(rad - (x[4] + x[5] * tt)) < cfg.inlier_band_m) & (ang < math.radians(cfg.max_angle_deg))
+        out = self.s.cand[ok]
         if out.size > cfg.max_points_per_log:
             out = rng.choice(out, cfg.max_points_per_log, replace=False)
         return out
 
-    sel = select(x_init)
-    if sel.size < cfg.min_points:
-        raise LogNotSeenError(f"log {log_id!r}: only {sel.size} scan points lie on a cylinder around its "
-                              "GNSS axis; the log is hidden or outside the scanned area")
-    Pm = P[sel] - mid
-
-    def residuals(x):
-        c, u = model(x)
+    def residuals(self, x: np.ndarray, Pm: np.ndarray) -> np.ndarray:
+        c, u = self.axis(x)
         d = Pm - c
         tt = d @ u
         rad = np.linalg.norm(d - np.outer(tt, u), axis=1)
-        res = rad - (x[4] + x[5] * tt)
-        # weak prior: the GNSS axis (ends at +-L/2) within gnss_sigma_m; tilt priors at the ends
-        w_a, w_b = cfg.loss_scale_m / sig_a, cfg.loss_scale_m / sig_b
-        end_off = np.array([w_b * (x[0] - prior_mid[0] + x[2] * L / 2), w_b * (x[1] - prior_mid[1] + x[3] * L / 2),
-                            w_a * (x[0] - prior_mid[0] - x[2] * L / 2), w_a * (x[1] - prior_mid[1] - x[3] * L / 2)])
-        if cfg.endpoint_ref == "top_surface":
-            end_off[[1, 3]] *= cfg.top_surface_vertical_prior_weight
-        return np.concatenate([res, end_off])
+        # weak prior: the GNSS axis (ends at +-L/2) within each end's sigma; tilt priors at the ends
+        h, pm, wa, wb = self.L / 2, self.prior_mid, self.w_a, self.w_b
+        end_off = np.array([wb * (x[0] - pm[0] + x[2] * h), wb * (x[1] - pm[1] + x[3] * h),
+                            wa * (x[0] - pm[0] - x[2] * h), wa * (x[1] - pm[1] - x[3] * h)])
+        end_off[[1, 3]] *= self.vertical
+        return np.concatenate([rad - (x[4] + x[5] * tt), end_off])
 
-    def jacobian(x):
+    def jacobian(self, x: np.ndarray, Pm: np.ndarray) -> np.ndarray:
         """d residuals / d x, analytically (the residuals are distances from a cylinder's surface)."""
-        v = u0 + x[2] * e1 + x[3] * e2
+        s = self.s
+        v = s.u0 + x[2] * s.e1 + x[3] * s.e2
         nv = float(np.linalg.norm(v))
         u = v / nv
-        d = Pm - (x[0] * e1 + x[1] * e2)
+        d = Pm - (x[0] * s.e1 + x[1] * s.e2)
         tt = d @ u
         perp = d - np.outer(tt, u)
         rad = np.maximum(np.linalg.norm(perp, axis=1), 1e-12)
-        p1, p2 = perp @ e1, perp @ e2
-        J = np.empty((len(Pm) + 4, 6))
-        J[:-4, 0] = -p1 / rad + x[5] * float(u @ e1)
-        J[:-4, 1] = -p2 / rad + x[5] * float(u @ e2)
+        p1, p2 = perp @ s.e1, perp @ s.e2
+        J = np.zeros((len(Pm) + 4, 6))
+        J[:-4, 0] = -p1 / rad + x[5] * float(u @ s.e1)
+        J[:-4, 1] = -p2 / rad + x[5] * float(u @ s.e2)
         J[:-4, 2] = -(tt / rad + x[5]) * p1 / nv
         J[:-4, 3] = -(tt / rad + x[5]) * p2 / nv
         J[:-4, 4] = -1.0
         J[:-4, 5] = -tt
-        w_a, w_b = cfg.loss_scale_m / sig_a, cfg.loss_scale_m / sig_b
-        J[-4:] = 0.0
-        J[-4, [0, 2]] = w_b, w_b * L / 2
-        J[-3, [1, 3]] = w_b, w_b * L / 2
-        J[-2, [0, 2]] = w_a, -w_a * L / 2
-        J[-1, [1, 3]] = w_a, -w_a * L / 2
-        if cfg.endpoint_ref == "top_surface":
-            J[[-3, -1]] *= cfg.top_surface_vertical_prior_weight
+        h, wa, wb = self.L / 2, self.w_a, self.w_b
+        J[-4, [0, 2]] = wb, wb * h
+        J[-3, [1, 3]] = wb, wb * h
+        J[-2, [0, 2]] = wa, -wa * h
+        J[-1, [1, 3]] = wa, -wa * h
+        J[[-3, -1]] *= self.vertical
         return J
 
-    x0 = x_init.copy()
-    x0[4] = float(np.clip(x0[4], cfg.min_radius_m + 1e-6, cfg.max_radius_m - 1e-6))
-    r_lo = max(cfg.min_radius_m, x0[4] - cfg.radius_window_m)  # about the profiles' radius
-    r_hi = min(cfg.max_radius_m, x0[4] + cfg.radius_window_m)
-    slope = cfg.max_taper_per_m if cfg.fit_taper else 1e-9
-    lb = [-np.inf] * 4 + [r_lo, -slope]
-    ub = [np.inf] * 4 + [r_hi, slope]
-    sol = None
-    for _ in range(2):  # fit, re-select the band around the fitted surface, refit
-        sol = least_squares(residuals, x0, jac=jacobian, loss="soft_l1", f_scale=cfg.loss_scale_m, tr_solver="lsmr",
-                            bounds=(lb, ub), x_scale=[0.01, 0.01, 0.01, 0.01, 0.01, 0.01],
-                            max_nfev=cfg.max_fit_evaluations)
-        new_sel = select(sol.x)
-        if new_sel.size < cfg.min_points:
-            break
-        sel = new_sel
-        Pm = P[sel] - mid
-        x0 = sol.x
-    x = sol.x
-    c, u = model(x)
-    return _Cylinder(x, sel, mid + c, u, residuals(x)[: len(sel)])
+    def solve(self, x0: np.ndarray, sel: np.ndarray, r_lo: float, r_hi: float,
+              rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """Fit with the radius in [r_lo, r_hi], re-select the band around the fitted surface, refit."""
+        from scipy.optimize import least_squares
+
+        cfg = self.cfg
+        slope = cfg.max_taper_per_m if cfg.fit_taper else 1e-9
+        bounds = ([-np.inf] * 4 + [r_lo, -slope], [np.inf] * 4 + [r_hi, slope])
+        x = x0
+        for _ in range(2):
+            x = least_squares(self.residuals, x0, jac=self.jacobian, args=(self.P[sel] - self.mid,), loss="soft_l1",
+                              f_scale=cfg.loss_scale_m, tr_solver="lsmr", bounds=bounds, x_scale=[0.01] * 6,
+                              max_nfev=cfg.max_fit_evaluations).x
+            new_sel = self.select(x, rng)
+            if new_sel.size < cfg.min_points:
+                break
+            sel, x0 = new_sel, x
+        return x, sel
+
+
+def _fit_cylinder(P: np.ndarray, s: _SearchRegion, x_init: np.ndarray, rng: np.random.Generator,
+                  log_id: str) -> _Cylinder:
+    """The cylinder (soft-L1 least squares, analytic Jacobian) through the points on its visible top,
+    weakly tied to the survey's axis by each end's accuracy; the top band re-selected and refitted once.
+
+    The radius stays within ``radius_window_m`` of the chunk profiles' (they see the flanks and the
+    ground; the top arc alone hardly fixes the curvature). A fit that ends ON that window's edge
+    disagrees with the profiles by more than the window, and the radius it gives is the edge, set by
+    the profiles' 2.5 mm grid, not by the scan (a 20 cm log came out 18 or 19 cm by which grid step
+    the profiles took). When the profiles' radius explains the top points about as well
+    (``radius_profile_max_rms_rise``: the top arc cannot tell the two apart, as on stereo scans), the
+    radius is the profiles' and only the axis is fitted; otherwise the top arc rules it out, and the
+    edge stands."""
+    cfg = s.cfg
+    m = _CylinderModel(P, s)
+    sel = m.select(x_init, rng)
+    if sel.size < cfg.min_points:
+        raise LogNotSeenError(f"log {log_id!r}: only {sel.size} scan points lie on a cylinder around its "
+                              "GNSS axis; the log is hidden or outside the scanned area")
+    r_prof = float(np.clip(x_init[4], cfg.min_radius_m + 1e-6, cfg.max_radius_m - 1e-6))
+    r_lo = max(cfg.min_radius_m, r_prof - cfg.radius_window_m)
+    r_hi = min(cfg.max_radius_m, r_prof + cfg.radius_window_m)
+    x, sel_x = m.solve(np.r_[x_init[:4], r_prof, x_init[5]], sel, r_lo, r_hi, rng)
+    on_edge = (x[4] - r_lo < RADIUS_EDGE_M and r_lo > cfg.min_radius_m) or \
+        (r_hi - x[4] < RADIUS_EDGE_M and r_hi < cfg.max_radius_m)
+    radius_source = "fit"
+    if on_edge:
+        xp, sel_p = m.solve(np.r_[x[:4], r_prof, 0.0], sel, r_prof - 1e-7, r_prof + 1e-7, rng)
+        both = np.union1d(sel_x, sel_p)
+        rms_fit, rms_prof = (float(np.sqrt(np.mean(m.residuals(v, P[both] - m.mid)[:-4] ** 2))) for v in (x, xp))
+        if rms_prof <= rms_fit * (1.0 + cfg.radius_profile_max_rms_rise):
+            x, sel_x, radius_source = xp, sel_p, "profiles"
+    c, u = m.axis(x)
+    Pm = P[sel_x] - m.mid
+    return _Cylinder(x, sel_x, m.mid + c, u, m.residuals(x, Pm)[: len(sel_x)], radius_source)
 
 
 def _end_radii(cyl: _Cylinder, tt_sel: np.ndarray, ta: float, tb: float, coverage: float, L: float,
@@ -765,7 +806,7 @@ def fit_log(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = 
     return CylinderFit(centre=centre, axis=u, ends=ends, radius_a_m=max(r_a, cfg.min_radius_m),
                        radius_b_m=max(r_b, cfg.min_radius_m), n_points=int(sel.size), rms_m=rms, coverage=coverage,
                        residual_a_m=res_a, residual_b_m=res_b, end_source=tuple(end_source),
-                       taper_significance=taper_sig, inliers=sel)
+                       taper_significance=taper_sig, radius_source=cyl.radius_source, inliers=sel)
 
 
 def _distance_to_logs(P: np.ndarray, logs: Sequence[LogSpec], pad_m: float) -> np.ndarray:
@@ -1676,7 +1717,7 @@ def _log_fits(placement: _Placement, keep: Sequence[int], ends_info: Mapping[int
             gnss_residual_a_m=f.residual_a_m, gnss_residual_b_m=f.residual_b_m,
             axis_shift_m=float(max(np.linalg.norm(ends[0] - p0), np.linalg.norm(ends[1] - p1))),
             swapped=bool(swapped), end_source=tuple(reversed(f.end_source)) if swapped else tuple(f.end_source),
-            fit=pl.how,
+            radius_source=f.radius_source, fit=pl.how,
         )
         if i in ends_info:
             lf.ends = [dict(e) for e in ends_info[i]]

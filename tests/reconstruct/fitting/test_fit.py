@@ -365,3 +365,41 @@ def test_a_log_seen_in_part_fits_the_room_left_around_its_placed_ends():
     room = float(np.linalg.norm(np.cross(other.endpoints_m()[1] - other.endpoints_m()[0], p1 - other.endpoints_m()[0]))
                  / np.linalg.norm(other.endpoints_m()[1] - other.endpoints_m()[0])) - other.mean_diameter_m / 2
     assert got.mean_diameter_m / 2 <= room + FitConfig().gnss_sigma_m + 1e-6, (got.mean_diameter_m, room)
+
+
+# -- the radius window's edge -------------------------------------------------------------------
+def _one_log_region(cfg: FitConfig):
+    from reconstruct.fitting.fit import _chunk_circles, _initial_axis, _search_region
+
+    terrain = TerrainSpec(extent_m=4.0, resolution=16, amplitude_m=0.0,
+                          heights_m=tuple(tuple(0.0 for _ in range(16)) for _ in range(16)))
+    log = LogSpec.from_endpoints((-1.0, 0.0, 0.08), (1.0, 0.0, 0.08), 0.16)
+    pts = sample_top_view_points(PileSpec(terrain=terrain, logs=(log,)), 300, 0.002, np.random.default_rng(0))
+    a, b = log.endpoints_m()
+    P, s = _search_region(pts, a, b, cfg, "log0", None, None)
+    return P, s, _initial_axis(_chunk_circles(s, "log0"), s)
+
+
+@pytest.mark.parametrize("rise, source, radius", [(0.10, "fit", 0.09), (1.0, "profiles", 0.10)])
+def test_a_fit_on_the_window_edge_keeps_it_only_where_the_top_arc_rules_the_profiles_out(rise, source, radius):
+    from reconstruct.fitting.fit import _fit_cylinder
+
+    cfg = FitConfig(radius_window_m=0.01, radius_profile_max_rms_rise=rise)
+    P, s, x0 = _one_log_region(cfg)
+    assert abs(x0[4] - 0.08) < 0.006  # the profiles see the 8 cm radius
+    x0[4] = 0.10  # profiles 2 cm off: the fit runs to the window's edge (9 cm)
+    cyl = _fit_cylinder(P, s, x0, np.random.default_rng(0), "log0")
+    # an exact top view rules 10 cm out (RMS 2 mm -> far more), unless any rise is allowed
+    assert cyl.radius_source == source and abs(cyl.x[4] - radius) < 1e-4, (cyl.radius_source, cyl.x[4])
+
+
+def test_a_fit_inside_the_window_is_the_fit():
+    from reconstruct.fitting.fit import _fit_cylinder
+
+    cfg = FitConfig(radius_window_m=0.03, radius_profile_max_rms_rise=1.0)
+    P, s, x0 = _one_log_region(cfg)
+    x0[4] = 0.10
+    cyl = _fit_cylinder(P, s, x0, np.random.default_rng(0), "log0")
+    assert cyl.radius_source == "fit" and abs(cyl.x[4] - 0.08) < 0.002, cyl.x[4]
+    with pytest.raises(ValueError, match="radius_profile_max_rms_rise"):
+        FitConfig(radius_profile_max_rms_rise=-0.1)
