@@ -23,11 +23,12 @@ if [ ! -x .venv/bin/python ]; then
   "$PY" -m venv .venv
 fi
 stamp=.venv/.loggrasp-installed
-if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
+if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ constraints.txt -nt "$stamp" ]; then
   .venv/bin/python -m pip install -q --upgrade pip
   # torch first, pinned: the CPU build (2.13.0) — never let a resolver pull a CUDA build.
   .venv/bin/python -m pip install -q "torch==2.13.0"
-  .venv/bin/python -m pip install -q -e ".[test]"
+  # every other package at the release in constraints.txt (what the suite was last run with)
+  .venv/bin/python -m pip install -q -e ".[test]" -c constraints.txt
   touch "$stamp"
 fi
 .venv/bin/loggrasp --help >/dev/null
