@@ -1,0 +1,60 @@
+"""The learning curve's training side: nested shares trained with one recipe, a finished share not
+trained again once its resume state is left out (as committed), its convergence in the table."""
+
+import pytest
+
+import experiments.learning_curve as lc
+from planner.train import read_log
+from tests.planner.planner_helpers import make_dataset
+
+
+def _train(data, out, shares, epochs=1):
+    return lc.train_shares([str(data)], out, shares, epochs=epochs, base_channels=4, device="cpu",
+                           precision="fp32", max_steps_per_epoch=2, batch_size=4, progress=lambda m: None)
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    root = tmp_path_factory.mktemp("lc")
+    data, out = root / "data", root / "out"
+    data.mkdir()
+    make_dataset(data, n_piles=8)
+    return data, out, _train(data, out, (0.5, 1.0))
+
+
+def test_each_share_trains_its_own_model(trained):
+    data, out, models = trained
+    assert set(models) == {0.5, 1.0}
+    for s, path in models.items():
+        assert path == lc.share_dir(out, s) / "model.safetensors" and path.exists()
+        assert read_log(path.parent / "log.json")["config"]["data"]["train_fraction"] == s
+
+
+def test_a_committed_share_without_resume_state_is_not_trained_again(trained, monkeypatch):
+    data, out, _ = trained
+    folder = lc.share_dir(out, 1.0)
+    assert lc.finished_share(folder, 1)
+    (folder / "state.safetensors").unlink()  # what the commit leaves out
+    import planner.train
+
+    monkeypatch.setattr(planner.train, "train", lambda *a, **k: pytest.fail("a finished share was trained again"))
+    assert _train(data, out, (1.0,)) == {1.0: folder / "model.safetensors"}
+
+
+def test_a_share_with_epochs_missing_is_not_finished(trained, tmp_path):
+    data, out, _ = trained
+    folder = lc.share_dir(out, 0.5)
+    assert lc.finished_share(folder, 1) and not lc.finished_share(folder, 2)
+    assert not lc.finished_share(tmp_path, 1)  # nothing there
+
+
+def test_the_table_says_where_each_share_converged(trained, tmp_path):
+    data, out, models = trained
+    conv = lc.convergence(lc.share_dir(out, 0.5))
+    assert conv["best_epoch"] == 1 and conv["epochs_run"] == 1 and conv["val_loss"] > 0
+    rows = [{"share": 0.5, "objective": "f1", "train_piles": 3, "piles": 24, "success_rate": 0.75,
+             "avg_logs_success": 2.0, "beta_avg_deg": 9.0, **conv}]
+    lc.write_curve(rows, tmp_path)
+    table = (tmp_path / "learning_curve.md").read_text()
+    assert "| 0.5 | 3 | f1 | 24 | 75.0 % ± 17.3 | 2.00 | 9.0° | 1 / 1 |" in table
+    assert (tmp_path / "learning_curve.png").stat().st_size > 1000
