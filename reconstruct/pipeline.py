@@ -62,7 +62,8 @@ import numpy as np
 from reconstruct.errors import FitError, ReconstructError, RegistrationError, ScanError
 from reconstruct.fitting.fit import FitConfig, PileFit, fit_log, fit_pile, log_spec_from_fit
 from reconstruct.fitting.fuse import (
-    FuseConfig, SurveyEnd, absorb_pieces, find_scan_logs, match_survey, place_log_ends, point_accuracy, prior_axis,
+    FuseConfig, SurveyEnd, absorb_pieces, after_pile_check, find_scan_logs, match_survey, place_log_ends,
+    point_accuracy, prior_axis,
 )
 from reconstruct.registration import CoarseConfig, ScanPose, coarse_scan_pose, read_scan_pose, refine_registration
 from reconstruct.scan.sfm import SfmConfig
@@ -628,6 +629,12 @@ def _fit(pts: np.ndarray, matching: _Matching, survey_ends: dict, logs_pile: lis
                    georef=georef, notes=notes, first_pass=first_pass,
                    sigmas={k: (s, s) for k, s in lateral.items()},
                    place_ends=_EndPlacer(survey_ends, lateral, placed.fuse_cfg), optional=set(new_ids))
+    for lf in fit.logs:  # ends where the pile check left their log, tested against the survey again
+        if lf.ends:
+            lf.ends = after_pile_check(lf.ends, (np.asarray(lf.butt_m), np.asarray(lf.top_m)),
+                                       survey_ends.get(lf.log_id, (None, None)), placed.fuse_cfg)
+            lf.gnss_residual_a_m, lf.gnss_residual_b_m = (
+                math.nan if e.get("gnss_axis_distance_m") is None else float(e["gnss_axis_distance_m"]) for e in lf.ends)
     for k, why in fit.dropped.items():  # a log the survey missed whose points the other logs took: not a log
         dropped_new[k] = why
         del new_ids[k]

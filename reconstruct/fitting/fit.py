@@ -62,10 +62,14 @@ flat, circular top at least its radius high, covering the cluster, is a stump (:
 not visible), any other a rock (:class:`RockSpec`, the convex hull of its points extended down
 into the ground).
 
-The assembled pile is loaded into the twin (:func:`synth.scene.generate.validate_pile`-style check);
-logs that interpenetrate a little (fit noise) are moved out along the contact normal by the
-penetration depth (lifted when stacked, pushed apart when side by side), and every move is
-reported.
+The assembled pile is loaded into the twin (:func:`synth.scene.generate.validate_pile`-style check).
+Where logs interpenetrate, each is first turned about its own axis (the twin's log collides as a
+pentagonal prism inside the round surface the scan sees, so its roll is not known); a log fitted to its
+scan points may then be made thinner with its top kept, as far as its radius is uncertain (the scan sees its
+top, and of two stacked logs an overlap is the upper one's radius error; ``max_thinning_m``, off by
+default: measured, it thinned logs already too thin); what is left is moved out
+along the contact normal by the penetration depth (lifted when stacked, pushed apart when side by
+side). Every turn, thinning and move is reported.
 """
 
 from __future__ import annotations
@@ -109,8 +113,15 @@ AXIS_SOURCES = ("fit", "gnss")
 #: profiles' radius and fits only the axis when that explains the top points about as well
 #: (``radius_profile_max_rms_rise``; a 20 cm log came out 18 or 19 cm, by which 2.5 mm grid step the
 #: profiles took; ``LogFit.radius_source``); the ground plane of a coarse registration is found by a
-#: seeded RANSAC of our own (open3d's gave another plane from run to run). (The roll search of the reverted branch 4042e48 would be 11.)
-FIT_REVISION = 10
+#: seeded RANSAC of our own (open3d's gave another plane from run to run).
+#: 11: the pile check first turns a log about its axis (the twin's log is a pentagonal prism, which the
+#: scan cannot see the roll of: a true pile rebuilt from its end points was lifted up to 4.7 cm), and
+#: only then moves what is left (``separate_logs``; thinning a scan-fitted log with its top kept,
+#: ``max_thinning_m``, is there but off); the ends are reported where the checked pile has them, their
+#: survey points tested again there and their sigma grown by the check's move
+#: (:func:`reconstruct.fitting.fuse.after_pile_check`: a log pushed off its fixed points is a weak,
+#: contradicted estimate, never a silent one — twin scan 1100133 at 4042e48 came back 40 cm off unwarned).
+FIT_REVISION = 11
 # a cross-section circle loses this much score per footprint bin it does not explain (the profile
 # there lies above it or off it): where a neighbour lies against a log, or the stereo fills the
 # valley between them, that side shows no edge, and without this a wider circle, centred toward
@@ -121,6 +132,13 @@ RADIUS_EDGE_M = 1e-4
 # a contact between two logs whose normal is at least this horizontal (squared horizontal part of the
 # unit normal; 0.5: within 45 deg of horizontal) is side by side: both are pushed apart [-]
 SIDE_CONTACT_MIN_H2 = 0.5
+# a log is thinned to clear a contact only where that takes at least this much depth per unit of radius
+# (1 + the contact normal's part along its up-across direction: 2 lying on the other, 1 beside it, 0
+# under it, where its top, kept, is what meets the other) [-]
+MIN_THINNING_GAIN = 0.5
+# a log is turned about its axis to clear its contacts at most this many times (the turns of two logs
+# in contact could otherwise undo each other) [-]
+MAX_ROLLS_PER_LOG = 2
 
 
 @dataclass(frozen=True)
@@ -202,6 +220,14 @@ class FitConfig:
     validate: bool = True  # load the pile into the twin and separate interpenetrating logs
     penetration_tolerance_m: float = 0.01  # allowed interpenetration [m]
     max_move_m: float = 0.08  # larger needed separating moves are an error, not noise [m]
+    roll_steps: int = 12  # rolls tried over the twin log prism's 72 deg period where a log interpenetrates
+    #                       another body, before it is thinned or moved (the scan sees a round log: its
+    #                       roll is unknown); 0: never turned [-]
+    max_thinning_m: float = 0.0  # a log fitted to its scan points may be made this much thinner (radius),
+    #                              its seen top kept, where it interpenetrates another body, before anything is
+    #                              moved (the top the scan sees fixes the radius only to ~1.5 cm: thinning by
+    #                              5 mm changes its top points' RMS residual by < 1 mm). Off (0): at 0.015 it
+    #                              also thinned logs already too thin and let two wrong piles through [m]
     radius_window_m: float = 0.01  # the 3-D fit keeps the radius within this of the chunk profiles'
     #                                (robust, they see the flanks and the ground) [m]: from above, the top
     #                                strip alone hardly fixes the curvature, and one noisy scan let
@@ -240,10 +266,12 @@ class FitConfig:
         if self.obstacle_flank_height_m > self.obstacle_min_height_m:
             raise ValueError(f"obstacle_flank_height_m ({self.obstacle_flank_height_m} m) must not exceed "
                              f"obstacle_min_height_m ({self.obstacle_min_height_m} m)")
-        if self.end_margin_m < 0 or self.taper_min_m < 0 or self.max_move_m < 0:
-            raise ValueError("end_margin_m, taper_min_m and max_move_m must be >= 0")
+        if self.end_margin_m < 0 or self.taper_min_m < 0 or self.max_move_m < 0 or self.max_thinning_m < 0:
+            raise ValueError("end_margin_m, taper_min_m, max_move_m and max_thinning_m must be >= 0")
         if not 0.002 <= self.profile_bin_m <= 0.05:
             raise ValueError(f"profile_bin_m must be in [0.002, 0.05] m, got {self.profile_bin_m}")
+        if self.roll_steps < 0:
+            raise ValueError(f"roll_steps must be >= 0, got {self.roll_steps}")
         if self.min_points < 10 or self.max_points_per_log < 100:
             raise ValueError("min_points >= 10, max_points_per_log >= 100 needed")
         if min(self.chunk_min_points, self.chunk_min_circle_bins, self.taper_section_min_points,
@@ -275,6 +303,7 @@ class LogFit:
     axis_shift_m: float  # largest move of the axis end from the GNSS point (perpendicular) [m]
     swapped: bool  # True when end "b" turned out to be the butt (the thicker end)
     moved_m: float = 0.0  # how far it was moved to separate it from other bodies [m]
+    thinned_m: float = 0.0  # how much its radius was reduced, its seen top kept, to clear other bodies [m]
     end_source: tuple[str, str] = ("gnss", "gnss")  # butt, top: "gnss" point or "scan" extent; with the
     #                                                 survey fused (fit_pile's place_ends): scan, fixed, float, inferred
     ends: list[dict] | None = None  # ends a, b as placed (reconstruct.fitting.fuse.EndEstimate.to_dict), when fused
@@ -1175,20 +1204,98 @@ def _rock_from_points(C: np.ndarray, terrain: TerrainSpec, cfg: FitConfig) -> Ro
 
 
 # -- validation ------------------------------------------------------------------------------
-def separate_logs(pile: PileSpec, cfg: FitConfig | None = None) -> tuple[PileSpec, list[str], list[float]]:
-    """Move logs that interpenetrate other bodies (fit noise) out along the contact normal by
-    the penetration depth, the worst contact first, until the twin accepts the pile (two logs side
-    by side, the contact normal within 45 deg of horizontal, are each pushed half the way apart,
-    horizontally; of two stacked logs the upper one is lifted).
-    Returns the pile, what was done, and how far each log moved [m]. Raises
-    :class:`FitError` when a log would have to move more than ``max_move_m``."""
+def _up_across(log: LogSpec) -> np.ndarray:
+    """The unit vector across ``log``'s axis in the vertical plane through it, pointing up: where its
+    axis goes when it is thinned with its top kept."""
+    u = log.axis()
+    w = np.array([0.0, 0.0, 1.0]) - u[2] * u
+    n = float(np.linalg.norm(w))
+    return w / n if n > 1e-6 else np.array([1.0, 0.0, 0.0])
+
+
+def thinned_keeping_top(log: LogSpec, by_m: float) -> LogSpec:
+    """``log`` with both its diameters ``2 * by_m`` smaller and its axis ``by_m`` higher (across the
+    axis, in the vertical plane): the top stays where it was."""
+    p0, p1 = log.endpoints_m()
+    up = by_m * _up_across(log)
+    return LogSpec.from_endpoints(p0 + up, p1 + up, log.diameter_m - 2 * by_m,
+                                  None if log.top_diameter_m is None else log.top_diameter_m - 2 * by_m, log.colour)
+
+
+def _thinning_split(need_m: float, gains: Sequence[float], room: Sequence[float]) -> list[float]:
+    """How much to thin each of the logs in one contact (radius, [m]) to take ``need_m`` of its depth:
+    log k's thinning by d takes ``gains[k] * d`` (1 + the part of the contact normal, toward k, along
+    k's up-across direction: 2 for the upper of two stacked logs, 1 side by side, 0 for the lower);
+    the least total thinning (each in proportion to its gain), each at most ``room[k]``; a log with a gain
+    under :data:`MIN_THINNING_GAIN` is not thinned."""
+    out = [0.0] * len(gains)
+    free = [k for k in range(len(gains)) if gains[k] >= MIN_THINNING_GAIN and room[k] > 0]
+    left = need_m
+    while free and left > 1e-6:
+        g2 = sum(gains[k] ** 2 for k in free)
+        want = {k: left * gains[k] / g2 for k in free}
+        capped = [k for k in free if want[k] >= room[k] - out[k]]
+        if not capped:
+            for k in free:
+                out[k] += want[k]
+            break
+        for k in capped:  # these take all they can; the rest is shared by the others
+            left -= gains[k] * (room[k] - out[k])
+            out[k] = room[k]
+        free = [k for k in free if k not in capped]
+    return out
+
+
+def _roll_to_clear(world: Any, body: int, log: LogSpec, steps: int) -> tuple[LogSpec, float, float]:
+    """``log`` (body ``body`` of ``world``) turned about its own axis to the roll, of ``steps`` over the
+    prism's 72 deg period, at which its deepest contact with any body is least (the twin's log is a
+    pentagonal prism to the physics and round to the eye: the scan cannot tell its roll). Returns the
+    log at that roll (as it was when no roll does better by 1 mm) and its deepest contact before and
+    after [m, <= 0]. The body is left at the returned roll."""
+    from synth.scene.pile import quat_from_x_axis
+
+    c = world.client
+
+    def deepest() -> float:
+        c.performCollisionDetection()
+        return min((cp[8] for cp in c.getContactPoints(bodyA=body)), default=0.0)
+
+    before = deepest()
+    best, best_q = before, None
+    for k in range(steps):
+        q = quat_from_x_axis(log.axis(), 2 * math.pi / 5 * k / steps)
+        c.resetBasePositionAndOrientation(body, list(log.centre_m), list(q))
+        d = deepest()
+        if d > best + 1e-3:
+            best, best_q = d, q
+    c.resetBasePositionAndOrientation(body, list(log.centre_m), list(best_q or log.orientation))
+    if best_q is None:
+        return log, before, before
+    return replace(log, orientation=tuple(float(v) for v in best_q)), before, best
+
+
+def separate_logs(pile: PileSpec, cfg: FitConfig | None = None, thinnable: Sequence[bool] | None = None,
+                  ) -> tuple[PileSpec, list[str], list[float]]:
+    """Clear logs that interpenetrate other bodies (fit noise), the worst contact first, until the
+    twin accepts the pile. A ``thinnable`` log (one fitted to its scan points: its top is what the scan
+    saw, its radius known to ``max_thinning_m`` only) is first made thinner with its top kept, by at
+    most ``max_thinning_m`` in all: of two logs stacked with both tops seen, an overlap is the upper
+    one's radius error. What thinning cannot take, a move takes: out along the contact normal by the
+    remaining depth (two logs side by side, the contact normal within 45 deg of horizontal, are each
+    pushed half the way apart, horizontally; of two stacked logs the upper one is lifted).
+    Returns the pile, what was done, and how far each log moved [m] (its thinning:
+    the pile's diameters). Raises :class:`FitError` when a log would have to move more than ``max_move_m``."""
     from synth.errors import PileValidationError
     from synth.physics.world import World
 
     cfg = cfg or FitConfig()
     moves = [np.zeros(3) for _ in range(pile.n_logs)]
+    thin_room = [cfg.max_thinning_m if thinnable is not None and thinnable[k] else 0.0 for k in range(pile.n_logs)]
+    thinned = [0.0] * pile.n_logs
+    rolled = [0] * pile.n_logs  # times each log was turned about its axis
     notes: list[str] = []
     for _ in range(10 * pile.n_logs + 5):
+        turned = False
         with World(pile) as world:
             names = {world.terrain_id: "terrain"}
             names.update({b: f"log {i}" for i, b in enumerate(world.log_ids)})
@@ -1215,10 +1322,42 @@ def separate_logs(pile: PileSpec, cfg: FitConfig | None = None) -> tuple[PileSpe
                     except PileValidationError as exc:
                         raise FitError(f"the reconstructed pile is not physical: {exc}") from exc
                     return pile, notes, [float(np.linalg.norm(m)) for m in moves]
+            # first the roll the scan cannot see: each log of the contact turned about its axis
+            ks = [worst[1]] + ([log_of[worst[2]]] if worst[2] in log_of else [])
+            logs = list(pile.logs)
+            for k in ks:
+                if cfg.roll_steps <= 0 or rolled[k] >= MAX_ROLLS_PER_LOG:
+                    continue
+                logs[k], d0, d1 = _roll_to_clear(world, world.log_ids[k], logs[k], cfg.roll_steps)
+                if logs[k] is not pile.logs[k]:
+                    rolled[k] += 1
+                    turned = True
+                    notes.append(f"log {k} turned about its axis (its deepest contact {-d0 * 1000:.1f} -> "
+                                 f"{-d1 * 1000:.1f} mm)")
+        if turned:
+            pile = pile.with_logs(tuple(logs))
+            continue
         dist, i, other, normal = worst
         other_name = names.get(other, str(other))
         j = log_of.get(other)
         n = normal / max(np.linalg.norm(normal), 1e-9)
+        pair = [(i, n)] + ([(j, -n)] if j is not None else [])  # each log and the way out of the contact for it
+        room = [min(thin_room[k] - thinned[k], pile.logs[k].top_d_m / 2 - cfg.min_radius_m) for k, _ in pair]
+        need = -dist + 0.002
+        if max(room) > 1e-4:
+            gains = [1.0 + float(_up_across(pile.logs[k]) @ n_k) for k, n_k in pair]
+            split = _thinning_split(need, gains, room)
+            if sum(split) > 1e-4:
+                logs = list(pile.logs)
+                for (k, _), d in zip(pair, split):
+                    if d > 1e-4:
+                        logs[k] = thinned_keeping_top(logs[k], d)
+                        thinned[k] += d
+                        against = other_name if k == i else f"log {i}"
+                        notes.append(f"log {k} thinned {d * 1000:.1f} mm, its top kept (log {k} / {against} "
+                                     f"interpenetrated {-dist * 1000:.1f} mm)")
+                pile = pile.with_logs(tuple(logs))
+                continue  # the twin looks again: what thinning left, a move takes
         n_h = np.array([n[0], n[1], 0.0])
         if j is not None and np.linalg.norm(n_h) ** 2 >= SIDE_CONTACT_MIN_H2:
             # side by side: both fits are as sure, so each goes half the way, horizontally (neither
@@ -1819,13 +1958,16 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
     if cfg.validate:
         t3 = time.perf_counter()
         say("checking the pile in the twin")
-        pile, move_notes, moved = separate_logs(pile, cfg)
-        for lf, log, dist in zip(fits, pile.logs, moved):
+        before = pile.logs
+        pile, move_notes, moved = separate_logs(pile, cfg, thinnable=[placement.placed[i].how == "scan" for i in keep])
+        for lf, log, old, dist in zip(fits, pile.logs, before, moved):
             lf.moved_m = float(dist)
-            if dist:
+            lf.thinned_m = float(old.diameter_m - log.diameter_m) / 2
+            if log != old:
                 butt, top = log.endpoints_m()
                 lf.butt_m = tuple(float(v) for v in butt)
                 lf.top_m = tuple(float(v) for v in top)
+                lf.diameter_m, lf.top_diameter_m = log.diameter_m, log.top_diameter_m
         timings["validate_s"] = time.perf_counter() - t3
     return PileFit(pile=pile, logs=fits, terrain_coverage=ground.coverage, n_ground_points=int(ground.is_ground.sum()),
                    n_obstacle_points=ground.n_above, obstacles=ground.info, moves=move_notes, timings_s=timings,

@@ -829,6 +829,39 @@ def fuse_end(p0: np.ndarray, u: np.ndarray, interval: EndInterval, at_start: boo
     return est
 
 
+def after_pile_check(ends: Sequence[dict], endpoints: Sequence[np.ndarray],
+                     survey: tuple[SurveyEnd | None, SurveyEnd | None], cfg: FuseConfig | None = None,
+                     ) -> list[dict]:
+    """Ends a, b (``EndEstimate.to_dict``) as the pile check left their log: each moved to the log's
+    final end nearest it (``endpoints``: the log's two ends after the check), its survey point tested
+    against that place with the estimate's own sigma (a check that pushed a log off its fixed points is
+    a contradiction, never silent), then its sigma grown by the move (the check's correction is not
+    in the estimate: a log pushed 6 cm is not known to 1 cm, and is reported weak). Ends the check did
+    not move (under 1 mm) come back unchanged."""
+    cfg = cfg or FuseConfig()
+    out = []
+    for e, point in zip(ends, survey):
+        pos = np.asarray(e["position_m"], dtype=float)
+        final = min((np.asarray(q, dtype=float) for q in endpoints), key=lambda q: float(np.linalg.norm(q - pos)))
+        shift = float(np.linalg.norm(final - pos))
+        if shift < 1e-3:
+            out.append(dict(e))
+            continue
+        e = dict(e, position_m=[float(v) for v in final], check_shift_m=shift)
+        if point is not None:
+            res = float(np.linalg.norm(point.position_m - final))
+            res_sigma = res / math.sqrt(point.sigma_3d_m ** 2 + e["sigma_m"] ** 2)
+            e["gnss_residual_m"], e["gnss_residual_sigma"] = res, res_sigma
+            e["contradicted"] = bool(e["contradicted"] or res_sigma > cfg.contradiction_sigma * math.sqrt(3.0))
+            p0, p1 = (np.asarray(q, dtype=float) for q in endpoints)
+            u = (p1 - p0) / max(float(np.linalg.norm(p1 - p0)), 1e-9)
+            off = point.position_m - p0
+            e["gnss_axis_distance_m"] = float(np.linalg.norm(off - (off @ u) * u))
+        e["sigma_m"] = float(math.hypot(e["sigma_m"], shift))
+        out.append(e)
+    return out
+
+
 def _end_along(interval: EndInterval, sign: float, survey: SurveyEnd | None, t_g: float | None, sg: float | None,
                seen_whole: bool, cfg: FuseConfig) -> tuple[float, float, str, bool]:
     """Where an end the scan shows something of lies along the axis: (t [m], its sigma [m], its

@@ -14,7 +14,8 @@ from reconstruct.compare import compare_piles
 from reconstruct.errors import GnssQualityError
 from reconstruct.fitting.fit import sample_top_view_points
 from reconstruct.fitting.fuse import (
-    AmbiguousSurveyError, EndInterval, FuseConfig, ScanLog, SurveyEnd, absorb_pieces, fuse_end, match_survey,
+    AmbiguousSurveyError, EndEstimate, EndInterval, FuseConfig, ScanLog, SurveyEnd, absorb_pieces, after_pile_check,
+    fuse_end, match_survey,
     scan_end_interval, seen_end,
 )
 from reconstruct.survey.gnss import GnssPoint, GnssSurvey, write_gnss_csv
@@ -369,3 +370,75 @@ def test_a_neighbours_points_show_where_a_log_is_not_but_never_its_top():
     survey = {f"log{i}": tuple(np.asarray(p) for p in lg.endpoints_m()) for i, lg in enumerate(logs)}
     fit_pile(pts, survey, 5.0, FitConfig(validate=False), place_ends=place_ends)
     assert got["log0"][1] > 0  # points 1.5-3 cm from log1's surface: passed, not as log0's top
+
+
+# -- the ends after the pile check ----------------------------------------------------------------
+def _placed(pos, sigma=0.005, fix="rtk_fixed", residual=0.0) -> dict:
+    return {"position_m": list(pos), "sigma_m": sigma, "sigma_along_m": sigma, "source": "scan", "scan": "seen",
+            "gnss_fix": fix, "gnss_residual_m": residual, "gnss_residual_sigma": 0.0, "contradicted": False,
+            "gnss_axis_distance_m": 0.0}
+
+
+def _fixed_point(pos) -> SurveyEnd:
+    return SurveyEnd(np.asarray(pos, dtype=float), 0.01, 0.015, "rtk_fixed")
+
+
+def test_an_end_the_pile_check_left_alone_is_unchanged():
+    ends = [_placed((-1.0, 0.0, 0.1)), _placed((1.0, 0.0, 0.1))]
+    out = after_pile_check(ends, (np.array([-1.0, 0.0, 0.1]), np.array([1.0, 0.0, 0.1])),
+                           (_fixed_point((-1.0, 0.0, 0.1)), None))
+    assert out == ends
+
+
+def test_an_end_moved_by_the_pile_check_is_where_the_log_is_and_as_unsure_as_the_move():
+    ends = [_placed((-1.0, 0.0, 0.1)), _placed((1.0, 0.0, 0.1))]
+    lifted = (np.array([1.0, 0.0, 0.16]), np.array([-1.0, 0.0, 0.16]))  # 6 cm up, butt/top either way round
+    out = after_pile_check(ends, lifted, (_fixed_point((-1.0, 0.0, 0.1)), None))
+    assert out[0]["position_m"] == [-1.0, 0.0, 0.16] and out[1]["position_m"] == [1.0, 0.0, 0.16]
+    assert abs(out[0]["sigma_m"] - math.hypot(0.005, 0.06)) < 1e-9 and out[0]["check_shift_m"] == pytest.approx(0.06)
+    assert EndEstimate(np.zeros(3), out[1]["sigma_m"], 0.0, "scan", "seen").weak()  # a 6 cm push: a weak end
+    assert out[0]["gnss_residual_m"] == pytest.approx(0.06) and out[0]["gnss_axis_distance_m"] == pytest.approx(0.06)
+    assert not out[0]["contradicted"]  # 6 cm from a fixed point: 2.8 sigma
+
+
+def test_a_check_that_pushes_an_end_off_its_fixed_point_contradicts_it():
+    """An end placed 6 cm from its RTK fixed point (2.8 sigma: it stands) that the check pushes 6 cm
+    farther is 12 cm off (5.7 sigma, with the estimate's own sigma): reported, never silent (twin scan
+    1100133: a log seen in part, lifted past its fixed points by the check, came back 40 cm off)."""
+    ends = [_placed((-1.0, 0.0, 0.1), residual=0.06), _placed((1.0, 0.0, 0.1))]
+    point = _fixed_point((-1.0, 0.0, 0.04))
+    out = after_pile_check(ends, (np.array([-1.0, 0.0, 0.16]), np.array([1.0, 0.0, 0.16])), (point, None))
+    assert out[0]["contradicted"] and out[0]["gnss_residual_m"] == pytest.approx(0.12)
+    float_point = SurveyEnd(np.array([-1.0, 0.0, 0.04]), 0.18, 0.4, "rtk_float")  # as far, but float: it stands
+    assert not after_pile_check(ends, (np.array([-1.0, 0.0, 0.16]), np.array([1.0, 0.0, 0.16])),
+                                (float_point, None))[0]["contradicted"]
+
+
+def test_a_log_the_pile_check_pushes_far_is_reported_weak_where_it_lies(pile, cloud, tmp_path, monkeypatch):
+    """The reconstruction's report shows each end where the checked pile has it, and names a log the
+    check had to move 7 cm as resting on weak estimates (here the check's move is planted: the wiring is
+    what is tested; the move rules are in test_fit.py)."""
+    import reconstruct.fitting.fit as fit_mod
+
+    real = fit_mod.separate_logs
+
+    def lift_log2(p, cfg=None, thinnable=None):
+        p, notes, moved = real(p, cfg, thinnable)
+        logs = list(p.logs)
+        logs[2] = LogSpec(centre_m=tuple(np.asarray(logs[2].centre_m) + [0.0, 0.0, 0.07]),
+                          orientation=logs[2].orientation, length_m=logs[2].length_m,
+                          diameter_m=logs[2].diameter_m, top_diameter_m=logs[2].top_diameter_m)
+        return p.with_logs(tuple(logs)), notes + ["log 2 lifted 70 mm (planted)"], [*moved[:2], 0.07, *moved[3:]]
+
+    monkeypatch.setattr(fit_mod, "separate_logs", lift_log2)
+    scan = _scan_folder(tmp_path, pile)
+    res = reconstruct(scan, _survey(pile, tmp_path / "survey.csv", {}), tmp_path / "out", ReconstructConfig(),
+                      cloud=cloud)
+    rep = res.report
+    lf = next(lf for lf in rep["logs"] if lf["log_id"] == "log2")
+    final = [np.asarray(p) for p in res.pile.logs[lf["index"]].endpoints_m()]
+    for e in lf["ends"]:
+        assert min(np.linalg.norm(np.asarray(e["position_m"]) - q) for q in final) < 1e-9
+        assert e["sigma_m"] >= 0.07 and e["check_shift_m"] == pytest.approx(0.07, abs=1e-6)
+    assert sum(w.startswith("log2 end") for w in rep["weak_ends"]) == 2, rep["weak_ends"]
+    assert not any(w.startswith(("log0", "log1", "log3")) for w in rep["weak_ends"]), rep["weak_ends"]
