@@ -646,19 +646,16 @@ class CraneController:
 
     def _unwrap(self, kind: str, data: bytes) -> bytes | None:
         """The plain frame, after the SecOC check when a key is configured (None: dropped)."""
-        if self._secoc is None:
-            return data
-        from field.errors import AuthenticationError
+        from field.link.secoc import unwrap
 
-        try:
-            return self._secoc.verify(kind, data)
-        except AuthenticationError as exc:
+        plain, why = unwrap(self._secoc, kind, data)
+        if why is not None:
             self.auth_failures += 1
             now = time.monotonic()
             if now - self._auth_warned_s.get(kind, -1e9) > 1.0:  # at most one warning per kind and second
                 self._auth_warned_s[kind] = now
-                log.warning("dropped a %s frame that failed authentication (%d so far): %s", kind, self.auth_failures, exc)
-            return None
+                log.warning("dropped a %s frame that failed authentication (%d so far): %s", kind, self.auth_failures, why)
+        return plain
 
     def _on_status_request(self, data: bytes, reply: Reply) -> None:
         from field.link.codec import decode

@@ -572,16 +572,14 @@ class CraneLink(abc.ABC):
             self._crane_heartbeat = None
 
     def _unwrap(self, kind: str, data: bytes) -> bytes | None:
-        if self._secoc is None:
-            return data
-        from field.errors import AuthenticationError
+        """The plain frame, after the SecOC check when a key is configured (None: dropped, counted)."""
+        from field.link.secoc import unwrap
 
-        try:
-            return self._secoc.verify(kind, data)
-        except AuthenticationError as exc:
+        plain, why = unwrap(self._secoc, kind, data)
+        if why is not None:
             self.stats.auth_failures += 1
-            log.debug("dropped %s: %s", kind, exc)
-            return None
+            log.debug("dropped %s: %s", kind, why)
+        return plain
 
     def _decode(self, kind: str, data: bytes) -> Any:
         from field.link.codec import CounterCheck, decode

@@ -204,3 +204,15 @@ class SecOC:
             if why is not None:
                 raise AuthenticationError(f"{kind}: {why}")
         return pdu + bytes(_message(kind).length - n)
+
+
+def unwrap(secoc: SecOC | None, kind: str, data: bytes) -> tuple[bytes | None, AuthenticationError | None]:
+    """A received frame of ``kind`` as plain bytes: ``data`` itself on a link without a key, else what
+    :meth:`SecOC.verify` finds inside it; ``(None, why)`` for a frame that fails the check (it is dropped,
+    and the caller counts and reports ``why``)."""
+    if secoc is None:
+        return data, None
+    try:
+        return secoc.verify(kind, data), None
+    except AuthenticationError as exc:
+        return None, exc

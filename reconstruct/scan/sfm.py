@@ -42,7 +42,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from reconstruct.errors import SfmError, SfmRegistrationError, SfmScaleError
-from reconstruct.scan.stereo import ScanCloud, ScanPair, StereoConfig, pair_points
+from reconstruct.scan.stereo import ScanCloud, ScanPair, StereoConfig, clean_cloud, pair_points, thin_pair
 
 POSE_KEY = "T_pile_cam"
 
@@ -607,10 +607,6 @@ def fuse_pairs(pairs: Sequence[ScanPair], T_scan_cam: dict[str, np.ndarray], con
     scan frame: per-pair and joint voxel downsampling, statistical outlier removal (open3d), as
     :func:`reconstruct.scan.stereo.scan_cloud` does with the calibrations' poses. ``clouds``:
     :func:`camera_clouds` of the pairs when already computed."""
-    import open3d as o3d
-
-    from reconstruct.errors import ScanError
-
     cfg = config or StereoConfig()
     say = progress or (lambda s: None)
     t0 = time.perf_counter()
@@ -619,26 +615,13 @@ def fuse_pairs(pairs: Sequence[ScanPair], T_scan_cam: dict[str, np.ndarray], con
     for pair, (p, c, frac) in zip(pairs, clouds):
         T = np.asarray(T_scan_cam[pair.folder.name], dtype=np.float64)
         p = p @ T[:3, :3].T + T[:3, 3]
-        if cfg.voxel_m > 0:
-            one = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(p))
-            one.colors = o3d.utility.Vector3dVector(c.astype(np.float64))
-            one = one.voxel_down_sample(cfg.voxel_m)
-            p, c = np.asarray(one.points), np.asarray(one.colors, dtype=np.float32)
+        p, c = thin_pair(p, c, cfg)
         all_p.append(p)
         all_c.append(c)
         fracs.append(frac)
         cams.append(T[:3, 3].copy())
     t1 = time.perf_counter()
-    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.concatenate(all_p)))
-    pc.colors = o3d.utility.Vector3dVector(np.concatenate(all_c).astype(np.float64))
-    if cfg.voxel_m > 0 and len(pairs) > 1:
-        pc = pc.voxel_down_sample(cfg.voxel_m)
-    if cfg.outlier_neighbours > 0 and len(pc.points) > cfg.outlier_neighbours:
-        pc, _ = pc.remove_statistical_outlier(cfg.outlier_neighbours, cfg.outlier_std_ratio)
-    P = np.asarray(pc.points, dtype=np.float64)
-    C = np.asarray(pc.colors, dtype=np.float32)
-    if len(P) < 100:
-        raise ScanError(f"only {len(P)} points survive matching and cleaning; the scan is unusable")
+    P, C = clean_cloud(all_p, all_c, cfg)
     return ScanCloud(points=P, colours=C, pairs=[str(p.folder) for p in pairs], camera_positions=np.array(cams),
                      valid_fractions=fracs,
                      timings_s={"match_s": t1 - t0, "clean_s": time.perf_counter() - t1,

@@ -24,7 +24,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -174,12 +174,41 @@ def pair_points(pair: ScanPair, config: StereoConfig | None = None) -> tuple[np.
     return pts @ T[:3, :3].T + T[:3, 3], col, frac
 
 
+def thin_pair(points: np.ndarray, colours: np.ndarray, cfg: StereoConfig) -> tuple[np.ndarray, np.ndarray]:
+    """One pair's points and colours voxel-downsampled to ``cfg.voxel_m`` (open3d; unchanged at 0)."""
+    if cfg.voxel_m <= 0:
+        return points, colours
+    import open3d as o3d
+
+    one = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    one.colors = o3d.utility.Vector3dVector(colours.astype(np.float64))
+    one = one.voxel_down_sample(cfg.voxel_m)
+    return np.asarray(one.points), np.asarray(one.colors, dtype=np.float32)
+
+
+def clean_cloud(points: Sequence[np.ndarray], colours: Sequence[np.ndarray], cfg: StereoConfig,
+                where: str = "") -> tuple[np.ndarray, np.ndarray]:
+    """The pairs' points fused: voxel-downsampled together (when there are several) and cleared of
+    statistical outliers (open3d). Raises :class:`ScanError` (``where`` first) when under 100 are left."""
+    import open3d as o3d
+
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.concatenate(points)))
+    pc.colors = o3d.utility.Vector3dVector(np.concatenate(colours).astype(np.float64))
+    if cfg.voxel_m > 0 and len(points) > 1:
+        pc = pc.voxel_down_sample(cfg.voxel_m)
+    if cfg.outlier_neighbours > 0 and len(pc.points) > cfg.outlier_neighbours:
+        pc, _ = pc.remove_statistical_outlier(cfg.outlier_neighbours, cfg.outlier_std_ratio)
+    P = np.asarray(pc.points, dtype=np.float64)
+    C = np.asarray(pc.colors, dtype=np.float32)
+    if len(P) < 100:
+        raise ScanError(f"{where}only {len(P)} points survive matching and cleaning; the scan is unusable")
+    return P, C
+
+
 def scan_cloud(scan_dir: str | Path, config: StereoConfig | None = None,
                progress: Callable[[str], None] | None = None) -> ScanCloud:
     """Read every pair of a scan folder and fuse their points in the scan frame (open3d voxel
     downsampling and statistical outlier removal). Raises :class:`ScanError`."""
-    import open3d as o3d
-
     cfg = config or StereoConfig()
     say = progress or (lambda s: None)
     pairs = find_pairs(scan_dir)
@@ -194,28 +223,13 @@ def scan_cloud(scan_dir: str | Path, config: StereoConfig | None = None,
         p, c, frac = pair_points(pair, cfg)
         t_read += tb - ta
         t_match += time.perf_counter() - tb
-        if cfg.voxel_m > 0:  # thin each pair first: ~1 M points a pair is mostly redundant
-            one = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(p))
-            one.colors = o3d.utility.Vector3dVector(c.astype(np.float64))
-            one = one.voxel_down_sample(cfg.voxel_m)
-            p, c = np.asarray(one.points), np.asarray(one.colors, dtype=np.float32)
+        p, c = thin_pair(p, c, cfg)  # each pair first: ~1 M points a pair is mostly redundant
         all_p.append(p)
         all_c.append(c)
         fracs.append(frac)
         cams.append(pair.calibration.T_pile_cam[:3, 3].copy())
-    P = np.concatenate(all_p)
-    C = np.concatenate(all_c)
     t1 = time.perf_counter()
-    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P))
-    pc.colors = o3d.utility.Vector3dVector(C.astype(np.float64))
-    if cfg.voxel_m > 0 and len(pairs) > 1:
-        pc = pc.voxel_down_sample(cfg.voxel_m)
-    if cfg.outlier_neighbours > 0 and len(pc.points) > cfg.outlier_neighbours:
-        pc, _ = pc.remove_statistical_outlier(cfg.outlier_neighbours, cfg.outlier_std_ratio)
-    P = np.asarray(pc.points, dtype=np.float64)
-    C = np.asarray(pc.colors, dtype=np.float32)
-    if len(P) < 100:
-        raise ScanError(f"{scan_dir}: only {len(P)} points survive matching and cleaning; the scan is unusable")
+    P, C = clean_cloud(all_p, all_c, cfg, f"{scan_dir}: ")
     return ScanCloud(points=P, colours=C, pairs=[str(p) for p in pairs], camera_positions=np.array(cams),
                      valid_fractions=fracs,
                      timings_s={"read_s": t_read, "match_s": t_match, "clean_s": time.perf_counter() - t1,
