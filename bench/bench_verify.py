@@ -160,13 +160,14 @@ def _init(model: str) -> None:
     _NET["net"] = load_planner(model, device="cpu")
 
 
-def one_pile(seed: int, work_dir: str, logs, obstacles, objectives, ks, copies) -> list[dict]:
+def one_pile(seed: int, work_dir: str, logs, obstacles, objectives, ks, copies, n_float: int = 2) -> list[dict]:
     """Every variant on twin scan ``seed`` (made or reused in ``work_dir``); a failure is a row saying so."""
     from experiments.real_test import RealTestConfig, prepare_case
 
     net = _NET["net"]
     try:
-        case = prepare_case(seed, work_dir, net.config, RealTestConfig(logs=tuple(logs), obstacles=tuple(obstacles)))
+        case = prepare_case(seed, work_dir, net.config, RealTestConfig(logs=tuple(logs), obstacles=tuple(obstacles),
+                                                                        n_float=n_float))
         return pile_rows(case, net, objectives, ks, copies)
     except Exception as exc:  # a pile the generator or the twin could not make: said, not hidden
         return [{"seed": seed, "failure": f"{type(exc).__name__}: {exc}"}]
@@ -187,7 +188,7 @@ def run(args) -> dict:
     model = Path(args.model or DEFAULT_MODEL)
     config = {"piles": args.piles, "seed": args.seed, "logs": list(args.logs), "obstacles": list(args.obstacles),
               "objectives": list(args.objectives), "ks": list(args.ks), "copies": args.copies,
-              "model_sha256": sha256_file(model)}
+              "n_float": args.n_float, "model_sha256": sha256_file(model)}
     same = {k: v for k, v in config.items() if k != "piles"}
     rec = {"format": FORMAT, "format_version": VERSION, "config": config, "rows": [], "loads": []}
     if args.out.exists():
@@ -199,7 +200,7 @@ def run(args) -> dict:
     args.work_dir.mkdir(parents=True, exist_ok=True)
     todo = [args.seed + k for k in range(args.piles) if args.seed + k not in done]
     print(f"{len(done)} piles done, {len(todo)} to go; load {load_average('')}", file=sys.stderr, flush=True)
-    job = (str(args.work_dir), args.logs, args.obstacles, args.objectives, args.ks, args.copies)
+    job = (str(args.work_dir), args.logs, args.obstacles, args.objectives, args.ks, args.copies, args.n_float)
     t0 = time.perf_counter()
 
     def keep(n: int, seed: int, rows: list[dict]) -> None:
@@ -287,7 +288,9 @@ def markdown(rec: dict, command: str) -> str:
         "# Verified planning: the real test with the twin checking the network's best grasps",
         "",
         f"{len(piles)} twin scans (seeds {cfg['seed']}..{max(piles) if piles else '-'}, {cfg['logs'][0]}-{cfg['logs'][1]} logs, "
-        f"{cfg['obstacles'][0]}-{cfg['obstacles'][1]} obstacles, 2x2 pairs, RTK fixed), reconstructed; the shipped "
+        f"{cfg['obstacles'][0]}-{cfg['obstacles'][1]} obstacles, 2x2 pairs, "
+        + (f"{cfg['n_float']} RTK float ends per survey, reconstructed with --allow-float" if cfg.get("n_float") else "RTK fixed")
+        + "), reconstructed; the shipped "
         f"model (sha256 {cfg['model_sha256'][:12]}) plans on the reconstruction; the verifier tries its best grasps "
         "on the reconstruction (and on perturbed copies of it); the chosen grasp is executed on the TRUE pile. "
         "A refusal (no grasp succeeded in the twin) counts as a failure. Planning time = the network's planning "
@@ -404,6 +407,8 @@ def main() -> None:
     ap.add_argument("--ks", default="4,8,16")
     ap.add_argument("--copies", type=int, default=3, help="perturbed copies in the '+copies' variants (0: none)")
     ap.add_argument("--model", default=None)
+    ap.add_argument("--n-float", type=int, default=2,
+                    help="RTK float ends per twin survey (2: the twin's default survey, as in the field; 0: all fixed)")
     ap.add_argument("--work-dir", type=Path, default=Path("runs/verify-work"))
     ap.add_argument("--out", type=Path, default=Path("runs/verify_real_test.json"))
     ap.add_argument("--md", type=Path, default=None, help="write the tables here")
