@@ -47,6 +47,8 @@ class PlannerSpec:
     label: str = ""
     verify_k: int = 0  # for "unet": grasps the twin tries on a perturbed copy of the pile (0 = no verification)
     verify_copies: int = 0  # ... and on this many further perturbed copies of that copy [-]
+    max_subsets: int = 0  # for "unet": at most this many target subsets per plan, pre-selected by fit
+    #                       (planner.subsets, "fit" mode); 0 = the default policy (every subset up to 127) [-]
 
     @property
     def name(self) -> str:
@@ -54,10 +56,17 @@ class PlannerSpec:
             return self.label
         if self.kind != "unet":
             return self.kind
+        cap = f"-cap{self.max_subsets}" if self.max_subsets else ""
         if self.verify_k:
             copies = f"x{self.verify_copies}" if self.verify_copies else ""
-            return f"unet-{self.objective}-verify{self.verify_k}{copies}"
-        return f"unet-{self.objective}"
+            return f"unet-{self.objective}{cap}-verify{self.verify_k}{copies}"
+        return f"unet-{self.objective}{cap}"
+
+    def subset_policy(self):
+        """The :class:`planner.subsets.SubsetPolicy` this row plans with."""
+        from planner.subsets import SubsetPolicy
+
+        return SubsetPolicy(mode="fit", max_subsets=self.max_subsets) if self.max_subsets else SubsetPolicy()
 
 
 @dataclass(frozen=True)
@@ -200,17 +209,20 @@ def oracle_planner(trial_preset: str = "fast", max_trials: int = 40) -> PlanFn:
     return plan_fn
 
 
-def unet_planner(model: str, objective: str) -> PlanFn:
+def unet_planner(model: str, objective: str, subsets=None) -> PlanFn:
+    """The network's best grasp; ``subsets``: a :class:`planner.subsets.SubsetPolicy` (default: every subset)."""
     import torch
 
     from planner.inference import Objective, load_planner, plan
+    from planner.subsets import SubsetPolicy
 
     torch.set_num_threads(1)
     net = load_planner(model)
     obj = Objective(kind=objective)
+    policy = subsets or SubsetPolicy()
 
     def plan_fn(obs, pile):
-        result = plan(obs, net, obj, top_k=1, pile=pile)
+        result = plan(obs, net, obj, top_k=1, pile=pile, subsets=policy)
         if result.best is None:
             return None
         return result.best.grasp, tuple(result.best.targets)
@@ -245,15 +257,19 @@ def verified_planner(plan_all: Callable[[object, object], object], objective: st
     return plan_fn
 
 
-def verified_unet_planner(model: str, objective: str, k: int, copies: int = 0, trial_preset: str = "fast") -> PlanFn:
+def verified_unet_planner(model: str, objective: str, k: int, copies: int = 0, trial_preset: str = "fast",
+                          subsets=None) -> PlanFn:
     import torch
 
     from planner.inference import Objective, load_planner, plan
+    from planner.subsets import SubsetPolicy
 
     torch.set_num_threads(1)
     net = load_planner(model)
     obj = Objective(kind=objective)
-    return verified_planner(lambda obs, pile: plan(obs, net, obj, pile=pile), objective, k, copies, trial_preset)
+    policy = subsets or SubsetPolicy()
+    return verified_planner(lambda obs, pile: plan(obs, net, obj, pile=pile, subsets=policy), objective, k, copies,
+                            trial_preset)
 
 
 _CACHE: dict[PlannerSpec, PlanFn] = {}
@@ -264,11 +280,12 @@ def build_planner(spec: PlannerSpec, trial_preset: str = "fast", oracle_max_tria
         if spec.kind == "unet":
             if not spec.model:
                 raise ValueError("a 'unet' planner needs a model checkpoint")
-            if spec.verify_k < 0 or spec.verify_copies < 0:
-                raise ValueError(f"verify_k and verify_copies must be >= 0, got {spec.verify_k}, {spec.verify_copies}")
+            if spec.verify_k < 0 or spec.verify_copies < 0 or spec.max_subsets < 0:
+                raise ValueError(f"verify_k, verify_copies and max_subsets must be >= 0, got {spec.verify_k}, "
+                                 f"{spec.verify_copies}, {spec.max_subsets}")
             _CACHE[spec] = (verified_unet_planner(spec.model, spec.objective, spec.verify_k, spec.verify_copies,
-                                                  trial_preset) if spec.verify_k
-                            else unet_planner(spec.model, spec.objective))
+                                                  trial_preset, spec.subset_policy()) if spec.verify_k
+                            else unet_planner(spec.model, spec.objective, spec.subset_policy()))
         elif spec.kind == "random":
             _CACHE[spec] = random_planner()
         elif spec.kind == "geometric":

@@ -147,3 +147,41 @@ def test_the_verified_row_checks_on_a_perturbed_copy_never_on_the_test_pile():
         from planner.evaluate import build_planner
 
         build_planner(PlannerSpec("unet", model="m", objective="f3", verify_k=-1))
+
+
+def test_a_row_with_a_subset_cap_plans_only_the_subsets_it_keeps(tmp_path, monkeypatch):
+    """``max_subsets`` rows measure the pre-selection's cost in success: the plan sees only the capped
+    subsets (a 2-log pile capped at 1 keeps its two single logs, never the pair)."""
+    from dataclasses import replace
+
+    import torch
+
+    import planner.inference as inference
+    from planner.checkpoint import save_checkpoint
+    from planner.model import UNetConfig, build_unet
+
+    cfg = EvalConfig(logs=(2,), obstacles=(False,), per_cell=1)
+    net_cfg = replace(UNetConfig.tiny(), size_px=cfg.size_px)
+    ckpt = tmp_path / "m.safetensors"
+    torch.manual_seed(0)
+    save_checkpoint(ckpt, build_unet(net_cfg), net_cfg, {})
+    seen = []
+    real_plan = inference.plan
+
+    def spy(*a, **k):
+        p = real_plan(*a, **k)
+        seen.append(sorted(tuple(g.targets) for g in real_plan(*a, **{**k, "top_k": None}).grasps))
+        return p
+
+    monkeypatch.setattr(inference, "plan", spy)
+    capped = PlannerSpec("unet", model=str(ckpt), objective="f1", max_subsets=1)
+    assert capped.name == "unet-f1-cap1" and capped.subset_policy().mode == "fit"
+    assert PlannerSpec("unet", model="m", max_subsets=8, verify_k=4).name == "unet-f1-cap8-verify4"
+    tables = run_evaluation([capped, PlannerSpec("unet", model=str(ckpt), objective="f1")], cfg, tmp_path / "e",
+                            workers=1)
+    assert set(tables["planners"]) == {"unet-f1-cap1", "unet-f1"}
+    assert seen[0] == [(0,), (1,)] and seen[1] == [(0,), (0, 1), (1,)], seen
+    with pytest.raises(ValueError, match="max_subsets"):
+        from planner.evaluate import build_planner
+
+        build_planner(PlannerSpec("unet", model=str(ckpt), max_subsets=-1))
