@@ -98,9 +98,17 @@ def scan_command(
                           height_m=height, hfov_deg=hfov, grid=grid, unposed=unposed, handheld=handheld,
                           n_unsurveyed=unsurveyed,
                           progress=o.progress)
-    o.say(f"scan written to {path} (scan/ and gnss.csv for `loggrasp reconstruct`; the truth in {path / 'truth'})")
+    nxt = next_step(path, float_fixes)
+    o.say(f"scan written to {path} (the truth apart in {path / 'truth'}); next: {nxt}")
     o.result("loggrasp.synth-scan", {"out": str(path), "scan": str(path / "scan"), "gnss": str(path / "gnss.csv"),
-                                     "truth": str(path / "truth" / "pile.json")})
+                                     "truth": str(path / "truth" / "pile.json"), "next": nxt})
+
+
+def next_step(scan_out: Path, n_float: int) -> str:
+    """The command that reconstructs a twin scan written to ``scan_out`` (``--allow-float`` when its
+    survey has float points: accepting them stays the user's explicit choice, made visible here)."""
+    return (f"loggrasp reconstruct {scan_out / 'scan'} --gnss {scan_out / 'gnss.csv'} --out {scan_out / 'recon'}"
+            + (" --allow-float" if n_float > 0 else ""))
 
 
 def reconstruct_command(
@@ -108,7 +116,8 @@ def reconstruct_command(
     gnss: Path = option("--gnss", "RTK endpoint survey CSV (see README).", default=..., metavar="FILE"),
     out: Path = option("--out", "Output folder: pile.json, ortho.npz, previews, report.json.", default=...,
                        metavar="DIR"),
-    allow_float: bool = option("--allow-float", "Accept RTK float endpoints (not recommended).",
+    allow_float: bool = option("--allow-float", "Accept RTK float endpoints (decimetres off): the scan then places every "
+                               "end it sees, a float point places only an end it does not (reported weak).",
                                field=(ReconstructConfig, "allow_float")),
     pair_poses: Literal["auto", "calibration", "sfm"] = option(
         "--pair-poses", "Where the pairs' poses come from: auto (the calibrations' T_pile_cam, SfM when they have "

@@ -695,6 +695,13 @@ def test_c_libraries_stay_quiet_unless_verbose(work, pile_dir):
     assert p.returncode == 0 and "pybullet build time" in out + err
 
 
+def test_synth_scan_says_the_next_command_with_allow_float_only_for_float_points(tmp_path):
+    from reconstruct.cli import next_step
+
+    assert next_step(tmp_path / "s", 2).endswith(f"--out {tmp_path / 's' / 'recon'} --allow-float")
+    assert "--allow-float" not in next_step(tmp_path / "s", 0)
+
+
 @pytest.mark.slow
 def test_synth_scan_json_is_pure_and_errors_are_one_line(work):
     """synth scan renders through EGL/OpenGL: stdout is still one JSON document; a broken image
@@ -706,6 +713,9 @@ def test_synth_scan_json_is_pure_and_errors_are_one_line(work):
     d = json.loads(out)
     assert d["format"] == "loggrasp.synth-scan" and Path(d["gnss"]).exists()
     assert "generating" in err and "rendering stereo pair 1 of 1" in err  # progress on stderr
+    # the next step, as a command to copy (no float points in this survey: no --allow-float)
+    assert d["next"] == f"loggrasp reconstruct {work / 'scan' / 'scan'} --gnss {d['gnss']} --out {work / 'scan' / 'recon'}"
+    assert f"next: {d['next']}" in err
     left = work / "scan" / "scan" / "pair_000" / "left.png"
     left.write_bytes(left.read_bytes()[:200])
     p = _loggrasp("reconstruct", str(work / "scan" / "scan"), "--gnss", d["gnss"], "--out", str(work / "rs"))
