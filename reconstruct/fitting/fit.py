@@ -120,7 +120,11 @@ AXIS_SOURCES = ("fit", "gnss")
 #: ``max_thinning_m``, is there but off); the ends are reported where the checked pile has them, their
 #: survey points tested again there and their sigma grown by the check's move
 #: (:func:`reconstruct.fitting.fuse.after_pile_check`: a log pushed off its fixed points is a weak,
-#: contradicted estimate, never a silent one — twin scan 1100133 at 4042e48 came back 40 cm off unwarned).
+#: contradicted estimate, never a silent one — twin scan 1100133 at 4042e48 came back 40 cm off unwarned);
+#: an end the scan shows nothing of is placed across the axis by its survey point too, and a point
+#: beyond noise from the extrapolated axis places it (that 40 cm end had been left on a partial fit's
+#: axis, 9 deg off, unchecked); a ridge on the line of a log's two fixed points, not above it, is that
+#: log, not an ambiguity with "hidden" (1100133 stopped so under all three surveys).
 FIT_REVISION = 11
 # a cross-section circle loses this much score per footprint bin it does not explain (the profile
 # there lies above it or off it): where a neighbour lies against a log, or the stereo fills the

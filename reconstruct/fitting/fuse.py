@@ -537,12 +537,42 @@ def match_survey(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]]
         # the chi^2 margin is for noise: an alternative that has to call more survey points wrong (an outlier
         # costs a constant, whatever its accuracy) is no equal explanation (twin scan 1100039: both ends
         # of a log RTK fixed, "as good" on a 15 cm scrap of ridge with one of them wrong)
+        if alt_pick[i] is None and _on_its_survey_line(scan_logs[pick[i]], survey[k], cfg):
+            continue  # "hidden" would count the log twice: the scan shows it on its own fixed points' line
         if (delta < cfg.ambiguity_chi2 and content(alt_pick) != best_content
                 and gross_errors(alt_pick) <= best_gross):
             raise _ambiguity(k, survey[k], scan_logs[pick[i]], None if alt_pick[i] is None else scan_logs[alt_pick[i]],
                              delta)
     taken = {j for j in pick if j is not None}
     return matches, [j for j in range(n_k) if j not in taken]
+
+
+def _on_its_survey_line(log: ScanLog, ends: tuple[SurveyEnd | None, SurveyEnd | None], cfg: FuseConfig) -> bool:
+    """Whether scan log ``log`` is a piece of the log whose two RTK fixed points are ``ends``: on their
+    line in top view (:func:`_is_piece_of`), overlapping the stretch between them by at least
+    ``min_segment_m``, and not lying above it (a log resting on top along it would be another log: its
+    axis at least a radius higher). Then "that log is hidden and the scan log another" counts one log
+    twice (twin scan 1100133: a sloped ridge on a log's fixed line stopped the scan as ambiguous)."""
+    if any(e is None or e.fix != "rtk_fixed" for e in ends):
+        return False
+    a, b = ends[0].position_m, ends[1].position_m
+    span = float(np.linalg.norm((b - a)[:2]))
+    if span < cfg.min_segment_m:
+        return False
+    line = ScanLog(a, b, 0.0, span, 0.0)
+    if not _is_piece_of(log, line):
+        return False
+    u = (b - a)[:2] / span
+    t0, t1 = sorted(float((p[:2] - a[:2]) @ u) for p in (log.start_m, log.end_m))
+    lo, hi = max(t0, 0.0), min(t1, span)
+    if hi - lo < cfg.min_segment_m:
+        return False
+    ts = np.linspace(lo, hi, 9)
+    t_log = (ts - t0) / max(t1 - t0, 1e-9)
+    start, end = (log.start_m, log.end_m) if float((log.end_m - log.start_m)[:2] @ u) >= 0 else (log.end_m, log.start_m)
+    z_log = start[2] + (end[2] - start[2]) * t_log
+    z_line = a[2] + (b[2] - a[2]) * ts / span
+    return float(np.mean(z_log - z_line)) < log.radius_m
 
 
 def _match_costs(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]], ids: list[str],
@@ -808,14 +838,11 @@ def fuse_end(p0: np.ndarray, u: np.ndarray, interval: EndInterval, at_start: boo
     if interval.last_on_m is None:  # the scan shows nothing of this log's top: where its survey point lies along it
         if survey is None:
             raise FitError("an end with neither scan points nor a survey point cannot be placed")
-        pos = np.asarray(p0, float) + u * t_g
-        res = float(np.linalg.norm(survey.position_m - pos))
-        sig = math.sqrt(sg ** 2 + 2 * lateral_sigma_m ** 2)
-        return EndEstimate(pos, float(sig), float(sg), survey.label, interval.state, survey.fix, res,
-                           res / math.sqrt(survey.sigma_3d_m ** 2 + sig ** 2))
-    t, sa, source, contradicted = _end_along(interval, -1.0 if at_start else 1.0, survey, t_g, sg, seen_whole, cfg)
-    pos, lat = _end_across(np.asarray(p0, float) + u * t, u, abs(t - interval.last_on_m), survey, contradicted,
-                           lateral_sigma_m, cfg)
+        t, sa, source, contradicted, past = t_g, sg, survey.label, False, 0.0
+    else:
+        t, sa, source, contradicted = _end_along(interval, -1.0 if at_start else 1.0, survey, t_g, sg, seen_whole, cfg)
+        past = abs(t - interval.last_on_m)
+    pos, lat = _end_across(np.asarray(p0, float) + u * t, u, past, survey, contradicted, lateral_sigma_m, cfg)
     sigma = math.sqrt(sa ** 2 + 2 * lat ** 2)
     est = EndEstimate(pos, float(sigma), float(sa), source, interval.state, None if survey is None else survey.fix,
                       contradicted=contradicted)
@@ -909,12 +936,17 @@ def _end_across(pos: np.ndarray, u: np.ndarray, past_m: float, survey: SurveyEnd
     ``past_m``, the end lies past what the scan shows of the log); for a log the scan shows only in part
     or not at all, also the survey point, each by its accuracy (an axis fitted to the scan is better
     than any survey point: measured, pulling it toward fixed points by their accuracy cost 0.017 in
-    median mask IoU on test_end_to_end_generated_pile)."""
+    median mask IoU on test_end_to_end_generated_pile); a point farther across than
+    ``contradiction_sigma`` of the two sigmas places the end itself (the extrapolated axis is off)."""
     lat = lateral_sigma_m + cfg.extrapolation_sigma_per_m * past_m
     if survey is not None and not contradicted and lateral_sigma_m >= cfg.axis_sigma_m:
         off = survey.position_m - pos
         off -= (off @ u) * u  # the point's offset from the axis, across it
         sg_across = math.sqrt(0.5 * (survey.sigma_h_m ** 2 + survey.sigma_v_m ** 2))
+        if float(np.linalg.norm(off)) > cfg.contradiction_sigma * math.hypot(lat, sg_across):
+            # the two disagree beyond noise: the extrapolated axis of a log the scan shows in part is the
+            # one that is off (a point is a direct measurement of the end), so the point places it
+            return pos + off, sg_across
         w = lat ** 2 / (lat ** 2 + sg_across ** 2)
         pos = pos + w * off
         lat = math.sqrt(1.0 / (1.0 / lat ** 2 + 1.0 / sg_across ** 2))

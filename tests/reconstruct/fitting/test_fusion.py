@@ -181,6 +181,21 @@ def test_only_geometry_the_survey_cannot_settle_stops_and_names_the_log():
     assert absorb_pieces(matches, unmatched, pieces) == []
 
 
+def test_a_sloped_ridge_on_a_logs_fixed_line_is_that_log_not_an_ambiguity():
+    """Both ends RTK fixed; the scan shows a ridge on their line whose fitted height slopes through
+    theirs (each point ~3.8 sigma off it): "hidden, and that ridge another log" is within the chi2
+    margin, but it would put two logs in one place (twin scan 1100133 stopped here under all three
+    surveys; with the match taken, every log of it lands within 3.3 cm). A ridge as far ABOVE the
+    line all along may be a log lying on it: still an ambiguity."""
+    fixed = {"log0": (_end(-1.0, 0.0, fix="rtk_fixed"), _end(1.0, 0.0, fix="rtk_fixed"))}
+    sloped = ScanLog(np.array([-0.8, 0.0, -0.13]), np.array([0.8, 0.02, 0.29]), 0.08, 1.6, 20.0)
+    matches, unmatched = match_survey(fixed, [sloped])
+    assert matches["log0"].scan_index == 0 and unmatched == []
+    above = ScanLog(np.array([-0.8, 0.0, 0.29]), np.array([0.8, 0.02, 0.29]), 0.08, 1.6, 20.0)
+    with pytest.raises(AmbiguousSurveyError, match="being hidden"):
+        match_survey(fixed, [above])
+
+
 def test_an_end_is_placed_from_what_knows_it_best():
     cfg = FuseConfig()
     p0, u = np.zeros(3), np.array([1.0, 0.0, 0.0])
@@ -212,6 +227,23 @@ def test_an_end_is_placed_from_what_knows_it_best():
     assert fuse_end(p0, u, seen, False, beyond, 0.005, cfg).contradicted  # a log seen whole: the scan's end
     short = _end(1.60, 0.0, fix="rtk_fixed")
     assert fuse_end(p0, u, seen, False, short, 0.04, cfg, seen_whole=False).contradicted
+
+
+def test_an_end_the_scan_shows_nothing_of_goes_to_its_point_by_their_accuracies():
+    """Where the scan shows none of a log's top near an end, the survey point places it along the axis
+    AND across it by the two accuracies, and is tested like any other (twin scan 1100133: a log seen
+    over a third of its length, its fitted axis 9 deg off, came back with an end 40 cm above its RTK
+    fixed point, the 'fixed' end left on the extrapolated axis and not reported)."""
+    cfg = FuseConfig()
+    p0, u = np.zeros(3), np.array([1.0, 0.0, 0.0])
+    nothing = EndInterval(None, None, "none")
+    below = _end(2.0, 0.0, z=-0.40, fix="rtk_fixed")  # 40 cm below the (partial) fit's axis
+    e = fuse_end(p0, u, nothing, False, below, 0.04, cfg, seen_whole=False)
+    assert e.source == "fixed" and abs(e.position_m[2] + 0.40) < 0.05, e.position_m  # at the point, not on the axis
+    assert not e.contradicted and e.gnss_residual_m < 0.05
+    # an axis the scan fixes to millimetres is not pulled; a fixed point 40 cm off it is reported
+    e = fuse_end(p0, u, nothing, False, below, 0.005, cfg)
+    assert abs(e.position_m[2]) < 1e-9 and e.contradicted and e.weak(cfg)
 
 
 def test_a_seen_end_is_where_the_log_ends_not_a_bin_past_it():
