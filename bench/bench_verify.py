@@ -68,6 +68,7 @@ def pile_rows(case, net, objectives, ks, copies) -> list[dict]:
     from experiments.real_test import execute_on_truth
     from planner.errors import PlannerError
     from planner.inference import Objective, plan
+    from reconstruct.pipeline import log_end_sigmas
     from planner.verify import PerturbationConfig, Verifier, VerifyConfig, perturbation_for_fits
 
     executed: dict = {}
@@ -86,7 +87,7 @@ def pile_rows(case, net, objectives, ks, copies) -> list[dict]:
         fits = [lg.get("fit", "scan") for lg in (case.report or {}).get("logs", [])]
         pert = PerturbationConfig(copies=copies, seed=case.seed)
         if len(fits) == case.recon.n_logs:
-            pert = perturbation_for_fits(fits, pert)
+            pert = perturbation_for_fits(fits, pert, log_end_sigmas(case.report))
         t, c0 = time.perf_counter(), time.process_time()
         piles = Verifier(VerifyConfig(perturbation=pert, workers=1)).piles(case.recon)
         copies_s, copies_cpu = time.perf_counter() - t, time.process_time() - c0

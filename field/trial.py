@@ -141,14 +141,15 @@ class TrialOptions:
         if self.verify_k:
             self.verify_config()  # its own checks: a budget too small for one trial, copies, workers
 
-    def verify_config(self, fits: tuple[str, ...] | list[str] = ()):
+    def verify_config(self, fits: tuple[str, ...] | list[str] = (), end_sigmas_m=None):
         """The :class:`planner.verify.VerifyConfig` of these options; ``fits``: how the
-        reconstruction placed each log (its report's ``fit``), for per-log perturbation sigmas."""
+        reconstruction placed each log (its report's ``fit``) and ``end_sigmas_m`` its less certain
+        end's sigma per log (:func:`reconstruct.pipeline.log_end_sigmas`), for per-log perturbation sigmas."""
         from planner.verify import PerturbationConfig, VerifyConfig, perturbation_for_fits
 
         pert = PerturbationConfig(copies=self.verify_copies, seed=self.verify_seed)
         if fits:
-            pert = perturbation_for_fits(fits, pert)
+            pert = perturbation_for_fits(fits, pert, end_sigmas_m)
         return VerifyConfig(k=max(1, self.verify_k), time_budget_s=self.verify_budget_s, workers=self.verify_workers,
                             perturbation=pert)
 
@@ -256,10 +257,10 @@ def captured_time(scan_dir: Path, gnss_path: Path) -> float:
 
 
 def verify_trial_plan(the_plan, pile, options: TrialOptions, fits=(), recorded: dict | None = None,
-                      say: Callable[[str], None] | None = None):
+                      say: Callable[[str], None] | None = None, end_sigmas_m=None):
     """The twin's verification of ``the_plan`` on ``pile`` (the reconstruction) with the options'
     settings (:func:`planner.verify.verify_plan`); ``fits``: the reconstruction's fit class of each
-    log (per-log perturbation sigmas).
+    log and ``end_sigmas_m`` its less certain end's sigma (per-log perturbation sigmas).
 
     ``recorded`` (a replay): the verification a trial record stores. The trials then run without a
     time budget and without pruning (so every trial the record holds runs again, whatever order
@@ -276,7 +277,9 @@ def verify_trial_plan(the_plan, pile, options: TrialOptions, fits=(), recorded: 
 
     say = say or (lambda s: None)
     objective = Objective(kind=options.objective)
-    cfg = options.verify_config(tuple(fits) if len(fits) == pile.n_logs else ())
+    ok = len(fits) == pile.n_logs
+    cfg = options.verify_config(tuple(fits) if ok else (),
+                                tuple(end_sigmas_m) if ok and end_sigmas_m is not None else None)
     if recorded is not None:
         cfg = replace(cfg, time_budget_s=None, prune=False)
     budget = "no time limit" if cfg.time_budget_s is None else f"{cfg.time_budget_s:g} s"
@@ -309,6 +312,7 @@ def prepare_trial(scan_dir: str | Path, gnss_path: str | Path, work_dir: str | P
     the operator named no plan rank). ``recorded_verification``: a replay's recorded verification
     (:func:`verify_trial_plan`)."""
     from field.geo import grasp_to_gnss
+    from reconstruct.pipeline import log_end_sigmas
 
     say = progress or (lambda s: None)
     scan_dir, gnss_path, work = Path(scan_dir), Path(gnss_path), Path(work_dir)
@@ -319,7 +323,8 @@ def prepare_trial(scan_dir: str | Path, gnss_path: str | Path, work_dir: str | P
     constraints = _constraints_for(pile, options)
     the_plan = _plan_subsets(obs, planner, pile, constraints, options, say)
     log_fits = [log.get("fit", "scan") for log in result.report.get("logs", [])]
-    best, verification = _choose_grasp(the_plan, pile, options, log_fits, recorded_verification, say)
+    best, verification = _choose_grasp(the_plan, pile, options, log_fits, recorded_verification, say,
+                                       log_end_sigmas(result.report))
     z = float(pile.terrain.height_at(best.grasp.x_m, best.grasp.y_m))
     geo = grasp_to_gnss(best.grasp, pile.georef, z)
     command = GraspCommand.from_grasp_geo(1, geo, len(best.targets), captured)  # the id is the link's, at sending
@@ -402,13 +407,13 @@ def _plan_subsets(obs, planner, pile, constraints, options: TrialOptions, say):
     return the_plan
 
 
-def _choose_grasp(the_plan, pile, options: TrialOptions, log_fits, recorded_verification, say):
+def _choose_grasp(the_plan, pile, options: TrialOptions, log_fits, recorded_verification, say, end_sigmas=None):
     """(the grasp to send, the verification or None): the best that succeeded in the twin, else the
     operator's named plan rank, else :class:`NotVerified`; the plan's best with verification off."""
     verification = None
     best = the_plan.best
     if options.verify_k:
-        verification = verify_trial_plan(the_plan, pile, options, log_fits, recorded_verification, say)
+        verification = verify_trial_plan(the_plan, pile, options, log_fits, recorded_verification, say, end_sigmas)
         if verification.ok:
             best = verification.grasp
             if options.operator_rank is not None:

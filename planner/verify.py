@@ -138,11 +138,21 @@ class PerturbationConfig:
 FIT_SIGMAS_M = {"scan": (0.011, 0.007), "partial": (0.021, 0.023), "hidden": (0.03, 0.04)}
 
 
-def perturbation_for_fits(fits: Sequence[str], base: PerturbationConfig | None = None) -> PerturbationConfig:
+def perturbation_for_fits(fits: Sequence[str], base: PerturbationConfig | None = None,
+                          end_sigmas_m: Sequence[float | None] | None = None) -> PerturbationConfig:
     """``base`` (default :class:`PerturbationConfig`) with per-log sigmas from how each log was
-    placed (``FIT_SIGMAS_M``; an unknown class counts as "hidden", the least certain)."""
+    placed (``FIT_SIGMAS_M``; an unknown class counts as "hidden", the least certain), and, with
+    ``end_sigmas_m`` (per log: the reconstruction's own 1-sigma 3-D uncertainty of its less certain
+    end [m], None where it gave none), each log's end sigma per axis at least that figure / sqrt 3
+    (an end placed from an RTK float point, or pushed by the pile check, is decimetres unsure)."""
     base = base or PerturbationConfig()
-    return replace(base, log_sigmas_m=tuple(FIT_SIGMAS_M.get(f, FIT_SIGMAS_M["hidden"]) for f in fits))
+    sig = [FIT_SIGMAS_M.get(f, FIT_SIGMAS_M["hidden"]) for f in fits]
+    if end_sigmas_m is not None:
+        if len(end_sigmas_m) != len(fits):
+            raise ValueError(f"end_sigmas_m gives {len(end_sigmas_m)} logs but fits {len(fits)}")
+        sig = [(max(e, min(1.0, s / math.sqrt(3.0))) if s is not None else e, d)
+               for (e, d), s in zip(sig, end_sigmas_m)]
+    return replace(base, log_sigmas_m=tuple(sig))
 
 
 @dataclass(frozen=True)
@@ -312,6 +322,8 @@ class Verification:
                 "chosen_rank": None if self.chosen is None else self.chosen.rank,
                 "chosen_quality": self.chosen_quality, "reason": self.reason, "timed_out": self.timed_out,
                 "objective": self.objective.kind, "k": self.config.k, "copies": self.config.perturbation.copies,
+                "log_sigmas_m": (None if self.config.perturbation.log_sigmas_m is None
+                                 else [list(s) for s in self.config.perturbation.log_sigmas_m]),
                 "time_budget_s": self.config.time_budget_s, "elapsed_s": self.elapsed_s,
                 "trial_cpu_s": self.trial_cpu_s, "candidates": [c.to_dict() for c in self.candidates]}
 

@@ -729,6 +729,13 @@ def weak_ends(logs: list, cfg: FuseConfig | None = None) -> list[str]:
     return out
 
 
+def log_end_sigmas(report: dict) -> list[float | None]:
+    """Per log of a reconstruction report (:func:`reconstruct`'s ``report``): the 1-sigma 3-D
+    uncertainty of its less certain end [m], None for a log whose ends were not fused."""
+    return [max((float(e["sigma_m"]) for e in log.get("ends") or []), default=None)
+            for log in report.get("logs", [])]
+
+
 def contradicted_points(logs: list) -> list[str]:
     """One line per survey point the scan contradicts (not used): how far it is from the placed end."""
     out = []

@@ -109,6 +109,22 @@ def test_the_command_carries_the_verified_grasp_not_a_higher_scored_failing_one(
         (rec / "record.json").read_text())["verification"]["candidates"]
 
 
+def test_the_perturbed_copies_jitter_each_log_by_the_reconstructions_own_sigma(verified):
+    """Each log's copies move its ends by at least the reconstruction's sigma of its less certain end
+    (an end from an RTK float point would be jittered by decimetres, not its fit class's centimetre;
+    the bundled survey is all fixed, and one of its logs is still less sure than its class)."""
+    from planner.verify import FIT_SIGMAS_M
+    from reconstruct.pipeline import log_end_sigmas, read_report
+
+    rec, record = verified
+    report = read_report(rec / "reconstruction" / "report.json")
+    got = record["verification"]["log_sigmas_m"]
+    fits = [lg["fit"] for lg in report["logs"]]
+    want = [max(FIT_SIGMAS_M[f][0], s / math.sqrt(3)) for f, s in zip(fits, log_end_sigmas(report))]
+    assert [g[0] for g in got] == pytest.approx(want) and len(got) == len(fits)
+    assert any(w > FIT_SIGMAS_M[f][0] for w, f in zip(want, fits))  # the case the wiring decides
+
+
 def test_replay_reproduces_the_verification_bit_for_bit(verified, monkeypatch, tmp_path):
     rec, record = verified
     twin(monkeypatch, log3_collides)

@@ -311,3 +311,15 @@ def test_logs_the_reconstruction_hardly_saw_are_jittered_more():
     assert FIT_SIGMAS_M["scan"] < FIT_SIGMAS_M["partial"] < FIT_SIGMAS_M["hidden"]
     with pytest.raises(VerificationError, match="log_sigmas_m gives 4 logs but the pile has 3"):
         perturb_pile(flat_pile(3), cfg, 1)
+
+
+def test_ends_the_reconstruction_is_unsure_of_are_jittered_by_its_own_sigma():
+    """A log whose end came from an RTK float point (+-17 cm, 3-D) is jittered by that, not by its fit
+    class's centimetre; a log the reconstruction is surer of than its class keeps the class figure."""
+    from planner.verify import FIT_SIGMAS_M, perturbation_for_fits
+
+    cfg = perturbation_for_fits(["scan", "scan", "partial"], PerturbationConfig(copies=1), [0.17, 0.005, None])
+    assert cfg.log_sigmas_m[0] == (pytest.approx(0.17 / math.sqrt(3)), FIT_SIGMAS_M["scan"][1])
+    assert cfg.log_sigmas_m[1] == FIT_SIGMAS_M["scan"] and cfg.log_sigmas_m[2] == FIT_SIGMAS_M["partial"]
+    with pytest.raises(ValueError, match="end_sigmas_m gives 1 logs but fits 3"):
+        perturbation_for_fits(["scan", "scan", "partial"], None, [0.1])
