@@ -474,3 +474,27 @@ def test_an_overlap_deeper_than_radius_error_explains_is_still_refused(truth):
         *(e - np.array([0, 0, 0.14]) for e in d.endpoints_m()), d.diameter_m),))
     with pytest.raises(FitError, match="would have to move"):
         separate_logs(too_deep, FitConfig(max_move_m=0.05, max_thinning_m=0.015), thinnable=[True] * too_deep.n_logs)
+
+
+# -- a log found in the scan alone must have points of its own ------------------------------------
+def test_a_scan_only_log_across_the_tops_of_others_is_left_out_a_real_one_kept():
+    """Five parallel logs seen from above; a 'log' fitted across their tops (twin scan 1100087: a 24 cm
+    line across five surveyed logs, 99 % of its points on them, which the pile check then refused at
+    17 cm) is left out with its reason; a log the survey missed, lying apart, keeps its place."""
+    from reconstruct.fitting.fit import _Placement, _PlacedLog
+
+    logs = tuple(LogSpec.from_endpoints((x, -1.0, 0.08), (x, 1.0, 0.08), 0.16) for x in (-1.0, -0.5, 0.0, 0.5, 1.0))
+    apart = LogSpec.from_endpoints((-1.0, 1.6, 0.08), (1.0, 1.6, 0.08), 0.16)
+    pile = PileSpec(terrain=_flat_terrain(), logs=logs + (apart,))
+    P = sample_top_view_points(pile, 250, 0.002, np.random.default_rng(0))
+    phantom = LogSpec.from_endpoints((-1.2, 0.0, 0.04), (1.2, 0.0, 0.04), 0.24)  # its top at theirs, 16 cm
+    specs = logs + (apart, phantom)
+    ids = [f"log{i}" for i in range(5)] + ["scan0", "scan1"]
+    placement = _Placement(P, ids, {k: spec.endpoints_m() for k, spec in zip(ids, specs)}, FitConfig(),
+                           np.random.default_rng(0), None, {"scan0", "scan1"}, lambda s: None)
+    for i, spec in enumerate(specs):
+        f = fit_log(P, *spec.endpoints_m(), FitConfig(), log_id=ids[i]) if i < 6 else None
+        placement.placed[i] = _PlacedLog(f, spec, False, "scan")
+    placement.drop_borrowed()
+    assert set(placement.dropped) == {"scan1"} and "lie on other logs" in placement.dropped["scan1"]
+    assert 5 in placement.placed and 6 not in placement.placed  # the missed log stays
