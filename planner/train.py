@@ -35,6 +35,9 @@ from planner.model import UNetConfig
 from synth.common.formats import VersionedJson
 
 TRAIN_FORMAT_NAME = "loggrasp.planner.train_state"
+#: what a resumed run may change: more epochs extend it; where it runs (device, CPU threads) is not
+#: what it learns (a run started on these CPUs can go on on a GPU machine, or with the cores shared)
+RESUMABLE_CHANGES = frozenset({"epochs", "device", "num_threads"})
 LOG_FORMAT_NAME = "loggrasp.planner.train_log"
 LOG_FORMAT_VERSION = "1.0"
 TRAIN_LOG = VersionedJson(LOG_FORMAT_NAME, LOG_FORMAT_VERSION, "training log", TrainingError)
@@ -294,7 +297,7 @@ def _config_for_grid(config: TrainConfig, grid: dict) -> TrainConfig:
 
 def _check_run_config(out: Path, config: TrainConfig) -> None:
     """Write ``train_config.json``, or check that a run there has the same configuration (only
-    ``epochs`` may change, to extend it)."""
+    ``RESUMABLE_CHANGES`` may change: more epochs, another device or thread count)."""
     from synth.common.files import atomic_write_bytes
 
     cfg_path = out / "train_config.json"
@@ -306,11 +309,12 @@ def _check_run_config(out: Path, config: TrainConfig) -> None:
         except (OSError, ValueError) as exc:
             raise TrainingError(f"{cfg_path} is unreadable ({exc}); delete {out} to start afresh") from exc
         now = json.loads(json.dumps(config.to_dict()))
-        if {k: v for k, v in old.items() if k != "epochs"} != {k: v for k, v in now.items() if k != "epochs"}:
-            raise TrainingError(f"{out} holds a training run with a different configuration; "
+        differ = sorted(k for k in set(old) | set(now) if k not in RESUMABLE_CHANGES and old.get(k) != now.get(k))
+        if differ:
+            raise TrainingError(f"{out} holds a training run with a different configuration ({', '.join(differ)}); "
                                 "use another output folder or the same configuration to resume "
-                                "(only 'epochs' may change, to extend a run)")
-        if old.get("epochs") == now["epochs"]:
+                                f"(only {', '.join(sorted(RESUMABLE_CHANGES))} may change)")
+        if old == now:
             return
     atomic_write_bytes(cfg_path, json.dumps(config.to_dict(), indent=1).encode())
 

@@ -119,11 +119,13 @@ def test_train_save_load_plan_end_to_end_and_resume(tmp_path):
     p = plan(observation(3), pl, Objective("f3"))
     assert p.subsets_evaluated == 7 and p.grasps[0].quality >= p.grasps[-1].quality
     # resume: a different configuration is refused ...
-    with pytest.raises(TrainingError, match="different configuration"):
+    with pytest.raises(TrainingError, match=r"different configuration \(lr\)"):
         train(data, out, _cfg(lr=1e-4))
-    # ... the same config resumes and has nothing left to do; more epochs extend the run
-    res2 = train(data, out, _cfg())
+    # ... the same config resumes and has nothing left to do, also on other threads (where a run goes
+    # on is not what it learns); more epochs extend the run
+    res2 = train(data, out, _cfg(num_threads=1))
     assert res2.resumed_from == {"epoch": 2, "step": 0} and len(res2.history) == 2
+    assert json.loads((out / "train_config.json").read_text())["num_threads"] == 1
     res3 = train(data, out, _cfg(epochs=3))
     assert [e["epoch"] for e in res3.history] == [0, 1, 2]
 
