@@ -98,18 +98,24 @@ class ControllerProcess:
             self.proc.wait(10)
 
     def stop(self) -> None:
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(10)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(10)
+        if self.proc is not None:
+            terminate(self.proc)
         if self.proc is not None and self.proc.stdout:
             self.proc.stdout.close()
         if getattr(self, "_stderr", None) is not None:
             self._stderr.close()
             self._stderr = None
+
+
+def terminate(proc: subprocess.Popen) -> None:
+    """Stop a server process: SIGTERM, then SIGKILL if it has not gone within 10 s."""
+    if proc.poll() is None:
+        proc.terminate()
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(10)
 
 
 def _readline_with_timeout(proc: subprocess.Popen, timeout_s: float) -> str:
@@ -146,13 +152,7 @@ class RemoteCanServer:
         return f"can://remote/127.0.0.1:{self.port}/{self.channel}"
 
     def close(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(10)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(10)
+        terminate(self.proc)
 
 
 @dataclass
