@@ -111,7 +111,8 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def _stop(proc: subprocess.Popen) -> None:
+def stop_process(proc: subprocess.Popen) -> None:
+    """Stop a server process: SIGTERM, then SIGKILL if it has not gone within 10 s."""
     if proc.poll() is None:
         proc.terminate()
         try:
@@ -135,7 +136,7 @@ def _controller_process(url: str, delay_s: float) -> Iterator[None]:
             raise LinkError(f"controller process for {url} did not start")
         yield
     finally:
-        _stop(proc)
+        stop_process(proc)
         if proc.stdout:
             proc.stdout.close()
 
@@ -182,7 +183,7 @@ def _local_controller(backend: str, delay_s: float, secoc_key: str | None) -> It
             with _controller_process(url, delay_s):
                 yield url
         finally:
-            _stop(server)
+            stop_process(server)
         return
     if backend == "zenoh":
         url = _keyed(f"zenoh://127.0.0.1:{_free_port()}/lat-{uuid.uuid4().hex[:6]}", secoc_key)

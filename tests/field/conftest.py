@@ -17,6 +17,7 @@ from typing import Any, Callable, Iterator
 import pytest
 
 from field.link.base import close_leaked_resources, open_resources
+from field.link.latency import stop_process as terminate
 from field.link.messages import GraspCommand
 
 PY = sys.executable
@@ -105,17 +106,6 @@ class ControllerProcess:
         if getattr(self, "_stderr", None) is not None:
             self._stderr.close()
             self._stderr = None
-
-
-def terminate(proc: subprocess.Popen) -> None:
-    """Stop a server process: SIGTERM, then SIGKILL if it has not gone within 10 s."""
-    if proc.poll() is None:
-        proc.terminate()
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(10)
 
 
 def _readline_with_timeout(proc: subprocess.Popen, timeout_s: float) -> str:
