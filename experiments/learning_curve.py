@@ -16,6 +16,11 @@ from pathlib import Path
 SHARES = (0.125, 0.25, 0.5, 1.0)
 
 
+def _source(data: list[str]):
+    """What planner functions take for ``--data``: one folder, or a list of them."""
+    return data if len(data) > 1 else data[0]
+
+
 def share_dir(out: Path, share: float) -> Path:
     return out / f"share_{share:g}"
 
@@ -48,7 +53,7 @@ def train_shares(data: list[str], out: Path, shares, epochs: int, base_channels:
     from planner.model import UNetConfig
     from planner.train import TrainConfig, train
 
-    _, grid = list_shards(data if len(data) > 1 else data[0])
+    _, grid = list_shards(_source(data))
     size = int(grid.get("size_px", UNetConfig().size_px))
     models = {}
     for s in shares:
@@ -60,7 +65,7 @@ def train_shares(data: list[str], out: Path, shares, epochs: int, base_channels:
             models[s] = share_dir(out, s) / "model.safetensors"
             continue
         progress(f"share {s:g}: training into {share_dir(out, s)}")
-        res = train(data if len(data) > 1 else data[0], share_dir(out, s), cfg)
+        res = train(_source(data), share_dir(out, s), cfg)
         models[s] = res.model_path
     return models
 
@@ -80,7 +85,7 @@ def count_train_piles(data: list[str], shares) -> dict[float, int]:
     """How many piles each share trains on (the stream's own rule, default split)."""
     from planner.data import DataConfig, in_train_fraction, is_validation_pile, list_shards, load_samples, sample_pile_id
 
-    shards, _ = list_shards(data if len(data) > 1 else data[0])
+    shards, _ = list_shards(_source(data))
     ids = {sample_pile_id(x) for sh in shards for x in load_samples(sh)}
     d = DataConfig()
     train = [i for i in ids if not is_validation_pile(i, d.split_seed, d.val_fraction)]
@@ -141,4 +146,4 @@ def write_curve(rows: list[dict], out: Path) -> None:
 def size_px_of(data: list[str]) -> int:
     from planner.data import list_shards
 
-    return int(list_shards(data if len(data) > 1 else data[0])[1].get("size_px", 128))
+    return int(list_shards(_source(data))[1].get("size_px", 128))

@@ -407,13 +407,13 @@ def _plan_subsets(obs, planner, pile, constraints, options: TrialOptions, say):
     return the_plan
 
 
-def _choose_grasp(the_plan, pile, options: TrialOptions, log_fits, recorded_verification, say, end_sigmas=None):
+def _choose_grasp(the_plan, pile, options: TrialOptions, log_fits, recorded_verification, say, end_sigmas_m=None):
     """(the grasp to send, the verification or None): the best that succeeded in the twin, else the
     operator's named plan rank, else :class:`NotVerified`; the plan's best with verification off."""
     verification = None
     best = the_plan.best
     if options.verify_k:
-        verification = verify_trial_plan(the_plan, pile, options, log_fits, recorded_verification, say, end_sigmas)
+        verification = verify_trial_plan(the_plan, pile, options, log_fits, recorded_verification, say, end_sigmas_m)
         if verification.ok:
             best = verification.grasp
             if options.operator_rank is not None:

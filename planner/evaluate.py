@@ -31,6 +31,7 @@ from typing import Callable, Literal
 
 import numpy as np
 
+from planner.subsets import SubsetPolicy
 from synth.geometry.grasp import MAX_WIDTH_M, MIN_WIDTH_M, Grasp
 
 EVAL_FORMAT_VERSION = "1.0"
@@ -62,10 +63,8 @@ class PlannerSpec:
             return f"unet-{self.objective}{cap}-verify{self.verify_k}{copies}"
         return f"unet-{self.objective}{cap}"
 
-    def subset_policy(self):
-        """The :class:`planner.subsets.SubsetPolicy` this row plans with."""
-        from planner.subsets import SubsetPolicy
-
+    def subset_policy(self) -> SubsetPolicy:
+        """The subsets this row plans with."""
         return SubsetPolicy(mode="fit", max_subsets=self.max_subsets) if self.max_subsets else SubsetPolicy()
 
 
@@ -209,20 +208,18 @@ def oracle_planner(trial_preset: str = "fast", max_trials: int = 40) -> PlanFn:
     return plan_fn
 
 
-def unet_planner(model: str, objective: str, subsets=None) -> PlanFn:
-    """The network's best grasp; ``subsets``: a :class:`planner.subsets.SubsetPolicy` (default: every subset)."""
+def unet_planner(model: str, objective: str, subsets: SubsetPolicy = SubsetPolicy()) -> PlanFn:
+    """The network's best grasp among the subsets ``subsets`` keeps (default: every subset)."""
     import torch
 
     from planner.inference import Objective, load_planner, plan
-    from planner.subsets import SubsetPolicy
 
     torch.set_num_threads(1)
     net = load_planner(model)
     obj = Objective(kind=objective)
-    policy = subsets or SubsetPolicy()
 
     def plan_fn(obs, pile):
-        result = plan(obs, net, obj, top_k=1, pile=pile, subsets=policy)
+        result = plan(obs, net, obj, top_k=1, pile=pile, subsets=subsets)
         if result.best is None:
             return None
         return result.best.grasp, tuple(result.best.targets)
@@ -258,17 +255,15 @@ def verified_planner(plan_all: Callable[[object, object], object], objective: st
 
 
 def verified_unet_planner(model: str, objective: str, k: int, copies: int = 0, trial_preset: str = "fast",
-                          subsets=None) -> PlanFn:
+                          subsets: SubsetPolicy = SubsetPolicy()) -> PlanFn:
     import torch
 
     from planner.inference import Objective, load_planner, plan
-    from planner.subsets import SubsetPolicy
 
     torch.set_num_threads(1)
     net = load_planner(model)
     obj = Objective(kind=objective)
-    policy = subsets or SubsetPolicy()
-    return verified_planner(lambda obs, pile: plan(obs, net, obj, pile=pile, subsets=policy), objective, k, copies,
+    return verified_planner(lambda obs, pile: plan(obs, net, obj, pile=pile, subsets=subsets), objective, k, copies,
                             trial_preset)
 
 

@@ -847,13 +847,23 @@ def fuse_end(p0: np.ndarray, u: np.ndarray, interval: EndInterval, at_start: boo
     est = EndEstimate(pos, float(sigma), float(sa), source, interval.state, None if survey is None else survey.fix,
                       contradicted=contradicted)
     if survey is not None:
-        diff = survey.position_m - pos
-        est.gnss_residual_m = float(np.linalg.norm(diff))
-        comb = math.sqrt(survey.sigma_3d_m ** 2 + sigma ** 2)
-        est.gnss_residual_sigma = float(est.gnss_residual_m / comb)
-        if est.gnss_residual_sigma > cfg.contradiction_sigma * math.sqrt(3.0):  # chi with 3 dof, ~3 sigma each
-            est.contradicted = True
+        est.gnss_residual_m, est.gnss_residual_sigma, against = _point_test(survey, pos, sigma, cfg)
+        est.contradicted = est.contradicted or against
     return est
+
+
+def _point_test(point: SurveyEnd, pos: np.ndarray, sigma_m: float, cfg: FuseConfig) -> tuple[float, float, bool]:
+    """A survey point against an end placed at ``pos`` to ``sigma_m`` (3-D): its distance [m], that in
+    units of the combined sigma, and whether that contradicts it (chi with 3 dof, ~3 sigma each)."""
+    res = float(np.linalg.norm(point.position_m - pos))
+    res_sigma = res / math.sqrt(point.sigma_3d_m ** 2 + sigma_m ** 2)
+    return res, res_sigma, res_sigma > cfg.contradiction_sigma * math.sqrt(3.0)
+
+
+def _axis_distance(point: SurveyEnd, p0: np.ndarray, u: np.ndarray) -> float:
+    """A survey point's distance from the axis line ``p0 + t u`` [m]."""
+    rel = point.position_m - p0
+    return float(np.linalg.norm(rel - (rel @ u) * u))
 
 
 def after_pile_check(ends: Sequence[dict], endpoints: Sequence[np.ndarray],
@@ -876,14 +886,10 @@ def after_pile_check(ends: Sequence[dict], endpoints: Sequence[np.ndarray],
             continue
         e = dict(e, position_m=[float(v) for v in final], check_shift_m=shift)
         if point is not None:
-            res = float(np.linalg.norm(point.position_m - final))
-            res_sigma = res / math.sqrt(point.sigma_3d_m ** 2 + e["sigma_m"] ** 2)
-            e["gnss_residual_m"], e["gnss_residual_sigma"] = res, res_sigma
-            e["contradicted"] = bool(e["contradicted"] or res_sigma > cfg.contradiction_sigma * math.sqrt(3.0))
+            e["gnss_residual_m"], e["gnss_residual_sigma"], against = _point_test(point, final, e["sigma_m"], cfg)
+            e["contradicted"] = bool(e["contradicted"] or against)
             p0, p1 = (np.asarray(q, dtype=float) for q in endpoints)
-            u = (p1 - p0) / max(float(np.linalg.norm(p1 - p0)), 1e-9)
-            off = point.position_m - p0
-            e["gnss_axis_distance_m"] = float(np.linalg.norm(off - (off @ u) * u))
+            e["gnss_axis_distance_m"] = _axis_distance(point, p0, (p1 - p0) / max(float(np.linalg.norm(p1 - p0)), 1e-9))
         e["sigma_m"] = float(math.hypot(e["sigma_m"], shift))
         out.append(e)
     return out
@@ -996,8 +1002,7 @@ def place_log_ends(points: np.ndarray, spec: Any, how: str, survey: tuple[Survey
     a, b = ests
     for est, e in zip(ests, survey):
         if e is not None:
-            rel = e.position_m - pa
-            est.gnss_axis_distance_m = float(np.linalg.norm(rel - (rel @ u) * u))
+            est.gnss_axis_distance_m = _axis_distance(e, pa, u)
     if float(np.linalg.norm(b.position_m - a.position_m)) < 0.3:  # nonsense: keep the fit's ends
         return spec, (a, b)
     new_butt, new_top = (b.position_m, a.position_m) if swapped else (a.position_m, b.position_m)
