@@ -21,8 +21,8 @@ import argparse
 import json
 from pathlib import Path
 
-from experiments.learning_curve import (SHARES, count_train_piles, curve_rows, evaluate_shares, size_px_of,
-                                        train_shares, write_curve)
+from experiments.learning_curve import (SHARES, count_train_piles, curve_rows, evaluate_shares, model_share,
+                                        size_px_of, train_shares, write_curve)
 
 
 def main(argv=None) -> int:
@@ -44,7 +44,15 @@ def main(argv=None) -> int:
     ap.add_argument("--train-only", action="store_true")
     ap.add_argument("--skip-no-candidates", action="store_true",
                     help="leave out subsets without an admissible candidate (DataConfig.skip_no_candidates)")
+    ap.add_argument("--extra-model", action="append", default=[], metavar="LABEL=PATH",
+                    help="another recipe's checkpoint, evaluated on the same piles (repeatable), rows LABEL-<objective>")
     a = ap.parse_args(argv)
+    extra = {}
+    for item in a.extra_model:
+        label, sep, path = item.partition("=")
+        if not sep or not label or not Path(path).is_file():
+            ap.error(f"--extra-model must be LABEL=PATH to a checkpoint, got {item!r}")
+        extra[label] = Path(path)
     shares = [float(s) for s in a.shares.split(",")]
     if any(not 0 < s <= 1 for s in shares):
         ap.error(f"--shares must be in (0, 1], got {a.shares}")
@@ -56,8 +64,9 @@ def main(argv=None) -> int:
         print(json.dumps({str(k): str(v) for k, v in models.items()}))
         return 0
     tables = evaluate_shares(models, a.out, objectives, a.per_cell, [int(x) for x in a.logs.split(",")],
-                             a.workers, a.seed_base, size_px_of(a.data))
-    rows = curve_rows(tables, models, objectives, count_train_piles(a.data, shares))
+                             a.workers, a.seed_base, size_px_of(a.data), extra)
+    all_shares = set(shares) | {model_share(p) for p in extra.values()}
+    rows = curve_rows(tables, models, objectives, count_train_piles(a.data, all_shares), extra)
     write_curve(rows, a.out)
     print((a.out / "learning_curve.md").read_text())
     return 0

@@ -71,12 +71,14 @@ def train_shares(data: list[str], out: Path, shares, epochs: int, base_channels:
 
 
 def evaluate_shares(models: dict[float, Path], out: Path, objectives, per_cell: int, logs, workers: int,
-                    seed_base: int, size_px: int = 128) -> dict:
-    """Every share's model on the same fresh piles (``planner.evaluate.run_evaluation``)."""
+                    seed_base: int, size_px: int = 128, extra: dict[str, Path] | None = None) -> dict:
+    """Every share's model on the same fresh piles (``planner.evaluate.run_evaluation``); ``extra``
+    (label -> checkpoint) adds other recipes' models to the same evaluation, rows ``<label>-<objective>``."""
     from planner.evaluate import EvalConfig, PlannerSpec, run_evaluation
 
-    specs = [PlannerSpec(kind="unet", model=str(p), objective=o, label=f"share{s:g}-{o}")
-             for s, p in sorted(models.items()) for o in objectives]
+    named = [(f"share{s:g}", p) for s, p in sorted(models.items())] + sorted((extra or {}).items())
+    specs = [PlannerSpec(kind="unet", model=str(p), objective=o, label=f"{name}-{o}") for name, p in named
+             for o in objectives]
     cfg = EvalConfig(logs=tuple(logs), per_cell=per_cell, seed_base=seed_base, size_px=size_px)
     return run_evaluation(specs, cfg, out / "eval", workers=workers)
 
@@ -92,29 +94,40 @@ def count_train_piles(data: list[str], shares) -> dict[float, int]:
     return {s: sum(in_train_fraction(i, d.split_seed, s) for i in train) for s in shares}
 
 
-def curve_rows(tables: dict, models: dict[float, Path], objectives, train_piles: dict[float, int]) -> list[dict]:
-    """One row per (share, objective): training piles, success, logs per success, beta."""
+def model_share(path: Path) -> float:
+    """The share of the training piles a checkpoint was trained on (its training log's config)."""
+    from planner.train import read_log
 
+    return float(read_log(Path(path).parent / "log.json")["config"]["data"]["train_fraction"])
+
+
+def curve_rows(tables: dict, models: dict[float, Path], objectives, train_piles: dict[float, int],
+               extra: dict[str, Path] | None = None) -> list[dict]:
+    """One row per (model, objective): training piles, success, logs per success, beta. The curve's
+    models are recipe ``curve``; an ``extra`` model's recipe is its label."""
+
+    named = [("curve", f"share{s:g}", s, p) for s, p in sorted(models.items())]
+    named += [(label, label, model_share(p), p) for label, p in sorted((extra or {}).items())]
     rows = []
-    for s, path in sorted(models.items()):
-        piles = train_piles.get(s)
+    for recipe, name, s, path in named:
         for o in objectives:
-            t = tables["planners"][f"share{s:g}-{o}"]["total"]
-            rows.append({"share": s, "objective": o, "train_piles": piles, "piles": t["piles"],
-                         "success_rate": t["success_rate"], "avg_logs_success": t["avg_logs_success"],
-                         "beta_avg_deg": t["beta_avg_deg"], **convergence(path.parent)})
+            t = tables["planners"][f"{name}-{o}"]["total"]
+            rows.append({"recipe": recipe, "share": s, "objective": o, "train_piles": train_piles.get(s),
+                         "piles": t["piles"], "success_rate": t["success_rate"],
+                         "avg_logs_success": t["avg_logs_success"], "beta_avg_deg": t["beta_avg_deg"],
+                         **convergence(path.parent)})
     return rows
 
 
 def write_curve(rows: list[dict], out: Path) -> None:
     from synth.common.files import atomic_write_bytes, dumps_json
 
-    lines = ["| share of training piles | training piles | objective | test piles | success (95 % half-width) "
+    lines = ["| recipe | share of training piles | training piles | objective | test piles | success (95 % half-width) "
              "| logs / success | beta avg | best epoch / run | best val loss |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         z = 1.96 * math.sqrt(max(r["success_rate"] * (1 - r["success_rate"]), 1e-12) / max(r["piles"], 1))
-        lines.append(f"| {r['share']:g} | {r['train_piles']} | {r['objective']} | {r['piles']} | {100 * r['success_rate']:.1f} % "
+        lines.append(f"| {r.get('recipe', 'curve')} | {r['share']:g} | {r['train_piles']} | {r['objective']} | {r['piles']} | {100 * r['success_rate']:.1f} % "
                      f"± {100 * z:.1f} | {r['avg_logs_success']:.2f} | {r['beta_avg_deg']:.1f}° "
                      f"| {r['best_epoch']} / {r['epochs_run']} | {r['val_loss']:.4f} |")
     atomic_write_bytes(out / "learning_curve.md", ("\n".join(lines) + "\n").encode())
@@ -127,11 +140,15 @@ def write_curve(rows: list[dict], out: Path) -> None:
 
     fig, ax = plt.subplots(figsize=(6, 4))
     for o, ref in (("f1", 0.90), ("f3", 0.96)):
-        mine = [r for r in rows if r["objective"] == o]
+        mine = [r for r in rows if r["objective"] == o and r.get("recipe", "curve") == "curve"]
         if not mine:
             continue
         line, = ax.plot([r["train_piles"] for r in mine], [100 * r["success_rate"] for r in mine], "o-", label=f"{o} (network)")
         ax.axhline(100 * ref, color=line.get_color(), ls=":", label=f"{o}: the paper ({100 * ref:.0f} %)")
+        for r in rows:
+            if r["objective"] == o and r.get("recipe", "curve") != "curve":
+                ax.plot([r["train_piles"]], [100 * r["success_rate"]], "s", mfc="none", color=line.get_color(),
+                        label=f"{o}: {r['recipe']}")
     ax.set_xscale("log", base=2)
     ax.set_xlabel("training piles (nested shares of the data set)")
     ax.set_ylabel("success on held-out piles [%]")

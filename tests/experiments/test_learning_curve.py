@@ -56,5 +56,13 @@ def test_the_table_says_where_each_share_converged(trained, tmp_path):
              "avg_logs_success": 2.0, "beta_avg_deg": 9.0, **conv}]
     lc.write_curve(rows, tmp_path)
     table = (tmp_path / "learning_curve.md").read_text()
-    assert "| 0.5 | 3 | f1 | 24 | 75.0 % ± 17.3 | 2.00 | 9.0° | 1 / 1 |" in table
+    assert "| curve | 0.5 | 3 | f1 | 24 | 75.0 % ± 17.3 | 2.00 | 9.0° | 1 / 1 |" in table
     assert (tmp_path / "learning_curve.png").stat().st_size > 1000
+
+
+def test_another_recipes_model_gets_its_own_rows_with_its_share(trained):
+    data, out, models = trained
+    total = {"piles": 24, "success_rate": 0.5, "avg_logs_success": 2.0, "beta_avg_deg": 9.0}
+    tables = {"planners": {n: {"total": total} for n in ("share1-f1", "other-f1")}}
+    rows = lc.curve_rows(tables, {1.0: models[1.0]}, ["f1"], {0.5: 3, 1.0: 6}, extra={"other": models[0.5]})
+    assert [(r["recipe"], r["share"], r["train_piles"]) for r in rows] == [("curve", 1.0, 6), ("other", 0.5, 3)]
