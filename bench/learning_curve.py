@@ -21,7 +21,7 @@ import argparse
 import json
 from pathlib import Path
 
-from experiments.learning_curve import (SHARES, count_train_piles, curve_rows, evaluate_shares, model_share,
+from experiments.learning_curve import (SHARES, U_POS_WEIGHT, count_train_piles, curve_rows, evaluate_shares, model_share,
                                         size_px_of, train_shares, write_curve)
 
 
@@ -44,6 +44,8 @@ def main(argv=None) -> int:
     ap.add_argument("--train-only", action="store_true")
     ap.add_argument("--skip-no-candidates", action="store_true",
                     help="leave out subsets without an admissible candidate (DataConfig.skip_no_candidates)")
+    ap.add_argument("--u-pos-weight", type=float, default=U_POS_WEIGHT,
+                    help="BCE weight of positive U pixels (1 = the paper's plain BCE)")
     ap.add_argument("--extra-model", action="append", default=[], metavar="LABEL=PATH",
                     help="another recipe's checkpoint, evaluated on the same piles (repeatable), rows LABEL-<objective>")
     a = ap.parse_args(argv)
@@ -59,7 +61,7 @@ def main(argv=None) -> int:
     objectives = a.objectives.split(",")
     a.out.mkdir(parents=True, exist_ok=True)
     models = train_shares(a.data, a.out, shares, a.epochs, a.base_channels, a.device, a.precision,
-                          a.max_steps_per_epoch, a.batch_size, a.skip_no_candidates)
+                          a.max_steps_per_epoch, a.batch_size, a.skip_no_candidates, a.u_pos_weight)
     if a.train_only:
         print(json.dumps({str(k): str(v) for k, v in models.items()}))
         return 0

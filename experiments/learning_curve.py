@@ -14,6 +14,10 @@ from dataclasses import replace
 from pathlib import Path
 
 SHARES = (0.125, 0.25, 0.5, 1.0)
+#: BCE weight of the positive U pixels, the shipped model's: with the paper's plain BCE (1) the
+#: network's U stays low everywhere (its maximum ~0.09 on validation piles after 16 epochs, the argmax
+#: in a labelled grasp region on 10-27 % of them; docs/results/learning-curve-plain-bce)
+U_POS_WEIGHT = 25.0
 
 
 def _source(data: list[str]):
@@ -47,9 +51,11 @@ def convergence(folder: Path) -> dict:
 
 def train_shares(data: list[str], out: Path, shares, epochs: int, base_channels: int, device: str,
                  precision: str, max_steps_per_epoch: int | None = None, batch_size: int = 16,
-                 skip_no_candidates: bool = False, progress=print) -> dict[float, Path]:
+                 skip_no_candidates: bool = False, u_pos_weight: float = U_POS_WEIGHT,
+                 progress=print) -> dict[float, Path]:
     """Train one model per share with the same recipe; returns share -> best checkpoint."""
     from planner.data import DataConfig, list_shards
+    from planner.loss import LossWeights
     from planner.model import UNetConfig
     from planner.train import TrainConfig, train
 
@@ -58,7 +64,8 @@ def train_shares(data: list[str], out: Path, shares, epochs: int, base_channels:
     models = {}
     for s in shares:
         cfg = TrainConfig(model=replace(UNetConfig(), base_channels=base_channels, size_px=size),
-                          data=replace(DataConfig(), train_fraction=s, skip_no_candidates=skip_no_candidates), epochs=epochs, batch_size=batch_size,
+                          data=replace(DataConfig(), train_fraction=s, skip_no_candidates=skip_no_candidates),
+                          loss=replace(LossWeights(), u_pos_weight=u_pos_weight), epochs=epochs, batch_size=batch_size,
                           device=device, precision=precision, max_steps_per_epoch=max_steps_per_epoch)
         if finished_share(share_dir(out, s), epochs) and not (share_dir(out, s) / "state.safetensors").exists():
             progress(f"share {s:g}: finished in {share_dir(out, s)} (log.json has all {epochs} epochs)")

@@ -28,6 +28,7 @@ def test_each_share_trains_its_own_model(trained):
     for s, path in models.items():
         assert path == lc.share_dir(out, s) / "model.safetensors" and path.exists()
         assert read_log(path.parent / "log.json")["config"]["data"]["train_fraction"] == s
+        assert read_log(path.parent / "log.json")["config"]["loss"]["u_pos_weight"] == lc.U_POS_WEIGHT
 
 
 def test_a_committed_share_without_resume_state_is_not_trained_again(trained, monkeypatch):
