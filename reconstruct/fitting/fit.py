@@ -1294,105 +1294,167 @@ def separate_logs(pile: PileSpec, cfg: FitConfig | None = None, thinnable: Seque
     pushed half the way apart, horizontally; of two stacked logs the upper one is lifted).
     Returns the pile, what was done, and how far each log moved [m] (its thinning:
     the pile's diameters). Raises :class:`FitError` when a log would have to move more than ``max_move_m``."""
-    from synth.errors import PileValidationError
     from synth.physics.world import World
 
     cfg = cfg or FitConfig()
-    moves = [np.zeros(3) for _ in range(pile.n_logs)]
-    thin_room = [cfg.max_thinning_m if thinnable is not None and thinnable[k] else 0.0 for k in range(pile.n_logs)]
-    thinned = [0.0] * pile.n_logs
-    rolled = [0] * pile.n_logs  # times each log was turned about its axis
-    notes: list[str] = []
+    st = _Separation.start(pile.n_logs, cfg, thinnable)
     for _ in range(10 * pile.n_logs + 5):
-        turned = False
         with World(pile) as world:
-            names = {world.terrain_id: "terrain"}
-            names.update({b: f"log {i}" for i, b in enumerate(world.log_ids)})
-            names.update({b: f"obstacle {j}" for j, b in enumerate(world.obstacle_ids)})
-            log_of = {b: i for i, b in enumerate(world.log_ids)}
-            world.client.performCollisionDetection()
-            worst = None
-            for i, b in enumerate(world.log_ids):
-                for cp in world.client.getContactPoints(bodyA=b):
-                    if cp[8] < -cfg.penetration_tolerance_m and (worst is None or cp[8] < worst[0]):
-                        worst = (cp[8], i, cp[2], np.asarray(cp[7], dtype=float))  # normal B -> A
-            if worst is None:
-                # pybullet's contact generation is not always the same twice: ask the twin's own
-                # check too, and lift a log it still finds interpenetrating
-                bad = world.penetrations(cfg.penetration_tolerance_m)
-                if bad:
-                    a_name, b_name, depth = bad[0]
-                    i_bad = int((b_name if b_name.startswith("log ") else a_name).split()[1])
-                    other_id = next((b for b, n in names.items() if n == (a_name if b_name == f"log {i_bad}" else b_name)), -1)
-                    worst = (-depth, i_bad, other_id, np.array([0.0, 0.0, 1.0]))
-                else:
-                    try:
-                        world.check_valid(cfg.penetration_tolerance_m)
-                    except PileValidationError as exc:
-                        raise FitError(f"the reconstructed pile is not physical: {exc}") from exc
-                    return pile, notes, [float(np.linalg.norm(m)) for m in moves]
-            # first the roll the scan cannot see: each log of the contact turned about its axis
-            ks = [worst[1]] + ([log_of[worst[2]]] if worst[2] in log_of else [])
-            logs = list(pile.logs)
-            for k in ks:
-                if cfg.roll_steps <= 0 or rolled[k] >= MAX_ROLLS_PER_LOG:
-                    continue
-                logs[k], d0, d1 = _roll_to_clear(world, world.log_ids[k], logs[k], cfg.roll_steps)
-                if logs[k] is not pile.logs[k]:
-                    rolled[k] += 1
-                    turned = True
-                    notes.append(f"log {k} turned about its axis (its deepest contact {-d0 * 1000:.1f} -> "
-                                 f"{-d1 * 1000:.1f} mm)")
-        if turned:
-            pile = pile.with_logs(tuple(logs))
-            continue
-        dist, i, other, normal = worst
-        other_name = names.get(other, str(other))
-        j = log_of.get(other)
-        n = normal / max(np.linalg.norm(normal), 1e-9)
-        pair = [(i, n)] + ([(j, -n)] if j is not None else [])  # each log and the way out of the contact for it
-        room = [min(thin_room[k] - thinned[k], pile.logs[k].top_d_m / 2 - cfg.min_radius_m) for k, _ in pair]
-        need = -dist + 0.002
-        if max(room) > 1e-4:
-            gains = [1.0 + float(_up_across(pile.logs[k]) @ n_k) for k, n_k in pair]
-            split = _thinning_split(need, gains, room)
-            if sum(split) > 1e-4:
-                logs = list(pile.logs)
-                for (k, _), d in zip(pair, split):
-                    if d > 1e-4:
-                        logs[k] = thinned_keeping_top(logs[k], d)
-                        thinned[k] += d
-                        against = other_name if k == i else f"log {i}"
-                        notes.append(f"log {k} thinned {d * 1000:.1f} mm, its top kept (log {k} / {against} "
-                                     f"interpenetrated {-dist * 1000:.1f} mm)")
-                pile = pile.with_logs(tuple(logs))
-                continue  # the twin looks again: what thinning left, a move takes
-        n_h = np.array([n[0], n[1], 0.0])
-        if j is not None and np.linalg.norm(n_h) ** 2 >= SIDE_CONTACT_MIN_H2:
-            # side by side: both fits are as sure, so each goes half the way, horizontally (neither
-            # is pushed down into the ground, nor lifted off it)
-            step = n_h * ((-dist + 0.002) / (2 * float(n_h @ n_h)))
-            steps = [(i, step, f"log {j}"), (j, -step, f"log {i}")]
-        else:
-            if j is not None and n[2] < 0:  # move whichever log goes UP (never push one down)
-                i, n, other_name = j, -n, f"log {worst[1]}"
-            steps = [(i, n * (-dist + 0.002), other_name)]
-        logs = list(pile.logs)
-        for k, step, against in steps:
-            moves[k] = moves[k] + step
-            if np.linalg.norm(moves[k]) > cfg.max_move_m:
-                raise FitError(
-                    f"log {k} would have to move {np.linalg.norm(moves[k]) * 100:.1f} cm to clear {against} "
-                    f"(limit {cfg.max_move_m * 100:.0f} cm); its fit or its GNSS end points are wrong"
-                )
-            logs[k] = replace(logs[k], centre_m=tuple(float(v) for v in np.asarray(logs[k].centre_m) + step))
-            how = "lifted" if step[2] > 0.7 * np.linalg.norm(step) else "moved"
-            notes.append(f"log {k} {how} {np.linalg.norm(step) * 1000:.1f} mm along "
-                         f"({step[0] / np.linalg.norm(step):+.2f}, {step[1] / np.linalg.norm(step):+.2f}, "
-                         f"{step[2] / np.linalg.norm(step):+.2f}) (log {k} / {against} interpenetrated "
-                         f"{-dist * 1000:.1f} mm)")
-        pile = pile.with_logs(tuple(logs))
+            contact = _worst_contact(world, cfg)
+            if contact is None:
+                return pile, st.notes, [float(np.linalg.norm(m)) for m in st.moves]
+            turned = _roll_contact(world, pile, contact, cfg, st)
+        if turned is None:
+            turned = _thin_contact(pile, contact, cfg, st)
+        pile = turned if turned is not None else _move_contact(pile, contact, cfg, st)
     raise FitError("could not separate the reconstructed logs; check the fits")
+
+
+@dataclass
+class _Separation:
+    """What :func:`separate_logs` has done so far, per log: moves [m], thinning room and thinning [m],
+    turns about the axis, and the notes for the report."""
+
+    moves: list[np.ndarray]
+    thin_room: list[float]
+    thinned: list[float]
+    rolled: list[int]
+    notes: list[str]
+
+    @classmethod
+    def start(cls, n_logs: int, cfg: FitConfig, thinnable: Sequence[bool] | None) -> "_Separation":
+        room = [cfg.max_thinning_m if thinnable is not None and thinnable[k] else 0.0 for k in range(n_logs)]
+        return cls([np.zeros(3) for _ in range(n_logs)], room, [0.0] * n_logs, [0] * n_logs, [])
+
+
+@dataclass(frozen=True)
+class _Contact:
+    """The deepest interpenetration of a log: its signed distance [m] (< 0), the log, the other body's
+    id, the contact normal (from the other body towards the log), the bodies' names and log indices."""
+
+    dist: float
+    log: int
+    other: int
+    normal: np.ndarray
+    names: dict
+    log_of: dict
+
+    @property
+    def other_log(self) -> int | None:
+        return self.log_of.get(self.other)
+
+    @property
+    def other_name(self) -> str:
+        return self.names.get(self.other, str(self.other))
+
+
+def _worst_contact(world, cfg: FitConfig) -> _Contact | None:
+    """The deepest contact beyond tolerance in ``world``, or None when the twin accepts the pile
+    (raises :class:`FitError` when it still finds the pile not physical)."""
+    from synth.errors import PileValidationError
+
+    names = {world.terrain_id: "terrain"}
+    names.update({b: f"log {i}" for i, b in enumerate(world.log_ids)})
+    names.update({b: f"obstacle {j}" for j, b in enumerate(world.obstacle_ids)})
+    log_of = {b: i for i, b in enumerate(world.log_ids)}
+    world.client.performCollisionDetection()
+    worst = None
+    for i, b in enumerate(world.log_ids):
+        for cp in world.client.getContactPoints(bodyA=b):
+            if cp[8] < -cfg.penetration_tolerance_m and (worst is None or cp[8] < worst[0]):
+                worst = (cp[8], i, cp[2], np.asarray(cp[7], dtype=float))  # normal B -> A
+    if worst is None:
+        # pybullet's contact generation is not always the same twice: ask the twin's own
+        # check too, and lift a log it still finds interpenetrating
+        bad = world.penetrations(cfg.penetration_tolerance_m)
+        if not bad:
+            try:
+                world.check_valid(cfg.penetration_tolerance_m)
+            except PileValidationError as exc:
+                raise FitError(f"the reconstructed pile is not physical: {exc}") from exc
+            return None
+        a_name, b_name, depth = bad[0]
+        i_bad = int((b_name if b_name.startswith("log ") else a_name).split()[1])
+        other_id = next((b for b, n in names.items() if n == (a_name if b_name == f"log {i_bad}" else b_name)), -1)
+        worst = (-depth, i_bad, other_id, np.array([0.0, 0.0, 1.0]))
+    return _Contact(*worst, names=names, log_of=log_of)
+
+
+def _roll_contact(world, pile: PileSpec, c: _Contact, cfg: FitConfig, st: _Separation) -> PileSpec | None:
+    """First the roll the scan cannot see: each log of the contact turned about its axis (at most
+    ``MAX_ROLLS_PER_LOG`` times each); the pile with the turned logs, or None when none turned."""
+    ks = [c.log] + ([c.other_log] if c.other_log is not None else [])
+    logs = list(pile.logs)
+    turned = False
+    for k in ks:
+        if cfg.roll_steps <= 0 or st.rolled[k] >= MAX_ROLLS_PER_LOG:
+            continue
+        logs[k], d0, d1 = _roll_to_clear(world, world.log_ids[k], logs[k], cfg.roll_steps)
+        if logs[k] is not pile.logs[k]:
+            st.rolled[k] += 1
+            turned = True
+            st.notes.append(f"log {k} turned about its axis (its deepest contact {-d0 * 1000:.1f} -> "
+                            f"{-d1 * 1000:.1f} mm)")
+    return pile.with_logs(tuple(logs)) if turned else None
+
+
+def _contact_pair(c: _Contact) -> list[tuple[int, np.ndarray]]:
+    """Each log of the contact and the unit way out of it for that log."""
+    n = c.normal / max(np.linalg.norm(c.normal), 1e-9)
+    return [(c.log, n)] + ([(c.other_log, -n)] if c.other_log is not None else [])
+
+
+def _thin_contact(pile: PileSpec, c: _Contact, cfg: FitConfig, st: _Separation) -> PileSpec | None:
+    """A thinnable log of the contact made thinner with its top kept (the split by what each log's
+    thinning gains); the pile, or None when there is no thinning room left (a move takes it)."""
+    pair = _contact_pair(c)
+    room = [min(st.thin_room[k] - st.thinned[k], pile.logs[k].top_d_m / 2 - cfg.min_radius_m) for k, _ in pair]
+    if max(room) <= 1e-4:
+        return None
+    gains = [1.0 + float(_up_across(pile.logs[k]) @ n_k) for k, n_k in pair]
+    split = _thinning_split(-c.dist + 0.002, gains, room)
+    if sum(split) <= 1e-4:
+        return None
+    logs = list(pile.logs)
+    for (k, _), d in zip(pair, split):
+        if d > 1e-4:
+            logs[k] = thinned_keeping_top(logs[k], d)
+            st.thinned[k] += d
+            against = c.other_name if k == c.log else f"log {c.log}"
+            st.notes.append(f"log {k} thinned {d * 1000:.1f} mm, its top kept (log {k} / {against} "
+                            f"interpenetrated {-c.dist * 1000:.1f} mm)")
+    return pile.with_logs(tuple(logs))  # the twin looks again: what thinning left, a move takes
+
+
+def _move_contact(pile: PileSpec, c: _Contact, cfg: FitConfig, st: _Separation) -> PileSpec:
+    """Out along the contact normal by the depth: side by side each log half the way, horizontally
+    (neither pushed into the ground nor lifted off it); stacked, the upper one lifted (never one
+    pushed down). Raises :class:`FitError` past ``max_move_m`` in all for a log."""
+    i, j, other_name = c.log, c.other_log, c.other_name
+    n = _contact_pair(c)[0][1]
+    n_h = np.array([n[0], n[1], 0.0])
+    if j is not None and np.linalg.norm(n_h) ** 2 >= SIDE_CONTACT_MIN_H2:
+        step = n_h * ((-c.dist + 0.002) / (2 * float(n_h @ n_h)))
+        steps = [(i, step, f"log {j}"), (j, -step, f"log {i}")]
+    else:
+        if j is not None and n[2] < 0:  # move whichever log goes UP
+            i, n, other_name = j, -n, f"log {c.log}"
+        steps = [(i, n * (-c.dist + 0.002), other_name)]
+    logs = list(pile.logs)
+    for k, step, against in steps:
+        st.moves[k] = st.moves[k] + step
+        if np.linalg.norm(st.moves[k]) > cfg.max_move_m:
+            raise FitError(
+                f"log {k} would have to move {np.linalg.norm(st.moves[k]) * 100:.1f} cm to clear {against} "
+                f"(limit {cfg.max_move_m * 100:.0f} cm); its fit or its GNSS end points are wrong"
+            )
+        logs[k] = replace(logs[k], centre_m=tuple(float(v) for v in np.asarray(logs[k].centre_m) + step))
+        how = "lifted" if step[2] > 0.7 * np.linalg.norm(step) else "moved"
+        st.notes.append(f"log {k} {how} {np.linalg.norm(step) * 1000:.1f} mm along "
+                        f"({step[0] / np.linalg.norm(step):+.2f}, {step[1] / np.linalg.norm(step):+.2f}, "
+                        f"{step[2] / np.linalg.norm(step):+.2f}) (log {k} / {against} interpenetrated "
+                        f"{-c.dist * 1000:.1f} mm)")
+    return pile.with_logs(tuple(logs))
 
 
 def fit_radius_on_axis(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = None,
