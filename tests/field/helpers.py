@@ -5,8 +5,11 @@ from __future__ import annotations
 import json
 import os
 import time
+import uuid
+from contextlib import contextmanager
+from dataclasses import dataclass, field
 from importlib import resources
-from typing import Callable
+from typing import Callable, Iterator
 
 #: how long a test waits for something that should happen "at once" [s]: generous, so that a
 #: loaded 2-core machine never fails a test that is right (the wait ends as soon as it holds)
@@ -55,3 +58,68 @@ def credentials(tmp_path, user: str) -> str:
     path = tmp_path / f"{user}.json"
     path.write_text(json.dumps({"transport": {"auth": {"usrpwd": {"user": user, "password": PASSWORDS[user]}}}}))
     return str(path)
+
+
+# --- a laptop and a crane controller on one virtual CAN bus ---------------------------------
+
+
+@dataclass
+class CanPair:
+    """A CanLink (laptop) and a CraneController (crane) on one in-process virtual CAN channel."""
+
+    channel: str
+    link: "CanLink"
+    lbus: "can.BusABC"  # laptop side (a FaultyBus unless the test wrapped it otherwise)
+    cbus: "FaultyBus"  # crane side
+    controller: "CraneController"
+    executor: "FixedOutcomeExecutor"
+    transport: "CanControllerTransport"
+    nodes: list = field(default_factory=list)
+
+    def node(self) -> "can.BusABC":
+        """Another node on the bus (closed at teardown)."""
+        import can
+
+        bus = can.Bus(interface="virtual", channel=self.channel, fd=True)
+        self.nodes.append(bus)
+        return bus
+
+
+@contextmanager
+def can_pairs(prefix: str, link_config: "LinkConfig") -> Iterator[Callable[..., CanPair]]:
+    """``make(delay_s=0.05, laptop_bus=None, **controller_config) -> CanPair``: each pair on a fresh
+    channel, FaultyBus on both ends (``laptop_bus(raw_bus)`` wraps the laptop's instead), the
+    controller's laptop timeout 1 s unless given; every pair closed at the end."""
+    import can
+
+    from field.controller import ControllerConfig, CraneController, FixedOutcomeExecutor
+    from field.link.can_backend import CanControllerTransport, CanLink
+    from field.link.faults import FaultyBus
+
+    made: list[CanPair] = []
+
+    def make(delay_s: float = 0.05, laptop_bus=None, **cfg) -> CanPair:
+        channel = f"{prefix}-{uuid.uuid4().hex[:8]}"
+        cbus = FaultyBus(can.Bus(interface="virtual", channel=channel, fd=True))
+        executor = FixedOutcomeExecutor(delay_s=delay_s)
+        controller = CraneController(ControllerConfig(**{"laptop_timeout_s": 1.0, **cfg}), executor)
+        transport = CanControllerTransport(bus=cbus, heartbeat_period_s=controller.config.heartbeat_period_s)
+        transport.start(controller)
+        controller.start()
+        raw = can.Bus(interface="virtual", channel=channel, fd=True)
+        lbus = laptop_bus(raw) if laptop_bus is not None else FaultyBus(raw)
+        link = CanLink(config=link_config, bus=lbus)
+        link._await_controller()
+        p = CanPair(channel, link, lbus, cbus, controller, executor, transport)
+        made.append(p)
+        return p
+
+    try:
+        yield make
+    finally:
+        for p in made:
+            p.link.close()
+            p.controller.close()
+            p.transport.close()
+            for bus in p.nodes:
+                bus.shutdown()

@@ -8,55 +8,20 @@ end as soon as it does (wait_until, or a status query as a barrier behind the fr
 from __future__ import annotations
 
 import time
-import uuid
-from dataclasses import dataclass
 
 import can
 import pytest
 
-from field.controller import ControllerConfig, CraneController, FixedOutcomeExecutor
 from field.errors import CommandRejected, LinkError, LinkTimeout
 from field.link import ControllerState, OutcomeClass, RejectReason
 from field.link.base import LinkConfig
-from field.link.can_backend import CanControllerTransport, CanLink
-from field.link.faults import FaultyBus
-from tests.field.helpers import wait_until
-
-
-@dataclass
-class Pair:
-    link: CanLink
-    lbus: FaultyBus  # laptop side
-    cbus: FaultyBus  # crane side
-    controller: CraneController
-    executor: FixedOutcomeExecutor
-    transport: CanControllerTransport
+from tests.field.helpers import can_pairs, wait_until
 
 
 @pytest.fixture
 def pair():
-    made = []
-
-    def make(delay_s: float = 0.05, **cfg) -> Pair:
-        channel = f"faults-{uuid.uuid4().hex[:8]}"
-        cbus = FaultyBus(can.Bus(interface="virtual", channel=channel, fd=True))
-        executor = FixedOutcomeExecutor(delay_s=delay_s)
-        controller = CraneController(ControllerConfig(**{"laptop_timeout_s": 1.0, **cfg}), executor)
-        transport = CanControllerTransport(bus=cbus, heartbeat_period_s=controller.config.heartbeat_period_s)
-        transport.start(controller)
-        controller.start()
-        lbus = FaultyBus(can.Bus(interface="virtual", channel=channel, fd=True))
-        link = CanLink(config=LinkConfig(heartbeat_timeout_s=1.0, status_timeout_s=1.0), bus=lbus)
-        link._await_controller()
-        p = Pair(link, lbus, cbus, controller, executor, transport)
-        made.append(p)
-        return p
-
-    yield make
-    for p in made:
-        p.link.close()
-        p.controller.close()
-        p.transport.close()
+    with can_pairs("faults", LinkConfig(heartbeat_timeout_s=1.0, status_timeout_s=1.0)) as make:
+        yield make
 
 
 def test_dropped_command_frame(pair, make_cmd):

@@ -11,8 +11,7 @@ from __future__ import annotations
 import random
 import threading
 import time
-import uuid
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import can
 import pytest
@@ -21,11 +20,10 @@ from field.controller import ControllerConfig, CraneController, FixedOutcomeExec
 from field.errors import CommandRejected, ControllerError, ProtocolError
 from field.link import ControllerState, OutcomeClass, RejectReason
 from field.link.base import CraneLink, LinkConfig
-from field.link.can_backend import CanControllerTransport, CanLink, ProxyBus
+from field.link.can_backend import CanLink, ProxyBus
 from field.link.codec import EStopRequest, Encoder, LaptopHeartbeat, decode, encode, frame_id
-from field.link.faults import FaultyBus
 from field.link.messages import Ack, GraspCommand, Outcome
-from tests.field.helpers import wait_until
+from tests.field.helpers import can_pairs, wait_until
 
 LINK = LinkConfig(heartbeat_timeout_s=1.0, status_timeout_s=1.0, connect_timeout_s=10.0)
 
@@ -33,51 +31,10 @@ LINK = LinkConfig(heartbeat_timeout_s=1.0, status_timeout_s=1.0, connect_timeout
 # --- a CAN pair, and frames injected by a third node ----------------------------------------
 
 
-@dataclass
-class Pair:
-    channel: str
-    link: CanLink
-    lbus: can.BusABC
-    cbus: FaultyBus
-    controller: CraneController
-    executor: FixedOutcomeExecutor
-    transport: CanControllerTransport
-
-    def node(self) -> can.BusABC:
-        """Another node on the bus (closed at teardown)."""
-        bus = can.Bus(interface="virtual", channel=self.channel, fd=True)
-        self._nodes.append(bus)
-        return bus
-
-
 @pytest.fixture
 def pair():
-    made: list[Pair] = []
-
-    def make(delay_s: float = 0.05, laptop_bus=None, **cfg) -> Pair:
-        channel = f"safety-{uuid.uuid4().hex[:8]}"
-        cbus = FaultyBus(can.Bus(interface="virtual", channel=channel, fd=True))
-        executor = FixedOutcomeExecutor(delay_s=delay_s)
-        controller = CraneController(ControllerConfig(**{"laptop_timeout_s": 1.0, **cfg}), executor)
-        transport = CanControllerTransport(bus=cbus, heartbeat_period_s=controller.config.heartbeat_period_s)
-        transport.start(controller)
-        controller.start()
-        raw = can.Bus(interface="virtual", channel=channel, fd=True)
-        lbus = laptop_bus(raw) if laptop_bus is not None else FaultyBus(raw)
-        link = CanLink(config=LINK, bus=lbus)
-        link._await_controller()
-        p = Pair(channel, link, lbus, cbus, controller, executor, transport)
-        p._nodes = []
-        made.append(p)
-        return p
-
-    yield make
-    for p in made:
-        p.link.close()
-        p.controller.close()
-        p.transport.close()
-        for bus in p._nodes:
-            bus.shutdown()
+    with can_pairs("safety", LINK) as make:
+        yield make
 
 
 def can_frame(kind: str, data: bytes, *, extended: bool = False) -> can.Message:
