@@ -6,7 +6,8 @@ import json
 import subprocess
 import sys
 
-HEAVY = ("torch", "pybullet", "cv2", "open3d", "zenoh", "can", "pyproj", "pycolmap", "scipy", "matplotlib")
+HEAVY = ("torch", "pybullet", "cv2", "open3d", "zenoh", "can", "pyproj", "pycolmap", "scipy", "matplotlib", "dask",
+         "distributed")
 # CPU time of the project's part (the CLI framework -- typer, click, rich, ~0.15 s -- is imported
 # first and not counted): the flags take their defaults from the config dataclasses, whose modules
 # (numpy, field.trial, synth.data.dataset, ...) cost 0.44-0.65 s on the 2-core machine under load 10;
