@@ -1,5 +1,5 @@
 """Small measuring helpers the benches share: the machine's load (every timing is reported with
-it) and percentiles of possibly empty samples."""
+it), percentiles of possibly empty samples, the paired difference's standard error."""
 
 from __future__ import annotations
 
@@ -21,3 +21,14 @@ def load_average(prefix: str = "load average ") -> str:
 def percentile(values, q: float) -> float:
     """The ``q``-th percentile of ``values`` [0-100]; NaN for no values."""
     return float(np.percentile(np.asarray(values, dtype=float), q)) if len(values) else math.nan
+
+
+def paired_se(a, b) -> float:
+    """Standard error of the difference of success rates ``mean(b) - mean(a)`` over the same piles
+    (0/1 arrays): from the discordant piles, each count plus one half (Agresti-Min style: no false
+    certainty when few piles disagree)."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    n = len(a)
+    only_a = float(((a == 1) & (b == 0)).sum()) + 0.5
+    only_b = float(((a == 0) & (b == 1)).sum()) + 0.5
+    return math.sqrt(max(only_a + only_b - (only_b - only_a) ** 2 / n, 0.0)) / n

@@ -41,6 +41,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from experiments.measure import paired_se
 from field.errors import FieldError
 from reconstruct.fitting.fit import FIT_REVISION
 from synth.common.formats import VersionedJson
@@ -449,11 +450,7 @@ def summarize(rows: list[dict]) -> dict:
     s_t = np.array([bool(r["truth"]["success"]) for r in rows], dtype=float)
     s_r = np.array([bool(r.get("recon", {}).get("success", False)) for r in rows], dtype=float)
     p_t, p_r = float(s_t.mean()), float(s_r.mean())
-    # standard error of the paired difference from the discordant piles, each count plus one half
-    # (Agresti-Min style: no false certainty when few piles disagree)
-    b = float(((s_t == 1) & (s_r == 0)).sum()) + 0.5
-    c = float(((s_t == 0) & (s_r == 1)).sum()) + 0.5
-    se_diff = math.sqrt(max(b + c - (c - b) ** 2 / n, 0.0)) / n
+    se_diff = paired_se(s_t, s_r)
     diffs = [r["diff"] for r in rows if "diff" in r]
 
     def stats(v: list[float]) -> dict:

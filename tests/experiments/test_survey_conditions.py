@@ -1,0 +1,66 @@
+"""The survey-conditions bench's record and summary, on hand-made scan records (no scans run)."""
+
+import json
+
+from experiments.survey_conditions import (SURVEY_CONDITIONS, _seed_ranges, read_survey_records, survey_markdown,
+                                           survey_summary)
+
+KEY = {"seed0": 10, "logs": [3, 7], "obstacles": [0, 3], "fit_revision": 11}
+
+
+def _log(worst_cm, dia_cm, iou=0.9, sources=("scan", "fixed")):
+    return {"worst_end_m": worst_cm / 100, "diameter_err_m": dia_cm / 100, "mask_iou": iou,
+            "ends": [{"source": s} for s in sources]}
+
+
+def _ok(*logs, missing=()):
+    return {"wall_s": 2.0, "cpu_s": 1.5, "logs": list(logs), "unmatched_truth": list(missing),
+            "unmatched_recon": [], "weak_ends": 1, "contradicted_points": 0}
+
+
+def _scan(seed, conditions, key=KEY):
+    return {"key": key, "seed": seed, "stereo_wall_s": 10.0, "stereo_cpu_s": 8.0, "load": 1.0, "cpus": 2,
+            "processes": 1, "conditions": conditions}
+
+
+def _write(out, rows):
+    (out / "scans").mkdir(parents=True)
+    for r in rows:
+        (out / "scans" / f"{r['seed']}.json").write_text(json.dumps(r))
+
+
+def test_summary_counts_failures_and_per_log_errors(tmp_path):
+    rows = [_scan(10, {"default": _ok(_log(1, 0.5), _log(3, -2.0, sources=("float", "inferred"))),
+                       "fixed": _ok(_log(1, 0.2)), "degraded": {"error": "FitError: log 1 ..."}}),
+            _scan(11, {"default": _ok(_log(5, 1.0), missing=[2]), "fixed": _ok(_log(2, 0.4)),
+                       "degraded": _ok(_log(20, 3.0))})]
+    _write(tmp_path, rows)
+    rec = read_survey_records(tmp_path)
+    s = survey_summary(rec)
+    assert set(s) == set(SURVEY_CONDITIONS)
+    d = s["default"]
+    assert (d["scans"], d["failures"], d["logs"], d["missing_logs"]) == (2, 0, 3, 1)
+    assert abs(d["worst_end_m"]["median"] - 0.03) < 1e-12 and abs(d["worst_end_m"]["max"] - 0.05) < 1e-12
+    assert abs(d["abs_diameter_m"]["max"] - 0.02) < 1e-12  # absolute: the -2 cm log
+    assert d["sources"] == {"scan": 2, "fixed": 2, "float": 1, "inferred": 1}
+    assert d["scan_wall_s"]["median"] == 12.0  # stereo + reconstruction
+    g = s["degraded"]
+    assert (g["scans"], g["failures"], g["logs"]) == (2, 1, 1)
+    assert g["failure_messages"] == ["10: FitError: log 1 ..."]
+    assert json.loads((tmp_path / "summary.json").read_text())["seeds"] == [10, 11]
+    table = "\n".join(survey_markdown(rec))
+    assert "| degraded | 2 | 1 (50.0 %) | 1 | 0 | 20.0 |" in table and "- degraded, seed 10: FitError" in table
+
+
+def test_records_of_other_settings_are_left_out(tmp_path):
+    other = {**KEY, "fit_revision": 10}
+    _write(tmp_path, [_scan(10, {"default": _ok(_log(1, 0.1))}), _scan(11, {"default": _ok(_log(1, 0.1))}),
+                      _scan(12, {"default": _ok(_log(9, 0.1))}, key=other)])
+    rec = read_survey_records(tmp_path)  # the settings of most records
+    assert [r["seed"] for r in rec["scans"]] == [10, 11] and rec["key"] == KEY
+    assert [r["seed"] for r in read_survey_records(tmp_path, other)["scans"]] == [12]
+
+
+def test_seed_ranges_show_the_gaps():
+    assert _seed_ranges({"scans": [{"seed": s} for s in (5, 3, 4, 9, 11, 10)]}) == "3..5, 9..11"
+    assert _seed_ranges({"scans": []}) == "-"
