@@ -67,7 +67,7 @@ def main(argv=None) -> int:
         return 0
     tables = evaluate_shares(models, a.out, objectives, a.per_cell, [int(x) for x in a.logs.split(",")],
                              a.workers, a.seed_base, size_px_of(a.data), extra)
-    all_shares = set(shares) | {model_share(p) for p in extra.values()}
+    all_shares = set(shares) | {model_share(p) for p in extra.values()} - {None}
     rows = curve_rows(tables, models, objectives, count_train_piles(a.data, all_shares), extra)
     write_curve(rows, a.out)
     print((a.out / "learning_curve.md").read_text())

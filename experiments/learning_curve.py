@@ -101,11 +101,16 @@ def count_train_piles(data: list[str], shares) -> dict[float, int]:
     return {s: sum(in_train_fraction(i, d.split_seed, s) for i in train) for s in shares}
 
 
-def model_share(path: Path) -> float:
-    """The share of the training piles a checkpoint was trained on (its training log's config)."""
+NO_LOG = {"best_epoch": None, "epochs_run": None, "val_loss": None}
+
+
+def model_share(path: Path) -> float | None:
+    """The share of the training piles a checkpoint was trained on (its training log's config);
+    None for a checkpoint without its log beside it (e.g. the shipped model, trained on other data)."""
     from planner.train import read_log
 
-    return float(read_log(Path(path).parent / "log.json")["config"]["data"]["train_fraction"])
+    log = Path(path).parent / "log.json"
+    return float(read_log(log)["config"]["data"]["train_fraction"]) if log.exists() else None
 
 
 def curve_rows(tables: dict, models: dict[float, Path], objectives, train_piles: dict[float, int],
@@ -122,7 +127,7 @@ def curve_rows(tables: dict, models: dict[float, Path], objectives, train_piles:
             rows.append({"recipe": recipe, "share": s, "objective": o, "train_piles": train_piles.get(s),
                          "piles": t["piles"], "success_rate": t["success_rate"],
                          "avg_logs_success": t["avg_logs_success"], "beta_avg_deg": t["beta_avg_deg"],
-                         **convergence(path.parent)})
+                         **(convergence(path.parent) if s is not None else NO_LOG)})
     return rows
 
 
@@ -134,9 +139,12 @@ def write_curve(rows: list[dict], out: Path) -> None:
              "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         z = 1.96 * math.sqrt(max(r["success_rate"] * (1 - r["success_rate"]), 1e-12) / max(r["piles"], 1))
-        lines.append(f"| {r.get('recipe', 'curve')} | {r['share']:g} | {r['train_piles']} | {r['objective']} | {r['piles']} | {100 * r['success_rate']:.1f} % "
-                     f"± {100 * z:.1f} | {r['avg_logs_success']:.2f} | {r['beta_avg_deg']:.1f}° "
-                     f"| {r['best_epoch']} / {r['epochs_run']} | {r['val_loss']:.4f} |")
+        share = "-" if r["share"] is None else f"{r['share']:g}"
+        piles = "-" if r["train_piles"] is None else r["train_piles"]
+        conv = "- | -" if r["val_loss"] is None else f"{r['best_epoch']} / {r['epochs_run']} | {r['val_loss']:.4f}"
+        lines.append(f"| {r.get('recipe', 'curve')} | {share} | {piles} | {r['objective']} | {r['piles']} | "
+                     f"{100 * r['success_rate']:.1f} % ± {100 * z:.1f} | {r['avg_logs_success']:.2f} | "
+                     f"{r['beta_avg_deg']:.1f}° | {conv} |")
     atomic_write_bytes(out / "learning_curve.md", ("\n".join(lines) + "\n").encode())
     atomic_write_bytes(out / "learning_curve.json", dumps_json({"format": "loggrasp.learning-curve",
                                                                 "format_version": "1.0", "rows": rows}).encode())
@@ -153,7 +161,11 @@ def write_curve(rows: list[dict], out: Path) -> None:
         line, = ax.plot([r["train_piles"] for r in mine], [100 * r["success_rate"] for r in mine], "o-", label=f"{o} (network)")
         ax.axhline(100 * ref, color=line.get_color(), ls=":", label=f"{o}: the paper ({100 * ref:.0f} %)")
         for r in rows:
-            if r["objective"] == o and r.get("recipe", "curve") != "curve":
+            if r["objective"] != o or r.get("recipe", "curve") == "curve":
+                continue
+            if r["train_piles"] is None:  # trained on other data: a level to compare with
+                ax.axhline(100 * r["success_rate"], color=line.get_color(), ls="--", lw=0.8, label=f"{o}: {r['recipe']}")
+            else:
                 ax.plot([r["train_piles"]], [100 * r["success_rate"]], "s", mfc="none", color=line.get_color(),
                         label=f"{o}: {r['recipe']}")
     ax.set_xscale("log", base=2)

@@ -67,3 +67,16 @@ def test_another_recipes_model_gets_its_own_rows_with_its_share(trained):
     tables = {"planners": {n: {"total": total} for n in ("share1-f1", "other-f1")}}
     rows = lc.curve_rows(tables, {1.0: models[1.0]}, ["f1"], {0.5: 3, 1.0: 6}, extra={"other": models[0.5]})
     assert [(r["recipe"], r["share"], r["train_piles"]) for r in rows] == [("curve", 1.0, 6), ("other", 0.5, 3)]
+
+
+def test_a_model_without_its_training_log_is_compared_as_a_level(trained, tmp_path):
+    data, out, models = trained
+    alone = tmp_path / "shipped.safetensors"
+    alone.write_bytes(models[1.0].read_bytes())  # no log.json beside it
+    assert lc.model_share(alone) is None
+    total = {"piles": 24, "success_rate": 0.5, "avg_logs_success": 2.0, "beta_avg_deg": 9.0}
+    tables = {"planners": {n: {"total": total} for n in ("share1-f1", "shipped-f1")}}
+    rows = lc.curve_rows(tables, {1.0: models[1.0]}, ["f1"], {1.0: 6}, extra={"shipped": alone})
+    assert rows[1]["share"] is None and rows[1]["train_piles"] is None and rows[1]["val_loss"] is None
+    lc.write_curve(rows, tmp_path)
+    assert "| shipped | - | - | f1 | 24 | 50.0 % ± 20.0 | 2.00 | 9.0° | - | - |" in (tmp_path / "learning_curve.md").read_text()
