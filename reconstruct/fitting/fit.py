@@ -126,7 +126,11 @@ AXIS_SOURCES = ("fit", "gnss")
 #: axis, 9 deg off, unchecked); a ridge on the line of a log's two fixed points, not above it, is that
 #: log, not an ambiguity with "hidden" (1100133 stopped so under all three surveys); a log found in the
 #: scan alone whose surface points lie mostly on other logs (``max_borrowed_share``) is left out.
-FIT_REVISION = 11
+#: 12: a match that calls one of two survey points wrong needs the other within reach of the scan log
+#: (a crossing scrap took a log of two fixed points, 1100084); a seen end of a tip in the air (ground seen
+#: ``overhang_gap_m`` under its underside) only bounds the end from inside for a precise point beyond it
+#: (stereo loses a thin tip the cameras see under: 1100085, all three surveys 15 cm short).
+FIT_REVISION = 12
 # a cross-section circle loses this much score per footprint bin it does not explain (the profile
 # there lies above it or off it): where a neighbour lies against a log, or the stereo fills the
 # valley between them, that side shows no edge, and without this a wider circle, centred toward

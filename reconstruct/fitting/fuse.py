@@ -81,6 +81,8 @@ class FuseConfig:
     seen_gap_m: float = 0.08  # an end whose top stops this close to where the scan sees below it is seen (the
     #                           gap is the end face's shadow) [m]
     end_search_m: float = 0.6  # the walk goes at most this far past the prior end [m]
+    overhang_gap_m: float = 0.10  # past a seen end the scan sees this far under the log's underside: the tip
+    #                               is in the air, and a precise point beyond it stands (see _end_along) [m]
     on_band_m: float = 0.02  # a bin is on the log when points lie this close to its top [m]
     min_on_points: int = 2  # ... at least this many [-]
     scan_end_sigma_m: float = 0.015  # axial accuracy of an end the scan sees (stereo smear, bins) [m]
@@ -95,7 +97,7 @@ class FuseConfig:
         for name in ("cell_m", "ridge_scale_m", "min_curvature_per_m", "band_m", "suppress_m", "max_angle_deg",
                      "max_gap_m", "max_occluded_gap_m", "min_segment_m", "pose_sigma_m", "axis_sigma_m",
                      "radius_sigma_m", "gate_sigma", "ridge_overrun_m",
-                     "end_bin_m", "seen_gap_m", "end_search_m", "on_band_m", "scan_end_sigma_m", "contradiction_sigma",
+                     "end_bin_m", "seen_gap_m", "end_search_m", "overhang_gap_m", "on_band_m", "scan_end_sigma_m", "contradiction_sigma",
                      "weak_sigma_m", "inferred_sigma_m", "min_new_log_m", "extrapolation_sigma_per_m"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
@@ -462,7 +464,7 @@ def _match_cost(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, c
     n = np.array([-u[1], u[0]])
     best = (math.inf, False, 0)
     for rev in (False, True):
-        total, outliers = 0.0, 0
+        total, outliers, far = 0.0, 0, 0
         for k, e in enumerate(ends):
             if e is None:
                 continue
@@ -484,8 +486,15 @@ def _match_cost(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, c
                 # gate, so a log with no point on a scan log is better matched to none)
                 c2 = cfg.gate_sigma ** 2 + 1.0
                 outliers += 1
+            elif not -cfg.end_search_m <= t <= L + cfg.end_search_m:
+                far += 1  # on the scan log's line, but beyond any walk from it
             total += c2
         if outliers and outliers == sum(e is not None for e in ends):
+            total = math.inf
+        if outliers and far:
+            # a point called wrong, and the other only on the line far past the scan log: a scrap of
+            # ridge crossing the surveyed log near one end is no evidence against its other point
+            # (twin scan 1100084: a 0.40 m scrap at right angles to a log of two fixed points took it)
             total = math.inf
         if total < best[0]:
             best = (total, rev, outliers)
@@ -713,6 +722,7 @@ class EndInterval:
     last_on_m: float | None  # the last bin on the log's top (None: the scan shows none of it)
     first_off_m: float | None  # the first bin past it where the scan sees below the top (None: never)
     state: str  # END_STATES: "seen" (a short interval), "occluded" (something over it), "open", "none"
+    gap_under_m: float | None = None  # how far below the log's underside the scan sees there (first_off) [m]
 
 
 def scan_end_interval(points: np.ndarray, p0: np.ndarray, p1: np.ndarray, radius_m: float, toward_p1: bool,
@@ -782,7 +792,7 @@ def scan_end_interval(points: np.ndarray, p0: np.ndarray, p1: np.ndarray, radius
         return EndInterval(t_on, None, "open")
     t_off = lo_t + (first_off + (0 if toward_p1 else 1)) * step
     state = "seen" if abs(t_off - t_on) <= cfg.seen_gap_m + 1e-9 else "occluded"
-    return EndInterval(t_on, t_off, state)
+    return EndInterval(t_on, t_off, state, gap_under_m=float(-top[first_off] - 2 * r))
 
 
 def seen_end(interval: EndInterval) -> float:
@@ -902,9 +912,15 @@ def _end_along(interval: EndInterval, sign: float, survey: SurveyEnd | None, t_g
     lo, hi = interval.last_on_m, interval.first_off_m
     seen = interval.state == "seen"
     ss = cfg.scan_end_sigma_m
-    if seen and not seen_whole and survey is not None:
+    if seen and survey is not None:
+        # a seen end that a point beyond it contradicts only bounds the end from inside where the log may
+        # run on unseen: under others (a log the scan shows in part), or as a tip held in the air, where
+        # the cameras see the ground under it from the side and stereo loses its thin end (twin scan
+        # 1100085: the top stopped 15 cm short of a fixed point and of the truth, ground 40 cm below)
         t_s = seen_end(interval)
-        if abs(t_g - t_s) / math.hypot(ss, sg) > cfg.contradiction_sigma and sign * (t_g - t_s) > 0:
+        beyond = sign * (t_g - t_s)
+        tip = _overhang(interval, sg, cfg) and beyond <= cfg.end_search_m
+        if abs(t_g - t_s) / math.hypot(ss, sg) > cfg.contradiction_sigma and beyond > 0 and (not seen_whole or tip):
             seen, hi = False, None
     if not seen_whole and survey is not None and sg <= ss and interval.state != "seen":
         # a log the scan shows only in part: its axis is the survey's and its radius a guess from a piece of
@@ -934,6 +950,13 @@ def _end_along(interval: EndInterval, sign: float, survey: SurveyEnd | None, t_g
     if width is not None and width <= 2 * cfg.end_search_m:
         return 0.5 * (lo + hi), max(width / math.sqrt(12.0), ss), "inferred", survey is not None
     return lo, cfg.inferred_sigma_m, "inferred", survey is not None
+
+
+def _overhang(interval: EndInterval, sg: float, cfg: FuseConfig) -> bool:
+    """Whether a seen end is a tip in the air (the scan sees the ground past it more than
+    ``overhang_gap_m`` under the log's underside) and the survey point precise (``weak_sigma_m``)."""
+    return (interval.gap_under_m is not None and interval.gap_under_m > cfg.overhang_gap_m
+            and sg <= cfg.weak_sigma_m)
 
 
 def _end_across(pos: np.ndarray, u: np.ndarray, past_m: float, survey: SurveyEnd | None, contradicted: bool,

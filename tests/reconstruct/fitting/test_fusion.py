@@ -474,3 +474,58 @@ def test_a_log_the_pile_check_pushes_far_is_reported_weak_where_it_lies(pile, cl
         assert e["sigma_m"] >= 0.07 and e["check_shift_m"] == pytest.approx(0.07, abs=1e-6)
     assert sum(w.startswith("log2 end") for w in rep["weak_ends"]) == 2, rep["weak_ends"]
     assert not any(w.startswith(("log0", "log1", "log3")) for w in rep["weak_ends"]), rep["weak_ends"]
+
+
+def test_a_scrap_on_one_points_line_does_not_take_a_log_by_calling_its_other_point_wrong():
+    """Both ends RTK fixed, 2 m apart; the scan shows only a 0.4 m scrap of ridge crossing their line at
+    right angles, whose line passes through end b 0.8 m past the scrap. Matching it calls end a wrong
+    (one outlier, cheaper than "hidden") and the prior then projects both points onto the scrap, 0 cm
+    apart: twin scan 1100084 failed so under all three surveys. A match that calls one of two points
+    wrong needs its other point within reach of the scan log (end_search_m)."""
+    fixed = {"log0": (_end(-1.0, 0.0, fix="rtk_fixed"), _end(1.0, 0.0, fix="rtk_fixed"))}
+    scrap = ScanLog(np.array([1.0, -1.2, 0.08]), np.array([1.0, -0.8, 0.08]), 0.08, 0.4, 20.0)
+    matches, unmatched = match_survey(fixed, [scrap])
+    assert matches["log0"].scan_index is None and unmatched == [0]
+    # a wrong point beside a log the scan shows, its other point at that log's end: still matched,
+    # the wrong point called wrong (what the outlier term is for)
+    seen = _scan_log(-1.0, 1.0, 0.0)
+    wrong = {"log0": (_end(-1.0, 0.0, fix="rtk_fixed"), _end(1.0, 0.6, fix="rtk_fixed"))}
+    matches, _ = match_survey(wrong, [seen])
+    assert matches["log0"].scan_index == 0
+
+
+def test_a_tip_in_the_air_only_bounds_the_end_for_a_precise_point_beyond_it():
+    """A log held 0.4 m over the ground by others: past its end the cameras see the ground under it from
+    the side, and stereo loses its thin tip, so its top seems to stop short (twin scan 1100085: 15 cm
+    short of the truth and of its fixed point under all three surveys). There a fixed point beyond the
+    seen end places it; on the ground (no gap under the log) the scan's end still wins, and a point
+    short of the end, a float point or one farther than the walk reaches is contradicted as before."""
+    cfg = FuseConfig()
+    p0, u = np.zeros(3), np.array([1.0, 0.0, 0.0])
+    tip = EndInterval(2.00, 2.02, "seen", gap_under_m=0.30)
+    beyond = _end(2.15, 0.0, fix="rtk_fixed")
+    e = fuse_end(p0, u, tip, False, beyond, 0.005, cfg)
+    assert e.source == "fixed" and not e.contradicted and abs(e.position_m[0] - 2.15) < 1e-9
+    on_ground = EndInterval(2.00, 2.02, "seen", gap_under_m=0.0)
+    assert fuse_end(p0, u, on_ground, False, beyond, 0.005, cfg).contradicted
+    assert fuse_end(p0, u, EndInterval(2.00, 2.02, "seen"), False, beyond, 0.005, cfg).contradicted
+    assert fuse_end(p0, u, tip, False, _end(1.85, 0.0, fix="rtk_fixed"), 0.005, cfg).contradicted  # short of it
+    assert fuse_end(p0, u, tip, False, _end(2.80, 0.0, fix="rtk_fixed"), 0.005, cfg).contradicted  # 0.8 m on
+    e = fuse_end(p0, u, tip, False, _end(3.20, 0.0), 0.005, cfg)  # float, 1.2 m on: the scan's end
+    assert e.source == "scan" and e.contradicted
+
+
+def test_the_walk_measures_the_gap_under_a_log_past_its_end():
+    rng = np.random.default_rng(3)
+    r, z_axis = 0.1, 0.5
+    t = rng.uniform(0.0, 2.0, 3000)
+    s = rng.uniform(-0.04, 0.04, t.size)
+    top = np.c_[t, s, z_axis + np.sqrt(r * r - s * s)]
+    ground = np.c_[rng.uniform(2.0, 2.4, 400), rng.uniform(-0.04, 0.04, 400), np.zeros(400)]
+    p0, p1 = np.array([0.0, 0.0, z_axis]), np.array([2.0, 0.0, z_axis])
+    iv = scan_end_interval(np.r_[top, ground], p0, p1, r, True, 0.4)
+    assert iv.state == "seen" and abs(iv.last_on_m - 2.0) < 0.03
+    assert abs(iv.gap_under_m - (z_axis - r)) < 0.01  # the ground 0.4 m under the underside
+    on_ground = np.r_[top - [0, 0, z_axis - r], ground]
+    iv = scan_end_interval(on_ground, p0 - [0, 0, z_axis - r], p1 - [0, 0, z_axis - r], r, True, 0.4)
+    assert iv.state == "seen" and abs(iv.gap_under_m) < 0.01
