@@ -21,8 +21,8 @@ import argparse
 import json
 from pathlib import Path
 
-from experiments.learning_curve import (SHARES, U_POS_WEIGHT, count_train_piles, curve_rows, evaluate_shares, model_share,
-                                        size_px_of, train_shares, write_curve)
+from experiments.learning_curve import (SHARES, U_POS_WEIGHT, count_train_piles, curve_rows, evaluate_shares,
+                                        model_share, size_px_of, train_shares, write_curve)
 
 
 def main(argv=None) -> int:
