@@ -723,6 +723,7 @@ class EndInterval:
     first_off_m: float | None  # the first bin past it where the scan sees below the top (None: never)
     state: str  # END_STATES: "seen" (a short interval), "occluded" (something over it), "open", "none"
     gap_under_m: float | None = None  # how far below the log's underside the scan sees there (first_off) [m]
+    covered_to_m: float | None = None  # the farthest bin of the walk (outward) with scan points in it [m]
 
 
 def scan_end_interval(points: np.ndarray, p0: np.ndarray, p1: np.ndarray, radius_m: float, toward_p1: bool,
@@ -792,7 +793,9 @@ def scan_end_interval(points: np.ndarray, p0: np.ndarray, p1: np.ndarray, radius
         return EndInterval(t_on, None, "open")
     t_off = lo_t + (first_off + (0 if toward_p1 else 1)) * step
     state = "seen" if abs(t_off - t_on) <= cfg.seen_gap_m + 1e-9 else "occluded"
-    return EndInterval(t_on, t_off, state, gap_under_m=float(-top[first_off] - 2 * r))
+    covered = ks[np.flatnonzero(count[ks] >= 2)[-1]]  # the walk's farthest bin with points (at least first_off)
+    t_cov = lo_t + (covered + (1 if toward_p1 else 0)) * step
+    return EndInterval(t_on, t_off, state, gap_under_m=float(-top[first_off] - 2 * r), covered_to_m=float(t_cov))
 
 
 def seen_end(interval: EndInterval) -> float:
@@ -919,7 +922,9 @@ def _end_along(interval: EndInterval, sign: float, survey: SurveyEnd | None, t_g
         # 1100085: the top stopped 15 cm short of a fixed point and of the truth, ground 40 cm below)
         t_s = seen_end(interval)
         beyond = sign * (t_g - t_s)
-        tip = _overhang(interval, sg, cfg) and beyond <= cfg.end_search_m
+        # ... as far as the walk goes, or anywhere past what the scan covers (no points there to say otherwise)
+        past_cover = interval.covered_to_m is not None and sign * (t_g - interval.covered_to_m) > 0
+        tip = _overhang(interval, sg, cfg) and (beyond <= cfg.end_search_m or past_cover)
         if abs(t_g - t_s) / math.hypot(ss, sg) > cfg.contradiction_sigma and beyond > 0 and (not seen_whole or tip):
             seen, hi = False, None
     if not seen_whole and survey is not None and sg <= ss and interval.state != "seen":

@@ -499,10 +499,11 @@ def test_a_tip_in_the_air_only_bounds_the_end_for_a_precise_point_beyond_it():
     the side, and stereo loses its thin tip, so its top seems to stop short (twin scan 1100085: 15 cm
     short of the truth and of its fixed point under all three surveys). There a fixed point beyond the
     seen end places it; on the ground (no gap under the log) the scan's end still wins, and a point
-    short of the end, a float point or one farther than the walk reaches is contradicted as before."""
+    short of the end, a float point or one farther than the walk reaches where the scan still covers the
+    line is contradicted as before."""
     cfg = FuseConfig()
     p0, u = np.zeros(3), np.array([1.0, 0.0, 0.0])
-    tip = EndInterval(2.00, 2.02, "seen", gap_under_m=0.30)
+    tip = EndInterval(2.00, 2.02, "seen", gap_under_m=0.30, covered_to_m=2.70)
     beyond = _end(2.15, 0.0, fix="rtk_fixed")
     e = fuse_end(p0, u, tip, False, beyond, 0.005, cfg)
     assert e.source == "fixed" and not e.contradicted and abs(e.position_m[0] - 2.15) < 1e-9
@@ -510,7 +511,13 @@ def test_a_tip_in_the_air_only_bounds_the_end_for_a_precise_point_beyond_it():
     assert fuse_end(p0, u, on_ground, False, beyond, 0.005, cfg).contradicted
     assert fuse_end(p0, u, EndInterval(2.00, 2.02, "seen"), False, beyond, 0.005, cfg).contradicted
     assert fuse_end(p0, u, tip, False, _end(1.85, 0.0, fix="rtk_fixed"), 0.005, cfg).contradicted  # short of it
-    assert fuse_end(p0, u, tip, False, _end(2.80, 0.0, fix="rtk_fixed"), 0.005, cfg).contradicted  # 0.8 m on
+    assert fuse_end(p0, u, tip, False, _end(2.55, 0.0, fix="rtk_fixed"), 0.005, cfg).source == "fixed"
+    assert fuse_end(p0, u, tip, False, _end(2.65, 0.0, fix="rtk_fixed"), 0.005, cfg).contradicted  # 0.65 m on, seen
+    # past what the scan covers at all (twin scans 1100032, 1100089: points end 18 cm past the seen end, the
+    # fixed point and the truth 75 cm), nothing says the tip is not there
+    e = fuse_end(p0, u, tip, False, _end(2.75, 0.0, fix="rtk_fixed"), 0.005, cfg)
+    assert e.source == "fixed" and not e.contradicted and abs(e.position_m[0] - 2.75) < 1e-9
+    assert fuse_end(p0, u, tip, False, _end(2.75, 0.0), 0.005, cfg).source == "scan"  # float: not precise
     e = fuse_end(p0, u, tip, False, _end(3.20, 0.0), 0.005, cfg)  # float, 1.2 m on: the scan's end
     assert e.source == "scan" and e.contradicted
 
@@ -526,6 +533,7 @@ def test_the_walk_measures_the_gap_under_a_log_past_its_end():
     iv = scan_end_interval(np.r_[top, ground], p0, p1, r, True, 0.4)
     assert iv.state == "seen" and abs(iv.last_on_m - 2.0) < 0.03
     assert abs(iv.gap_under_m - (z_axis - r)) < 0.01  # the ground 0.4 m under the underside
+    assert abs(iv.covered_to_m - 2.4) < 0.03  # the ground's points end at 2.4 m
     on_ground = np.r_[top - [0, 0, z_axis - r], ground]
     iv = scan_end_interval(on_ground, p0 - [0, 0, z_axis - r], p1 - [0, 0, z_axis - r], r, True, 0.4)
     assert iv.state == "seen" and abs(iv.gap_under_m) < 0.01
