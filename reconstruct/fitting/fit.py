@@ -128,9 +128,9 @@ AXIS_SOURCES = ("fit", "gnss")
 #: scan alone whose surface points lie mostly on other logs (``max_borrowed_share``) is left out.
 #: 12: a match that calls one of two survey points wrong needs the other within reach of the scan log
 #: (a crossing scrap took a log of two fixed points, 1100084); a seen end of a tip in the air (ground seen
-#: ``overhang_gap_m`` under its underside) only bounds the end from inside for a precise point beyond it,
-#: within ``end_search_m`` or past what the scan covers (stereo loses a thin tip the cameras see under:
-#: 1100085, all three surveys 15 cm short; 1100032 and 1100089 75 cm, their points past the scan's).
+#: ``overhang_gap_m`` under its underside) only bounds the end from inside for a precise point beyond it
+#: within ``end_search_m``, or any point past what the scan covers (stereo loses a thin tip the cameras see
+#: under: 1100085, all three surveys 15 cm short; 1100032 and 1100089 75 cm, their points past the scan's).
 FIT_REVISION = 12
 # a cross-section circle loses this much score per footprint bin it does not explain (the profile
 # there lies above it or off it): where a neighbour lies against a log, or the stereo fills the

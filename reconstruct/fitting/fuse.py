@@ -922,9 +922,10 @@ def _end_along(interval: EndInterval, sign: float, survey: SurveyEnd | None, t_g
         # 1100085: the top stopped 15 cm short of a fixed point and of the truth, ground 40 cm below)
         t_s = seen_end(interval)
         beyond = sign * (t_g - t_s)
-        # ... as far as the walk goes, or anywhere past what the scan covers (no points there to say otherwise)
+        # ... a precise point as far as the walk goes, any point past what the scan covers (no points there
+        # to say otherwise)
         past_cover = interval.covered_to_m is not None and sign * (t_g - interval.covered_to_m) > 0
-        tip = _overhang(interval, sg, cfg) and (beyond <= cfg.end_search_m or past_cover)
+        tip = _overhang(interval, cfg) and ((sg <= cfg.weak_sigma_m and beyond <= cfg.end_search_m) or past_cover)
         if abs(t_g - t_s) / math.hypot(ss, sg) > cfg.contradiction_sigma and beyond > 0 and (not seen_whole or tip):
             seen, hi = False, None
     if not seen_whole and survey is not None and sg <= ss and interval.state != "seen":
@@ -957,11 +958,10 @@ def _end_along(interval: EndInterval, sign: float, survey: SurveyEnd | None, t_g
     return lo, cfg.inferred_sigma_m, "inferred", survey is not None
 
 
-def _overhang(interval: EndInterval, sg: float, cfg: FuseConfig) -> bool:
-    """Whether a seen end is a tip in the air (the scan sees the ground past it more than
-    ``overhang_gap_m`` under the log's underside) and the survey point precise (``weak_sigma_m``)."""
-    return (interval.gap_under_m is not None and interval.gap_under_m > cfg.overhang_gap_m
-            and sg <= cfg.weak_sigma_m)
+def _overhang(interval: EndInterval, cfg: FuseConfig) -> bool:
+    """Whether a seen end is a tip in the air: the scan sees the ground past it more than
+    ``overhang_gap_m`` under the log's underside."""
+    return interval.gap_under_m is not None and interval.gap_under_m > cfg.overhang_gap_m
 
 
 def _end_across(pos: np.ndarray, u: np.ndarray, past_m: float, survey: SurveyEnd | None, contradicted: bool,

@@ -499,8 +499,8 @@ def test_a_tip_in_the_air_only_bounds_the_end_for_a_precise_point_beyond_it():
     the side, and stereo loses its thin tip, so its top seems to stop short (twin scan 1100085: 15 cm
     short of the truth and of its fixed point under all three surveys). There a fixed point beyond the
     seen end places it; on the ground (no gap under the log) the scan's end still wins, and a point
-    short of the end, a float point or one farther than the walk reaches where the scan still covers the
-    line is contradicted as before."""
+    short of the end, or one farther than the walk reaches where the scan still covers the line is
+    contradicted as before; past the scan's cover, a float point stands too."""
     cfg = FuseConfig()
     p0, u = np.zeros(3), np.array([1.0, 0.0, 0.0])
     tip = EndInterval(2.00, 2.02, "seen", gap_under_m=0.30, covered_to_m=2.70)
@@ -517,9 +517,9 @@ def test_a_tip_in_the_air_only_bounds_the_end_for_a_precise_point_beyond_it():
     # fixed point and the truth 75 cm), nothing says the tip is not there
     e = fuse_end(p0, u, tip, False, _end(2.75, 0.0, fix="rtk_fixed"), 0.005, cfg)
     assert e.source == "fixed" and not e.contradicted and abs(e.position_m[0] - 2.75) < 1e-9
-    assert fuse_end(p0, u, tip, False, _end(2.75, 0.0), 0.005, cfg).source == "scan"  # float: not precise
-    e = fuse_end(p0, u, tip, False, _end(3.20, 0.0), 0.005, cfg)  # float, 1.2 m on: the scan's end
-    assert e.source == "scan" and e.contradicted
+    e = fuse_end(p0, u, tip, False, _end(2.75, 0.0), 0.005, cfg)  # a float point there too (twin default surveys)
+    assert e.source == "float" and not e.contradicted
+    assert fuse_end(p0, u, tip, False, _end(2.45, 0.0), 0.005, cfg).source == "scan"  # float, within the cover
 
 
 def test_the_walk_measures_the_gap_under_a_log_past_its_end():
