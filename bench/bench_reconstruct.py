@@ -374,8 +374,6 @@ if __name__ == "__main__":
                     help="print the markdown (and write --figure) of an existing --survey-out record, run nothing")
     args = ap.parse_args()
     if args.survey_scans > 0 or args.survey_report:
-        import json
-
         try:
             shard = tuple(int(v) for v in args.survey_shard.split("/"))
             if len(shard) != 2 or not 0 <= shard[0] < shard[1]:

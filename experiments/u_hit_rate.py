@@ -16,7 +16,9 @@ from typing import Callable, Iterable
 
 import numpy as np
 
-U = 3  # the U channel of the network output and of the label maps (planner.model.OUTPUT_NAMES)
+from planner.model import INPUT_NAMES, OUTPUT_NAMES
+
+U = OUTPUT_NAMES.index("U")  # the U channel of the network output and of the label maps
 
 
 def validation_samples(data_dir: str | Path, every: int = 12) -> Iterable:
@@ -32,7 +34,7 @@ def validation_samples(data_dir: str | Path, every: int = 12) -> Iterable:
 
 def hit_rates(samples: Iterable, predictors: dict[str, Callable[[np.ndarray], np.ndarray]],
               camera_height_m: float = 5.0) -> dict[str, dict]:
-    """``predictors``: name -> predict(inputs (1, C, H, W)) -> outputs (1, 5, H, W) with U as a logit.
+    """``predictors``: name -> predict(inputs (1, 3, H, W): I, D, M_T) -> outputs (1, 5, H, W), U as a logit.
     Returns per name: samples, hit rate, median of the U maximum (after the sigmoid)."""
     from planner.data import make_inputs, sample_arrays
 
@@ -50,6 +52,12 @@ def hit_rates(samples: Iterable, predictors: dict[str, Callable[[np.ndarray], np
                 "u_max_median": float(np.median(peaks[n])) if peaks[n] else float("nan")} for n in predictors}
 
 
+def _three_inputs(planner) -> Callable[[np.ndarray], np.ndarray]:
+    """``planner.predict`` on (I, D, M_T) inputs, the depth left out for a model without it."""
+    keep = [INPUT_NAMES[3].index(n) for n in INPUT_NAMES[planner.config.in_channels]]
+    return lambda x: planner.predict(x[:, keep])
+
+
 def main(argv=None) -> int:
     from planner.inference import load_planner
 
@@ -58,7 +66,7 @@ def main(argv=None) -> int:
     ap.add_argument("models", nargs="+", help="checkpoints (.safetensors)")
     ap.add_argument("--every", type=int, default=12, help="every N-th shard")
     a = ap.parse_args(argv)
-    nets = {m: load_planner(m).predict for m in a.models}
+    nets = {m: _three_inputs(load_planner(m)) for m in a.models}
     for name, r in hit_rates(validation_samples(a.data, a.every), nets).items():
         print(f"{name}: {r['samples']} samples, argmax in a labelled region {100 * r['hit_rate']:.1f} %, "
               f"median U max {r['u_max_median']:.3f}")

@@ -26,7 +26,8 @@ ends to a centimetre or two. This module lets each estimate count by its accurac
    it, open where the scan stops. The surveyed point is then fused with that interval by the
    accuracies: a seen end and a point that agree are averaged by inverse variance (a float point
    inside the scan becomes as good as a fixed one); a point the scan contradicts by more than
-   ``contradiction_sigma`` is reported and not used; an end the scan does not see comes from the
+   ``contradiction_sigma`` is reported and not used (except beyond a seen end where the log may run
+   on unseen: under others, or as a tip held in the air, ``overhang_gap_m``); an end the scan does not see comes from the
    point (``fixed``/``float``), or, with no usable point, from the interval (``inferred``).
 
 Every end is reported with its source (``scan``, ``fixed``, ``float``, ``inferred``), its 1-sigma
@@ -82,7 +83,7 @@ class FuseConfig:
     #                           gap is the end face's shadow) [m]
     end_search_m: float = 0.6  # the walk goes at most this far past the prior end [m]
     overhang_gap_m: float = 0.10  # past a seen end the scan sees this far under the log's underside: the tip
-    #                               is in the air, and a precise point beyond it stands (see _end_along) [m]
+    #                               is in the air, and a point beyond it may place the end (_end_along) [m]
     on_band_m: float = 0.02  # a bin is on the log when points lie this close to its top [m]
     min_on_points: int = 2  # ... at least this many [-]
     scan_end_sigma_m: float = 0.015  # axial accuracy of an end the scan sees (stereo smear, bins) [m]
@@ -97,8 +98,8 @@ class FuseConfig:
         for name in ("cell_m", "ridge_scale_m", "min_curvature_per_m", "band_m", "suppress_m", "max_angle_deg",
                      "max_gap_m", "max_occluded_gap_m", "min_segment_m", "pose_sigma_m", "axis_sigma_m",
                      "radius_sigma_m", "gate_sigma", "ridge_overrun_m",
-                     "end_bin_m", "seen_gap_m", "end_search_m", "overhang_gap_m", "on_band_m", "scan_end_sigma_m", "contradiction_sigma",
-                     "weak_sigma_m", "inferred_sigma_m", "min_new_log_m", "extrapolation_sigma_per_m"):
+                     "end_bin_m", "seen_gap_m", "end_search_m", "overhang_gap_m", "on_band_m", "scan_end_sigma_m",
+                     "contradiction_sigma", "weak_sigma_m", "inferred_sigma_m", "min_new_log_m", "extrapolation_sigma_per_m"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
         if not 0 < self.max_anisotropy < 1:

@@ -28,3 +28,15 @@ def test_peaks_on_the_labels_hit_and_peaks_elsewhere_miss(tmp_path):
     r = hit_rates(samples, {"off": beside_them})["off"]
     assert r["samples"] == len(samples) and r["hit_rate"] == 0.0
     assert abs(r["u_max_median"] - 1 / (1 + np.exp(-1.0))) < 1e-6
+
+
+def test_a_model_without_depth_gets_intensity_and_mask_only():
+    from types import SimpleNamespace
+
+    from experiments.u_hit_rate import _three_inputs
+
+    seen = []
+    fake = SimpleNamespace(config=SimpleNamespace(in_channels=2), predict=lambda x: seen.append(x) or x)
+    x = np.stack([np.full((4, 4), v, np.float32) for v in (1.0, 2.0, 3.0)])[None]  # I, D, M_T
+    _three_inputs(fake)(x)
+    assert seen[0].shape == (1, 2, 4, 4) and seen[0][0, 0, 0, 0] == 1.0 and seen[0][0, 1, 0, 0] == 3.0
