@@ -309,20 +309,29 @@ class Record:
     trial_s: float = 0.0
 
 
-def evaluate_pile(task: tuple[int, bool, int, int], specs: list[PlannerSpec], cfg: EvalConfig,
-                  planners: dict[str, PlanFn] | None = None) -> list[dict]:
-    """Generate test pile ``task``, let every planner choose one grasp, try each in the twin."""
-    from synth.scene.generate import GenerationConfig, generate_pile
+def eval_scene(task: tuple[int, bool, int, int], cfg: EvalConfig):
+    """The settled pile and its top-down observation (one render) of test pile ``task``
+    (``EvalConfig.tasks``): a pure function of the task's seed and ``cfg``."""
     from synth.render.ortho import OrthoRenderConfig, render_ortho
-    from synth.physics.trial import TrialConfig, run_trial
+    from synth.scene.generate import GenerationConfig, generate_pile
     from synth.physics.world import World
 
-    n_logs, with_obst, k, seed = task
+    n_logs, with_obst, _, seed = task
     rng = np.random.default_rng([seed, 77])
     n_obst = int(rng.integers(1, cfg.max_obstacles + 1)) if with_obst else 0
     pile, _ = generate_pile(seed, GenerationConfig(n_logs=n_logs, n_obstacles=n_obst))
     with World(pile) as world:
         obs = render_ortho(world, OrthoRenderConfig(size_px=cfg.size_px, n_renders=1), seed=seed)
+    return pile, obs
+
+
+def evaluate_pile(task: tuple[int, bool, int, int], specs: list[PlannerSpec], cfg: EvalConfig,
+                  planners: dict[str, PlanFn] | None = None) -> list[dict]:
+    """Generate test pile ``task``, let every planner choose one grasp, try each in the twin."""
+    from synth.physics.trial import TrialConfig, run_trial
+
+    n_logs, with_obst, k, seed = task
+    pile, obs = eval_scene(task, cfg)
     trial_cfg = TrialConfig.preset(cfg.trial)
     out = []
     for spec in specs:
