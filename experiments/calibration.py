@@ -48,7 +48,7 @@ def collect_pile(task: tuple[int, bool, int, int], cfg: CollectConfig) -> list[d
 
     if cfg.model not in _NET:
         torch.set_num_threads(1)
-        _NET[cfg.model] = load_planner(cfg.model)
+        _NET[cfg.model] = load_planner(cfg.model, calibrated=False)  # the raw U is what is fitted
     pile, obs = eval_scene(task, EvalConfig(seed_base=cfg.seed_base))
     p = plan(obs, _NET[cfg.model], Objective("f1"), pile=pile)
     by_f1 = p.grasps[: cfg.top_n]

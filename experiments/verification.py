@@ -63,6 +63,8 @@ class CachedTwin:
 
 def pile_rows(case, net, objectives, ks, copies) -> list[dict]:
     """Every variant on one prepared case (see the module docstring): one row per objective."""
+    # Over 80 lines on purpose: the variants share one plan, one set of truth executions (memoised in
+    # on_truth) and one verifier per copy count; apart they would pass that shared state around.
     from experiments.real_test import execute_on_truth
     from planner.errors import PlannerError
     from planner.inference import Objective, plan
