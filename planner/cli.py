@@ -350,8 +350,6 @@ def eval_command(
     obstacles: Literal["yes", "no", "both"] = option("--obstacles", "Cells with obstacles: yes, no or both.",
                                                      default="both", metavar="yes|no|both"),
     objectives: str = option("--objectives", "Comma-separated U-Net objectives: f1,f2,f3.", default="f1,f2,f3"),
-    raw_objectives: str = option("--raw-objectives", "Also these objectives with the network's raw U (the paper's "
-                                 "Q, without the checkpoint's U calibration), e.g. f1,f3.", default=""),
     baselines: str = option("--baselines", "Comma-separated baselines through the same trials: random, geometric, "
                             "oracle ('' for none).", default="random,geometric,oracle"),
     extra_model: list[str] = option("--extra-model", "LABEL=PATH, e.g. no-depth=runs/nd/best.safetensors; repeatable.",
@@ -390,8 +388,7 @@ def eval_command(
     lo, hi = parse_range(logs, "--logs")
     obs = {"yes": (True,), "no": (False,), "both": (True, False)}[obstacles]
     cfg = EvalConfig(logs=tuple(range(lo, hi + 1)), obstacles=obs, per_cell=per_cell, trial=trial, seed_base=seed_base)
-    specs = _eval_specs(str(model or DEFAULT_MODEL), objectives, baselines, extra_model, verify, verify_copies,
-                        raw_objectives)
+    specs = _eval_specs(str(model or DEFAULT_MODEL), objectives, baselines, extra_model, verify, verify_copies)
     check_output_dir(out, "--out")
     with progress_bar() as bar:
         task = bar.add_task("piles", total=len(cfg.tasks()), info="")
@@ -409,15 +406,13 @@ def _csv(text: str) -> list[str]:
 
 
 def _eval_specs(model: str, objectives: str, baselines: str, extra_model: list[str], verify: int | None,
-                verify_copies: int, raw_objectives: str = "") -> list[PlannerSpec]:
-    """eval's planner rows: the U-Net per objective (and verified, with --verify; and with raw U, with
-    --raw-objectives), each --extra-model (f1), then the baselines; every model file checked."""
-    objs, raw = _csv(objectives), _csv(raw_objectives)
-    for flag, given, text in (("--objectives", objs, objectives), ("--raw-objectives", raw, raw_objectives)):
-        if any(x not in ("f1", "f2", "f3") for x in given):
-            raise CliError(f"{flag} must be a comma-separated list of f1, f2, f3, got {text!r}")
+                verify_copies: int) -> list[PlannerSpec]:
+    """eval's planner rows: the U-Net per objective (and verified, with --verify), each --extra-model
+    (f1), then the baselines; every model file checked."""
+    objs = _csv(objectives)
+    if any(x not in ("f1", "f2", "f3") for x in objs):
+        raise CliError(f"--objectives must be a comma-separated list of f1, f2, f3, got {objectives!r}")
     specs = [PlannerSpec("unet", model=model, objective=x) for x in objs]
-    specs += [PlannerSpec("unet", model=model, objective=x, calibrated=False) for x in raw]
     check_verify_flags(verify, None)
     if verify is not None:
         specs += [PlannerSpec("unet", model=model, objective=x, verify_k=verify, verify_copies=verify_copies)

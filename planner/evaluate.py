@@ -50,7 +50,6 @@ class PlannerSpec:
     verify_copies: int = 0  # ... and on this many further perturbed copies of that copy [-]
     max_subsets: int = 0  # for "unet": at most this many target subsets per plan, pre-selected by fit
     #                       (planner.subsets, "fit" mode); 0 = the default policy (every subset up to 127) [-]
-    calibrated: bool = True  # for "unet": U through the checkpoint's calibration when it has one (planner.calibration)
 
     @property
     def name(self) -> str:
@@ -59,7 +58,6 @@ class PlannerSpec:
         if self.kind != "unet":
             return self.kind
         cap = f"-cap{self.max_subsets}" if self.max_subsets else ""
-        cap += "" if self.calibrated else "-raw"
         if self.verify_k:
             copies = f"x{self.verify_copies}" if self.verify_copies else ""
             return f"unet-{self.objective}{cap}-verify{self.verify_k}{copies}"
@@ -210,15 +208,14 @@ def oracle_planner(trial_preset: str = "fast", max_trials: int = 40) -> PlanFn:
     return plan_fn
 
 
-def unet_planner(model: str, objective: str, subsets: SubsetPolicy = SubsetPolicy(), calibrated: bool = True) -> PlanFn:
-    """The network's best grasp among the subsets ``subsets`` keeps (default: every subset), with
-    the checkpoint's U calibration when it has one and ``calibrated``."""
+def unet_planner(model: str, objective: str, subsets: SubsetPolicy = SubsetPolicy()) -> PlanFn:
+    """The network's best grasp among the subsets ``subsets`` keeps (default: every subset)."""
     import torch
 
     from planner.inference import Objective, load_planner, plan
 
     torch.set_num_threads(1)
-    net = load_planner(model, calibrated=calibrated)
+    net = load_planner(model)
     obj = Objective(kind=objective)
 
     def plan_fn(obs, pile):
@@ -258,13 +255,13 @@ def verified_planner(plan_all: Callable[[object, object], object], objective: st
 
 
 def verified_unet_planner(model: str, objective: str, k: int, copies: int = 0, trial_preset: str = "fast",
-                          subsets: SubsetPolicy = SubsetPolicy(), calibrated: bool = True) -> PlanFn:
+                          subsets: SubsetPolicy = SubsetPolicy()) -> PlanFn:
     import torch
 
     from planner.inference import Objective, load_planner, plan
 
     torch.set_num_threads(1)
-    net = load_planner(model, calibrated=calibrated)
+    net = load_planner(model)
     obj = Objective(kind=objective)
     return verified_planner(lambda obs, pile: plan(obs, net, obj, pile=pile, subsets=subsets), objective, k, copies,
                             trial_preset)
@@ -282,9 +279,8 @@ def build_planner(spec: PlannerSpec, trial_preset: str = "fast", oracle_max_tria
                 raise ValueError(f"verify_k, verify_copies and max_subsets must be >= 0, got {spec.verify_k}, "
                                  f"{spec.verify_copies}, {spec.max_subsets}")
             _CACHE[spec] = (verified_unet_planner(spec.model, spec.objective, spec.verify_k, spec.verify_copies,
-                                                  trial_preset, spec.subset_policy(), spec.calibrated)
-                            if spec.verify_k else unet_planner(spec.model, spec.objective, spec.subset_policy(),
-                                                               spec.calibrated))
+                                                  trial_preset, spec.subset_policy()) if spec.verify_k
+                            else unet_planner(spec.model, spec.objective, spec.subset_policy()))
         elif spec.kind == "random":
             _CACHE[spec] = random_planner()
         elif spec.kind == "geometric":
@@ -432,19 +428,13 @@ def run_evaluation(specs: list[PlannerSpec], cfg: EvalConfig, out_dir: str | Pat
 
 
 def _fingerprint(spec: PlannerSpec) -> str:
-    """What a record must match to be reused: the checkpoint's sha256 (and its calibration's) for a
-    U-Net, '' otherwise."""
+    """What a record must match to be reused: the checkpoint's sha256 for a U-Net, '' otherwise."""
     if spec.kind != "unet" or not spec.model:
         return ""
     from synth.common.files import sha256_file
 
     try:
         sha = sha256_file(Path(spec.model))
-        from planner.calibration import calibration_path
-
-        cal = calibration_path(spec.model)
-        if spec.calibrated and cal.is_file():  # a calibrated model plans otherwise: its calibration is part of it
-            sha = f"{sha}+cal-{sha256_file(cal)[:16]}"
         if spec.verify_k:  # the verifier's version too: a record of another verifier is made again
             from planner.verify import VERIFY_VERSION
 

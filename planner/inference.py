@@ -28,7 +28,6 @@ from typing import Literal
 
 import numpy as np
 
-from planner.calibration import Calibration, load_calibration
 from planner.constraints import Constraints, polygon_raster
 from planner.data import make_inputs
 from planner.errors import ObservationError
@@ -38,7 +37,7 @@ from synth.geometry.frames import OrthoGrid, wrap_phi
 from synth.geometry.grasp import MAX_WIDTH_M, MIN_WIDTH_M, RECT_WIDTH_M, Grasp
 
 PLAN_FORMAT_NAME = "loggrasp.plan"  # plan.json, ``loggrasp plan --json``
-PLAN_FORMAT_VERSION = "1.1"  # 1.1: each grasp's success_p
+PLAN_FORMAT_VERSION = "1.0"
 OBSTACLE_CODE_BASE = 1000  # instance codes >= this are obstacles (synth.render.ortho)
 
 
@@ -85,7 +84,6 @@ class Planner:
     views: int = 1  # dihedral views averaged at test time: 1 (none), 2 (+ mirror), 4 (quarter turns) or 8 (both) [-]
     view_spread_k: float = 0.0  # U logit lowered by k x its standard deviation over the views [-]
     # (a lower confidence bound: of two grasps the views rate alike on average, the one they agree on wins)
-    calibration: Calibration | None = None  # U -> twin success rate per subset size; None = raw U in Q
 
     def __post_init__(self) -> None:
         if self.precision not in ("fp32", "bf16"):
@@ -203,19 +201,14 @@ def default_device() -> str:
 
 
 def load_planner(path: str | Path, device: str = "auto", precision: str = "bf16", batch_size: int = 64,
-                 quality_smoothing_px: float = 1.0, views: int = 1, view_spread_k: float = 0.0,
-                 calibrated: bool = True) -> Planner:
+                 quality_smoothing_px: float = 1.0, views: int = 1, view_spread_k: float = 0.0) -> Planner:
     """Load a checkpoint (:func:`planner.checkpoint.load_checkpoint`) as a :class:`Planner`
-    (``views``, ``view_spread_k``: dihedral test-time views, see :meth:`Planner.predict`), with
-    its U calibration (:mod:`planner.calibration`) when one lies beside it and ``calibrated``."""
+    (``views``, ``view_spread_k``: dihedral test-time views, see :meth:`Planner.predict`)."""
     from planner.checkpoint import load_checkpoint
-    from synth.common.files import sha256_file
 
     model, config, meta = load_checkpoint(path)
-    calibration = load_calibration(path, sha256_file(path)) if calibrated else None
     return Planner(model, config, default_device() if device == "auto" else device, precision, batch_size, meta,
-                   quality_smoothing_px=quality_smoothing_px, views=views, view_spread_k=view_spread_k,
-                   calibration=calibration)
+                   quality_smoothing_px=quality_smoothing_px, views=views, view_spread_k=view_spread_k)
 
 
 def _gaussian(maps: np.ndarray, sigma_px: float) -> np.ndarray:
@@ -232,15 +225,14 @@ def _gaussian(maps: np.ndarray, sigma_px: float) -> np.ndarray:
 class PlannedGrasp:
     grasp: Grasp  # pile frame
     quality: float  # q = f(u, tau, b)
-    graspability: float  # u, the network's own
+    graspability: float  # u
     balance: float  # b
     targets: tuple[int, ...]  # log indices
     pixel: tuple[int, int]  # (row, col)
-    success_p: float | None = None  # u calibrated to a twin success rate (the u in q); None = uncalibrated
 
     def to_dict(self) -> dict:
         return {**self.grasp.to_dict(), "quality": self.quality, "graspability": self.graspability,
-                "success_p": self.success_p, "balance": self.balance, "targets": list(self.targets)}
+                "balance": self.balance, "targets": list(self.targets)}
 
 
 @dataclass
@@ -374,8 +366,7 @@ def _select(out, chosen, grid, objective, constraints, planner) -> tuple[list[Pl
     u = _gaussian((1.0 / (1.0 + np.exp(-out[:, 3]))).astype(np.float32), planner.quality_smoothing_px)
     b = _gaussian(np.ascontiguousarray(out[:, 4], dtype=np.float32), planner.quality_smoothing_px)
     tau = np.array([len(s) for s in chosen], np.float32)[:, None, None]
-    p = planner.calibration.probability(u, tau) if planner.calibration is not None else None
-    q = objective.quality(u if p is None else p, tau, b)
+    q = objective.quality(u, tau, b)
     reach = constraints.reach_ok(grid)
     keep_out = constraints.keep_out_raster(grid)
     grasps, rejected = [], []
@@ -413,8 +404,7 @@ def _select(out, chosen, grid, objective, constraints, planner) -> tuple[list[Pl
             rejected.append({"targets": list(s), "constraint": "keep_out", "action": "moved",
                              "detail": "best grasp overlaps a keep-out zone; next best used"})
         r, c = idx // q.shape[2], idx % q.shape[2]
-        grasps.append(PlannedGrasp(g, float(q[k, r, c]), float(u[k, r, c]), float(b[k, r, c]), tuple(s), (r, c),
-                                   None if p is None else float(p[k, r, c])))
+        grasps.append(PlannedGrasp(g, float(q[k, r, c]), float(u[k, r, c]), float(b[k, r, c]), tuple(s), (r, c)))
     return grasps, rejected
 
 

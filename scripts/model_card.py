@@ -1,6 +1,8 @@
 """Write docs/model.md (the shipped model's training record) from a training run folder.
 
 Usage: .venv/bin/python scripts/model_card.py RUN_DIR DATA_DIR COMMAND
+(DATA_DIR: a rendered data set with manifest.json, or a committed grasp store with store.json)
+(DATA_DIR: a rendered data set with manifest.json, or a committed grasp store with store.json)
 """
 
 import json
@@ -9,11 +11,26 @@ from pathlib import Path
 
 run, data, command = Path(sys.argv[1]), Path(sys.argv[2]), sys.argv[3]
 log = json.loads((run / "log.json").read_text())
-manifest = json.loads((data / "manifest.json").read_text())
+store = (data / "store.json").is_file()  # a committed grasp store (data/paper-v3) or a rendered data set
+manifest = json.loads((data / ("store.json" if store else "manifest.json")).read_text())
 epochs = log["epochs"]
 best = min(epochs, key=lambda e: e["val_loss"])
 cfg = log["config"]
 s = manifest["summary"]
+skip = bool(cfg.get("data", {}).get("skip_no_candidates"))
+if store:
+    kept = s["subsets"] - (s["no_candidate_subsets"] if skip else 0)
+    negatives = s["negatives"] - (s["no_candidate_subsets"] if skip else 0)
+    data_line = (f"- Data: `{data}` — {s['piles']} piles of 4 logs ({s['piles_with_obstacles']} with obstacles), "
+                 f"{s['subsets']} (pile, subset) samples, {s['grasps']} grasps; trained on the {kept} subsets "
+                 f"{'with at least one admissible candidate (`--skip-no-candidates`) ' if skip else ''}× 3 renders "
+                 f"= {3 * kept} samples, {100 * negatives / kept:.1f} % negatives; split 80/20 by pile "
+                 f"(seed {cfg['seed']}). See docs/dataset.md.")
+else:
+    data_line = (f"- Data: `{data}` — {s['piles']} piles of 4 logs ({s['piles_with_obstacles']} with obstacles), "
+                 f"{s['map_samples']} (pile, subset) samples × 3 renders = {s['samples']} samples, {s['grasps']} "
+                 f"grasps, {100 * s['negative_fraction']:.0f} % negatives; split 80/20 by pile (seed {cfg['seed']}). "
+                 "See docs/dataset.md.")
 lines = [
     "# The shipped planner model (`planner/weights/default.safetensors`)",
     "",
@@ -21,9 +38,7 @@ lines = [
     f"{cfg['model']['base_channels']}, depth {cfg['model']['depth']}, {log['n_parameters']:,} parameters, "
     f"{cfg['model']['size_px']} px. (The paper's 4.1 M width is `--base-channels 23`; the smaller width was chosen "
     "for planning latency on a 2-core CPU.)",
-    f"- Data: `{data}` — {s['piles']} piles of 4 logs ({s['piles_with_obstacles']} with obstacles), "
-    f"{s['map_samples']} (pile, subset) samples × 3 renders = {s['samples']} samples, {s['grasps']} grasps, "
-    f"{100 * s['negative_fraction']:.0f} % negatives; split 80/20 by pile (seed {cfg['seed']}). See docs/dataset.md.",
+    data_line,
     f"- Training: Adam lr {cfg['lr']}, batch {cfg['batch_size']}, {cfg['precision']} autocast on {log['device']}, "
     f"loss weights λ_B, λ_S, λ_C, λ_W = {cfg['loss']['lambda_b']}, {cfg['loss']['lambda_s']}, "
     f"{cfg['loss']['lambda_c']}, {cfg['loss']['lambda_w']}, BCE weight of positive U pixels "

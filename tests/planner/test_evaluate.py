@@ -185,30 +185,3 @@ def test_a_row_with_a_subset_cap_plans_only_the_subsets_it_keeps(tmp_path, monke
         from planner.evaluate import build_planner
 
         build_planner(PlannerSpec("unet", model=str(ckpt), max_subsets=-1))
-
-
-def test_a_calibration_is_part_of_the_calibrated_rows_fingerprint_not_of_the_raw_rows(tmp_path):
-    from dataclasses import replace
-
-    import torch
-
-    from planner.calibration import Calibration, calibration_path
-    from planner.checkpoint import save_checkpoint
-    from planner.evaluate import _fingerprint
-    from planner.model import UNetConfig, build_unet
-    from synth.common.files import sha256_file
-
-    net_cfg = replace(UNetConfig.tiny(), size_px=128)
-    ckpt = tmp_path / "m.safetensors"
-    torch.manual_seed(0)
-    save_checkpoint(ckpt, build_unet(net_cfg), net_cfg, {})
-    cal_row, raw_row = PlannerSpec("unet", model=str(ckpt)), PlannerSpec("unet", model=str(ckpt), calibrated=False)
-    assert (cal_row.name, raw_row.name) == ("unet-f1", "unet-f1-raw")
-    before = _fingerprint(cal_row)
-    assert before == _fingerprint(raw_row) == sha256_file(ckpt)
-    Calibration(sha256_file(ckpt), 1.0, (-1.0, 0.0)).write(calibration_path(ckpt))
-    assert _fingerprint(cal_row) != before  # a record planned without it is not reused
-    assert _fingerprint(raw_row) == before
-    from planner.evaluate import build_planner
-
-    assert build_planner(cal_row) is not build_planner(raw_row)
