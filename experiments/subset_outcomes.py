@@ -11,7 +11,8 @@ on the other), whether a logistic map of (logit u, subset size) to success picks
 than raw U does (docs/results/README.md, "subset-outcomes": it does not).
 
     .venv/bin/python -m experiments.subset_outcomes collect --model M --out runs/subset-outcomes --per-cell 20
-    .venv/bin/python -m experiments.subset_outcomes check runs/subset-outcomes
+    .venv/bin/python -m experiments.subset_outcomes sweep --model M --out runs/subset-sweep --per-cell 20
+    .venv/bin/python -m experiments.subset_outcomes check runs/subset-outcomes --sweep runs/subset-sweep
 """
 
 from __future__ import annotations
@@ -71,8 +72,9 @@ def collect_pile(task: tuple[int, bool, int, int], cfg: CollectConfig) -> list[d
     return out
 
 
-def collect(cfg: CollectConfig, out_dir: str | Path, workers: int = 2) -> list[dict]:
-    """Run (or resume) the collection into ``out_dir/records``; returns every trial record."""
+def collect(cfg: CollectConfig, out_dir: str | Path, workers: int = 2, fn=collect_pile) -> list[dict]:
+    """Run (or resume) ``fn`` (:func:`collect_pile`, :func:`sweep_pile`) on every pile into
+    ``out_dir/records``; returns every trial record."""
     from planner.evaluate import EvalConfig
     from synth.common.files import atomic_write_bytes
     from synth.common.runner import run_tasks
@@ -85,9 +87,70 @@ def collect(cfg: CollectConfig, out_dir: str | Path, workers: int = 2) -> list[d
     atomic_write_bytes(meta, json.dumps(asdict(cfg), indent=1).encode())
     tasks = EvalConfig(seed_base=cfg.seed_base, per_cell=cfg.per_cell).tasks()
     todo = {t: (t, cfg) for t in tasks if not (out / "records" / f"{t[3]}.json").exists()}
-    run_tasks(collect_pile, todo, lambda t, recs: atomic_write_bytes(out / "records" / f"{t[3]}.json",
+    run_tasks(fn, todo, lambda t, recs: atomic_write_bytes(out / "records" / f"{t[3]}.json",
                                                                       json.dumps(recs).encode()), workers=workers)
     return read_records(out)
+
+
+# the perturbation sweep: (what is changed, by how much) — width [m], shift along the closing axis [m], angle [deg]
+SWEEP = (tuple(("width_m", d) for d in (-0.15, -0.10, -0.05, 0.0, 0.05, 0.10))
+         + tuple(("shift_m", d) for d in (-0.10, -0.05, 0.05, 0.10)) + tuple(("angle_deg", d) for d in (-10, -5, 5, 10)))
+
+
+def perturbed(grasp, kind: str, delta: float):
+    """``grasp`` wider, shifted along its closing axis or turned by ``delta`` (:data:`SWEEP`)."""
+    import math
+    from dataclasses import replace
+
+    from synth.geometry.grasp import MAX_WIDTH_M, MIN_WIDTH_M
+
+    if kind == "width_m":
+        return replace(grasp, width_m=float(min(max(grasp.width_m + delta, MIN_WIDTH_M), MAX_WIDTH_M)))
+    if kind == "shift_m":
+        return replace(grasp, x_m=grasp.x_m + delta * math.cos(grasp.phi_rad),
+                       y_m=grasp.y_m + delta * math.sin(grasp.phi_rad))
+    if kind == "angle_deg":
+        return replace(grasp, phi_rad=grasp.phi_rad + math.radians(delta))
+    raise ValueError(f"unknown perturbation {kind!r}: use one of {sorted({k for k, _ in SWEEP})}")
+
+
+def sweep_pile(task: tuple[int, bool, int, int], cfg: CollectConfig) -> list[dict]:
+    """The f1 choice of one pile tried as it is and perturbed by every entry of :data:`SWEEP`:
+    is a failing grasp wrong in one direction (a bias a decoding offset would fix) or merely close
+    to a boundary?"""
+    import torch
+
+    from planner.evaluate import EvalConfig, eval_scene
+    from planner.inference import Objective, load_planner, plan
+    from synth.physics.trial import TrialConfig, run_trial
+
+    if cfg.model not in _NET:
+        torch.set_num_threads(1)
+        _NET[cfg.model] = load_planner(cfg.model)
+    pile, obs = eval_scene(task, EvalConfig(seed_base=cfg.seed_base))
+    best = plan(obs, _NET[cfg.model], Objective("f1"), pile=pile, top_k=1).best
+    trial = TrialConfig.preset("fast")
+    out = []
+    for kind, delta in SWEEP:
+        r = run_trial(pile, perturbed(best.grasp, kind, delta), best.targets, trial)
+        out.append({"seed": task[3], "n_logs": task[0], "obstacles": task[1], "tau": len(best.targets),
+                    "u": best.graspability, "kind": kind, "delta": delta, "outcome": r.outcome.value,
+                    "success": bool(r.success)})
+    return out
+
+
+def sweep_summary(records: list[dict]) -> dict:
+    """Success per perturbation, and how many of the unperturbed failures each one turns to success."""
+    base = {r["seed"]: r["success"] for r in records if r["kind"] == "width_m" and r["delta"] == 0.0}
+    failed = {s for s, ok in base.items() if not ok}
+    rows = {}
+    for kind, delta in SWEEP:
+        rs = [r for r in records if r["kind"] == kind and r["delta"] == delta]
+        if rs:
+            rows[f"{kind} {delta:+g}"] = {"success": float(np.mean([r["success"] for r in rs])),
+                                         "rescued": sum(r["success"] for r in rs if r["seed"] in failed)}
+    rescued_any = {r["seed"] for r in records if r["seed"] in failed and r["success"]}
+    return {"piles": len(base), "failures": len(failed), "rescued_by_any": len(rescued_any), "rows": rows}
 
 
 def read_records(out_dir: str | Path) -> list[dict]:
@@ -172,13 +235,23 @@ def main(argv=None) -> None:
     c.add_argument("--per-cell", type=int, default=20)
     c.add_argument("--top-n", type=int, default=4)
     c.add_argument("--workers", type=int, default=2)
+    w = sub.add_parser("sweep", help="the f1 choice of each pile perturbed (width, shift, angle) and tried")
+    for flag, kw in (("--model", {"required": True}), ("--out", {"required": True}),
+                     ("--per-cell", {"type": int, "default": 20}), ("--workers", {"type": int, "default": 2})):
+        w.add_argument(flag, **kw)
     k = sub.add_parser("check", help="per-size success and the cross-validated re-scoring check")
     k.add_argument("records")
+    k.add_argument("--sweep", help="a sweep's folder to summarise too")
     a = ap.parse_args(argv)
+    if a.cmd == "sweep":
+        recs = collect(CollectConfig(a.model, a.per_cell), a.out, a.workers, fn=sweep_pile)
+        print(json.dumps(sweep_summary(recs), indent=1))
+        return
     recs = (collect(CollectConfig(a.model, a.per_cell, a.top_n), a.out, a.workers) if a.cmd == "collect"
             else read_records(a.records))
     print(json.dumps({"trials": len(recs), "piles": len({r["seed"] for r in recs}), "by_size": by_size(recs),
-                      "rescoring": rescoring_check(recs) if a.cmd == "check" else None}, indent=1))
+                      "rescoring": rescoring_check(recs) if a.cmd == "check" else None,
+                      "sweep": sweep_summary(read_records(a.sweep)) if getattr(a, "sweep", None) else None}, indent=1))
 
 
 if __name__ == "__main__":

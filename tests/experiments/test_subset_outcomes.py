@@ -32,3 +32,31 @@ def test_fit_logistic_recovers_a_slope():
     x = np.column_stack([rng.normal(size=4000), np.ones(4000)])
     y = (rng.random(4000) < 1 / (1 + np.exp(-(2.0 * x[:, 0] - 0.5)))).astype(float)
     assert fit_logistic(x, y, l2=1e-3) == pytest.approx([2.0, -0.5], abs=0.15)
+
+
+def test_perturbations_move_the_grasp_the_way_they_say():
+    import math
+
+    from experiments.subset_outcomes import perturbed
+    from synth.geometry.grasp import Grasp
+
+    g = Grasp(1.0, 2.0, 0.0, 0.8)
+    assert perturbed(g, "width_m", -0.1).width_m == pytest.approx(0.7)
+    assert perturbed(g, "width_m", -5).width_m == pytest.approx(0.30)  # never below the grapple's minimum
+    s = perturbed(g, "shift_m", 0.1)  # along the closing axis (pile +x at phi = 0)
+    assert (s.x_m, s.y_m, s.width_m) == pytest.approx((1.1, 2.0, 0.8))
+    assert perturbed(g, "angle_deg", 10).phi_rad == pytest.approx(math.radians(10))
+    with pytest.raises(ValueError, match="unknown perturbation"):
+        perturbed(g, "height_m", 0.1)
+
+
+def test_sweep_summary_counts_rescues_of_the_failures_only():
+    from experiments.subset_outcomes import sweep_summary
+
+    recs = [{"seed": 1, "kind": "width_m", "delta": 0.0, "success": False},
+            {"seed": 1, "kind": "width_m", "delta": -0.05, "success": True},
+            {"seed": 2, "kind": "width_m", "delta": 0.0, "success": True},
+            {"seed": 2, "kind": "width_m", "delta": -0.05, "success": True}]
+    s = sweep_summary(recs)
+    assert (s["piles"], s["failures"], s["rescued_by_any"]) == (2, 1, 1)
+    assert s["rows"]["width_m -0.05"] == {"success": 1.0, "rescued": 1}
