@@ -222,8 +222,11 @@ def rescoring_check(records: list[dict], repeats: int = 20, seed: int = 0) -> di
             judge("f1 fitted", test, p)
             judge("f2 raw U", test, lambda r: r["u"] * r["tau"] ** (1 / 3))
             judge("f2 fitted", test, lambda r: p(r) * r["tau"] ** (1 / 3))
-    return {k: {"success": float(np.mean([v[0] for v in vs])), "logs_per_success": float(np.nanmean([v[1] for v in vs]))}
-            for k, vs in scores.items()}
+    def mean(values) -> float:
+        values = [v for v in values if v == v]  # halvings without a success have no logs per success
+        return float(np.mean(values)) if values else float("nan")
+
+    return {k: {"success": mean(v[0] for v in vs), "logs_per_success": mean(v[1] for v in vs)} for k, vs in scores.items()}
 
 
 def main(argv=None) -> None:
