@@ -131,7 +131,9 @@ AXIS_SOURCES = ("fit", "gnss")
 #: ``overhang_gap_m`` under its underside) only bounds the end from inside for a precise point beyond it
 #: within ``end_search_m``, or any point past what the scan covers (stereo loses a thin tip the cameras see
 #: under: 1100085, all three surveys 15 cm short; 1100032 and 1100089 75 cm, their points past the scan's).
-FIT_REVISION = 12
+#: 13: a tip is in the air where the ground is seen ``overhang_gap_m`` = 5 cm (was 10) under its underside:
+#: 1100051's log 5 lies 8-12 cm over the ground, its top seen 6-28 cm short of its fixed points.
+FIT_REVISION = 13
 # a cross-section circle loses this much score per footprint bin it does not explain (the profile
 # there lies above it or off it): where a neighbour lies against a log, or the stereo fills the
 # valley between them, that side shows no edge, and without this a wider circle, centred toward

@@ -537,3 +537,33 @@ def test_the_walk_measures_the_gap_under_a_log_past_its_end():
     on_ground = np.r_[top - [0, 0, z_axis - r], ground]
     iv = scan_end_interval(on_ground, p0 - [0, 0, z_axis - r], p1 - [0, 0, z_axis - r], r, True, 0.4)
     assert iv.state == "seen" and abs(iv.gap_under_m) < 0.01
+
+
+def test_a_tip_a_hand_high_in_the_air_is_a_tip_in_the_air():
+    """A log whose end is held 9 cm over the ground: stereo loses the last 7 cm of its top and past
+    that the scan sees the ground 9 cm under its underside (twin scan 1100051 log 5, end a: clearance
+    12 cm, gap measured 9.0-10.2 cm, top 6-8 cm short of the truth and of its fixed point; its end b, on
+    another render of the same pile, 8.4 cm and 27 cm). The walk's gap reads the clearance or less, and
+    ends resting on the ground read at most 1.6 cm (202 seen ground ends of 16 twin scans), so such a gap
+    is a tip in the air: the fixed point beyond it places the end. A log resting on the ground (the
+    ground 1 cm under its underside) keeps the scan's end."""
+    cfg = FuseConfig()
+    rng = np.random.default_rng(11)
+    r, end, seen_to = 0.075, 2.0, 1.93  # the log ends at 2.00 m, its top is seen to 1.93 m
+    for clearance, fixed_wins in ((0.09, True), (0.01, False)):
+        z_axis = r + clearance
+        t = rng.uniform(0.0, seen_to, 6000)
+        s = rng.uniform(-0.04, 0.04, t.size)
+        top = np.c_[t, s, z_axis + np.sqrt(r * r - s * s) + rng.normal(0, 0.002, t.size)]
+        tg = rng.uniform(seen_to + 0.005, 2.3, 600)  # past where the top is seen: the ground, under the tip
+        ground = np.c_[tg, rng.uniform(-0.04, 0.04, tg.size), rng.normal(0, 0.003, tg.size)]
+        p0, p1 = np.array([0.0, 0.0, z_axis]), np.array([end, 0.0, z_axis])
+        iv = scan_end_interval(np.r_[top, ground], p0, p1, r, True, 0.5, cfg)
+        assert iv.state == "seen" and abs(seen_end(iv) - seen_to) < 0.02, iv
+        assert abs(iv.gap_under_m - clearance) < 0.015, iv
+        point = _end(end, 0.0, z_axis, fix="rtk_fixed")  # the truth, 7 cm past the seen end (> 3 sigma)
+        e = fuse_end(p0, np.array([1.0, 0.0, 0.0]), iv, False, point, 0.005, cfg)
+        if fixed_wins:
+            assert e.source == "fixed" and not e.contradicted and abs(e.position_m[0] - end) < 1e-9, e
+        else:
+            assert e.source == "scan" and e.contradicted and abs(e.position_m[0] - seen_end(iv)) < 1e-9, e
