@@ -41,22 +41,29 @@ class CollectConfig:
             raise ValueError(f"per_cell and top_n must be >= 1, got {self.per_cell}, {self.top_n}")
 
 
-_NET: dict = {}
+_NET: dict = {}  # this worker process's loaded planner, by checkpoint path
+
+
+def _network(model: str):
+    """The planner of ``model``, loaded once per worker process (one torch thread: workers share the cores)."""
+    import torch
+
+    from planner.inference import load_planner
+
+    if model not in _NET:
+        torch.set_num_threads(1)
+        _NET[model] = load_planner(model)
+    return _NET[model]
 
 
 def collect_pile(task: tuple[int, bool, int, int], cfg: CollectConfig) -> list[dict]:
     """One pile: every subset planned, the best ``top_n`` by f1 and by f3 tried in the twin."""
-    import torch
-
     from planner.evaluate import EvalConfig, eval_scene
-    from planner.inference import Objective, load_planner, plan
+    from planner.inference import Objective, plan
     from synth.physics.trial import TrialConfig, run_trial
 
-    if cfg.model not in _NET:
-        torch.set_num_threads(1)
-        _NET[cfg.model] = load_planner(cfg.model)
     pile, obs = eval_scene(task, EvalConfig(seed_base=cfg.seed_base))
-    p = plan(obs, _NET[cfg.model], Objective("f1"), pile=pile)
+    p = plan(obs, _network(cfg.model), Objective("f1"), pile=pile)
     f3 = Objective("f3")
     by_f3 = sorted(p.grasps, key=lambda g: -float(f3.quality(g.graspability, len(g.targets), g.balance)))
     tried = {g.targets: g for g in p.grasps[: cfg.top_n] + by_f3[: cfg.top_n]}
@@ -118,17 +125,12 @@ def sweep_pile(task: tuple[int, bool, int, int], cfg: CollectConfig) -> list[dic
     """The f1 choice of one pile tried as it is and perturbed by every entry of :data:`SWEEP`:
     is a failing grasp wrong in one direction (a bias a decoding offset would fix) or merely close
     to a boundary?"""
-    import torch
-
     from planner.evaluate import EvalConfig, eval_scene
-    from planner.inference import Objective, load_planner, plan
+    from planner.inference import Objective, plan
     from synth.physics.trial import TrialConfig, run_trial
 
-    if cfg.model not in _NET:
-        torch.set_num_threads(1)
-        _NET[cfg.model] = load_planner(cfg.model)
     pile, obs = eval_scene(task, EvalConfig(seed_base=cfg.seed_base))
-    best = plan(obs, _NET[cfg.model], Objective("f1"), pile=pile, top_k=1).best
+    best = plan(obs, _network(cfg.model), Objective("f1"), pile=pile, top_k=1).best
     trial = TrialConfig.preset("fast")
     out = []
     for kind, delta in SWEEP:
