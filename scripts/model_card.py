@@ -49,6 +49,8 @@ lines = [
     f"Throughput {max(e['samples_per_s'] for e in epochs):.0f} samples/s at best on this 2-core CPU "
     "(lower while other jobs shared the cores).",
     f"- Command: `{command}`",
+    "- Evaluations in the twin: docs/results/README.md (the learning curve, and the paper-protocol "
+    "evaluations eval-v*, the newest first).",
     "",
     "![training curve](img/training_curve.png)",
     "",
