@@ -64,3 +64,17 @@ def test_records_of_other_settings_are_left_out(tmp_path):
 def test_seed_ranges_show_the_gaps():
     assert _seed_ranges({"scans": [{"seed": s} for s in (5, 3, 4, 9, 11, 10)]}) == "3..5, 9..11"
     assert _seed_ranges({"scans": []}) == "-"
+
+
+def test_a_cloud_fingerprint_tells_two_scans_apart():
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from experiments.survey_conditions import cloud_fingerprint
+
+    pts = np.random.default_rng(0).normal(size=(100, 3))
+    a, b = SimpleNamespace(points=pts), SimpleNamespace(points=pts.copy())
+    assert cloud_fingerprint(a) == cloud_fingerprint(b) and len(cloud_fingerprint(a)) == 16
+    b.points[7, 2] += 1e-9  # one coordinate of one point
+    assert cloud_fingerprint(a) != cloud_fingerprint(b)
