@@ -2,7 +2,6 @@
 
 Usage: .venv/bin/python scripts/model_card.py RUN_DIR DATA_DIR COMMAND
 (DATA_DIR: a rendered data set with manifest.json, or a committed grasp store with store.json)
-(DATA_DIR: a rendered data set with manifest.json, or a committed grasp store with store.json)
 """
 
 import json
