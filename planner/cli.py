@@ -95,6 +95,10 @@ def train_command(
     base_channels: int = option("--base-channels", "U-Net width (23 ~ 4.0M parameters, the paper's size; 16 ~ 1.9M).",
                                 field=(UNetConfig, "base_channels"), min=2, max=256),
     no_depth: bool = option("--no-depth", "The paper's ablation: inputs (I, M_T) only.", default=False),
+    mask_injection: Literal["input", "decoder"] = option(
+        "--mask-injection", "input (the paper's: the target mask is an input channel) or decoder (encode the "
+        "image once per pile, the mask joins at the decoder: faster planning).",
+        field=(UNetConfig, "mask_injection"), metavar="input|decoder"),
     u_pos_weight: float = option("--u-pos-weight", "BCE weight of positive U pixels (1 = the paper's plain BCE; "
                                  "U marks ~0.3 % of pixels).", field=(LossWeights, "u_pos_weight"), min=0.0),
     seed: int = option("--seed", "Initialisation, data order and augmentation.", field=(TrainConfig, "seed")),
@@ -131,7 +135,8 @@ def train_command(
     _, grid = list_shards(data if len(data) > 1 else data[0])
     in_ch = 2 if no_depth else 3
     size = int(grid.get("size_px", UNetConfig().size_px))
-    cfg = TrainConfig(model=replace(UNetConfig(), base_channels=base_channels, in_channels=in_ch, size_px=size),
+    cfg = TrainConfig(model=replace(UNetConfig(), base_channels=base_channels, in_channels=in_ch, size_px=size,
+                                         mask_injection=mask_injection),
                       loss=replace(LossWeights(), u_pos_weight=u_pos_weight),
                       data=replace(DataConfig(), in_channels=in_ch, train_fraction=train_fraction,
                                    skip_no_candidates=skip_no_candidates),

@@ -223,7 +223,10 @@ def test_synth_scan_bad_site_and_paths(capsys, work, a_file):
 
 @pytest.mark.slow
 def test_synth_dataset_and_train_a_64px_network(capsys, work, a_file):
-    """A 64 px data set trains from the command line (the network takes the data set's size)."""
+    """A 64 px data set trains from the command line (the network takes the data set's size), either
+    mask injection."""
+    from planner.checkpoint import load_checkpoint
+
     fails(cli(capsys, "synth", "dataset", "--piles", "1", "--engine", "spark", "--out", work / "d"), 2, "--engine")
     fails(cli(capsys, "synth", "dataset", "--piles", "1", "--out", a_file / "d"), 2, "--out")
     r = cli(capsys, "synth", "dataset", "--piles", "2", "--logs", "2", "--size", "64", "--renders", "1",
@@ -235,6 +238,11 @@ def test_synth_dataset_and_train_a_64px_network(capsys, work, a_file):
             "1", "--base-channels", "4", "--batch-size", "2", "--json")
     d = r.json()
     assert r.code == 0 and d["size_px"] == 64 and Path(d["model"]).exists()
+    r = cli(capsys, "train", "--data", work / "data", "--out", work / "late", "--epochs", "1", "--max-steps-per-epoch",
+            "1", "--base-channels", "4", "--batch-size", "2", "--mask-injection", "decoder", "--json")
+    assert r.code == 0 and load_checkpoint(r.json()["model"])[1].mask_injection == "decoder"
+    fails(cli(capsys, "train", "--data", work / "data", "--out", work / "r2", "--mask-injection", "middle"), 2,
+          "--mask-injection")
 
 
 # -- plan ---------------------------------------------------------------------------------------------
