@@ -57,6 +57,15 @@ class FitError(ReconstructError):
     axis (outside the scanned area, or wrong endpoints), or a fit that failed."""
 
 
+class SeparationError(FitError):
+    """The twin's pile check would have to move a log farther than a fit's noise explains to clear
+    another body. ``logs``: the pile indices of the logs of that contact (the moving one first)."""
+
+    def __init__(self, message: str, logs: tuple[int, ...] = ()) -> None:
+        super().__init__(message)
+        self.logs = tuple(logs)
+
+
 class LogNotSeenError(FitError):
     """(Almost) no scan points lie on a log around its GNSS axis: it is hidden under other logs,
     outside the scanned area, or its end points are wrong. :func:`reconstruct.fitting.fit.fit_pile`

@@ -77,8 +77,9 @@ if TYPE_CHECKING:
     from synth.render.ortho import OrthoObservation
 
 REPORT_FORMAT = "loggrasp.reconstruction-report"
-REPORT_VERSION = "1.2"  # 1.1: per-log "fit" (scan, partial, hidden); 1.2: per-end "ends" (source, sigma), "fusion",
-#                       "weak_ends", "contradicted_points"
+REPORT_VERSION = "1.3"  # 1.1: per-log "fit" (scan, partial, hidden); 1.2: per-end "ends" (source, sigma), "fusion",
+#                       "weak_ends", "contradicted_points"; 1.3: per-end "gnss_position_m", "gnss_sigma_m"
+#                       and, for an end the pile check placed at its survey point, "pile_check"
 REPORT = VersionedJson(REPORT_FORMAT, REPORT_VERSION, "reconstruction report", ReconstructError,
                        unreadable_fix="reconstruct the scan again", filename="report.json")
 PAIR_POSES = ("auto", "calibration", "sfm")

@@ -81,7 +81,8 @@ from typing import Any, Callable, Collection, Mapping, Sequence
 
 import numpy as np
 
-from reconstruct.errors import FitError, LogNotSeenError
+from reconstruct.errors import FitError, LogNotSeenError, SeparationError
+from reconstruct.fitting.clearance import ClearanceConfig, clear_pile
 from synth.scene.pile import LogSpec, PileSpec, RockSpec, StumpSpec, TerrainSpec
 
 ENDPOINT_REFS = ("end_centre", "top_surface")
@@ -133,7 +134,10 @@ AXIS_SOURCES = ("fit", "gnss")
 #: under: 1100085, all three surveys 15 cm short; 1100032 and 1100089 75 cm, their points past the scan's).
 #: 13: a tip is in the air where the ground is seen ``overhang_gap_m`` = 5 cm (was 10) under its underside:
 #: 1100051's log 5 lies 8-12 cm over the ground, its top seen 6-28 cm short of its fixed points.
-FIT_REVISION = 13
+#: 14: a log the pile check refuses has its uncertain ends moved within their sigma first, and a
+#: contradicted end tried at its survey point (:mod:`reconstruct.fitting.clearance`): float ends under
+#: other logs (1100119, 1100129) and a scan walk over a stump past a fixed point (1100166, 1100179) failed.
+FIT_REVISION = 14
 # a cross-section circle loses this much score per footprint bin it does not explain (the profile
 # there lies above it or off it): where a neighbour lies against a log, or the stereo fills the
 # valley between them, that side shows no edge, and without this a wider circle, centred toward
@@ -234,6 +238,8 @@ class FitConfig:
     validate: bool = True  # load the pile into the twin and separate interpenetrating logs
     penetration_tolerance_m: float = 0.01  # allowed interpenetration [m]
     max_move_m: float = 0.08  # larger needed separating moves are an error, not noise [m]
+    clearance: ClearanceConfig = field(default_factory=ClearanceConfig)  # a log the check refuses: its
+    #                                  uncertain ends moved within their sigma first (reconstruct.fitting.clearance)
     roll_steps: int = 12  # rolls tried over the twin log prism's 72 deg period where a log interpenetrates
     #                       another body, before it is thinned or moved (the scan sees a round log: its
     #                       roll is unknown); 0: never turned [-]
@@ -1451,10 +1457,10 @@ def _move_contact(pile: PileSpec, c: _Contact, cfg: FitConfig, st: _Separation) 
     for k, step, against in steps:
         st.moves[k] = st.moves[k] + step
         if np.linalg.norm(st.moves[k]) > cfg.max_move_m:
-            raise FitError(
+            raise SeparationError(
                 f"log {k} would have to move {np.linalg.norm(st.moves[k]) * 100:.1f} cm to clear {against} "
-                f"(limit {cfg.max_move_m * 100:.0f} cm); its fit or its GNSS end points are wrong"
-            )
+                f"(limit {cfg.max_move_m * 100:.0f} cm); its fit or its GNSS end points are wrong",
+                logs=(k,) + tuple(o for o in (c.log, c.other_log) if o is not None and o != k))
         logs[k] = replace(logs[k], centre_m=tuple(float(v) for v in np.asarray(logs[k].centre_m) + step))
         how = "lifted" if step[2] > 0.7 * np.linalg.norm(step) else "moved"
         st.notes.append(f"log {k} {how} {np.linalg.norm(step) * 1000:.1f} mm along "
@@ -2061,7 +2067,11 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
         t3 = time.perf_counter()
         say("checking the pile in the twin")
         before = pile.logs
-        pile, move_notes, moved = separate_logs(pile, cfg, thinnable=[placement.placed[i].how == "scan" for i in keep])
+        thinnable = [placement.placed[i].how == "scan" for i in keep]
+        pile, move_notes, moved, at_survey = clear_pile(
+            pile, [lf.ends or [] for lf in fits], lambda p: separate_logs(p, cfg, thinnable=thinnable), cfg.clearance)
+        for (k, j), e in at_survey.items():
+            fits[k].ends[j] = e
         for lf, log, old, dist in zip(fits, pile.logs, before, moved):
             lf.moved_m = float(dist)
             lf.thinned_m = float(old.diameter_m - log.diameter_m) / 2

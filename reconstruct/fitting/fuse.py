@@ -512,52 +512,80 @@ def match_survey(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]]
     :class:`AmbiguousSurveyError` when another matching nearly as good would change which logs exist."""
     cfg = cfg or FuseConfig()
     ids = list(survey)
-    n_k = len(scan_logs)
     cost, rev, n_out = _match_costs(survey, ids, scan_logs, cfg)
     # a surveyed log may match nothing (hidden, outside the scan): as costly as a point at the gate
     n_pts = np.array([sum(e is not None for e in survey[k]) for k in ids], dtype=float)
     none_cost = cfg.gate_sigma ** 2 * np.maximum(n_pts, 1)
+    piles = _Piles(ids, scan_logs, n_out, cfg)
     best, pick = _assign(cost, none_cost)
-    matches = {}
-    for i, k in enumerate(ids):
-        j = pick[i]
-        matches[k] = Match(k, j, bool(rev[i, j]) if j is not None else False,
-                           float(cost[i, j]) if j is not None else math.nan)
-    # is another matching nearly as good that makes another pile? The pile holds the scan logs matched or
-    # long enough to stand alone, and the surveyed logs matched to none (placed from their points); two
-    # matchings that only swap which surveyed log sits on which scan log make the same pile
-    group = _line_groups(scan_logs)
-
-    def content(p: list[int | None]) -> tuple[frozenset, frozenset]:
-        used = {j for j in p if j is not None}
-        used |= {j for j in range(n_k) if j not in used and scan_logs[j].seen_m >= cfg.min_new_log_m}
-        return frozenset(group[j] for j in used), frozenset(ids[i] for i, j in enumerate(p) if j is None)
-
-    def gross_errors(p: list[int | None]) -> int:
-        """Survey points a matching has to call wrong (beyond the gate of the scan log their log took)."""
-        return int(sum(n_out[i, j] for i, j in enumerate(p) if j is not None))
-
-    best_content, best_gross = content(pick), gross_errors(pick)
-    for i, k in enumerate(ids):
-        if n_k == 0 or pick[i] is None:
-            continue
-        c2 = cost.copy()
-        c2[i, pick[i]] = math.inf
-        alt, alt_pick = _assign(c2, none_cost)
-        delta = alt - best
-        choice = "nothing" if alt_pick[i] is None else f"scan log {alt_pick[i]}"
-        matches[k].alternative = f"{choice} (chi2 +{delta:.1f})"
-        # the chi^2 margin is for noise: an alternative that has to call more survey points wrong (an outlier
-        # costs a constant, whatever its accuracy) is no equal explanation (twin scan 1100039: both ends
-        # of a log RTK fixed, "as good" on a 15 cm scrap of ridge with one of them wrong)
-        if alt_pick[i] is None and _on_its_survey_line(scan_logs[pick[i]], survey[k], cfg):
-            continue  # "hidden" would count the log twice: the scan shows it on its own fixed points' line
-        if (delta < cfg.ambiguity_chi2 and content(alt_pick) != best_content
-                and gross_errors(alt_pick) <= best_gross):
+    for _ in range(len(ids) + 1):  # each switch leaves fewer ridges unexplained: it ends
+        switched = None
+        alternatives = {}
+        for i, k in enumerate(ids):
+            if not scan_logs or pick[i] is None:
+                continue
+            c2 = cost.copy()
+            c2[i, pick[i]] = math.inf
+            alt, alt_pick = _assign(c2, none_cost)
+            delta = alt - best
+            alternatives[k] = f"{'nothing' if alt_pick[i] is None else f'scan log {alt_pick[i]}'} (chi2 +{delta:.1f})"
+            if alt_pick[i] is None and _on_its_survey_line(scan_logs[pick[i]], survey[k], cfg):
+                continue  # "hidden" would count the log twice: the scan shows it on its own fixed points' line
+            if not piles.as_good(pick, alt_pick, delta):
+                continue
+            if alt_pick[i] is not None and piles.unexplained(alt_pick) != piles.unexplained(pick):
+                # of two scan logs, the one whose choice leaves fewer ridges standing as logs the survey missed
+                # (the crew surveys every log: one it missed is the exception, not a tie)
+                if piles.unexplained(alt_pick) < piles.unexplained(pick):
+                    switched = (alt, alt_pick)
+                    break
+                continue
             raise _ambiguity(k, survey[k], scan_logs[pick[i]], None if alt_pick[i] is None else scan_logs[alt_pick[i]],
                              delta)
+        if switched is None:
+            break
+        best, pick = switched
+    matches = {k: Match(k, j, bool(rev[i, j]) if j is not None else False,
+                        float(cost[i, j]) if j is not None else math.nan, alternatives.get(k, ""))
+               for i, (k, j) in enumerate(zip(ids, pick))}
     taken = {j for j in pick if j is not None}
-    return matches, [j for j in range(n_k) if j not in taken]
+    return matches, [j for j in range(len(scan_logs)) if j not in taken]
+
+
+class _Piles:
+    """What a matching (a scan log or None per surveyed log) makes of the pile, to compare two."""
+
+    def __init__(self, ids: list[str], scan_logs: Sequence[ScanLog], n_out: np.ndarray, cfg: FuseConfig) -> None:
+        self.ids, self.scan_logs, self.n_out, self.cfg = ids, scan_logs, n_out, cfg
+        self.group = _line_groups(scan_logs)
+
+    def content(self, p: list[int | None]) -> tuple[frozenset, frozenset]:
+        """The pile: the scan logs matched or long enough to stand alone (pieces of one log count once),
+        and the surveyed logs matched to none (placed from their points); two matchings that only swap
+        which surveyed log sits on which scan log make the same pile."""
+        used = {j for j in p if j is not None}
+        used |= {j for j in range(len(self.scan_logs)) if j not in used and self.standalone(j)}
+        return frozenset(self.group[j] for j in used), frozenset(self.ids[i] for i, j in enumerate(p) if j is None)
+
+    def standalone(self, j: int) -> bool:
+        return self.scan_logs[j].seen_m >= self.cfg.min_new_log_m
+
+    def unexplained(self, p: list[int | None]) -> int:
+        """Ridges long enough to stand alone that no surveyed log takes (a piece of a taken log is taken)."""
+        taken = {self.group[j] for j in p if j is not None}
+        return len({self.group[j] for j in range(len(self.scan_logs)) if self.standalone(j)} - taken)
+
+    def gross_errors(self, p: list[int | None]) -> int:
+        """Survey points a matching has to call wrong (beyond the gate of the scan log their log took)."""
+        return int(sum(self.n_out[i, j] for i, j in enumerate(p) if j is not None))
+
+    def as_good(self, best: list[int | None], alt: list[int | None], delta: float) -> bool:
+        """Whether ``alt`` explains the survey as well as ``best`` and makes another pile. The chi^2
+        margin is for noise: an alternative that has to call more survey points wrong (an outlier costs a
+        constant, whatever its accuracy) is no equal explanation (twin scan 1100039: both ends of a log
+        RTK fixed, "as good" on a 15 cm scrap of ridge with one of them wrong)."""
+        return (delta < self.cfg.ambiguity_chi2 and self.content(alt) != self.content(best)
+                and self.gross_errors(alt) <= self.gross_errors(best))
 
 
 def _on_its_survey_line(log: ScanLog, ends: tuple[SurveyEnd | None, SurveyEnd | None], cfg: FuseConfig) -> bool:
@@ -824,6 +852,8 @@ class EndEstimate:
     gnss_residual_sigma: float | None = None  # ... in units of the combined 1-sigma [-]
     contradicted: bool = False  # the scan contradicts the survey point: not used
     gnss_axis_distance_m: float | None = None  # survey point -> the placed log's axis line [m]
+    gnss_position_m: np.ndarray | None = None  # the survey point (3,), in the frame of ``position_m`` [m]
+    gnss_sigma_m: float | None = None  # ... its 1-sigma 3-D accuracy [m]
 
     def weak(self, cfg: FuseConfig | None = None) -> bool:
         """A weak estimate: less certain than ``weak_sigma_m``, or placed against its survey point."""
@@ -835,7 +865,9 @@ class EndEstimate:
                 "sigma_along_m": self.sigma_along_m, "source": self.source, "scan": self.scan,
                 "gnss_fix": self.gnss_fix, "gnss_residual_m": self.gnss_residual_m,
                 "gnss_residual_sigma": self.gnss_residual_sigma, "contradicted": self.contradicted,
-                "gnss_axis_distance_m": self.gnss_axis_distance_m}
+                "gnss_axis_distance_m": self.gnss_axis_distance_m,
+                "gnss_position_m": None if self.gnss_position_m is None else [float(v) for v in self.gnss_position_m],
+                "gnss_sigma_m": self.gnss_sigma_m}
 
 
 def fuse_end(p0: np.ndarray, u: np.ndarray, interval: EndInterval, at_start: bool, survey: SurveyEnd | None,
@@ -864,6 +896,7 @@ def fuse_end(p0: np.ndarray, u: np.ndarray, interval: EndInterval, at_start: boo
     est = EndEstimate(pos, float(sigma), float(sa), source, interval.state, None if survey is None else survey.fix,
                       contradicted=contradicted)
     if survey is not None:
+        est.gnss_position_m, est.gnss_sigma_m = np.asarray(survey.position_m, dtype=float), survey.sigma_3d_m
         est.gnss_residual_m, est.gnss_residual_sigma, against = _point_test(survey, pos, sigma, cfg)
         est.contradicted = est.contradicted or against
     return est

@@ -256,6 +256,29 @@ class World(Closing):
                                 orientation=tuple(float(v) for v in q)))
         return self.pile.with_logs(tuple(logs))
 
+    def replace_log(self, i: int, log: LogSpec) -> int:
+        """Log ``i`` rebuilt as ``log`` (its body removed, a new one added: a log of another length or
+        diameter needs a new shape); ``self.pile`` follows. Returns the new body id."""
+        self.client.removeBody(self.log_ids[i])
+        body = self._add_log(log)
+        self.instance_of_body.pop(self.log_ids[i], None)
+        self.log_ids[i] = body
+        self.instance_of_body[body] = i + 1
+        logs = list(self.pile.logs)
+        logs[i] = log
+        self.pile = self.pile.with_logs(tuple(logs))
+        return body
+
+    def deepest_contact(self, i: int) -> tuple[float, int | None]:
+        """Log ``i``'s deepest interpenetration with any other body: (depth [m], >= 0; that body's id,
+        None when it touches nothing)."""
+        self.client.performCollisionDetection()
+        depth, other = 0.0, None
+        for cp in self.client.getContactPoints(bodyA=self.log_ids[i]):
+            if -cp[8] > depth:
+                depth, other = -cp[8], cp[2]
+        return depth, other
+
     def penetrations(self, tolerance_m: float = 0.01) -> list[tuple[str, str, float]]:
         """Pairs of bodies interpenetrating deeper than ``tolerance_m``: (a, b, depth_m)."""
         names = {self.terrain_id: "terrain"}

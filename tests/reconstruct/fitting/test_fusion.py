@@ -158,9 +158,9 @@ def _end(x, y, z=0.08, fix="rtk_float") -> SurveyEnd:
 
 
 def test_only_geometry_the_survey_cannot_settle_stops_and_names_the_log():
-    # a log seen whole, and 30 cm beside it a short piece of one mostly hidden: a surveyed log with
-    # float ends between them could be either, and the piles differ (the piece is kept or dropped)
-    scan_logs = [_scan_log(-1.0, 1.0, 0.0), _scan_log(-0.3, 0.3, 0.3)]
+    # two short pieces of logs mostly hidden, 30 cm apart: a surveyed log with float ends between them
+    # could be either, and the piles differ (the other piece is dropped: too short to stand alone)
+    scan_logs = [_scan_log(-0.3, 0.3, 0.0), _scan_log(-0.3, 0.3, 0.3)]
     floating = {"log7": (_end(-1.0, 0.15), _end(1.0, 0.15))}
     with pytest.raises(AmbiguousSurveyError, match=r"log 'log7'.*Re-measure log 'log7'"):
         match_survey(floating, scan_logs)
@@ -300,10 +300,10 @@ def test_a_fixed_log_is_not_ambiguous_with_a_scrap_that_needs_one_of_its_points_
 
 
 def test_an_ambiguity_between_fixed_points_does_not_ask_for_a_fixed_solution():
-    # two parallel scan logs 6 cm apart, the shorter one only seen in the middle; fixed points half-way
-    # between: either log, and the piles differ (the short one kept or dropped). Measuring the points
+    # two parallel pieces of logs 6 cm apart, each seen only in the middle; fixed points half-way
+    # between: either piece, and the piles differ (the other one dropped). Measuring the points
     # RTK fixed again settles nothing: the message says to check them and survey the neighbours
-    scan_logs = [_scan_log(-1.0, 1.0, 0.0), _scan_log(-0.3, 0.3, 0.06)]
+    scan_logs = [_scan_log(-0.35, 0.35, 0.0), _scan_log(-0.3, 0.3, 0.06)]
     survey = {"log2": (_end(-1.0, 0.03, fix="rtk_fixed"), _end(1.0, 0.03, fix="rtk_fixed"))}
     with pytest.raises(AmbiguousSurveyError) as err:
         match_survey(survey, scan_logs)
@@ -567,3 +567,19 @@ def test_a_tip_a_hand_high_in_the_air_is_a_tip_in_the_air():
             assert e.source == "fixed" and not e.contradicted and abs(e.position_m[0] - end) < 1e-9, e
         else:
             assert e.source == "scan" and e.contradicted and abs(e.position_m[0] - seen_end(iv)) < 1e-9, e
+
+
+def test_a_long_ridge_no_surveyed_log_takes_is_no_tie_with_a_scrap():
+    """A log seen whole, and 30 cm beside it a short piece of one mostly hidden: a surveyed log with
+    float ends between them fits both about as well, but taking the piece would leave the 2 m ridge a
+    log the survey missed — the exception, not a tie (twin scans 1100182, 1100193: a fixed end fitted a
+    0.4-0.8 m scrap as well as its own 3 m ridge, and the bench stopped as ambiguous)."""
+    scan_logs = [_scan_log(-1.0, 1.0, 0.0), _scan_log(-0.3, 0.3, 0.3)]
+    floating = {"log7": (_end(-1.0, 0.15), _end(1.0, 0.15))}
+    for order in (1, -1):  # whichever the chi2 puts first
+        logs = scan_logs[::order]
+        matches, unmatched = match_survey(floating, logs)
+        assert logs[matches["log7"].scan_index] is scan_logs[0] and len(unmatched) == 1
+    # with the two logs both whole, either choice leaves a 2 m ridge unsurveyed: the same pile
+    both = [_scan_log(-1.0, 1.0, 0.0), _scan_log(-1.0, 1.0, 0.3)]
+    assert match_survey(floating, both)[0]["log7"].scan_index in (0, 1)
