@@ -136,7 +136,10 @@ AXIS_SOURCES = ("fit", "gnss")
 #: 1100051's log 5 lies 8-12 cm over the ground, its top seen 6-28 cm short of its fixed points.
 #: 14: a log the pile check refuses has its uncertain ends moved within their sigma first, and a
 #: contradicted end tried at its survey point (:mod:`reconstruct.fitting.clearance`): float ends under
-#: other logs (1100119, 1100129) and a scan walk over a stump past a fixed point (1100166, 1100179) failed.
+#: other logs (1100119, 1100129) and a scan walk over a stump past a fixed point (1100166, 1100179) failed;
+#: a log found in the scan alone whose ends cannot be placed is left out (1100119, every end fixed); of two
+#: scan logs a surveyed log fits about as well, the one that leaves fewer ridges unsurveyed is its log
+#: (:func:`reconstruct.fitting.fuse.match_survey`; 1100182, 1100193 and four degraded surveys stopped).
 FIT_REVISION = 14
 # a cross-section circle loses this much score per footprint bin it does not explain (the profile
 # there lies above it or off it): where a neighbour lies against a log, or the stereo fills the
@@ -1937,7 +1940,16 @@ class _Placement:
         ends_info: dict[int, tuple] = {}
         for i in keep:
             pl = self.placed[i]
-            spec, info = place(self.ids[i], pl.spec, pl.how, self.P[mine[i]], bool(pl.swapped), clear[i][mine[i]])
+            try:
+                spec, info = place(self.ids[i], pl.spec, pl.how, self.P[mine[i]], bool(pl.swapped), clear[i][mine[i]])
+            except FitError as exc:
+                if self.ids[i] not in self.optional:
+                    raise
+                # a log found in the scan alone with an end the scan shows nothing of once the other logs
+                # took their points: pieces of others, not a log (twin scan 1100119, all ends RTK fixed)
+                self.dropped[self.ids[i]] = f"its ends cannot be placed once the other logs took their points ({exc})"
+                self.say(f"log {self.ids[i]}: left out, {self.dropped[self.ids[i]]}")
+                continue
             if pl.how == "partial":
                 # its ends may have moved out (to its survey points): still no thicker than the room left
                 spec = self.within_room(spec, i, slack_m=cfg.gnss_sigma_m)
@@ -2055,7 +2067,15 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
     placement = _Placement(P, ids, endpoints, cfg, rng, sigmas, optional, say)
     placement.run(first)
     keep = [i for i in range(len(ids)) if ids[i] not in placement.dropped]
-    ends_info = placement.place_ends(keep, place_ends) if place_ends is not None else {}
+    ends_info: dict[int, tuple] = {}
+    if place_ends is not None:
+        before = {i: placement.placed[i].spec for i in keep}
+        ends_info = placement.place_ends(keep, place_ends)
+        if any(ids[i] in placement.dropped for i in keep):  # place the others again without it
+            keep = [i for i in keep if ids[i] not in placement.dropped]
+            for i in keep:
+                placement.placed[i].spec = before[i]
+            ends_info = placement.place_ends(keep, place_ends)
     fits = _log_fits(placement, keep, ends_info)
     logs = [placement.placed[i].spec for i in keep]
     timings["logs_s"] = time.perf_counter() - t0

@@ -498,3 +498,30 @@ def test_a_scan_only_log_across_the_tops_of_others_is_left_out_a_real_one_kept()
     placement.drop_borrowed()
     assert set(placement.dropped) == {"scan1"} and "lie on other logs" in placement.dropped["scan1"]
     assert 5 in placement.placed and 6 not in placement.placed  # the missed log stays
+
+
+def test_a_log_found_in_the_scan_alone_whose_ends_cannot_be_placed_is_left_out(truth, points):
+    """Twin scan 1100119 (every end RTK fixed): a log the scan alone showed had an end the scan showed
+    nothing of once the surveyed logs took their points, and with no survey point it failed the pile;
+    it is pieces of others and is left out, the other logs' ends placed again without it."""
+    from reconstruct.errors import FitError
+
+    survey = _survey(truth)
+    del survey["log3"]  # the scan shows it; the survey missed it
+    extra = truth.logs[3]
+    survey["scan0"] = tuple(np.asarray(p) for p in extra.endpoints_m())
+    calls = []
+
+    def place(log_id, spec, how, pts, swapped, on_mask):
+        calls.append(log_id)
+        if log_id == "scan0":
+            raise FitError("an end with neither scan points nor a survey point cannot be placed")
+        return spec, ({"source": "fixed"}, {"source": "fixed"})
+
+    fit = fit_pile(points, survey, 5.0, FitConfig(validate=False), first_pass={"scan0": extra}, optional={"scan0"},
+                   place_ends=place)
+    assert list(fit.dropped) == ["scan0"] and "ends cannot be placed" in fit.dropped["scan0"]
+    assert [lf.log_id for lf in fit.logs] == ["log0", "log1", "log2"] and fit.pile.n_logs == 3
+    assert calls.count("log0") == 2 and calls.count("scan0") == 1  # the others placed again, without it
+    with pytest.raises(FitError, match="cannot be placed"):  # a surveyed log's stays an error
+        fit_pile(points, survey, 5.0, FitConfig(validate=False), first_pass={"scan0": extra}, place_ends=place)
