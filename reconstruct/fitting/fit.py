@@ -139,7 +139,8 @@ AXIS_SOURCES = ("fit", "gnss")
 #: other logs (1100119, 1100129) and a scan walk over a stump past a fixed point (1100166, 1100179) failed;
 #: a log found in the scan alone whose ends cannot be placed is left out (1100119, every end fixed); of two
 #: scan logs a surveyed log fits about as well, the one that leaves fewer ridges unsurveyed is its log
-#: (:func:`reconstruct.fitting.fuse.match_survey`; 1100182, 1100193 and four degraded surveys stopped).
+#: (:func:`reconstruct.fitting.fuse.match_survey`; 1100182, 1100193 and four degraded surveys stopped); a
+#: surveyed log whose refit on the points the others leave it fits no cylinder keeps its first fit (1100198).
 FIT_REVISION = 14
 # a cross-section circle loses this much score per footprint bin it does not explain (the profile
 # there lies above it or off it): where a neighbour lies against a log, or the stereo fills the
@@ -1867,10 +1868,13 @@ class _Placement:
                 astray = True
             except FitError as exc:
                 if log_id not in self.optional:
-                    raise
-                self.dropped[log_id] = f"no log fits the scan points left to it once the other logs took theirs ({exc})"
-                self.say(f"log {log_id}: left out, {self.dropped[log_id]}")
-                continue
+                    # the points left to it fit no cylinder (twin scan 1100198: a log under two others
+                    # along it): as above, its first fit if it had one, else seen in part
+                    astray = True
+                else:
+                    self.dropped[log_id] = f"no log fits the scan points left to it once the other logs took theirs ({exc})"
+                    self.say(f"log {log_id}: left out, {self.dropped[log_id]}")
+                    continue
             if astray and not suspect[i] and i in first.fits:
                 # the refit on the points left to it strayed where its first fit had not (a log
                 # mostly hidden: its few points let the refit tilt): the first fit stands

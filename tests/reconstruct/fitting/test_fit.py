@@ -525,3 +525,25 @@ def test_a_log_found_in_the_scan_alone_whose_ends_cannot_be_placed_is_left_out(t
     assert calls.count("log0") == 2 and calls.count("scan0") == 1  # the others placed again, without it
     with pytest.raises(FitError, match="cannot be placed"):  # a surveyed log's stays an error
         fit_pile(points, survey, 5.0, FitConfig(validate=False), first_pass={"scan0": extra}, place_ends=place)
+
+
+def test_a_surveyed_log_whose_refit_fits_no_cylinder_keeps_its_first_fit(truth, points, monkeypatch):
+    """Twin scan 1100198 (every end RTK fixed): a log under two others along it fitted at first, but the
+    points the others left to it fit no cylinder, and the pile failed; like a log those points do not
+    show at all, it keeps its first fit (or is placed as seen in part)."""
+    import reconstruct.fitting.fit as fit_mod
+    from reconstruct.errors import FitError
+
+    real, calls = fit_mod.fit_log, {}
+
+    def refit_fails(pts, a, b, cfg=None, log_id="log", **kw):
+        calls[log_id] = calls.get(log_id, 0) + 1
+        if log_id == "log1" and calls[log_id] > 1:
+            raise FitError(f"log {log_id!r}: no cylinder of radius 0.015-0.4 m near its GNSS axis fits the scan")
+        return real(pts, a, b, cfg, log_id=log_id, **kw)
+
+    monkeypatch.setattr(fit_mod, "fit_log", refit_fails)
+    fit = fit_pile(points, _survey(truth), 5.0, FitConfig(validate=False))
+    assert calls["log1"] > 1 and [lf.log_id for lf in fit.logs] == ["log0", "log1", "log2", "log3"]
+    err = np.linalg.norm(np.asarray(fit.logs[1].butt_m) - truth.logs[1].endpoints_m()[0])
+    assert err < 0.05, err
