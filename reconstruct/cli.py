@@ -163,6 +163,8 @@ def reconstruct_command(
         o.warn(f"weak estimate: {w}")
     for w in rep.get("contradicted_points", []):
         o.warn(f"survey point not used: {w}")
+    for w in rep.get("end_moves", []):
+        o.warn(f"pile check: {w}")
     for w in rep.get("survey_warnings", []):
         o.warn(f"GNSS survey: {w}")
     reg = rep.get("registration", {})

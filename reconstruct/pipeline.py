@@ -79,7 +79,7 @@ if TYPE_CHECKING:
 REPORT_FORMAT = "loggrasp.reconstruction-report"
 REPORT_VERSION = "1.3"  # 1.1: per-log "fit" (scan, partial, hidden); 1.2: per-end "ends" (source, sigma), "fusion",
 #                       "weak_ends", "contradicted_points"; 1.3: per-end "gnss_position_m", "gnss_sigma_m"
-#                       and, for an end the pile check placed at its survey point, "pile_check"
+#                       and, for an end the pile check placed at its survey point, "pile_check"; "end_moves"
 REPORT = VersionedJson(REPORT_FORMAT, REPORT_VERSION, "reconstruction report", ReconstructError,
                        unreadable_fix="reconstruct the scan again", filename="report.json")
 PAIR_POSES = ("auto", "calibration", "sfm")
@@ -444,7 +444,7 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
         "logs": [lf.to_dict() for lf in fit.logs],
         "fusion": fusion, "weak_ends": weak_ends(fit.logs, placed.fuse_cfg),
         "contradicted_points": contradicted_points(fit.logs),
-        "terrain_coverage": fit.terrain_coverage, "obstacles": fit.obstacles, "moves": fit.moves,
+        "terrain_coverage": fit.terrain_coverage, "obstacles": fit.obstacles, "moves": fit.moves, "end_moves": fit.end_moves,
         "timings_s": timings,
     }
     files["report"] = out_dir / "report.json"

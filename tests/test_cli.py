@@ -438,6 +438,22 @@ def test_compare_piles(capsys, recon, work):
     fails(cli(capsys, "compare-piles", DEMO_DATA / "truth", work / "none"), 2, "RECON", "none")
 
 
+def test_reconstruct_warns_of_each_end_the_pile_check_moved(capsys, work, monkeypatch):
+    """An end the twin's pile check moved within its uncertainty (or put at its survey point) is a
+    warning on the terminal, not only a line in report.json."""
+    import types
+
+    import reconstruct.pipeline as pipeline
+
+    note = "log3: end b (float, +-20 cm) moved 23.0 cm (1.1 sigma) within its uncertainty: where it was placed it ran 15.5 cm into log 4"
+    rep = {"logs": [], "end_moves": [note], "registration": {}}
+    fake = types.SimpleNamespace(report=rep, pile=types.SimpleNamespace(n_logs=0, n_obstacles=0), time_s=1.0)
+    monkeypatch.setattr(pipeline, "reconstruct", lambda *a, **k: fake)
+    r = cli(capsys, "reconstruct", SCAN, "--gnss", GNSS, "--out", work / "o-moved")
+    said = " ".join((r.err + r.out).split())
+    assert r.code == 0 and f"pile check: {note}" in said, said
+
+
 def test_reconstruct_bad_input(capsys, work, a_file):
     fails(cli(capsys, "reconstruct", SCAN, "--gnss", GNSS, "--out", work / "o", "--log-direction", "north"), 2,
           "--log-direction must be an angle in degrees or 'site'")

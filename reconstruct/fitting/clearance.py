@@ -56,13 +56,23 @@ class _Candidate:
     how: str  # "survey" or "sigma"
 
 
+@dataclass
+class Cleared:
+    """A pile the twin accepts, and how it got there."""
+
+    pile: PileSpec
+    end_moves: list[str]  # each end the check moved within its uncertainty (or to its survey point), and why
+    notes: list[str]  # the ordinary check's turns, thinnings and moves
+    moved: list[float]  # per log: how far it moved [m] (its end moves included)
+    at_survey: dict[tuple[int, int], dict]  # {(log, end): its estimate} for ends now at their survey point
+
+
 def clear_pile(pile: PileSpec, ends: Sequence[Sequence[dict]], separate: Callable, cfg: ClearanceConfig | None = None,
-               ) -> tuple[PileSpec, list[str], list[float], dict[tuple[int, int], dict]]:
+               ) -> Cleared:
     """``separate(pile)`` (the twin's check: returns the pile, its notes and each log's move), and when
     it refuses a log, that log (or the other of the contact) re-ended within its uncertainty first.
     ``ends``: per log of ``pile``, its two end estimates (``EndEstimate.to_dict``, survey order;
-    empty when unknown). Returns the pile, the notes, each log's move [m] (end moves included), and
-    the ends now placed at their survey point ({(log, end): the estimate as it now stands})."""
+    empty when unknown)."""
     cfg = cfg or ClearanceConfig()
     notes: list[str] = []
     shifted = [0.0] * pile.n_logs
@@ -82,7 +92,7 @@ def clear_pile(pile: PileSpec, ends: Sequence[Sequence[dict]], separate: Callabl
             if cand.how == "survey":
                 updates[(k, cand.end)] = _at_survey_point(ends[k][cand.end], why)
             continue
-        return out, notes + sep_notes, [math.hypot(m, s) for m, s in zip(moved, shifted)], updates
+        return Cleared(out, notes, sep_notes, [math.hypot(m, s) for m, s in zip(moved, shifted)], updates)
     raise AssertionError("unreachable: the loop returns or raises")
 
 

@@ -359,6 +359,7 @@ class PileFit:
     n_obstacle_points: int
     obstacles: list[dict] = field(default_factory=list)  # kind, position, size, n_points
     moves: list[str] = field(default_factory=list)  # what the validation moved
+    end_moves: list[str] = field(default_factory=list)  # ends the validation moved within their uncertainty
     timings_s: dict = field(default_factory=dict)
     dropped: dict = field(default_factory=dict)  # optional logs left out: {log id: why}
 
@@ -2087,16 +2088,18 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
     pile = PileSpec(terrain=ground.terrain, logs=tuple(logs), stumps=tuple(ground.stumps), rocks=tuple(ground.rocks),
                     georef=georef, source="reconstructed", notes=notes)
     move_notes: list[str] = []
+    end_moves: list[str] = []
     if cfg.validate:
         t3 = time.perf_counter()
         say("checking the pile in the twin")
         before = pile.logs
         thinnable = [placement.placed[i].how == "scan" for i in keep]
-        pile, move_notes, moved, at_survey = clear_pile(
-            pile, [lf.ends or [] for lf in fits], lambda p: separate_logs(p, cfg, thinnable=thinnable), cfg.clearance)
-        for (k, j), e in at_survey.items():
+        cleared = clear_pile(pile, [lf.ends or [] for lf in fits], lambda p: separate_logs(p, cfg, thinnable=thinnable),
+                             cfg.clearance)
+        pile, move_notes, end_moves = cleared.pile, cleared.notes, cleared.end_moves
+        for (k, j), e in cleared.at_survey.items():
             fits[k].ends[j] = e
-        for lf, log, old, dist in zip(fits, pile.logs, before, moved):
+        for lf, log, old, dist in zip(fits, pile.logs, before, cleared.moved):
             lf.moved_m = float(dist)
             lf.thinned_m = float(old.diameter_m - log.diameter_m) / 2
             if log != old:
@@ -2106,7 +2109,7 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
                 lf.diameter_m, lf.top_diameter_m = log.diameter_m, log.top_diameter_m
         timings["validate_s"] = time.perf_counter() - t3
     return PileFit(pile=pile, logs=fits, terrain_coverage=ground.coverage, n_ground_points=int(ground.is_ground.sum()),
-                   n_obstacle_points=ground.n_above, obstacles=ground.info, moves=move_notes, timings_s=timings,
+                   n_obstacle_points=ground.n_above, obstacles=ground.info, moves=move_notes, end_moves=end_moves, timings_s=timings,
                    dropped=dict(placement.dropped))
 
 

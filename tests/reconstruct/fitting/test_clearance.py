@@ -34,7 +34,8 @@ def test_a_contradicted_end_that_puts_its_log_into_a_stump_goes_to_its_survey_po
     ends = [[_end((-1.0, 0.0, 0.07)), _end((1.45, 0.0, 0.07), "scan", 0.015, True, gnss=(1.1, 0.01, 0.07))]]
     with pytest.raises(SeparationError):
         _check(pile)
-    out, notes, moved, at_survey = clear_pile(pile, ends, _check)
+    c = clear_pile(pile, ends, _check)
+    out, notes, moved, at_survey = c.pile, c.end_moves, c.moved, c.at_survey
     butt, top = out.logs[0].endpoints_m()
     assert np.linalg.norm(top - np.array([1.1, 0.01, 0.07])) < 0.03, top
     assert np.linalg.norm(butt - np.array([-1.0, 0.0, 0.07])) < 0.03, butt
@@ -55,7 +56,8 @@ def test_a_float_end_inside_a_neighbour_moves_within_its_sigma():
             [_end((-1.0, 0.8, 0.07)), _end((0.9, -0.05, 0.07), "float", 0.2, fix="rtk_float", gnss=(0.9, -0.05, 0.07))]]
     with pytest.raises(SeparationError):
         _check(pile)
-    out, notes, moved, at_survey = clear_pile(pile, ends, _check)
+    c = clear_pile(pile, ends, _check)
+    out, notes, moved, at_survey = c.pile, c.end_moves, c.moved, c.at_survey
     butt, top = out.logs[1].endpoints_m()
     assert np.linalg.norm(butt - np.array([-1.0, 0.8, 0.07])) < 0.03  # the sure end stays
     shift = float(np.linalg.norm(top - np.array([0.9, -0.05, 0.07])))
@@ -82,7 +84,8 @@ def test_a_pile_the_check_accepts_is_left_as_it_is():
     pile = PileSpec(terrain=FLAT, logs=(ground, beside))
     ends = [[_end(p) for p in lg.endpoints_m()] for lg in pile.logs]
     ends[1][1].update(source="float", sigma_m=0.25, sigma_along_m=0.25)
-    out, notes, moved, at_survey = clear_pile(pile, ends, _check)
+    c = clear_pile(pile, ends, _check)
+    out, notes, moved, at_survey = c.pile, c.end_moves, c.moved, c.at_survey
     assert out.logs == pile.logs and moved == [0.0, 0.0] and not at_survey and not notes
 
 
