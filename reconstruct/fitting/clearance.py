@@ -130,6 +130,7 @@ def _candidates(log: LogSpec, ends_k: Sequence[dict], cfg: ClearanceConfig) -> l
         if e.get("contradicted") and e.get("gnss_position_m") is not None:
             out.append(_moved(log, mine_is_butt, there, np.asarray(e["gnss_position_m"], dtype=float), 0.0, j, "survey"))
         s_along = float(e.get("sigma_along_m") or e["sigma_m"])
+        # sigma_m^2 = along^2 + 2 across^2 (fuse_end); an estimate with no across part moves across by its along one
         s_across = math.sqrt(max(float(e["sigma_m"]) ** 2 - s_along ** 2, 0.0) / 2) or s_along
         if float(e["sigma_m"]) < cfg.min_sigma_m:
             continue
@@ -146,6 +147,8 @@ def _candidates(log: LogSpec, ends_k: Sequence[dict], cfg: ClearanceConfig) -> l
 
 def _moved(log: LogSpec, moving_butt: bool, fixed_end: np.ndarray, new_end: np.ndarray, cost: float, j: int,
            how: str) -> _Candidate | None:
+    """``log`` with its butt (``moving_butt``) or top at ``new_end``, the other end kept; None when the two
+    ends come closer than 30 cm."""
     butt, top = log.endpoints_m()
     if float(np.linalg.norm(new_end - fixed_end)) < 0.3:  # not a log any more
         return None
