@@ -141,7 +141,9 @@ AXIS_SOURCES = ("fit", "gnss")
 #: scan logs a surveyed log fits about as well, the one that leaves fewer ridges unsurveyed is its log
 #: (:func:`reconstruct.fitting.fuse.match_survey`; 1100182, 1100193 and four degraded surveys stopped); a
 #: surveyed log whose refit on the points the others leave it fits no cylinder keeps its first fit (1100198).
-FIT_REVISION = 14
+#: 15: a precise survey point on a log's axis line past all the scan covers places the end beyond a
+#: seen one (:func:`reconstruct.fitting.fuse.fuse_end`; 1100189: a log 97 cm short under every survey).
+FIT_REVISION = 15
 # a cross-section circle loses this much score per footprint bin it does not explain (the profile
 # there lies above it or off it): where a neighbour lies against a log, or the stereo fills the
 # valley between them, that side shows no edge, and without this a wider circle, centred toward

@@ -889,7 +889,9 @@ def fuse_end(p0: np.ndarray, u: np.ndarray, interval: EndInterval, at_start: boo
             raise FitError("an end with neither scan points nor a survey point cannot be placed")
         t, sa, source, contradicted, past = t_g, sg, survey.label, False, 0.0
     else:
-        t, sa, source, contradicted = _end_along(interval, -1.0 if at_start else 1.0, survey, t_g, sg, seen_whole, cfg)
+        on_axis = survey is not None and _on_axis(survey, p0, u, t_g, interval, lateral_sigma_m, cfg)
+        t, sa, source, contradicted = _end_along(interval, -1.0 if at_start else 1.0, survey, t_g, sg, seen_whole, cfg,
+                                                 on_axis)
         past = abs(t - interval.last_on_m)
     pos, lat = _end_across(np.asarray(p0, float) + u * t, u, past, survey, contradicted, lateral_sigma_m, cfg)
     sigma = math.sqrt(sa ** 2 + 2 * lat ** 2)
@@ -945,10 +947,20 @@ def after_pile_check(ends: Sequence[dict], endpoints: Sequence[np.ndarray],
     return out
 
 
+def _on_axis(point: SurveyEnd, p0: np.ndarray, u: np.ndarray, t_g: float, interval: EndInterval,
+             lateral_sigma_m: float, cfg: FuseConfig) -> bool:
+    """Whether a survey point lies on the fitted axis line (within ``contradiction_sigma`` of its own
+    3-D accuracy and of the axis's across, that growing past what the scan shows of the log)."""
+    past = 0.0 if interval.last_on_m is None else abs(t_g - interval.last_on_m)
+    lat = lateral_sigma_m + cfg.extrapolation_sigma_per_m * past
+    return _axis_distance(point, p0, u) <= cfg.contradiction_sigma * math.hypot(point.sigma_3d_m, lat)
+
+
 def _end_along(interval: EndInterval, sign: float, survey: SurveyEnd | None, t_g: float | None, sg: float | None,
-               seen_whole: bool, cfg: FuseConfig) -> tuple[float, float, str, bool]:
+               seen_whole: bool, cfg: FuseConfig, on_axis: bool = False) -> tuple[float, float, str, bool]:
     """Where an end the scan shows something of lies along the axis: (t [m], its sigma [m], its
-    source, whether the survey point is contradicted). ``sign``: outward along t."""
+    source, whether the survey point is contradicted). ``sign``: outward along t. ``on_axis``: the
+    survey point lies on the fitted axis line (:func:`_on_axis`)."""
     lo, hi = interval.last_on_m, interval.first_off_m
     seen = interval.state == "seen"
     ss = cfg.scan_end_sigma_m
@@ -963,7 +975,12 @@ def _end_along(interval: EndInterval, sign: float, survey: SurveyEnd | None, t_g
         # to say otherwise)
         past_cover = interval.covered_to_m is not None and sign * (t_g - interval.covered_to_m) > 0
         tip = _overhang(interval, cfg) and ((sg <= cfg.weak_sigma_m and beyond <= cfg.end_search_m) or past_cover)
-        if abs(t_g - t_s) / math.hypot(ss, sg) > cfg.contradiction_sigma and beyond > 0 and (not seen_whole or tip):
+        # ... and a precise point on the axis line past all the scan covers: the log runs on where the scan
+        # has no points (twin scan 1100189: a top seen 1.55 m long, two bins 3 cm under it, then nothing; a
+        # fixed point 97 cm on, 3 cm off the axis line, where the truth's end was)
+        unseen_on = past_cover and on_axis and sg <= cfg.weak_sigma_m
+        if abs(t_g - t_s) / math.hypot(ss, sg) > cfg.contradiction_sigma and beyond > 0 and (
+                not seen_whole or tip or unseen_on):
             seen, hi = False, None
     if not seen_whole and survey is not None and sg <= ss and interval.state != "seen":
         # a log the scan shows only in part: its axis is the survey's and its radius a guess from a piece of

@@ -522,6 +522,23 @@ def test_a_tip_in_the_air_only_bounds_the_end_for_a_precise_point_beyond_it():
     assert fuse_end(p0, u, tip, False, _end(2.45, 0.0), 0.005, cfg).source == "scan"  # float, within the cover
 
 
+def test_a_precise_point_on_the_axis_past_all_the_scan_covers_extends_a_log_on_the_ground():
+    """Twin scan 1100189 log 2: its top seen 1.55 m long, two bins 3 cm under its underside past that, then
+    no points at all; its fixed point 97 cm on and 3 cm off the axis line, where the truth's end was.
+    Nothing in the scan says the log is not there: the point places the end. Off the axis line, within
+    the scan's cover, or only float, the point is contradicted as before."""
+    cfg = FuseConfig()
+    p0, u = np.zeros(3), np.array([1.0, 0.0, 0.0])
+    short = EndInterval(1.55, 1.57, "seen", gap_under_m=0.03, covered_to_m=1.63)
+    e = fuse_end(p0, u, short, False, _end(2.52, 0.03, fix="rtk_fixed"), 0.005, cfg)
+    assert e.source == "fixed" and not e.contradicted and abs(e.position_m[0] - 2.52) < 1e-9
+    off = fuse_end(p0, u, short, False, _end(2.52, 0.40, fix="rtk_fixed"), 0.005, cfg)  # off the line
+    assert off.contradicted and off.source == "scan" and abs(off.position_m[0] - 1.55) < 0.01
+    assert fuse_end(p0, u, short, False, _end(2.52, 0.03), 0.005, cfg).contradicted  # float
+    covered = EndInterval(1.55, 1.57, "seen", gap_under_m=0.03, covered_to_m=2.80)
+    assert fuse_end(p0, u, covered, False, _end(2.52, 0.03, fix="rtk_fixed"), 0.005, cfg).contradicted
+
+
 def test_the_walk_measures_the_gap_under_a_log_past_its_end():
     rng = np.random.default_rng(3)
     r, z_axis = 0.1, 0.5
