@@ -143,7 +143,10 @@ AXIS_SOURCES = ("fit", "gnss")
 #: surveyed log whose refit on the points the others leave it fits no cylinder keeps its first fit (1100198).
 #: 15: a precise survey point on a log's axis line past all the scan covers places the end beyond a
 #: seen one (:func:`reconstruct.fitting.fuse.fuse_end`; 1100189: a log 97 cm short under every survey).
-FIT_REVISION = 15
+#: 16: a ridge running on well past a fixed end is as costly as a wrong point but calls none wrong, so a
+#: scrap beside that end is no better match (1100166 degraded); a log seen only in part is no thicker
+#: than the thickest log the scan shows whole (1100069 degraded: 23 cm too thick).
+FIT_REVISION = 16
 # a cross-section circle loses this much score per footprint bin it does not explain (the profile
 # there lies above it or off it): where a neighbour lies against a log, or the stereo fills the
 # valley between them, that side shows no edge, and without this a wider circle, centred toward
@@ -1822,6 +1825,17 @@ class _Placement:
         return (LogSpec.from_endpoints(p0, p1, 2 * room) if self.cfg.min_radius_m <= room < spec.mean_diameter_m / 2
                 else spec)
 
+    def no_thicker_than_seen(self, spec: LogSpec) -> LogSpec:
+        """A log seen only in part, no thicker than the thickest log the scan shows whole: its radius is
+        the distance from its survey axis to what the scan shows of its top, and a float end puts that
+        axis decimetres off, the radius with it (twin scan 1100069, degraded survey: 23 cm too thick,
+        refused by the pile check at 21 cm); then it is the pile's typical log."""
+        whole = [p.spec.mean_diameter_m for p in self.placed.values() if p.how == "scan"]
+        if not whole or spec.mean_diameter_m <= max(whole):
+            return spec
+        p0, p1 = spec.endpoints_m()
+        return LogSpec.from_endpoints(p0, p1, self.typical_d)
+
     def place_hidden(self, i: int, why: LogNotSeenError) -> None:
         cfg, P = self.cfg, self.P
         a, b = self.endpoints[self.ids[i]]
@@ -1900,6 +1914,7 @@ class _Placement:
                 hidden[i] = exc
                 continue
             spec, swapped = log_spec_from_fit(f, cfg)
+            spec = self.no_thicker_than_seen(spec)
             self.placed[i] = _PlacedLog(f, self.within_room(spec, i, slack_m=cfg.gnss_sigma_m), swapped, "partial")
             self.say(f"log {log_id}: seen only in part; axis from GNSS, diameter {self.placed[i].spec.diameter_m * 100:.1f} cm")
         for i in sorted(hidden):

@@ -485,7 +485,12 @@ def _match_cost(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, c
             inside = max(0.0, t) if at_start else max(0.0, L - t)
             inside = max(0.0, min(inside, L) - cfg.ridge_overrun_m) / math.hypot(sh, cfg.ridge_overrun_m)
             c2 = lat * lat + vert * vert + inside * inside
-            if lat * lat + vert * vert > cfg.gate_sigma ** 2 or inside > cfg.gate_sigma:
+            if lat * lat + vert * vert <= cfg.gate_sigma ** 2 and inside > cfg.gate_sigma:
+                # on the ridge's line, well inside it: the ridge runs on past this end over something abutting
+                # it (twin scan 1100166: 0.76 m past a fixed point, onto a stump) - as costly as a wrong point,
+                # but not called wrong (a scrap of ridge at the point, the log's other point wrong, is no equal)
+                c2 = cfg.gate_sigma ** 2 + 1.0
+            elif lat * lat + vert * vert > cfg.gate_sigma ** 2 or inside > cfg.gate_sigma:
                 # not on this scan log: a wrong point, if the log's other point is (costs more than the
                 # gate, so a log with no point on a scan log is better matched to none)
                 c2 = cfg.gate_sigma ** 2 + 1.0
@@ -528,7 +533,7 @@ def match_survey(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]]
             c2[i, pick[i]] = math.inf
             alt, alt_pick = _assign(c2, none_cost)
             delta = alt - best
-            alternatives[k] = f"{'nothing' if alt_pick[i] is None else f'scan log {alt_pick[i]}'} (chi2 +{delta:.1f})"
+            alternatives[k] = f"{'nothing' if alt_pick[i] is None else f'scan log {alt_pick[i]}'} (chi2 {delta:+.1f})"
             if alt_pick[i] is None and _on_its_survey_line(scan_logs[pick[i]], survey[k], cfg):
                 continue  # "hidden" would count the log twice: the scan shows it on its own fixed points' line
             if not piles.as_good(pick, alt_pick, delta):

@@ -547,3 +547,21 @@ def test_a_surveyed_log_whose_refit_fits_no_cylinder_keeps_its_first_fit(truth, 
     assert calls["log1"] > 1 and [lf.log_id for lf in fit.logs] == ["log0", "log1", "log2", "log3"]
     err = np.linalg.norm(np.asarray(fit.logs[1].butt_m) - truth.logs[1].endpoints_m()[0])
     assert err < 0.05, err
+
+
+def test_a_log_seen_in_part_is_no_thicker_than_the_thickest_log_seen_whole():
+    """Twin scan 1100069, degraded survey: a log under others, its axis from a fixed and a float point 8
+    degrees off, took a radius 23 cm too large (the distance from that axis to its top), and the pile
+    check refused the pile. Thicker than any log the scan shows whole, it is the pile's typical log."""
+    from reconstruct.fitting.fit import FitConfig, _Placement, _PlacedLog
+
+    pl = _Placement(np.zeros((0, 3)), ["log0", "log1"], {}, FitConfig(), np.random.default_rng(0), None, set(),
+                    lambda m: None)
+    pl.typical_d = 0.16
+    whole = LogSpec.from_endpoints(np.array([0.0, 0.0, 0.1]), np.array([2.0, 0.0, 0.1]), 0.20)
+    pl.placed[0] = _PlacedLog(None, whole, False, "scan")
+    a, b = np.array([0.0, 1.0, 0.2]), np.array([2.0, 1.2, 0.2])
+    thick = pl.no_thicker_than_seen(LogSpec.from_endpoints(a, b, 0.38))
+    assert thick.mean_diameter_m == pytest.approx(0.16)
+    assert np.allclose(np.sort(np.array(thick.endpoints_m()), axis=0), np.sort(np.array([a, b]), axis=0))
+    assert pl.no_thicker_than_seen(LogSpec.from_endpoints(a, b, 0.19)).mean_diameter_m == pytest.approx(0.19)

@@ -299,6 +299,21 @@ def test_a_fixed_log_is_not_ambiguous_with_a_scrap_that_needs_one_of_its_points_
     assert float(matches["log4"].alternative.split("+")[1].rstrip(")")) < FuseConfig().ambiguity_chi2
 
 
+def test_a_ridge_running_on_past_a_fixed_end_is_the_log_not_a_scrap_beside_that_end():
+    """Twin scan 1100166, degraded survey: a log's ridge runs 0.76 m on past its fixed end b, onto a stump;
+    a 35 cm scrap beside b (the stump's edge) explained b and let the float a lie on its line far off.
+    The ridge, with b well inside it, is as costly as a wrong point but calls none wrong: the two are as
+    good, and the ridge, which would otherwise stand as a log the survey missed, is the log's."""
+    ridge = _slanted_scan_log((-1.0, 0.0, 0.08), (1.8, 0.0, 0.08))
+    scrap = _slanted_scan_log((0.80, 0.17, 0.08), (1.15, 0.17, 0.08), seen=0.35)
+    other = _scan_log(-1.0, 1.0, 1.0)
+    survey = {"log2": (_end(-1.05, 0.05), _end(1.0, 0.0, fix="rtk_fixed")),
+              "log1": (_end(-1.0, 1.0, fix="rtk_fixed"), _end(1.0, 1.0, fix="rtk_fixed"))}
+    matches, unmatched = match_survey(survey, [ridge, scrap, other])
+    assert matches["log2"].scan_index == 0 and unmatched == [1]
+    assert "scan log 1 (chi2 -" in matches["log2"].alternative  # the scrap alone explains the points better
+
+
 def test_an_ambiguity_between_fixed_points_does_not_ask_for_a_fixed_solution():
     # two parallel pieces of logs 6 cm apart, each seen only in the middle; fixed points half-way
     # between: either piece, and the piles differ (the other one dropped). Measuring the points
