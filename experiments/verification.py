@@ -19,7 +19,8 @@ needed (as each was timed when it ran, one worker) plus making its perturbed cop
 would spend. ``--timing`` measures real verification wall times with ``--workers`` processes instead.
 
 The record (JSON) is written after every pile; re-running the same command resumes it (with more
-``--piles`` it extends it). The full run (~1 CPU-minute a pile with f1 and f3; ``--workers`` piles at
+``--piles`` it extends it) - with the same code only: its fitting and trial revisions are part of its
+settings, so a record begun by other code is refused, never mixed. The full run (~1 CPU-minute a pile with f1 and f3; ``--workers`` piles at
 once, each in its own process):
 
     .venv/bin/python bench/bench_verify.py --piles 500 --workers 2 --work-dir runs/verify-work \\
@@ -213,13 +214,17 @@ def run(cfg: VerifyBenchConfig, work_dir: Path, out: Path, progress=print) -> di
     """Measure (see the module docstring) into the record ``out`` (written after every pile; the same
     settings resume it, more ``piles`` extend it); twin scans kept in ``work_dir``."""
     from planner.checkpoint import DEFAULT_MODEL
+    from reconstruct.fitting.fit import FIT_REVISION
     from synth.common.files import sha256_file
     from synth.common.runner import run_tasks
+    from synth.physics.trial import TRIAL_REVISION
 
     model = Path(cfg.model or DEFAULT_MODEL)
     config = {"piles": cfg.piles, "seed": cfg.seed, "logs": list(cfg.logs), "obstacles": list(cfg.obstacles),
               "objectives": list(cfg.objectives), "ks": list(cfg.ks), "copies": cfg.copies,
-              "n_float": cfg.n_float, "model_sha256": sha256_file(model)}
+              "n_float": cfg.n_float, "model_sha256": sha256_file(model),
+              # piles reconstructed or grasps tried by other code are another measurement: never mixed in
+              "fit_revision": FIT_REVISION, "trial_revision": TRIAL_REVISION}
     same = {k: v for k, v in config.items() if k != "piles"}
     rec = {"format": FORMAT, "format_version": VERSION, "config": config, "rows": [], "loads": []}
     if out.exists():

@@ -49,3 +49,33 @@ def test_rows_without_the_truth_reference_are_left_out():
 def test_config_refuses_what_cannot_be_measured(bad):
     with pytest.raises(ValueError):
         VerifyBenchConfig(**bad)
+
+
+def test_a_record_made_by_other_fitting_or_trial_code_is_not_resumed(tmp_path, monkeypatch):
+    """A resumed record must hold one measurement: rows of piles reconstructed (or grasps tried) by
+    another revision of the code would mix silently. The run refuses before it measures anything."""
+    import json
+
+    from experiments.verification import run
+    from reconstruct.fitting.fit import FIT_REVISION
+    from synth.physics.trial import TRIAL_REVISION
+
+    measured = []
+
+    def no_twin(fn, tasks, keep, workers=1):  # each pile "measured" (an empty row): the record is written
+        for seed in tasks:
+            measured.append(seed)
+            keep(seed, [{"seed": seed, "objective": "f1", "variants": {}}])
+
+    monkeypatch.setattr("synth.common.runner.run_tasks", no_twin)
+    out, cfg = tmp_path / "record.json", VerifyBenchConfig(piles=2)
+    run(cfg, tmp_path / "work", out, progress=lambda m: None)
+    config = json.loads(out.read_text())["config"]
+    assert (config["fit_revision"], config["trial_revision"]) == (FIT_REVISION, TRIAL_REVISION) and len(measured) == 2
+    run(cfg, tmp_path / "work", out, progress=lambda m: None)  # the same code resumes it: nothing left to do
+    assert len(measured) == 2
+    for key in ("fit_revision", "trial_revision"):
+        out.write_text(json.dumps({"config": dict(config, **{key: config[key] - 1}), "rows": [], "loads": []}))
+        with pytest.raises(ValueError, match="another measurement"):
+            run(cfg, tmp_path / "work", out, progress=lambda m: None)
+    assert len(measured) == 2
