@@ -197,8 +197,37 @@ def survey_summary(rec: dict) -> dict:
             "contradicted_points": sum(e["contradicted_points"] for _, e in ok),
             "scan_wall_s": _stats([w for w, _ in four]), "scan_cpu_s": _stats([c for _, c in four]),
             "recon_cpu_s": _stats([e["cpu_s"] for _, e in ok]),
+            "tail": _tail(logs),
         }
     return out
+
+
+def blind_log(log: dict) -> bool:
+    """A log with an end that neither the scan sees nor an RTK fixed point places: where it lies along
+    the log only a float point (+-20-30 cm) or an inference from what covers it says."""
+    return any(e["source"] in ("float", "inferred") and e["scan"] != "seen" for e in log["ends"])
+
+
+def flagged_log(log: dict) -> bool:
+    """A log the report warns about: an end weaker than ``weak_sigma_m`` or against its survey point."""
+    from reconstruct.fitting.fuse import FuseConfig
+
+    weak = FuseConfig().weak_sigma_m
+    return any(e["sigma_m"] > weak or e["contradicted"] for e in log["ends"])
+
+
+def _tail(logs: list[dict], far_m: float = 0.08) -> dict:
+    """What the worst-end tail is made of: the blind logs (:func:`blind_log`, their share and errors),
+    the worst end over the others, and the logs farther off than ``far_m`` that the report did not
+    warn about (silently wrong)."""
+    blind = [lg for lg in logs if blind_log(lg)]
+    seen = [lg["worst_end_m"] for lg in logs if not blind_log(lg)]
+    silent = [lg for lg in logs if lg["worst_end_m"] > far_m and not flagged_log(lg)]
+    return {"blind_logs": len(blind), "blind_share": len(blind) / max(len(logs), 1),
+            "blind_worst_end_m": _stats([lg["worst_end_m"] for lg in blind]),
+            "blind_over_far": sum(lg["worst_end_m"] > far_m for lg in blind),
+            "other_worst_end_m": _stats(seen), "far_m": far_m,
+            "over_far": sum(lg["worst_end_m"] > far_m for lg in logs), "silent_over_far": len(silent)}
 
 
 def _stats(v: list[float], low: bool = False) -> dict:
@@ -261,6 +290,20 @@ def survey_markdown(rec: dict, figure: Path | None = None) -> list[str]:
         lines.append(f"| {cond} | {src} | {d['weak_ends']} | {d['contradicted_points']} | "
                      f"{d['scan_wall_s']['median']:.1f} | {d['scan_wall_s']['p95']:.1f} | {d['scan_cpu_s']['median']:.1f} | "
                      f"{d['recon_cpu_s']['median']:.1f} |")
+    lines += ["", "What the worst-end tail is made of. *Blind* logs have an end that neither the scan sees nor an RTK "
+              "fixed point places (a float point or an inference from what covers it: +-20-30 cm along the log); "
+              "*silent*: farther off than the limit without a warning in the report (no weak or contradicted end).",
+              "", "| survey | blind logs | share | their worst end median [cm] | p95 | over 8 cm | worst end p95, "
+              "the other logs [cm] | logs over 8 cm | of them silent |", "|---|---|---|---|---|---|---|---|---|"]
+    for cond, d in s.items():
+        if not d["logs"]:
+            continue
+        t = d["tail"]
+        bw, ow = t["blind_worst_end_m"], t["other_worst_end_m"]
+        cm = (lambda st, k: f"{100 * st[k]:.1f}" if st.get("n") else "-")  # noqa: E731
+        lines.append(f"| {cond} | {t['blind_logs']} | {100 * t['blind_share']:.1f} % | {cm(bw, 'median')} | "
+                     f"{cm(bw, 'p95')} | {t['blind_over_far']} | {cm(ow, 'p95')} | {t['over_far']} | "
+                     f"{t['silent_over_far']} |")
     for cond, d in s.items():
         for m in d["failure_messages"]:
             lines.append(f"- {cond}, seed {m}")

@@ -8,9 +8,11 @@ from experiments.survey_conditions import (SURVEY_CONDITIONS, _seed_ranges, read
 KEY = {"seed0": 10, "logs": [3, 7], "obstacles": [0, 3], "fit_revision": 11}
 
 
-def _log(worst_cm, dia_cm, iou=0.9, sources=("scan", "fixed")):
+def _log(worst_cm, dia_cm, iou=0.9, sources=("scan", "fixed"), scan=("seen", "seen"), sigma_cm=(1.5, 1.5),
+         contradicted=(False, False)):
     return {"worst_end_m": worst_cm / 100, "diameter_err_m": dia_cm / 100, "mask_iou": iou,
-            "ends": [{"source": s} for s in sources]}
+            "ends": [{"source": s, "scan": st, "sigma_m": sg / 100, "contradicted": c}
+                     for s, st, sg, c in zip(sources, scan, sigma_cm, contradicted)]}
 
 
 def _ok(*logs, missing=()):
@@ -78,3 +80,19 @@ def test_a_cloud_fingerprint_tells_two_scans_apart():
     assert cloud_fingerprint(a) == cloud_fingerprint(b) and len(cloud_fingerprint(a)) == 16
     b.points[7, 2] += 1e-9  # one coordinate of one point
     assert cloud_fingerprint(a) != cloud_fingerprint(b)
+
+
+def test_the_tail_tells_blind_logs_from_silently_wrong_ones(tmp_path):
+    """The worst-end tail split into what the survey cannot place better (a float end the scan does not
+    see), the rest, and what the report did not warn about (the defects to chase)."""
+    blind = _log(25, 0.5, sources=("scan", "float"), scan=("seen", "open"), sigma_cm=(1.5, 20))
+    seen_float = _log(2, 0.5, sources=("scan", "float"), scan=("seen", "seen"))  # the scan sees it: not blind
+    silent = _log(40, 0.5)  # two sure ends, 40 cm off: silently wrong
+    warned = _log(30, 0.5, contradicted=(True, False))
+    rows = [_scan(10, {"default": _ok(blind, seen_float, silent, warned, _log(1, 0.1))})]
+    _write(tmp_path, rows)
+    rec = read_survey_records(tmp_path)
+    t = survey_summary(rec)["default"]["tail"]
+    assert (t["blind_logs"], t["blind_over_far"], t["over_far"], t["silent_over_far"]) == (1, 1, 3, 1)
+    assert abs(t["blind_share"] - 0.2) < 1e-12 and abs(t["other_worst_end_m"]["max"] - 0.40) < 1e-12
+    assert "| default | 1 | 20.0 % | 25.0 | 25.0 | 1 |" in "\n".join(survey_markdown(rec))
