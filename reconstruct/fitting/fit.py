@@ -146,7 +146,9 @@ AXIS_SOURCES = ("fit", "gnss")
 #: 16: a ridge running on well past a fixed end is as costly as a wrong point but calls none wrong, so a
 #: scrap beside that end is no better match (1100166 degraded); a log seen only in part is no thicker
 #: than the thickest log the scan shows whole (1100069 degraded: 23 cm too thick).
-FIT_REVISION = 16
+#: 17: a run on the log's top at most 4 cm long past 20 cm with none is a neighbour's flank, not its end
+#: (:func:`reconstruct.fitting.fuse.scan_end_interval`; 1100052: a log 31 cm too long under every survey).
+FIT_REVISION = 17
 # a cross-section circle loses this much score per footprint bin it does not explain (the profile
 # there lies above it or off it): where a neighbour lies against a log, or the stereo fills the
 # valley between them, that side shows no edge, and without this a wider circle, centred toward

@@ -87,6 +87,8 @@ class FuseConfig:
     #                               walk's gap reads the true clearance or less (median 3 cm less), and ends
     #                               resting on the ground read at most 1.6 cm (202 seen ground ends, 16 twin
     #                               scans) [m]
+    island_max_m: float = 0.04  # a run on the log this short, past a stretch with none of at least
+    island_gap_m: float = 0.20  # this long, is not the log's end (a neighbour's flank at its top's height) [m]
     on_band_m: float = 0.02  # a bin is on the log when points lie this close to its top [m]
     min_on_points: int = 2  # ... at least this many [-]
     scan_end_sigma_m: float = 0.015  # axial accuracy of an end the scan sees (stereo smear, bins) [m]
@@ -102,6 +104,7 @@ class FuseConfig:
                      "max_gap_m", "max_occluded_gap_m", "min_segment_m", "pose_sigma_m", "axis_sigma_m",
                      "radius_sigma_m", "gate_sigma", "ridge_overrun_m",
                      "end_bin_m", "seen_gap_m", "end_search_m", "overhang_gap_m", "on_band_m", "scan_end_sigma_m",
+                     "island_max_m", "island_gap_m",
                      "contradiction_sigma", "weak_sigma_m", "inferred_sigma_m", "min_new_log_m", "extrapolation_sigma_per_m"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
@@ -819,9 +822,9 @@ def scan_end_interval(points: np.ndarray, p0: np.ndarray, p1: np.ndarray, radius
     score = inside + np.r_[outside[1:], 0]
     score[on_k == 0] = np.iinfo(np.int64).min  # the cut is right after a bin on the log
     j = int(np.argmax(score))
-    last_on = int(ks[j])
     beyond = np.flatnonzero(below_k[j + 1:])
     first_off = None if not len(beyond) else int(ks[j + 1 + beyond[0]])
+    last_on = int(ks[_before_island(on_k, j, step, cfg)])
 
     # the last bin on the log ends it at its middle (stereo smears a top a centimetre past its end); the
     # first bin below begins where it begins
@@ -833,6 +836,27 @@ def scan_end_interval(points: np.ndarray, p0: np.ndarray, p1: np.ndarray, radius
     covered = ks[np.flatnonzero(count[ks] >= 2)[-1]]  # the walk's farthest bin with points (at least first_off)
     t_cov = lo_t + (covered + (1 if toward_p1 else 0)) * step
     return EndInterval(t_on, t_off, state, gap_under_m=float(-top[first_off] - 2 * r), covered_to_m=float(t_cov))
+
+
+def _before_island(on_k: np.ndarray, j: int, step: float, cfg: FuseConfig) -> int:
+    """The walk's last bin on the log (index into the walk), given the cut after bin ``j``: the same,
+    unless the run on the log that ends at ``j`` is an island - at most ``island_max_m`` long, past a
+    stretch of at least ``island_gap_m`` with no bin on the log (unseen, or something over it). Then the
+    log's own top ends before that stretch, and the island, a few points at the height of its top just
+    before the scan sees the ground, is a neighbour's flank or edge (twin scan 1100052 log 2: its end
+    hidden under a crossing log, six points 31 cm on put the 'seen' end there, past its fixed point and
+    the truth). The interval then runs from that top's end to where the scan sees below it: occluded."""
+    start = j
+    while start > 0 and on_k[start - 1]:
+        start -= 1
+    if (j - start + 1) * step > cfg.island_max_m + 1e-9:
+        return j
+    prev = start - 1
+    while prev >= 0 and not on_k[prev]:
+        prev -= 1
+    if prev < 0 or (start - 1 - prev) * step < cfg.island_gap_m - 1e-9:
+        return j
+    return prev
 
 
 def seen_end(interval: EndInterval) -> float:

@@ -554,6 +554,37 @@ def test_a_precise_point_on_the_axis_past_all_the_scan_covers_extends_a_log_on_t
     assert fuse_end(p0, u, covered, False, _end(2.52, 0.03, fix="rtk_fixed"), 0.005, cfg).contradicted
 
 
+def test_a_few_points_at_the_tops_height_past_a_hidden_stretch_are_not_the_logs_end():
+    """Twin scan 1100052 log 2: its end hidden under a crossing log, then nothing seen for 30 cm, then six
+    points at the height of its top (a neighbour's flank) just before the ground: the walk called the end
+    seen there, 31 cm past its fixed point and the truth. Such an island is not the log: the end lies
+    somewhere between its top's end and the ground (occluded). A run of the top longer than the island
+    limit, or one right after the rest of the top, is the end as before."""
+    rng = np.random.default_rng(5)
+    r, z = 0.08, 0.08  # axis height: a log on the ground
+
+    def strip(t0, t1, height, n):
+        t = rng.uniform(t0, t1, n)
+        s = rng.uniform(-0.03, 0.03, n)
+        return np.c_[t, s, np.full(n, height) + (np.sqrt(r * r - s * s) if height == z else 0.0)]
+
+    top = strip(0.0, 1.50, z, 3000)
+    over = strip(1.50, 1.70, 0.35, 300)  # a crossing log's top over it
+    island = strip(2.00, 2.035, z, 12)  # points at its top's height, 30 cm past the crossing
+    ground = strip(2.04, 2.40, 0.0, 300)
+    p0, p1 = np.array([0.0, 0.0, z]), np.array([1.5, 0.0, z])
+    iv = scan_end_interval(np.r_[top, over, island, ground], p0, p1, r, True, 1.0)
+    assert iv.state == "occluded" and iv.last_on_m < 1.52 and abs(iv.first_off_m - 2.04) < 0.03
+    # the same top running on to 2.04 without the gap: its end, seen
+    whole = strip(0.0, 2.035, z, 4000)
+    iv = scan_end_interval(np.r_[whole, ground], p0, p1, r, True, 1.0)
+    assert iv.state == "seen" and abs(iv.last_on_m - 2.03) < 0.02
+    # a longer piece past the gap (a log seen on both sides of a crossing one) is the log's
+    piece = strip(1.90, 2.035, z, 150)
+    iv = scan_end_interval(np.r_[top, over, piece, ground], p0, p1, r, True, 1.0)
+    assert iv.state == "seen" and abs(iv.last_on_m - 2.03) < 0.02
+
+
 def test_the_walk_measures_the_gap_under_a_log_past_its_end():
     rng = np.random.default_rng(3)
     r, z_axis = 0.1, 0.5
