@@ -148,7 +148,10 @@ AXIS_SOURCES = ("fit", "gnss")
 #: than the thickest log the scan shows whole (1100069 degraded: 23 cm too thick).
 #: 17: a run on the log's top at most 4 cm long past 20 cm with none is a neighbour's flank, not its end
 #: (:func:`reconstruct.fitting.fuse.scan_end_interval`; 1100052: a log 31 cm too long under every survey).
-FIT_REVISION = 17
+#: 18: of two logs side by side the scan shows as one ridge, the one with a float point takes it and the
+#: one with both points RTK fixed is the hidden one (:func:`reconstruct.fitting.fuse.match_survey`; real-test
+#: scans 700074, 700114 stopped as ambiguous).
+FIT_REVISION = 18
 # a cross-section circle loses this much score per footprint bin it does not explain (the profile
 # there lies above it or off it): where a neighbour lies against a log, or the stereo fills the
 # valley between them, that side shows no edge, and without this a wider circle, centred toward

@@ -539,6 +539,8 @@ def match_survey(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]]
             alternatives[k] = f"{'nothing' if alt_pick[i] is None else f'scan log {alt_pick[i]}'} (chi2 {delta:+.1f})"
             if alt_pick[i] is None and _on_its_survey_line(scan_logs[pick[i]], survey[k], cfg):
                 continue  # "hidden" would count the log twice: the scan shows it on its own fixed points' line
+            if alt_pick[i] is None and _hidden_is_the_surer(survey, ids, pick, alt_pick, i):
+                continue
             if not piles.as_good(pick, alt_pick, delta):
                 continue
             if alt_pick[i] is not None and piles.unexplained(alt_pick) != piles.unexplained(pick):
@@ -558,6 +560,21 @@ def match_survey(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]]
                for i, (k, j) in enumerate(zip(ids, pick))}
     taken = {j for j in pick if j is not None}
     return matches, [j for j in range(len(scan_logs)) if j not in taken]
+
+
+def _hidden_is_the_surer(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]], ids: list[str],
+                         pick: list[int | None], alt: list[int | None], i: int) -> bool:
+    """Whether of two matchings that differ in which of two logs the scan shows (``pick``: log ``i`` on a
+    scan log, another hidden; ``alt``: log ``i`` hidden, that other on it), ``pick`` hides only logs whose
+    two points are RTK fixed while log ``i`` has a float one. Two logs lying side by side, the scan showing
+    one ridge (twin scans 700074, 700114: 17 cm apart, one 10 cm higher): the hidden log is placed from its
+    survey points, so ``pick`` places both logs as well as the survey allows; were ``alt`` the truth,
+    ``pick``'s hidden log would lie where the scan shows a log, for the pile check to refuse, and where the
+    ridge is both logs end to end (700114), the log on it gets an end its float point contradicts, reported
+    weak. So ``pick`` is taken, not an ambiguity."""
+    unhidden = [j for j, (a, b) in enumerate(zip(pick, alt)) if a is None and b is not None]
+    fixed = lambda k: all(e is not None and e.fix == "rtk_fixed" for e in survey[k])  # noqa: E731
+    return bool(unhidden) and all(fixed(ids[j]) for j in unhidden) and not fixed(ids[i])
 
 
 class _Piles:

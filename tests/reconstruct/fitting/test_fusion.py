@@ -314,6 +314,21 @@ def test_a_ridge_running_on_past_a_fixed_end_is_the_log_not_a_scrap_beside_that_
     assert "scan log 1 (chi2 -" in matches["log2"].alternative  # the scrap alone explains the points better
 
 
+def test_of_two_logs_side_by_side_the_one_with_a_float_point_takes_the_ridge():
+    """Twin scans 700074, 700114: two surveyed logs side by side, the scan showing one ridge between them;
+    either could be the hidden one, about equally well (chi2 2.1-2.3). Hidden, a log is placed from its
+    points: the one with both RTK fixed is, and the one with a float point takes the ridge. Where both
+    have a float point, which is hidden is still the ambiguity it was."""
+    ridge = [_scan_log(-1.0, 1.0, 0.10)]
+    survey = {"logA": (_end(-1.0, 0.03, fix="rtk_fixed"), _end(1.0, 0.03, fix="rtk_fixed")),
+              "logB": (_end(-1.0, 0.17), _end(1.0, 0.17, fix="rtk_fixed"))}
+    matches, _ = match_survey(survey, ridge)
+    assert matches["logB"].scan_index == 0 and matches["logA"].scan_index is None
+    survey["logA"] = (_end(-1.0, 0.03), _end(1.0, 0.03, fix="rtk_fixed"))
+    with pytest.raises(AmbiguousSurveyError):
+        match_survey(survey, ridge)
+
+
 def test_an_ambiguity_between_fixed_points_does_not_ask_for_a_fixed_solution():
     # two parallel pieces of logs 6 cm apart, each seen only in the middle; fixed points half-way
     # between: either piece, and the piles differ (the other one dropped). Measuring the points
