@@ -320,7 +320,8 @@ def markdown(rec: dict, command: str) -> str:
         "time + the time of every trial the verification needed, one worker (each trial timed when it ran) + "
         "making the perturbed copies; wall times under the load stated, CPU times of that one process.",
         "",
-        f"Command: `{command}`",
+        f"Command: `{command}`" + (f" (fitting revision {cfg['fit_revision']}, trial revision {cfg['trial_revision']})"
+                                   if "fit_revision" in cfg else ""),
         f"Load average (1/5/15 min) after each pile: first {loads[0] if loads else '?'}, last {loads[-1] if loads else '?'}; "
         f"piles the generator or the twin could not make: {len(fails)}.",
         "",
@@ -342,9 +343,31 @@ def markdown(rec: dict, command: str) -> str:
                          f"{t['plan_cpu_s_p90']:.1f} | {t['plan_cpu_s_median_6logs']:.1f} | "
                          f"{t['trials_mean']:.1f} | {f} |")
         lines.append("")
+    lines += _reconstructed_only(rec)
     for r in fails:
         lines.append(f"- seed {r['seed']}: {r['failure']}")
     return "\n".join(lines) + "\n"
+
+
+def _reconstructed_only(rec: dict) -> list[str]:
+    """The same planners on the piles whose reconstruction the stack did not refuse: what planning and
+    verification do given a pile, apart from how often there is none (every planner but the truth-planned
+    one fails on a refused pile)."""
+    refused = {r["seed"] for r in rec["rows"] if r.get("recon_error")}
+    kept = dict(rec, rows=[r for r in rec["rows"] if r["seed"] not in refused])
+    if not refused or not kept["rows"]:
+        return []
+    n_all = len({r["seed"] for r in rec["rows"]})
+    lines = [f"## On the piles reconstructed ({n_all - len(refused)} of {n_all}; {len(refused)} refused: "
+             f"{100 * len(refused) / n_all:.1f} %)", "",
+             "| objective | planner | piles | success | vs truth-planned [pp] (95 % CI) | logs / success | β [deg] |",
+             "|---|---|---|---|---|---|---|"]
+    for kind, table in summarise(kept).items():
+        for name, t in table.items():
+            d, lo, hi = t["vs_truth_pp"]
+            lines.append(f"| {kind} | {name} | {t['piles']} | {100 * t['success']:.1f} % | {d:+.1f} [{lo:+.1f}, {hi:+.1f}] | "
+                         f"{t['logs_per_success']:.2f} | {t['beta_deg']:.1f} |")
+    return lines + [""]
 
 
 def figure(rec: dict, path: Path) -> None:

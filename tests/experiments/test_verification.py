@@ -79,3 +79,15 @@ def test_a_record_made_by_other_fitting_or_trial_code_is_not_resumed(tmp_path, m
         with pytest.raises(ValueError, match="another measurement"):
             run(cfg, tmp_path / "work", out, progress=lambda m: None)
     assert len(measured) == 2
+
+
+def test_the_report_sets_apart_the_piles_whose_reconstruction_was_refused():
+    rows = _rows()
+    rows[1]["recon_error"] = "SeparationError: log 2 would have to move 12 cm"
+    rec = {"config": {"objectives": ["f3"], "seed": 700, "logs": [3, 6], "obstacles": [0, 2], "ks": [4],
+                      "copies": 0, "model_sha256": "ab" * 32, "fit_revision": 18, "trial_revision": 3},
+           "rows": rows, "loads": []}
+    md = markdown(rec, "python bench/bench_verify.py")
+    assert "(fitting revision 18, trial revision 3)" in md
+    assert "## On the piles reconstructed (3 of 4; 1 refused: 25.0 %)" in md
+    assert "| f3 | verify K=4 | 3 | 66.7 % |" in md  # piles 700, 702, 703: verified 1, 0, 1
