@@ -151,7 +151,9 @@ AXIS_SOURCES = ("fit", "gnss")
 #: 18: of two logs side by side the scan shows as one ridge, the one with a float point takes it and the
 #: one with both points RTK fixed is the hidden one (:func:`reconstruct.fitting.fuse.match_survey`; real-test
 #: scans 700074, 700114 stopped as ambiguous).
-FIT_REVISION = 18
+#: 19: a fixed point well across a scan-fitted axis is contradicted (reported; the pile check may then try the
+#: end at it) (:func:`reconstruct.fitting.fuse._off_the_fitted_axis`; real-test scan 700085).
+FIT_REVISION = 19
 # a cross-section circle loses this much score per footprint bin it does not explain (the profile
 # there lies above it or off it): where a neighbour lies against a log, or the stereo fills the
 # valley between them, that side shows no edge, and without this a wider circle, centred toward
