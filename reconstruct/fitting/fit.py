@@ -1841,7 +1841,7 @@ class _Placement:
         if not whole or spec.mean_diameter_m <= max(whole):
             return spec
         p0, p1 = spec.endpoints_m()
-        return LogSpec.from_endpoints(p0, p1, self.typical_d)
+        return LogSpec.from_endpoints(p0, p1, self.typical_d, colour=spec.colour)
 
     def place_hidden(self, i: int, why: LogNotSeenError) -> None:
         cfg, P = self.cfg, self.P
