@@ -37,6 +37,10 @@ lines = [
     f"{cfg['model']['base_channels']}, depth {cfg['model']['depth']}, {log['n_parameters']:,} parameters, "
     f"{cfg['model']['size_px']} px. (The paper's 4.1 M width is `--base-channels 23`; the smaller width was chosen "
     "for planning latency on a 2-core CPU.)",
+    f"- Mask injection: {cfg['model'].get('mask_injection', 'input')} (`input`: the target mask is an input "
+    "channel, as in the paper). The encode-once `decoder` variant, same recipe on half the store, lost 10 pp (f1) "
+    "and 17 pp (f3) on the learning curve's 240 piles for a 13 % faster plan (docs/results/README.md, "
+    "learning-curve).",
     data_line,
     f"- Training: Adam lr {cfg['lr']}, batch {cfg['batch_size']}, {cfg['precision']} autocast on {log['device']}, "
     f"loss weights λ_B, λ_S, λ_C, λ_W = {cfg['loss']['lambda_b']}, {cfg['loss']['lambda_s']}, "
