@@ -13,11 +13,13 @@ import math
 from dataclasses import replace
 from pathlib import Path
 
+from planner.loss import LossWeights
+
 SHARES = (0.125, 0.25, 0.5, 1.0)
 #: BCE weight of the positive U pixels, the shipped model's: with the paper's plain BCE (1) the
 #: network's U stays low everywhere (its maximum ~0.09 on validation piles after 16 epochs, the argmax
 #: in a labelled grasp region on 10-27 % of them; docs/results/learning-curve-plain-bce)
-U_POS_WEIGHT = 25.0
+U_POS_WEIGHT = LossWeights().u_pos_weight
 
 
 def _source(data: list[str]):

@@ -99,8 +99,8 @@ def train_command(
         "--mask-injection", "input (the paper's: the target mask is an input channel) or decoder (encode the "
         "image once per pile, the mask joins at the decoder: faster planning).",
         field=(UNetConfig, "mask_injection"), metavar="input|decoder"),
-    u_pos_weight: float = option("--u-pos-weight", "BCE weight of positive U pixels (1 = the paper's plain BCE; "
-                                 "U marks ~0.3 % of pixels).", field=(LossWeights, "u_pos_weight"), min=0.0),
+    u_pos_weight: float = option("--u-pos-weight", "BCE weight of positive U pixels (U marks ~0.3 % of pixels; "
+                                 "25 = the shipped model's, 1 = the paper's plain BCE, which leaves U flat).", field=(LossWeights, "u_pos_weight"), min=0.0),
     seed: int = option("--seed", "Initialisation, data order and augmentation.", field=(TrainConfig, "seed")),
     device: Literal["auto", "cpu", "cuda"] = option("--device", "auto (cuda when available), cpu or cuda.",
                                                     field=(TrainConfig, "device"), metavar="auto|cpu|cuda"),

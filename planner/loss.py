@@ -21,7 +21,9 @@ class LossWeights:
     lambda_s: float = 30.0  # sin 2phi MMSE weight [-]
     lambda_c: float = 30.0  # cos 2phi MMSE weight [-]
     lambda_w: float = 60.0  # width MMSE weight [1/m^2]
-    u_pos_weight: float = 1.0  # BCE weight of positive U pixels (1 = the paper's plain BCE) [-]
+    # BCE weight of positive U pixels [-]: 25, the shipped model's; 1 is the paper's plain BCE, which leaves U
+    # flat on this data (docs/results/README.md, learning-curve-plain-bce: 17-25 % success against 67-79 %)
+    u_pos_weight: float = 25.0
 
     def __post_init__(self) -> None:
         for k, v in vars(self).items():

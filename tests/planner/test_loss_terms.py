@@ -101,3 +101,14 @@ def test_training_and_validation_use_the_configured_weights(tmp_path, monkeypatc
                         max_steps_per_epoch=1, max_val_batches=1)
     T.train(tmp_path / "data", tmp_path / "run", cfg)
     assert len(seen) >= 2 and all(w == W for w in seen), seen
+
+
+def test_the_default_loss_is_the_shipped_models():
+    """`loggrasp train` without loss flags trains the shipped model's loss (U positives weighted 25, not
+    the paper's plain BCE, which leaves U flat on this data): the shipped model's own training log says so."""
+    import json
+    from pathlib import Path
+
+    log = json.loads((Path(__file__).parents[2] / "docs/results/learning-curve/share_1/log.json").read_text())
+    shipped = log["config"]["loss"]
+    assert {k: getattr(LossWeights(), k) for k in shipped} == shipped
