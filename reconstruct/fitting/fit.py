@@ -153,7 +153,12 @@ AXIS_SOURCES = ("fit", "gnss")
 #: scans 700074, 700114 stopped as ambiguous).
 #: 19: a fixed point well across a scan-fitted axis is contradicted (reported; the pile check may then try the
 #: end at it) (:func:`reconstruct.fitting.fuse._off_the_fitted_axis`; real-test scan 700085).
-FIT_REVISION = 19
+#: 20: a scan log seen over less than half the distance between a log's two precise survey points is a
+#: piece: the points set the log's prior axis (:func:`reconstruct.fitting.fuse.prior_axis`; real-test scan
+#: 700414: a 35 cm piece tilted a log 9 deg, 41 cm off its fixed point); past the end of a log running down
+#: outward, level ground is not its top (:func:`reconstruct.fitting.fuse.scan_end_interval`; 700414: an end
+#: placed 59 cm past its fixed point, on the ground the extended top dived into).
+FIT_REVISION = 20
 # a cross-section circle loses this much score per footprint bin it does not explain (the profile
 # there lies above it or off it): where a neighbour lies against a log, or the stereo fills the
 # valley between them, that side shows no edge, and without this a wider circle, centred toward

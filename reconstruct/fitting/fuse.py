@@ -95,6 +95,11 @@ class FuseConfig:
     contradiction_sigma: float = 3.0  # a point farther than this many sigma from the scan's estimate is
     #                                   contradicted: reported, not used [-]
     weak_sigma_m: float = 0.05  # an end less certain than this is a weak estimate (warned about) [m]
+    descent_min_deg: float = 3.0  # past the end of a log descending outward at least this steeply, level
+    level_shoulder: float = 0.6  # ground (the scan beside the top at least this many radii over the axis) is
+    #                              not the log's top [deg, -]
+    piece_share: float = 0.5  # a scan log seen over less than this share of its two precise survey points'
+    #                           distance is a piece: the points set the log's prior axis [-]
     inferred_sigma_m: float = 0.30  # uncertainty of an end known only to lie beyond what the scan sees [m]
     extrapolation_sigma_per_m: float = 0.02  # a fitted axis extended past what the scan shows of its log is
     #                                          less sure across by this per metre [m/m]
@@ -110,6 +115,10 @@ class FuseConfig:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
         if not 0 < self.max_anisotropy < 1:
             raise ValueError(f"max_anisotropy must be in (0, 1), got {self.max_anisotropy}")
+        if not 0 <= self.descent_min_deg < 90 or not self.level_shoulder > 0:
+            raise ValueError("descent_min_deg must be in [0, 90) and level_shoulder > 0")
+        if not 0 <= self.piece_share <= 1:
+            raise ValueError(f"piece_share must be in [0, 1], got {self.piece_share}")
         if not 0 <= self.min_new_log_coverage <= 1:
             raise ValueError(f"min_new_log_coverage must be in [0, 1], got {self.min_new_log_coverage}")
         if self.cell_m > 0.05:
@@ -754,6 +763,9 @@ def prior_axis(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog | N
         if a is None or b is None:
             raise ValueError("an unmatched surveyed log needs both ends")
         return a.position_m.copy(), b.position_m.copy(), max(a.sigma_3d_m, b.sigma_3d_m)
+    if _a_piece_of_a_surveyed_log(ends, log, cfg):
+        a, b = ends
+        return a.position_m.copy(), b.position_m.copy(), max(a.sigma_3d_m, b.sigma_3d_m)
     p0, p1 = (log.end_m, log.start_m) if reversed_ else (log.start_m, log.end_m)
     d = p1 - p0
     L = max(float(np.linalg.norm(d)), 1e-6)
@@ -769,6 +781,18 @@ def prior_axis(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog | N
             t = max(t, -cfg.end_search_m) if k == 0 else min(t, L + cfg.end_search_m)
         out.append(p0 + u * t)
     return out[0], out[1], math.hypot(cfg.axis_sigma_m, cfg.pose_sigma_m / 2)
+
+
+def _a_piece_of_a_surveyed_log(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, cfg: FuseConfig) -> bool:
+    """Whether the scan log a surveyed log matched is a piece too short to set its axis: both survey points
+    precise (to ``weak_sigma_m``) and the ridge seen over less than ``piece_share`` of the distance between
+    them. Two RTK-fixed points 2.7 m apart set the line to ~0.5 deg; a 35 cm ridge, its axis known to 2 cm
+    at each end, to ~6 deg, off by 20-40 cm at the far end (real-test scan 700414: a log under others, a
+    piece of it seen by its butt, fitted 9 deg off and 41 cm off its other, fixed, point)."""
+    a, b = ends
+    if a is None or b is None or max(a.sigma_h_m, b.sigma_h_m) > cfg.weak_sigma_m:
+        return False
+    return log.seen_m < cfg.piece_share * float(np.linalg.norm(b.position_m - a.position_m))
 
 
 # -- ends ------------------------------------------------------------------------------------------
@@ -807,6 +831,7 @@ def scan_end_interval(points: np.ndarray, p0: np.ndarray, p1: np.ndarray, radius
     s = perp @ side
     r = float(radius_m)
     lo_t, hi_t = -reach_m, L + reach_m
+    t_all, s_all, h_all = t, s, perp @ up
     m = (np.abs(s) < 0.5 * r) & (t > lo_t) & (t < hi_t)
     may_be_on = np.ones(int(m.sum()), bool) if on_mask is None else np.asarray(on_mask, bool)[m]
     t, s, h = t[m], s[m], (perp[m] @ up)
@@ -817,6 +842,7 @@ def scan_end_interval(points: np.ndarray, p0: np.ndarray, p1: np.ndarray, radius
     bi = np.clip(((t - lo_t) / step).astype(np.int64), 0, nb - 1)
     on = np.bincount(bi, weights=((np.abs(e) < cfg.on_band_m) & may_be_on).astype(float),
                      minlength=nb) >= cfg.min_on_points
+    on &= ~_level_ground_past_the_end(t_all, s_all, h_all, r, L, u, toward_p1, lo_t, step, nb, cfg)
     top = np.full(nb, -np.inf)
     np.maximum.at(top, bi, e)
     count = np.bincount(bi, minlength=nb)
@@ -853,6 +879,31 @@ def scan_end_interval(points: np.ndarray, p0: np.ndarray, p1: np.ndarray, radius
     covered = ks[np.flatnonzero(count[ks] >= 2)[-1]]  # the walk's farthest bin with points (at least first_off)
     t_cov = lo_t + (covered + (1 if toward_p1 else 0)) * step
     return EndInterval(t_on, t_off, state, gap_under_m=float(-top[first_off] - 2 * r), covered_to_m=float(t_cov))
+
+
+def _level_ground_past_the_end(t: np.ndarray, s: np.ndarray, h: np.ndarray, r: float, L: float, u: np.ndarray,
+                               toward_p1: bool, lo_t: float, step: float, nb: int, cfg: FuseConfig) -> np.ndarray:
+    """Per walk bin: past the fitted end of a log whose axis descends outward (more than
+    ``descent_min_deg``), the scan shows level ground, not a log's top: the points beside the top's band
+    (``r`` to 1.5 ``r`` across) lie as high as the top itself (median at least ``level_shoulder`` ``r``
+    over the axis), where beside a log's top the scan sees lower (the log's flanks, the ground, a
+    neighbour's flank). A log running down to the ground ends there; its axis extended past the end
+    goes into the ground, and where that line's top meets the ground the ground looked like the log's
+    top (real-test scan 700414: 10 bins of flat ground 45-60 cm past an RTK-fixed end outweighed 3
+    bins seen below, and the end was placed 59 cm out, the fixed point called wrong)."""
+    out = np.zeros(nb, bool)
+    outward = u[2] if toward_p1 else -u[2]
+    if outward > -math.sin(math.radians(cfg.descent_min_deg)):
+        return out
+    past = (t > L) if toward_p1 else (t < 0.0)
+    sh = past & (np.abs(s) > r) & (np.abs(s) < 1.5 * r) & (t > lo_t)
+    if not sh.any():
+        return out
+    bi = np.clip(((t[sh] - lo_t) / step).astype(np.int64), 0, nb - 1)
+    for b in np.unique(bi):
+        hb = h[sh][bi == b]
+        out[b] = len(hb) >= 2 and float(np.median(hb)) >= cfg.level_shoulder * r
+    return out
 
 
 def _before_island(on_k: np.ndarray, j: int, step: float, cfg: FuseConfig) -> int:
