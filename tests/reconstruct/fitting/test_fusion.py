@@ -677,3 +677,61 @@ def test_a_fixed_point_well_across_a_scan_fitted_axis_is_reported_not_followed()
     assert not fuse_end(p0, u, seen, False, _end(2.01, 0.05, 0.0, fix="rtk_fixed"), 0.005, cfg).contradicted
     partial = fuse_end(p0, u, seen, False, _end(2.01, 0.10, 0.0, fix="rtk_fixed"), 0.04, cfg, seen_whole=False)
     assert not partial.contradicted and partial.position_m[1] > 0.05
+
+
+def test_a_short_piece_does_not_set_the_axis_of_a_log_with_two_precise_points():
+    """Real-test scan 700414: a log under others, 35 cm of it seen by its butt, the piece's ridge 9 deg off
+    the line of its two RTK-fixed points 2.7 m apart; on that ridge's axis the log came out 41 cm off its
+    other fixed point. Two precise points set the line better than a piece of a quarter of the log: they
+    are its prior axis. A float point, or a ridge seen over most of the log, leaves the scan's axis."""
+    from reconstruct.fitting.fuse import prior_axis
+
+    cfg = FuseConfig()
+    a, b = _end(0.0, 0.0, fix="rtk_fixed"), _end(2.7, 0.0, fix="rtk_fixed")
+    piece = _slanted_scan_log((0.05, 0.0, 0.08), (0.40, 0.055, 0.08))  # 0.35 m, 9 deg off
+    pa, pb, lateral = prior_axis((a, b), piece, False, cfg)
+    assert np.allclose(pa, a.position_m) and np.allclose(pb, b.position_m) and lateral < 0.05
+    def across(log, p):  # the distance of p from the scan log's line, in plan [m]
+        d, q = log.direction[:2] / np.linalg.norm(log.direction[:2]), p[:2] - log.start_m[:2]
+        return abs(d[0] * q[1] - d[1] * q[0])
+
+    on_the_piece = lambda p: across(piece, p) < 1e-6  # noqa: E731
+    pa, pb, _ = prior_axis((a, _end(2.7, 0.0)), piece, False, cfg)  # end b float: the scan's axis
+    assert on_the_piece(pa) and on_the_piece(pb)
+    long = _slanted_scan_log((0.05, 0.0, 0.08), (2.0, 0.31, 0.08))  # most of the log
+    pa, pb, _ = prior_axis((a, b), long, False, cfg)
+    assert across(long, pa) < 1e-6 and across(long, pb) < 1e-6
+
+
+def test_level_ground_past_the_end_of_a_log_running_down_is_not_its_top():
+    """Real-test scan 700414 log 2: a log running down to the ground (13 deg), its end on an RTK-fixed
+    point; past it the scan sees nothing for 34 cm (the log's shadow), the ground one bin lower than the
+    log's top would be, then level ground where the log's top, extended into the ground, would be: ten
+    bins 'on the log' outweighed the one below, and the end was placed 59 cm out, the fixed point called
+    wrong. Level ground on both sides of the top is not a top: the end is before it. A log that really
+    runs on down (its top curved across) still does, and a level log's walk is as before."""
+    rng = np.random.default_rng(11)
+    r, slope = 0.08, 0.239
+    u = np.array([1.0, 0.0, -slope]) / math.hypot(1.0, slope)
+    p0 = np.array([0.0, 0.0, 0.06]) - 2.0 * u  # end b at x = 2.0 (axis), 6 cm over the ground's 1.3 cm
+    p1 = np.array([0.0, 0.0, 0.06])
+    L = 2.0
+
+    def top_points(t0, t1, n):
+        t = rng.uniform(t0, t1, n)
+        s = rng.uniform(-0.07, 0.07, n)
+        up = np.array([0.0, 0.0, 1.0]) - u[2] * u
+        up /= np.linalg.norm(up)
+        return p0 + np.outer(t, u) + np.outer(s, [0.0, 1.0, 0.0]) + np.outer(np.sqrt(r * r - s * s), up)
+
+    def ground(t0, t1, n, z=0.013):
+        x = p1[0] + rng.uniform(t0, t1, n) * u[0]
+        return np.c_[x, rng.uniform(-0.15, 0.15, n), np.full(n, z)]
+
+    scan = np.r_[top_points(0.0, L, 4000), ground(0.34, 0.62, 1200)]
+    iv = scan_end_interval(scan, p0, p1, r, True, 0.6)
+    assert iv.last_on_m < L + 0.03 and iv.state in ("seen", "occluded"), iv
+    # the log really runs on 40 cm down past the point (its curved top), the ground after it
+    longer = np.r_[top_points(0.0, L + 0.40, 4800), ground(0.55, 0.62, 300, z=-0.05)]
+    iv = scan_end_interval(longer, p0, p1, r, True, 0.6)
+    assert abs(iv.last_on_m - (L + 0.40)) < 0.03, iv
