@@ -62,7 +62,7 @@ import numpy as np
 from reconstruct.errors import FitError, ReconstructError, RegistrationError, ScanError
 from reconstruct.fitting.fit import FitConfig, PileFit, fit_log, fit_pile, log_spec_from_fit
 from reconstruct.fitting.fuse import (
-    FuseConfig, SurveyEnd, absorb_pieces, after_pile_check, find_scan_logs, match_survey, place_log_ends,
+    FuseConfig, SurveyEnd, a_piece_of_a_surveyed_log, absorb_pieces, after_pile_check, find_scan_logs, match_survey, place_log_ends,
     point_accuracy, prior_axis,
 )
 from reconstruct.registration import CoarseConfig, ScanPose, coarse_scan_pose, read_scan_pose, refine_registration
@@ -631,7 +631,9 @@ def _fit(pts: np.ndarray, matching: _Matching, survey_ends: dict, logs_pile: lis
     fit = fit_pile(pts, {k: (a, b) for k, (a, b, _) in priors.items()}, frame.extent, cfg.fit, progress=say,
                    georef=georef, notes=notes, first_pass=first_pass,
                    sigmas={k: (s, s) for k, s in lateral.items()},
-                   place_ends=_EndPlacer(survey_ends, lateral, placed.fuse_cfg), optional=set(new_ids))
+                   place_ends=_EndPlacer(survey_ends, lateral, placed.fuse_cfg), optional=set(new_ids),
+                   in_part={k for k, m in matching.matches.items() if m.scan_index is not None
+                            and a_piece_of_a_surveyed_log(survey_ends[k], logs_pile[m.scan_index], placed.fuse_cfg)})
     for lf in fit.logs:  # ends where the pile check left their log, tested against the survey again
         if lf.ends:
             lf.ends = after_pile_check(lf.ends, (np.asarray(lf.butt_m), np.asarray(lf.top_m)),

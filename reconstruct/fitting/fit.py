@@ -158,7 +158,11 @@ AXIS_SOURCES = ("fit", "gnss")
 #: 700414: a 35 cm piece tilted a log 9 deg, 41 cm off its fixed point); past the end of a log running down
 #: outward, level ground is not its top (:func:`reconstruct.fitting.fuse.scan_end_interval`; 700414: an end
 #: placed 59 cm past its fixed point, on the ground the extended top dived into).
-FIT_REVISION = 20
+#: 21: such a piece's log is placed seen in part, on those points' axis (``fit_pile(in_part=...)``), not fitted
+#: as seen whole on the piece; the first bin where the walk sees below a log's top is the first of two in a
+#: row (one bin seen through between logs over it does not end it: twin scan 1100028 fixed, an end 72 cm
+#: short, its fixed point called wrong) (:func:`reconstruct.fitting.fuse.scan_end_interval`).
+FIT_REVISION = 21
 # a cross-section circle loses this much score per footprint bin it does not explain (the profile
 # there lies above it or off it): where a neighbour lies against a log, or the stereo fills the
 # valley between them, that side shows no edge, and without this a wider circle, centred toward
@@ -1813,9 +1817,9 @@ class _Placement:
 
     def __init__(self, P: np.ndarray, ids: Sequence[str], endpoints: Mapping[str, tuple[Any, Any]],
                  cfg: FitConfig, rng: np.random.Generator, sigmas: Mapping[str, tuple[float, float]] | None,
-                 optional: Collection[str], say: Callable[[str], None]):
+                 optional: Collection[str], say: Callable[[str], None], in_part: Collection[str] = ()):
         self.P, self.ids, self.endpoints, self.cfg, self.rng = P, ids, endpoints, cfg, rng
-        self.sigmas, self.optional, self.say = sigmas or {}, optional, say
+        self.sigmas, self.optional, self.say, self.in_part = sigmas or {}, optional, say, set(in_part)
         self.placed: dict[int, _PlacedLog] = {}
         self.dropped: dict[str, str] = {}  # optional logs left out, and why
         self.typical_d = math.nan
@@ -1885,6 +1889,9 @@ class _Placement:
             if i in hidden:
                 continue
             log_id = ids[i]
+            if log_id in self.in_part:  # the scan shows a piece of it: its survey points set its axis
+                on_axis.append(i)
+                continue
             a, b = endpoints[log_id]
             sa, sb = self.sigmas.get(log_id, (None, None))
             mine = P[(owner == i) | (owner < 0)]
@@ -2061,6 +2068,7 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
              sigmas: Mapping[str, tuple[float, float]] | None = None,
              place_ends: Callable[[str, LogSpec, str, np.ndarray, bool, np.ndarray], tuple[LogSpec, Any]] | None = None,
              optional: Collection[str] = (),
+             in_part: Collection[str] = (),
              ) -> PileFit:
     """Fit a whole pile to scan ``points`` ((N, 3), pile frame) and GNSS ``endpoints``
     (``{log_id: (end_a, end_b)}``, pile frame: where each log is searched for). ``extent_m``: side
@@ -2077,6 +2085,8 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
     ``optional``: ids of logs found in the scan alone (no survey): one that has no scan points of its
     own once the other logs have taken theirs (a ridge made of other logs' pieces) is left out, with
     the reason in ``PileFit.dropped``, instead of failing the pile; it cannot be hidden, it was seen.
+    ``in_part``: ids of logs the scan shows only a piece of (the matching's word: a ridge far shorter
+    than the log's two precise survey points are apart): seen only in part, on their survey axes.
 
     Steps: :func:`_first_pass` (each log on its own), :class:`_Placement` (each scan point to the log
     whose surface it lies on, then each log refitted among the others; its ends placed), :func:`_ground`
@@ -2098,7 +2108,7 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
     ids = sorted(endpoints, key=natural_key)
     _check_endpoints(endpoints, ids, extent_m)
     first = _first_pass(P, ids, endpoints, cfg, rng, first_pass, sigmas, say)
-    placement = _Placement(P, ids, endpoints, cfg, rng, sigmas, optional, say)
+    placement = _Placement(P, ids, endpoints, cfg, rng, sigmas, optional, say, in_part)
     placement.run(first)
     keep = [i for i in range(len(ids)) if ids[i] not in placement.dropped]
     ends_info: dict[int, tuple] = {}

@@ -763,7 +763,7 @@ def prior_axis(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog | N
         if a is None or b is None:
             raise ValueError("an unmatched surveyed log needs both ends")
         return a.position_m.copy(), b.position_m.copy(), max(a.sigma_3d_m, b.sigma_3d_m)
-    if _a_piece_of_a_surveyed_log(ends, log, cfg):
+    if a_piece_of_a_surveyed_log(ends, log, cfg):
         a, b = ends
         return a.position_m.copy(), b.position_m.copy(), max(a.sigma_3d_m, b.sigma_3d_m)
     p0, p1 = (log.end_m, log.start_m) if reversed_ else (log.start_m, log.end_m)
@@ -783,8 +783,9 @@ def prior_axis(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog | N
     return out[0], out[1], math.hypot(cfg.axis_sigma_m, cfg.pose_sigma_m / 2)
 
 
-def _a_piece_of_a_surveyed_log(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, cfg: FuseConfig) -> bool:
-    """Whether the scan log a surveyed log matched is a piece too short to set its axis: both survey points
+def a_piece_of_a_surveyed_log(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, cfg: FuseConfig) -> bool:
+    """Whether the scan log a surveyed log matched is a piece of it, too short to set its axis (the log is
+    then seen only in part: :func:`reconstruct.fitting.fit.fit_pile` ``in_part``): both survey points
     precise (to ``weak_sigma_m``) and the ridge seen over less than ``piece_share`` of the distance between
     them. Two RTK-fixed points 2.7 m apart set the line to ~0.5 deg; a 35 cm ridge, its axis known to 2 cm
     at each end, to ~6 deg, off by 20-40 cm at the far end (real-test scan 700414: a log under others, a
@@ -865,8 +866,8 @@ def scan_end_interval(points: np.ndarray, p0: np.ndarray, p1: np.ndarray, radius
     score = inside + np.r_[outside[1:], 0]
     score[on_k == 0] = np.iinfo(np.int64).min  # the cut is right after a bin on the log
     j = int(np.argmax(score))
-    beyond = np.flatnonzero(below_k[j + 1:])
-    first_off = None if not len(beyond) else int(ks[j + 1 + beyond[0]])
+    beyond = _first_below(below_k[j + 1:])
+    first_off = None if beyond is None else int(ks[j + 1 + beyond])
     last_on = int(ks[_before_island(on_k, j, step, cfg)])
 
     # the last bin on the log ends it at its middle (stereo smears a top a centimetre past its end); the
@@ -879,6 +880,19 @@ def scan_end_interval(points: np.ndarray, p0: np.ndarray, p1: np.ndarray, radius
     covered = ks[np.flatnonzero(count[ks] >= 2)[-1]]  # the walk's farthest bin with points (at least first_off)
     t_cov = lo_t + (covered + (1 if toward_p1 else 0)) * step
     return EndInterval(t_on, t_off, state, gap_under_m=float(-top[first_off] - 2 * r), covered_to_m=float(t_cov))
+
+
+def _first_below(below: np.ndarray) -> int | None:
+    """The first bin of the walk past the cut where the scan sees below the log's top: the first of two
+    bins in a row, or with none such the first single one. A single bin between others is a gap seen
+    through between logs over this one (twin scan 1100028, fixed survey: a log under a crossing one for
+    80 cm to its fixed point, one bin seen through 19 cm into it, the ground seen right past the point;
+    that bin contradicted the point and the end was put 72 cm short)."""
+    idx = np.flatnonzero(below)
+    if not len(idx):
+        return None
+    runs = idx[:-1][np.diff(idx) == 1]
+    return int(runs[0]) if len(runs) else int(idx[0])
 
 
 def _level_ground_past_the_end(t: np.ndarray, s: np.ndarray, h: np.ndarray, r: float, L: float, u: np.ndarray,

@@ -565,3 +565,20 @@ def test_a_log_seen_in_part_is_no_thicker_than_the_thickest_log_seen_whole():
     assert thick.mean_diameter_m == pytest.approx(0.16)
     assert np.allclose(np.sort(np.array(thick.endpoints_m()), axis=0), np.sort(np.array([a, b]), axis=0))
     assert pl.no_thicker_than_seen(LogSpec.from_endpoints(a, b, 0.19)).mean_diameter_m == pytest.approx(0.19)
+
+
+def test_a_log_the_scan_shows_a_piece_of_is_placed_in_part_on_its_survey_axis(truth, points):
+    """``fit_pile(in_part=...)``: a log the matching found only a piece of (fitting revision 20) is not
+    fitted as seen whole on that piece; it is seen in part, on its survey points' axis (real-test scan
+    700414: fitted on a 35 cm piece, 9 deg off). The other logs are fitted as before."""
+    survey = _survey(truth)
+    fit = fit_pile(points, survey, 5.0, FitConfig(validate=False), in_part={"log2"})
+    by_id = {lf.log_id: lf for lf in fit.logs}
+    assert by_id["log2"].fit == "partial" and by_id["log0"].fit == "scan"
+    a, b = (np.asarray(p, float) for p in survey["log2"])
+    butt, top = (np.asarray(p, float) for p in (by_id["log2"].butt_m, by_id["log2"].top_m))
+    u = (b - a) / np.linalg.norm(b - a)
+    for p in (butt, top):  # on the survey's axis line
+        rel = p - a
+        assert np.linalg.norm(rel - (rel @ u) * u) < 0.05  # a partial fit stays within 2 survey sigmas
+    assert {lf.log_id: lf.fit for lf in fit_pile(points, survey, 5.0, FitConfig(validate=False)).logs}["log2"] == "scan"

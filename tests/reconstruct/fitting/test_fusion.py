@@ -735,3 +735,28 @@ def test_level_ground_past_the_end_of_a_log_running_down_is_not_its_top():
     longer = np.r_[top_points(0.0, L + 0.40, 4800), ground(0.55, 0.62, 300, z=-0.05)]
     iv = scan_end_interval(longer, p0, p1, r, True, 0.6)
     assert abs(iv.last_on_m - (L + 0.40)) < 0.03, iv
+
+
+def test_one_bin_seen_through_under_a_crossing_log_does_not_end_the_log():
+    """Twin scan 1100028 (fixed survey): a log under a crossing one for 80 cm to its fixed point, one bin
+    seen through to the ground 19 cm into that stretch, the ground seen right past the point. That one
+    bin was where the scan 'saw below' the log first, contradicting the point, and the end went 72 cm
+    short. A single bin among others over the log is a gap seen through: the first of two bins in a row
+    below the top is where the scan shows the log is not; with no such run, a single one still counts."""
+    rng = np.random.default_rng(4)
+    r, z = 0.08, 0.08
+
+    def strip(t0, t1, height, n, on_top=False):
+        t = rng.uniform(t0, t1, n)
+        s = rng.uniform(-0.03, 0.03, n)
+        return np.c_[t, s, np.full(n, height) + (np.sqrt(r * r - s * s) if on_top else 0.0)]
+
+    top = strip(0.0, 1.50, z, 3000, on_top=True)
+    over = np.r_[strip(1.50, 1.701, 0.40, 300), strip(1.719, 2.30, 0.40, 900)]  # a crossing log over it
+    gap = strip(1.703, 1.717, 0.0, 12)  # one 2 cm bin seen through to the ground
+    ground = strip(2.30, 2.60, 0.0, 400)
+    p0, p1 = np.array([0.0, 0.0, z]), np.array([1.5, 0.0, z])
+    iv = scan_end_interval(np.r_[top, over, gap, ground], p0, p1, r, True, 1.2)
+    assert iv.state == "occluded" and abs(iv.first_off_m - 2.30) < 0.03, iv
+    iv = scan_end_interval(np.r_[top, over[:300], gap], p0, p1, r, True, 1.2)  # the gap alone: it ends it
+    assert abs(iv.first_off_m - 1.70) < 0.03, iv
