@@ -162,7 +162,12 @@ AXIS_SOURCES = ("fit", "gnss")
 #: as seen whole on the piece; the first bin where the walk sees below a log's top is the first of two in a
 #: row (one bin seen through between logs over it does not end it: twin scan 1100028 fixed, an end 72 cm
 #: short, its fixed point called wrong) (:func:`reconstruct.fitting.fuse.scan_end_interval`).
-FIT_REVISION = 21
+#: 22: revisions 20-21 on the 200-scan bench changed 47 of its first 156 conditions, some for the worse (a
+#: fixed-survey log 0.7 -> 4.8 cm seen in part on a piece in line with its points; a degraded end 3.9 -> 7.8 cm
+#: where a single bin below was the end): a piece is the log seen in part only when one of the points lies
+#: more than ``piece_off_m`` (10 cm) off the piece's line, and a bin below is skipped only alone inside a
+#: stretch over the log (:func:`reconstruct.fitting.fuse._first_below`).
+FIT_REVISION = 22
 # a cross-section circle loses this much score per footprint bin it does not explain (the profile
 # there lies above it or off it): where a neighbour lies against a log, or the stereo fills the
 # valley between them, that side shows no edge, and without this a wider circle, centred toward

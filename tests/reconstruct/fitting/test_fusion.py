@@ -683,7 +683,8 @@ def test_a_short_piece_does_not_set_the_axis_of_a_log_with_two_precise_points():
     """Real-test scan 700414: a log under others, 35 cm of it seen by its butt, the piece's ridge 9 deg off
     the line of its two RTK-fixed points 2.7 m apart; on that ridge's axis the log came out 41 cm off its
     other fixed point. Two precise points set the line better than a piece of a quarter of the log: they
-    are its prior axis. A float point, or a ridge seen over most of the log, leaves the scan's axis."""
+    are its prior axis. A float point, a piece in line with the points (within ``piece_off_m``) or a ridge
+    seen over most of the log leaves the scan's axis."""
     from reconstruct.fitting.fuse import prior_axis
 
     cfg = FuseConfig()
@@ -698,6 +699,9 @@ def test_a_short_piece_does_not_set_the_axis_of_a_log_with_two_precise_points():
     on_the_piece = lambda p: across(piece, p) < 1e-6  # noqa: E731
     pa, pb, _ = prior_axis((a, _end(2.7, 0.0)), piece, False, cfg)  # end b float: the scan's axis
     assert on_the_piece(pa) and on_the_piece(pb)
+    aligned = _slanted_scan_log((0.05, 0.0, 0.08), (0.40, 0.004, 0.08))  # a piece in line with the points
+    pa, pb, _ = prior_axis((a, b), aligned, False, cfg)
+    assert across(aligned, pa) < 1e-6 and across(aligned, pb) < 1e-6
     long = _slanted_scan_log((0.05, 0.0, 0.08), (2.0, 0.31, 0.08))  # most of the log
     pa, pb, _ = prior_axis((a, b), long, False, cfg)
     assert across(long, pa) < 1e-6 and across(long, pb) < 1e-6
