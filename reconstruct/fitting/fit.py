@@ -2066,6 +2066,20 @@ def _ground(P: np.ndarray, logs: Sequence[LogSpec], extent_m: float, cfg: FitCon
     return _Ground(terrain, is_ground, coverage, stumps, rocks, info, int(len(above)))
 
 
+def _remeasure_hint(logs: Sequence[int], fits: Sequence[LogFit]) -> str:
+    """What a pile-check refusal asks of the survey crew: the survey ids of the logs in the contact, and
+    their end points that are not RTK fixed (the likeliest to be wrong), or, all fixed, what else to check."""
+    named = [fits[k] for k in logs if 0 <= k < len(fits)]
+    if not named:
+        return ""
+    ids = ", ".join(f"{lf.index} is {lf.log_id!r}" for lf in named)
+    weak = [f"{lf.log_id!r} end {'ab'[j]} ({e.get('gnss_fix') or 'no point'}, +-{e['sigma_m'] * 100:.0f} cm)"
+            for lf in named for j, e in enumerate(lf.ends or []) if e.get("gnss_fix") != "rtk_fixed"]
+    if weak:
+        return f" (log {ids}). Re-measure with an RTK fixed solution: {'; '.join(weak)}"
+    return f" (log {ids}). Their end points are all RTK fixed: check that each point carries its log's id and end"
+
+
 def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], extent_m: float,
              cfg: FitConfig | None = None, progress: Callable[[str], None] | None = None,
              georef: Any = None, notes: str = "",
@@ -2138,8 +2152,11 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
         say("checking the pile in the twin")
         before = pile.logs
         thinnable = [placement.placed[i].how == "scan" for i in keep]
-        cleared = clear_pile(pile, [lf.ends or [] for lf in fits], lambda p: separate_logs(p, cfg, thinnable=thinnable),
-                             cfg.clearance)
+        try:
+            cleared = clear_pile(pile, [lf.ends or [] for lf in fits],
+                                 lambda p: separate_logs(p, cfg, thinnable=thinnable), cfg.clearance)
+        except SeparationError as exc:
+            raise SeparationError(f"{exc}{_remeasure_hint(exc.logs, fits)}", logs=exc.logs) from exc
         pile, move_notes, end_moves = cleared.pile, cleared.notes, cleared.end_moves
         for (k, j), e in cleared.at_survey.items():
             fits[k].ends[j] = e

@@ -582,3 +582,20 @@ def test_a_log_the_scan_shows_a_piece_of_is_placed_in_part_on_its_survey_axis(tr
         rel = p - a
         assert np.linalg.norm(rel - (rel @ u) * u) < 0.05  # a partial fit stays within 2 survey sigmas
     assert {lf.log_id: lf.fit for lf in fit_pile(points, survey, 5.0, FitConfig(validate=False)).logs}["log2"] == "scan"
+
+
+def test_a_pile_check_refusal_names_the_logs_and_the_points_to_re_measure():
+    """A refusal speaks the survey's language: the logs' ids (pile indices are not what the crew wrote
+    down), and their end points that are not RTK fixed - the likeliest wrong (real-test scan 700027: a
+    float end 26 cm off and 18 cm under the ground); with every point fixed, what else to check."""
+    from types import SimpleNamespace
+
+    from reconstruct.fitting.fit import _remeasure_hint
+
+    fixed, flt = {"gnss_fix": "rtk_fixed", "sigma_m": 0.012}, {"gnss_fix": "rtk_float", "sigma_m": 0.43}
+    fits = [SimpleNamespace(index=0, log_id="log0", ends=[fixed, fixed]),
+            SimpleNamespace(index=1, log_id="B7", ends=[fixed, flt])]
+    hint = _remeasure_hint((1, 0), fits)
+    assert "1 is 'B7'" in hint and "0 is 'log0'" in hint
+    assert "'B7' end b (rtk_float, +-43 cm)" in hint and "'log0' end" not in hint
+    assert "all RTK fixed" in _remeasure_hint((0,), fits)
