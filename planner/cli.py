@@ -100,7 +100,8 @@ def train_command(
         "image once per pile, the mask joins at the decoder: faster planning).",
         field=(UNetConfig, "mask_injection"), metavar="input|decoder"),
     u_pos_weight: float = option("--u-pos-weight", "BCE weight of positive U pixels (U marks ~0.3 % of pixels; "
-                                 "25 = the shipped model's, 1 = the paper's plain BCE, which leaves U flat).", field=(LossWeights, "u_pos_weight"), min=0.0),
+                                 "25 = the shipped model's, 1 = the paper's plain BCE, which leaves U flat).",
+                                 field=(LossWeights, "u_pos_weight"), min=0.0),
     seed: int = option("--seed", "Initialisation, data order and augmentation.", field=(TrainConfig, "seed")),
     device: Literal["auto", "cpu", "cuda"] = option("--device", "auto (cuda when available), cpu or cuda.",
                                                     field=(TrainConfig, "device"), metavar="auto|cpu|cuda"),

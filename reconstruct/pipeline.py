@@ -62,8 +62,8 @@ import numpy as np
 from reconstruct.errors import FitError, ReconstructError, RegistrationError, ScanError
 from reconstruct.fitting.fit import FitConfig, PileFit, fit_log, fit_pile, log_spec_from_fit
 from reconstruct.fitting.fuse import (
-    FuseConfig, SurveyEnd, a_piece_of_a_surveyed_log, absorb_pieces, after_pile_check, find_scan_logs, match_survey, place_log_ends,
-    point_accuracy, prior_axis,
+    FuseConfig, SurveyEnd, a_piece_of_a_surveyed_log, absorb_pieces, after_pile_check, find_scan_logs, match_survey,
+    place_log_ends, point_accuracy, prior_axis,
 )
 from reconstruct.registration import CoarseConfig, ScanPose, coarse_scan_pose, read_scan_pose, refine_registration
 from reconstruct.scan.sfm import SfmConfig

@@ -95,9 +95,8 @@ class FuseConfig:
     contradiction_sigma: float = 3.0  # a point farther than this many sigma from the scan's estimate is
     #                                   contradicted: reported, not used [-]
     weak_sigma_m: float = 0.05  # an end less certain than this is a weak estimate (warned about) [m]
-    descent_min_deg: float = 3.0  # past the end of a log descending outward at least this steeply, level
-    level_shoulder: float = 0.6  # ground (the scan beside the top at least this many radii over the axis) is
-    #                              not the log's top [deg, -]
+    descent_min_deg: float = 3.0  # past the end of a log descending outward at least this steeply [deg], level
+    level_shoulder: float = 0.6  # ground (the scan beside the top this many radii over the axis) is no top [-]
     piece_off_m: float = 0.10  # ... and one of those points lies farther than this from the piece's line [m]
     piece_share: float = 0.5  # a scan log seen over less than this share of its two precise survey points'
     #                           distance is a piece: the points set the log's prior axis [-]
@@ -111,7 +110,8 @@ class FuseConfig:
                      "radius_sigma_m", "gate_sigma", "ridge_overrun_m",
                      "end_bin_m", "seen_gap_m", "end_search_m", "overhang_gap_m", "on_band_m", "scan_end_sigma_m",
                      "island_max_m", "island_gap_m",
-                     "contradiction_sigma", "weak_sigma_m", "inferred_sigma_m", "min_new_log_m", "extrapolation_sigma_per_m"):
+                     "contradiction_sigma", "weak_sigma_m", "inferred_sigma_m", "min_new_log_m",
+                     "extrapolation_sigma_per_m", "piece_off_m"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
         if not 0 < self.max_anisotropy < 1:
@@ -790,9 +790,10 @@ def a_piece_of_a_surveyed_log(ends: tuple[SurveyEnd | None, SurveyEnd | None], l
     precise (to ``weak_sigma_m``), the ridge seen over less than ``piece_share`` of the distance between
     them, and one of them farther than ``piece_off_m`` from the ridge's line (a piece in line with the
     points fits the log as well as ever, often better than the points: its log is fitted as before; on the
-    200-scan bench, taking every piece as the log seen in part cost 1-4 cm on 20 logs). Two RTK-fixed points 2.7 m apart set the line to ~0.5 deg; a 35 cm ridge, its axis known to 2 cm
-    at each end, to ~6 deg, off by 20-40 cm at the far end (real-test scan 700414: a log under others, a
-    piece of it seen by its butt, fitted 9 deg off and 41 cm off its other, fixed, point)."""
+    200-scan bench, taking every piece as the log seen in part cost 1-4 cm on 20 logs). Two RTK-fixed
+    points 2.7 m apart set the line to ~0.5 deg; a 35 cm ridge, its axis known to 2 cm at each end, to
+    ~6 deg, off by 20-40 cm at the far end (real-test scan 700414: a log under others, a piece of it seen by
+    its butt, fitted 9 deg off and 41 cm off its other, fixed, point)."""
     a, b = ends
     if a is None or b is None or max(a.sigma_h_m, b.sigma_h_m) > cfg.weak_sigma_m:
         return False
