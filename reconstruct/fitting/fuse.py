@@ -97,9 +97,9 @@ class FuseConfig:
     weak_sigma_m: float = 0.05  # an end less certain than this is a weak estimate (warned about) [m]
     descent_min_deg: float = 3.0  # past the end of a log descending outward at least this steeply [deg], level
     level_shoulder: float = 0.6  # ground (the scan beside the top this many radii over the axis) is no top [-]
-    piece_off_m: float = 0.10  # ... and one of those points lies farther than this from the piece's line [m]
     piece_share: float = 0.5  # a scan log seen over less than this share of its two precise survey points'
-    #                           distance is a piece: the points set the log's prior axis [-]
+    #                           distance is a piece: the points set the log's prior axis [-] ...
+    piece_off_m: float = 0.10  # ... when one of those points lies farther than this from the piece's line [m]
     inferred_sigma_m: float = 0.30  # uncertainty of an end known only to lie beyond what the scan sees [m]
     extrapolation_sigma_per_m: float = 0.02  # a fitted axis extended past what the scan shows of its log is
     #                                          less sure across by this per metre [m/m]
@@ -733,8 +733,14 @@ def _is_piece_of(piece: ScanLog, log: ScanLog, lateral_m: float = PIECE_LATERAL_
     v = piece.direction[:2] / max(float(np.linalg.norm(piece.direction[:2])), 1e-9)
     if abs(float(u @ v)) < math.cos(math.radians(angle_deg)):
         return False
-    n = np.array([-u[1], u[0]])
-    return all(abs(float((p[:2] - log.start_m[:2]) @ n)) < lateral_m for p in (piece.start_m, piece.end_m))
+    return all(_off_line_m(log, p) < lateral_m for p in (piece.start_m, piece.end_m))
+
+
+def _off_line_m(log: ScanLog, p: np.ndarray) -> float:
+    """Distance of the point ``p`` from ``log``'s line in top view [m]."""
+    u = log.direction[:2] / max(float(np.linalg.norm(log.direction[:2])), 1e-9)
+    q = p[:2] - log.start_m[:2]
+    return abs(float(u[0] * q[1] - u[1] * q[0]))
 
 
 def _same_line(a: ScanLog, b: ScanLog) -> bool:
@@ -799,10 +805,7 @@ def a_piece_of_a_surveyed_log(ends: tuple[SurveyEnd | None, SurveyEnd | None], l
         return False
     if log.seen_m >= cfg.piece_share * float(np.linalg.norm(b.position_m - a.position_m)):
         return False
-    d = log.direction[:2] / max(float(np.linalg.norm(log.direction[:2])), 1e-9)
-    off = [abs(float(d[0] * q[1] - d[1] * q[0])) for q in (a.position_m[:2] - log.start_m[:2],
-                                                             b.position_m[:2] - log.start_m[:2])]
-    return max(off) > cfg.piece_off_m
+    return max(_off_line_m(log, a.position_m), _off_line_m(log, b.position_m)) > cfg.piece_off_m
 
 
 # -- ends ------------------------------------------------------------------------------------------

@@ -14,8 +14,8 @@ from reconstruct.compare import compare_piles
 from reconstruct.errors import GnssQualityError
 from reconstruct.fitting.fit import sample_top_view_points
 from reconstruct.fitting.fuse import (
-    AmbiguousSurveyError, EndEstimate, EndInterval, FuseConfig, ScanLog, SurveyEnd, absorb_pieces, after_pile_check,
-    fuse_end, match_survey,
+    AmbiguousSurveyError, EndEstimate, EndInterval, FuseConfig, Match, ScanLog, SurveyEnd, a_piece_of_a_surveyed_log,
+    absorb_pieces, after_pile_check, fuse_end, match_survey,
     scan_end_interval, seen_end,
 )
 from reconstruct.survey.gnss import GnssPoint, GnssSurvey, write_gnss_csv
@@ -764,3 +764,23 @@ def test_one_bin_seen_through_under_a_crossing_log_does_not_end_the_log():
     assert iv.state == "occluded" and abs(iv.first_off_m - 2.30) < 0.03, iv
     iv = scan_end_interval(np.r_[top, over[:300], gap], p0, p1, r, True, 1.2)  # the gap alone: it ends it
     assert abs(iv.first_off_m - 1.70) < 0.03, iv
+
+
+@pytest.mark.parametrize("yaw_deg", [0.0, 37.0, 128.0, -71.0])
+def test_pieces_are_told_by_their_top_view_distance_from_a_line_at_any_heading(yaw_deg):
+    """The top-view distance from a scan log's line decides both piece rules; at any heading (a sign
+    slip in the distance hides on logs along x or y) a piece 3 cm off the line is on it, 9 cm off is not,
+    and a survey point 15 cm off a short ridge makes the ridge a piece of its surveyed log, 5 cm not."""
+    R = rot_z(math.radians(yaw_deg))[:3, :3]
+    at = lambda x, y, z=0.08: R @ np.array([x, y, z])  # noqa: E731
+    log = ScanLog(at(-1.5, 0.0), at(1.5, 0.0), 0.08, 3.0, 20.0)
+    for side in (1, -1):
+        near = ScanLog(at(1.8, 0.03 * side), at(2.4, 0.03 * side), 0.08, 0.6, 20.0)
+        far = ScanLog(at(1.8, 0.09 * side), at(2.4, 0.09 * side), 0.08, 0.6, 20.0)
+        assert absorb_pieces({"a": Match("a", 0)}, [1], [log, near]) == []
+        assert absorb_pieces({"a": Match("a", 0)}, [1], [log, far]) == [1]
+        ridge = ScanLog(at(-1.5, 0.0), at(-0.9, 0.0), 0.08, 0.6, 20.0)
+        for off, piece in ((0.15, True), (0.05, False)):
+            ends = (SurveyEnd(at(-1.5, 0.0), 0.01, 0.02, "rtk_fixed"),
+                    SurveyEnd(at(1.5, off * side), 0.01, 0.02, "rtk_fixed"))
+            assert a_piece_of_a_surveyed_log(ends, ridge, FuseConfig()) is piece
