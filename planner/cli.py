@@ -155,8 +155,9 @@ def train_command(
             if ev.get("kind") == "epoch":
                 bar.update(task, completed=(ev.get("epoch") or 0) + 1,
                            info=f"train {num('train_loss')} val {num('val_loss')}")
-            else:
-                bar.update(task, info=f"step {ev.get('step')} loss {num('loss')} "
+            else:  # completed = the epochs done, so a resumed run's bar starts where it resumes
+                bar.update(task, completed=ev.get("epoch") or 0,
+                           info=f"step {ev.get('step')} loss {num('loss')} "
                                       f"{ev.get('samples_per_s') or 0:.1f} samples/s")
 
         result = train(data if len(data) > 1 else data[0], out, cfg, progress=progress)
