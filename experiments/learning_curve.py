@@ -156,6 +156,8 @@ def write_curve(rows: list[dict], out: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6, 4))
+    recipes = sorted({r["recipe"] for r in rows if r.get("recipe", "curve") != "curve"})
+    marker = dict(zip(recipes, "sD^vP*XhpH" * 3))  # one shape per extra recipe, the colour per objective
     for o, ref in (("f1", 0.90), ("f3", 0.96)):
         mine = [r for r in rows if r["objective"] == o and r.get("recipe", "curve") == "curve"]
         if not mine:
@@ -168,8 +170,8 @@ def write_curve(rows: list[dict], out: Path) -> None:
             if r["train_piles"] is None:  # trained on other data: a level to compare with
                 ax.axhline(100 * r["success_rate"], color=line.get_color(), ls="--", lw=0.8, label=f"{o}: {r['recipe']}")
             else:
-                ax.plot([r["train_piles"]], [100 * r["success_rate"]], "s", mfc="none", color=line.get_color(),
-                        label=f"{o}: {r['recipe']}")
+                ax.plot([r["train_piles"]], [100 * r["success_rate"]], marker[r["recipe"]], mfc="none",
+                        color=line.get_color(), label=f"{o}: {r['recipe']}")
     ax.set_xscale("log", base=2)
     ax.set_xlabel("training piles (nested shares of the data set)")
     ax.set_ylabel("success on held-out piles [%]")
