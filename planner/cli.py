@@ -375,6 +375,10 @@ def eval_command(
                          "there is the one tried on the pile.", default=None, metavar="K"),
     verify_copies: int = option("--verify-copies", "With --verify: further perturbed copies each grasp is tried on.",
                                 field=(PlannerSpec, "verify_copies"), min=0, max=64),
+    views: int = option("--views", "Add a U-Net row per objective that averages V dihedral test-time views (2, 4 "
+                        "or 8; V times the planning time).", default=None, metavar="V"),
+    view_spread: float = option("--view-spread", "With --views: lower U by K x its spread over the views.",
+                                default=0.0, metavar="K"),
     as_json: bool = option("--json", "Print results.json (format loggrasp.eval-results) on standard output.",
                            default=False),
 ) -> None:
@@ -396,6 +400,7 @@ def eval_command(
     obs = {"yes": (True,), "no": (False,), "both": (True, False)}[obstacles]
     cfg = EvalConfig(logs=tuple(range(lo, hi + 1)), obstacles=obs, per_cell=per_cell, trial=trial, seed_base=seed_base)
     specs = _eval_specs(str(model or DEFAULT_MODEL), objectives, baselines, extra_model, verify, verify_copies)
+    specs += _view_specs(str(model or DEFAULT_MODEL), objectives, views, view_spread)
     check_output_dir(out, "--out")
     with progress_bar() as bar:
         task = bar.add_task("piles", total=len(cfg.tasks()), info="")
@@ -406,6 +411,21 @@ def eval_command(
     else:
         o.say((Path(out) / "results.md").read_text().rstrip())
     o.say(f"results: {Path(out) / 'results.md'}, {Path(out) / 'results.json'}; examples: {Path(out) / 'examples.png'}")
+
+
+def _view_specs(model: str, objectives: str, views: int | None, view_spread: float) -> list[PlannerSpec]:
+    """eval's rows with test-time views (``--views``): the U-Net per objective, named ``unet-f1-views8``
+    (``...k2`` with ``--view-spread 2``)."""
+    if views is None:
+        if view_spread:
+            raise CliError("--view-spread needs --views V")
+        return []
+    if views not in (2, 4, 8):
+        raise CliError(f"--views must be 2, 4 or 8 (dihedral views averaged; 1 is the plain row), got {views}")
+    if not (math.isfinite(view_spread) and view_spread >= 0):
+        raise CliError(f"--view-spread must be >= 0, got {view_spread:g}")
+    return [PlannerSpec("unet", model=model, objective=x, views=views, view_spread_k=view_spread)
+            for x in _csv(objectives)]
 
 
 def _csv(text: str) -> list[str]:

@@ -50,6 +50,8 @@ class PlannerSpec:
     verify_copies: int = 0  # ... and on this many further perturbed copies of that copy [-]
     max_subsets: int = 0  # for "unet": at most this many target subsets per plan, pre-selected by fit
     #                       (planner.subsets, "fit" mode); 0 = the default policy (every subset up to 127) [-]
+    views: int = 1  # for "unet": dihedral test-time views averaged (planner.inference.Planner) [-]
+    view_spread_k: float = 0.0  # ... and U lowered by this many times its spread over them [-]
 
     @property
     def name(self) -> str:
@@ -58,6 +60,8 @@ class PlannerSpec:
         if self.kind != "unet":
             return self.kind
         cap = f"-cap{self.max_subsets}" if self.max_subsets else ""
+        if self.views > 1:
+            cap += f"-views{self.views}" + (f"k{self.view_spread_k:g}" if self.view_spread_k else "")
         if self.verify_k:
             copies = f"x{self.verify_copies}" if self.verify_copies else ""
             return f"unet-{self.objective}{cap}-verify{self.verify_k}{copies}"
@@ -208,14 +212,16 @@ def oracle_planner(trial_preset: str = "fast", max_trials: int = 40) -> PlanFn:
     return plan_fn
 
 
-def unet_planner(model: str, objective: str, subsets: SubsetPolicy = SubsetPolicy()) -> PlanFn:
-    """The network's best grasp among the subsets ``subsets`` keeps (default: every subset)."""
+def unet_planner(model: str, objective: str, subsets: SubsetPolicy = SubsetPolicy(), views: int = 1,
+                 view_spread_k: float = 0.0) -> PlanFn:
+    """The network's best grasp among the subsets ``subsets`` keeps (default: every subset), its maps
+    averaged over ``views`` dihedral test-time views."""
     import torch
 
     from planner.inference import Objective, load_planner, plan
 
     torch.set_num_threads(1)
-    net = load_planner(model)
+    net = load_planner(model, views=views, view_spread_k=view_spread_k)
     obj = Objective(kind=objective)
 
     def plan_fn(obs, pile):
@@ -255,13 +261,14 @@ def verified_planner(plan_all: Callable[[object, object], object], objective: st
 
 
 def verified_unet_planner(model: str, objective: str, k: int, copies: int = 0, trial_preset: str = "fast",
-                          subsets: SubsetPolicy = SubsetPolicy()) -> PlanFn:
+                          subsets: SubsetPolicy = SubsetPolicy(), views: int = 1,
+                          view_spread_k: float = 0.0) -> PlanFn:
     import torch
 
     from planner.inference import Objective, load_planner, plan
 
     torch.set_num_threads(1)
-    net = load_planner(model)
+    net = load_planner(model, views=views, view_spread_k=view_spread_k)
     obj = Objective(kind=objective)
     return verified_planner(lambda obs, pile: plan(obs, net, obj, pile=pile, subsets=subsets), objective, k, copies,
                             trial_preset)
@@ -278,9 +285,13 @@ def build_planner(spec: PlannerSpec, trial_preset: str = "fast", oracle_max_tria
             if spec.verify_k < 0 or spec.verify_copies < 0 or spec.max_subsets < 0:
                 raise ValueError(f"verify_k, verify_copies and max_subsets must be >= 0, got {spec.verify_k}, "
                                  f"{spec.verify_copies}, {spec.max_subsets}")
+            from planner.inference import check_views
+
+            check_views(spec.views, spec.view_spread_k)
+            views = dict(views=spec.views, view_spread_k=spec.view_spread_k)
             _CACHE[spec] = (verified_unet_planner(spec.model, spec.objective, spec.verify_k, spec.verify_copies,
-                                                  trial_preset, spec.subset_policy()) if spec.verify_k
-                            else unet_planner(spec.model, spec.objective, spec.subset_policy()))
+                                                  trial_preset, spec.subset_policy(), **views) if spec.verify_k
+                            else unet_planner(spec.model, spec.objective, spec.subset_policy(), **views))
         elif spec.kind == "random":
             _CACHE[spec] = random_planner()
         elif spec.kind == "geometric":
@@ -435,6 +446,8 @@ def _fingerprint(spec: PlannerSpec) -> str:
 
     try:
         sha = sha256_file(Path(spec.model))
+        if spec.views > 1:  # a record planned with other test-time views is made again, whatever its label
+            sha += f"+views{spec.views}k{spec.view_spread_k:g}"
         if spec.verify_k:  # the verifier's version too: a record of another verifier is made again
             from planner.verify import VERIFY_VERSION
 

@@ -185,3 +185,41 @@ def test_a_row_with_a_subset_cap_plans_only_the_subsets_it_keeps(tmp_path, monke
         from planner.evaluate import build_planner
 
         build_planner(PlannerSpec("unet", model=str(ckpt), max_subsets=-1))
+
+
+def test_a_row_with_test_time_views_plans_with_them_and_keeps_its_own_records(tmp_path, monkeypatch):
+    """``views`` rows plan with the planner's averaged dihedral views (the planner the row builds has
+    them), carry them in their name and in the fingerprint that decides whether a record is reused:
+    the same label planned with other views is tried again."""
+    from dataclasses import replace
+
+    import torch
+
+    import planner.inference as inference
+    from planner.checkpoint import save_checkpoint
+    from planner.evaluate import _fingerprint, build_planner
+    from planner.model import UNetConfig, build_unet
+
+    cfg = EvalConfig(logs=(2,), obstacles=(False,), per_cell=1)
+    net_cfg = replace(UNetConfig.tiny(), size_px=cfg.size_px)
+    ckpt = tmp_path / "m.safetensors"
+    torch.manual_seed(0)
+    save_checkpoint(ckpt, build_unet(net_cfg), net_cfg, {})
+    seen = []
+    real_plan = inference.plan
+
+    def spy(obs, net, *a, **k):
+        seen.append((net.views, net.view_spread_k))
+        return real_plan(obs, net, *a, **k)
+
+    monkeypatch.setattr(inference, "plan", spy)
+    plain = PlannerSpec("unet", model=str(ckpt), objective="f3")
+    viewed = PlannerSpec("unet", model=str(ckpt), objective="f3", views=8, view_spread_k=2.0)
+    assert viewed.name == "unet-f3-views8k2" and PlannerSpec("unet", model="m", views=4).name == "unet-f1-views4"
+    tables = run_evaluation([plain, viewed], cfg, tmp_path / "e", workers=1)
+    assert set(tables["planners"]) == {"unet-f3", "unet-f3-views8k2"}
+    assert sorted(seen) == [(1, 0.0), (8, 2.0)], seen
+    assert len({_fingerprint(plain), _fingerprint(viewed), _fingerprint(replace(viewed, view_spread_k=1.0)),
+                _fingerprint(replace(viewed, views=4))}) == 4
+    with pytest.raises(ValueError, match="views must be one of"):
+        build_planner(PlannerSpec("unet", model=str(ckpt), views=3))
