@@ -32,3 +32,12 @@ def paired_se(a, b) -> float:
     only_a = float(((a == 1) & (b == 0)).sum()) + 0.5
     only_b = float(((a == 0) & (b == 1)).sum()) + 0.5
     return math.sqrt(max(only_a + only_b - (only_b - only_a) ** 2 / n, 0.0)) / n
+
+
+def paired(a, b) -> tuple[float, float, float]:
+    """Difference of success rates ``mean(b) - mean(a)`` [pp] over the same piles (0/1 arrays), and its
+    95 % interval (standard error: :func:`paired_se`)."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    se = paired_se(a, b)
+    d = 100 * (b.mean() - a.mean())
+    return d, d - 196 * se, d + 196 * se

@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.measure import load_average, paired_se
+from experiments.measure import load_average, paired
 
 FORMAT = "loggrasp.bench-verify"
 VERSION = "1.0"
@@ -255,14 +255,6 @@ def run(cfg: VerifyBenchConfig, work_dir: Path, out: Path, progress=print) -> di
 
 
 # -- summary ------------------------------------------------------------------------------------
-def paired(a: np.ndarray, b: np.ndarray) -> tuple[float, float, float]:
-    """Difference of success rates b - a [pp] on the same piles, and its 95 % interval (standard
-    error: :func:`experiments.measure.paired_se`)."""
-    se = paired_se(a, b)
-    d = 100 * (b.mean() - a.mean())
-    return d, d - 196 * se, d + 196 * se
-
-
 def summarise(rec: dict) -> dict:
     out = {}
     for kind in rec["config"]["objectives"]:
