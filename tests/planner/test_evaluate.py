@@ -149,22 +149,28 @@ def test_the_verified_row_checks_on_a_perturbed_copy_never_on_the_test_pile():
         build_planner(PlannerSpec("unet", model="m", objective="f3", verify_k=-1))
 
 
-def test_a_row_with_a_subset_cap_plans_only_the_subsets_it_keeps(tmp_path, monkeypatch):
-    """``max_subsets`` rows measure the pre-selection's cost in success: the plan sees only the capped
-    subsets (a 2-log pile capped at 1 keeps its two single logs, never the pair)."""
+def _tiny_checkpoint(path, cfg: EvalConfig, seed: int = 0):
+    """An untrained tiny U-Net at the evaluation's image size, saved to ``path``."""
     from dataclasses import replace
 
     import torch
 
-    import planner.inference as inference
     from planner.checkpoint import save_checkpoint
     from planner.model import UNetConfig, build_unet
 
-    cfg = EvalConfig(logs=(2,), obstacles=(False,), per_cell=1)
     net_cfg = replace(UNetConfig.tiny(), size_px=cfg.size_px)
-    ckpt = tmp_path / "m.safetensors"
-    torch.manual_seed(0)
-    save_checkpoint(ckpt, build_unet(net_cfg), net_cfg, {})
+    torch.manual_seed(seed)
+    save_checkpoint(path, build_unet(net_cfg), net_cfg, {})
+    return path
+
+
+def test_a_row_with_a_subset_cap_plans_only_the_subsets_it_keeps(tmp_path, monkeypatch):
+    """``max_subsets`` rows measure the pre-selection's cost in success: the plan sees only the capped
+    subsets (a 2-log pile capped at 1 keeps its two single logs, never the pair)."""
+    import planner.inference as inference
+
+    cfg = EvalConfig(logs=(2,), obstacles=(False,), per_cell=1)
+    ckpt = _tiny_checkpoint(tmp_path / "m.safetensors", cfg)
     seen = []
     real_plan = inference.plan
 
@@ -193,18 +199,11 @@ def test_a_row_with_test_time_views_plans_with_them_and_keeps_its_own_records(tm
     the same label planned with other views is tried again."""
     from dataclasses import replace
 
-    import torch
-
     import planner.inference as inference
-    from planner.checkpoint import save_checkpoint
     from planner.evaluate import _fingerprint, build_planner
-    from planner.model import UNetConfig, build_unet
 
     cfg = EvalConfig(logs=(2,), obstacles=(False,), per_cell=1)
-    net_cfg = replace(UNetConfig.tiny(), size_px=cfg.size_px)
-    ckpt = tmp_path / "m.safetensors"
-    torch.manual_seed(0)
-    save_checkpoint(ckpt, build_unet(net_cfg), net_cfg, {})
+    ckpt = _tiny_checkpoint(tmp_path / "m.safetensors", cfg)
     seen = []
     real_plan = inference.plan
 
