@@ -420,10 +420,11 @@ def _view_specs(model: str, objectives: str, views: int | None, view_spread: flo
         if view_spread:
             raise CliError("--view-spread needs --views V")
         return []
-    if views not in (2, 4, 8):
-        raise CliError(f"--views must be 2, 4 or 8 (dihedral views averaged; 1 is the plain row), got {views}")
-    if not (math.isfinite(view_spread) and view_spread >= 0):
-        raise CliError(f"--view-spread must be >= 0, got {view_spread:g}")
+    if views == 1:
+        raise CliError("--views 1 is the plain row that --objectives gives already: add 2, 4 or 8 views")
+    from planner.inference import check_views
+
+    check_views(views, view_spread)  # a ValueError naming views / view_spread_k, reported with the flags
     return [PlannerSpec("unet", model=model, objective=x, views=views, view_spread_k=view_spread)
             for x in _csv(objectives)]
 

@@ -59,13 +59,13 @@ class PlannerSpec:
             return self.label
         if self.kind != "unet":
             return self.kind
-        cap = f"-cap{self.max_subsets}" if self.max_subsets else ""
+        how = f"-cap{self.max_subsets}" if self.max_subsets else ""
         if self.views > 1:
-            cap += f"-views{self.views}" + (f"k{self.view_spread_k:g}" if self.view_spread_k else "")
+            how += f"-views{self.views}" + (f"k{self.view_spread_k:g}" if self.view_spread_k else "")
         if self.verify_k:
             copies = f"x{self.verify_copies}" if self.verify_copies else ""
-            return f"unet-{self.objective}{cap}-verify{self.verify_k}{copies}"
-        return f"unet-{self.objective}{cap}"
+            return f"unet-{self.objective}{how}-verify{self.verify_k}{copies}"
+        return f"unet-{self.objective}{how}"
 
     def subset_policy(self) -> SubsetPolicy:
         """The subsets this row plans with."""

@@ -385,7 +385,8 @@ def test_eval_bad_input(capsys, work, a_file):
                       (["--extra-model", "nolabel"], "--extra-model"), (["--logs", "7-2"], "--logs"),
                       (["--address", "tcp://x:1"], "--address"), (["--verify", "0"], "--verify 0"),
                       (["--verify-copies", "2"], "--verify-copies needs --verify"),
-                      (["--views", "3"], "--views must be 2, 4 or 8"), (["--views", "1"], "--views must be"),
+                      (["--views", "3"], "--views must be one of (1, 2, 4, 8) (dihedral views averaged), got 3"),
+                      (["--views", "1"], "--views 1 is the plain row"),
                       (["--view-spread", "2"], "--view-spread needs --views"),
                       (["--views", "8", "--view-spread", "-1"], "--view-spread must be >= 0")):
         fails(cli(capsys, "eval", *bad, "--out", work / "e2"), 2, flag)
