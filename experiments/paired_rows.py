@@ -10,6 +10,7 @@ name in it); the rows may come from different folders as long as they ran on the
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import math
 from pathlib import Path
@@ -21,13 +22,16 @@ from experiments.measure import paired
 PileKey = tuple[int, int, bool, int]  # (seed, logs, obstacles, k): a record's pile
 
 
+@functools.lru_cache(maxsize=8)
+def _records(folder: Path) -> tuple[dict, ...]:
+    """Every record of an eval folder, read once however many rows come from it."""
+    return tuple(r for f in sorted(Path(folder, "records").glob("*.json")) for r in json.loads(f.read_text()))
+
+
 def read_row(folder: Path, planner: str) -> dict[PileKey, dict]:
     """The records of ``planner`` in an eval folder, by pile. ``ValueError`` when it has none."""
-    rows = {}
-    for f in sorted(Path(folder, "records").glob("*.json")):
-        for r in json.loads(f.read_text()):
-            if r["planner"] == planner:
-                rows[(int(r["seed"]), int(r["n_logs"]), bool(r["obstacles"]), int(r["k"]))] = r
+    rows = {(int(r["seed"]), int(r["n_logs"]), bool(r["obstacles"]), int(r["k"])): r
+            for r in _records(Path(folder)) if r["planner"] == planner}
     if not rows:
         raise ValueError(f"no records of planner {planner!r} in {folder}/records (see its results.md for the names)")
     return rows
