@@ -17,7 +17,7 @@ OUT = Path(__file__).resolve().parents[1] / "docs" / "img" / "architecture.png"
 LANES = [
     ("field/", 3.0, "#f4d6c6", [("laptop: trial", "trial.py, geo.py, cli.py"),
                                  ("crane link", "link/ (CAN, Zenoh, twin)"),
-                                 ("controller twin", "controller.py, executor.py"),
+                                 ("controller twin", "controller/, executor.py"),
                                  ("record + replay", "trial.py, cli.py")]),
     ("reconstruct/", 2.0, "#d6e4f0", [("scan/", "stereo.py, calibration.py, sfm.py"),
                                        ("survey/ + registration", "gnss.py, registration.py"),

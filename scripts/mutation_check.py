@@ -114,7 +114,7 @@ MUTATIONS: tuple[Mutation, ...] = (
       ("tests/synth/geometry/test_rh2000_refusal.py", "tests/synth/geometry/test_geodesy.py"), env="geoid-grid"),
     # -- the crane link ----------------------------------------------------------------------------
     M("busy-id-not-burned", "a command id rejected as BUSY is not burned (it could run once the crane is idle)",
-      "field/controller.py", "            if known is None:\n                self._burn(cmd.command_id, reason, digest)",
+      "field/controller/core.py", "            if known is None:\n                self._burn(cmd.command_id, reason, digest)",
       "            if known is None and reason is not RejectReason.BUSY:\n"
       "                self._burn(cmd.command_id, reason, digest)",
       ("tests/field/test_link_safety.py::test_an_id_rejected_busy_stays_burned_across_a_restart",

@@ -33,20 +33,31 @@ import logging
 import secrets
 import threading
 import time
-from dataclasses import asdict, dataclass, field, replace
 from collections.abc import Mapping
+from dataclasses import asdict, dataclass
 from typing import Any, Callable
-from urllib.parse import parse_qsl, unquote, urlsplit
 
-from field.errors import CommandRejected, LinkClosed, LinkError, LinkTimeout, ProtocolError
-from field.link.messages import Ack, ControllerState, ControllerStatus, GraspCommand, Outcome, RejectReason
-from field.link.safety import CommandGuard, SafetyConfig
+from field.errors import CommandRejected, LinkClosed, LinkError, LinkTimeout
+from field.link.fate import (  # noqa: F401 - re-exported: their import path stays field.link.base
+    REASON_HELP,
+    CommandFate,
+    _check_timeout,
+    _runs_or_ran,
+    describe_fate,
+)
+from field.link.link_config import LinkConfig, LinkURL
+from field.link.messages import Ack, ControllerState, ControllerStatus, GraspCommand, Outcome
+from field.link.receiving import Receiving
+from field.link.reconcile import REVOKE_TARGET_LOGS, Reconciling  # noqa: F401 - re-exported
+from field.link.resources import (  # noqa: F401 - re-exported
+    close_leaked_resources,
+    open_resources,
+    track_resource,
+    untrack_resource,
+)
+from field.link.safety import CommandGuard
 
 log = logging.getLogger(__name__)
-
-#: target log count of a revocation: a command the controller refuses by definition (MALFORMED),
-#: sent under the id of a command whose acknowledgement never came, to burn that id
-REVOKE_TARGET_LOGS = 0
 
 #: link backends, name -> "module:Class" (imported only when chosen)
 BACKENDS: dict[str, str] = {
@@ -73,121 +84,6 @@ def load_entry(registry: dict[str, str], name: str, what: str) -> Any:
     return getattr(module, attr)
 
 
-# --- configuration ------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class LinkConfig:
-    """Options every backend understands (URL query parameters of the same names)."""
-
-    heartbeat_period_s: float = 0.05  # laptop heartbeat period [s] (CAN)
-    heartbeat_timeout_s: float = 1.0  # controller counts as lost after this long without a heartbeat [s]
-    status_timeout_s: float = 0.3  # status query answer deadline [s]
-    connect_timeout_s: float = 3.0  # wait this long for the controller's first sign of life at open [s]
-    require_controller: bool = True  # open fails when no controller answers within connect_timeout_s
-    record_path: str | None = None  # record the session's traffic here (CAN: BLF)
-    secoc_key_path: str | None = None  # pre-shared key file: authenticated frames only (SecOC style)
-    secoc_window_s: float = 2.0  # SecOC freshness window [s]
-    safety: SafetyConfig = field(default_factory=SafetyConfig)
-
-    def __post_init__(self) -> None:
-        for name in ("heartbeat_period_s", "heartbeat_timeout_s", "status_timeout_s", "connect_timeout_s",
-                     "secoc_window_s"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and v > 0):
-                raise ValueError(f"LinkConfig.{name} must be > 0 s, got {v!r}")
-        if self.heartbeat_timeout_s <= self.heartbeat_period_s:
-            raise ValueError(
-                f"heartbeat_timeout_s ({self.heartbeat_timeout_s}) must exceed heartbeat_period_s "
-                f"({self.heartbeat_period_s}); use several periods"
-            )
-
-
-@dataclass(frozen=True)
-class LinkURL:
-    """A parsed link URL: ``scheme://netloc/path?query``."""
-
-    scheme: str
-    netloc: str
-    path: str  # without the leading "/", unquoted
-    query: dict[str, str]
-
-    @classmethod
-    def parse(cls, url: str) -> "LinkURL":
-        if not isinstance(url, str) or "://" not in url:
-            raise ValueError(
-                f"link URL must look like 'can://virtual/ch0', 'zenoh://127.0.0.1:7447/crane1' or "
-                f"'twin://', got {url!r}"
-            )
-        parts = urlsplit(url)
-        return cls(parts.scheme.lower(), unquote(parts.netloc), unquote(parts.path.lstrip("/")), dict(parse_qsl(parts.query)))
-
-    def pop_link_config(self, base: LinkConfig | None = None) -> tuple[LinkConfig, dict[str, str]]:
-        """Split the query into a :class:`LinkConfig` and the backend's own parameters."""
-        cfg = base or LinkConfig()
-        q = dict(self.query)
-        kw: dict[str, Any] = {}
-        safety: dict[str, Any] = {}
-        try:
-            if "heartbeat_ms" in q:
-                kw["heartbeat_period_s"] = float(q.pop("heartbeat_ms")) / 1000.0
-            if "heartbeat_timeout_ms" in q:
-                kw["heartbeat_timeout_s"] = float(q.pop("heartbeat_timeout_ms")) / 1000.0
-            if "status_timeout_ms" in q:
-                kw["status_timeout_s"] = float(q.pop("status_timeout_ms")) / 1000.0
-            if "connect_timeout_s" in q:
-                kw["connect_timeout_s"] = float(q.pop("connect_timeout_s"))
-            if "record" in q:
-                kw["record_path"] = q.pop("record")
-            if "secoc_key" in q:
-                kw["secoc_key_path"] = q.pop("secoc_key")
-            if "secoc_window_s" in q:
-                kw["secoc_window_s"] = float(q.pop("secoc_window_s"))
-            if "max_pile_age_s" in q:
-                safety["max_pile_age_s"] = float(q.pop("max_pile_age_s"))
-        except ValueError as exc:
-            raise ValueError(f"bad number in link URL query {self.query}: {exc}") from exc
-        if safety:
-            kw["safety"] = replace(cfg.safety, **safety)
-        return replace(cfg, **kw), q
-
-
-# --- resource tracking (the leak fixture reads it) ------------------------------------------
-
-_RESOURCES: dict[int, tuple[str, Callable[[], None]]] = {}
-_RES_LOCK = threading.Lock()
-
-
-def track_resource(obj: object, description: str, closer: Callable[[], None]) -> None:
-    """Register an open bus / Zenoh session; :func:`untrack_resource` when closed."""
-    with _RES_LOCK:
-        _RESOURCES[id(obj)] = (description, closer)
-
-
-def untrack_resource(obj: object) -> None:
-    with _RES_LOCK:
-        _RESOURCES.pop(id(obj), None)
-
-
-def open_resources() -> list[str]:
-    """Descriptions of buses / sessions opened by :mod:`field.link` and not closed yet."""
-    with _RES_LOCK:
-        return [d for d, _ in _RESOURCES.values()]
-
-
-def close_leaked_resources() -> list[str]:
-    """Close everything still open (test teardown); returns what was closed."""
-    with _RES_LOCK:
-        items = list(_RESOURCES.items())
-        _RESOURCES.clear()
-    for _, (_, closer) in items:
-        try:
-            closer()
-        except Exception:  # best effort during teardown
-            pass
-    return [d for _, (d, _) in items]
-
-
 # --- the link --------------------------------------------------------------------------------
 
 
@@ -208,32 +104,8 @@ class LinkStats:
     conflicts: int = 0  # answers that contradicted an earlier one (reconciled; see CraneLink.notes)
 
 
-@dataclass(frozen=True)
-class CommandFate:
-    """What the controller did with one command, as far as the laptop can know it: what to tell
-    the operator. ``executed`` is True (it ran: ``outcome`` is its result, or None when the
-    outcome is not known yet), False (it never ran: ``reason`` says why), or None (UNKNOWN: the
-    controller is unreachable — check the crane on site)."""
 
-    command_id: int
-    executed: bool | None
-    outcome: Outcome | None = None
-    reason: RejectReason | None = None  # why it did not run (a rejection); None otherwise
-    local: bool = False  # refused on the laptop: never sent
-    summary: str = ""  # one line for the operator
-    notes: tuple[str, ...] = ()  # conflicting or late answers that were reconciled
-
-    @property
-    def final_state(self) -> str:
-        """SUCCESS / FEWER / ... (the outcome class), REJECTED, NOT EXECUTED, RUNNING or UNKNOWN."""
-        if self.executed is None:
-            return "UNKNOWN"
-        if self.executed:
-            return self.outcome.outcome_class.name if self.outcome is not None else "RUNNING"
-        return "REJECTED" if self.reason is not None else "NOT EXECUTED"
-
-
-class CraneLink(abc.ABC):
+class CraneLink(Receiving, Reconciling, abc.ABC):
     """Laptop side of the crane link. Use as a context manager; ``close()`` is safe twice.
 
     Backends implement :meth:`_transmit` (send one protected frame) and :meth:`_close_transport`,
@@ -529,230 +401,6 @@ class CraneLink(abc.ABC):
     def _close_transport(self) -> None:
         """Release the bus / session (called once)."""
 
-    def _deliver(self, kind: str, data: bytes) -> None:
-        """Feed one crane -> laptop frame (any thread): check, decode, store, notify."""
-        self.stats.frames_received += 1
-        self._resync_after_silence()
-        plain = self._unwrap(kind, data)
-        d = None if plain is None else self._decode(kind, plain)
-        if d is None:
-            return
-        with self._cond:
-            self._dispatch(d.message)
-            self._cond.notify_all()
-
-    def _mark_alive(self) -> None:
-        """Backends with their own liveness signal (Zenoh liveliness) call this."""
-        self._counters.reset()  # a (re)appearing controller starts a new counter session
-        with self._cond:
-            self._last_heartbeat_mono = time.monotonic()
-            self._cond.notify_all()
-
-    def _mark_lost(self) -> None:
-        self._counters.reset()
-        with self._cond:
-            self._last_heartbeat_mono = None
-            self._cond.notify_all()
-
-    def _fail(self, exc: BaseException) -> None:
-        """Backends report an unrecoverable transport error here; waiters raise LinkError."""
-        self.stats.bus_errors += 1
-        with self._cond:
-            if self._failure is None:
-                self._failure = exc
-            self._cond.notify_all()
-
-    # ---- receiving -----------------------------------------------------------------------
-
-    def _resync_after_silence(self) -> None:
-        now = time.monotonic()
-        last, self._last_rx_mono = self._last_rx_mono, now
-        if self._resync_on_silence and (last is None or now - last > self.config.heartbeat_timeout_s):
-            self._counters.reset()  # the controller was silent: a new session, re-synchronise
-            self._crane_heartbeat = None
-
-    def _unwrap(self, kind: str, data: bytes) -> bytes | None:
-        """The plain frame, after the SecOC check when a key is configured (None: dropped, counted)."""
-        from field.link.secoc import unwrap
-
-        plain, why = unwrap(self._secoc, kind, data)
-        if why is not None:
-            self.stats.auth_failures += 1
-            log.debug("dropped %s: %s", kind, why)
-        return plain
-
-    def _decode(self, kind: str, data: bytes) -> Any:
-        from field.link.codec import CounterCheck, decode
-
-        try:
-            d = decode(kind, data)
-        except ProtocolError as exc:
-            if exc.reason is RejectReason.CRC:
-                self.stats.crc_errors += 1
-            else:
-                self.stats.malformed += 1
-            return None
-        check = self._counters.check(d.kind, d.counter)
-        if check is CounterCheck.REPEATED:
-            self.stats.duplicates_dropped += 1
-            return None
-        if check is CounterCheck.WRONG_SEQUENCE:
-            self.stats.sequence_errors += 1
-        return d
-
-    def _dispatch(self, msg: Any) -> None:
-        """Store one decoded crane -> laptop message (under ``self._cond``)."""
-        from field.link.codec import CraneHeartbeat
-
-        if isinstance(msg, CraneHeartbeat):
-            self._on_crane_heartbeat(msg)
-        elif isinstance(msg, Ack):
-            self._on_ack(msg)
-        elif isinstance(msg, Outcome):
-            self._on_outcome(msg)
-        elif isinstance(msg, ControllerStatus):
-            self._on_status(msg)
-
-    def _on_crane_heartbeat(self, msg: Any) -> None:
-        last, self._crane_heartbeat = self._crane_heartbeat, msg.heartbeat_counter
-        self._last_crane_state = msg.state
-        if last is None:
-            return  # the first heartbeat of a session only primes the sequence
-        if 1 <= (msg.heartbeat_counter - last) & 0xFFFFFFFF <= self._max_heartbeat_gap:
-            self._last_heartbeat_mono = time.monotonic()
-        else:
-            self.stats.stale_heartbeats += 1
-
-    def _on_ack(self, ack: Ack) -> None:
-        if ack.command_id == 0:
-            self.stats.unattributed_answers += 1  # the controller got a frame that failed its check
-            return
-        answers = self._answers.setdefault(ack.command_id, [])
-        answers.append(ack)
-        self._prune(self._answers)
-        first = answers[0]
-        if first.accepted != ack.accepted:
-            self._note(ack.command_id, f"contradicting answers: {_ack_word(first)} then {_ack_word(ack)}")
-        told = self._told.get(ack.command_id)
-        if told in ("no answer", "not executed") and ack.accepted:
-            self._note(ack.command_id, f"a late acceptance arrived after the operator was told '{told}'")
-
-    def _on_outcome(self, out: Outcome) -> None:
-        self._outcomes.setdefault(out.command_id, out)
-        self._prune(self._outcomes)
-        told = self._told.get(out.command_id)
-        if told in ("rejected", "no answer", "not executed"):
-            self._note(out.command_id, f"the controller reports an outcome ({out.outcome_class.name}) for a "
-                                       f"command the operator was told was '{told}'")
-
-    def _on_status(self, msg: ControllerStatus) -> None:
-        if msg.request_id in self._pending_status:
-            self._last_heartbeat_mono = time.monotonic()  # the answer to our own query: fresh
-            self._status_replies[msg.request_id] = msg
-            self._prune(self._status_replies)
-        elif msg.request_id:
-            return  # an answer to a query this link did not make (or a replay): not ours
-        if msg.laptops > 1 and self.laptops_heard <= 1:
-            log.warning("the crane controller hears %d laptops: a second laptop is on the link; only one may "
-                        "command a crane - disconnect the other", msg.laptops)
-        self._latest_status = msg
-
-    # ---- reconciliation ------------------------------------------------------------------
-
-    def _decision(self, command_id: int) -> Ack | None:
-        """The controller's decision about ``command_id``: the first answer naming it."""
-        answers = self._answers.get(command_id)
-        return answers[0] if answers else None
-
-    def _await_decision(self, command_id: int, timeout_s: float) -> Ack | None:
-        """The decision, or None at the deadline; an outcome for the id overrides a rejection."""
-        deadline = time.monotonic() + timeout_s
-        with self._cond:
-            while (ack := self._decision(command_id)) is None:
-                self._raise_if_failed()
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    return None
-                self._cond.wait(min(left, 0.05))
-            ran = command_id in self._outcomes
-        if not ack.accepted and ran:
-            self._note(command_id, f"rejected {ack.reason.name}, but the controller reports an outcome: it ran")
-            return Ack(command_id, True)
-        return ack
-
-    def _settle_unanswered(self, cmd: GraspCommand, outcome_timeout_s: float) -> CommandFate:
-        """No answer, and the controller is not running the command: revoke its id, so that a
-        copy delayed on the way can never run after the operator was told it did not."""
-        cid = cmd.command_id
-        ack = self._revoke(cmd)
-        if ack is None:
-            self._tell(cid, "no answer")
-            return CommandFate(cid, None, summary=(
-                f"no acknowledgement for command {cid}; the controller is not executing it, but its id could not "
-                f"be revoked (no answer): a delayed copy could still run - watch the crane"), notes=self._notes(cid))
-        if ack.accepted or ack.reason is RejectReason.DUPLICATE_ID:  # the original got there after all
-            status = self._status_or_none()
-            if ack.accepted or (status is not None and _runs_or_ran(cid, status)):
-                self._note(cid, "its acknowledgement was lost; the frame reached the controller late")
-                return self._follow(cid, outcome_timeout_s)
-        self._tell(cid, "not executed")
-        return CommandFate(cid, False, summary=(
-            f"no acknowledgement for command {cid}; the controller is not executing it and its id is revoked: "
-            f"it can never run. Send a new command"), notes=self._notes(cid))
-
-    def _revoke(self, cmd: GraspCommand, attempts: int = 3) -> Ack | None:
-        """Send the revocation of ``cmd``'s id (the same command with zero target logs, which the
-        controller refuses by definition and so burns the id); the controller's first answer
-        naming the id, or None."""
-        revoke = replace(cmd, target_log_count=REVOKE_TARGET_LOGS)
-        for _ in range(attempts):
-            self._send(*self._wire(revoke))
-            ack = self._await_decision(cmd.command_id, self.config.status_timeout_s)
-            if ack is not None:
-                return ack
-        return None
-
-    def _confirm_rejection(self, command_id: int, exc: CommandRejected) -> CommandFate:
-        """A rejection, checked against the controller's status: it must not be running it."""
-        status = self._status_or_none()
-        if status is not None and _runs_or_ran(command_id, status):
-            self._note(command_id, f"rejected {exc.reason.name}, but the controller runs or ran it")
-            return self._follow(command_id, 30.0)
-        self._tell(command_id, "rejected")
-        return CommandFate(command_id, False, reason=exc.reason, summary=str(exc), notes=self._notes(command_id))
-
-    def _follow(self, command_id: int, timeout_s: float) -> CommandFate:
-        try:
-            out = self.wait_outcome(command_id, timeout_s)
-        except LinkTimeout as exc:
-            self._tell(command_id, "outcome unknown")
-            return CommandFate(command_id, True if exc.status is not None else None, summary=str(exc),
-                               notes=self._notes(command_id))
-        self._tell(command_id, "finished")
-        return CommandFate(command_id, True, out, summary=f"finished: {out.outcome_class.name}",
-                           notes=self._notes(command_id))
-
-    def _tell(self, command_id: int, what: str) -> None:
-        with self._cond:
-            self._told[command_id] = what
-            self._prune(self._told)
-
-    def _note(self, command_id: int, text: str) -> None:
-        """Record a reconciled conflict (call with or without ``self._cond``)."""
-        with self._cond:
-            self.notes.setdefault(command_id, []).append(text)
-            self._prune(self.notes)
-        self.stats.conflicts += 1
-        log.warning("command %d: %s", command_id, text)
-
-    def _notes(self, command_id: int) -> tuple[str, ...]:
-        with self._cond:
-            return tuple(self.notes.get(command_id, ()))
-
-    def _second_laptop_hint(self) -> str:
-        n = self.laptops_heard
-        return f"; NOTE: the controller hears {n} laptops - disconnect the other one" if n > 1 else ""
-
     # ---- helpers -------------------------------------------------------------------------
 
     def _wire(self, msg: Any) -> tuple[str, bytes]:
@@ -870,46 +518,6 @@ def _load_secoc(config: LinkConfig, clock: Callable[[], float]) -> Any:
 
     return SecOC.from_key_file(config.secoc_key_path, window_s=config.secoc_window_s, clock=clock)
 
-
-def _runs_or_ran(command_id: int, status: ControllerStatus) -> bool:
-    """The status says the controller is running ``command_id`` or finished it last."""
-    last = status.last_outcome
-    return status.current_command_id == command_id or (last is not None and last.command_id == command_id)
-
-
-def _ack_word(ack: Ack) -> str:
-    return "accepted" if ack.accepted else f"rejected {ack.reason.name}"
-
-
-REASON_HELP: dict[RejectReason, str] = {
-    RejectReason.CRC: "the frame was corrupted on the way; check the bus, send a new command",
-    RejectReason.COUNTER: "frames were lost or reordered, or a second laptop is on the bus; send a new command",
-    RejectReason.STALE: "the pile data is too old for the controller; rescan and plan again",
-    RejectReason.DUPLICATE_ID: "this id was already used; use a new command id",
-    RejectReason.OUT_OF_REACH: "the grasp point is outside the crane's reach; plan another grasp",
-    RejectReason.WIDTH_RANGE: "the opening width is outside 0.30-1.55 m",
-    RejectReason.HEADING_RANGE: "the heading is outside the rotator's range (fold it into [0, 180) deg)",
-    RejectReason.BUSY: "a grasp is executing; wait for its outcome",
-    RejectReason.ESTOP: "the crane is in emergency stop; reset it on the crane",
-    RejectReason.MALFORMED: "the controller could not make sense of the frame; check versions",
-    RejectReason.FAULT: "the controller is in FAULT; reset it on the crane",
-}
-
-
-def describe_fate(command_id: int, status: ControllerStatus | None) -> str:
-    """One sentence on what happened to ``command_id`` given a status (for error messages)."""
-    if status is None:
-        return "the controller did not answer a status query either: its state is UNKNOWN - check the crane on site"
-    if status.current_command_id == command_id:
-        return f"the controller IS executing it (state {status.state.name})"
-    if status.last_outcome is not None and status.last_outcome.command_id == command_id:
-        return f"it finished: {status.last_outcome.outcome_class.name}"
-    return f"the controller is NOT executing it (state {status.state.name}): it was lost or refused"
-
-
-def _check_timeout(timeout_s: float) -> None:
-    if not (isinstance(timeout_s, (int, float)) and timeout_s > 0):
-        raise ValueError(f"timeout_s must be > 0 s, got {timeout_s!r}")
 
 
 def open_link(url_or_config: "str | LinkURL | Mapping[str, Any]", config: LinkConfig | None = None, **backend_kwargs: Any) -> CraneLink:

@@ -158,11 +158,11 @@ ALLOWED_DIRECT_WRITES: dict[tuple[str, str], tuple[Counter, str]] = {
         Counter({"write_text": 1}), "examples.err: a note that a picture failed"),
     ("reconstruct/scan/sfm.py", "_run_colmap"): (Counter({"imwrite": 1}), "images in SfM's temporary work folder"),
     ("reconstruct/scan/sfm.py", "_sfm_model"): (Counter({"shutil.copytree": 1}), "keep_workdir: a debugging copy"),
-    ("field/controller.py", "FixedOutcomeExecutor.__init__"): (
+    ("field/controller/executors.py", "FixedOutcomeExecutor.__init__"): (
         Counter({"open('w')": 1}), "the crane twin's append-only execution log (its header line)"),
-    ("field/controller.py", "FixedOutcomeExecutor._log_start"): (
+    ("field/controller/executors.py", "FixedOutcomeExecutor._log_start"): (
         Counter({"open('a')": 1}), "the crane twin's append-only execution log (one line per command)"),
-    ("field/controller.py", "ControllerJournal._append"): (
+    ("field/controller/journal.py", "ControllerJournal._append"): (
         Counter({"open('a')": 1}), "the burned-id journal: append-only JSON lines, fsynced per line"),
     ("field/link/secoc.py", "generate_key_file"): (
         Counter({"os.open": 1, "fdopen('w')": 1}), "a new key file created exclusively with mode 0600"),

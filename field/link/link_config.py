@@ -1,0 +1,85 @@
+"""The link's common options (:class:`LinkConfig`) and its URL (:class:`LinkURL`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any
+from urllib.parse import parse_qsl, unquote, urlsplit
+
+from field.link.safety import SafetyConfig
+
+
+@dataclass(frozen=True)
+class LinkConfig:
+    """Options every backend understands (URL query parameters of the same names)."""
+
+    heartbeat_period_s: float = 0.05  # laptop heartbeat period [s] (CAN)
+    heartbeat_timeout_s: float = 1.0  # controller counts as lost after this long without a heartbeat [s]
+    status_timeout_s: float = 0.3  # status query answer deadline [s]
+    connect_timeout_s: float = 3.0  # wait this long for the controller's first sign of life at open [s]
+    require_controller: bool = True  # open fails when no controller answers within connect_timeout_s
+    record_path: str | None = None  # record the session's traffic here (CAN: BLF)
+    secoc_key_path: str | None = None  # pre-shared key file: authenticated frames only (SecOC style)
+    secoc_window_s: float = 2.0  # SecOC freshness window [s]
+    safety: SafetyConfig = field(default_factory=SafetyConfig)
+
+    def __post_init__(self) -> None:
+        for name in ("heartbeat_period_s", "heartbeat_timeout_s", "status_timeout_s", "connect_timeout_s",
+                     "secoc_window_s"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and v > 0):
+                raise ValueError(f"LinkConfig.{name} must be > 0 s, got {v!r}")
+        if self.heartbeat_timeout_s <= self.heartbeat_period_s:
+            raise ValueError(
+                f"heartbeat_timeout_s ({self.heartbeat_timeout_s}) must exceed heartbeat_period_s "
+                f"({self.heartbeat_period_s}); use several periods"
+            )
+
+
+@dataclass(frozen=True)
+class LinkURL:
+    """A parsed link URL: ``scheme://netloc/path?query``."""
+
+    scheme: str
+    netloc: str
+    path: str  # without the leading "/", unquoted
+    query: dict[str, str]
+
+    @classmethod
+    def parse(cls, url: str) -> "LinkURL":
+        if not isinstance(url, str) or "://" not in url:
+            raise ValueError(
+                f"link URL must look like 'can://virtual/ch0', 'zenoh://127.0.0.1:7447/crane1' or "
+                f"'twin://', got {url!r}"
+            )
+        parts = urlsplit(url)
+        return cls(parts.scheme.lower(), unquote(parts.netloc), unquote(parts.path.lstrip("/")), dict(parse_qsl(parts.query)))
+
+    def pop_link_config(self, base: LinkConfig | None = None) -> tuple[LinkConfig, dict[str, str]]:
+        """Split the query into a :class:`LinkConfig` and the backend's own parameters."""
+        cfg = base or LinkConfig()
+        q = dict(self.query)
+        kw: dict[str, Any] = {}
+        safety: dict[str, Any] = {}
+        try:
+            if "heartbeat_ms" in q:
+                kw["heartbeat_period_s"] = float(q.pop("heartbeat_ms")) / 1000.0
+            if "heartbeat_timeout_ms" in q:
+                kw["heartbeat_timeout_s"] = float(q.pop("heartbeat_timeout_ms")) / 1000.0
+            if "status_timeout_ms" in q:
+                kw["status_timeout_s"] = float(q.pop("status_timeout_ms")) / 1000.0
+            if "connect_timeout_s" in q:
+                kw["connect_timeout_s"] = float(q.pop("connect_timeout_s"))
+            if "record" in q:
+                kw["record_path"] = q.pop("record")
+            if "secoc_key" in q:
+                kw["secoc_key_path"] = q.pop("secoc_key")
+            if "secoc_window_s" in q:
+                kw["secoc_window_s"] = float(q.pop("secoc_window_s"))
+            if "max_pile_age_s" in q:
+                safety["max_pile_age_s"] = float(q.pop("max_pile_age_s"))
+        except ValueError as exc:
+            raise ValueError(f"bad number in link URL query {self.query}: {exc}") from exc
+        if safety:
+            kw["safety"] = replace(cfg.safety, **safety)
+        return replace(cfg, **kw), q

@@ -1,0 +1,150 @@
+"""The laptop side's receive path: check, decode and store crane -> laptop frames.
+
+A mixin of :class:`field.link.base.CraneLink` (its state lives there): frames delivered by a
+backend go through :meth:`Receiving._deliver`: SecOC check (with a key), E2E check, rolling
+counter check, decode, then into the inbox that the public API waits on.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from typing import Any
+
+from field.errors import ProtocolError
+from field.link.fate import _ack_word
+from field.link.messages import Ack, ControllerStatus, Outcome, RejectReason
+
+log = logging.getLogger(__name__)
+
+
+class Receiving:
+    """Crane -> laptop frames into :class:`field.link.base.CraneLink`'s inbox (under its ``_cond``)."""
+
+    def _deliver(self, kind: str, data: bytes) -> None:
+        """Feed one crane -> laptop frame (any thread): check, decode, store, notify."""
+        self.stats.frames_received += 1
+        self._resync_after_silence()
+        plain = self._unwrap(kind, data)
+        d = None if plain is None else self._decode(kind, plain)
+        if d is None:
+            return
+        with self._cond:
+            self._dispatch(d.message)
+            self._cond.notify_all()
+
+    def _mark_alive(self) -> None:
+        """Backends with their own liveness signal (Zenoh liveliness) call this."""
+        self._counters.reset()  # a (re)appearing controller starts a new counter session
+        with self._cond:
+            self._last_heartbeat_mono = time.monotonic()
+            self._cond.notify_all()
+
+    def _mark_lost(self) -> None:
+        self._counters.reset()
+        with self._cond:
+            self._last_heartbeat_mono = None
+            self._cond.notify_all()
+
+    def _fail(self, exc: BaseException) -> None:
+        """Backends report an unrecoverable transport error here; waiters raise LinkError."""
+        self.stats.bus_errors += 1
+        with self._cond:
+            if self._failure is None:
+                self._failure = exc
+            self._cond.notify_all()
+
+    # ---- receiving -----------------------------------------------------------------------
+
+    def _resync_after_silence(self) -> None:
+        now = time.monotonic()
+        last, self._last_rx_mono = self._last_rx_mono, now
+        if self._resync_on_silence and (last is None or now - last > self.config.heartbeat_timeout_s):
+            self._counters.reset()  # the controller was silent: a new session, re-synchronise
+            self._crane_heartbeat = None
+
+    def _unwrap(self, kind: str, data: bytes) -> bytes | None:
+        """The plain frame, after the SecOC check when a key is configured (None: dropped, counted)."""
+        from field.link.secoc import unwrap
+
+        plain, why = unwrap(self._secoc, kind, data)
+        if why is not None:
+            self.stats.auth_failures += 1
+            log.debug("dropped %s: %s", kind, why)
+        return plain
+
+    def _decode(self, kind: str, data: bytes) -> Any:
+        from field.link.codec import CounterCheck, decode
+
+        try:
+            d = decode(kind, data)
+        except ProtocolError as exc:
+            if exc.reason is RejectReason.CRC:
+                self.stats.crc_errors += 1
+            else:
+                self.stats.malformed += 1
+            return None
+        check = self._counters.check(d.kind, d.counter)
+        if check is CounterCheck.REPEATED:
+            self.stats.duplicates_dropped += 1
+            return None
+        if check is CounterCheck.WRONG_SEQUENCE:
+            self.stats.sequence_errors += 1
+        return d
+
+    def _dispatch(self, msg: Any) -> None:
+        """Store one decoded crane -> laptop message (under ``self._cond``)."""
+        from field.link.codec import CraneHeartbeat
+
+        if isinstance(msg, CraneHeartbeat):
+            self._on_crane_heartbeat(msg)
+        elif isinstance(msg, Ack):
+            self._on_ack(msg)
+        elif isinstance(msg, Outcome):
+            self._on_outcome(msg)
+        elif isinstance(msg, ControllerStatus):
+            self._on_status(msg)
+
+    def _on_crane_heartbeat(self, msg: Any) -> None:
+        last, self._crane_heartbeat = self._crane_heartbeat, msg.heartbeat_counter
+        self._last_crane_state = msg.state
+        if last is None:
+            return  # the first heartbeat of a session only primes the sequence
+        if 1 <= (msg.heartbeat_counter - last) & 0xFFFFFFFF <= self._max_heartbeat_gap:
+            self._last_heartbeat_mono = time.monotonic()
+        else:
+            self.stats.stale_heartbeats += 1
+
+    def _on_ack(self, ack: Ack) -> None:
+        if ack.command_id == 0:
+            self.stats.unattributed_answers += 1  # the controller got a frame that failed its check
+            return
+        answers = self._answers.setdefault(ack.command_id, [])
+        answers.append(ack)
+        self._prune(self._answers)
+        first = answers[0]
+        if first.accepted != ack.accepted:
+            self._note(ack.command_id, f"contradicting answers: {_ack_word(first)} then {_ack_word(ack)}")
+        told = self._told.get(ack.command_id)
+        if told in ("no answer", "not executed") and ack.accepted:
+            self._note(ack.command_id, f"a late acceptance arrived after the operator was told '{told}'")
+
+    def _on_outcome(self, out: Outcome) -> None:
+        self._outcomes.setdefault(out.command_id, out)
+        self._prune(self._outcomes)
+        told = self._told.get(out.command_id)
+        if told in ("rejected", "no answer", "not executed"):
+            self._note(out.command_id, f"the controller reports an outcome ({out.outcome_class.name}) for a "
+                                       f"command the operator was told was '{told}'")
+
+    def _on_status(self, msg: ControllerStatus) -> None:
+        if msg.request_id in self._pending_status:
+            self._last_heartbeat_mono = time.monotonic()  # the answer to our own query: fresh
+            self._status_replies[msg.request_id] = msg
+            self._prune(self._status_replies)
+        elif msg.request_id:
+            return  # an answer to a query this link did not make (or a replay): not ours
+        if msg.laptops > 1 and self.laptops_heard <= 1:
+            log.warning("the crane controller hears %d laptops: a second laptop is on the link; only one may "
+                        "command a crane - disconnect the other", msg.laptops)
+        self._latest_status = msg
