@@ -98,6 +98,7 @@ REJECT_EXPLANATIONS = {
     "COUNTER": "frames were lost or reordered on the link: check the link and start a new trial",
     "CRC": "a frame was corrupted on the link: check the link and start a new trial",
     "MALFORMED": "the crane could not read the command (protocol version or impossible values)",
+    "UNSUPERVISED": "the crane heard no live heartbeat from this laptop: check the link and start a new trial",
 }
 
 

@@ -17,7 +17,9 @@ it checks, in this order, and rejects with the first failing reason:
    it has decided on (a duplicated or late frame) gets that same decision again, never a second
    execution; another command under a used id gets DUPLICATE_ID. So the first answer a laptop
    gets for its command is always the controller's decision about it;
-4. ESTOP / FAULT / BUSY state;
+4. ESTOP / FAULT / BUSY state; then UNSUPERVISED when no live laptop sent it (CAN: no laptop
+   with a fresh, in-sequence heartbeat stream; Zenoh: the sender named in the query has no
+   liveliness token) - nothing runs that no laptop watches;
 5. :func:`check_command`: pile data age (STALE), opening width (WIDTH_RANGE), heading
    (HEADING_RANGE), target log count (MALFORMED), reach envelope around the crane base in
    SWEREF 99 TM (OUT_OF_REACH: horizontal reach and height window).
@@ -30,10 +32,11 @@ starts): no e-stop is ever lost. The outcome is published and remembered in the 
 
 Supervision: the controller sends a heartbeat (CAN: ``send_periodic``; Zenoh: a liveliness
 token) and follows the laptops (:mod:`field.link.supervision`): on CAN a laptop is alive only
-while its heartbeats are fresh and in sequence; on Zenoh while its liveliness token exists. The
-laptop that was live when a command was accepted (on Zenoh: the one that sent it) is its
-*commanding peer*; losing it aborts the grasp (``abort_on_laptop_loss``), whoever else is
-connected. A second laptop is reported (log warning, ``ControllerStatus.laptops``). An e-stop
+while its heartbeats are fresh and in sequence; on Zenoh while its liveliness token exists. A
+command is accepted only from a live laptop, which becomes its *commanding peer* (CAN: the first
+established live stream; Zenoh: the sender); once that peer is not live (no fresh heartbeat for
+``laptop_timeout_s``, or its token gone) the grasp is aborted, whatever happened before and
+whoever else is connected. A second laptop is reported (log warning, ``ControllerStatus.laptops``). An e-stop
 frame latches ESTOP — fail-safe: any frame on the e-stop identifier stops, even one that fails
 its CRC or MAC. Only a local :meth:`reset_estop` clears it.
 

@@ -71,7 +71,6 @@ class ControllerConfig:
     counter_max_delta: int = 2  # rolling-counter jump tolerated on commands (lost frames) [-]
     heartbeat_period_s: float = 0.05  # crane heartbeat period [s]
     laptop_timeout_s: float = 1.0  # laptop counts as lost after this long without a fresh heartbeat [s]
-    abort_on_laptop_loss: bool = True  # abort the running grasp when its commanding laptop is lost [-]
     journal_path: str | None = None  # burn seen ids / outcomes here (survives restarts); crane-sim: on
     journal_keep: int = 10_000  # journal entries kept on compaction [-]
     journal_fsync: bool = True  # fsync every journal line (off only for throw-away twins in tests) [-]

@@ -35,13 +35,12 @@ class _Run:
     """One accepted command on its way through the executor."""
 
     cmd: GraspCommand
-    peer: str | None  # the commanding laptop (None: none was live yet; adopted when one is)
+    peer: str  # the commanding laptop (live at the acceptance: nothing is accepted unsupervised)
     accepted_s: float  # monotonic time of the acceptance [s]
     abort: threading.Event = field(default_factory=threading.Event)
     acked: threading.Event = field(default_factory=threading.Event)
     reason: str | None = None  # why it was aborted
     worker: threading.Thread | None = None
-    peer_seen: bool = False  # the commanding laptop was live at some point since the acceptance
 
 
 def _raw_command_id(data: bytes) -> int:
@@ -200,7 +199,7 @@ class CraneController:
         self._counters.pop(peer, None)
         with self._lock:
             run = self._run
-            if run is not None and run.peer == peer and self.config.abort_on_laptop_loss:
+            if run is not None and run.peer == peer:
                 self._abort_run(run, f"commanding laptop lost: {why}")
         self._publish_status()
 
@@ -289,10 +288,10 @@ class CraneController:
         digest = command_digest(cmd)
         with self._lock:
             known = self._known_decision(cmd.command_id, digest)
-            reason = known if known is not None else self._decide(cmd, check is CounterCheck.WRONG_SEQUENCE)
+            reason = known if known is not None else self._decide(cmd, check is CounterCheck.WRONG_SEQUENCE, peer)
             if known is None:
                 self._burn(cmd.command_id, reason, digest)
-            run = self._accept(cmd, peer) if known is None and reason is RejectReason.NONE else None
+            run = self._accept(cmd, peer) if known is None and reason is RejectReason.NONE and peer else None
         if reason is not RejectReason.NONE:
             self.rejections.append((cmd.command_id, reason))
             self._reject(cmd.command_id, reason, reply)
@@ -338,13 +337,15 @@ class CraneController:
         seen_digest, reason = self._decisions[command_id]
         return reason if seen_digest == digest else RejectReason.DUPLICATE_ID
 
-    def _decide(self, cmd: GraspCommand, out_of_sequence: bool) -> RejectReason:
+    def _decide(self, cmd: GraspCommand, out_of_sequence: bool, peer: str | None) -> RejectReason:
         if cmd.command_id == 0:
             return RejectReason.MALFORMED
         if out_of_sequence:
             return RejectReason.COUNTER
         state = {ControllerState.ESTOP: RejectReason.ESTOP, ControllerState.FAULT: RejectReason.FAULT,
                  ControllerState.EXECUTING: RejectReason.BUSY}.get(self._state)
+        if state is None and (peer is None or not self._peers.is_live(peer)):
+            return RejectReason.UNSUPERVISED  # no live laptop would see it run, or could stop it
         return state or check_command(cmd, self.config, self._clock())
 
     def _burn(self, command_id: int, reason: RejectReason, digest: str | None) -> None:
@@ -359,9 +360,9 @@ class CraneController:
         else:
             self._journal.record_rejected(command_id, reason, digest)
 
-    def _accept(self, cmd: GraspCommand, peer: str | None) -> _Run:
+    def _accept(self, cmd: GraspCommand, peer: str) -> _Run:
         """EXECUTING, and the worker started - under the lock, so no e-stop falls in between."""
-        run = _Run(cmd, peer, time.monotonic(), peer_seen=peer is not None and self._peers.is_live(peer))
+        run = _Run(cmd, peer, time.monotonic())
         self._state = ControllerState.EXECUTING
         self._current = cmd.command_id
         self._run = run
@@ -455,25 +456,16 @@ class CraneController:
     def _check_commanding_peer(self) -> None:
         with self._lock:
             run = self._run
-            if run is None or run.reason is not None or not self.config.abort_on_laptop_loss:
+            if run is None or run.reason is not None:
                 return
             why = self._peer_loss(run)
             if why is not None:
                 self._abort_run(run, why)
 
     def _peer_loss(self, run: _Run) -> str | None:
-        """Why ``run``'s commanding laptop counts as lost, or None (under the lock).
-
-        A command accepted before its laptop counted as live (no laptop yet, or a Zenoh token
-        not seen yet) adopts the first live one and gets one laptop timeout of grace."""
-        if run.peer is None:
-            run.peer = self._peers.primary()
-        if run.peer is not None and self._peers.is_live(run.peer):
-            run.peer_seen = True
+        """Why ``run``'s commanding laptop counts as lost, or None (under the lock). It was live at
+        the acceptance; it is lost once it is not live (CAN: no fresh, in-sequence heartbeat for
+        ``laptop_timeout_s``; Zenoh: its token gone), whatever another laptop does."""
+        if self._peers.is_live(run.peer):
             return None
-        if run.peer_seen:
-            return f"commanding laptop {run.peer} lost (no fresh heartbeat for {self.config.laptop_timeout_s:.2f} s)"
-        late = time.monotonic() - run.accepted_s > self.config.laptop_timeout_s
-        if late and self._peers.ever_seen:
-            return "no live laptop since the command was accepted"
-        return None
+        return f"commanding laptop {run.peer} lost (no fresh heartbeat or token for {self.config.laptop_timeout_s:.2f} s)"

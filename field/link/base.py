@@ -335,7 +335,9 @@ class CraneLink(Receiving, Reconciling, abc.ABC):
 
     def wait_for_controller(self, timeout_s: float) -> bool:
         """Wait until the controller shows a sign of life AND answers a status query (its
-        request paths are routed); returns whether it did within ``timeout_s``."""
+        request paths are routed) that says it hears a live laptop (it accepts commands only from
+        one: this laptop's heartbeat or token reached it); returns whether it did within
+        ``timeout_s``."""
         deadline = time.monotonic() + timeout_s
         with self._cond:
             while not self.controller_alive():
@@ -348,10 +350,11 @@ class CraneLink(Receiving, Reconciling, abc.ABC):
             if left <= 0:
                 return False
             try:
-                self.status(timeout_s=min(self.config.status_timeout_s, left))
-                return True
+                if self.status(timeout_s=min(self.config.status_timeout_s, left)).laptops >= 1:
+                    return True
             except LinkTimeout:
                 continue
+            time.sleep(min(self.config.heartbeat_period_s, max(left, 0.0)))
 
     def _await_controller(self) -> None:
         """Open-time handshake: raise :class:`LinkError` (and close) when no controller answers."""
@@ -360,7 +363,11 @@ class CraneLink(Receiving, Reconciling, abc.ABC):
             self.close()
             hint = (f"; {auth} frames failed authentication: the crane uses another SecOC key or none "
                     f"(secoc_key= on both sides)" if auth else "")
+            heard = self._latest_status is not None and self.controller_alive()
             raise LinkError(
+                f"the crane controller answered but hears no live laptop heartbeat from this laptop within "
+                f"{self.config.connect_timeout_s:.1f} s (it refuses unsupervised commands); check that this "
+                f"laptop's frames reach the crane{hint}" if heard else
                 f"no crane controller answered on the {self.backend_name} link within "
                 f"{self.config.connect_timeout_s:.1f} s; check that it runs, the URL / endpoint and "
                 f"the credentials{hint}"

@@ -54,6 +54,8 @@ REASON_HELP: dict[RejectReason, str] = {
     RejectReason.ESTOP: "the crane is in emergency stop; reset it on the crane",
     RejectReason.MALFORMED: "the controller could not make sense of the frame; check versions",
     RejectReason.FAULT: "the controller is in FAULT; reset it on the crane",
+    RejectReason.UNSUPERVISED: "the controller hears no live heartbeat / liveliness token from this laptop; "
+                               "check the link, then send a new command",
 }
 
 

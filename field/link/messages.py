@@ -43,6 +43,7 @@ class RejectReason(enum.IntEnum):
     ESTOP = 9  # the controller is in emergency stop
     MALFORMED = 10  # wrong length / version / impossible field values
     FAULT = 11  # the controller is in FAULT (executor failure); needs a local reset
+    UNSUPERVISED = 12  # no live laptop supervises the command (no fresh, in-sequence heartbeat / token)
 
 
 class ControllerState(enum.IntEnum):

@@ -78,7 +78,6 @@ class PeerTracker:
         self._seen: dict[str, float | None] = {}  # peer -> last refresh (None = present until gone)
         self._order: list[str] = []  # first-established first
         self._warned: set[str] = set()
-        self.ever_seen = False
         self._lock = threading.Lock()
 
     def refresh(self, peer: str) -> bool:
@@ -102,7 +101,6 @@ class PeerTracker:
             self._seen[peer] = t
             if peer not in self._order:
                 self._order.append(peer)
-            self.ever_seen = True
             if new:
                 self._warn_if_second(peer)
             return new

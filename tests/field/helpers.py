@@ -123,3 +123,55 @@ def can_pairs(prefix: str, link_config: "LinkConfig") -> Iterator[Callable[..., 
             p.transport.close()
             for bus in p.nodes:
                 bus.shutdown()
+
+
+# --- a supervising laptop for a controller driven frame by frame ---------------------------
+
+
+class SupervisingLaptop:
+    """The laptop side a :class:`CraneController` needs before it accepts a command: fresh,
+    in-sequence heartbeats (every ``period_s`` from a thread, two at once on entry, so the laptop
+    is live as the block starts). ``encode(msg)`` encodes commands on the same encoder;
+    ``pause()`` stops the heartbeat (the laptop goes silent)."""
+
+    def __init__(self, ctl: "CraneController", period_s: float = 0.05, first_heartbeat: int = 1000):
+        import threading
+
+        from field.link.codec import Encoder
+
+        self.ctl, self.period_s = ctl, period_s
+        self.enc = Encoder()
+        self._hb = first_heartbeat
+        self._stop = threading.Event()
+        self._paused = threading.Event()
+        self._lock = threading.Lock()
+        self._thread = threading.Thread(target=self._run, daemon=True, name="supervising-laptop")
+
+    def beat(self) -> None:
+        from field.link.codec import LaptopHeartbeat
+
+        with self._lock:
+            self._hb += 1
+            frame = self.enc.encode(LaptopHeartbeat(self._hb))
+        self.ctl.on_frame(*frame, lambda k, d: None)
+
+    def encode(self, msg) -> tuple[str, bytes]:
+        return self.enc.encode(msg)
+
+    def pause(self) -> None:
+        self._paused.set()
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.period_s):
+            if not self._paused.is_set():
+                self.beat()
+
+    def __enter__(self) -> "SupervisingLaptop":
+        self.beat()
+        self.beat()
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        self._thread.join(5)

@@ -22,19 +22,24 @@ from field.controller import (
 from field.errors import ControllerError
 from field.link.codec import EStopRequest, Encoder, StatusRequest, decode
 from field.link.messages import Ack, ControllerState, ControllerStatus, Outcome, OutcomeClass, RejectReason
+from tests.field.helpers import SupervisingLaptop
 
 
 class Feeder:
-    """Sends frames into a controller like a laptop would and collects its answers."""
+    """Sends frames into a controller like a laptop would (a fresh heartbeat before each: a
+    supervising laptop) and collects its answers."""
 
     def __init__(self, ctl: CraneController):
         self.ctl = ctl
-        self.enc = Encoder()
+        self.laptop = SupervisingLaptop(ctl)
+        self.enc = self.laptop.enc
+        self.laptop.beat()
         self.published: list = []
         ctl.attach(lambda k, d: self.published.append(decode(k, d).message))
 
     def send(self, msg) -> list:
         replies: list = []
+        self.laptop.beat()
         kind, data = self.enc.encode(msg)
         self.ctl.on_frame(kind, data, lambda k, d: replies.append(decode(k, d).message))
         return replies
@@ -73,7 +78,7 @@ def test_accept_execute_and_report(make_cmd):
     f.wait_idle()
     assert Outcome(11, OutcomeClass.COLLISION, 1, 700) in f.published
     (st,) = f.send(StatusRequest(5))
-    assert st == ControllerStatus(ControllerState.DONE, 0, 0, Outcome(11, OutcomeClass.COLLISION, 1, 700), 5)
+    assert st == ControllerStatus(ControllerState.DONE, 0, 0, Outcome(11, OutcomeClass.COLLISION, 1, 700), 5, laptops=1)
     assert f.grasp(cmd) == Ack(11, True)  # an identical copy: the same answer, no second run
     from dataclasses import replace
 

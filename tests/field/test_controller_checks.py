@@ -22,6 +22,7 @@ from field.controller import (
 )
 from field.link.codec import Encoder, decode
 from field.link.messages import Ack, GraspCommand, RejectReason
+from tests.field.helpers import SupervisingLaptop
 
 NOW_S = 1_800_000_000.0  # a fixed crane clock [s]
 CFG = ControllerConfig()
@@ -112,10 +113,13 @@ class Crane:
     def __init__(self):
         self.ex = FixedOutcomeExecutor(delay_s=0.0)
         self.ctl = CraneController(ControllerConfig(), self.ex, clock=lambda: NOW_S)
-        self.enc = Encoder()
+        self.laptop = SupervisingLaptop(self.ctl)  # a heartbeat before each command: supervised
+        self.enc = self.laptop.enc
+        self.laptop.beat()
 
     def send(self, c: GraspCommand, data: bytes | None = None) -> Ack:
         out: list = []
+        self.laptop.beat()
         kind, frame = self.enc.encode(c)
         self.ctl.on_frame(kind, frame if data is None else data, lambda k, d: out.append(decode(k, d).message))
         if self.ctl._worker is not None:

@@ -34,6 +34,7 @@ from field.link.messages import (
     OutcomeClass,
     RejectReason,
 )
+from tests.field.helpers import SupervisingLaptop
 
 CMD = GraspCommand(7, 744_005_123, 7_112_000_456, 50_321, 3000, 900, 3, int(time.time() * 1000))
 
@@ -257,7 +258,10 @@ def test_fuzz_controller_accepts_only_valid_commands(frames):
     replies: list[tuple[str, bytes, float]] = []
     sent: dict[int, GraspCommand] = {}
     enc = Encoder()
+    laptop = SupervisingLaptop(ctl)  # a heartbeat before each frame: a supervising laptop
+    laptop.beat()
     for kind, payload in frames:
+        laptop.beat()
         if isinstance(payload, tuple):
             payload = _command_frame(enc, sent, *payload)
             if payload is None:

@@ -23,7 +23,7 @@ from field.link.base import CraneLink, LinkConfig
 from field.link.can_backend import CanLink, ProxyBus
 from field.link.codec import EStopRequest, Encoder, LaptopHeartbeat, decode, encode, frame_id
 from field.link.messages import Ack, GraspCommand, Outcome
-from tests.field.helpers import can_pairs, wait_until
+from tests.field.helpers import SupervisingLaptop, can_pairs, wait_until
 
 LINK = LinkConfig(heartbeat_timeout_s=1.0, status_timeout_s=1.0, connect_timeout_s=10.0)
 
@@ -62,9 +62,10 @@ def test_estop_in_the_acceptance_window_aborts_the_grasp(make_cmd):
             ctl.on_frame(*estop, lambda k, d: None)
 
     t0 = time.monotonic()
-    ctl.on_frame(*Encoder().encode(make_cmd(1)), reply)
     try:
-        assert wait_until(lambda: outcome_of(published, 1) is not None)
+        with SupervisingLaptop(ctl) as laptop:
+            ctl.on_frame(*laptop.encode(make_cmd(1)), reply)
+            assert wait_until(lambda: outcome_of(published, 1) is not None)
         assert outcome_of(published, 1).outcome_class is OutcomeClass.ABORTED
         assert time.monotonic() - t0 < 3.0  # stopped, not run for its 4 s
         assert ctl.state is ControllerState.ESTOP
@@ -335,7 +336,9 @@ def test_an_outcome_overrides_a_contradicting_rejection():
 def test_an_id_rejected_busy_stays_burned_across_a_restart(tmp_path, make_cmd):
     cfg = ControllerConfig(journal_path=str(tmp_path / "journal"))
     ctl = CraneController(cfg, FixedOutcomeExecutor(delay_s=2.0))
-    enc = Encoder()
+    laptop = SupervisingLaptop(ctl)
+    laptop.beat(), laptop.beat()
+    enc = laptop.enc
     answers: list = []
     on = lambda k, d: answers.append(decode(k, d).message)  # noqa: E731
     slow, second = make_cmd(1), make_cmd(2)
