@@ -142,6 +142,7 @@ class CraneLink(Receiving, Reconciling, abc.ABC):
         self._last_crane_state: ControllerState | None = None
         self._request_id = secrets.randbits(31) + 1
         self._failure: BaseException | None = None
+        self.last_estop_error: BaseException | None = None  # the last error sending an e-stop frame
         self._closed = False
         self._close_lock = threading.Lock()
 
@@ -297,7 +298,9 @@ class CraneLink(Receiving, Reconciling, abc.ABC):
 
         Re-sends the e-stop until confirmed (e-stops are idempotent). Raises
         :class:`LinkTimeout` when not confirmed within ``timeout_s`` — then USE THE PHYSICAL
-        E-STOP. Works on a link that has failed, but not after ``close()``.
+        E-STOP; it names the last error sending the e-stop frame (chained as its cause, kept in
+        :attr:`last_estop_error`, logged at its first occurrence). Works on a link that has
+        failed, but not after ``close()``.
         """
         from field.link.codec import EStopRequest
 
@@ -305,12 +308,12 @@ class CraneLink(Receiving, Reconciling, abc.ABC):
             raise LinkClosed("link is closed; use the physical e-stop or open a new link")
         deadline = time.monotonic() + timeout_s
         last: ControllerStatus | None = None
+        sent = failed = 0
         while True:
-            try:
-                self._transmit(*self._wire(EStopRequest(source=1)))
-                self.stats.frames_sent += 1
-            except Exception:
-                pass  # keep trying until the deadline
+            if self._send_estop(EStopRequest(source=1)):
+                sent += 1
+            else:
+                failed += 1
             left = deadline - time.monotonic()
             if left <= 0:
                 break
@@ -322,11 +325,29 @@ class CraneLink(Receiving, Reconciling, abc.ABC):
                 return last
             if time.monotonic() >= deadline:
                 break
+        error = self.last_estop_error if failed else None
+        why = (f"; the e-stop frame failed to send {failed} of {sent + failed} times, last error: "
+               f"{type(error).__name__}: {error}" if error is not None else f"; e-stop frame sent {sent} times")
         raise LinkTimeout(
-            f"e-stop NOT confirmed within {timeout_s:.2f} s (last status: {last}); USE THE PHYSICAL "
+            f"e-stop NOT confirmed within {timeout_s:.2f} s (last status: {last}){why}; USE THE PHYSICAL "
             f"E-STOP on the crane",
             status=last,
-        )
+        ) from error
+
+    def _send_estop(self, msg: Any) -> bool:
+        """One e-stop frame; False when the transport raised (kept in :attr:`last_estop_error`, the
+        first of a kind logged), never raises."""
+        try:
+            self._transmit(*self._wire(msg))
+        except Exception as exc:
+            self.stats.bus_errors += 1
+            previous, self.last_estop_error = self.last_estop_error, exc
+            if previous is None or (type(previous), str(previous)) != (type(exc), str(exc)):
+                log.error("could not send the e-stop frame on the %s link: %s: %s (retrying until the "
+                          "deadline)", self.backend_name, type(exc).__name__, exc)
+            return False
+        self.stats.frames_sent += 1
+        return True
 
     def controller_alive(self) -> bool:
         """True while the controller's heartbeat is fresh (advancing, in sequence)."""
