@@ -324,7 +324,8 @@ def crane_sim(
     journal: Path = option("--journal", "Burn every seen command id here (never run twice, across restarts); "
                            "default: a file per link under $XDG_STATE_HOME/loggrasp (~/.local/state/loggrasp).",
                            default=None, metavar="FILE"),
-    no_journal: bool = option("--no-journal", "Remember command ids in memory only (a restart forgets them).",
+    no_journal: bool = option("--no-journal", "Opt out of the journal: command ids in memory only (a restart "
+                              "forgets them; logged as a warning).",
                               default=False),
     trial: Literal["fast", "careful"] = option("--trial", "Trial preset of the grasps it executes.", default="fast",
                                                 metavar="fast|careful"),
@@ -350,7 +351,8 @@ def crane_sim(
     journal = _crane_journal(link, journal, no_journal)
     executor = PybulletTrialExecutor(pile, trial=trial)
     base_tm = base_tm or default_crane_base(executor.pile)
-    config = crane_config(base_tm, max_reach, max_pile_age, None if journal is None else str(journal))
+    config = crane_config(base_tm, max_reach, max_pile_age, None if journal is None else str(journal),
+                          no_journal=no_journal)
     stop = threading.Event()
     previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
     watch = _CraneSimWatch(o, stop, f"crane controller twin serving {link}: base E {base_tm[0]:.3f} N {base_tm[1]:.3f} "

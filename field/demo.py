@@ -43,11 +43,13 @@ def default_crane_base(pile) -> tuple[float, float, float]:
     return float(np.ravel(e)[0]), float(np.ravel(n)[0]), float(np.ravel(h)[0])
 
 
-def crane_config(base_tm, max_reach_m: float, max_pile_age_s: float, journal: str | None = None) -> ControllerConfig:
-    """The controller's config for a crane at ``base_tm`` (E, N, H [m])."""
+def crane_config(base_tm, max_reach_m: float, max_pile_age_s: float, journal: str | None = None, *,
+                 no_journal: bool = False) -> ControllerConfig:
+    """The controller's config for a crane at ``base_tm`` (E, N, H [m]); journal at ``journal``
+    (None: the link's default file) unless ``no_journal`` opts out."""
     return ControllerConfig(reach=ReachEnvelope(base_easting_m=base_tm[0], base_northing_m=base_tm[1],
                                                 base_height_m=base_tm[2], max_reach_m=max_reach_m),
-                            max_pile_age_s=max_pile_age_s, journal_path=journal)
+                            max_pile_age_s=max_pile_age_s, journal_path=journal, no_journal=no_journal)
 
 
 @dataclass(frozen=True)

@@ -4,6 +4,13 @@ import pytest
 
 
 @pytest.fixture(autouse=True)
+def state_home_in_tmp(tmp_path_factory, monkeypatch):
+    """Default files under $XDG_STATE_HOME (a controller's journal) go to a temporary folder, never
+    to the user's ~/.local/state."""
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path_factory.mktemp("state")))
+
+
+@pytest.fixture(autouse=True)
 def no_leaked_pybullet_clients():
     """Fail a test that leaves a pybullet client connected (every World must be closed)."""
     import pybullet as p

@@ -71,7 +71,10 @@ class ControllerConfig:
     counter_max_delta: int = 2  # rolling-counter jump tolerated on commands (lost frames) [-]
     heartbeat_period_s: float = 0.05  # crane heartbeat period [s]
     laptop_timeout_s: float = 1.0  # laptop counts as lost after this long without a fresh heartbeat [s]
-    journal_path: str | None = None  # burn seen ids / outcomes here (survives restarts); crane-sim: on
+    # burn seen ids / outcomes here, so nothing runs twice across restarts. None: run_controller uses
+    # the link's default file (default_journal_path); a CraneController built directly needs a path
+    journal_path: str | None = None
+    no_journal: bool = False  # the explicit opt-out: ids kept in memory only, forgotten on restart (logged) [-]
     journal_keep: int = 10_000  # journal entries kept on compaction [-]
     journal_fsync: bool = True  # fsync every journal line (off only for throw-away twins in tests) [-]
     secoc_key_path: str | None = None  # pre-shared key file: accept authenticated frames only
@@ -89,6 +92,8 @@ class ControllerConfig:
             )
         if not 1 <= self.max_target_logs <= 255:
             raise ValueError(f"max_target_logs must be in [1, 255], got {self.max_target_logs}")
+        if self.no_journal and self.journal_path is not None:
+            raise ValueError(f"give journal_path ({self.journal_path}) or no_journal=True, not both")
         for name in ("heartbeat_period_s", "laptop_timeout_s", "secoc_window_s"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0 s, got {getattr(self, name)}")

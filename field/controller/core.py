@@ -103,8 +103,14 @@ class CraneController:
         return SecOC.from_key_file(self.config.secoc_key_path, window_s=self.config.secoc_window_s, clock=self._clock)
 
     def _open_journal(self) -> ControllerJournal | None:
-        if self.config.journal_path is None:
+        if self.config.no_journal:
+            log.warning("controller journal OFF (no_journal=True): command ids are kept in memory only - a "
+                        "restart forgets them and a replayed command could run again")
             return None
+        if self.config.journal_path is None:
+            raise ControllerError("a crane controller needs a journal so that no command runs twice across "
+                                  "restarts: set ControllerConfig.journal_path (run_controller derives one from "
+                                  "the link), or opt out explicitly with no_journal=True")
         journal = ControllerJournal(self.config.journal_path, self.config.journal_keep, self.config.journal_fsync)
         self._decisions, self._last_outcome = journal.recover()
         return journal

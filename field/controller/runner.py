@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import threading
 from dataclasses import replace
@@ -13,6 +14,8 @@ from field.controller.config import ControllerConfig
 from field.controller.core import CraneController
 from field.controller.executors import GraspExecutor, make_executor
 from field.link.messages import ControllerStatus, GraspCommand, Outcome
+
+log = logging.getLogger(__name__)
 
 
 def run_controller(
@@ -32,7 +35,8 @@ def run_controller(
     ``zenoh://127.0.0.1:7447/crane1`` — the controller LISTENS on that endpoint — ...).
     ``ready_event`` is set once the controller serves; ``on_serve(controller)`` is called just
     before (e.g. to watch its ``rejections``). A ``secoc_key=PATH`` in the URL is the
-    controller's key when ``config`` names none.
+    controller's key when ``config`` names none. The journal is on: ``config.journal_path``, or
+    :func:`default_journal_path` of the link unless ``config.no_journal`` opts out.
     """
     from field.link.base import LinkURL, open_controller_transport
 
@@ -43,6 +47,9 @@ def run_controller(
     url_key = LinkURL.parse(link_url).pop_link_config()[0].secoc_key_path
     if url_key is not None and config.secoc_key_path is None:
         config = replace(config, secoc_key_path=url_key)
+    if config.journal_path is None and not config.no_journal:
+        config = replace(config, journal_path=str(default_journal_path(link_url)))
+        log.info("controller journal: %s (the link's default)", config.journal_path)
     controller = CraneController(config, executor)
     transport = open_controller_transport(link_url, heartbeat_period_s=controller.config.heartbeat_period_s, **transport_kwargs)
     try:

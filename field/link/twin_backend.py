@@ -31,8 +31,11 @@ class TwinLink(CanLink):
 
         self.channel = f"loggrasp-twin-{uuid.uuid4().hex[:12]}"
         key = (config or LinkConfig()).secoc_key_path
+        # the twin's bus is private to this process and gone with it: nothing can replay a command into
+        # a restarted twin, so it opts out of the journal (explicitly; the controller logs it)
+        controller_config = controller_config or ControllerConfig(no_journal=True)
         if key is not None:  # the twin crane holds the same key as the laptop
-            controller_config = replace(controller_config or ControllerConfig(), secoc_key_path=key)
+            controller_config = replace(controller_config, secoc_key_path=key)
         self.controller = CraneController(controller_config, executor if executor is not None else FixedOutcomeExecutor())
         self.transport = CanControllerTransport(
             bus=can.Bus(interface="virtual", channel=self.channel, fd=True),
@@ -66,7 +69,7 @@ class TwinLink(CanLink):
                     kw["max_pile_age_s"] = float(q.pop("crane_max_pile_age_s"))
             except ValueError as exc:
                 raise ValueError(f"twin:// crane_base must be E,N,H and crane_max_pile_age_s a number: {exc}") from exc
-            controller_config = ControllerConfig(**kw)
+            controller_config = ControllerConfig(**kw, no_journal=True)
         if executor is None:
             name = q.pop("executor", "fixed")
             kwargs: dict[str, Any] = {}

@@ -22,7 +22,7 @@ from field.controller import (
 from field.errors import ControllerError
 from field.link.codec import EStopRequest, Encoder, StatusRequest, decode
 from field.link.messages import Ack, ControllerState, ControllerStatus, Outcome, OutcomeClass, RejectReason
-from tests.field.helpers import SupervisingLaptop
+from tests.field.helpers import SupervisingLaptop, wait_until
 
 
 class Feeder:
@@ -71,7 +71,7 @@ def test_config_validation():
 
 def test_accept_execute_and_report(make_cmd):
     ex = FixedOutcomeExecutor(delay_s=0.0, outcome_class="collision", logs_grasped=1, balance_cos_milli=700)
-    ctl = CraneController(ControllerConfig(), ex)
+    ctl = CraneController(ControllerConfig(no_journal=True), ex)
     f = Feeder(ctl)
     cmd = make_cmd(11, logs=3)
     assert f.grasp(cmd) == Ack(11, True)
@@ -87,7 +87,7 @@ def test_accept_execute_and_report(make_cmd):
 
 
 def test_reach_envelope_boundaries(make_cmd):
-    ctl = CraneController(ControllerConfig(reach=ReachEnvelope(min_reach_m=2.0, max_reach_m=10.0)), FixedOutcomeExecutor(0.0))
+    ctl = CraneController(ControllerConfig(reach=ReachEnvelope(min_reach_m=2.0, max_reach_m=10.0), no_journal=True), FixedOutcomeExecutor(0.0))
     f = Feeder(ctl)
     cases = [(1.99, RejectReason.OUT_OF_REACH), (10.01, RejectReason.OUT_OF_REACH), (9.99, RejectReason.NONE)]
     for i, (de, reason) in enumerate(cases, start=1):
@@ -161,7 +161,7 @@ def test_executor_failure_is_a_fault_until_reset(make_cmd):
     def broken(cmd):
         raise RuntimeError("hydraulics")
 
-    ctl = CraneController(ControllerConfig(), broken)
+    ctl = CraneController(ControllerConfig(no_journal=True), broken)
     f = Feeder(ctl)
     assert f.grasp(make_cmd(31)).accepted
     f.wait_idle()
@@ -177,7 +177,7 @@ def test_executor_failure_is_a_fault_until_reset(make_cmd):
 
 def test_estop_is_fail_safe_and_latched(make_cmd):
     ex = FixedOutcomeExecutor(delay_s=5.0)
-    ctl = CraneController(ControllerConfig(), ex)
+    ctl = CraneController(ControllerConfig(no_journal=True), ex)
     f = Feeder(ctl)
     assert f.grasp(make_cmd(41)).accepted
     kind, data = Encoder().encode(EStopRequest())
@@ -196,7 +196,7 @@ def test_estop_is_fail_safe_and_latched(make_cmd):
 
 
 def test_corrupted_status_request_is_ignored():
-    ctl = CraneController(ControllerConfig(), FixedOutcomeExecutor())
+    ctl = CraneController(ControllerConfig(no_journal=True), FixedOutcomeExecutor())
     kind, data = Encoder().encode(StatusRequest(1))
     replies: list = []
     ctl.on_frame(kind, data[:-1] + bytes([data[-1] ^ 1]), lambda k, d: replies.append(k))
@@ -271,3 +271,48 @@ def test_a_controller_in_a_thread_serves_for_the_block_and_stops_after(make_cmd)
             assert link.send_grasp(make_cmd(link.new_command_id())).accepted
     with pytest.raises(LinkError):  # nobody serves the channel after the block
         open_link(url, LinkConfig(connect_timeout_s=0.3)).close()
+
+
+# --- exactly once across restarts, by default ------------------------------------------------------
+
+
+def _serve(url: str, executor: FixedOutcomeExecutor) -> tuple[threading.Event, threading.Thread, CraneController]:
+    """``run_controller(url, executor)`` with its defaults on a thread; (stop, thread, its controller)."""
+    stop, ready, served = threading.Event(), threading.Event(), []
+    th = threading.Thread(target=run_controller, args=(url, executor, stop), daemon=True,
+                          kwargs={"ready_event": ready, "on_serve": served.append})
+    th.start()
+    assert ready.wait(10) and served
+    return stop, th, served[0]
+
+
+def test_a_controller_built_by_run_controller_with_defaults_never_runs_a_replayed_frame_after_a_restart(make_cmd):
+    url = f"can://virtual/journal-{time.monotonic_ns()}"
+    first = FixedOutcomeExecutor(delay_s=0.0)
+    stop, th, ctl = _serve(url, first)
+    laptop = SupervisingLaptop(ctl)
+    laptop.beat(), laptop.beat()
+    frame = laptop.encode(make_cmd(31))
+    acks: list = []
+    ctl.on_frame(*frame, lambda k, d: acks.append(decode(k, d).message))
+    assert acks == [Ack(31, True)] and wait_until(lambda: first.executed == [31])
+    stop.set(), th.join(10)
+    again = FixedOutcomeExecutor(delay_s=0.0)
+    stop, th, ctl = _serve(url, again)  # restarted with the same defaults
+    try:
+        laptop = SupervisingLaptop(ctl)
+        laptop.beat(), laptop.beat()
+        ctl.on_frame(*frame, lambda k, d: acks.append(decode(k, d).message))  # the recorded frame, replayed
+        time.sleep(0.2)
+        assert again.executed == [] and ctl.seen(31)
+    finally:
+        stop.set(), th.join(10)
+
+
+def test_a_controller_without_a_journal_must_opt_out_and_says_so(caplog):
+    with pytest.raises(ControllerError, match="no_journal=True"):
+        CraneController(ControllerConfig(), FixedOutcomeExecutor())
+    with pytest.raises(ValueError, match="not both"):
+        ControllerConfig(journal_path="j.jsonl", no_journal=True)
+    CraneController(ControllerConfig(no_journal=True), FixedOutcomeExecutor()).close()
+    assert any("journal OFF (no_journal=True)" in r.getMessage() for r in caplog.records)

@@ -254,7 +254,7 @@ def test_fuzz_controller_accepts_only_valid_commands(frames):
     """Arbitrary frames (what the CAN transport and the Zenoh queryable both hand over) never
     crash the controller, and an accepted command is always a valid one."""
     executor = FixedOutcomeExecutor(delay_s=0.0)
-    ctl = CraneController(ControllerConfig(), executor)
+    ctl = CraneController(ControllerConfig(no_journal=True), executor)
     replies: list[tuple[str, bytes, float]] = []
     sent: dict[int, GraspCommand] = {}
     enc = Encoder()

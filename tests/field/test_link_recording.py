@@ -46,11 +46,11 @@ def test_session_recorded_both_directions_and_replayed(tmp_path, suffix, make_cm
     # replaying the laptop's side at a controller is refused: the id was executed already
     bus = can.Bus(interface="virtual", channel=f"replay-{suffix[1:]}", fd=True)
     try:
-        from field.controller import CraneController, FixedOutcomeExecutor
+        from field.controller import ControllerConfig, CraneController, FixedOutcomeExecutor
         from field.link.can_backend import CanControllerTransport
 
         ex = FixedOutcomeExecutor(delay_s=0.0)
-        twin = CraneController(None, ex)
+        twin = CraneController(ControllerConfig(no_journal=True), ex)
         twin._decisions = dict(controller._decisions)  # the same crane, which remembers executed ids
         tr = CanControllerTransport(bus=can.Bus(interface="virtual", channel=f"replay-{suffix[1:]}", fd=True))
         tr.start(twin)

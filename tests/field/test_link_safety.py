@@ -52,7 +52,7 @@ def test_estop_in_the_acceptance_window_aborts_the_grasp(make_cmd):
     """The e-stop arrives while the controller sends the acceptance (the window between marking
     the command executing and starting it): the grasp must not run to SUCCESS."""
     ex = FixedOutcomeExecutor(delay_s=4.0)
-    ctl = CraneController(ControllerConfig(), ex)
+    ctl = CraneController(ControllerConfig(no_journal=True), ex)
     published: list = []
     ctl.attach(lambda k, d: published.append(decode(k, d).message))
     estop = Encoder().encode(EStopRequest())
@@ -127,7 +127,7 @@ def test_estop_racing_a_command_is_never_lost_on_zenoh(port, make_cmd):
 
     url = f"zenoh://127.0.0.1:{port}/crane-race"
     u = LinkURL.parse(url)
-    ctl = CraneController(ControllerConfig(), FixedOutcomeExecutor(delay_s=0.5))
+    ctl = CraneController(ControllerConfig(no_journal=True), FixedOutcomeExecutor(delay_s=0.5))
     transport = ZenohControllerTransport(ZenohTarget.from_url(u, u.pop_link_config()[1]))
     transport.start(ctl)
     ctl.start()
@@ -199,7 +199,7 @@ class Heartbeats:
 def _heartbeat_case(make_cmd, frozen: str) -> Outcome:
     """Establish a laptop with good heartbeats, accept a 6 s grasp, then feed ``frozen``
     heartbeats: "none" (good ones go on), "same-frame" or "same-counter" (fresh E2E counter)."""
-    ctl = CraneController(ControllerConfig(laptop_timeout_s=1.0), FixedOutcomeExecutor(delay_s=6.0))
+    ctl = CraneController(ControllerConfig(laptop_timeout_s=1.0, no_journal=True), FixedOutcomeExecutor(delay_s=6.0))
     published: list = []
     ctl.attach(lambda k, d: published.append(decode(k, d).message))
     ctl.start()
@@ -373,7 +373,7 @@ def test_crane_sim_defaults_journal_every_id_and_use_the_staleness_limit(monkeyp
 
     def fake_run(link, executor, stop, config, **kw):
         seen["config"] = config
-        return field.controller.CraneController(None).status()
+        return field.controller.CraneController(field.controller.ControllerConfig(no_journal=True)).status()
 
     monkeypatch.setattr(field.controller, "run_controller", fake_run)
     monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "state"))
@@ -414,7 +414,7 @@ def _with_reserved_bit(kind: str, data: bytes, byte: int, mask: int) -> bytes:
 
 
 def test_reserved_bits_are_malformed_on_both_sides(make_cmd):
-    ctl = CraneController(ControllerConfig(), FixedOutcomeExecutor(delay_s=0.0))
+    ctl = CraneController(ControllerConfig(no_journal=True), FixedOutcomeExecutor(delay_s=0.0))
     answers: list = []
     kind, data = Encoder().encode(make_cmd(9))
     ctl.on_frame(kind, _with_reserved_bit(kind, data, 60, 0x01), lambda k, d: answers.append(decode(k, d).message))

@@ -123,7 +123,7 @@ def keyed_pair(key):
     def make(delay_s: float = 0.05, laptop_key=None):
         channel = f"secoc-{uuid.uuid4().hex[:8]}"
         ex = FixedOutcomeExecutor(delay_s=delay_s)
-        ctl = CraneController(ControllerConfig(secoc_key_path=str(key)), ex)
+        ctl = CraneController(ControllerConfig(secoc_key_path=str(key), no_journal=True), ex)
         tr = CanControllerTransport(bus=can.Bus(interface="virtual", channel=channel, fd=True))
         tr.start(ctl)
         ctl.start()

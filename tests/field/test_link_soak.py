@@ -76,7 +76,7 @@ def _variant(rng: random.Random) -> dict:
 
 def _controller(seed: int) -> tuple[CraneController, FixedOutcomeExecutor]:
     ex = FixedOutcomeExecutor(delay_s=0.0)
-    return CraneController(ControllerConfig(max_pile_age_s=5.0, laptop_timeout_s=2.0), ex), ex
+    return CraneController(ControllerConfig(max_pile_age_s=5.0, laptop_timeout_s=2.0, no_journal=True), ex), ex
 
 
 def can_lane(seed: int) -> Lane:

@@ -31,7 +31,7 @@ class Crane:
 
     def __init__(self, grasp_s: float = GRASP_S):
         self.ex = FixedOutcomeExecutor(delay_s=grasp_s)
-        self.ctl = CraneController(ControllerConfig(laptop_timeout_s=TIMEOUT_S),
+        self.ctl = CraneController(ControllerConfig(laptop_timeout_s=TIMEOUT_S, no_journal=True),
                                    self.ex)
         self.published: list = []
         self.ctl.attach(lambda k, d: self.published.append(decode(k, d).message))
@@ -152,7 +152,7 @@ def test_can_a_laptop_with_a_frozen_heartbeat_cannot_open_the_link(make_cmd):
     """End to end on can://virtual: the controller answers, but hears no live laptop, so the
     link is refused at open with that reason (before, a command from it ran to SUCCESS)."""
     channel = f"frozen-{uuid.uuid4().hex[:8]}"
-    ctl = CraneController(ControllerConfig(laptop_timeout_s=TIMEOUT_S), FixedOutcomeExecutor(delay_s=GRASP_S))
+    ctl = CraneController(ControllerConfig(laptop_timeout_s=TIMEOUT_S, no_journal=True), FixedOutcomeExecutor(delay_s=GRASP_S))
     transport = CanControllerTransport(bus=can.Bus(interface="virtual", channel=channel, fd=True))
     transport.start(ctl)
     ctl.start()
