@@ -94,6 +94,37 @@ def link_option(help: str = f"Crane link URL: {LINK_FORMS}."):
     return option("--link", help, default=..., metavar="URL")
 
 
+INSECURE_LINK = option("--insecure-link", "Run the crane link WITHOUT a SecOC key (frames not authenticated: any "
+                       "node on the bus could forge commands and answers); the explicit opt-out, said in the "
+                       "confirmation and the record. Without it a link needs ?secoc_key=KEYFILE.", default=False)
+
+
+def secured_link(url: str, parsed, insecure: bool, flag: str = "--link") -> str:
+    """``url`` as the link to a crane is opened: with its SecOC key, or with the explicit opt-out
+    (``insecure=1`` added by --insecure-link); a :class:`CliError` (exit 3) for neither. A
+    ``twin://`` crane lives on a private in-process bus and needs no key."""
+    from field.link.link_config import with_insecure
+
+    if parsed.scheme == "twin" or "secoc_key" in parsed.query:
+        return url
+    if insecure or parsed.query.get("insecure", "").lower() in ("1", "true", "yes"):
+        return url if "insecure" in parsed.query else with_insecure(url)
+    raise CliError(f"{flag} {url} has no SecOC key: without one any node on the bus can forge commands and the "
+                   "crane's answers. Add ?secoc_key=KEYFILE (create one with `loggrasp link-key KEYFILE`; the crane "
+                   "uses the same file), or opt out explicitly with --insecure-link", EXIT_LINK)
+
+
+def link_security_note(url: str) -> str | None:
+    """The warning an unauthenticated crane link gets in the confirmation (None when it has a key)."""
+    from field.link.base import LinkURL
+
+    parsed = LinkURL.parse(url)
+    if parsed.scheme == "twin" or "secoc_key" in parsed.query:
+        return None
+    return ("the crane link is NOT authenticated (--insecure-link): any node on the bus could forge this command "
+            "or the crane's answers")
+
+
 BASE_HELP = "Crane base E,N,H (SWEREF 99 TM easting, northing [m], ellipsoidal height [m])"
 MAX_REACH = option("--max-reach", "Boom reach.", field=(ReachEnvelope, "max_reach_m"), min=0.1)
 MAX_PILE_AGE = option("--max-pile-age", "Refuse plans on pile data older than this.",
@@ -329,6 +360,7 @@ def crane_sim(
                               default=False),
     trial: Literal["fast", "careful"] = option("--trial", "Trial preset of the grasps it executes.", default="fast",
                                                 metavar="fast|careful"),
+    insecure_link: bool = INSECURE_LINK,
 ) -> None:
     """Run the crane controller twin: validates commands like a real controller and executes
     accepted grasps in pybullet on the given pile; says what it does with each command. Stops on
@@ -345,7 +377,9 @@ def crane_sim(
     from field.executor import PybulletTrialExecutor
 
     o = Output()
-    check_link(link, serve=True)
+    link = secured_link(link, check_link(link, serve=True), insecure_link)
+    if link_security_note(link):
+        o.warn(link_security_note(link))
     check_input(pile, "--pile", "file")
     base_tm = parse_base(base)
     journal = _crane_journal(link, journal, no_journal)
@@ -503,6 +537,7 @@ def trial_command(
     verify_budget: float = VERIFY_BUDGET,
     verify_workers: int = VERIFY_WORKERS,
     send_rank: int = SEND_RANK,
+    insecure_link: bool = INSECURE_LINK,
     as_json: bool = JSON,
 ) -> None:
     """Field trial: reconstruct, plan, verify in the twin, show, confirm, send, wait for the outcome, record everything.
@@ -528,6 +563,7 @@ def trial_command(
 
     o = Output(as_json)
     parsed = check_link(link)
+    link = secured_link(link, parsed, insecure_link)
     base_tm = parse_base(base)
     _check_trial_paths(scan, gnss, model, record)
     check_views(views, view_spread)
@@ -538,8 +574,15 @@ def trial_command(
         o.warn(warning)
     if parsed.scheme == "twin":
         link, opts = _twin_crane(o, link, gnss, opts)
+    note = link_security_note(link)
+    if note:
+        o.warn(note)
+
+    def ask(prepared) -> bool:
+        return _ask_to_send(prepared, note)
+
     rec = _run_trial(o, record, lambda: run_trial_record(scan, gnss, link, record, opts,
-                                                         confirm=None if yes else _ask_to_send, progress=o.progress))
+                                                         confirm=None if yes else ask, progress=o.progress))
     _finish_trial(o, rec, record)
 
 
@@ -565,11 +608,14 @@ def _twin_crane(o: Output, link: str, gnss: Path, opts):
     return link, replace(opts, crane_base_tm=base_tm)
 
 
-def _ask_to_send(prepared) -> bool:
-    """The operator's confirmation: the plan table, then y/n; no answer is a declined trial."""
+def _ask_to_send(prepared, link_note: str | None = None) -> bool:
+    """The operator's confirmation: the plan table (and ``link_note``: an unauthenticated link),
+    then y/n; no answer is a declined trial."""
     from field.trial import TrialAborted
 
     show_plan(prepared)
+    if link_note:
+        print(f"WARNING: {link_note}", file=sys.stderr, flush=True)
     answer = ask_yes_no("send this grasp to the crane?")
     if answer is None:
         raise TrialAborted("no answer at the confirmation prompt (standard input closed or interrupted): nothing "
@@ -586,6 +632,7 @@ def replay_command(
     link: str = option("--link", "Re-send the recorded command over this link (a twin:// crane accepts the old data; "
                        "see trial --help for twin:// parameters).", default=None, metavar="URL"),
     realtime: bool = option("--realtime", "Replay the recorded CAN traffic with its original timing.", default=False),
+    insecure_link: bool = INSECURE_LINK,
     as_json: bool = JSON,
 ) -> None:
     """Re-run reconstruction, planning and verification from a trial record; say whether the command is bit-identical.
@@ -607,6 +654,9 @@ def replay_command(
     o = Output(as_json)
     check_input(record, "RECORD", "dir")
     parsed = check_link(link) if link is not None else None
+    if parsed is not None:
+        link = secured_link(link, parsed, insecure_link)
+        parsed = check_link(link)
     rec = read_record(record)
     if parsed is not None and rec.get("command") is None:
         raise CliError(f"--link: {record} sent no command ({rec.get('final_state')}: {rec.get('reason')}); there is "

@@ -71,7 +71,12 @@ class ProtocolError(LinkError):
 
 class AuthenticationError(ProtocolError):
     """An authenticated (SecOC-style) frame failed its check: wrong MAC, wrong length, or a
-    freshness value that is stale or seen before (a replay). The frame is dropped."""
+    freshness value that is stale or seen before (a replay). The frame is dropped. ``check``
+    names which: ``"mac"``, ``"length"``, ``"key_id"`` or ``"freshness"``."""
+
+    def __init__(self, message: str, *, check: str = "mac", **kwargs: Any):
+        super().__init__(message, **kwargs)
+        self.check = check
 
 
 class KeyFileError(LinkError):

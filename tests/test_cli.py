@@ -643,7 +643,7 @@ def test_unreachable_zenoh_crane_fails_fast_without_rust_paths(capsys, work):
     rec = work / "t_unreachable"
     t = time.perf_counter()
     r = cli(capsys, "trial", "--scan", SCAN, "--gnss", GNSS, "--record", rec, "--yes", "--max-pile-age", OLD,
-            "--link", f"zenoh://127.0.0.1:{_free_port()}/nocrane?connect_timeout_s=1")
+            "--link", f"zenoh://127.0.0.1:{_free_port()}/nocrane?connect_timeout_s=1", "--insecure-link")
     line = fails(r, 3, "cannot reach the crane controller")
     assert ".rs:" not in line and time.perf_counter() - t < 20 and not rec.exists()
 
@@ -653,7 +653,7 @@ def test_crane_sim_says_why_it_rejects(capsys, work):
     """A crane in its own process with its own staleness limit rejects the trial's command
     (STALE) although the laptop's --max-pile-age lets it through; both sides say why."""
     url = f"zenoh://127.0.0.1:{_free_port()}/crane-test"
-    crane = _loggrasp("crane-sim", "--link", url, "--pile", str(DEMO_DATA / "truth" / "pile.json"),
+    crane = _loggrasp("crane-sim", "--link", url, "--insecure-link", "--pile", str(DEMO_DATA / "truth" / "pile.json"),
                       "--max-pile-age", "60")
     try:
         deadline = time.time() + 60
@@ -663,9 +663,11 @@ def test_crane_sim_says_why_it_rejects(capsys, work):
             assert line or crane.poll() is None, crane.stderr.read()
         rec = work / "t_stale"
         r = cli(capsys, "trial", "--scan", SCAN, "--gnss", GNSS, "--record", rec, "--yes", "--max-pile-age", OLD,
-                "--link", url)
+                "--link", url, "--insecure-link")
         fails(r, 4, "rejected", "STALE", "crane-sim --max-pile-age", str(rec))
-        assert json.loads((rec / "record.json").read_text())["reject_reason"] == "STALE"
+        record = json.loads((rec / "record.json").read_text())
+        assert record["reject_reason"] == "STALE" and record["link"].endswith("insecure=1")  # the record says so
+        assert "NOT authenticated" in r.err  # and so does the trial, before the confirmation
     finally:
         crane.send_signal(signal.SIGTERM)
         out, err = crane.communicate(timeout=30)
@@ -679,7 +681,7 @@ def test_crane_sim_on_a_busy_port_says_so_in_one_line(capsys):
         s.bind(("127.0.0.1", 0))
         s.listen()
         port = s.getsockname()[1]
-        r = cli(capsys, "crane-sim", "--link", f"zenoh://127.0.0.1:{port}/c", "--pile",
+        r = cli(capsys, "crane-sim", "--link", f"zenoh://127.0.0.1:{port}/c", "--insecure-link", "--pile",
                 DEMO_DATA / "truth" / "pile.json")
     line = fails(r, 3, str(port))
     assert ".rs:" not in line and "cargo" not in line
@@ -703,10 +705,18 @@ def test_crane_sim_bad_input(capsys, work, a_file):
     pile = DEMO_DATA / "truth" / "pile.json"
     fails(cli(capsys, "crane-sim", "--link", "twin://", "--pile", pile), 3, "--link", "twin://")
     fails(cli(capsys, "crane-sim", "--link", "foo://x", "--pile", pile), 3, "--link")
-    fails(cli(capsys, "crane-sim", "--link", "can://virtual/x", "--pile", work / "none.json"), 2, "--pile")
-    fails(cli(capsys, "crane-sim", "--link", "can://virtual/x", "--pile", pile, "--base", "1,2"), 2, "--base")
-    fails(cli(capsys, "crane-sim", "--link", "can://virtual/x", "--pile", pile, "--max-reach", "-1"), 2,
-          "--max-reach")
+    fails(cli(capsys, "crane-sim", "--link", "can://virtual/x", "--pile", pile), 3, "no SecOC key", "--insecure-link")
+    insecure = ("--link", "can://virtual/x", "--insecure-link")
+    fails(cli(capsys, "crane-sim", *insecure, "--pile", work / "none.json"), 2, "--pile")
+    fails(cli(capsys, "crane-sim", *insecure, "--pile", pile, "--base", "1,2"), 2, "--base")
+    fails(cli(capsys, "crane-sim", *insecure, "--pile", pile, "--max-reach", "-1"), 2, "--max-reach")
+
+
+def test_trial_and_replay_refuse_a_crane_link_without_a_key(capsys, work, demo_record):
+    fails(cli(capsys, "trial", "--scan", SCAN, "--gnss", GNSS, "--record", work / "t_nokey", "--yes",
+              "--link", "can://virtual/nokey"), 3, "no SecOC key", "--insecure-link")
+    assert not (work / "t_nokey").exists()
+    fails(cli(capsys, "replay", demo_record, "--link", "can://virtual/nokey"), 3, "no SecOC key", "--insecure-link")
 
 
 # -- what only a real process shows ------------------------------------------------------------------------

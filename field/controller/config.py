@@ -78,7 +78,12 @@ class ControllerConfig:
     journal_keep: int = 10_000  # journal entries kept on compaction [-]
     journal_fsync: bool = True  # fsync every journal line (off only for throw-away twins in tests) [-]
     secoc_key_path: str | None = None  # pre-shared key file: accept authenticated frames only
+    insecure_link: bool = False  # the explicit opt-out: no key, frames not authenticated (logged) [-]
     secoc_window_s: float = 2.0  # SecOC freshness window [s]
+    # more frames than this failing their MAC (or key id) within mac_failure_window_s: someone
+    # without the key is on the bus - FAULT (commands refused, a running grasp aborted, local reset)
+    max_mac_failures: int = 20  # [-]
+    mac_failure_window_s: float = 10.0  # [s]
 
     def __post_init__(self) -> None:
         if not self.max_pile_age_s > 0:
@@ -94,7 +99,9 @@ class ControllerConfig:
             raise ValueError(f"max_target_logs must be in [1, 255], got {self.max_target_logs}")
         if self.no_journal and self.journal_path is not None:
             raise ValueError(f"give journal_path ({self.journal_path}) or no_journal=True, not both")
-        for name in ("heartbeat_period_s", "laptop_timeout_s", "secoc_window_s"):
+        if not self.max_mac_failures >= 1:
+            raise ValueError(f"max_mac_failures must be >= 1, got {self.max_mac_failures}")
+        for name in ("heartbeat_period_s", "laptop_timeout_s", "secoc_window_s", "mac_failure_window_s"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0 s, got {getattr(self, name)}")
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import secrets
+from collections import deque
 import threading
 import time
 from dataclasses import asdict, dataclass, field
@@ -91,12 +92,20 @@ class CraneController:
         self._journal = self._open_journal()
         self.rejections: list[tuple[int, RejectReason]] = []  # diagnostics
         self.auth_failures = 0  # frames dropped by the SecOC check
+        self._mac_failures: deque[float] = deque()  # monotonic times of recent MAC failures [s]
         self._auth_warned_s: dict[str, float] = {}
         self._stop = threading.Event()
         self._supervisor: threading.Thread | None = None
 
     def _load_secoc(self) -> Any:
         if self.config.secoc_key_path is None:
+            if not self.config.insecure_link:
+                raise ControllerError("a crane controller needs a SecOC key (ControllerConfig.secoc_key_path, or "
+                                      "secoc_key=KEYFILE in the link URL): without one any node on the bus can "
+                                      "command the crane. Opt out explicitly with insecure_link=True (URL insecure=1, "
+                                      "crane-sim --insecure-link)")
+            log.warning("crane controller WITHOUT authentication (insecure_link=True): any node on the bus can "
+                        "command the crane")
             return None
         from field.link.secoc import SecOC
 
@@ -258,7 +267,29 @@ class CraneController:
             if now - self._auth_warned_s.get(kind, -1e9) > 1.0:  # at most one warning per kind and second
                 self._auth_warned_s[kind] = now
                 log.warning("dropped a %s frame that failed authentication (%d so far): %s", kind, self.auth_failures, why)
+            if why.check != "freshness":  # a stale or replayed frame is a clock or a replay, not a key
+                self._count_mac_failure(now)
         return plain
+
+    def _count_mac_failure(self, now: float) -> None:
+        """Past ``max_mac_failures`` MAC failures within ``mac_failure_window_s``: the safe state
+        (FAULT: commands refused, the running grasp aborted; only a local reset clears it)."""
+        window = self._mac_failures
+        window.append(now)
+        while window and now - window[0] > self.config.mac_failure_window_s:
+            window.popleft()
+        if len(window) <= self.config.max_mac_failures:
+            return
+        cause = (f"{len(window)} frames failed their MAC within {self.config.mac_failure_window_s:g} s (limit "
+                 f"{self.config.max_mac_failures}): a node without the key is on the bus - check it, then reset")
+        with self._lock:
+            if self._state is ControllerState.FAULT:
+                return
+            self._state, self._fault_cause = ControllerState.FAULT, cause
+            if self._run is not None:
+                self._abort_run(self._run, cause)
+        log.error("controller FAULT: %s", cause)
+        self._publish_status()
 
     def _on_status_request(self, data: bytes, reply: Reply) -> None:
         from field.link.codec import decode

@@ -102,6 +102,7 @@ class LinkStats:
     unattributed_answers: int = 0  # controller answers with id 0 (to a frame that failed its check)
     stale_heartbeats: int = 0  # crane heartbeats whose counter did not advance (frozen sender)
     conflicts: int = 0  # answers that contradicted an earlier one (reconciled; see CraneLink.notes)
+    foreign_answers: int = 0  # acks / outcomes naming a command id this link never sent (dropped)
 
 
 
@@ -118,6 +119,9 @@ class CraneLink(Receiving, Reconciling, abc.ABC):
     _resync_on_silence = True
     #: crane heartbeat counter advance accepted between two heartbeats (lost frames) [-]
     _max_heartbeat_gap = 64
+    #: a link to a crane needs a SecOC key unless the operator opts out (``insecure``); only a
+    #: twin on a private in-process bus may run without one
+    _requires_key = True
 
     def __init__(self, config: LinkConfig | None = None, *, clock: Callable[[], float] = time.time):
         from field.link.codec import CounterMonitor, Encoder
@@ -125,7 +129,8 @@ class CraneLink(Receiving, Reconciling, abc.ABC):
         self.config = config or LinkConfig()
         self.guard = CommandGuard(self.config.safety, clock)
         self.stats = LinkStats()
-        self._secoc = _load_secoc(self.config, clock)
+        self._secoc = _load_secoc(self.config, clock, self.backend_name, self._requires_key)
+        self._issued: set[int] = set()  # command ids this link sent: answers to others are foreign
         self._encoder = Encoder(first_counter=secrets.randbits(8))
         self._counters = CounterMonitor(max_delta=8)  # laptop side: drop duplicates, count jumps
         self._cond = threading.Condition()
@@ -176,6 +181,8 @@ class CraneLink(Receiving, Reconciling, abc.ABC):
         self.guard.reserve(cmd)  # burns the id: never sent twice
         kind, data = self._wire(cmd)
         self._check_controller_reachable(cmd.command_id)
+        with self._cond:
+            self._issued.add(cmd.command_id)
         self._send(kind, data)
         ack = self._await_decision(cmd.command_id, timeout_s)
         if ack is None:
@@ -395,6 +402,11 @@ class CraneLink(Receiving, Reconciling, abc.ABC):
             )
 
     @property
+    def authenticated(self) -> bool:
+        """Whether frames carry SecOC MACs (False only with the explicit ``insecure`` opt-out or a twin)."""
+        return self._secoc is not None
+
+    @property
     def closed(self) -> bool:
         return self._closed
 
@@ -539,8 +551,17 @@ class CraneLink(Receiving, Reconciling, abc.ABC):
             d.pop(next(iter(d)))
 
 
-def _load_secoc(config: LinkConfig, clock: Callable[[], float]) -> Any:
+def _load_secoc(config: LinkConfig, clock: Callable[[], float], backend: str, requires_key: bool) -> Any:
+    """The link's SecOC (None without a key, which needs the explicit ``insecure`` opt-out)."""
     if config.secoc_key_path is None:
+        if requires_key and not config.insecure:
+            raise LinkError(
+                f"the {backend} link has no SecOC key: without one any node on the bus can forge commands and the "
+                f"crane's answers. Give both ends a key (secoc_key=KEYFILE in the URL; create one with `loggrasp "
+                f"link-key KEYFILE`), or opt out explicitly with insecure=1 in the URL (--insecure-link)")
+        if requires_key:
+            log.warning("the %s link runs WITHOUT authentication (insecure=1): any node on the bus can forge "
+                        "commands and the crane's answers", backend)
         return None
     from field.link.secoc import SecOC
 

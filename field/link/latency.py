@@ -142,7 +142,9 @@ def _controller_process(url: str, delay_s: float) -> Iterator[None]:
 
 
 def _keyed(url: str, secoc_key: str | None) -> str:
-    return url if secoc_key is None else f"{url}{'&' if '?' in url else '?'}secoc_key={secoc_key}"
+    from field.link.link_config import with_insecure
+
+    return with_insecure(url) if secoc_key is None else f"{url}{'&' if '?' in url else '?'}secoc_key={secoc_key}"
 
 
 @contextlib.contextmanager

@@ -20,6 +20,7 @@ class LinkConfig:
     require_controller: bool = True  # open fails when no controller answers within connect_timeout_s
     record_path: str | None = None  # record the session's traffic here (CAN: BLF)
     secoc_key_path: str | None = None  # pre-shared key file: authenticated frames only (SecOC style)
+    insecure: bool = False  # the explicit opt-out: no key, frames not authenticated (URL insecure=1) [-]
     secoc_window_s: float = 2.0  # SecOC freshness window [s]
     safety: SafetyConfig = field(default_factory=SafetyConfig)
 
@@ -74,6 +75,8 @@ class LinkURL:
                 kw["record_path"] = q.pop("record")
             if "secoc_key" in q:
                 kw["secoc_key_path"] = q.pop("secoc_key")
+            if "insecure" in q:
+                kw["insecure"] = _flag(q.pop("insecure"), "insecure")
             if "secoc_window_s" in q:
                 kw["secoc_window_s"] = float(q.pop("secoc_window_s"))
             if "max_pile_age_s" in q:
@@ -83,3 +86,16 @@ class LinkURL:
         if safety:
             kw["safety"] = replace(cfg.safety, **safety)
         return replace(cfg, **kw), q
+
+
+def _flag(text: str, name: str) -> bool:
+    """A yes/no URL query value (1/0, true/false, yes/no)."""
+    value = {"1": True, "true": True, "yes": True, "0": False, "false": False, "no": False}.get(text.lower())
+    if value is None:
+        raise ValueError(f"link URL query {name}={text!r}: use {name}=1 or {name}=0")
+    return value
+
+
+def with_insecure(url: str) -> str:
+    """``url`` with ``insecure=1`` (the explicit opt-out of authenticated frames)."""
+    return f"{url}{'&' if '?' in url else '?'}insecure=1"

@@ -119,6 +119,8 @@ class Receiving:
         if ack.command_id == 0:
             self.stats.unattributed_answers += 1  # the controller got a frame that failed its check
             return
+        if self._foreign(ack.command_id, "acknowledgement"):
+            return
         answers = self._answers.setdefault(ack.command_id, [])
         answers.append(ack)
         self._prune(self._answers)
@@ -130,12 +132,23 @@ class Receiving:
             self._note(ack.command_id, f"a late acceptance arrived after the operator was told '{told}'")
 
     def _on_outcome(self, out: Outcome) -> None:
+        if self._foreign(out.command_id, "outcome"):
+            return
         self._outcomes.setdefault(out.command_id, out)
         self._prune(self._outcomes)
         told = self._told.get(out.command_id)
         if told in ("rejected", "no answer", "not executed"):
             self._note(out.command_id, f"the controller reports an outcome ({out.outcome_class.name}) for a "
                                        f"command the operator was told was '{told}'")
+
+    def _foreign(self, command_id: int, what: str) -> bool:
+        """An answer naming a command this link never sent: dropped and counted (a forgery, or
+        another laptop's answer), never taken for a decision about one of ours."""
+        if command_id in self._issued:
+            return False
+        self.stats.foreign_answers += 1
+        log.debug("dropped an %s for command %d, which this link never sent", what, command_id)
+        return True
 
     def _on_status(self, msg: ControllerStatus) -> None:
         if msg.request_id in self._pending_status:

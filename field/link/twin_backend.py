@@ -25,6 +25,7 @@ from field.link.can_backend import CanControllerTransport, CanLink
 
 class TwinLink(CanLink):
     backend_name = "twin"
+    _requires_key = False  # a private in-process bus: no other node can reach it
 
     def __init__(self, config: LinkConfig | None = None, *, controller_config: Any = None, executor: Any = None):
         from field.controller import ControllerConfig, CraneController, FixedOutcomeExecutor
@@ -33,7 +34,7 @@ class TwinLink(CanLink):
         key = (config or LinkConfig()).secoc_key_path
         # the twin's bus is private to this process and gone with it: nothing can replay a command into
         # a restarted twin, so it opts out of the journal (explicitly; the controller logs it)
-        controller_config = controller_config or ControllerConfig(no_journal=True)
+        controller_config = controller_config or ControllerConfig(no_journal=True, insecure_link=key is None)
         if key is not None:  # the twin crane holds the same key as the laptop
             controller_config = replace(controller_config, secoc_key_path=key)
         self.controller = CraneController(controller_config, executor if executor is not None else FixedOutcomeExecutor())
@@ -69,7 +70,7 @@ class TwinLink(CanLink):
                     kw["max_pile_age_s"] = float(q.pop("crane_max_pile_age_s"))
             except ValueError as exc:
                 raise ValueError(f"twin:// crane_base must be E,N,H and crane_max_pile_age_s a number: {exc}") from exc
-            controller_config = ControllerConfig(**kw, no_journal=True)
+            controller_config = ControllerConfig(**kw, no_journal=True, insecure_link=cfg.secoc_key_path is None)
         if executor is None:
             name = q.pop("executor", "fixed")
             kwargs: dict[str, Any] = {}

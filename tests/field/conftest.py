@@ -166,7 +166,9 @@ class Rig:
 BACKENDS = ["can-virtual", "can-remote", "zenoh"]
 
 #: controller config used by rigs (short timeouts: fast tests)
-RIG_CONFIG = {"max_pile_age_s": 5.0, "laptop_timeout_s": 1.0, "heartbeat_period_s": 0.05}
+#: (a rig without secoc_key= in its URL opts out of authentication explicitly; with a key, frames are
+#: authenticated whatever insecure_link says)
+RIG_CONFIG = {"max_pile_age_s": 5.0, "laptop_timeout_s": 1.0, "heartbeat_period_s": 0.05, "insecure_link": True}
 #: executor used by rigs: 50 ms per grasp, 1.5 s for 9-log grasps (a slow command), 7 logs -> COLLISION
 RIG_EXECUTOR = {"delay_s": 0.05, "delay_by_target_logs": {"9": 1.5}}
 
@@ -180,7 +182,8 @@ def link_key(tmp_path_factory) -> Path:
 
 
 def keyed(url: str, key: Path | None) -> str:
-    return url if key is None else f"{url}{'&' if '?' in url else '?'}secoc_key={key}"
+    """``url`` with its SecOC key, or without one the explicit opt-out ``insecure=1``."""
+    return f"{url}{'&' if '?' in url else '?'}" + ("insecure=1" if key is None else f"secoc_key={key}")
 
 
 def build_rig(name: str, tmp_path: Path, *, config: dict | None = None, executor: dict | None = None,

@@ -102,7 +102,8 @@ def can_pairs(prefix: str, link_config: "LinkConfig") -> Iterator[Callable[..., 
         channel = f"{prefix}-{uuid.uuid4().hex[:8]}"
         cbus = FaultyBus(can.Bus(interface="virtual", channel=channel, fd=True))
         executor = FixedOutcomeExecutor(delay_s=delay_s)
-        controller = CraneController(ControllerConfig(**{"laptop_timeout_s": 1.0, "no_journal": "journal_path" not in cfg, **cfg}), executor)
+        controller = CraneController(ControllerConfig(**{"laptop_timeout_s": 1.0, "no_journal": "journal_path" not in cfg,
+                                                        "insecure_link": "secoc_key_path" not in cfg, **cfg}), executor)
         transport = CanControllerTransport(bus=cbus, heartbeat_period_s=controller.config.heartbeat_period_s)
         transport.start(controller)
         controller.start()

@@ -71,7 +71,7 @@ def test_config_validation():
 
 def test_accept_execute_and_report(make_cmd):
     ex = FixedOutcomeExecutor(delay_s=0.0, outcome_class="collision", logs_grasped=1, balance_cos_milli=700)
-    ctl = CraneController(ControllerConfig(no_journal=True), ex)
+    ctl = CraneController(ControllerConfig(no_journal=True, insecure_link=True), ex)
     f = Feeder(ctl)
     cmd = make_cmd(11, logs=3)
     assert f.grasp(cmd) == Ack(11, True)
@@ -87,7 +87,7 @@ def test_accept_execute_and_report(make_cmd):
 
 
 def test_reach_envelope_boundaries(make_cmd):
-    ctl = CraneController(ControllerConfig(reach=ReachEnvelope(min_reach_m=2.0, max_reach_m=10.0), no_journal=True), FixedOutcomeExecutor(0.0))
+    ctl = CraneController(ControllerConfig(reach=ReachEnvelope(min_reach_m=2.0, max_reach_m=10.0), no_journal=True, insecure_link=True), FixedOutcomeExecutor(0.0))
     f = Feeder(ctl)
     cases = [(1.99, RejectReason.OUT_OF_REACH), (10.01, RejectReason.OUT_OF_REACH), (9.99, RejectReason.NONE)]
     for i, (de, reason) in enumerate(cases, start=1):
@@ -102,7 +102,7 @@ def test_reach_envelope_boundaries(make_cmd):
 
 def test_journal_never_executes_twice_across_restarts(tmp_path, make_cmd):
     journal = tmp_path / "journal.json"
-    cfg = ControllerConfig(journal_path=str(journal))
+    cfg = ControllerConfig(journal_path=str(journal), insecure_link=True)
     ex1 = FixedOutcomeExecutor(delay_s=0.0)
     ctl1 = CraneController(cfg, ex1)
     f1 = Feeder(ctl1)
@@ -161,7 +161,7 @@ def test_executor_failure_is_a_fault_until_reset(make_cmd):
     def broken(cmd):
         raise RuntimeError("hydraulics")
 
-    ctl = CraneController(ControllerConfig(no_journal=True), broken)
+    ctl = CraneController(ControllerConfig(no_journal=True, insecure_link=True), broken)
     f = Feeder(ctl)
     assert f.grasp(make_cmd(31)).accepted
     f.wait_idle()
@@ -177,7 +177,7 @@ def test_executor_failure_is_a_fault_until_reset(make_cmd):
 
 def test_estop_is_fail_safe_and_latched(make_cmd):
     ex = FixedOutcomeExecutor(delay_s=5.0)
-    ctl = CraneController(ControllerConfig(no_journal=True), ex)
+    ctl = CraneController(ControllerConfig(no_journal=True, insecure_link=True), ex)
     f = Feeder(ctl)
     assert f.grasp(make_cmd(41)).accepted
     kind, data = Encoder().encode(EStopRequest())
@@ -196,7 +196,7 @@ def test_estop_is_fail_safe_and_latched(make_cmd):
 
 
 def test_corrupted_status_request_is_ignored():
-    ctl = CraneController(ControllerConfig(no_journal=True), FixedOutcomeExecutor())
+    ctl = CraneController(ControllerConfig(no_journal=True, insecure_link=True), FixedOutcomeExecutor())
     kind, data = Encoder().encode(StatusRequest(1))
     replies: list = []
     ctl.on_frame(kind, data[:-1] + bytes([data[-1] ^ 1]), lambda k, d: replies.append(k))
@@ -228,7 +228,7 @@ def test_run_controller_serves_until_stopped(make_cmd):
 
     from field.link import open_link
 
-    url = f"can://virtual/rc-{uuid.uuid4().hex[:8]}"
+    url = f"can://virtual/rc-{uuid.uuid4().hex[:8]}?insecure=1"
     stop, ready = threading.Event(), threading.Event()
     result: list = []
     th = threading.Thread(target=lambda: result.append(run_controller(url, "fixed", stop, ready_event=ready)))
@@ -265,12 +265,12 @@ def test_a_controller_in_a_thread_serves_for_the_block_and_stops_after(make_cmd)
     from field.link import open_link
     from field.link.base import LinkConfig
 
-    url = f"can://virtual/ctl-{uuid.uuid4().hex[:8]}"
+    url = f"can://virtual/ctl-{uuid.uuid4().hex[:8]}?insecure=1"
     with controller_in_thread(url, "fixed", ControllerConfig(), start_timeout_s=10.0):
         with open_link(url) as link:
             assert link.send_grasp(make_cmd(link.new_command_id())).accepted
     with pytest.raises(LinkError):  # nobody serves the channel after the block
-        open_link(url, LinkConfig(connect_timeout_s=0.3)).close()
+        open_link(url, LinkConfig(insecure=True, connect_timeout_s=0.3)).close()
 
 
 # --- exactly once across restarts, by default ------------------------------------------------------
@@ -287,7 +287,7 @@ def _serve(url: str, executor: FixedOutcomeExecutor) -> tuple[threading.Event, t
 
 
 def test_a_controller_built_by_run_controller_with_defaults_never_runs_a_replayed_frame_after_a_restart(make_cmd):
-    url = f"can://virtual/journal-{time.monotonic_ns()}"
+    url = f"can://virtual/journal-{time.monotonic_ns()}?insecure=1"
     first = FixedOutcomeExecutor(delay_s=0.0)
     stop, th, ctl = _serve(url, first)
     laptop = SupervisingLaptop(ctl)
@@ -311,8 +311,8 @@ def test_a_controller_built_by_run_controller_with_defaults_never_runs_a_replaye
 
 def test_a_controller_without_a_journal_must_opt_out_and_says_so(caplog):
     with pytest.raises(ControllerError, match="no_journal=True"):
-        CraneController(ControllerConfig(), FixedOutcomeExecutor())
+        CraneController(ControllerConfig(insecure_link=True), FixedOutcomeExecutor())
     with pytest.raises(ValueError, match="not both"):
         ControllerConfig(journal_path="j.jsonl", no_journal=True)
-    CraneController(ControllerConfig(no_journal=True), FixedOutcomeExecutor()).close()
+    CraneController(ControllerConfig(no_journal=True, insecure_link=True), FixedOutcomeExecutor()).close()
     assert any("journal OFF (no_journal=True)" in r.getMessage() for r in caplog.records)

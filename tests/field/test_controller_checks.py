@@ -112,7 +112,7 @@ class Crane:
 
     def __init__(self):
         self.ex = FixedOutcomeExecutor(delay_s=0.0)
-        self.ctl = CraneController(ControllerConfig(no_journal=True), self.ex, clock=lambda: NOW_S)
+        self.ctl = CraneController(ControllerConfig(no_journal=True, insecure_link=True), self.ex, clock=lambda: NOW_S)
         self.laptop = SupervisingLaptop(self.ctl)  # a heartbeat before each command: supervised
         self.enc = self.laptop.enc
         self.laptop.beat()

@@ -52,7 +52,7 @@ def options(**kw) -> TrialOptions:
 
 @pytest.fixture(scope="module")
 def can_record(tmp_path_factory):
-    url = f"can://virtual/trial-{uuid.uuid4().hex[:8]}"
+    url = f"can://virtual/trial-{uuid.uuid4().hex[:8]}?insecure=1"
     rec = tmp_path_factory.mktemp("rec") / "t1"
     with Crane(url) as crane:
         record = run_trial_record(DEMO_DATA / "scan", DEMO_DATA / "gnss.csv", url, rec, options())
@@ -93,7 +93,7 @@ def test_trial_over_zenoh_loopback(can_record, tmp_path):
     _, record, _ = can_record
     prepared = PreparedTrial(pile=None, plan=None, geo=None, command_fields=record["command"],
                              captured_utc_s=0.0, work_dir=tmp_path)
-    url = f"zenoh://127.0.0.1:{port}/crane-{uuid.uuid4().hex[:6]}"
+    url = f"zenoh://127.0.0.1:{port}/crane-{uuid.uuid4().hex[:6]}?insecure=1"
     with Crane(url) as crane:
         out = execute_trial(prepared, url, options())
     assert crane.calls == 1 and out.accepted
@@ -101,7 +101,7 @@ def test_trial_over_zenoh_loopback(can_record, tmp_path):
 
 
 def test_stale_pile_data_is_never_sent(tmp_path):
-    url = f"can://virtual/stale-{uuid.uuid4().hex[:8]}"
+    url = f"can://virtual/stale-{uuid.uuid4().hex[:8]}?insecure=1"
     with Crane(url) as crane:
         with pytest.raises(TrialAborted, match="old"):
             run_trial_record(DEMO_DATA / "scan", DEMO_DATA / "gnss.csv", url, tmp_path / "r", options(max_pile_age_s=1.0))
@@ -124,7 +124,7 @@ def test_float_fix_is_refused_unless_allowed(tmp_path):
 
 
 def test_out_of_reach_and_declined_are_not_sent(tmp_path):
-    url = f"can://virtual/reach-{uuid.uuid4().hex[:8]}"
+    url = f"can://virtual/reach-{uuid.uuid4().hex[:8]}?insecure=1"
     far = (BASE[0] + 500.0, BASE[1], BASE[2])
     with Crane(url) as crane:
         with pytest.raises(TrialAborted, match="reach|constraints"):

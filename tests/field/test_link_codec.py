@@ -254,7 +254,7 @@ def test_fuzz_controller_accepts_only_valid_commands(frames):
     """Arbitrary frames (what the CAN transport and the Zenoh queryable both hand over) never
     crash the controller, and an accepted command is always a valid one."""
     executor = FixedOutcomeExecutor(delay_s=0.0)
-    ctl = CraneController(ControllerConfig(no_journal=True), executor)
+    ctl = CraneController(ControllerConfig(no_journal=True, insecure_link=True), executor)
     replies: list[tuple[str, bytes, float]] = []
     sent: dict[int, GraspCommand] = {}
     enc = Encoder()
@@ -304,7 +304,7 @@ def _command_frame(enc: Encoder, sent: dict, cmd: GraspCommand, counter: int | N
 @settings(max_examples=200, deadline=None)
 @given(kind=st.sampled_from(list(codec.CRANE_TO_LAPTOP)), data=st.binary(max_size=70))
 def test_fuzz_laptop_side_decoder(kind, data):
-    from field.link.base import CraneLink
+    from field.link.base import CraneLink, LinkConfig
 
     class Null(CraneLink):
         def _transmit(self, kind, data):
@@ -313,7 +313,7 @@ def test_fuzz_laptop_side_decoder(kind, data):
         def _close_transport(self):
             pass
 
-    link = Null()
+    link = Null(LinkConfig(insecure=True))
     link._deliver(kind, data)
     s = link.stats
     assert s.crc_errors + s.malformed + s.duplicates_dropped <= 1

@@ -11,7 +11,7 @@ from field.errors import CommandRejected, LinkClosed, LinkError, LinkTimeout, Pr
 from field.link import ControllerState, OutcomeClass, RejectReason, open_link
 from field.link.base import LinkConfig
 
-FAST = LinkConfig(heartbeat_timeout_s=1.0, connect_timeout_s=10.0)
+FAST = LinkConfig(insecure=True, heartbeat_timeout_s=1.0, connect_timeout_s=10.0)
 
 
 def test_send_ack_outcome_status(rig, make_cmd):
@@ -45,7 +45,7 @@ REJECTIONS = [
 def test_rejections_carry_the_reason(rig, make_cmd):
     from field.link.safety import SafetyConfig
 
-    cfg = LinkConfig(heartbeat_timeout_s=1.0, connect_timeout_s=10.0, safety=SafetyConfig(max_future_skew_s=10.0))
+    cfg = LinkConfig(insecure=True, heartbeat_timeout_s=1.0, connect_timeout_s=10.0, safety=SafetyConfig(max_future_skew_s=10.0))
     with open_link(rig.url, cfg) as link:
         for kwargs, reason in REJECTIONS:
             cmd = make_cmd(link.new_command_id(), **kwargs)
@@ -129,4 +129,4 @@ def test_controller_killed_mid_command_final_state_known(rig, make_cmd):
 def test_open_fails_clearly_without_controller(rig, make_cmd):
     rig.stop_controller()
     with pytest.raises(LinkError, match="controller"):
-        open_link(rig.url, LinkConfig(connect_timeout_s=0.5))
+        open_link(rig.url, LinkConfig(insecure=True, connect_timeout_s=0.5))

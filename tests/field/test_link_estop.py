@@ -14,7 +14,7 @@ from field.errors import LinkTimeout
 from field.link import ControllerState, LinkConfig, open_link
 from tests.field.helpers import can_pairs
 
-LINK = LinkConfig(heartbeat_timeout_s=1.0, status_timeout_s=0.3, connect_timeout_s=10.0)
+LINK = LinkConfig(insecure=True, heartbeat_timeout_s=1.0, status_timeout_s=0.3, connect_timeout_s=10.0)
 
 
 def _estop_error(link, caplog) -> LinkTimeout:
@@ -41,7 +41,7 @@ def test_can_an_estop_that_cannot_be_sent_names_the_bus_error(caplog):
 
 def test_zenoh_an_estop_that_cannot_be_sent_names_the_session_error(port, caplog):
     url = f"zenoh://127.0.0.1:{port}/crane-estop"
-    with controller_in_thread(url, "fixed", ControllerConfig(no_journal=True), start_timeout_s=20.0):
+    with controller_in_thread(url, "fixed", ControllerConfig(no_journal=True, insecure_link=True), start_timeout_s=20.0):
         link = open_link(url, LINK)
         try:
             link._session.close()  # the session underneath is gone: every put fails

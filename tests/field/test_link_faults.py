@@ -20,7 +20,7 @@ from tests.field.helpers import can_pairs, wait_until
 
 @pytest.fixture
 def pair():
-    with can_pairs("faults", LinkConfig(heartbeat_timeout_s=1.0, status_timeout_s=1.0)) as make:
+    with can_pairs("faults", LinkConfig(insecure=True, heartbeat_timeout_s=1.0, status_timeout_s=1.0)) as make:
         yield make
 
 

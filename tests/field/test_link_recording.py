@@ -50,7 +50,7 @@ def test_session_recorded_both_directions_and_replayed(tmp_path, suffix, make_cm
         from field.link.can_backend import CanControllerTransport
 
         ex = FixedOutcomeExecutor(delay_s=0.0)
-        twin = CraneController(ControllerConfig(no_journal=True), ex)
+        twin = CraneController(ControllerConfig(no_journal=True, insecure_link=True), ex)
         twin._decisions = dict(controller._decisions)  # the same crane, which remembers executed ids
         tr = CanControllerTransport(bus=can.Bus(interface="virtual", channel=f"replay-{suffix[1:]}", fd=True))
         tr.start(twin)

@@ -25,7 +25,7 @@ from field.link.codec import EStopRequest, Encoder, LaptopHeartbeat, decode, enc
 from field.link.messages import Ack, GraspCommand, Outcome
 from tests.field.helpers import SupervisingLaptop, can_pairs, wait_until
 
-LINK = LinkConfig(heartbeat_timeout_s=1.0, status_timeout_s=1.0, connect_timeout_s=10.0)
+LINK = LinkConfig(insecure=True, heartbeat_timeout_s=1.0, status_timeout_s=1.0, connect_timeout_s=10.0)
 
 
 # --- a CAN pair, and frames injected by a third node ----------------------------------------
@@ -52,7 +52,7 @@ def test_estop_in_the_acceptance_window_aborts_the_grasp(make_cmd):
     """The e-stop arrives while the controller sends the acceptance (the window between marking
     the command executing and starting it): the grasp must not run to SUCCESS."""
     ex = FixedOutcomeExecutor(delay_s=4.0)
-    ctl = CraneController(ControllerConfig(no_journal=True), ex)
+    ctl = CraneController(ControllerConfig(no_journal=True, insecure_link=True), ex)
     published: list = []
     ctl.attach(lambda k, d: published.append(decode(k, d).message))
     estop = Encoder().encode(EStopRequest())
@@ -125,9 +125,9 @@ def test_estop_racing_a_command_is_never_lost_on_zenoh(port, make_cmd):
     from field.link.base import LinkURL
     from field.link.zenoh_backend import ZenohControllerTransport, ZenohKeys, ZenohTarget
 
-    url = f"zenoh://127.0.0.1:{port}/crane-race"
+    url = f"zenoh://127.0.0.1:{port}/crane-race?insecure=1"
     u = LinkURL.parse(url)
-    ctl = CraneController(ControllerConfig(no_journal=True), FixedOutcomeExecutor(delay_s=0.5))
+    ctl = CraneController(ControllerConfig(no_journal=True, insecure_link=True), FixedOutcomeExecutor(delay_s=0.5))
     transport = ZenohControllerTransport(ZenohTarget.from_url(u, u.pop_link_config()[1]))
     transport.start(ctl)
     ctl.start()
@@ -199,7 +199,7 @@ class Heartbeats:
 def _heartbeat_case(make_cmd, frozen: str) -> Outcome:
     """Establish a laptop with good heartbeats, accept a 6 s grasp, then feed ``frozen``
     heartbeats: "none" (good ones go on), "same-frame" or "same-counter" (fresh E2E counter)."""
-    ctl = CraneController(ControllerConfig(laptop_timeout_s=1.0, no_journal=True), FixedOutcomeExecutor(delay_s=6.0))
+    ctl = CraneController(ControllerConfig(laptop_timeout_s=1.0, no_journal=True, insecure_link=True), FixedOutcomeExecutor(delay_s=6.0))
     published: list = []
     ctl.attach(lambda k, d: published.append(decode(k, d).message))
     ctl.start()
@@ -318,7 +318,8 @@ class NullLink(CraneLink):  # no transport: frames are fed by hand
 
 
 def test_an_outcome_overrides_a_contradicting_rejection():
-    link = NullLink()
+    link = NullLink(LinkConfig(insecure=True))
+    link._issued.update({55, 56})  # as if it had sent both commands
     enc = Encoder()
     link._deliver(*enc.encode(Ack(55, False, RejectReason.BUSY)))
     link._deliver(*enc.encode(Outcome(55, OutcomeClass.SUCCESS, 2, 990)))
@@ -334,7 +335,7 @@ def test_an_outcome_overrides_a_contradicting_rejection():
 
 
 def test_an_id_rejected_busy_stays_burned_across_a_restart(tmp_path, make_cmd):
-    cfg = ControllerConfig(journal_path=str(tmp_path / "journal"))
+    cfg = ControllerConfig(journal_path=str(tmp_path / "journal"), insecure_link=True)
     ctl = CraneController(cfg, FixedOutcomeExecutor(delay_s=2.0))
     laptop = SupervisingLaptop(ctl)
     laptop.beat(), laptop.beat()
@@ -373,11 +374,11 @@ def test_crane_sim_defaults_journal_every_id_and_use_the_staleness_limit(monkeyp
 
     def fake_run(link, executor, stop, config, **kw):
         seen["config"] = config
-        return field.controller.CraneController(field.controller.ControllerConfig(no_journal=True)).status()
+        return field.controller.CraneController(field.controller.ControllerConfig(no_journal=True, insecure_link=True)).status()
 
     monkeypatch.setattr(field.controller, "run_controller", fake_run)
     monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "state"))
-    res = CliRunner().invoke(app, ["crane-sim", "--link", "can://virtual/x", "--pile",
+    res = CliRunner().invoke(app, ["crane-sim", "--link", "can://virtual/x", "--insecure-link", "--pile",
                                    str(DEMO_DATA / "truth" / "pile.json")])
     assert res.exit_code == 0, res.output
     cfg = seen["config"]
@@ -389,6 +390,7 @@ def test_crane_sim_defaults_journal_every_id_and_use_the_staleness_limit(monkeyp
 
 def test_extended_id_frames_are_not_link_frames(pair, make_cmd):
     p = pair()
+    p.link._issued.update({777, 778})  # as if the laptop had sent them: answers for its commands
     node = p.node()
     cmd = make_cmd(p.link.new_command_id())
     node.send(can_frame(*p.link._encoder.encode(cmd), extended=True))  # ext. 0x100, next counter
@@ -414,7 +416,7 @@ def _with_reserved_bit(kind: str, data: bytes, byte: int, mask: int) -> bytes:
 
 
 def test_reserved_bits_are_malformed_on_both_sides(make_cmd):
-    ctl = CraneController(ControllerConfig(no_journal=True), FixedOutcomeExecutor(delay_s=0.0))
+    ctl = CraneController(ControllerConfig(no_journal=True, insecure_link=True), FixedOutcomeExecutor(delay_s=0.0))
     answers: list = []
     kind, data = Encoder().encode(make_cmd(9))
     ctl.on_frame(kind, _with_reserved_bit(kind, data, 60, 0x01), lambda k, d: answers.append(decode(k, d).message))
@@ -459,7 +461,7 @@ def test_a_second_laptop_is_reported(pair, caplog):
 def test_commanding_zenoh_laptop_leaving_aborts_while_another_is_connected(port, controller_process, make_cmd):
     from field.link import open_link
 
-    url = f"zenoh://127.0.0.1:{port}/crane-c"
+    url = f"zenoh://127.0.0.1:{port}/crane-c?insecure=1"
     controller_process(url, executor={"delay_by_target_logs": {"9": 6.0}})
     with open_link(url, LINK) as watcher:
         with open_link(url, LINK) as commander:

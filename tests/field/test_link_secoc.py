@@ -13,12 +13,12 @@ import can
 import pytest
 
 from field.controller import ControllerConfig, CraneController, FixedOutcomeExecutor
-from field.errors import AuthenticationError, KeyFileError, LinkError
-from field.link import ControllerState, OutcomeClass, open_link
-from field.link.base import LinkConfig
+from field.errors import AuthenticationError, ControllerError, KeyFileError, LinkError
+from field.link import ControllerState, OutcomeClass, RejectReason, open_link
+from field.link.base import LinkConfig, LinkURL
 from field.link.can_backend import CanControllerTransport, CanLink
-from field.link.codec import EStopRequest, Encoder, decode, frame_id
-from field.link.messages import ControllerStatus, Outcome
+from field.link.codec import EStopRequest, Encoder, LaptopHeartbeat, StatusRequest, decode, frame_id
+from field.link.messages import Ack, ControllerStatus, Outcome
 from field.link.secoc import SecOC, generate_key_file, load_key, secured_length
 from tests.field.helpers import wait_until
 from tests.field.test_link_codec import MESSAGES
@@ -164,16 +164,46 @@ def test_forged_frames_are_dropped_on_both_sides(keyed_pair, make_cmd):
 
 
 def test_without_keys_a_forged_outcome_is_believed(make_cmd):
-    """What the link does NOT guarantee without keys: E2E is integrity, not origin."""
+    """What the link does NOT guarantee without keys (insecure=1): E2E is integrity, not origin -
+    a forged outcome for a command the laptop did send is believed."""
     channel = f"nokey-{uuid.uuid4().hex[:8]}"
     rogue = can.Bus(interface="virtual", channel=channel, fd=True)
-    link = CanLink(config=LinkConfig(require_controller=False), bus=can.Bus(interface="virtual", channel=channel, fd=True))
+    link = CanLink(config=LinkConfig(require_controller=False, insecure=True), bus=can.Bus(interface="virtual", channel=channel, fd=True))
     try:
+        link._issued.add(99)  # as if it had sent command 99
         rogue.send(frame(*Encoder().encode(Outcome(99, OutcomeClass.SUCCESS, 3, 999))))
         assert wait_until(lambda: 99 in link._outcomes)
     finally:
         link.close()
         rogue.shutdown()
+
+
+def test_answers_to_command_ids_the_laptop_never_sent_are_dropped_and_counted():
+    """An acknowledgement or outcome naming an id this laptop never issued is never taken for a
+    decision (even without keys): dropped and counted in ``stats.foreign_answers``."""
+    channel = f"foreign-{uuid.uuid4().hex[:8]}"
+    rogue = can.Bus(interface="virtual", channel=channel, fd=True)
+    link = CanLink(config=LinkConfig(require_controller=False, insecure=True), bus=can.Bus(interface="virtual", channel=channel, fd=True))
+    try:
+        enc = Encoder()
+        rogue.send(frame(*enc.encode(Ack(77, True))))
+        rogue.send(frame(*enc.encode(Outcome(77, OutcomeClass.SUCCESS, 3, 999))))
+        assert wait_until(lambda: link.stats.foreign_answers == 2)
+        assert 77 not in link._answers and 77 not in link._outcomes
+        assert link.fate(77, query=False).executed is not True
+    finally:
+        link.close()
+        rogue.shutdown()
+
+
+def test_a_link_without_a_key_is_refused_unless_the_operator_opts_out():
+    with pytest.raises(LinkError, match="no SecOC key.*insecure=1"):
+        open_link("can://virtual/no-key-ch")
+    with pytest.raises(ControllerError, match="needs a SecOC key"):
+        CraneController(ControllerConfig(no_journal=True), FixedOutcomeExecutor())
+    assert LinkURL.parse("can://virtual/x?insecure=1").pop_link_config()[0].insecure
+    with open_link("twin://") as twin:  # a private in-process bus needs none, and says so
+        assert not twin.authenticated
 
 
 def test_a_crane_with_another_key_is_not_reached(keyed_pair, tmp_path):
@@ -193,3 +223,84 @@ def test_twin_and_recording_with_a_key(key, tmp_path, make_cmd):
         assert link.controller.auth_failures == 0 and link.stats.auth_failures == 0
     msgs = [m for _, _, m in decode_recording(rec, secoc_key=key)]
     assert cmd in msgs  # a keyed recording reads back with its key (MACs checked)
+
+
+def test_mac_failures_past_the_threshold_put_the_controller_in_its_safe_state(key, tmp_path, make_cmd):
+    """More than ``max_mac_failures`` frames with a bad MAC within the window: FAULT - the running
+    grasp aborts and commands are refused until a local reset. Stale frames (a clock, a replay)
+    do not count."""
+    ex = FixedOutcomeExecutor(delay_s=5.0)
+    ctl = CraneController(ControllerConfig(secoc_key_path=str(key), no_journal=True, max_mac_failures=3), ex)
+    published: list = []
+    ctl.attach(lambda k, d: published.append(k))
+    ctl.start()
+    laptop = SecOC.from_key_file(key)
+    forger = SecOC.from_key_file(generate_key_file(tmp_path / "forger.key"))
+    enc, hb, acks = Encoder(), [100], []
+    on = lambda k, d: acks.append(decode(k, laptop.verify(k, d)).message)  # noqa: E731
+
+    def beat() -> None:
+        hb[0] += 1
+        ctl.on_frame("LaptopHeartbeat", laptop.secure(*enc.encode(LaptopHeartbeat(hb[0]))), on)
+
+    try:
+        beat(), beat()
+        ctl.on_frame("GraspCommand", laptop.secure(*enc.encode(make_cmd(5))), on)
+        assert acks[-1].accepted
+        stale = SecOC.from_key_file(key, clock=lambda: time.time() - 60).secure(*Encoder().encode(StatusRequest(1)))
+        for _ in range(10):
+            ctl.on_frame("StatusRequest", stale, on)  # stale, not forged: no fault
+        assert ctl.state is ControllerState.EXECUTING
+        for i in range(4):  # forged: the 4th passes the limit of 3
+            beat()
+            ctl.on_frame("StatusRequest", forger.secure(*Encoder().encode(StatusRequest(i + 1))), on)
+        assert ctl.state is ControllerState.FAULT and "failed their MAC" in ctl.fault_cause
+        assert wait_until(lambda: ctl._run is None) and ex.aborted == [5]
+        beat()
+        ctl.on_frame("GraspCommand", laptop.secure(*enc.encode(make_cmd(6))), on)
+        assert acks[-1] == Ack(6, False, RejectReason.FAULT)
+    finally:
+        ctl.close()
+
+
+# --- key ids (rotation) and per-direction keys ------------------------------------------------
+
+
+def _key_file(path, lines: list[str]):
+    path.write_text("".join(f"{ln}\n" for ln in lines))
+    os.chmod(path, 0o600)
+    return path
+
+
+def test_a_rotated_key_id_is_accepted_during_the_overlap(tmp_path):
+    """Step 2 of a rotation: the laptop already sends with key 2, the crane still with key 1; both
+    hold both, so every frame passes in both directions. A node that holds only key 1 drops a
+    frame made with key 2 (its key id is unknown there), and says so."""
+    old, new = os.urandom(32).hex(), os.urandom(32).hex()
+    laptop = SecOC.from_key_file(_key_file(tmp_path / "laptop.key", [f"2 {new}", f"1 {old}"]))
+    crane = SecOC.from_key_file(_key_file(tmp_path / "crane.key", [f"1 {old}", f"2 {new}"]))
+    stale_node = SecOC.from_key_file(_key_file(tmp_path / "old.key", [f"1 {old}"]))
+    cmd_kind, cmd = Encoder().encode(StatusRequest(7))
+    ack_kind, ack = Encoder().encode(Ack(7, True))
+    assert laptop.key_id == 2 and crane.key_id == 1
+    assert crane.verify(cmd_kind, laptop.secure(cmd_kind, cmd)) == cmd  # sent with the new key
+    assert laptop.verify(ack_kind, crane.secure(ack_kind, ack)) == ack  # answered with the old one
+    with pytest.raises(AuthenticationError, match="key id 2") as info:
+        stale_node.verify(cmd_kind, laptop.secure(cmd_kind, cmd))
+    assert info.value.check == "key_id"
+    assert load_key(tmp_path / "laptop.key") == bytes.fromhex(new)  # the sending key is the first
+
+
+def test_the_two_directions_use_different_mac_keys_from_one_file(key):
+    """Per-direction keys (derived from the file's key): a MAC computed for a laptop -> crane frame
+    is not the MAC of the same bytes crane -> laptop. (Frame ids already differ per kind; this
+    keeps the directions apart even if a kind's id were reused. It does not stop a holder of the
+    file from making crane frames: see docs/link-safety.md.)"""
+    secoc = SecOC.from_key_file(key)
+    fv = (int(time.time() * 1000) << 16).to_bytes(8, "little")
+    from field.link.secoc import _direction_key
+
+    raw = load_key(key)
+    assert _direction_key(raw, "laptop->crane") != _direction_key(raw, "crane->laptop") != raw
+    assert secoc._keys[(0, "laptop->crane")] == _direction_key(raw, "laptop->crane")
+    assert secoc._mac("StatusRequest", b"pdu", fv) != secoc._mac("CraneHeartbeat", b"pdu", fv)

@@ -36,7 +36,7 @@ LANES = 8
 P_FAULT = {"drop": 0.006, "duplicate": 0.006, "corrupt": 0.006, "delay": 0.006, "reorder": 0.006}
 TO_CRANE = ("GraspCommand", "StatusRequest")
 TO_LAPTOP = ("Ack", "Outcome", "Status")
-LINK = LinkConfig(heartbeat_timeout_s=1.0, status_timeout_s=0.5, connect_timeout_s=20.0)
+LINK = LinkConfig(insecure=True, heartbeat_timeout_s=1.0, status_timeout_s=0.5, connect_timeout_s=20.0)
 ACK_TIMEOUT_S = 0.5
 
 
@@ -76,7 +76,7 @@ def _variant(rng: random.Random) -> dict:
 
 def _controller(seed: int) -> tuple[CraneController, FixedOutcomeExecutor]:
     ex = FixedOutcomeExecutor(delay_s=0.0)
-    return CraneController(ControllerConfig(max_pile_age_s=5.0, laptop_timeout_s=2.0, no_journal=True), ex), ex
+    return CraneController(ControllerConfig(max_pile_age_s=5.0, laptop_timeout_s=2.0, no_journal=True, insecure_link=True), ex), ex
 
 
 def can_lane(seed: int) -> Lane:

@@ -31,7 +31,7 @@ class Crane:
 
     def __init__(self, grasp_s: float = GRASP_S):
         self.ex = FixedOutcomeExecutor(delay_s=grasp_s)
-        self.ctl = CraneController(ControllerConfig(laptop_timeout_s=TIMEOUT_S, no_journal=True),
+        self.ctl = CraneController(ControllerConfig(laptop_timeout_s=TIMEOUT_S, no_journal=True, insecure_link=True),
                                    self.ex)
         self.published: list = []
         self.ctl.attach(lambda k, d: self.published.append(decode(k, d).message))
@@ -152,12 +152,12 @@ def test_can_a_laptop_with_a_frozen_heartbeat_cannot_open_the_link(make_cmd):
     """End to end on can://virtual: the controller answers, but hears no live laptop, so the
     link is refused at open with that reason (before, a command from it ran to SUCCESS)."""
     channel = f"frozen-{uuid.uuid4().hex[:8]}"
-    ctl = CraneController(ControllerConfig(laptop_timeout_s=TIMEOUT_S, no_journal=True), FixedOutcomeExecutor(delay_s=GRASP_S))
+    ctl = CraneController(ControllerConfig(laptop_timeout_s=TIMEOUT_S, no_journal=True, insecure_link=True), FixedOutcomeExecutor(delay_s=GRASP_S))
     transport = CanControllerTransport(bus=can.Bus(interface="virtual", channel=channel, fd=True))
     transport.start(ctl)
     ctl.start()
     try:
-        cfg = LinkConfig(heartbeat_timeout_s=1.0, connect_timeout_s=2.0)
+        cfg = LinkConfig(insecure=True, heartbeat_timeout_s=1.0, connect_timeout_s=2.0)
         link = CanLink(config=cfg, bus=FrozenHeartbeat(can.Bus(interface="virtual", channel=channel, fd=True)))
         with pytest.raises(LinkError, match="hears no live laptop"):
             link._await_controller()

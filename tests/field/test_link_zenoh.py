@@ -15,11 +15,11 @@ from field.link import ControllerState, RejectReason, open_link
 from field.link.base import LinkConfig
 from tests.field.helpers import PASSWORDS, shipped_acl
 
-FAST = LinkConfig(heartbeat_timeout_s=1.0, connect_timeout_s=10.0)
+FAST = LinkConfig(insecure=True, heartbeat_timeout_s=1.0, connect_timeout_s=10.0)
 
 
 def test_controller_vanishes_and_returns(port, controller_process, tmp_path, make_cmd):
-    url = f"zenoh://127.0.0.1:{port}/crane-v"
+    url = f"zenoh://127.0.0.1:{port}/crane-v?insecure=1"
     cfg = {"journal_path": str(tmp_path / "journal.json")}
     p = controller_process(url, config=cfg)
     with open_link(url, FAST) as link:
@@ -61,7 +61,7 @@ def test_auth_and_access_control(port, controller_process, tmp_path, make_cmd):
         path.write_text(json.dumps({"transport": {"auth": {"usrpwd": {"user": user, "password": password}}}}))
         return str(path)
 
-    short = LinkConfig(connect_timeout_s=1.0)
+    short = LinkConfig(insecure=True, connect_timeout_s=1.0)
     # no credentials: the session cannot even connect
     with pytest.raises(LinkError):
         open_link(base, short)

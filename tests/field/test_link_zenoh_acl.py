@@ -18,8 +18,8 @@ from field.link.messages import Outcome, OutcomeClass
 from field.link.zenoh_backend import ZenohKeys
 from tests.field.helpers import PASSWORDS, credentials, shipped_acl, wait_until
 
-FAST = LinkConfig(heartbeat_timeout_s=1.0, connect_timeout_s=10.0)
-SHORT = LinkConfig(connect_timeout_s=2.0)
+FAST = LinkConfig(insecure=True, heartbeat_timeout_s=1.0, connect_timeout_s=10.0)
+SHORT = LinkConfig(insecure=True, connect_timeout_s=2.0)
 def session(port: int, user: str, mode: str = "client"):
     import zenoh
 
