@@ -39,7 +39,8 @@ TWIN_PARAMETERS = (
     "executor=fixed|pybullet (fixed: always the outcome=SUCCESS|COLLISION|... after delay_ms=MS; "
     "pybullet: a grasp trial on pile=PILE.json with trial=fast|careful), and the link options "
     "record=PATH.blf, heartbeat_ms, heartbeat_timeout_ms, connect_timeout_s, max_pile_age_s, secoc_key=KEYFILE "
-    "(authenticated frames, SecOC style: both ends use the key; see `loggrasp link-key`).")
+    "(authenticated frames, SecOC style: both ends use the key; see `loggrasp link-key`; a can:// or zenoh:// "
+    "link needs one unless insecure=1 / --insecure-link opts out).")
 ROOT_HELP = f"""loggrasp — multi-log grasp planning for forestry cranes, from simulator twin to field.
 
 \b
@@ -365,7 +366,9 @@ def crane_sim(
     """Run the crane controller twin: validates commands like a real controller and executes
     accepted grasps in pybullet on the given pile; says what it does with each command. Stops on
     Ctrl-C / SIGTERM. Authenticated frames: add ?secoc_key=KEYFILE to --link (the laptop uses the
-    same key; see `loggrasp link-key`).
+    same key; see `loggrasp link-key`); without a key it refuses to serve unless --insecure-link.
+    It burns every command id in its journal and accepts a command only from a laptop whose
+    heartbeat it hears.
 
     \b
     Example: loggrasp crane-sim --link zenoh://127.0.0.1:7447/crane1 --pile scans/s3/truth/pile.json

@@ -14,7 +14,8 @@ Backends are registered in :data:`BACKENDS` as ``"module:Class"`` and imported o
 chosen, so ``import field.link`` loads neither python-can nor zenoh. Link options common to all
 backends may be given as URL query parameters: ``record=PATH`` (CAN: BLF recording),
 ``heartbeat_ms``, ``heartbeat_timeout_ms``, ``max_pile_age_s``, ``connect_timeout_s``,
-``secoc_key=PATH`` (authenticated frames, :mod:`field.link.secoc`; the crane needs the same key).
+``secoc_key=PATH`` (authenticated frames, :mod:`field.link.secoc`; the crane needs the same key;
+without one a link to a crane is refused unless ``insecure=1`` opts out explicitly).
 
 Frames delivered by a backend go through :meth:`CraneLink._deliver`: SecOC check (with a key),
 E2E check, rolling counter check, decode, then into an inbox that ``send_grasp`` /
@@ -342,8 +343,7 @@ class CraneLink(Receiving, Reconciling, abc.ABC):
         ) from error
 
     def _send_estop(self, msg: Any) -> bool:
-        """One e-stop frame; False when the transport raised (kept in :attr:`last_estop_error`, the
-        first of a kind logged), never raises."""
+        """One e-stop frame; False when it failed (the error kept in :attr:`last_estop_error`)."""
         try:
             self._transmit(*self._wire(msg))
         except Exception as exc:
