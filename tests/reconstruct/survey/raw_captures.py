@@ -132,6 +132,9 @@ def mixed_capture(points) -> bytes:
     out += UBXMessage("CFG", "CFG-VALGET", POLL, version=0, layer=0, position=0, keys=[0x20910007]).serialize()
     out += _ubx_raw(0x05, 0x01, b"\x06\x8b")  # ACK-ACK of the CFG-VALGET
     out += UBXMessage("CFG", "CFG-RATE", SET, measRate=1000, navRate=1, timeRef=0).serialize()
+    # CFG-VALSET CFG-RATE-MEAS = 1000 ms, as u-center sends it (an input-only message: pyubx2's reader
+    # in GET mode stops on it with "Unknown message type ... mode GET")
+    out += _ubx_raw(0x06, 0x8A, bytes((0, 1, 0, 0)) + (0x30210001).to_bytes(4, "little") + (1000).to_bytes(2, "little"))
     for k, (lat, lon, h) in enumerate(points.values()):
         for j, t in enumerate(epoch_times(k)):
             ts, la = t.strftime("%H%M%S.00"), lat + _jitter(j)
