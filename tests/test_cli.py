@@ -709,11 +709,36 @@ def test_trial_bad_input_fails_before_any_work(capsys, work, a_file):
           "--record", str(a_file))
     fails(cli(capsys, "trial", "--scan", work / "none", "--gnss", GNSS, "--record", rec, "--link", "twin://"), 2,
           "--scan")
+    late = work / "late_windows.csv"
+    late.write_text("log_id,end,t_start_utc,t_end_utc\nlog0,a,2026-05-14T10:00:00Z,2026-05-14T10:01:00Z\n"
+                    "log0,b,2026-05-14T10:02:00Z,2026-05-14T10:03:00Z\n")
+    fails(cli(capsys, "trial", "--scan", SCAN, "--gnss", RAW / "f9p_rover.ubx", "--gnss-windows", late, "--record", rec,
+              "--link", "twin://"), 2, "late_windows.csv:2", "the logs span f9p_rover.ubx")
+    fails(cli(capsys, "trial", "--scan", SCAN, "--gnss", RAW / "f9p_rover.ubx", "--record", rec, "--link", "twin://"),
+          2, "--gnss-windows")
     assert time.perf_counter() - t < 20, "bad input must stop the trial before the reconstruction"
     assert not rec.exists()
     (work / "exists").mkdir(exist_ok=True)
     fails(cli(capsys, "trial", "--scan", SCAN, "--gnss", GNSS, "--record", work / "exists", "--link", "twin://"), 2,
           "--record", "already exists")
+
+
+def test_trial_records_raw_logs_and_the_survey_made_from_them(tmp_path):
+    """A trial given raw logs keeps them in its record and reads the survey averaged from them, dated
+    like the newest raw file (the pile's age check sees when the survey was made, not now)."""
+    from field.trial import _record_raw_survey
+    from reconstruct.survey.gnss import RawGnss, read_gnss_csv
+
+    raw = tmp_path / "in"
+    raw.mkdir()
+    for f in ("f9p_rover.ubx", "windows.csv"):
+        shutil.copy(RAW / f, raw / f)
+        os.utime(raw / f, (1.7e9, 1.7e9))
+    _record_raw_survey(RawGnss((raw / "f9p_rover.ubx",), raw / "windows.csv"), tmp_path / "inputs", False)
+    assert sorted(p.name for p in (tmp_path / "inputs" / "gnss-raw").iterdir()) == ["0_f9p_rover.ubx", "1_windows.csv"]
+    survey = read_gnss_csv(tmp_path / "inputs" / "gnss.csv")
+    assert [p.n_epochs for p in survey.points] == [5] * 4
+    assert (tmp_path / "inputs" / "gnss.csv").stat().st_mtime == 1.7e9
 
 
 def _free_port() -> int:
