@@ -450,6 +450,10 @@ def test_survey_bad_input(capsys, tmp_path):
     one.write_text("\n".join((RAW / "windows.csv").read_text().splitlines()[:-1]) + "\n")
     fails(cli(capsys, "survey", RAW / "f9p_rover.ubx", "--windows", one, "--out", out), 2,
           "log 'log1' has a window for end 'a' but none for end 'b'")
+    assert not out.exists()
+    r = cli(capsys, "survey", RAW / "f9p_rover.ubx", "--windows", one, "--out", out, "--allow-one-end")
+    assert r.code == 0 and "log1 (no end b)" in r.err
+    out.unlink()
     fails(cli(capsys, "survey", RAW / "f9p_rover.ubx", "--out", out), 2, "--windows")
     fails(cli(capsys, "survey", RAW / "f9p_rover.ubx", "--windows", RAW / "windows.csv", "--out", tmp_path / "g.txt"),
           2, "--out", ".csv")

@@ -64,6 +64,8 @@ def survey_command(
                                                     "EPSG:3006 (SWEREF 99 TM).", default="EPSG:4619",
                                                     metavar="EPSG:4619|EPSG:3006"),
     allow_float: bool = option("--allow-float", "Accept RTK float ends.", default=False),
+    one_end: bool = option("--allow-one-end", "Accept logs with one end measured (reconstruct places the other end "
+                           "from the scan); default: both ends of every log.", default=False),
     min_epochs: int = option("--min-epochs", "Receiver epochs each window needs.", default=1, min=1),
     max_distance: float = option("--max-distance", "Farthest a point may lie from the median of all points.",
                                  default=50.0, unit="m", min=0.001, names=["max_distance_m"]),
@@ -88,7 +90,7 @@ def survey_command(
     check_output_file(out, "--out", ".csv")
     if any(p.resolve() == out.resolve() for p in [*inputs, *([windows] if windows else [])]):
         raise CliError(f"--out {out} is one of the inputs; choose another --out")
-    checks = dict(allow_float=allow_float, max_distance_m=max_distance)
+    checks = dict(allow_float=allow_float, max_distance_m=max_distance, require_both_ends=not one_end)
     logs = []
     if windows is None:
         if len(inputs) != 1 or inputs[0].suffix.lower() != ".csv":
