@@ -4,6 +4,7 @@ classes pyubx2 does not know) counted and skipped. See :mod:`reconstruct.survey.
 
 from __future__ import annotations
 
+import bisect
 import datetime as dt
 from pathlib import Path
 from typing import Any
@@ -111,8 +112,7 @@ def _pvt_fix(m: Any) -> str:
 
 
 def _nearest_fix(epochs: list[Epoch], t: dt.datetime) -> str | None:
-    """The fix of the epoch nearest ``t`` when within :data:`NMEA_MATCH_S`."""
-    best = min(epochs, key=lambda e: abs((e.t_utc - t).total_seconds()), default=None)
-    if best is None or abs((best.t_utc - t).total_seconds()) > NMEA_MATCH_S:
-        return None
-    return best.fix
+    """The fix of the epoch (``epochs`` in time order) nearest ``t`` when within :data:`NMEA_MATCH_S`."""
+    i = bisect.bisect_left(epochs, t, key=lambda e: e.t_utc)
+    near = [e for e in epochs[max(i - 1, 0):i + 1] if abs((e.t_utc - t).total_seconds()) <= NMEA_MATCH_S]
+    return min(near, key=lambda e: abs((e.t_utc - t).total_seconds())).fix if near else None
