@@ -1,7 +1,8 @@
 """Raw receiver logs + the operator's time windows -> a checked survey.
 
-The time-window sidecar (``loggrasp.gnss-windows``) is a CSV with header
-``log_id,end,t_start_utc,t_end_utc`` (ISO 8601 times, UTC; ``#`` comments allowed); each row says
+The time-window sidecar (``loggrasp.gnss-windows`` 1.0) is a CSV with header
+``log_id,end,t_start_utc,t_end_utc`` (ISO 8601 times, UTC; ``#`` comments allowed, and an optional
+``# format: loggrasp.gnss-windows 1.0`` line: a newer major version is refused); each row says
 that the rover stood on that log end between those times. Every epoch of the logs in
 ``[t_start, t_end]`` is averaged into that end: the point's fix is the WORST fix among those
 epochs, its accuracy the median of theirs, and their scatter about the mean is reported
@@ -30,6 +31,7 @@ from reconstruct.survey.stream import Epoch, ReceiverLog, StreamConfig, read_rec
 from synth.geometry import geodesy
 
 WINDOWS_HEADER = ["log_id", "end", "t_start_utc", "t_end_utc"]
+WINDOWS_FORMAT, WINDOWS_VERSION = "loggrasp.gnss-windows", "1.0"  # an optional "# format: ..." line
 
 
 @dataclass(frozen=True)
@@ -75,10 +77,12 @@ def read_time_windows(path: str | Path, require_both_ends: bool = True) -> list[
     windows = []
     for lineno, line in read_lines(path):
         s = line.strip()
+        where = f"{path}:{lineno}"
+        if s.startswith("#"):
+            _check_version(where, s)
         if not s or s.startswith("#"):
             continue
         fields = [f.strip() for f in next(csv.reader([line]))]
-        where = f"{path}:{lineno}"
         if header is None:
             header = fields
             if header != WINDOWS_HEADER:
@@ -99,6 +103,19 @@ def read_time_windows(path: str | Path, require_both_ends: bool = True) -> list[
         raise GnssFormatError(f"{path}: no time windows" + ("" if header else " (an empty file)"))
     _check_windows(path, windows, require_both_ends)
     return windows
+
+
+def _check_version(where: str, comment: str) -> None:
+    """A ``# format: loggrasp.gnss-windows MAJOR.MINOR`` line: a newer major version is refused."""
+    key, _, value = comment[1:].partition(":")
+    if key.strip().lower() != "format":
+        return
+    parts = value.split()
+    if len(parts) != 2 or parts[0] != WINDOWS_FORMAT:
+        raise GnssFormatError(f"{where}: format {value.strip()!r} is not {WINDOWS_FORMAT} <version>")
+    if parts[1].split(".")[0] != WINDOWS_VERSION.split(".")[0]:
+        raise GnssFormatError(f"{where}: {WINDOWS_FORMAT} version {parts[1]} is not supported (this loggrasp reads "
+                              f"{WINDOWS_VERSION.split('.')[0]}.x); upgrade loggrasp")
 
 
 def _check_windows(path: Path, windows: list[TimeWindow], require_both_ends: bool) -> None:

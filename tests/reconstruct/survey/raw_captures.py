@@ -25,7 +25,8 @@ def epoch_times(k: int) -> list[dt.datetime]:
 
 
 def windows_text(keys) -> str:
-    lines = ["# the operator's tags: which log end the rover stood on, UTC", "log_id,end,t_start_utc,t_end_utc"]
+    lines = ["# format: loggrasp.gnss-windows 1.0", "# the operator's tags: which log end the rover stood on, UTC",
+             "log_id,end,t_start_utc,t_end_utc"]
     for k, (log_id, end) in enumerate(keys):
         ts = epoch_times(k)
         lines.append(f"{log_id},{end},{_iso(ts[0] - dt.timedelta(seconds=0.5))},{_iso(ts[-1] + dt.timedelta(seconds=0.5))}")

@@ -104,10 +104,13 @@ def test_window_for_one_end_only_and_overlapping_windows(tmp_path):
     w = tmp_path / "w.csv"
     lines = rc.windows_text(KEYS).splitlines()
     w.write_text("\n".join(lines[:-1]) + "\n")  # log1 b has no window
-    with pytest.raises(GnssFormatError, match=r"w\.csv:5: log 'log1' has a window for end 'a' but none for end 'b'"):
+    with pytest.raises(GnssFormatError, match=r"w\.csv:6: log 'log1' has a window for end 'a' but none for end 'b'"):
         gnss.read_raw_gnss(RAW / "f9p_rover.ubx", w)
-    w.write_text("\n".join(lines[:3] + [lines[3].replace("09:30:29.500", "09:30:03.000")] + lines[4:]) + "\n")
-    with pytest.raises(GnssFormatError, match=r"w\.csv:4: the window of log 'log0' end 'b' overlaps .*w\.csv:3"):
+    w.write_text("\n".join(lines[:4] + [lines[4].replace("09:30:29.500", "09:30:03.000")] + lines[5:]) + "\n")
+    with pytest.raises(GnssFormatError, match=r"w\.csv:5: the window of log 'log0' end 'b' overlaps .*w\.csv:4"):
+        gnss.read_raw_gnss(RAW / "f9p_rover.ubx", w)
+    w.write_text("# format: loggrasp.gnss-windows 2.0\n" + "\n".join(lines[1:]) + "\n")
+    with pytest.raises(GnssFormatError, match=r"w\.csv:1: loggrasp.gnss-windows version 2.0 is not supported"):
         gnss.read_raw_gnss(RAW / "f9p_rover.ubx", w)
 
 
