@@ -10,7 +10,6 @@ from typing import Literal
 
 import typer
 
-from synth.cli import JSON
 from synth.common.cli import CliError, Output, check_input, check_output_file, option
 
 SURVEY_FORMAT = "loggrasp.survey-report"

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import io
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,8 +16,6 @@ from reconstruct.survey import gnss
 from reconstruct.survey.stream import frames, read_receiver_log
 from synth.geometry import geodesy
 from tests.reconstruct.survey import raw_captures as rc
-
-from pathlib import Path
 
 RAW = Path(__file__).resolve().parents[2] / "data" / "gnss" / "raw"
 KEYS = list(rc.POINTS)
