@@ -113,6 +113,7 @@ OPTIONAL = {  # module in bench/ -> function returning Markdown; skipped if the 
     "reconstruct": ("bench_reconstruct", "markdown"),
     "link": ("bench_link", "markdown"),
     "unposed": ("bench_unposed", "markdown"),
+    "twin robustness": ("bench_twin_robustness", "markdown_section"),
 }
 
 
