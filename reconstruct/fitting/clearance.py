@@ -5,7 +5,8 @@ interpenetrations that fit noise leaves, and refuses (``SeparationError``) when 
 move farther than noise explains. Such a log is usually not badly *fitted* but badly *ended*: an end
 placed from an RTK-float point (±20-30 cm) under other logs, where the scan cannot see it, lies
 inside a neighbour; or the scan's walk along a log ran on over a stump beside its end and put the end
-past an RTK-fixed point that the scan was then trusted over (twin scans 1100166, 1100179).
+past an RTK-fixed point that the scan was then trusted over (the cases: docs/reconstruction.md,
+"The cases behind the rules").
 
 Both are estimates with a stated uncertainty, and the twin's check is evidence too: two bodies
 cannot share space. :func:`clear_pile` therefore, for a log the check refuses, tries where else its
