@@ -3,7 +3,8 @@ the fitting (reconstruct/fitting) behaviour-preserving (issue 37, step 1: the me
 
     .venv/bin/python scripts/recon_golden.py scans /tmp/rg/scans            # once: the twin scans
     .venv/bin/python scripts/recon_golden.py record /tmp/rg/scans /tmp/rg/base   # at the base commit
-    .venv/bin/python scripts/recon_golden.py compare /tmp/rg/scans /tmp/rg/base  # after: records anew, compares
+    .venv/bin/python scripts/recon_golden.py compare /tmp/rg/scans /tmp/rg/base [/tmp/rg/new]  # after: records
+                                                                        # anew (or takes a record made), compares
 
 ``scans DIR`` copies the bundled demo scan (field/demo_data) into DIR and makes the twin scans of
 :data:`TWIN_SCANS` there with ``loggrasp synth scan`` (seeds outside every bench; 3 to 7 logs, with and
@@ -124,7 +125,8 @@ def main(argv: list[str] | None = None) -> int:
     sub = ap.add_subparsers(dest="verb", required=True)
     sub.add_parser("scans", help="make the scans").add_argument("scans", type=Path)
     rec = sub.add_parser("record", help="reconstruct every scan into a new folder")
-    cmp_ = sub.add_parser("compare", help="record anew (or take OTHER) and compare with GOLDEN")
+    cmp_ = sub.add_parser("compare", help="record anew (into OTHER, or take OTHER when it exists) and compare "
+                                          "with GOLDEN")
     for p in (rec, cmp_):
         p.add_argument("scans", type=Path)
     rec.add_argument("out", type=Path)
@@ -137,9 +139,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.verb == "record":
         record(args.scans, args.out)
         return 0
-    new = args.other
-    if new is None:
-        new = Path(tempfile.mkdtemp(prefix="recon-golden-new-")) / "new"
+    new = args.other or Path(tempfile.mkdtemp(prefix="recon-golden-new-")) / "new"
+    if not new.exists():
         record(args.scans, new)
     code = compare_records(args.golden, new)
     same = (args.golden / "hashes.txt").read_text() == (new / "hashes.txt").read_text()

@@ -32,9 +32,30 @@ import numpy as np
 from reconstruct.errors import FitError, LogNotSeenError
 from reconstruct.fitting.fit_config import FitConfig
 from reconstruct.fitting.profiles import _frame, _profile_circle
+from reconstruct.fitting.survey_points import MIN_POINT_SIGMA_M
 from synth.scene.pile import LogSpec
 
 
+# a survey point is searched for within this many of its sigmas [-]
+SURVEY_REACH_SIGMAS = 3
+# an end whose sigma is more than this many times gnss_sigma_m is imprecise (an RTK float fix) [-]
+IMPRECISE_SIGMA_RATIO = 2
+# an imprecise end's axis is the line through two chunk centres that most chunks agree with, from this
+# many chunks on [-]; the line through the chunk centres is refitted this many times without the chunks off
+# it, at most [-]; its band is at least this many profile_tolerance_m [-]
+MIN_CONSENSUS_CHUNKS = 3
+INITIAL_AXIS_ROUNDS = 3
+CHUNK_LINE_MIN_TOLERANCES = 2
+# the 3-D fit: fitted, its top band re-selected and refitted, this many times at most [-]; the scale of
+# its parameters (shifts and radius [m], tilts and radius slope [-]) for the solver
+FIT_ROUNDS = 2
+FIT_PARAMETER_SCALE = 0.01
+# a taper is judged from at least this many sections along the log [-]
+TAPER_MIN_SECTIONS = 4
+# a log's diameters from a fit are kept within these [m]
+MIN_LOG_DIAMETER_M = 0.03
+MAX_LOG_DIAMETER_M = 1.2
+MIN_TOP_DIAMETER_M = 0.02
 # a 3-D fit's radius this close to its window's edge is on it (the bound is active) [m]
 RADIUS_EDGE_M = 1e-4
 
@@ -112,15 +133,19 @@ def _search_region(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig, l
     rel = P - a
     t = rel @ u0
     q = rel - np.outer(t, u0)
-    sig_a = cfg.gnss_sigma_m if sigma_a_m is None or not np.isfinite(sigma_a_m) else max(float(sigma_a_m), 1e-3)
-    sig_b = cfg.gnss_sigma_m if sigma_b_m is None or not np.isfinite(sigma_b_m) else max(float(sigma_b_m), 1e-3)
+    sig_a = (cfg.gnss_sigma_m if sigma_a_m is None or not np.isfinite(sigma_a_m)
+             else max(float(sigma_a_m), MIN_POINT_SIGMA_M))
+    sig_b = (cfg.gnss_sigma_m if sigma_b_m is None or not np.isfinite(sigma_b_m)
+             else max(float(sigma_b_m), MIN_POINT_SIGMA_M))
     tol0 = cfg.axis_tolerance_m
-    if cfg.widen_search and max(sig_a, sig_b) * 3 > tol0:  # imprecise ends: search wider, shorter chunks
-        cfg = replace(cfg, axis_tolerance_m=min(cfg.widened_tolerance_max_m, 3 * max(sig_a, sig_b)),
+    # imprecise ends: search wider, shorter chunks
+    if cfg.widen_search and max(sig_a, sig_b) * SURVEY_REACH_SIGMAS > tol0:
+        cfg = replace(cfg, axis_tolerance_m=min(cfg.widened_tolerance_max_m, SURVEY_REACH_SIGMAS * max(sig_a, sig_b)),
                       chunk_length_m=min(cfg.chunk_length_m, cfg.widened_chunk_length_m))
     # look past an imprecise end (its position along the axis then comes from the scan)
-    ext_a = min(3 * sig_a, cfg.widened_reach_max_m) if cfg.widen_search and sig_a > 2 * cfg.gnss_sigma_m else 0.0
-    ext_b = min(3 * sig_b, cfg.widened_reach_max_m) if cfg.widen_search and sig_b > 2 * cfg.gnss_sigma_m else 0.0
+    imprecise = IMPRECISE_SIGMA_RATIO * cfg.gnss_sigma_m
+    ext_a = min(SURVEY_REACH_SIGMAS * sig_a, cfg.widened_reach_max_m) if cfg.widen_search and sig_a > imprecise else 0.0
+    ext_b = min(SURVEY_REACH_SIGMAS * sig_b, cfg.widened_reach_max_m) if cfg.widen_search and sig_b > imprecise else 0.0
     near = (t > cfg.end_margin_m - ext_a) & (t < L - cfg.end_margin_m + ext_b)
     near &= np.einsum("ij,ij->i", q, q) < (cfg.max_radius_m + cfg.axis_tolerance_m) ** 2
     cand = np.flatnonzero(near)
@@ -159,7 +184,8 @@ def _chunk_circles(s: _SearchRegion, log_id: str) -> np.ndarray:
         # the search around the GNSS axis is as wide as the axis is uncertain THERE: tight near a
         # precise end, wide near an imprecise one
         f = 0.5 * (edges[k] + edges[k + 1]) / L
-        tol_k = float(np.clip(3 * (s.sig_a_m + (s.sig_b_m - s.sig_a_m) * f), s.tol0_m, cfg.axis_tolerance_m))
+        tol_k = float(np.clip(SURVEY_REACH_SIGMAS * (s.sig_a_m + (s.sig_b_m - s.sig_a_m) * f), s.tol0_m,
+                              cfg.axis_tolerance_m))
         try:
             c2, rk, n_on = _profile_circle(s.sw[m], s.prior, replace(cfg_r, axis_tolerance_m=tol_k + (
                 cfg_r.axis_tolerance_m - cfg.axis_tolerance_m)))
@@ -178,9 +204,9 @@ def _initial_axis(ch: np.ndarray, s: _SearchRegion) -> np.ndarray:
     """A line through the chunk centres (robust where an end is imprecise): the cylinder's start
     parameters [shift e1, shift e2, tilt e1, tilt e2, radius, radius slope]."""
     cfg = s.cfg
-    band = max(cfg.chunk_line_band_m, 2 * cfg.profile_tolerance_m)
+    band = max(cfg.chunk_line_band_m, CHUNK_LINE_MIN_TOLERANCES * cfg.profile_tolerance_m)
     keep = np.ones(len(ch), bool)
-    if len(ch) >= 3 and max(s.sig_a_m, s.sig_b_m) > 2 * cfg.gnss_sigma_m:
+    if len(ch) >= MIN_CONSENSUS_CHUNKS and max(s.sig_a_m, s.sig_b_m) > IMPRECISE_SIGMA_RATIO * cfg.gnss_sigma_m:
         # an imprecise (RTK float) end: the line through two chunk centres that most chunks
         # (weighted) agree with, so chunks that latched onto a neighbour or the ground near the
         # imprecise end do not bend the axis
@@ -197,7 +223,7 @@ def _initial_axis(ch: np.ndarray, s: _SearchRegion) -> np.ndarray:
                 if score > best_score:
                     best_score, keep = score, ok
     coef = np.zeros((2, 2))  # [s0, s1], [w0, w1]
-    for _ in range(3):
+    for _ in range(INITIAL_AXIS_ROUNDS):
         if keep.sum() >= 2 and np.ptp(ch[keep, 0]) > cfg.chunk_line_min_span_m:
             A = np.column_stack([np.ones(keep.sum()), ch[keep, 0]])
             wts = np.sqrt(ch[keep, 4])
@@ -300,9 +326,10 @@ class _CylinderModel:
         slope = cfg.max_taper_per_m if cfg.fit_taper else 1e-9
         bounds = ([-np.inf] * 4 + [r_lo, -slope], [np.inf] * 4 + [r_hi, slope])
         x = x0
-        for _ in range(2):
+        for _ in range(FIT_ROUNDS):
             x = least_squares(self.residuals, x0, jac=self.jacobian, args=(self.P[sel] - self.mid,), loss="soft_l1",
-                              f_scale=cfg.loss_scale_m, tr_solver="lsmr", bounds=bounds, x_scale=[0.01] * 6,
+                              f_scale=cfg.loss_scale_m, tr_solver="lsmr", bounds=bounds,
+                              x_scale=[FIT_PARAMETER_SCALE] * 6,
                               max_nfev=cfg.max_fit_evaluations).x
             new_sel = self.select(x, rng)
             if new_sel.size < cfg.min_points:
@@ -367,7 +394,7 @@ def _end_radii(cyl: _Cylinder, tt_sel: np.ndarray, ta: float, tb: float, coverag
             ts.append(float(np.mean(tt_sel[m])))
             rs.append(float(np.mean(x[4] + x[5] * tt_sel[m] + cyl.res[m])))
     taper_sig = 0.0
-    if len(ts) >= 4:
+    if len(ts) >= TAPER_MIN_SECTIONS:
         A = np.column_stack([np.ones(len(ts)), ts])
         coef_r, *_ = np.linalg.lstsq(A, np.asarray(rs), rcond=None)
         resid = np.asarray(rs) - A @ coef_r
@@ -423,11 +450,11 @@ def fit_log(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = 
         lo_q, hi_q = cfg.scan_end_percentile, 100.0 - cfg.scan_end_percentile
         if s.ext_a_m and t_in.size:
             t_lo = float(np.percentile(t_in, lo_q))
-            if abs(t_lo - ta) < 3 * s.sig_a_m:
+            if abs(t_lo - ta) < SURVEY_REACH_SIGMAS * s.sig_a_m:
                 proj_a, end_source[0] = centre + t_lo * u, "scan"
         if s.ext_b_m and t_in.size:
             t_hi = float(np.percentile(t_in, hi_q))
-            if abs(t_hi - tb) < 3 * s.sig_b_m:
+            if abs(t_hi - tb) < SURVEY_REACH_SIGMAS * s.sig_b_m:
                 proj_b, end_source[1] = centre + t_hi * u, "scan"
     if cfg.axis_source == "fit":
         ends = np.stack([proj_a, proj_b])
@@ -454,7 +481,7 @@ def log_spec_from_fit(f: CylinderFit, cfg: FitConfig) -> tuple[LogSpec, bool]:
     else:
         d_butt, d_top = ra + rb, None
     butt, top = (ends[1], ends[0]) if swapped else (ends[0], ends[1])
-    d_butt = float(np.clip(d_butt, 0.03, 1.2))
+    d_butt = float(np.clip(d_butt, MIN_LOG_DIAMETER_M, MAX_LOG_DIAMETER_M))
     if d_top is not None:
-        d_top = float(np.clip(d_top, 0.02, d_butt))
+        d_top = float(np.clip(d_top, MIN_TOP_DIAMETER_M, d_butt))
     return LogSpec.from_endpoints(butt, top, d_butt, d_top), swapped

@@ -26,6 +26,31 @@ from reconstruct.errors import FitError
 from reconstruct.fitting.fuse_config import FuseConfig
 from reconstruct.fitting.survey_points import SurveyEnd
 
+# the walk looks at the points within this many radii of the top line across [-]
+TOP_BAND_RADII = 0.5
+# a bin shows something (below or over the top) with at least this many points (one stray point is noise) [-]
+MIN_BIN_POINTS = 2
+# level ground past an end: the points from one to this many radii across the top line [-]
+SHOULDER_OUTER_RADII = 1.5
+# an end the pile check moved less than this is where it was [m]
+UNMOVED_M = 1e-3
+# an interval's standard deviation is its width over this (a uniform distribution's) [-]
+UNIFORM_SD_DIVISOR = math.sqrt(12.0)
+# an occluded end with no usable point is the middle of its interval when that is at most this many
+# end_search_m wide [-]; a log without a survey point may run on unseen this many end_search_m [-]
+INTERVAL_MAX_SEARCHES = 2
+NO_POINT_REACH_SEARCHES = 2
+# past the fitted end, the walk reaches as far as the survey point, this many of its sigmas and this much
+# more [-, m], at most this far [m]; only the points this close to the log's line, across, or this far
+# along it past its ends, matter [m]
+SURVEY_REACH_SIGMAS = 3
+REACH_MARGIN_M = 0.1
+MAX_REACH_M = 2.0
+LINE_MARGIN_M = 0.05
+LINE_REACH_M = 2.5
+# ends placed closer than this are nonsense: the fit's ends are kept [m]
+MIN_LOG_LENGTH_M = 0.3
+
 
 @dataclass(frozen=True)
 class EndInterval:
@@ -63,7 +88,7 @@ def scan_end_interval(points: np.ndarray, p0: np.ndarray, p1: np.ndarray, radius
     r = float(radius_m)
     lo_t, hi_t = -reach_m, L + reach_m
     t_all, s_all, h_all = t, s, perp @ up
-    m = (np.abs(s) < 0.5 * r) & (t > lo_t) & (t < hi_t)
+    m = (np.abs(s) < TOP_BAND_RADII * r) & (t > lo_t) & (t < hi_t)
     may_be_on = np.ones(int(m.sum()), bool) if on_mask is None else np.asarray(on_mask, bool)[m]
     t, s, h = t[m], s[m], (perp[m] @ up)
     expected = np.sqrt(np.clip(r * r - s * s, 0.0, None))  # the top's height over the axis there
@@ -77,9 +102,9 @@ def scan_end_interval(points: np.ndarray, p0: np.ndarray, p1: np.ndarray, radius
     top = np.full(nb, -np.inf)
     np.maximum.at(top, bi, e)
     count = np.bincount(bi, minlength=nb)
-    below_thr = -max(0.03, 0.5 * r)
-    # the scan sees deeper than the log's top there (two points at least: one stray point is noise)
-    below = ~on & (count >= 2) & (top < below_thr)
+    below_thr = -max(cfg.below_min_m, cfg.below_radius_share * r)
+    # the scan sees deeper than the log's top there (one stray point is noise)
+    below = ~on & (count >= MIN_BIN_POINTS) & (top < below_thr)
     start = (0.5 * L if t_from is None else float(t_from))
     k0 = int(np.clip((start - lo_t) // step, 0, nb - 1))
     ks = np.arange(k0, nb) if toward_p1 else np.arange(k0, -1, -1)
@@ -89,14 +114,14 @@ def scan_end_interval(points: np.ndarray, p0: np.ndarray, p1: np.ndarray, radius
     # the end is the cut that best separates bins on the log (inside) from bins seen below its top
     # (outside): a stray bin of either kind (a gap seen through at a crossing, another log's top at the
     # same height farther on) does not decide it; bins over it or unseen count for neither
-    # (seeing the ground through where the log would be is the stronger evidence: it counts threefold)
-    w_below = 3
+    # (seeing the ground through where the log would be is the stronger evidence: it counts below_weight-fold)
+    w_below = cfg.below_weight
     inside = np.cumsum(on_k - w_below * below_k)
     outside = np.cumsum((w_below * below_k - on_k)[::-1])[::-1]
     score = inside + np.r_[outside[1:], 0]
     score[on_k == 0] = np.iinfo(np.int64).min  # the cut is right after a bin on the log
     j = int(np.argmax(score))
-    over_k = ((count >= 2) & (top > cfg.on_band_m))[ks].astype(int)  # something over the log's top
+    over_k = ((count >= MIN_BIN_POINTS) & (top > cfg.on_band_m))[ks].astype(int)  # something over the log's top
     beyond = _first_below(below_k[j + 1:], over_k[j + 1:])
     first_off = None if beyond is None else int(ks[j + 1 + beyond])
     last_on = int(ks[_before_island(on_k, j, step, cfg)])
@@ -108,7 +133,8 @@ def scan_end_interval(points: np.ndarray, p0: np.ndarray, p1: np.ndarray, radius
         return EndInterval(t_on, None, "open")
     t_off = lo_t + (first_off + (0 if toward_p1 else 1)) * step
     state = "seen" if abs(t_off - t_on) <= cfg.seen_gap_m + 1e-9 else "occluded"
-    covered = ks[np.flatnonzero(count[ks] >= 2)[-1]]  # the walk's farthest bin with points (at least first_off)
+    # the walk's farthest bin with points (at least first_off)
+    covered = ks[np.flatnonzero(count[ks] >= MIN_BIN_POINTS)[-1]]
     t_cov = lo_t + (covered + (1 if toward_p1 else 0)) * step
     return EndInterval(t_on, t_off, state, gap_under_m=float(-top[first_off] - 2 * r), covered_to_m=float(t_cov))
 
@@ -134,10 +160,10 @@ def _level_ground_past_the_end(t: np.ndarray, s: np.ndarray, h: np.ndarray, r: f
                                toward_p1: bool, lo_t: float, step: float, nb: int, cfg: FuseConfig) -> np.ndarray:
     """Per walk bin: past the fitted end of a log whose axis descends outward (more than
     ``descent_min_deg``), the scan shows level ground, not a log's top: the points beside the top's band
-    (``r`` to 1.5 ``r`` across) lie as high as the top itself (median at least ``level_shoulder`` ``r``
-    over the axis), where beside a log's top the scan sees lower (the log's flanks, the ground, a
-    neighbour's flank). A log running down to the ground ends there; its axis extended past the end
-    goes into the ground, and where that line's top meets the ground the ground looked like the log's
+    (``r`` to ``SHOULDER_OUTER_RADII`` ``r`` across) lie as high as the top itself (median at least
+    ``level_shoulder`` ``r`` over the axis), where beside a log's top the scan sees lower (the log's flanks,
+    the ground, a neighbour's flank). A log running down to the ground ends there; its axis extended past
+    the end goes into the ground, and where that line's top meets the ground the ground looked like the log's
     top (bins of flat ground past an RTK-fixed end outweighed the bins seen below, the end was placed
     far out and the fixed point called wrong)."""
     out = np.zeros(nb, bool)
@@ -145,13 +171,13 @@ def _level_ground_past_the_end(t: np.ndarray, s: np.ndarray, h: np.ndarray, r: f
     if outward > -math.sin(math.radians(cfg.descent_min_deg)):
         return out
     past = (t > L) if toward_p1 else (t < 0.0)
-    sh = past & (np.abs(s) > r) & (np.abs(s) < 1.5 * r) & (t > lo_t)
+    sh = past & (np.abs(s) > r) & (np.abs(s) < SHOULDER_OUTER_RADII * r) & (t > lo_t)
     if not sh.any():
         return out
     bi = np.clip(((t[sh] - lo_t) / step).astype(np.int64), 0, nb - 1)
     for b in np.unique(bi):
         hb = h[sh][bi == b]
-        out[b] = len(hb) >= 2 and float(np.median(hb)) >= cfg.level_shoulder * r
+        out[b] = len(hb) >= MIN_BIN_POINTS and float(np.median(hb)) >= cfg.level_shoulder * r
     return out
 
 
@@ -288,14 +314,14 @@ def after_pile_check(ends: Sequence[dict], endpoints: Sequence[np.ndarray],
     against that place with the estimate's own sigma (a check that pushed a log off its fixed points is
     a contradiction, never silent), then its sigma grown by the move (the check's correction is not
     in the estimate: a log pushed 6 cm is not known to 1 cm, and is reported weak). Ends the check did
-    not move (under 1 mm) come back unchanged."""
+    not move (under ``UNMOVED_M``) come back unchanged."""
     cfg = cfg or FuseConfig()
     out = []
     for e, point in zip(ends, survey):
         pos = np.asarray(e["position_m"], dtype=float)
         final = min((np.asarray(q, dtype=float) for q in endpoints), key=lambda q: float(np.linalg.norm(q - pos)))
         shift = float(np.linalg.norm(final - pos))
-        if shift < 1e-3:
+        if shift < UNMOVED_M:
             out.append(dict(e))
             continue
         e = dict(e, position_m=[float(v) for v in final], check_shift_m=shift)
@@ -356,7 +382,8 @@ def _end_along(interval: EndInterval, sign: float, survey: SurveyEnd | None, t_g
         if abs(t_g - t_s) / math.hypot(ss, sg) > cfg.contradiction_sigma:
             return t_s, ss, "scan", True
         wg, ws = 1.0 / sg ** 2, 1.0 / ss ** 2
-        return (wg * t_g + ws * t_s) / (wg + ws), 1.0 / math.sqrt(wg + ws), ("scan" if ss <= sg else survey.label), False
+        return ((wg * t_g + ws * t_s) / (wg + ws), 1.0 / math.sqrt(wg + ws), ("scan" if ss <= sg else survey.label),
+                False)
     # the end lies past the last bin on the log (lo; the scan's own end of the log, to ss), and short of
     # hi when the scan sees below the top there (something lay over the end)
     inner = sign * lo
@@ -366,10 +393,10 @@ def _end_along(interval: EndInterval, sign: float, survey: SurveyEnd | None, t_g
     if survey is not None and inner - tol <= sign * t_g <= outer + tol:
         # a point more precise than the scan's bounds stands; a less precise one is kept within them
         t = t_g if sg <= ss else sign * float(np.clip(sign * t_g, inner, outer))
-        sa = max(min(sg, width / math.sqrt(12.0)) if width is not None else sg, min(sg, ss))
+        sa = max(min(sg, width / UNIFORM_SD_DIVISOR) if width is not None else sg, min(sg, ss))
         return t, sa, survey.label, False
-    if width is not None and width <= 2 * cfg.end_search_m:
-        return 0.5 * (lo + hi), max(width / math.sqrt(12.0), ss), "inferred", survey is not None
+    if width is not None and width <= INTERVAL_MAX_SEARCHES * cfg.end_search_m:
+        return 0.5 * (lo + hi), max(width / UNIFORM_SD_DIVISOR, ss), "inferred", survey is not None
     return lo, cfg.inferred_sigma_m, "inferred", survey is not None
 
 
@@ -423,20 +450,21 @@ def place_log_ends(points: np.ndarray, spec: Any, how: str, survey: tuple[Survey
     d2 = (pb - pa)[:2]
     t2 = (P[:, :2] - pa[:2]) @ d2 / max(float(d2 @ d2), 1e-12)
     across = np.abs((P[:, :2] - pa[:2]) @ np.array([-d2[1], d2[0]])) / max(float(np.linalg.norm(d2)), 1e-12)
-    reach_t = 2.5 / max(float(np.linalg.norm(d2)), 1e-6)
-    over = (across < r + 0.05) & (t2 > -reach_t) & (t2 < 1.0 + reach_t)
+    reach_t = LINE_REACH_M / max(float(np.linalg.norm(d2)), 1e-6)
+    over = (across < r + LINE_MARGIN_M) & (t2 > -reach_t) & (t2 < 1.0 + reach_t)
     points = P[over]
     on_mask = None if on_mask is None else np.asarray(on_mask, bool)[over]
     ests = []
     for k, e in enumerate(survey):
-        # past the fitted end, as far as the survey point (and three of its sigmas) or, with none, a log
+        # past the fitted end, as far as the survey point (and some of its sigmas) or, with none, a log
         # may run on unseen under others
         if e is None:
-            reach = 2 * cfg.end_search_m
+            reach = NO_POINT_REACH_SEARCHES * cfg.end_search_m
         else:
             t_g = float((e.position_m - pa) @ u)
             beyond = -t_g if k == 0 else t_g - L
-            reach = float(np.clip(beyond + 3 * e.sigma_along(u) + 0.1, cfg.end_search_m, 2.0))
+            reach = float(np.clip(beyond + SURVEY_REACH_SIGMAS * e.sigma_along(u) + REACH_MARGIN_M, cfg.end_search_m,
+                                  MAX_REACH_M))
         if how == "hidden":
             iv = EndInterval(None, None, "none")
         else:
@@ -446,7 +474,7 @@ def place_log_ends(points: np.ndarray, spec: Any, how: str, survey: tuple[Survey
     for est, e in zip(ests, survey):
         if e is not None:
             est.gnss_axis_distance_m = _axis_distance(e, pa, u)
-    if float(np.linalg.norm(b.position_m - a.position_m)) < 0.3:  # nonsense: keep the fit's ends
+    if float(np.linalg.norm(b.position_m - a.position_m)) < MIN_LOG_LENGTH_M:  # nonsense: keep the fit's ends
         return spec, (a, b)
     new_butt, new_top = (b.position_m, a.position_m) if swapped else (a.position_m, b.position_m)
     return LogSpec.from_endpoints(new_butt, new_top, spec.diameter_m, spec.top_diameter_m, spec.colour), (a, b)

@@ -182,7 +182,8 @@ class _Placement:
                         radius_a_m=spec.diameter_m / 2, radius_b_m=spec.diameter_m / 2, n_points=0, rms_m=math.nan,
                         coverage=0.0, residual_a_m=0.0, residual_b_m=0.0)
         self.placed[i] = _PlacedLog(f, spec, False, "hidden")
-        self.say(f"log {self.ids[i]}: hidden under others ({why}); axis from GNSS, diameter {spec.diameter_m * 100:.1f} cm "
+        self.say(f"log {self.ids[i]}: hidden under others ({why}); axis from GNSS, "
+                 f"diameter {spec.diameter_m * 100:.1f} cm "
                  f"({whence})")
 
     def run(self, first: _FirstPass) -> None:
@@ -223,7 +224,8 @@ class _Placement:
                     # first fit if it had one, else seen in part
                     astray = True
                 else:
-                    self.dropped[log_id] = f"no log fits the scan points left to it once the other logs took theirs ({exc})"
+                    self.dropped[log_id] = ("no log fits the scan points left to it once the other logs took "
+                                            f"theirs ({exc})")
                     self.say(f"log {log_id}: left out, {self.dropped[log_id]}")
                     continue
             if astray and not suspect[i] and i in first.fits:
@@ -250,7 +252,8 @@ class _Placement:
             spec, swapped = log_spec_from_fit(f, cfg)
             spec = self.no_thicker_than_seen(spec)
             self.placed[i] = _PlacedLog(f, self.within_room(spec, i, slack_m=cfg.gnss_sigma_m), swapped, "partial")
-            self.say(f"log {log_id}: seen only in part; axis from GNSS, diameter {self.placed[i].spec.diameter_m * 100:.1f} cm")
+            self.say(f"log {log_id}: seen only in part; axis from GNSS, "
+                     f"diameter {self.placed[i].spec.diameter_m * 100:.1f} cm")
         for i in sorted(hidden):
             if ids[i] in self.optional:
                 self.dropped[ids[i]] = f"no scan points of its own once the other logs took theirs ({hidden[i]})"
@@ -479,7 +482,8 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
                 lf.diameter_m, lf.top_diameter_m = log.diameter_m, log.top_diameter_m
         timings["validate_s"] = time.perf_counter() - t3
     return PileFit(pile=pile, logs=fits, terrain_coverage=ground.coverage, n_ground_points=int(ground.is_ground.sum()),
-                   n_obstacle_points=ground.n_above, obstacles=ground.info, moves=move_notes, end_moves=end_moves, timings_s=timings,
+                   n_obstacle_points=ground.n_above, obstacles=ground.info, moves=move_notes, end_moves=end_moves,
+                   timings_s=timings,
                    dropped=dict(placement.dropped))
 
 

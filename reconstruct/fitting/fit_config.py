@@ -119,6 +119,7 @@ class FitConfig:
     #                                of RTK noise) took another surface, most likely (a log lying
     #                                under another): the refit gets only points no other log
     #                                explains, and a refit still astray the survey's axis [m]
+    partial_loss_scale_m: float = 0.005  # soft-L1 scale of the circle through a partly seen log's top arc [m]
     seed: int = 0  # subsampling seed [-]
 
     def __post_init__(self) -> None:
@@ -136,7 +137,7 @@ class FitConfig:
                      "chunk_line_band_m", "chunk_line_min_span_m", "min_survey_length_m", "coverage_bin_m",
                      "taper_section_m", "taper_min_significance", "max_taper_per_m", "widened_tolerance_max_m",
                      "widened_chunk_length_m", "widened_reach_max_m", "top_surface_vertical_prior_weight",
-                     "terrain_log_pad_m", "loss_scale_m",
+                     "terrain_log_pad_m", "loss_scale_m", "partial_loss_scale_m",
                      "gnss_sigma_m", "log_clearance_m", "ground_window_m", "ground_band_m",
                      "obstacle_min_height_m", "dbscan_eps_m", "obstacle_min_size_m", "obstacle_voxel_m",
                      "obstacle_merge_gap_m", "obstacle_sliver_m", "obstacle_flank_height_m",

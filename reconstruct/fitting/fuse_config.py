@@ -47,6 +47,10 @@ class FuseConfig:
     island_max_m: float = 0.04  # a run on the log this short, past a stretch with none of at least
     island_gap_m: float = 0.20  # this long, is not the log's end (a neighbour's flank at its top's height) [m]
     on_band_m: float = 0.02  # a bin is on the log when points lie this close to its top [m]
+    below_min_m: float = 0.03  # a bin is below the log's top when the scan sees this much deeper than it at
+    below_radius_share: float = 0.5  # least, and this share of the log's radius at least [m, -]
+    below_weight: int = 3  # a bin seen below counts this many bins on the log where the walk cuts the end
+    #                        (seeing the ground where the log would be is the stronger evidence) [-]
     min_on_points: int = 2  # ... at least this many [-]
     scan_end_sigma_m: float = 0.015  # axial accuracy of an end the scan sees (stereo smear, bins) [m]
     contradiction_sigma: float = 3.0  # a point farther than this many sigma from the scan's estimate is
@@ -66,7 +70,7 @@ class FuseConfig:
                      "max_gap_m", "max_occluded_gap_m", "min_segment_m", "pose_sigma_m", "axis_sigma_m",
                      "radius_sigma_m", "gate_sigma", "ridge_overrun_m",
                      "end_bin_m", "seen_gap_m", "end_search_m", "overhang_gap_m", "on_band_m", "scan_end_sigma_m",
-                     "island_max_m", "island_gap_m",
+                     "island_max_m", "island_gap_m", "below_min_m", "below_radius_share",
                      "contradiction_sigma", "weak_sigma_m", "inferred_sigma_m", "min_new_log_m",
                      "extrapolation_sigma_per_m", "piece_off_m"):
             if not getattr(self, name) > 0:
@@ -81,5 +85,7 @@ class FuseConfig:
             raise ValueError(f"min_new_log_coverage must be in [0, 1], got {self.min_new_log_coverage}")
         if self.cell_m > 0.05:
             raise ValueError(f"cell_m must be <= 0.05 m (logs are ~10-40 cm thick), got {self.cell_m}")
+        if self.below_weight < 1:
+            raise ValueError(f"below_weight must be >= 1, got {self.below_weight}")
         if self.max_logs < 1 or self.min_on_points < 1 or self.ambiguity_chi2 < 0 or self.min_strength_per_m < 0:
             raise ValueError("max_logs and min_on_points must be >= 1, ambiguity_chi2 and min_strength_per_m >= 0")

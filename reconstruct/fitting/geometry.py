@@ -11,6 +11,9 @@ import numpy as np
 
 from synth.scene.pile import LogSpec
 
+#: what lies under a log (the ground, a stump) is held this far under its underside [m]
+UNDER_LOG_GAP_M = 0.003
+
 
 def natural_key(log_id: str) -> tuple:
     """Sort key putting ``log2`` before ``log10``."""

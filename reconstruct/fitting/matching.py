@@ -22,6 +22,19 @@ from reconstruct.fitting.fuse_config import FuseConfig
 from reconstruct.fitting.scan_logs import ScanLog
 from reconstruct.fitting.survey_points import SurveyEnd
 
+# a point beyond the gate costs this much more than the gate's chi^2 (so a log with no point on a scan log
+# is better matched to none) [-]
+OUTLIER_EXTRA_CHI2 = 1.0
+# the assignment's cost of a pair that cannot match [-]
+NO_MATCH_COST = 1e9
+# a scan log on a log's survey line lies above it when its axis is, on average over this many places, a
+# radius higher [-]
+HEIGHT_SAMPLES = 9
+# a survey point whose sigma is more than 1/this of end_search_m does not set where a log is fitted [-]
+SURVEY_REACH_SIGMAS = 3
+# a matched log's axis is known across to axis_sigma_m and 1/this of pose_sigma_m [-]
+POSE_SIGMA_DIVISOR = 2
+
 
 class AmbiguousSurveyError(FitError):
     """The survey and the scan fit two different piles almost equally well (imprecise points near
@@ -76,11 +89,11 @@ def _match_cost(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, c
                 # on the ridge's line, well inside it: the ridge runs on past this end over something abutting
                 # it (a stump) - as costly as a wrong point, but not called wrong (a scrap of ridge at the
                 # point, the log's other point wrong, is no equal)
-                c2 = cfg.gate_sigma ** 2 + 1.0
+                c2 = cfg.gate_sigma ** 2 + OUTLIER_EXTRA_CHI2
             elif lat * lat + vert * vert > cfg.gate_sigma ** 2 or inside > cfg.gate_sigma:
                 # not on this scan log: a wrong point, if the log's other point is (costs more than the
                 # gate, so a log with no point on a scan log is better matched to none)
-                c2 = cfg.gate_sigma ** 2 + 1.0
+                c2 = cfg.gate_sigma ** 2 + OUTLIER_EXTRA_CHI2
                 outliers += 1
             elif not -cfg.end_search_m <= t <= L + cfg.end_search_m:
                 far += 1  # on the scan log's line, but beyond any walk from it
@@ -217,7 +230,7 @@ def _on_its_survey_line(log: ScanLog, ends: tuple[SurveyEnd | None, SurveyEnd | 
     lo, hi = max(t0, 0.0), min(t1, span)
     if hi - lo < cfg.min_segment_m:
         return False
-    ts = np.linspace(lo, hi, 9)
+    ts = np.linspace(lo, hi, HEIGHT_SAMPLES)
     t_log = (ts - t0) / max(t1 - t0, 1e-9)
     start, end = (log.start_m, log.end_m) if float((log.end_m - log.start_m)[:2] @ u) >= 0 else (log.end_m, log.start_m)
     z_log = start[2] + (end[2] - start[2]) * t_log
@@ -244,7 +257,7 @@ def _assign(c: np.ndarray, none_cost: np.ndarray) -> tuple[float, list[int | Non
     from scipy.optimize import linear_sum_assignment
 
     n_s, n_k = c.shape
-    big = 1e9
+    big = NO_MATCH_COST
     full = np.full((n_s, n_k + n_s), big)
     full[:, :n_k] = np.where(np.isfinite(c), c, big)
     full[np.arange(n_s), n_k + np.arange(n_s)] = none_cost
@@ -353,7 +366,7 @@ def prior_axis(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog | N
     u = d / L
     out = []
     for k, (e, ridge_end) in enumerate(zip(ends, (p0, p1))):
-        if e is None or e.sigma_h_m > cfg.end_search_m / 3:
+        if e is None or e.sigma_h_m > cfg.end_search_m / SURVEY_REACH_SIGMAS:
             out.append(ridge_end.copy())
             continue
         t = float((e.position_m - p0) @ u)
@@ -361,7 +374,7 @@ def prior_axis(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog | N
         if e.sigma_h_m > cfg.weak_sigma_m:
             t = max(t, -cfg.end_search_m) if k == 0 else min(t, L + cfg.end_search_m)
         out.append(p0 + u * t)
-    return out[0], out[1], math.hypot(cfg.axis_sigma_m, cfg.pose_sigma_m / 2)
+    return out[0], out[1], math.hypot(cfg.axis_sigma_m, cfg.pose_sigma_m / POSE_SIGMA_DIVISOR)
 
 
 def a_piece_of_a_surveyed_log(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, cfg: FuseConfig) -> bool:

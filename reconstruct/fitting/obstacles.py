@@ -18,8 +18,33 @@ import numpy as np
 
 from reconstruct.errors import FitError
 from reconstruct.fitting.fit_config import FitConfig
-from reconstruct.fitting.geometry import _footprint_distance, _underside_z
+from reconstruct.fitting.geometry import UNDER_LOG_GAP_M, _footprint_distance, _underside_z
 from synth.scene.pile import LogSpec, RockSpec, StumpSpec, TerrainSpec
+
+# an obstacle's top: this percentile of its points' heights over the ground [%]; its top band (for a
+# stump's flat top) this deep [m]
+TOP_PERCENTILE = 95
+TOP_BAND_M = 0.04
+# a stump's top radius [m] and height [m] lie within these; its foot is this much wider than its top [-]
+STUMP_RADIUS_RANGE_M = (0.03, 1.0)
+STUMP_HEIGHT_RANGE_M = (0.05, 2.0)
+STUMP_FOOT_SPREAD = 1.1
+# a cluster is a strip of log surface when its top-view variance along its main direction is this many
+# times that across [-], that direction within this of the log's [deg]
+SLIVER_MIN_ELONGATION = 4
+SLIVER_MAX_ANGLE_DEG = 20
+# log axes are sampled this often to find one inside a merged obstacle [m]
+AXIS_SAMPLE_STEP_M = 0.05
+# a log lies between two clusters when one of these many points over the middle of the gap between their
+# nearest points (this stretch of it, [-]) lies inside its footprint
+GAP_SAMPLES = 5
+GAP_MIDDLE = (0.25, 0.75)
+# a rock's hull reaches this far into the ground [m]
+ROCK_BURY_M = 0.05
+# a stump's top radius is this percentile of its top points' distances from the circle's centre (the top
+# is a disc, not a ring) [%], its outline the points beyond this share of that radius [-]
+DISC_RADIUS_PERCENTILE = 95
+OUTLINE_MIN_SHARE = 0.6
 
 
 def find_obstacles(points: np.ndarray, terrain: TerrainSpec, cfg: FitConfig | None = None,
@@ -65,29 +90,30 @@ def find_obstacles(points: np.ndarray, terrain: TerrainSpec, cfg: FitConfig | No
             continue
         ground = terrain.height_at(C[:, 0], C[:, 1])
         h = C[:, 2] - ground
-        top = float(np.percentile(h, 95))
-        top_pts = C[h > top - 0.04]
+        top = float(np.percentile(h, TOP_PERCENTILE))
+        top_pts = C[h > top - TOP_BAND_M]
         flat_frac = len(top_pts) / len(C)
         cx, cy, r, rms = _circle_fit_xy(top_pts[:, :2])
         # a stump stands up: flat round top as wide as the cluster, height at least its radius;
         # rocks are domes or slabs
-        is_stump = (flat_frac >= cfg.stump_flat_fraction and np.isfinite(r) and 0.03 <= r <= 1.0
-                    and rms <= cfg.stump_max_circle_rms * r and 0.05 <= top <= 2.0
+        (r_lo, r_hi), (h_lo, h_hi) = STUMP_RADIUS_RANGE_M, STUMP_HEIGHT_RANGE_M
+        is_stump = (flat_frac >= cfg.stump_flat_fraction and np.isfinite(r) and r_lo <= r <= r_hi
+                    and rms <= cfg.stump_max_circle_rms * r and h_lo <= top <= h_hi
                     and top >= cfg.stump_min_aspect * r and abs(cx) < half and abs(cy) < half
                     and r >= cfg.stump_min_cover * 0.5 * float(ext.max()))
         if is_stump and logs:
             # a stump is solid over its whole disc: no higher than the lowest log underside over
             # it (its foot as the twin sets it: the lowest ground under its rim and centre)
-            rb = min(1.0, r * 1.1)
+            rb = min(r_hi, r * STUMP_FOOT_SPREAD)
             foot = float(np.min(terrain.height_at(np.array([cx - rb, cx, cx + rb, cx, cx]),
                                                   np.array([cy, cy - rb, cy, cy + rb, cy]))))
-            room = float(_underside_z(logs, np.array([[cx, cy]]), rb)[0]) - 0.003 - foot
+            room = float(_underside_z(logs, np.array([[cx, cy]]), rb)[0]) - UNDER_LOG_GAP_M - foot
             if room < cfg.obstacle_min_height_m:
                 continue  # under a log all over: the log's own points
             top = min(top, room)
         if is_stump:
-            stumps.append(StumpSpec(position_m=(float(cx), float(cy)), height_m=float(np.clip(top, 0.05, 2.0)),
-                                    bottom_radius_m=float(min(1.0, r * 1.1)), top_radius_m=float(r)))
+            stumps.append(StumpSpec(position_m=(float(cx), float(cy)), height_m=float(np.clip(top, h_lo, h_hi)),
+                                    bottom_radius_m=float(min(r_hi, r * STUMP_FOOT_SPREAD)), top_radius_m=float(r)))
             info.append({"kind": "stump", "position_m": [float(cx), float(cy)], "height_m": top,
                          "radius_m": float(r), "n_points": int(len(C)), "flat_fraction": flat_frac})
         else:
@@ -157,7 +183,8 @@ def _log_sliver(C: np.ndarray, logs: Sequence[LogSpec], cfg: FitConfig) -> bool:
         w, v = np.linalg.eigh(xy.T @ xy / len(xy))
         axis = log.axis()[:2]
         axis = axis / max(float(np.linalg.norm(axis)), 1e-9)
-        if w[1] > 4 * w[0] and abs(float(v[:, 1] @ axis)) > math.cos(math.radians(20)):
+        along = abs(float(v[:, 1] @ axis)) > math.cos(math.radians(SLIVER_MAX_ANGLE_DEG))
+        if w[1] > SLIVER_MIN_ELONGATION * w[0] and along:
             return True
     return False
 
@@ -179,8 +206,8 @@ def _merge_across_logs(clusters: list[np.ndarray], logs: Sequence[LogSpec], cfg:
         return i
 
     trees = [cKDTree(C[:, :2]) for C in clusters]
-    axis_samples = np.vstack([a + np.outer(np.linspace(0, 1, max(2, int(log.length_m / 0.05))), b - a)
-                              for log in logs for a, b in [log.endpoints_m()]])  # every 5 cm
+    axis_samples = np.vstack([a + np.outer(np.linspace(0, 1, max(2, int(log.length_m / AXIS_SAMPLE_STEP_M))), b - a)
+                              for log in logs for a, b in [log.endpoints_m()]])
     for i in range(len(clusters)):
         for j in range(i + 1, len(clusters)):
             d, k = trees[i].query(clusters[j][:, :2], distance_upper_bound=cfg.obstacle_merge_gap_m)
@@ -188,7 +215,7 @@ def _merge_across_logs(clusters: list[np.ndarray], logs: Sequence[LogSpec], cfg:
                 continue
             m = int(np.argmin(d))
             a, b = clusters[i][k[m], :2], clusters[j][m, :2]
-            between = a + np.outer(np.linspace(0.25, 0.75, 5), b - a)
+            between = a + np.outer(np.linspace(*GAP_MIDDLE, GAP_SAMPLES), b - a)
             if not (_footprint_distance(between, logs) < cfg.footprint_margin_m).any():
                 continue
             ri, rj = root(i), root(j)
@@ -210,7 +237,7 @@ def _hull_holds_a_log(C: np.ndarray, axis_samples: np.ndarray) -> bool:
     from scipy.spatial import ConvexHull, Delaunay
 
     below = C.copy()
-    below[:, 2] = C[:, 2].min() - 0.05
+    below[:, 2] = C[:, 2].min() - ROCK_BURY_M
     try:
         pts = np.vstack([C, below])
         tri = Delaunay(pts[ConvexHull(pts).vertices])  # the hull's vertices span the same region, fast
@@ -231,22 +258,22 @@ def _circle_fit_xy(xy: np.ndarray) -> tuple[float, float, float, float]:
     if r2 <= 0:
         return math.nan, math.nan, math.nan, math.nan
     r = math.sqrt(r2)
-    # the top is a filled disk, not a ring: use the 90th percentile distance as the radius
+    # the top is a filled disk, not a ring: a high percentile of the distances is the radius
     d = np.hypot(xy[:, 0] - cx, xy[:, 1] - cy)
-    r_disk = float(np.percentile(d, 95))
+    r_disk = float(np.percentile(d, DISC_RADIUS_PERCENTILE))
     # roundness: how far the outline deviates from a circle (outer points only)
-    outer = d > 0.6 * r_disk
+    outer = d > OUTLINE_MIN_SHARE * r_disk
     rms = float(np.sqrt(np.mean((d[outer] - r_disk) ** 2))) if outer.any() else math.nan
     return float(cx), float(cy), r_disk, rms
 
 
 def _rock_from_points(C: np.ndarray, terrain: TerrainSpec, cfg: FitConfig) -> RockSpec:
-    """A convex rock: hull of the cluster plus its outline pushed 5 cm into the ground."""
+    """A convex rock: hull of the cluster plus its outline pushed ``ROCK_BURY_M`` into the ground."""
     from scipy.spatial import ConvexHull
 
     ground = terrain.height_at(C[:, 0], C[:, 1])
     below = C.copy()
-    below[:, 2] = ground - 0.05
+    below[:, 2] = ground - ROCK_BURY_M
     allp = np.vstack([C, below])
     try:
         hull = ConvexHull(allp)

@@ -21,6 +21,27 @@ from reconstruct.fitting.geometry import _along_across, _underside_z
 from reconstruct.fitting.profiles import _frame
 from synth.scene.pile import LogSpec
 
+# the nearest surface seen from above: this percentile of the top points' distances from the survey axis [%]
+TOP_PERCENTILE = 25
+# the top arc: points from this far inside that surface to this far beyond it (a log lying on this one is a
+# whole diameter farther) [m]
+ARC_INSIDE_M = 0.03
+ARC_BEYOND_M = 0.06
+# the arc's centre stays within this many gnss_sigma_m of the survey's axis (a shift and a tilt) [-]
+PARTIAL_AXIS_SIGMAS = 2
+# the ground under a hidden log's end: this low percentile of at least this many scan points near it [%, -]
+GROUND_PERCENTILE = 10
+MIN_GROUND_POINTS = 10
+# a hidden log's gap to the logs over it is sampled this often along its axis [m]
+GAP_SAMPLE_STEP_M = 0.05
+# a hidden log between the ground and the logs over it agrees with the surveyed heights within this many
+# gnss_sigma_m [-]
+HEIGHT_AGREEMENT_SIGMAS = 3
+# scan points over a survey axis are counted in bins this long [m]
+COVER_BIN_M = 0.1
+# the arc's circle starts this far inside its radius bounds (as shares of them) [-]
+START_ABOVE_MIN, START_BELOW_MAX = 1.01, 0.99
+
 
 def fit_radius_on_axis(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig | None = None,
                        log_id: str = "log") -> CylinderFit:
@@ -48,24 +69,24 @@ def fit_radius_on_axis(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfi
                               "the log is hidden under others or outside the scanned area")
     # the nearest surface seen from above: the lower quartile of the distances (points beyond are
     # whatever lies on or beside it)
-    rad = float(np.percentile(r[on], 25))
+    rad = float(np.percentile(r[on], TOP_PERCENTILE))
     # the survey's axis is a few cm off (RTK noise), which spreads the top's distances by as
     # much: a circle through the top arc, its centre within two sigma of the axis (a shift and a
     # tilt), finds the radius unbiased. Points a few cm beyond the nearest surface are on it
     # still; a log lying on this one is a whole diameter farther
     from scipy.optimize import least_squares
 
-    arc = np.flatnonzero(on & (r > rad - 0.03) & (r < rad + 0.06))
+    arc = np.flatnonzero(on & (r > rad - ARC_INSIDE_M) & (r < rad + ARC_BEYOND_M))
     q1, q2, tau = q[arc] @ e1, q[arc] @ e2, t[arc] / L - 0.5
-    lim = 2 * cfg.gnss_sigma_m
+    lim = PARTIAL_AXIS_SIGMAS * cfg.gnss_sigma_m
 
     def off_circle(x):
         return np.hypot(q1 - x[0] - x[2] * tau, q2 - x[1] - x[3] * tau) - x[4]
 
-    r0 = float(np.clip(rad, cfg.min_radius_m * 1.01, cfg.max_radius_m * 0.99))
+    r0 = float(np.clip(rad, cfg.min_radius_m * START_ABOVE_MIN, cfg.max_radius_m * START_BELOW_MAX))
     x = least_squares(off_circle, [0.0, 0.0, 0.0, 0.0, r0],
                       bounds=([-lim, -lim, -lim, -lim, cfg.min_radius_m], [lim, lim, lim, lim, cfg.max_radius_m]),
-                      loss="soft_l1", f_scale=0.005).x
+                      loss="soft_l1", f_scale=cfg.partial_loss_scale_m).x
     a = a + (x[0] - x[2] / 2) * e1 + (x[1] - x[3] / 2) * e2
     b = b + (x[0] + x[2] / 2) * e1 + (x[1] + x[3] / 2) * e2
     rad = float(x[4])
@@ -92,7 +113,7 @@ def _survey_log(end_a: Any, end_b: Any, diameter_m: float, cfg: FitConfig) -> Lo
 def _sandwiched_log(P: np.ndarray, end_a: Any, end_b: Any, over: Sequence[LogSpec], cfg: FitConfig,
                     ground_radius_m: float = 0.4) -> LogSpec | None:
     """A hidden log lying on the ground under logs ``over``: its radius is half the gap between
-    the ground (the low tenth of the scan points within ``ground_radius_m`` of each GNSS end) and
+    the ground (the low ``GROUND_PERCENTILE`` of the scan points within ``ground_radius_m`` of each GNSS end) and
     the lowest underside over its axis; its axis one radius above the ground, under the GNSS
     points. ``None`` when nothing lies over it or the result disagrees with the surveyed heights
     by more than three ``gnss_sigma_m`` (then the survey's heights stand)."""
@@ -100,10 +121,10 @@ def _sandwiched_log(P: np.ndarray, end_a: Any, end_b: Any, over: Sequence[LogSpe
     ground = []
     for e in (a, b):
         near = np.linalg.norm(P[:, :2] - e[:2], axis=1) < ground_radius_m
-        if near.sum() < 10:
+        if near.sum() < MIN_GROUND_POINTS:
             return None
-        ground.append(float(np.percentile(P[near, 2], 10)))
-    t = np.linspace(0.0, 1.0, max(2, int(np.linalg.norm(b[:2] - a[:2]) / 0.05) + 1))
+        ground.append(float(np.percentile(P[near, 2], GROUND_PERCENTILE)))
+    t = np.linspace(0.0, 1.0, max(2, int(np.linalg.norm(b[:2] - a[:2]) / GAP_SAMPLE_STEP_M) + 1))
     xy = a[:2] + np.outer(t, b[:2] - a[:2])
     gap = _underside_z(over, xy) - (ground[0] + t * (ground[1] - ground[0]))
     gap = gap[np.isfinite(gap)]
@@ -114,7 +135,8 @@ def _sandwiched_log(P: np.ndarray, end_a: Any, end_b: Any, over: Sequence[LogSpe
         z_a, z_b = a[2] - r, b[2] - r
     else:
         z_a, z_b = a[2], b[2]
-    if abs(ground[0] + r - z_a) > 3 * cfg.gnss_sigma_m or abs(ground[1] + r - z_b) > 3 * cfg.gnss_sigma_m:
+    limit = HEIGHT_AGREEMENT_SIGMAS * cfg.gnss_sigma_m
+    if abs(ground[0] + r - z_a) > limit or abs(ground[1] + r - z_b) > limit:
         return None
     return LogSpec.from_endpoints((a[0], a[1], ground[0] + r), (b[0], b[1], ground[1] + r), 2 * r)
 
@@ -127,6 +149,6 @@ def _covered_by_others(P: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfig, la
     a, b = np.asarray(end_a, dtype=float), np.asarray(end_b, dtype=float)
     t, lat = _along_across(P[:, :2], a, b)
     over = (t > 0.0) & (t < 1.0) & (lat < lateral_m) & (P[:, 2] > a[2] + t * (b[2] - a[2]) + above_m)
-    nb = max(1, int(round(float(np.linalg.norm(b[:2] - a[:2])) / 0.1)))
+    nb = max(1, int(round(float(np.linalg.norm(b[:2] - a[:2])) / COVER_BIN_M)))
     hist, _ = np.histogram(t[over], bins=nb, range=(0.0, 1.0))
     return bool((hist > 0).mean() >= share)

@@ -16,6 +16,55 @@ from reconstruct.fitting.fit_config import FitConfig
 from reconstruct.fitting.fuse_config import FuseConfig
 from reconstruct.fitting.profiles import _profile_circle
 
+# a scan of fewer points than this shows no logs; fewer ridge pixels than this make no more lines [-]
+MIN_SCAN_POINTS = 100
+MIN_RIDGE_PIXELS = 10
+# the height raster holds at most this many cells [-]
+MAX_RASTER_CELLS = 25_000_000
+# a cell is observed all around when this share of the curvature's window holds points [-]; the window's
+# empty single cells are closed over this many cells square first [-]
+SEEN_AROUND_SHARE = 0.9
+CLOSING_CELLS = 3
+# the ridge's top line: the heights smoothed over this many cells (Gaussian sigma) [-]
+TOP_SMOOTHING_CELLS = 1.0
+# lines are looked for at most this many times per log taken [-]
+LINE_TRIES_PER_LOG = 4
+# a weak ridge pixel is curved across this many times min_curvature_per_m; a pixel's vote is capped at this
+# many weak pixels' (a few sharp pixels do not dominate) [-]
+WEAK_RIDGE_CURVATURES = 2
+VOTE_CAP_PIXELS = 5
+# the Hough offsets reach this far past the farthest ridge pixel [m]
+HOUGH_MARGIN_M = 0.1
+# a line needs this many ridge pixels [-]; pixels this many times max_angle_deg off it are taken out with it [-]
+MIN_LINE_PIXELS = 5
+SUPPRESS_ANGLE_FACTOR = 2
+# a run's bin is full with at least this many ridge pixels, and this share of a band's worth [-]
+FULL_BIN_MIN_PIXELS = 3
+FULL_BIN_SHARE = 0.4
+# a gap's sides: the ridge pixels this far before and after it [m]
+BREAK_SIDE_M = 0.3
+# something stands over a gap when the raster holds points over this share of it, and at most this share
+# of those lie more than this far under the ridge's top [-, -, m]
+COVER_MIN_SEEN = 0.5
+COVER_MAX_SEEN_THROUGH = 0.1
+COVER_DROP_M = 0.03
+# the top line is fitted this many times, each without the pixels farther from it than this many median
+# absolute residuals, at least this far [-, -, m]
+TOP_LINE_ROUNDS = 2
+TOP_LINE_MADS = 2.5
+TOP_LINE_BAND_M = 0.02
+# the cross-section under a run: points this far across its line [m], at most this many [-], at least this
+# many for a radius [-]
+PROFILE_HALF_WIDTH_M = 0.4
+PROFILE_MAX_POINTS = 4000
+PROFILE_MIN_POINTS = 30
+# its circle: the centre within this of one this far under the top [m], the radius at most this [m], and
+# at least this many profile bins on it [-]
+PROFILE_CENTRE_TOLERANCE_M = 0.15
+PROFILE_PRIOR_DEPTH_M = 0.10
+PROFILE_MAX_RADIUS_M = 0.45
+PROFILE_MIN_BINS_ON = 3
+
 
 @dataclass(frozen=True)
 class ScanLog:
@@ -52,7 +101,7 @@ def _height_raster(P: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray, 
     lo = P[:, :2].min(0) - 2 * cell
     hi = P[:, :2].max(0) + 2 * cell
     nx, ny = (np.ceil((hi - lo) / cell).astype(np.int64) + 1)
-    if nx * ny > 25_000_000:
+    if nx * ny > MAX_RASTER_CELLS:
         raise FitError(f"the scan spans {hi[0] - lo[0]:.0f} x {hi[1] - lo[1]:.0f} m: too large to look for logs in "
                        f"at {cell * 100:g} cm (crop it to the pile)")
     ix = ((P[:, 0] - lo[0]) / cell).astype(np.int64)
@@ -79,8 +128,8 @@ def _ridges(H: np.ndarray, have: np.ndarray, cfg: FuseConfig) -> tuple[np.ndarra
     l1, l2 = half_tr - disc, half_tr + disc  # l1 <= l2: across a ridge l1 is strongly negative
     # observed all around (the curvature's window; single empty cells of a sparse cloud do not count): the
     # hole fill is flat, and the edge of the data makes false curvature
-    dense = have | ndimage.binary_closing(have, structure=np.ones((3, 3), bool))
-    seen = ndimage.gaussian_filter(dense.astype(np.float64), s) > 0.9
+    dense = have | ndimage.binary_closing(have, structure=np.ones((CLOSING_CELLS, CLOSING_CELLS), bool))
+    seen = ndimage.gaussian_filter(dense.astype(np.float64), s) > SEEN_AROUND_SHARE
     ridge = seen & (l1 < -cfg.min_curvature_per_m) & (np.abs(l2) < cfg.max_anisotropy * np.abs(l1))
     strength = np.where(ridge, -l1, 0.0)
     along = 0.5 * np.arctan2(2 * hxy, hxx - hyy)  # eigenvector of l2: along the ridge
@@ -95,15 +144,15 @@ def find_scan_logs(points: np.ndarray, cfg: FuseConfig | None = None) -> list[Sc
     cfg = cfg or FuseConfig()
     P = np.asarray(points, dtype=np.float64)
     P = P[np.all(np.isfinite(P), axis=1)]
-    if len(P) < 100:
+    if len(P) < MIN_SCAN_POINTS:
         return []
     H, have, lo = _height_raster(P, cfg.cell_m)
     px = _RidgePixels(H, have, lo, cfg)
-    if px.n < 10:
+    if px.n < MIN_RIDGE_PIXELS:
         return []
     out: list[ScanLog] = []
-    for _ in range(4 * cfg.max_logs):
-        if len(out) >= cfg.max_logs or px.alive.sum() < 10:
+    for _ in range(LINE_TRIES_PER_LOG * cfg.max_logs):
+        if len(out) >= cfg.max_logs or px.alive.sum() < MIN_RIDGE_PIXELS:
             break
         peak = px.strongest_line()
         if peak is None:
@@ -143,23 +192,24 @@ class _RidgePixels:
         strength, normal, Hf = _ridges(H, have, cfg)
         ys, xs = np.nonzero(strength > 0)
         self.n = len(xs)
-        if self.n < 10:
+        if self.n < MIN_RIDGE_PIXELS:
             return
         cell = self.cell
         self.strength = strength[ys, xs]
-        self.w = np.minimum(self.strength, 5 * cfg.min_curvature_per_m * 2)  # a few sharp pixels do not dominate
+        self.w = np.minimum(self.strength, VOTE_CAP_PIXELS * cfg.min_curvature_per_m * WEAK_RIDGE_CURVATURES)
         X, Y = lo[0] + (xs + 0.5) * cell, lo[1] + (ys + 0.5) * cell
         self.th_p = np.mod(normal[ys, xs], math.pi)
         self.c0 = np.array([X.mean(), Y.mean()])
         self.Xc, self.Yc = X - self.c0[0], Y - self.c0[1]
-        self.r_max = float(np.hypot(self.Xc, self.Yc).max()) + 0.1
+        self.r_max = float(np.hypot(self.Xc, self.Yc).max()) + HOUGH_MARGIN_M
         self.n_rho = int(2 * self.r_max / cell) + 1
         self.th_bin = np.rint(np.degrees(self.th_p)).astype(np.int64)
         self.alive = np.ones(self.n, dtype=bool)
         self.band_px = max(1, int(round(cfg.band_m / cell)))
         self.max_ang = math.radians(cfg.max_angle_deg)
-        self.min_votes = cfg.min_segment_m / cell * cfg.min_curvature_per_m * 2  # a short line of weak ridge pixels
-        self.z_top = ndimage.gaussian_filter(Hf, 1.0)[ys, xs]  # heights at the ridge pixels: the top line
+        self.min_votes = cfg.min_segment_m / cell * cfg.min_curvature_per_m * WEAK_RIDGE_CURVATURES  # a short weak line
+        # heights at the ridge pixels: the top line
+        self.z_top = ndimage.gaussian_filter(Hf, TOP_SMOOTHING_CELLS)[ys, xs]
         deg = np.radians(np.arange(self.N_THETA))
         self.cos_t, self.sin_t = np.cos(deg), np.sin(deg)
 
@@ -192,7 +242,7 @@ class _RidgePixels:
         n = np.array([math.cos(th), math.sin(th)])
         lat = self.Xc * n[0] + self.Yc * n[1] - (ri * self.cell - self.r_max)
         m = self.alive & (np.abs(lat) < cfg.band_m) & (_ang_diff(self.th_p, th) < max_ang)
-        if m.sum() < 5:
+        if m.sum() < MIN_LINE_PIXELS:
             self.alive[np.abs(lat) < cfg.band_m] = False
             return None
         pts = np.column_stack([self.Xc[m], self.Yc[m]])
@@ -205,9 +255,10 @@ class _RidgePixels:
         rel = np.column_stack([self.Xc, self.Yc]) - c
         lat, tt = rel @ n, rel @ u
         m = self.alive & (np.abs(lat) < cfg.band_m) & (_ang_diff(self.th_p, th2) < max_ang)
-        taken = self.alive & (np.abs(lat) < cfg.suppress_m) & (_ang_diff(self.th_p, th2) < 2 * max_ang)
+        taken = (self.alive & (np.abs(lat) < cfg.suppress_m)
+                 & (_ang_diff(self.th_p, th2) < SUPPRESS_ANGLE_FACTOR * max_ang))
         self.alive &= ~(taken | m)
-        return None if m.sum() < 5 else (c, u, m, tt)
+        return None if m.sum() < MIN_LINE_PIXELS else (c, u, m, tt)
 
     def runs(self, c: np.ndarray, u: np.ndarray, m: np.ndarray, tt: np.ndarray):
         """The runs along a line, (t0, t1, their pixels, length seen [m]), at least ``min_segment_m``
@@ -218,7 +269,8 @@ class _RidgePixels:
         t_m = tt[idx_m]
         b0 = math.floor(t_m.min() / bw)
         counts = np.bincount(np.floor(t_m / bw).astype(np.int64) - b0)
-        full_bins = np.flatnonzero(counts >= max(3, int(0.4 * bw / cell * cfg.band_m / cell)))
+        full = max(FULL_BIN_MIN_PIXELS, int(FULL_BIN_SHARE * bw / cell * cfg.band_m / cell))
+        full_bins = np.flatnonzero(counts >= full)
         if not len(full_bins):
             return
         breaks = np.flatnonzero(np.diff(full_bins) * bw > cfg.max_gap_m)
@@ -232,8 +284,8 @@ class _RidgePixels:
     def _real_break(self, c, u, idx_m, t_m, g0: float, g1: float) -> bool:
         """A gap g0..g1 along the line splits it, unless something lies over the line all along it (logs
         across, at a shallow angle): a gap where the scan sees below the log's top is two logs."""
-        near_a = idx_m[(t_m >= g0 - 0.3) & (t_m < g0)]
-        near_b = idx_m[(t_m >= g1) & (t_m < g1 + 0.3)]
+        near_a = idx_m[(t_m >= g0 - BREAK_SIDE_M) & (t_m < g0)]
+        near_b = idx_m[(t_m >= g1) & (t_m < g1 + BREAK_SIDE_M)]
         return (g1 - g0 > self.cfg.max_occluded_gap_m or not len(near_a) or not len(near_b)
                 or not _covered(self.H, self.have, self.lo, self.cell, c + self.c0, u, g0, g1,
                                 min(float(np.median(self.z_top[near_a])), float(np.median(self.z_top[near_b])))))
@@ -242,7 +294,7 @@ class _RidgePixels:
 def _covered(H: np.ndarray, have: np.ndarray, lo: np.ndarray, cell: float, c: np.ndarray, u: np.ndarray,
              t0: float, t1: float, z_top: float) -> bool:
     """Whether something stands over the line ``c + t u`` (``t0 < t < t1``) all along it: the raster's
-    highest points there are nowhere more than 3 cm below ``z_top`` (the ridge's top height on either
+    highest points there are nowhere more than ``COVER_DROP_M`` below ``z_top`` (the ridge's top height on either
     side) — the scan never sees the ground through the gap."""
     ts = np.arange(t0, t1, cell)
     xy = c + np.outer(ts, u)
@@ -250,7 +302,7 @@ def _covered(H: np.ndarray, have: np.ndarray, lo: np.ndarray, cell: float, c: np
     iy = np.clip(((xy[:, 1] - lo[1]) / cell).astype(np.int64), 0, H.shape[0] - 1)
     z = np.where(have[iy, ix], H[iy, ix], np.nan)
     z = z[np.isfinite(z)]
-    return bool(len(z) >= 0.5 * len(ts) and np.mean(z < z_top - 0.03) < 0.1)
+    return bool(len(z) >= COVER_MIN_SEEN * len(ts) and np.mean(z < z_top - COVER_DROP_M) < COVER_MAX_SEEN_THROUGH)
 
 
 def _scan_log_from_run(P: np.ndarray, c: np.ndarray, u: np.ndarray, t0: float, t1: float, t_px: np.ndarray,
@@ -260,17 +312,17 @@ def _scan_log_from_run(P: np.ndarray, c: np.ndarray, u: np.ndarray, t0: float, t
     below the top."""
     A = np.column_stack([np.ones(len(t_px)), t_px])
     coef = np.linalg.lstsq(A, z_px, rcond=None)[0]
-    for _ in range(2):  # drop pixels of other things (a log lying across)
+    for _ in range(TOP_LINE_ROUNDS):  # drop pixels of other things (a log lying across)
         res = z_px - A @ coef
-        keep = np.abs(res) < max(0.02, 2.5 * float(np.median(np.abs(res))))
-        if keep.sum() >= 5:
+        keep = np.abs(res) < max(TOP_LINE_BAND_M, TOP_LINE_MADS * float(np.median(np.abs(res))))
+        if keep.sum() >= MIN_LINE_PIXELS:
             coef = np.linalg.lstsq(A[keep], z_px[keep], rcond=None)[0]
     n = np.array([-u[1], u[0]])
     rel = P[:, :2] - c
     t, s = rel @ u, rel @ n
-    near = np.flatnonzero((t > t0) & (t < t1) & (np.abs(s) < 0.4))
-    if len(near) > 4000:  # a profile needs a few thousand points at most
-        near = near[np.linspace(0, len(near) - 1, 4000).astype(np.int64)]
+    near = np.flatnonzero((t > t0) & (t < t1) & (np.abs(s) < PROFILE_HALF_WIDTH_M))
+    if len(near) > PROFILE_MAX_POINTS:  # a profile needs a few thousand points at most
+        near = near[np.linspace(0, len(near) - 1, PROFILE_MAX_POINTS).astype(np.int64)]
     dz = P[near, 2] - (coef[0] + coef[1] * t[near])
     radius = _profile_radius(s[near], dz)
     if radius is None:
@@ -283,13 +335,14 @@ def _scan_log_from_run(P: np.ndarray, c: np.ndarray, u: np.ndarray, t0: float, t
 def _profile_radius(s: np.ndarray, dz: np.ndarray) -> float | None:
     """Radius [m] of the log whose cross-section (``s`` across [m], ``dz`` height below the ridge's top
     line [m]) the scan shows: :func:`reconstruct.fitting.profiles._profile_circle`'s search for the upper
-    half-circle that best explains the visible profile, its centre within 15 cm of one 10 cm under the
-    top. ``None`` when the profile explains no circle."""
-    if len(s) < 30:
+    half-circle that best explains the visible profile, its centre within ``PROFILE_CENTRE_TOLERANCE_M`` of one
+    ``PROFILE_PRIOR_DEPTH_M`` under the top. ``None`` when the profile explains no circle."""
+    if len(s) < PROFILE_MIN_POINTS:
         return None
     try:
-        _, r, n_on = _profile_circle(np.column_stack([s, dz]), np.array([0.0, -0.10]),
-                                     FitConfig(axis_tolerance_m=0.15, max_radius_m=0.45))
+        _, r, n_on = _profile_circle(np.column_stack([s, dz]), np.array([0.0, -PROFILE_PRIOR_DEPTH_M]),
+                                     FitConfig(axis_tolerance_m=PROFILE_CENTRE_TOLERANCE_M,
+                                               max_radius_m=PROFILE_MAX_RADIUS_M))
     except FitError:
         return None
-    return float(r) if n_on >= 3 else None
+    return float(r) if n_on >= PROFILE_MIN_BINS_ON else None

@@ -20,6 +20,22 @@ from reconstruct.fitting.fit_config import FitConfig
 from synth.scene.pile import LogSpec, PileSpec
 
 
+# the twin's log collides as a prism of this many sides (its roll repeats every 1/this turn) [-]
+PRISM_SIDES = 5
+# a roll is taken only when it makes the deepest contact at least this much shallower [m]
+MIN_ROLL_GAIN_M = 1e-3
+# the check looks again at most this many times per log, plus this many [-]
+ROUNDS_PER_LOG = 10
+EXTRA_ROUNDS = 5
+# thinning room or thinning under this is none [m]
+MIN_THINNING_M = 1e-4
+# a contact is cleared this far beyond its depth [m]
+SEPARATION_MARGIN_M = 0.002
+# a move this steep (its vertical share) is reported as a lift [-]
+LIFT_MIN_UP = 0.7
+# pybullet's getContactPoints fields: the other body, the contact normal on it (towards the first), the
+# signed distance [m]
+CONTACT_BODY_B, CONTACT_NORMAL_ON_B, CONTACT_DISTANCE = 2, 7, 8
 # a contact between two logs whose normal is at least this horizontal (squared horizontal part of the
 # unit normal; 0.5: within 45 deg of horizontal) is side by side: both are pushed apart [-]
 SIDE_CONTACT_MIN_H2 = 0.5
@@ -90,15 +106,15 @@ def _roll_to_clear(world: Any, body: int, log: LogSpec, steps: int) -> tuple[Log
 
     def deepest() -> float:
         c.performCollisionDetection()
-        return min((cp[8] for cp in c.getContactPoints(bodyA=body)), default=0.0)
+        return min((cp[CONTACT_DISTANCE] for cp in c.getContactPoints(bodyA=body)), default=0.0)
 
     before = deepest()
     best, best_q = before, None
     for k in range(steps):
-        q = quat_from_x_axis(log.axis(), 2 * math.pi / 5 * k / steps)
+        q = quat_from_x_axis(log.axis(), 2 * math.pi / PRISM_SIDES * k / steps)
         c.resetBasePositionAndOrientation(body, list(log.centre_m), list(q))
         d = deepest()
-        if d > best + 1e-3:
+        if d > best + MIN_ROLL_GAIN_M:
             best, best_q = d, q
     c.resetBasePositionAndOrientation(body, list(log.centre_m), list(best_q or log.orientation))
     if best_q is None:
@@ -121,7 +137,7 @@ def separate_logs(pile: PileSpec, cfg: FitConfig | None = None, thinnable: Seque
 
     cfg = cfg or FitConfig()
     st = _Separation.start(pile.n_logs, cfg, thinnable)
-    for _ in range(10 * pile.n_logs + 5):
+    for _ in range(ROUNDS_PER_LOG * pile.n_logs + EXTRA_ROUNDS):
         with World(pile) as world:
             contact = _worst_contact(world, cfg)
             if contact is None:
@@ -184,8 +200,9 @@ def _worst_contact(world, cfg: FitConfig) -> _Contact | None:
     worst = None
     for i, b in enumerate(world.log_ids):
         for cp in world.client.getContactPoints(bodyA=b):
-            if cp[8] < -cfg.penetration_tolerance_m and (worst is None or cp[8] < worst[0]):
-                worst = (cp[8], i, cp[2], np.asarray(cp[7], dtype=float))  # normal B -> A
+            dist = cp[CONTACT_DISTANCE]
+            if dist < -cfg.penetration_tolerance_m and (worst is None or dist < worst[0]):
+                worst = (dist, i, cp[CONTACT_BODY_B], np.asarray(cp[CONTACT_NORMAL_ON_B], dtype=float))  # normal B -> A
     if worst is None:
         # pybullet's contact generation is not always the same twice: ask the twin's own
         # check too, and lift a log it still finds interpenetrating
@@ -232,15 +249,15 @@ def _thin_contact(pile: PileSpec, c: _Contact, cfg: FitConfig, st: _Separation) 
     thinning gains); the pile, or None when there is no thinning room left (a move takes it)."""
     pair = _contact_pair(c)
     room = [min(st.thin_room[k] - st.thinned[k], pile.logs[k].top_d_m / 2 - cfg.min_radius_m) for k, _ in pair]
-    if max(room) <= 1e-4:
+    if max(room) <= MIN_THINNING_M:
         return None
     gains = [1.0 + float(_up_across(pile.logs[k]) @ n_k) for k, n_k in pair]
-    split = _thinning_split(-c.dist + 0.002, gains, room)
-    if sum(split) <= 1e-4:
+    split = _thinning_split(-c.dist + SEPARATION_MARGIN_M, gains, room)
+    if sum(split) <= MIN_THINNING_M:
         return None
     logs = list(pile.logs)
     for (k, _), d in zip(pair, split):
-        if d > 1e-4:
+        if d > MIN_THINNING_M:
             logs[k] = thinned_keeping_top(logs[k], d)
             st.thinned[k] += d
             against = c.other_name if k == c.log else f"log {c.log}"
@@ -257,12 +274,12 @@ def _move_contact(pile: PileSpec, c: _Contact, cfg: FitConfig, st: _Separation) 
     n = _contact_pair(c)[0][1]
     n_h = np.array([n[0], n[1], 0.0])
     if j is not None and np.linalg.norm(n_h) ** 2 >= SIDE_CONTACT_MIN_H2:
-        step = n_h * ((-c.dist + 0.002) / (2 * float(n_h @ n_h)))
+        step = n_h * ((-c.dist + SEPARATION_MARGIN_M) / (2 * float(n_h @ n_h)))
         steps = [(i, step, f"log {j}"), (j, -step, f"log {i}")]
     else:
         if j is not None and n[2] < 0:  # move whichever log goes UP
             i, n, other_name = j, -n, f"log {c.log}"
-        steps = [(i, n * (-c.dist + 0.002), other_name)]
+        steps = [(i, n * (-c.dist + SEPARATION_MARGIN_M), other_name)]
     logs = list(pile.logs)
     for k, step, against in steps:
         st.moves[k] = st.moves[k] + step
@@ -272,7 +289,7 @@ def _move_contact(pile: PileSpec, c: _Contact, cfg: FitConfig, st: _Separation) 
                 f"(limit {cfg.max_move_m * 100:.0f} cm); its fit or its GNSS end points are wrong",
                 logs=(k,) + tuple(o for o in (c.log, c.other_log) if o is not None and o != k))
         logs[k] = replace(logs[k], centre_m=tuple(float(v) for v in np.asarray(logs[k].centre_m) + step))
-        how = "lifted" if step[2] > 0.7 * np.linalg.norm(step) else "moved"
+        how = "lifted" if step[2] > LIFT_MIN_UP * np.linalg.norm(step) else "moved"
         st.notes.append(f"log {k} {how} {np.linalg.norm(step) * 1000:.1f} mm along "
                         f"({step[0] / np.linalg.norm(step):+.2f}, {step[1] / np.linalg.norm(step):+.2f}, "
                         f"{step[2] / np.linalg.norm(step):+.2f}) (log {k} / {against} interpenetrated "

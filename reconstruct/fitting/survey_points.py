@@ -10,6 +10,8 @@ from typing import Any
 import numpy as np
 
 
+#: No survey point is taken as more accurate than this, 1 sigma [m] (a receiver may report 0)
+MIN_POINT_SIGMA_M = 1e-3
 #: Typical 1-sigma accuracies (horizontal radial, vertical) [m] when a receiver reports none.
 TYPICAL_ACCURACY_M = {"rtk_fixed": (0.015, 0.025), "rtk_float": (0.25, 0.40), "dgnss": (0.5, 1.0),
                       "single": (2.0, 4.0), "none": (10.0, 20.0)}
@@ -50,4 +52,4 @@ def point_accuracy(p: Any) -> tuple[float, float]:
     th, tv = TYPICAL_ACCURACY_M.get(p.fix, TYPICAL_ACCURACY_M["none"])
     h = p.h_acc_m if math.isfinite(p.h_acc_m) else th
     v = p.v_acc_m if math.isfinite(p.v_acc_m) else tv
-    return float(max(h, p.spread_h_m, 1e-3)), float(max(v, p.spread_v_m, 1e-3))
+    return float(max(h, p.spread_h_m, MIN_POINT_SIGMA_M)), float(max(v, p.spread_v_m, MIN_POINT_SIGMA_M))

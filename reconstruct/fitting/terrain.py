@@ -16,8 +16,22 @@ import numpy as np
 
 from reconstruct.errors import FitError
 from reconstruct.fitting.fit_config import FitConfig
-from reconstruct.fitting.geometry import _underside_z
+from reconstruct.fitting.geometry import UNDER_LOG_GAP_M, _underside_z
 from synth.scene.pile import LogSpec, TerrainSpec
+
+# fewer ground candidates inside the patch than this: the scan does not see the ground [-]
+MIN_GROUND_POINTS = 10
+# a cell's low value: this quantile of its points' heights (robust to single low outliers) [-]
+CELL_LOW_QUANTILE = 0.1
+# the opening window is at least this many cells [-]
+MIN_OPENING_CELLS = 3
+# ground points lie at most this many ground_band_m under the opened surface [-]
+GROUND_BAND_BELOW = 3
+# holes are inpainted (Telea) with this radius [cells], on a 16-bit image of this many levels [-]
+INPAINT_RADIUS_CELLS = 3
+INPAINT_LEVELS = 65535
+# the heights are smoothed by a median over this many cells square [-]
+SMOOTHING_CELLS = 3
 
 
 def fit_terrain(ground_candidates: np.ndarray, extent_m: float, cfg: FitConfig | None = None,
@@ -36,11 +50,11 @@ def fit_terrain(ground_candidates: np.ndarray, extent_m: float, cfg: FitConfig |
     ix = np.rint((P[:, 0] + half) / step).astype(np.int64)
     iy = np.rint((P[:, 1] + half) / step).astype(np.int64)
     inside = (ix >= 0) & (ix < n) & (iy >= 0) & (iy < n)
-    if inside.sum() < 10:
+    if inside.sum() < MIN_GROUND_POINTS:
         raise FitError("almost no ground points inside the terrain patch; the scan does not see "
                        "the ground around the pile (scan from higher up, or enlarge the scanned area)")
     flat = iy * n + ix
-    # per-cell low value: 10th percentile (robust to single low outliers)
+    # per-cell low value (robust to single low outliers)
     low = np.full(n * n, np.nan)
     order = np.lexsort((P[:, 2], flat))
     order = order[inside[order]]
@@ -48,18 +62,19 @@ def fit_terrain(ground_candidates: np.ndarray, extent_m: float, cfg: FitConfig |
     starts = np.flatnonzero(np.r_[True, f_sorted[1:] != f_sorted[:-1]])
     ends = np.r_[starts[1:], len(order)]
     for s, e in zip(starts, ends):
-        k = s + int(0.1 * (e - s))
+        k = s + int(CELL_LOW_QUANTILE * (e - s))
         low[f_sorted[s]] = P[order[k], 2]
     low = low.reshape(n, n)
     have = np.isfinite(low)
     filled = _fill(low, have)
-    w = max(3, int(round(cfg.ground_window_m / step)) | 1)
+    w = max(MIN_OPENING_CELLS, int(round(cfg.ground_window_m / step)) | 1)
     opened = ndimage.grey_opening(filled, size=(w, w))
     # ground points: within the band above the opened surface (bilinear)
     from synth.scene.pile import height_at
 
     z_open = height_at(opened, extent_m, P[:, 0], P[:, 1])
-    is_ground = inside & (P[:, 2] < z_open + cfg.ground_band_m) & (P[:, 2] > z_open - 3 * cfg.ground_band_m)
+    is_ground = (inside & (P[:, 2] < z_open + cfg.ground_band_m)
+                 & (P[:, 2] > z_open - GROUND_BAND_BELOW * cfg.ground_band_m))
     med = np.full(n * n, np.nan)
     g = np.flatnonzero(is_ground)
     if g.size:
@@ -86,10 +101,10 @@ def fit_terrain(ground_candidates: np.ndarray, extent_m: float, cfg: FitConfig |
             # returned values far outside the data); quantisation < 0.02 mm per metre of relief
             lo, hi = float(heights.min()), float(heights.max())
             span = max(hi - lo, 1e-6)
-            img = np.rint((heights - lo) / span * 65535).astype(np.uint16)
-            inp = cv2.inpaint(img, (~have_g).astype(np.uint8), 3, cv2.INPAINT_TELEA)
-            heights = np.where(have_g, heights, lo + inp.astype(np.float64) / 65535 * span)
-    heights = ndimage.median_filter(heights, size=3, mode="nearest")
+            img = np.rint((heights - lo) / span * INPAINT_LEVELS).astype(np.uint16)
+            inp = cv2.inpaint(img, (~have_g).astype(np.uint8), INPAINT_RADIUS_CELLS, cv2.INPAINT_TELEA)
+            heights = np.where(have_g, heights, lo + inp.astype(np.float64) / INPAINT_LEVELS * span)
+    heights = ndimage.median_filter(heights, size=SMOOTHING_CELLS, mode="nearest")
     terrain = TerrainSpec(extent_m=extent_m, resolution=n, amplitude_m=0.0,
                           heights_m=tuple(tuple(float(v) for v in row) for row in heights), colour=colour)
     return terrain, is_ground, coverage
@@ -105,7 +120,7 @@ def _fill(grid: np.ndarray, have: np.ndarray) -> np.ndarray:
     return grid[iy, ix]
 
 
-def _clamp_under_logs(terrain: TerrainSpec, logs: Sequence[LogSpec], gap_m: float = 0.003) -> TerrainSpec:
+def _clamp_under_logs(terrain: TerrainSpec, logs: Sequence[LogSpec], gap_m: float = UNDER_LOG_GAP_M) -> TerrainSpec:
     """Lower the (unseen, interpolated) ground under each log so that the twin's terrain, the
     surface *between* the samples included, stays under the log: the ground cannot be above a
     log lying on it. Returns a new :class:`TerrainSpec`.
