@@ -77,26 +77,26 @@ def make_scans(scans: Path) -> None:
         print(f"made {name}", flush=True)
 
 
-def cases(scans: Path) -> list[tuple[str, Path, list[str]]]:
-    """(case name, scan folder, extra reconstruct flags)."""
+def cases(scans: Path, only: set[str] | None = None) -> list[tuple[str, Path, list[str]]]:
+    """(case name, scan folder, extra reconstruct flags), all or those named in ``only``."""
     out = [("demo", scans / "demo", []), ("demo-allow-float", scans / "demo", ["--allow-float"])]
     for name, _ in TWIN_SCANS:
         if not (scans / name / "gnss.csv").exists():
             raise SystemExit(f"{scans / name}: no scan there (make them with `recon_golden.py scans {scans}`)")
         out.append((name, scans / name, ["--allow-float"]))
-    return out
+    return [c for c in out if only is None or c[0] in only]
 
 
 def sha256(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
-def record(scans: Path, out: Path) -> None:
+def record(scans: Path, out: Path, only: set[str] | None = None) -> None:
     if out.exists():
         raise SystemExit(f"{out} exists; record into a new folder")
     out.mkdir(parents=True)
     with tempfile.TemporaryDirectory(prefix="recon-golden-") as tmp:
-        for name, scan, flags in cases(scans):
+        for name, scan, flags in cases(scans, only):
             work = Path(tmp) / name
             code, text = loggrasp("reconstruct", scan / "scan", "--gnss", scan / "gnss.csv", "--out", work, *flags)
             dst = out / name
@@ -129,6 +129,8 @@ def main(argv: list[str] | None = None) -> int:
                                           "with GOLDEN")
     for p in (rec, cmp_):
         p.add_argument("scans", type=Path)
+        p.add_argument("--cases", default="", help="comma-separated case names (default: all); a quick look, "
+                                                   "compared against the same cases of GOLDEN")
     rec.add_argument("out", type=Path)
     cmp_.add_argument("golden", type=Path)
     cmp_.add_argument("other", type=Path, nargs="?")
@@ -136,15 +138,25 @@ def main(argv: list[str] | None = None) -> int:
     if args.verb == "scans":
         make_scans(args.scans)
         return 0
+    only = {c for c in args.cases.split(",") if c} or None
     if args.verb == "record":
-        record(args.scans, args.out)
+        record(args.scans, args.out, only)
         return 0
     new = args.other or Path(tempfile.mkdtemp(prefix="recon-golden-new-")) / "new"
     if not new.exists():
-        record(args.scans, new)
-    code = compare_records(args.golden, new)
-    same = (args.golden / "hashes.txt").read_text() == (new / "hashes.txt").read_text()
-    print(f"hashes.txt {'equal' if same else 'DIFFERENT'} ({args.golden} vs {new})")
+        record(args.scans, new, only)
+    golden = args.golden
+    if only is not None:  # the same cases of the golden record
+        golden = Path(tempfile.mkdtemp(prefix="recon-golden-subset-")) / "golden"
+        golden.mkdir()
+        for name in only:
+            shutil.copytree(args.golden / name, golden / name)
+        keep = [ln for ln in (args.golden / "hashes.txt").read_text().splitlines()
+                if ln.split()[1].split("/")[0] in only]
+        (golden / "hashes.txt").write_text("\n".join(keep) + "\n")
+    code = compare_records(golden, new)
+    same = (golden / "hashes.txt").read_text() == (new / "hashes.txt").read_text()
+    print(f"hashes.txt {'equal' if same else 'DIFFERENT'} ({golden} vs {new})")
     return code or int(not same)
 
 

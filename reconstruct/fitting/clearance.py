@@ -27,13 +27,12 @@ from typing import Callable, Sequence
 import numpy as np
 
 from reconstruct.errors import SeparationError
+from reconstruct.fitting.ends import MIN_LOG_LENGTH_M
 from synth.scene.pile import LogSpec, PileSpec
 
 #: Offsets tried, in units of the end's sigma, along and across the log (0.5 sigma steps).
 OFFSET_STEPS = np.arange(-5, 6) * 0.5
 FIX_LABEL = {"rtk_fixed": "fixed"}
-# ends moved closer than this are not a log any more [m]
-MIN_LOG_LENGTH_M = 0.3
 
 
 @dataclass(frozen=True)

@@ -32,12 +32,10 @@ import numpy as np
 from reconstruct.errors import FitError, LogNotSeenError
 from reconstruct.fitting.fit_config import FitConfig
 from reconstruct.fitting.profiles import _frame, _profile_circle
-from reconstruct.fitting.survey_points import MIN_POINT_SIGMA_M
+from reconstruct.fitting.survey_points import MIN_POINT_SIGMA_M, SURVEY_REACH_SIGMAS
 from synth.scene.pile import LogSpec
 
 
-# a survey point is searched for within this many of its sigmas [-]
-SURVEY_REACH_SIGMAS = 3
 # an end whose sigma is more than this many times gnss_sigma_m is imprecise (an RTK float fix) [-]
 IMPRECISE_SIGMA_RATIO = 2
 # an imprecise end's axis is the line through two chunk centres that most chunks agree with, from this

@@ -24,7 +24,7 @@ import numpy as np
 
 from reconstruct.errors import FitError
 from reconstruct.fitting.fuse_config import FuseConfig
-from reconstruct.fitting.survey_points import SurveyEnd
+from reconstruct.fitting.survey_points import SURVEY_REACH_SIGMAS, SurveyEnd
 
 # the walk looks at the points within this many radii of the top line across [-]
 TOP_BAND_RADII = 0.5
@@ -40,15 +40,14 @@ UNIFORM_SD_DIVISOR = math.sqrt(12.0)
 # end_search_m wide [-]; a log without a survey point may run on unseen this many end_search_m [-]
 INTERVAL_MAX_SEARCHES = 2
 NO_POINT_REACH_SEARCHES = 2
-# past the fitted end, the walk reaches as far as the survey point, this many of its sigmas and this much
-# more [-, m], at most this far [m]; only the points this close to the log's line, across, or this far
-# along it past its ends, matter [m]
-SURVEY_REACH_SIGMAS = 3
+# past the fitted end, the walk reaches as far as the survey point, SURVEY_REACH_SIGMAS of its sigmas and
+# this much more [m], at most this far [m]; only the points this close to the log's line, across, or this
+# far along it past its ends, matter [m]
 REACH_MARGIN_M = 0.1
 MAX_REACH_M = 2.0
 LINE_MARGIN_M = 0.05
 LINE_REACH_M = 2.5
-# ends placed closer than this are nonsense: the fit's ends are kept [m]
+#: ends placed closer than this are nonsense: the fit's ends are kept [m]
 MIN_LOG_LENGTH_M = 0.3
 
 

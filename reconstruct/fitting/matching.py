@@ -20,7 +20,7 @@ import numpy as np
 from reconstruct.errors import FitError
 from reconstruct.fitting.fuse_config import FuseConfig
 from reconstruct.fitting.scan_logs import ScanLog
-from reconstruct.fitting.survey_points import SurveyEnd
+from reconstruct.fitting.survey_points import SURVEY_REACH_SIGMAS, SurveyEnd
 
 # a point beyond the gate costs this much more than the gate's chi^2 (so a log with no point on a scan log
 # is better matched to none) [-]
@@ -30,8 +30,6 @@ NO_MATCH_COST = 1e9
 # a scan log on a log's survey line lies above it when its axis is, on average over this many places, a
 # radius higher [-]
 HEIGHT_SAMPLES = 9
-# a survey point whose sigma is more than 1/this of end_search_m does not set where a log is fitted [-]
-SURVEY_REACH_SIGMAS = 3
 # a matched log's axis is known across to axis_sigma_m and 1/this of pose_sigma_m [-]
 POSE_SIGMA_DIVISOR = 2
 

@@ -31,7 +31,7 @@ ARC_BEYOND_M = 0.06
 PARTIAL_AXIS_SIGMAS = 2
 # the ground under a hidden log's end: this low percentile of at least this many scan points near it [%, -]
 GROUND_PERCENTILE = 10
-MIN_GROUND_POINTS = 10
+MIN_END_GROUND_POINTS = 10
 # a hidden log's gap to the logs over it is sampled this often along its axis [m]
 GAP_SAMPLE_STEP_M = 0.05
 # a hidden log between the ground and the logs over it agrees with the surveyed heights within this many
@@ -121,7 +121,7 @@ def _sandwiched_log(P: np.ndarray, end_a: Any, end_b: Any, over: Sequence[LogSpe
     ground = []
     for e in (a, b):
         near = np.linalg.norm(P[:, :2] - e[:2], axis=1) < ground_radius_m
-        if near.sum() < MIN_GROUND_POINTS:
+        if near.sum() < MIN_END_GROUND_POINTS:
             return None
         ground.append(float(np.percentile(P[near, 2], GROUND_PERCENTILE)))
     t = np.linspace(0.0, 1.0, max(2, int(np.linalg.norm(b[:2] - a[:2]) / GAP_SAMPLE_STEP_M) + 1))

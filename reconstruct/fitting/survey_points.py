@@ -12,6 +12,8 @@ import numpy as np
 
 #: No survey point is taken as more accurate than this, 1 sigma [m] (a receiver may report 0)
 MIN_POINT_SIGMA_M = 1e-3
+#: A survey point is looked for, and may place an end, within this many of its sigmas [-]
+SURVEY_REACH_SIGMAS = 3
 #: Typical 1-sigma accuracies (horizontal radial, vertical) [m] when a receiver reports none.
 TYPICAL_ACCURACY_M = {"rtk_fixed": (0.015, 0.025), "rtk_float": (0.25, 0.40), "dgnss": (0.5, 1.0),
                       "single": (2.0, 4.0), "none": (10.0, 20.0)}
