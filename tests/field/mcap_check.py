@@ -77,4 +77,36 @@ def check_trial_mcap(record_dir: Path, rec: dict) -> McapContent:
     # the grasp is chosen before it is sent, the frames start when the link opens for sending
     assert m.times_ns["/tf"][-1] <= m.times_ns["/command"][0] <= m.times_ns["/trial/state"][-1]
     assert m.times_ns["/can/frames"][0] >= rec["confirmed_utc_s"] * 1e9
+    check_decoded(record_dir, rec)
     return m
+
+
+def check_decoded(record_dir: Path, rec: dict) -> None:
+    """The protobuf topics decoded from the schemas the file carries (mcap-protobuf-support): the
+    images are JPEGs stamped with the scan's capture time, the cloud is in frame ``scan``, the
+    frames chain map -> site -> pile -> grasp, one cylinder per reconstructed log, one line per
+    planned grasp."""
+    from mcap.reader import make_reader
+    from mcap_protobuf.decoder import DecoderFactory
+
+    from field.trial import captured_time
+    from field.trial_view import MAX_CLOUD_POINTS
+    from synth.scene.pile import read_pile
+
+    captured = captured_time(record_dir / "inputs" / "scan", record_dir / "inputs" / "gnss.csv")
+    n_logs = read_pile(record_dir / "reconstruction" / "pile.json").n_logs
+    decoded: dict[str, list] = {}
+    with open(record_dir / "trial.mcap", "rb") as f:
+        for _, channel, _, msg in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages(
+                topics=["/scan/pair_000/left", "/scan/points", "/tf", "/pile/logs", "/plan/grasps"]):
+            decoded.setdefault(channel.topic, []).append(msg)
+    image = decoded["/scan/pair_000/left"][0]
+    assert image.format == "jpeg" and image.data[:2] == b"\xff\xd8"
+    assert abs(image.timestamp.seconds + image.timestamp.nanos * 1e-9 - captured) < 1e-6
+    cloud = decoded["/scan/points"][0]
+    assert cloud.frame_id == "scan" and cloud.point_stride == 16
+    assert 1000 < len(cloud.data) // cloud.point_stride <= MAX_CLOUD_POINTS
+    chain = [(t.parent_frame_id, t.child_frame_id) for tfs in decoded["/tf"] for t in tfs.transforms]
+    assert chain == [("map", "site"), ("site", "pile"), ("site", "scan"), ("pile", "grasp")]
+    assert len(decoded["/pile/logs"][0].entities) == n_logs
+    assert len(decoded["/plan/grasps"][0].entities) == len(rec["plan"]["grasps"])
