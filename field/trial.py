@@ -771,7 +771,9 @@ class _TrialRecord:
         if self.view is not None:
             self.view.events(outcome.messages)
             if traffic is not None and traffic.is_file():
-                self.view.can_traffic(traffic)
+                from urllib.parse import parse_qs, urlsplit
+
+                self.view.can_traffic(traffic, secured="secoc_key" in parse_qs(urlsplit(self.link_url).query))
         return outcome
 
     def close_view(self) -> None:

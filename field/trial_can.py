@@ -2,9 +2,9 @@
 
 Each frame becomes a JSON-able dict: its recorded time, id, direction, bytes, the DBC signals
 (``field/link/loggrasp.dbc``, value tables by name) and whether it passed the codec's checks
-(E2E CRC, length, reserved bits, protocol version: :func:`field.link.codec.decode`). An
-authenticated (SecOC-style) frame is decoded from its authentic part; its MAC is not checked
-here (the key stays with the link). Status and crane heartbeat frames also give the crane's
+(E2E CRC, length, reserved bits, protocol version: :func:`field.link.codec.decode`). On a link
+with authenticated (SecOC-style) frames each frame is decoded from its authentic part; its MAC
+is not checked here (the key stays with the link). Status and crane heartbeat frames also give the crane's
 state at that time (``crane_state``).
 """
 
@@ -23,8 +23,9 @@ def _plain(v: Any) -> Any:
     return str(v)
 
 
-def decode_frame(t_s: float, arbitration_id: int, data: bytes, is_rx: bool) -> dict:
-    """One recorded frame as a dict (see the module docstring)."""
+def decode_frame(t_s: float, arbitration_id: int, data: bytes, is_rx: bool, secured: bool = False) -> dict:
+    """One recorded frame as a dict (see the module docstring); ``secured``: the link carried
+    authenticated frames (:mod:`field.link.secoc`)."""
     from field.errors import ProtocolError
     from field.link.codec import authentic_length, decode, kind_of_frame_id, load_database
 
@@ -37,8 +38,8 @@ def decode_frame(t_s: float, arbitration_id: int, data: bytes, is_rx: bool) -> d
     out["kind"] = kind
     message = load_database().get_message_by_frame_id(arbitration_id)
     pdu = bytes(data)
-    out["secured"] = len(pdu) != message.length
-    if out["secured"]:
+    out["secured"] = secured
+    if secured:  # the authentic PDU, then freshness and MAC where the plain frame's reserved tail is
         a = authentic_length(kind)
         pdu = pdu[:a] + bytes(message.length - a)
     try:
@@ -66,8 +67,8 @@ def _crane_state(kind: str, msg: Any, t_s: float) -> dict:
     return {"t_utc_s": t_s, "source": kind, **fields}
 
 
-def decode_recording(blf_path: str | Path) -> list[dict]:
-    """Every frame of a BLF recording, decoded, in time order."""
+def decode_recording(blf_path: str | Path, secured: bool = False) -> list[dict]:
+    """Every frame of a BLF recording, decoded, in time order (``secured``: see :func:`decode_frame`)."""
     import can
 
     frames = []
@@ -76,6 +77,6 @@ def decode_recording(blf_path: str | Path) -> list[dict]:
             if msg.is_error_frame or msg.is_remote_frame:
                 continue
             frames.append(decode_frame(float(msg.timestamp), int(msg.arbitration_id), bytes(msg.data),
-                                       bool(msg.is_rx)))
+                                       bool(msg.is_rx), secured))
     frames.sort(key=lambda f: f["t_utc_s"])
     return frames

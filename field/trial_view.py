@@ -325,13 +325,13 @@ class TrialView:
         for msg in sorted(messages, key=lambda d: d.get("t_utc_s", 0.0)):
             self.guarded("a link event", self._log, "/trial/events", "json", msg, msg.get("t_utc_s", time.time()))
 
-    def can_traffic(self, blf_path: Path) -> None:
-        """Every frame of a CAN recording with its decoded signals; Status and heartbeat frames
-        also as the crane's state."""
+    def can_traffic(self, blf_path: Path, secured: bool = False) -> None:
+        """Every frame of a CAN recording with its decoded signals (``secured``: the link carried
+        authenticated frames); Status and heartbeat frames also as the crane's state."""
         from field.trial_can import decode_recording
 
         def log_it() -> None:
-            for frame in decode_recording(blf_path):
+            for frame in decode_recording(blf_path, secured):
                 self._log("/can/frames", "json", frame, frame["t_utc_s"])
                 state = frame.get("crane_state")
                 if state is not None:

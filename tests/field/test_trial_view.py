@@ -117,3 +117,20 @@ def test_can_frames_decode_with_their_signals_and_checks():
     assert "CRC" in g["check"] or "reserved" in g["check"] or "decode" in g["check"]
     assert "crane_state" not in g
     assert decode_frame(1.0, 0x7FF, b"\x00", False)["check"] == "unknown frame id"
+
+
+def test_authenticated_frames_decode_from_their_authentic_part():
+    import secrets
+
+    from field.link.codec import encode, frame_id
+    from field.link.messages import GraspCommand
+    from field.link.secoc import SecOC
+    from field.trial_can import decode_frame
+
+    cmd = GraspCommand(command_id=9, easting_mm=743497383, northing_mm=7117721873, height_mm=249944,
+                       heading_cdeg=10565, opening_width_mm=868, target_log_count=4, plan_timestamp_ms=1795329353000)
+    kind, plain = encode(cmd, 5)
+    wire = SecOC(secrets.token_bytes(32)).secure(kind, plain)
+    f = decode_frame(1.0, frame_id(kind), wire, False, secured=True)
+    assert f["check"] == "ok" and f["secured"] and f["signals"]["EastingMm"] == 743497383
+    assert decode_frame(1.0, frame_id(kind), wire, False)["check"] != "ok"  # read as a plain frame it is not one
