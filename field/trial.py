@@ -791,7 +791,7 @@ class _TrialRecord:
             path = None
         if where is not None and (path is not None or view.errors):
             self.write(view={"path": None if path is None else path.name, "messages": view.counts,
-                             "log_s": view.busy_s, "close_s": time.perf_counter() - t0},
+                             "log_s": view.busy_s, "close_s": time.perf_counter() - t0},  # what it cost [s]
                        **({"view_errors": view.errors} if view.errors else {}))
 
     def finish(self, outcome: TrialOutcome) -> None:

@@ -88,7 +88,7 @@ class TrialView:
         self._fg = foxglove
         self.part_path = Path(part_path)
         self.errors: list[str] = []
-        self.busy_s = 0.0  # wall time spent logging (converting and writing) in the trial's thread [s]
+        self.busy_s: dict[str, float] = {}  # wall time spent logging (converting, writing) per item [s]
         self.counts: dict[str, int] = {}
         self._channels: dict[str, Any] = {}
         self._last_ns: dict[str, int] = {}
@@ -144,7 +144,7 @@ class TrialView:
                             type(exc).__name__, exc, exc_info=True)
             self.errors.append(f"{what}: {type(exc).__name__}: {exc}")
         finally:
-            self.busy_s += time.perf_counter() - t0
+            self.busy_s[what] = self.busy_s.get(what, 0.0) + time.perf_counter() - t0
 
     def _stamp(self, t_s: float) -> Any:
         sec = math.floor(t_s)
