@@ -89,14 +89,33 @@ def test_live_view_serves_the_trial_on_loopback(tmp_path):
             got = b""
             while b"planning" not in got and time.monotonic() < deadline:
                 view.line("planning", t_s=101.0)  # until the subscription has reached the server
-                got = ws.recv(timeout=1)
+                try:
+                    got = ws.recv(timeout=0.5)
+                except TimeoutError:
+                    continue
             assert got[0] == 1 and int.from_bytes(got[1:5], "little") == 7  # message data, our subscription
             assert int.from_bytes(got[5:13], "little") == 101_000_000_000  # its log time [ns]
     finally:
         live.close(tmp_path / "stage")
     assert read_mcap(tmp_path / "stage" / MCAP_NAME).times_ns["/trial/log"][0] == 100_000_000_000
-    with socket.socket() as s, pytest.raises(ConnectionRefusedError):  # the server stopped with the view
-        s.connect(("127.0.0.1", port))
+    assert _refused_within(port, 5.0), "the live server still listens after the view closed"
+
+
+def _refused_within(port: int, timeout_s: float) -> bool:
+    """Whether connections to 127.0.0.1:``port`` are refused within ``timeout_s`` (the server's
+    listener closes asynchronously)."""
+    import time
+
+    deadline = time.monotonic() + timeout_s
+    while True:
+        with socket.socket() as s:
+            try:
+                s.connect(("127.0.0.1", port))
+            except ConnectionRefusedError:
+                return True
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.05)
 
 
 def test_can_frames_decode_with_their_signals_and_checks():
