@@ -10,7 +10,7 @@ with the reason for a trial that was refused, declined, not answered or interrup
 :func:`replay_record` checks the recorded inputs' sha256, re-runs reconstruction and planning from
 them and says whether the command is bit-identical.
 
-Trial record (``loggrasp.trial-record`` 1.0)::
+Trial record (``loggrasp.trial-record`` 1.2)::
 
     RECORD/record.json        versions, input hashes, options, plan, command, messages, outcome
     RECORD/inputs/scan/...    copies of the scan and the GNSS file as used
@@ -59,7 +59,8 @@ from synth.common.files import sha256_file as sha256_of
 from synth.common.formats import VersionedJson
 
 RECORD_FORMAT = "loggrasp.trial-record"
-RECORD_VERSION = "1.1"  # 1.1: verification, chosen_rank, verified (a 1.0 record was never verified)
+RECORD_VERSION = "1.2"  # 1.1: verification, chosen_rank, verified (a 1.0 record was never verified);
+# 1.2: view and view_errors (trial.mcap beside record.json)
 
 
 class TrialAborted(FieldError):
