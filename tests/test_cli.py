@@ -537,6 +537,12 @@ def test_demo_bad_input(capsys, work, a_file):
     fails(cli(capsys, "demo", "--link", "twin://", "--out", work / "d2"), 3, "--link", "twin://")
     fails(cli(capsys, "demo", "--out", a_file / "d"), 2, "--out", str(a_file))
     assert not (work / "d2").exists()
+    with socket.socket() as busy:  # the live view's port in use: stopped before the trial, nothing recorded
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        fails(cli(capsys, "demo", "--out", work / "d3", "--foxglove", busy.getsockname()[1]), 2, "--foxglove",
+              "in use", "nothing was recorded")
+    assert not (work / "d3" / "trial").exists() and not list((work / "d3").glob(".*part"))
 
 
 def _replay_temp_dirs() -> set[str]:
