@@ -583,7 +583,7 @@ def test_gnss_without_a_crs_line_warns():
 # -- field: demo, trial, replay, crane-sim ----------------------------------------------------------------
 @pytest.fixture(scope="module")
 def demo_record(work) -> Path:
-    r = run_captured("demo", "--out", work / "demo", "--json")
+    r = run_captured("demo", "--out", work / "demo", "--json", "--foxglove", _free_port())  # also served live
     assert r.code == 0, r.err
     d = r.json()
     assert d["format"] == "loggrasp.trial-result" and d["final_state"] == "SUCCESS"
@@ -606,6 +606,16 @@ def test_demo_record_is_complete(demo_record):
 
 
 @pytest.mark.slow
+def test_demo_writes_a_foxglove_recording(demo_record):
+    """The demo's trial.mcap, read back with the mcap package's reader (not the SDK that wrote it)."""
+    from tests.field.mcap_check import check_trial_mcap
+
+    rec = json.loads((demo_record / "record.json").read_text())
+    check_trial_mcap(demo_record, rec)
+    assert not list(demo_record.parent.glob(".*.part")) and not list(demo_record.glob(".*.part"))
+
+
+@pytest.mark.slow
 def test_demo_without_verification_sends_the_networks_best(capsys, work):
     r = cli(capsys, "demo", "--out", work / "demo_nv", "--no-verify", "--json")
     d = r.json()
@@ -620,6 +630,12 @@ def test_demo_bad_input(capsys, work, a_file):
     fails(cli(capsys, "demo", "--link", "twin://", "--out", work / "d2"), 3, "--link", "twin://")
     fails(cli(capsys, "demo", "--out", a_file / "d"), 2, "--out", str(a_file))
     assert not (work / "d2").exists()
+    with socket.socket() as busy:  # the live view's port in use: stopped before the trial, nothing recorded
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        fails(cli(capsys, "demo", "--out", work / "d3", "--foxglove", busy.getsockname()[1]), 2, "--foxglove",
+              "in use", "nothing was recorded")
+    assert not (work / "d3" / "trial").exists() and not list((work / "d3").glob(".*part"))
 
 
 def _replay_temp_dirs() -> set[str]:
@@ -709,6 +725,13 @@ def test_trial_bad_input_fails_before_any_work(capsys, work, a_file):
     fails(cli(capsys, *base, "--link", "twin://", "--verify-budget", "0.1"), 2, "--verify-budget 0.1",
           "too small for one twin trial")
     fails(cli(capsys, *base, "--link", "twin://", "--send-rank", "0"), 2, "--send-rank")
+    fails(cli(capsys, *base, "--link", "twin://", "--foxglove", "0"), 2, "--foxglove")
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        fails(cli(capsys, *base, "--link", "twin://", "--foxglove", busy.getsockname()[1]), 2, "--foxglove",
+              "in use")
+    assert not list(work.glob(".t_bad*"))
     fails(cli(capsys, "trial", "--scan", SCAN, "--gnss", GNSS, "--record", a_file / "r", "--link", "twin://"), 2,
           "--record", str(a_file))
     fails(cli(capsys, "trial", "--scan", work / "none", "--gnss", GNSS, "--record", rec, "--link", "twin://"), 2,
