@@ -18,6 +18,7 @@ Trial record (``loggrasp.trial-record`` 1.0)::
     RECORD/reconstruction/    pile.json, ortho.npz, preview.png, compare.png, report.json
     RECORD/plan/              plan.json, plan.png, grasp_map.png, pile.geojson, pile.sweref99tm.geojson
     RECORD/link/traffic.blf   every CAN frame of the session (CAN links)
+    RECORD/audit.jsonl        hash chain of every file and record.json step (field/audit/record.py)
 
 Nothing unsafe is sent: no RTK fix (the survey reader refuses float/no-fix points unless
 allowed), a grasp out of reach or over the lift capacity, stale pile data, an operator who does
@@ -48,13 +49,14 @@ from typing import Callable, Literal
 
 import numpy as np
 
+from field.audit.record import RecordSeal
 from field.errors import FieldError
 from field.link.messages import DEFAULT_MAX_PILE_AGE_S, GraspCommand
 from synth.common.files import sha256_file as sha256_of
 from synth.common.formats import VersionedJson
 
 RECORD_FORMAT = "loggrasp.trial-record"
-RECORD_VERSION = "1.1"  # 1.1: verification, chosen_rank, verified (a 1.0 record was never verified)
+RECORD_VERSION = "1.2"  # 1.1: verification, chosen_rank, verified (a 1.0 record was never verified); 1.2: audit
 
 
 class TrialAborted(FieldError):
@@ -628,16 +630,15 @@ class _TrialRecord:
         self.record: dict = {"format": RECORD_FORMAT, "format_version": RECORD_VERSION, "versions": _versions(),
                              "started_utc_s": time.time(), "link": link_url, "options": asdict(options),
                              "final_state": "PREPARING"}
+        self._seal = RecordSeal()  # the record's hash chain, RECORD/audit.jsonl (field.audit.record)
 
     def in_final_words(self, say: Callable[[str], None]) -> Callable[[str], None]:
         """``say`` with the temporary folder named as the record folder it becomes."""
         return lambda text: say(str(text).replace(str(self.tmp), str(self.record_dir)))
 
     def write(self, **changes) -> None:
-        from synth.common.files import atomic_write_bytes
-
         self.record.update(changes)
-        atomic_write_bytes(self.where / "record.json", json.dumps(self.record, indent=1).encode())
+        self._seal.write(self.where, self.record)  # changed files and record.json chained, then written
 
     def publish(self) -> None:
         os.replace(self.tmp, self.record_dir)
