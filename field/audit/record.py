@@ -106,7 +106,7 @@ def _name(i: int, e: dict[str, Any] | None) -> str:
         return f"entry {i}"
     what = e.get("path") or ("genesis" if i == 0 else e.get("kind", "?"))
     state = f", state {e['state']}" if e.get("state") else ""
-    return f"entry {i} ({e.get('kind', 'genesis')} {what}{state})" if i else f"entry 0 (genesis)"
+    return f"entry {i} ({e.get('kind', 'genesis')} {what}{state})" if i else "entry 0 (genesis)"
 
 
 def _parse_line(raw: bytes, i: int) -> dict[str, Any] | None:
@@ -130,8 +130,8 @@ def _check_record_entry(report: AuditReport, entries: list[dict], claimed: Any, 
         return True
     if isinstance(claimed, int) and claimed >= len(entries):
         report.broken_entry(len(entries), f"entry {claimed} (record {RECORD_FILE})",
-                            f"record.json was sealed as entry {claimed} but the chain ends at entry {len(entries) - 1}: "
-                            "its tail was cut off")
+                            f"record.json was sealed as entry {claimed} but the chain ends at entry "
+                            f"{len(entries) - 1}: its tail was cut off")
     elif any(entries[i].get("sha256") == sha for i in records):
         report.broken_entry(last, _name(last, entries[last]),
                             f"the chain seals a later {RECORD_FILE} than the folder's: record.json was rolled back, or "

@@ -1,0 +1,194 @@
+"""The IEC 61784-3 transmission errors injected on the Zenoh link (issue 39's safety case), each
+with its safe reaction: the same faults test_link_faults.py injects on CAN, here on a laptop
+whose sends go through an armed fault channel, to an in-process crane controller over Zenoh on
+127.0.0.1 (no scouting). Each test is a cell of docs/safety-case.md (scripts/safety_case.py)."""
+
+from __future__ import annotations
+
+import threading
+from typing import Iterator
+
+import pytest
+
+from field.controller import ControllerConfig, CraneController, FixedOutcomeExecutor
+from field.errors import CommandRejected, LinkTimeout
+from field.link import ControllerState, RejectReason
+from field.link.base import LinkConfig, LinkURL
+from tests.field.helpers import wait_until
+
+LINK = LinkConfig(heartbeat_timeout_s=1.0, status_timeout_s=1.0, connect_timeout_s=20.0)
+E2E = "E2E profile: CRC over data id + payload, and a 4-bit alive counter"
+
+
+def _flip(data: bytes, byte: int) -> bytes:
+    return data[:byte] + bytes([data[byte] ^ 0x08]) + data[byte + 1:]
+
+
+class ZenohPair:
+    """A laptop (ZenohLink whose sends can be armed with a fault) and a crane controller."""
+
+    def __init__(self, port: int, delay_s: float = 0.05):
+        from field.link.zenoh_backend import ZenohControllerTransport, ZenohLink, ZenohTarget
+
+        class ArmedZenohLink(ZenohLink):
+            def __init__(self, target, config):
+                self.armed: list[tuple[str, str, int]] = []  # (action, kind, byte), one frame each
+                self.held: list[tuple[str, bytes]] = []
+                self.lock = threading.Lock()
+                super().__init__(target, config)
+
+            def _transmit(self, kind: str, data: bytes) -> None:
+                with self.lock:
+                    fault = next((f for f in self.armed if f[1] == kind), None)
+                    if fault is not None:
+                        self.armed.remove(fault)
+                action = fault[0] if fault else None
+                if action == "drop":
+                    return
+                if action == "hold":
+                    self.held.append((kind, data))
+                    return
+                ZenohLink._transmit(self, kind, _flip(data, fault[2]) if action == "corrupt" else data)
+                if action == "duplicate":
+                    ZenohLink._transmit(self, kind, data)
+
+        url = LinkURL.parse(f"zenoh://127.0.0.1:{port}/safety")
+        target = ZenohTarget.from_url(url, url.pop_link_config()[1])
+        self.executor = FixedOutcomeExecutor(delay_s=delay_s)
+        self.controller = CraneController(ControllerConfig(laptop_timeout_s=1.0), self.executor)
+        self.transport = ZenohControllerTransport(target)
+        self.transport.start(self.controller)
+        self.controller.start()
+        self.link = ArmedZenohLink(target, LINK)
+        self.link._await_controller()
+
+    def arm(self, action: str, kind: str = "GraspCommand", byte: int = 20) -> None:
+        with self.link.lock:
+            self.link.armed.append((action, kind, byte))
+
+    def release(self) -> int:
+        """Send the held frames now (late); how many."""
+        from field.link.zenoh_backend import ZenohLink
+
+        held, self.link.held = self.link.held, []
+        for kind, data in held:
+            ZenohLink._transmit(self.link, kind, data)
+        return len(held)
+
+    def close(self) -> None:
+        self.link.close()
+        self.controller.close()
+        self.transport.close()
+
+
+@pytest.fixture
+def zpair(port) -> Iterator:
+    made: list[ZenohPair] = []
+
+    def make(delay_s: float = 0.05) -> ZenohPair:
+        made.append(ZenohPair(port, delay_s))
+        return made[-1]
+
+    yield make
+    for p in made:
+        p.close()
+
+
+@pytest.mark.safety_case(error="corruption", link="zenoh", measure=E2E + " (CRC)",
+                         reaction="frame rejected CRC, answered for command id 0 (for nobody); not executed; the "
+                                  "laptop's status query says NOT executing")
+def test_zenoh_corrupted_command_is_answered_for_nobody(zpair, make_cmd):
+    p = zpair()
+    p.arm("corrupt", byte=20)
+    cmd = make_cmd(p.link.new_command_id())
+    with pytest.raises(LinkTimeout) as ei:
+        p.link.send_grasp(cmd, timeout_s=1.0)
+    assert ei.value.status.state is ControllerState.IDLE and "NOT executing" in str(ei.value)
+    assert p.controller.rejections == [(0, RejectReason.CRC)]
+    assert p.executor.executed == []
+
+
+@pytest.mark.safety_case(error="unintended repetition", link="zenoh",
+                         measure=E2E + " (counter: a copy repeats the last value); command ids burned in the journal",
+                         reaction="the copy is dropped; the command runs once")
+def test_zenoh_duplicated_command_executes_once(zpair, make_cmd):
+    p = zpair()
+    p.arm("duplicate")
+    cmd = make_cmd(p.link.new_command_id())
+    assert p.link.send_grasp(cmd, timeout_s=5.0).accepted
+    p.link.wait_outcome(cmd.command_id, 10.0)
+    p.link.status()  # a barrier: the controller handled the copy before this query
+    assert p.executor.executed == [cmd.command_id]
+    assert all(r == RejectReason.DUPLICATE_ID for _, r in p.controller.rejections)
+
+
+@pytest.mark.safety_case(error="incorrect sequence", link="zenoh", measure=E2E + " (counter)",
+                         reaction="the overtaken, late command is rejected COUNTER and never executed")
+def test_zenoh_reordered_late_command_is_never_executed(zpair, make_cmd):
+    p = zpair()
+    a = make_cmd(p.link.new_command_id())
+    p.arm("hold")
+    with pytest.raises(LinkTimeout):
+        p.link.send_grasp(a, timeout_s=1.0)
+    b = make_cmd(p.link.new_command_id())
+    assert p.link.send_grasp(b, timeout_s=5.0).accepted  # b overtakes a
+    p.link.wait_outcome(b.command_id, 10.0)
+    assert p.release() == 1  # a arrives late, out of sequence
+    assert wait_until(lambda: (a.command_id, RejectReason.COUNTER) in p.controller.rejections)
+    assert p.executor.executed == [b.command_id]
+
+
+@pytest.mark.safety_case(error="loss", link="zenoh",
+                         measure="acknowledgement timeout, then a status query (the controller's own state)",
+                         reaction="the operator is told NOT executing; the id is burned (never re-sent); the next "
+                                  "command runs")
+def test_zenoh_dropped_command_is_known_not_executed(zpair, make_cmd):
+    p = zpair()
+    p.arm("drop")
+    cmd = make_cmd(p.link.new_command_id())
+    with pytest.raises(LinkTimeout) as ei:
+        p.link.send_grasp(cmd, timeout_s=1.0)
+    assert ei.value.status is not None and ei.value.status.state is ControllerState.IDLE
+    assert "NOT executing" in str(ei.value)
+    with pytest.raises(CommandRejected):  # never re-sent with the same id
+        p.link.send_grasp(cmd)
+    nxt = make_cmd(p.link.new_command_id())
+    assert p.link.send_grasp(nxt, timeout_s=5.0).accepted
+    p.link.wait_outcome(nxt.command_id, 10.0)
+    assert p.executor.executed == [nxt.command_id]
+
+
+@pytest.mark.safety_case(error="unacceptable delay", link="zenoh",
+                         measure="acknowledgement timeout, then revocation of the id (the command again with 0 target "
+                                 "logs, refused by definition, burns it); pile-age limit on the crane's clock",
+                         reaction="the operator is told it did not run; the late frame is rejected DUPLICATE_ID and "
+                                  "never executed")
+def test_zenoh_command_delayed_past_its_timeout_never_runs(zpair, make_cmd):
+    p = zpair()
+    p.arm("hold")
+    cmd = make_cmd(p.link.new_command_id())
+    fate = p.link.execute(cmd, ack_timeout_s=1.0)
+    assert fate.executed is False and "revoked" in fate.summary
+    assert p.release() == 1  # the late frame arrives
+    assert wait_until(lambda: (cmd.command_id, RejectReason.DUPLICATE_ID) in p.controller.rejections)
+    assert p.executor.executed == []
+
+
+@pytest.mark.safety_case(error="addressing", link="zenoh",
+                         measure="the E2E data id of each message kind is in the CRC; one key expression per crane",
+                         reaction="a frame of another message kind delivered to the command queryable is rejected "
+                                  "(CRC / MALFORMED), never executed")
+def test_zenoh_frame_of_another_kind_at_the_command_key_is_rejected(zpair, make_cmd):
+    from field.link.codec import Encoder
+    from field.link.messages import Ack
+
+    p = zpair()
+    _, cmd_frame = Encoder().encode(make_cmd(777))
+    _, ack_frame = Encoder().encode(Ack(777, True))
+    misaddressed = ack_frame + cmd_frame[len(ack_frame):]  # an answer's bytes where a command goes
+    from field.link.zenoh_backend import ZenohLink
+
+    ZenohLink._transmit(p.link, "GraspCommand", misaddressed)
+    assert wait_until(lambda: len(p.controller.rejections) == 1)
+    assert p.controller.rejections[0][1] in (RejectReason.CRC, RejectReason.MALFORMED)
+    assert p.executor.executed == [] and not p.controller.seen(777)
