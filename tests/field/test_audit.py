@@ -243,3 +243,13 @@ def test_audit_verify_command(tmp_path, capsys):
     assert "--head" in capsys.readouterr().err
     assert run(["audit", "verify", str(tmp_path / "nope")]) == 2
     assert "RECORD" in capsys.readouterr().err
+
+
+def test_a_line_whose_bytes_are_not_canonical_is_caught(tmp_path):
+    """A space added inside a line leaves its content (and hash) the same: the bytes must still be
+    the one canonical serialisation."""
+    p = tmp_path / "j.jsonl"
+    _journal(p)
+    p.write_bytes(p.read_bytes().replace(b'"status":"accepted"', b'"status": "accepted"', 1))
+    r = verify(p)
+    assert r.status == "broken" and r.broken_at == 1 and "canonical" in r.problem

@@ -1,7 +1,8 @@
-"""The IEC 61784-3 transmission errors injected on the Zenoh link (issue 39's safety case), each
-with its safe reaction: the same faults test_link_faults.py injects on CAN, here on a laptop
-whose sends go through an armed fault channel, to an in-process crane controller over Zenoh on
-127.0.0.1 (no scouting). Each test is a cell of docs/safety-case.md (scripts/safety_case.py)."""
+"""IEC 61784-3 transmission errors that had no test on a link (issue 39's safety case), each with
+its safe reaction: on Zenoh the faults test_link_faults.py injects on CAN, on a laptop whose sends
+go through an armed fault channel, to an in-process crane controller over Zenoh on 127.0.0.1 (no
+scouting); on both links a frame protected for another message kind. Each test is a cell of
+docs/safety-case.md (scripts/safety_case.py)."""
 
 from __future__ import annotations
 
@@ -174,21 +175,50 @@ def test_zenoh_command_delayed_past_its_timeout_never_runs(zpair, make_cmd):
     assert p.executor.executed == []
 
 
-@pytest.mark.safety_case(error="addressing", link="zenoh",
-                         measure="the E2E data id of each message kind is in the CRC; one key expression per crane",
-                         reaction="a frame of another message kind delivered to the command queryable is rejected "
-                                  "(CRC / MALFORMED), never executed")
-def test_zenoh_frame_of_another_kind_at_the_command_key_is_rejected(zpair, make_cmd):
-    from field.link.codec import Encoder
-    from field.link.messages import Ack
+def misaddressed_command(cmd, encoder) -> bytes:
+    """A command frame E2E-protected under another message kind's data id (an Outcome's): the
+    same length and layout, a valid CRC, but meant for another receiver."""
+    from e2e.p05 import e2e_p05_protect
 
-    p = zpair()
-    _, cmd_frame = Encoder().encode(make_cmd(777))
-    _, ack_frame = Encoder().encode(Ack(777, True))
-    misaddressed = ack_frame + cmd_frame[len(ack_frame):]  # an answer's bytes where a command goes
+    from field.link.codec import data_id
+
+    _, frame = encoder.encode(cmd)
+    data = bytearray(frame)
+    e2e_p05_protect(data, data_id("Outcome"), increment_counter=False)
+    return bytes(data)
+
+
+@pytest.mark.safety_case(error="addressing", link="zenoh",
+                         measure="the E2E data id of each message kind is inside the CRC; a key expression per "
+                                 "message kind and crane",
+                         reaction="a frame protected for another message kind, at the command key, is rejected CRC; "
+                                  "never executed")
+def test_zenoh_frame_of_another_kind_at_the_command_key_is_rejected(zpair, make_cmd):
     from field.link.zenoh_backend import ZenohLink
 
-    ZenohLink._transmit(p.link, "GraspCommand", misaddressed)
+    p = zpair()
+    cmd = make_cmd(p.link.new_command_id())
+    ZenohLink._transmit(p.link, "GraspCommand", misaddressed_command(cmd, p.link._encoder))
     assert wait_until(lambda: len(p.controller.rejections) == 1)
-    assert p.controller.rejections[0][1] in (RejectReason.CRC, RejectReason.MALFORMED)
-    assert p.executor.executed == [] and not p.controller.seen(777)
+    assert p.controller.rejections == [(0, RejectReason.CRC)]
+    assert p.executor.executed == [] and not p.controller.seen(cmd.command_id)
+
+
+@pytest.mark.safety_case(error="addressing", link="can",
+                         measure="the E2E data id of each message kind is inside the CRC (one CAN id per kind)",
+                         reaction="a frame protected for another message kind, on the command id, is rejected CRC; "
+                                  "never executed")
+def test_can_frame_of_another_kind_on_the_command_id_is_rejected(make_cmd):
+    import can
+
+    from field.link.codec import Encoder, frame_id
+    from tests.field.helpers import can_pairs
+
+    with can_pairs("addressing", LINK) as make:
+        p = make()
+        cmd = make_cmd(p.link.new_command_id())
+        p.node().send(can.Message(arbitration_id=frame_id("GraspCommand"), is_extended_id=False, is_fd=True,
+                                  data=misaddressed_command(cmd, Encoder())))
+        assert wait_until(lambda: len(p.controller.rejections) == 1)
+        assert p.controller.rejections == [(0, RejectReason.CRC)]
+        assert p.executor.executed == [] and not p.controller.seen(cmd.command_id)
