@@ -158,6 +158,12 @@ MUTATIONS: tuple[Mutation, ...] = (
       ("tests/field/test_link_safety.py::test_a_command_delayed_past_its_timeout_never_runs_after_the_operator_was_"
        "told_it_did_not",
        "tests/field/test_safety_case_links.py::test_zenoh_command_delayed_past_its_timeout_never_runs")),
+    M("secoc-mac-unchecked", "an authenticated frame's MAC is not compared (insertion and masquerade cells)",
+      "field/link/secoc.py",
+      "if not hmac.compare_digest(mac, self._mac(kind, pdu, fv)) or any(data[n + TRAILER_BYTES:]):",
+      "if any(data[n + TRAILER_BYTES:]):",
+      ("tests/field/test_link_secoc.py::test_forged_frames_are_dropped_on_both_sides",
+       "tests/field/test_link_secoc.py::test_a_crane_with_another_key_is_not_reached")),
     M("audit-prev-unchecked", "a chained line's prev is not compared with the previous line's hash",
       "field/audit/chain.py", "    if obj.get(PREV_KEY) != prev:\n", "    if False:\n", ("tests/field/test_audit.py",)),
     M("audit-canonical-unchecked", "a chained line whose bytes are not canonical is accepted",
