@@ -28,6 +28,7 @@ from typing import Any
 
 from field.audit.chain import AuditError, ChainCheck, ChainFile, check_lines
 from field.audit.report import AuditReport
+from synth.common.formats import VersionedJson
 
 AUDIT_FILE = "audit.jsonl"
 CHAIN_FORMAT = "loggrasp.audit-chain"
@@ -35,6 +36,9 @@ CHAIN_VERSION = "1.0"
 RECORD_FILE = "record.json"
 RECORD_FORMAT = "loggrasp.trial-record"  # the same name field.trial writes
 _NOT_SEALED_AS_FILES = (AUDIT_FILE, RECORD_FILE)  # the chain itself, and record.json (its own entries)
+CHAIN = VersionedJson(CHAIN_FORMAT, CHAIN_VERSION, "trial record audit chain", AuditError,
+                      fix="upgrade loggrasp to verify it")
+RECORD = VersionedJson(RECORD_FORMAT, "1.2", "trial record", AuditError, fix="upgrade loggrasp to verify it")
 
 
 def _files(folder: Path) -> dict[str, Path]:
@@ -84,9 +88,8 @@ class RecordSeal:
         from synth.common.files import atomic_write_bytes
 
         if self._chain is None:
-            self._chain = ChainFile.create(folder / AUDIT_FILE, {
-                "format": CHAIN_FORMAT, "format_version": CHAIN_VERSION, "what": "trial record",
-                "created_utc_s": time.time()})
+            self._chain = ChainFile.create(folder / AUDIT_FILE, CHAIN.document(
+                {"what": "trial record", "created_utc_s": time.time()}))
             self._entries = 1
         self._chain.path = folder / AUDIT_FILE  # the folder may have been renamed into place
         for entry in self._changed_files(folder):
@@ -177,13 +180,18 @@ def _read(path: Path) -> bytes | None:
         raise AuditError(f"cannot read {path}: {exc.strerror or exc}") from exc
 
 
-def _parse_record(raw: bytes) -> dict[str, Any] | None:
-    """record.json as a dict when it is one of a trial record; None when it is not (any more)."""
+def _parse_record(raw: bytes, path: Path, strict: bool) -> dict[str, Any] | None:
+    """record.json as a dict when it is a trial record of a version this code reads; else None
+    (``strict``: :class:`AuditError`, for a folder whose record.json no chain seals)."""
     try:
-        rec = json.loads(raw)
-    except ValueError:
-        return None
-    return rec if isinstance(rec, dict) and rec.get("format") == RECORD_FORMAT else None
+        return RECORD.check(json.loads(raw), path)
+    except ValueError as exc:
+        if strict:
+            raise AuditError(f"{path} is not valid JSON ({exc}): not a trial record this code can check") from exc
+    except AuditError:
+        if strict:
+            raise
+    return None
 
 
 def verify_record(folder: Path) -> AuditReport:
@@ -191,20 +199,18 @@ def verify_record(folder: Path) -> AuditReport:
     record_raw = _read(folder / RECORD_FILE)
     if record_raw is None:
         raise AuditError(f"{folder} is not a trial record (no {RECORD_FILE}); give a record folder or a journal file")
-    rec, chain_raw = _parse_record(record_raw), _read(folder / AUDIT_FILE)
+    chain_raw = _read(folder / AUDIT_FILE)
+    rec = _parse_record(record_raw, folder / RECORD_FILE, strict=chain_raw is None)
     report = AuditReport(str(folder), "trial record")
     if chain_raw is None:
-        if rec is None:
-            raise AuditError(f"{folder / RECORD_FILE} is not a loggrasp trial record (not JSON, or another format)")
         if "audit" not in rec:
-            return report.unchained(f"record format_version {rec.get('format_version')} predates hash chains (1.2)")
+            return report.unchained(f"record format_version {rec['format_version']} predates hash chains (1.2)")
         return report.broken_entry(None, AUDIT_FILE, f"the chain file is missing (record.json names entry "
                                    f"{(rec.get('audit') or {}).get('entry')} of it)")
     check: ChainCheck = check_lines(chain_raw)
     if not check.ok:
         return report.broken(check, _name(check.broken_at, _parse_line(chain_raw, check.broken_at)))
-    if check.entries[0].get("format") != CHAIN_FORMAT:
-        raise AuditError(f"{folder / AUDIT_FILE} is not a {CHAIN_FORMAT} file")
+    CHAIN.check(check.entries[0], folder / AUDIT_FILE)
     report.verified(check)
     claimed = (rec or {}).get("audit", {}).get("entry") if isinstance((rec or {}).get("audit"), dict) else None
     if not _check_record_entry(report, check.entries, claimed, record_raw):

@@ -253,3 +253,14 @@ def test_a_line_whose_bytes_are_not_canonical_is_caught(tmp_path):
     p.write_bytes(p.read_bytes().replace(b'"status":"accepted"', b'"status": "accepted"', 1))
     r = verify(p)
     assert r.status == "broken" and r.broken_at == 1 and "canonical" in r.problem
+
+
+def test_not_a_record_or_journal_is_a_one_line_error(tmp_path, capsys):
+    (tmp_path / "d").mkdir()
+    (tmp_path / "d" / "record.json").write_text('{"format": "loggrasp.plan", "format_version": "1.0"}')
+    (tmp_path / "f.json").write_text('{"format": "loggrasp.plan"}\n')
+    for target, words in ((tmp_path / "d", "not a loggrasp trial record"), (tmp_path / "f.json", "not a controller "
+                                                                                                  "journal")):
+        assert run(["audit", "verify", str(target)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and words in err[0], err
