@@ -162,7 +162,7 @@ def _matrix(ev: list[Evidence]) -> tuple[list[str], list[str]]:
 
 
 def _link_name(link: str) -> str:
-    return "CAN + Zenoh (frame level)" if link == "both" else LINKS[link]
+    return "CAN + Zenoh (transport-independent)" if link == "both" else LINKS[link]
 
 
 def _cells(ev: list[Evidence]) -> list[str]:
@@ -275,6 +275,8 @@ def render(ev: list[Evidence], when: str, commit: str) -> tuple[str, list[str]]:
         "## What the link does NOT guarantee",
         "",
         *[f"- {g}" for g in GAPS],
+        "",
+        "A test below passes while the gap is still there (it shows the gap, so closing it fails the test).",
         "",
         *_section(ev, "gap", "gap shown by a test"),
         "",
