@@ -9,6 +9,8 @@ writes a new file whose genesis ``prev`` is the old file's head, so the chain co
 from __future__ import annotations
 
 import json
+import secrets
+import time
 from pathlib import Path
 from typing import Any
 
@@ -46,7 +48,9 @@ def chained_journal(path: Path, fsync: bool) -> ChainFile | None:
 
 def rewrite_journal(path: Path, head: dict[str, Any], items: list[dict[str, Any]], previous: ChainFile | None,
                     fsync: bool) -> ChainFile:
-    """Write the journal anew (atomically), chained on from ``previous``'s head when there was one."""
+    """Write the journal anew (atomically), chained on from ``previous``'s head when there was one.
+    The genesis gets a random chain id and its time, so no two journals share a genesis hash."""
+    head = {**head, "chain_id": secrets.token_hex(8), "created_utc_s": time.time()}
     return ChainFile.create(path, head, items, continues=previous.head if previous is not None else None,
                             fsync=fsync)
 
