@@ -17,6 +17,7 @@ from typing import Callable, Literal
 
 import typer
 
+from field.audit.cli import audit_app
 from field.controller import ReachEnvelope
 from field.demo import CRANE_OFFSET_SOUTH_M, DEMO_DATA, crane_config, default_crane_base
 from field.trial import TrialOptions
@@ -61,6 +62,7 @@ app.command("eval")(eval_command)
 app.command("survey")(survey_command)
 app.command("reconstruct")(reconstruct_command)
 app.command("compare-piles")(compare_command)
+app.add_typer(audit_app, name="audit")
 
 
 def version_text() -> str:

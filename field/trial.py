@@ -10,7 +10,7 @@ with the reason for a trial that was refused, declined, not answered or interrup
 :func:`replay_record` checks the recorded inputs' sha256, re-runs reconstruction and planning from
 them and says whether the command is bit-identical.
 
-Trial record (``loggrasp.trial-record`` 1.2)::
+Trial record (``loggrasp.trial-record`` 1.3)::
 
     RECORD/record.json        versions, input hashes, options, plan, command, messages, outcome
     RECORD/inputs/scan/...    copies of the scan and the GNSS file as used
@@ -19,6 +19,7 @@ Trial record (``loggrasp.trial-record`` 1.2)::
     RECORD/reconstruction/    pile.json, ortho.npz, preview.png, compare.png, report.json
     RECORD/plan/              plan.json, plan.png, grasp_map.png, pile.geojson, pile.sweref99tm.geojson
     RECORD/link/traffic.blf   every CAN frame of the session (CAN links)
+    RECORD/audit.jsonl        hash chain of every file and record.json step (field/audit/record.py)
     RECORD/trial.mcap         the trial in time for Foxglove: scan, pile, plan, verification, command,
                               CAN frames with their signals, the crane's state (:mod:`field.trial_view`)
 
@@ -54,14 +55,15 @@ from typing import Callable, Literal
 
 import numpy as np
 
+from field.audit.record import RecordSeal
 from field.errors import FieldError
 from field.link.messages import DEFAULT_MAX_PILE_AGE_S, GraspCommand
 from synth.common.files import sha256_file as sha256_of
 from synth.common.formats import VersionedJson
 
 RECORD_FORMAT = "loggrasp.trial-record"
-RECORD_VERSION = "1.2"  # 1.1: verification, chosen_rank, verified (a 1.0 record was never verified);
-# 1.2: view and view_errors (trial.mcap beside record.json)
+RECORD_VERSION = "1.3"  # 1.1: verification, chosen_rank, verified (a 1.0 record was never verified);
+# 1.2: view and view_errors (trial.mcap beside record.json); 1.3: audit (audit.jsonl hash chain)
 
 
 class TrialAborted(FieldError):
@@ -692,6 +694,7 @@ class _TrialRecord:
         self.record: dict = {"format": RECORD_FORMAT, "format_version": RECORD_VERSION, "versions": _versions(),
                              "started_utc_s": time.time(), "link": link_url, "options": asdict(options),
                              "final_state": "PREPARING"}
+        self._seal = RecordSeal()  # the record's hash chain, RECORD/audit.jsonl (field.audit.record)
 
     def in_final_words(self, say: Callable[[str], None]) -> Callable[[str], None]:
         """``say`` with the temporary folder named as the record folder it becomes (also logged
@@ -705,12 +708,10 @@ class _TrialRecord:
         return said
 
     def write(self, **changes) -> None:
-        from synth.common.files import atomic_write_bytes
-
         if self.view is not None and "final_state" in changes:
             self.view.state(changes["final_state"], time.time(), reason=changes.get("reason"))
         self.record.update(changes)
-        atomic_write_bytes(self.where / "record.json", json.dumps(self.record, indent=1).encode())
+        self._seal.write(self.where, self.record)  # changed files and record.json chained, then written
 
     def publish(self) -> None:
         os.replace(self.tmp, self.record_dir)

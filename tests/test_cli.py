@@ -89,7 +89,7 @@ def a_file(work) -> Path:
 # -- help, version, README ---------------------------------------------------------------------------
 COMMANDS = [[], ["synth"], ["synth", "piles"], ["synth", "render"], ["synth", "dataset"], ["synth", "scan"],
             ["train"], ["plan"], ["eval"], ["survey"], ["reconstruct"], ["compare-piles"], ["crane-sim"], ["trial"],
-            ["replay"], ["demo"], ["link-key"]]
+            ["replay"], ["demo"], ["link-key"], ["audit", "verify"]]
 
 
 @pytest.mark.parametrize("args", COMMANDS)
@@ -603,6 +603,7 @@ def test_demo_record_is_complete(demo_record):
     v = rec["verification"]
     assert v["ok"] and v["k"] == 8 and rec["verified"] is True and rec["chosen_rank"] == v["chosen_rank"] + 1
     assert (demo_record / "plan" / "verification.json").exists()
+    assert run(["audit", "verify", str(demo_record)]) == 0  # the record's hash chain verifies
 
 
 @pytest.mark.slow

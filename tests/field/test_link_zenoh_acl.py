@@ -53,6 +53,9 @@ def ok_replies(s, key: str, payload: bytes) -> list[bytes]:
 # --- on the crane's own node ----------------------------------------------------------------
 
 
+@pytest.mark.safety_case(error="masquerade", link="zenoh",
+                         measure="access-control roles by authenticated user: only the crane serves",
+                         reaction="an operator or observer cannot pose as the crane; an observer cannot command")
 def test_roles_on_the_crane_node(port, controller_process, tmp_path, sessions, make_cmd):
     url = f"zenoh://127.0.0.1:{port}/crane-n"
     controller_process(f"{url}?config={shipped_acl(tmp_path)}")
