@@ -36,17 +36,18 @@ def fresh_cases(n_piles: int, seed0: int, workers: int) -> list:
     return [c for k in sorted(got) for c in got[k]]
 
 
-def measure(store: Path | None, n: int, fresh_piles: int, reps: int, workers: int, fresh_seed: int = FRESH_SEED) -> dict:
+def measure(store: Path | None, n: int, fresh_piles: int, reps: int, workers: int, fresh_seed: int = FRESH_SEED,
+            levels: tuple[int, ...] = (0, 1, 2), preset: str = "fast", grapple: dict | None = None) -> dict:
     t0 = time.perf_counter()
     cases = (cases_from_store(store, n) if store is not None else []) + (
         fresh_cases(fresh_piles, fresh_seed, workers) if fresh_piles else [])
-    rows = run_cases(cases, reps=reps, workers=workers)
+    rows = run_cases(cases, reps=reps, workers=workers, levels=levels, preset=preset, grapple=grapple)
     from synth.physics.trial import TRIAL_REVISION
 
     counts = {s: sum(c.source == s for c in cases) for s in ("store", "fresh")}
     return {"format": "loggrasp.twin-robustness", "format_version": "1.0", "trial_revision": TRIAL_REVISION,
             "store": None if store is None else str(store), "n": n, "fresh_piles": fresh_piles, "fresh_seed": fresh_seed,
-            "reps": reps, "cases": counts, "rows": rows, "summary": summarise(rows),
+            "reps": reps, "preset": preset, "grapple": grapple or {}, "cases": counts, "rows": rows, "summary": summarise(rows),
             "wall_s": time.perf_counter() - t0}
 
 
@@ -68,9 +69,18 @@ def main() -> None:
     ap.add_argument("--fresh-seed", type=int, default=FRESH_SEED)
     ap.add_argument("--reps", type=int, default=2, help="perturbed draws per grasp and level")
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--levels", default="0,1,2", help="which of exact (0), 1 cm / 1° (1), 3 cm / 3° (2)")
+    ap.add_argument("--preset", default="fast", choices=["fast", "careful"], help="the trial preset")
+    ap.add_argument("--grapple", action="append", default=[], metavar="FIELD=VALUE",
+                    help="override a GrappleConfig field (a variant), e.g. closed_bowl_diameter_m=0.342")
     ap.add_argument("--out", type=Path, required=True, help="the JSON record")
     a = ap.parse_args()
-    rec = measure(a.store, a.n, a.fresh_piles, a.reps, a.workers, a.fresh_seed)
+    try:
+        grapple = {k: float(v) for k, v in (kv.split("=", 1) for kv in a.grapple)}
+        levels = tuple(int(v) for v in a.levels.split(","))
+    except ValueError as exc:
+        ap.error(f"--grapple FIELD=NUMBER / --levels 0,1,2: {exc}")
+    rec = measure(a.store, a.n, a.fresh_piles, a.reps, a.workers, a.fresh_seed, levels, a.preset, grapple)
     a.out.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_text(a.out, json.dumps(rec, indent=1))
     print(markdown(rec["summary"], rec["cases"]))

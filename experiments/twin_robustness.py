@@ -101,29 +101,42 @@ def fresh_pile_cases(seed: int, n_logs: int, n_obstacles: int, max_trials: int =
     return out
 
 
-def try_case(case: Case, level: int, reps: int) -> list[dict]:
+def trial_variant(preset: str = "fast", grapple: dict | None = None) -> "TrialConfig":
+    """A trial preset with grapple fields overridden (e.g. ``{"closed_bowl_diameter_m": 0.342}``:
+    revision 3's stroke) — the variants docs/trials.md compares."""
+    from dataclasses import replace
+
+    from synth.physics.trial import TrialConfig
+
+    cfg = TrialConfig.preset(preset)
+    return replace(cfg, grapple=replace(cfg.grapple, **(grapple or {})))
+
+
+def try_case(case: Case, level: int, reps: int, preset: str = "fast", grapple: dict | None = None) -> list[dict]:
     """The case's grasp at perturbation ``LEVELS[level]`` (``reps`` draws; 1 trial when exact)."""
-    from synth.physics.trial import TrialConfig, run_trial
+    from synth.physics.trial import run_trial
     from synth.scene.pile import PileSpec
 
+    cfg = trial_variant(preset, grapple)
     pile = PileSpec.from_dict(case.pile)
     g = Grasp(*case.grasp)
     label, err = LEVELS[level]
     grasps = [g] if err is None else perturbed_grasps(g, err, reps, grasp_rng(0, "robustness", label, case.key))
     rows = []
     for j, q in enumerate(grasps):
-        r = run_trial(pile, q, list(case.targets), TrialConfig.fast())
+        r = run_trial(pile, q, list(case.targets), cfg)
         rows.append({"case": case.key, "source": case.source, "level": label, "rep": j, "n_targets": len(case.targets),
                      "outcome": r.outcome.value, "cos_beta": None if not math.isfinite(r.cos_beta) else r.cos_beta,
                      "cpu_s": r.cpu_time_s})
     return rows
 
 
-def run_cases(cases: list[Case], reps: int = 2, workers: int = 2, levels: tuple[int, ...] = (0, 1, 2)) -> list[dict]:
-    """Every case at every level; the trial rows in a stable order."""
+def run_cases(cases: list[Case], reps: int = 2, workers: int = 2, levels: tuple[int, ...] = (0, 1, 2),
+              preset: str = "fast", grapple: dict | None = None) -> list[dict]:
+    """Every case at every level (indices into ``LEVELS``); the trial rows in a stable order."""
     from synth.common.runner import run_tasks
 
-    tasks = {(i, lv): (c, lv, reps) for i, c in enumerate(cases) for lv in levels}
+    tasks = {(i, lv): (c, lv, reps, preset, grapple) for i, c in enumerate(cases) for lv in levels}
     got: dict = {}
     run_tasks(try_case, tasks, lambda k, rows: got.__setitem__(k, rows), workers=workers)
     return [row for k in sorted(got) for row in got[k]]
