@@ -223,7 +223,7 @@ def evaluate(model, stream, cfg: TrainConfig, device: str) -> dict | None:
             x, y = _prepare_batch(x, y, device, cfg.precision)
             with _step_context(device, cfg.precision):
                 pred = model(x)
-            loss, parts = grasp_loss(pred, y, cfg.loss)
+            loss, parts = grasp_loss(pred, y, cfg.loss, cfg.model.b_encoding)
             b = len(x)
             tot += float(loss) * b
             for k, v in parts.items():
@@ -258,8 +258,9 @@ def train(data_dir: str | Path | list, out_dir: str | Path, config: TrainConfig 
         torch.set_num_threads(config.num_threads)
     device = _device(config)
     run = _Run.start(out, config, device)
-    train_stream = ShardStream(shards, "train", config.data, config.augment, config.seed)
-    val_stream = ShardStream(shards, "val", config.data, config.augment, config.seed)
+    stream_kw = {"extent_m": config.model.extent_m, "b_encoding": config.model.b_encoding}
+    train_stream = ShardStream(shards, "train", config.data, config.augment, config.seed, **stream_kw)
+    val_stream = ShardStream(shards, "val", config.data, config.augment, config.seed, **stream_kw)
     n_params = count_parameters(run.model)
     meta_common = {"n_parameters": n_params, "data_dir": _data_label(data_dir), "train_config": config.to_dict()}
 
@@ -306,6 +307,7 @@ def _check_run_config(out: Path, config: TrainConfig) -> None:
             old = json.loads(cfg_path.read_text())
             old.setdefault("lr_schedule", "constant")  # runs from before the schedule existed
             old.setdefault("lr_min_frac", TrainConfig.lr_min_frac)
+            old = json.loads(json.dumps(TrainConfig.from_dict(old).to_dict()))  # fields added since: their defaults
         except (OSError, ValueError) as exc:
             raise TrainingError(f"{cfg_path} is unreadable ({exc}); delete {out} to start afresh") from exc
         now = json.loads(json.dumps(config.to_dict()))
@@ -410,7 +412,7 @@ def _train_epoch(run: _Run, stream, epoch: int, skip: int, config: TrainConfig, 
         x, y = _prepare_batch(x, y, device, config.precision)
         with _step_context(device, config.precision):
             pred = run.model(x)
-        loss, parts = grasp_loss(pred, y, config.loss)
+        loss, parts = grasp_loss(pred, y, config.loss, config.model.b_encoding)
         if not torch.isfinite(loss):
             raise TrainingError(f"loss became {float(loss)} at epoch {epoch} step {step}; lower the learning rate")
         run.opt.zero_grad(set_to_none=True)

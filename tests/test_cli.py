@@ -245,6 +245,32 @@ def test_synth_dataset_and_train_a_64px_network(capsys, work, a_file):
           "--mask-injection")
 
 
+def test_train_outcome_labels_and_the_beta_map(capsys, work, tmp_path):
+    """``--labels outcome`` trains on every trial of a data set made by `synth dataset` (after the test
+    above); a data set without trials, or with --skip-no-candidates, is a one-line error."""
+    import dataclasses
+
+    from planner.checkpoint import load_checkpoint
+    from synth.data.dataset import ShardWriter, iter_samples, read_manifest, write_manifest
+
+    fails(cli(capsys, "train", "--data", work / "data", "--out", work / "o1", "--labels", "outcome",
+              "--skip-no-candidates"), 2, "--skip-no-candidates", "--labels outcome")
+    r = cli(capsys, "train", "--data", work / "data", "--out", work / "outcome", "--epochs", "1", "--max-steps-per-epoch",
+            "1", "--base-channels", "4", "--batch-size", "2", "--labels", "outcome", "--b-encoding", "beta_10deg", "--json")
+    assert r.code == 0, r.err
+    assert load_checkpoint(r.json()["model"])[1].b_encoding == "beta_10deg"
+    cfg = json.loads((work / "outcome" / "train_config.json").read_text())
+    assert cfg["data"]["labels"] == "outcome" and cfg["loss"]["u_pos_weight"] == 1.0
+    old = tmp_path / "old"  # the same samples without their trials, as a data set from before outcome labels
+    w = ShardWriter(old, "t", 0)
+    for s in iter_samples(work / "data"):
+        w.add(dataclasses.replace(s, trials=None, capped=None))
+    man = read_manifest(work / "data")
+    write_manifest(old, dataclasses.replace(man, shards=[w.close()]))
+    fails(cli(capsys, "train", "--data", old, "--out", tmp_path / "r", "--epochs", "1", "--max-steps-per-epoch", "1",
+              "--base-channels", "4", "--labels", "outcome"), 2, "no trial outcomes", "--labels accepted")
+
+
 # -- plan ---------------------------------------------------------------------------------------------
 def test_plan_json_png_and_table(capsys, work, pile_dir):
     png = work / "plan.png"
