@@ -400,6 +400,9 @@ def eval_command(
                         "or 8; V times the planning time).", default=None, metavar="V"),
     view_spread: float = option("--view-spread", "With --views: lower U by K x its spread over the views.",
                                 default=0.0, metavar="K"),
+    field_error: str = option("--field-error", "Add a field row per planner: its chosen grasp executed with the "
+                              "crane's positioning error, SIGMA_XY_M,SIGMA_PHI_DEG (e.g. 0.03,2: 3 cm per axis, 2 deg).",
+                              default=None, metavar="M,DEG"),
     as_json: bool = option("--json", "Print results.json (format loggrasp.eval-results) on standard output.",
                            default=False),
 ) -> None:
@@ -419,7 +422,16 @@ def eval_command(
         raise CliError("--address needs --engine dask")
     lo, hi = parse_range(logs, "--logs")
     obs = {"yes": (True,), "no": (False,), "both": (True, False)}[obstacles]
-    cfg = EvalConfig(logs=tuple(range(lo, hi + 1)), obstacles=obs, per_cell=per_cell, trial=trial, seed_base=seed_base)
+    error = None
+    if field_error is not None:
+        from synth.physics.perturb import PositioningError
+
+        try:
+            error = PositioningError.parse(field_error)
+        except ValueError as exc:
+            raise CliError(f"--field-error: {exc}") from exc
+    cfg = EvalConfig(logs=tuple(range(lo, hi + 1)), obstacles=obs, per_cell=per_cell, trial=trial, seed_base=seed_base,
+                     field_error=error)
     specs = _eval_specs(str(model or DEFAULT_MODEL), objectives, baselines, extra_model, verify, verify_copies)
     specs += _view_specs(str(model or DEFAULT_MODEL), objectives, views, view_spread)
     check_output_dir(out, "--out")
