@@ -414,7 +414,9 @@ def test_eval_bad_input(capsys, work, a_file):
                       (["--views", "3"], "--views must be one of (1, 2, 4, 8) (dihedral views averaged), got 3"),
                       (["--views", "1"], "--views 1 is the plain row"),
                       (["--view-spread", "2"], "--view-spread needs --views"),
-                      (["--views", "8", "--view-spread", "-1"], "--view-spread must be >= 0")):
+                      (["--views", "8", "--view-spread", "-1"], "--view-spread must be >= 0"),
+                      (["--field-error", "3cm"], "--field-error: positioning error '3cm' must be"),
+                      (["--field-error", "0.03,90"], "--field-error: positioning error")):
         fails(cli(capsys, "eval", *bad, "--out", work / "e2"), 2, flag)
     fails(cli(capsys, "eval", "--out", a_file / "e"), 2, "--out", str(a_file))
     assert not (work / "e2").exists()
