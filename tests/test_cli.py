@@ -370,6 +370,13 @@ def test_eval_tiny_strict_json_and_examples(capsys, work, a_file):
     for i, ln in enumerate(md):  # every Markdown table row has its header's cells
         if ln.startswith("|---"):
             assert ln.count("|") == md[i - 1].count("|") and md[i + 1].count("|") == ln.count("|"), md[i - 1:i + 2]
+    r = cli(capsys, "eval", "--per-cell", "1", "--logs", "2", "--obstacles", "no", "--objectives", "f1",
+            "--baselines", "random", "--seed-base", "900000001", "--workers", "1", "--out", out, "--field-error",
+            "0.03,2", "--json")  # the same evaluation with a field row
+    d = r.json()
+    assert r.code == 0 and set(d["planners"]) == {"unet-f1", "random", "unet-f1 (field)", "random (field)"}
+    assert d["field_error"] == {"sigma_xy_m": 0.03, "sigma_phi_deg": 2.0}
+    assert "σ 3 cm, 2°" in (out / "results.md").read_text()
 
 
 @pytest.mark.slow
