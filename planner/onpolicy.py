@@ -5,7 +5,8 @@ obstacles, from seeds apart from every test pile), plans every pile (every subse
 its ``top_k`` best grasps by f1 and by f3 (the union) in the twin, each ``repeats`` times moved
 by the field's positioning error (:mod:`synth.physics.perturb`, the same model the robust labels
 and the evaluation's field row use). Each tried grasp becomes one stored trial whose label is
-its success fraction (the ``r`` list of outcomes, :func:`synth.data.outcomes.trial_success`).
+its success fraction (the ``r`` list of outcomes, :func:`synth.data.outcomes.trial_success`; ``rg`` the
+grasps as executed, ``g`` the one the network chose, ``u`` its U).
 
 The round is written as a grasp *store* (:mod:`synth.data.datastore`: ``store.json`` + one chunk
 per pile), so it trains beside the main store with the outcome recipe::
@@ -104,8 +105,9 @@ def round_pile(cfg: RoundConfig, k: int, model: str, plan_fn: Callable | None = 
         b = float(np.mean(betas)) if betas else None
         gl = [g.grasp.x_m, g.grasp.y_m, g.grasp.phi_rad, g.grasp.width_m]
         frac = outcomes.count("success") / len(outcomes)
-        subsets.append({"targets": list(targets), "trials": [{"g": gl, "o": outcomes[0], "r": outcomes, "b": b, "h": [],
-                                                              "u": g.graspability}],
+        executed = [[m.x_m, m.y_m, m.phi_rad, m.width_m] for m in moved]
+        subsets.append({"targets": list(targets), "trials": [{"g": gl, "o": outcomes[0], "r": outcomes, "rg": executed,
+                                                              "b": b, "h": [], "u": g.graspability}],
                         "accepted": [gl + [min(1.0, b if b is not None else 1.0)]] if frac >= ACCEPT_FRACTION else [],
                         "candidates": len(chosen), "widened": 0, "capped": True})
     return {"k": k, "pile_id": f"pile_{k:05d}", "pile_seed": task[3], "obstacles": pile.n_obstacles,

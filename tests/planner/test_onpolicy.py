@@ -63,6 +63,7 @@ def test_the_repeats_are_the_grasp_moved_by_the_error(tmp_path, tiny_model):
     pile, _ = eval_scene(CFG.task(0), EvalConfig())
     g = Grasp(*s["trials"][0]["g"])
     moved = perturbed_grasps(g, CFG.error, 3, grasp_rng(CFG.task(0)[3], "onpolicy", tuple(s["targets"])))
+    assert [[m.x_m, m.y_m, m.phi_rad, m.width_m] for m in moved] == s["trials"][0]["rg"]
     assert [run_trial(pile, m, s["targets"], TrialConfig.preset("fast")).outcome.value for m in moved] == \
         s["trials"][0]["r"]
 
