@@ -130,6 +130,8 @@ def train_command(
     skip_no_candidates: bool = option("--skip-no-candidates", "Leave out target subsets that had no admissible "
                                       "grasp candidate (needs a data set made from a grasp store).",
                                       field=(DataConfig, "skip_no_candidates")),
+    init_from: Path = option("--init-from", "Start from this checkpoint's weights (fine-tuning; same network "
+                             "settings).", default=None, metavar="PATH", names=["init_from"]),
     as_json: bool = JSON,
 ) -> None:
     """Train the target-conditioned U-Net; re-running the same command resumes from the last checkpoint.
@@ -148,6 +150,8 @@ def train_command(
     for d in data:
         check_input(d, "--data", "dir")
     check_output_dir(out, "--out")
+    if init_from is not None:
+        check_input(init_from, "--init-from", "file")
     _, grid = list_shards(data if len(data) > 1 else data[0])
     in_ch = 2 if no_depth else 3
     size = int(grid.get("size_px", UNetConfig().size_px))
@@ -164,7 +168,7 @@ def train_command(
                                    outcome=OutcomeLabelConfig(untried_weight=untried_weight)),
                       epochs=epochs, batch_size=batch_size,
                       lr=lr, lr_schedule=lr_schedule, seed=seed, device=device, precision=precision,
-                      max_steps_per_epoch=max_steps_per_epoch)
+                      max_steps_per_epoch=max_steps_per_epoch, init_from=None if init_from is None else str(init_from))
     with progress_bar() as bar:
         task = bar.add_task("training", total=epochs, info="")
 

@@ -62,6 +62,8 @@ class TrainConfig:
     max_steps_per_epoch: int | None = None  # cap (tests, quick runs) [-]
     max_val_batches: int | None = None  # cap on validation batches per epoch [-]
     checkpoint_every_steps: int = 200  # resume-state interval [steps]
+    init_from: str | None = None  # checkpoint whose weights start a fresh run (fine-tuning, e.g. after an
+    # on-policy round); its network configuration must equal ``model``. None = random initialisation
 
     def __post_init__(self) -> None:
         if self.epochs < 1 or self.batch_size < 1:
@@ -361,6 +363,8 @@ class _Run:
             model = model.to(memory_format=torch.channels_last)
         opt = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
         run = _Run(model, opt, out, [], math.inf, {"epoch": 0, "step": 0}, None)
+        if config.init_from and not run.state_path.exists():
+            _init_weights(model, config)
         if run.state_path.exists():
             run.position = _load_state(run.state_path, model, opt)
             run.resumed = dict(run.position)
@@ -385,6 +389,20 @@ class _Run:
         _write_log(self.log_path, self.history, config, log_meta)
         plot_curve(self.history, self.curve_path)
         _save_state(self.state_path, self.model, self.opt, {"epoch": entry["epoch"] + 1, "step": 0}, config)
+
+
+def _init_weights(model, config: TrainConfig) -> None:
+    """Start ``model`` from the weights of ``config.init_from``; a checkpoint of another network
+    configuration is a :class:`CheckpointError` naming the fields that differ."""
+    from planner.checkpoint import load_checkpoint
+
+    loaded, have, _ = load_checkpoint(config.init_from)
+    if have != config.model:
+        diff = [k for k, v in have.to_dict().items() if v != config.model.to_dict()[k]]
+        raise CheckpointError(f"{config.init_from} does not fit this run: its network differs in {', '.join(diff)}; "
+                              "fine-tune with the same network settings (e.g. --base-channels, --b-encoding) or "
+                              "drop --init-from")
+    model.load_state_dict({k: v.to(next(model.parameters()).device) for k, v in loaded.state_dict().items()})
 
 
 @dataclass

@@ -149,3 +149,31 @@ def test_planner_decodes_a_beta_checkpoints_balance(tmp_path):
     x = make_inputs(inten, depth, np.isin(inst, [t + 1 for t in g.targets])[None], 3, cam_h)
     raw = float(planner.predict(x)[0, 4][g.pixel])
     assert raw > 0 and math.isclose(g.balance, math.cos(math.radians(10 * raw)), rel_tol=1e-5)
+
+
+def test_fine_tuning_starts_from_the_checkpoint_and_refuses_one_that_does_not_fit(tmp_path):
+    """--init-from: the run's first weights are the checkpoint's (a tiny learning rate keeps them);
+    a checkpoint of another network (here: another B encoding) is a CheckpointError naming it."""
+    import torch
+
+    from planner.checkpoint import load_checkpoint, save_checkpoint
+    from planner.errors import CheckpointError
+    from planner.model import UNetConfig, build_unet
+    from planner.train import TrainConfig, train
+
+    make_outcome_dataset(tmp_path / "d", n_piles=2)
+    model_cfg = UNetConfig.tiny(b_encoding="beta_10deg")
+    torch.manual_seed(5)
+    start = build_unet(model_cfg)
+    save_checkpoint(tmp_path / "start.safetensors", start, model_cfg, {})
+    cfg = TrainConfig(model=model_cfg, epochs=1, batch_size=2, lr=1e-12, precision="fp32", max_steps_per_epoch=1,
+                      data=DataConfig(val_fraction=0.0, labels="outcome"), init_from=str(tmp_path / "start.safetensors"))
+    got, _, _ = load_checkpoint(train(tmp_path / "d", tmp_path / "run", cfg).model_path)
+    w0, w1 = start.state_dict(), got.state_dict()
+    convs = [k for k in w0 if k.endswith("weight") and w0[k].ndim == 4]
+    assert convs and all(torch.allclose(w0[k], w1[k], atol=1e-6) for k in convs)
+    from dataclasses import replace
+
+    other = replace(cfg, model=UNetConfig.tiny())
+    with pytest.raises(CheckpointError, match="does not fit this run: its network differs in b_encoding"):
+        train(tmp_path / "d", tmp_path / "run2", other)
