@@ -4,9 +4,10 @@ A round takes a checkpoint and a set of training piles (new 2-7-log piles, with 
 obstacles, from seeds apart from every test pile), plans every pile (every subset), and tries
 its ``top_k`` best grasps by f1 and by f3 (the union) in the twin, each ``repeats`` times moved
 by the field's positioning error (:mod:`synth.physics.perturb`, the same model the robust labels
-and the evaluation's field row use). Each tried grasp becomes one stored trial whose label is
-its success fraction (the ``r`` list of outcomes, :func:`synth.data.outcomes.trial_success`; ``rg`` the
-grasps as executed, ``g`` the one the network chose, ``u`` its U).
+and the evaluation's field row use). Each tried grasp becomes one stored trial in the robust
+labels' form: ``g`` the grasp the network chose and ``o`` its outcome executed exactly, ``r`` its
+repeats ``[x, y, phi, width, outcome]`` as executed (:func:`synth.data.robust.repeat_rows`' rows),
+``u`` its U; its label is the repeats' success fraction (:func:`synth.data.outcomes.trial_success`).
 
 The round is written as a grasp *store* (:mod:`synth.data.datastore`: ``store.json`` + one chunk
 per pile), so it trains beside the main store with the outcome recipe::
@@ -98,16 +99,16 @@ def round_pile(cfg: RoundConfig, k: int, model: str, plan_fn: Callable | None = 
     trial = TrialConfig.preset(cfg.trial)
     subsets = []
     for targets, g in sorted(chosen.items()):
+        exact = run_trial(pile, g.grasp, targets, trial)
         moved = perturbed_grasps(g.grasp, cfg.error, cfg.repeats, grasp_rng(task[3], "onpolicy", targets))
         results = [run_trial(pile, m, targets, trial) for m in moved]
-        outcomes = [r.outcome.value for r in results]
+        repeats = [[m.x_m, m.y_m, m.phi_rad, m.width_m, r.outcome.value] for m, r in zip(moved, results)]
         betas = [float(r.cos_beta) for r in results if r.success and math.isfinite(r.cos_beta)]
         b = float(np.mean(betas)) if betas else None
         gl = [g.grasp.x_m, g.grasp.y_m, g.grasp.phi_rad, g.grasp.width_m]
-        frac = outcomes.count("success") / len(outcomes)
-        executed = [[m.x_m, m.y_m, m.phi_rad, m.width_m] for m in moved]
-        subsets.append({"targets": list(targets), "trials": [{"g": gl, "o": outcomes[0], "r": outcomes, "rg": executed,
-                                                              "b": b, "h": [], "u": g.graspability}],
+        frac = sum(r.success for r in results) / len(results)
+        subsets.append({"targets": list(targets), "trials": [{"g": gl, "o": exact.outcome.value, "r": repeats, "b": b,
+                                                              "h": list(exact.grasped), "u": g.graspability}],
                         "accepted": [gl + [min(1.0, b if b is not None else 1.0)]] if frac >= ACCEPT_FRACTION else [],
                         "candidates": len(chosen), "widened": 0, "capped": True})
     return {"k": k, "pile_id": f"pile_{k:05d}", "pile_seed": task[3], "obstacles": pile.n_obstacles,

@@ -11,7 +11,9 @@ A trial's success value (:func:`trial_success`) is, by the first key present:
 
 * ``p`` — a success fraction in [0, 1] (robust labels: the grasp re-tried under the field's
   positioning error, :mod:`synth.physics.perturb`);
-* ``r`` — a list of repeated outcomes (their share of ``"success"``);
+* ``r`` — the grasp's repeats under the field's positioning error (robust labels,
+  :func:`synth.data.robust.repeat_rows`: ``[x, y, phi, width, outcome]`` each): their share of
+  ``"success"`` (the exact trial ``o`` is not counted, as in the robust labels' fraction);
 * ``o`` — one outcome: 1 for ``"success"``, 0 for anything else.
 
 In a shard the trials of a subset are rows of :data:`TRIAL_COLUMNS`.
@@ -54,10 +56,8 @@ def trial_success(row: dict) -> float:
     that has none or a value outside [0, 1]."""
     if row.get("p") is not None:
         p = float(row["p"])
-    elif row.get("r") is not None:
-        reps = list(row["r"])
-        if not reps:
-            raise ValueError("a trial's repeated outcomes 'r' are empty")
+    elif row.get("r"):
+        reps = [rep[-1] if isinstance(rep, (list, tuple)) else rep for rep in row["r"]]
         p = sum(1 for o in reps if o == "success") / len(reps)
     elif row.get("o") is not None:
         p = 1.0 if row["o"] == "success" else 0.0

@@ -42,8 +42,8 @@ def test_a_round_stores_each_choice_with_its_repeated_outcomes(tmp_path, tiny_mo
     fractions = {}
     for s in subsets:
         (t,) = s["trials"]
-        assert len(t["r"]) == 3 and t["o"] == t["r"][0] and 0.0 <= t["u"] <= 1.0
-        fractions[tuple(s["targets"])] = t["r"].count("success") / 3
+        assert len(t["r"]) == 3 and all(len(r) == 5 for r in t["r"]) and 0.0 <= t["u"] <= 1.0
+        fractions[tuple(s["targets"])] = [r[4] for r in t["r"]].count("success") / 3
         assert bool(s["accepted"]) == (fractions[tuple(s["targets"])] >= 0.5)
     samples = list(iter_samples(materialize(tmp_path / "r0", tmp_path / "cache")))
     assert {tuple(s.subset): float(s.trials[0, 4]) for s in samples} == fractions
@@ -63,9 +63,10 @@ def test_the_repeats_are_the_grasp_moved_by_the_error(tmp_path, tiny_model):
     pile, _ = eval_scene(CFG.task(0), EvalConfig())
     g = Grasp(*s["trials"][0]["g"])
     moved = perturbed_grasps(g, CFG.error, 3, grasp_rng(CFG.task(0)[3], "onpolicy", tuple(s["targets"])))
-    assert [[m.x_m, m.y_m, m.phi_rad, m.width_m] for m in moved] == s["trials"][0]["rg"]
-    assert [run_trial(pile, m, s["targets"], TrialConfig.preset("fast")).outcome.value for m in moved] == \
-        s["trials"][0]["r"]
+    trial = TrialConfig.preset("fast")
+    assert [[m.x_m, m.y_m, m.phi_rad, m.width_m, run_trial(pile, m, s["targets"], trial).outcome.value]
+            for m in moved] == s["trials"][0]["r"]
+    assert run_trial(pile, g, s["targets"], trial).outcome.value == s["trials"][0]["o"]  # the exact execution
 
 
 def test_a_round_resumes_and_refuses_another_model_or_other_piles(tmp_path, tiny_model):

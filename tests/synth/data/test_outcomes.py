@@ -29,8 +29,11 @@ def _row(x, y, o, w=0.6, phi=0.3, **kw):
 def test_trial_success_reads_fraction_repeats_or_outcome():
     assert trial_success({"o": "success"}) == 1.0
     assert trial_success({"o": "collision"}) == 0.0
-    assert trial_success({"o": "collision", "r": ["success", "dropped", "success", "success"]}) == 0.75
-    assert trial_success({"o": "success", "r": ["dropped"], "p": 0.4}) == 0.4  # the fraction comes first
+    rows = [[0.1, 0.2, 0.3, 0.6, o] for o in ("success", "dropped", "success", "success")]
+    assert trial_success({"o": "success", "r": rows}) == 0.75  # robust labels: the repeats' share
+    assert trial_success({"o": "success", "r": rows[1:2]}) == 0.0  # an exact success that fails when moved
+    assert trial_success({"o": "success", "r": []}) == 1.0  # no repeats ran: the exact outcome
+    assert trial_success({"o": "success", "r": rows[1:2], "p": 0.4}) == 0.4  # the fraction comes first
     with pytest.raises(ValueError, match="no outcome"):
         trial_success({"g": [0, 0, 0, 0.5]})
     with pytest.raises(ValueError, match=r"\[0, 1\]"):
