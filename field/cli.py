@@ -22,6 +22,7 @@ from field.demo import CRANE_OFFSET_SOUTH_M, DEMO_DATA, crane_config, default_cr
 from field.trial import TrialOptions
 from planner.cli import MODEL, OBJECTIVE_HELP, VIEW_SPREAD, VIEWS, eval_command, plan_command, train_command
 from reconstruct.cli import compare_command, gnss_crs_warning, reconstruct_command, scan_command
+from reconstruct.survey.cli import GNSS_HELP, GNSS_WINDOWS_HELP, gnss_source, survey_command
 from synth.cli import APP_SETTINGS, JSON
 from synth.cli import app as synth_app
 from synth.common.cli import (EXIT_CODES, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_LINK,
@@ -57,6 +58,7 @@ app.add_typer(synth_app, name="synth")
 app.command("train")(train_command)
 app.command("plan")(plan_command)
 app.command("eval")(eval_command)
+app.command("survey")(survey_command)
 app.command("reconstruct")(reconstruct_command)
 app.command("compare-piles")(compare_command)
 
@@ -156,7 +158,7 @@ def twin_url(url: str, base_tm, max_reach_m: float, max_pile_age_s: float) -> st
     return "twin://?" + urlencode(q, safe=",/:")
 
 
-def base_from_survey(gnss: Path) -> tuple[float, float, float]:
+def base_from_survey(gnss) -> tuple[float, float, float]:
     """A crane base :data:`field.demo.CRANE_OFFSET_SOUTH_M` south (site frame) of the surveyed log
     ends' centre, at about ground height: the twin crane's default position, known before the
     reconstruction."""
@@ -480,7 +482,8 @@ def _finish_trial(o: Output, rec: dict, record: Path) -> None:
 @app.command("trial", epilog=TWIN_PARAMETERS)
 def trial_command(
     scan: Path = option("--scan", "Scan folder (stereo pair folders + scan_pose.json).", default=..., metavar="DIR"),
-    gnss: Path = option("--gnss", "RTK endpoint survey CSV.", default=..., metavar="FILE"),
+    gnss: list[Path] = option("--gnss", GNSS_HELP, default=..., metavar="FILE"),
+    gnss_windows: Path = option("--gnss-windows", GNSS_WINDOWS_HELP, default=None, metavar="FILE"),
     link: str = link_option(),
     record: Path = option("--record", "Trial record folder to create (must not exist).", default=..., metavar="DIR"),
     objective: Literal["f1", "f2", "f3"] = option("--objective", OBJECTIVE_HELP, field=(TrialOptions, "objective"),
@@ -516,6 +519,8 @@ def trial_command(
 
     \b
     Example: loggrasp trial --scan s3/scan --gnss s3/gnss.csv --link can://virtual/ch0 --record trials/t1
+    Example: loggrasp trial --scan s3/scan --gnss rover.ubx --gnss-windows windows.csv --link can://virtual/ch0 \\
+               --record trials/t4
     Example: loggrasp trial --scan s3/scan --gnss s3/gnss.csv --record trials/t2 --yes \\
                --link "twin://?executor=pybullet&pile=s3/truth/pile.json"
     Example: loggrasp trial --scan s3/scan --gnss s3/gnss.csv --link can://virtual/ch0 --record trials/t3 \\
@@ -527,7 +532,7 @@ def trial_command(
     o = Output(as_json)
     parsed = check_link(link)
     base_tm = parse_base(base)
-    _check_trial_paths(scan, gnss, model, record)
+    gnss = _check_trial_paths(scan, gnss, gnss_windows, model, record, allow_float)
     check_views(views, view_spread)
     opts = _trial_options(objective, model, allow_float, max_pile_age, base_tm, max_reach, capacity, views, view_spread,
                           **verify_fields(verify, no_verify, verify_copies, verify_budget, verify_workers, send_rank))
@@ -541,17 +546,25 @@ def trial_command(
     _finish_trial(o, rec, record)
 
 
-def _check_trial_paths(scan: Path, gnss: Path, model: Path | None, record: Path) -> None:
+def _check_trial_paths(scan: Path, gnss: list[Path], gnss_windows: Path | None, model: Path | None, record: Path,
+                       allow_float: bool):
+    """The inputs checked before anything is written; returns the survey source (raw logs are
+    averaged and checked here, so bad logs or windows stop the trial with nothing recorded)."""
     check_input(scan, "--scan", "dir")
-    check_input(gnss, "--gnss", "file")
+    source = gnss_source(gnss, gnss_windows)
     if model is not None:
         check_input(model, "--model", "file")
     if record.exists():
         raise CliError(f"--record {record} already exists; choose a new --record folder")
     check_output_dir(record, "--record")
+    if not isinstance(source, Path):
+        from reconstruct.survey.gnss import read_gnss
+
+        read_gnss(source, allow_float=allow_float, require_both_ends=False)
+    return source
 
 
-def _twin_crane(o: Output, link: str, gnss: Path, opts):
+def _twin_crane(o: Output, link: str, gnss, opts):
     """A twin:// link: the crane stands at --base (default: south of the surveyed pile) with the
     trial's reach and staleness limit; returns the full twin URL and the options with that base."""
     from dataclasses import replace

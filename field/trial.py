@@ -14,7 +14,8 @@ Trial record (``loggrasp.trial-record`` 1.0)::
 
     RECORD/record.json        versions, input hashes, options, plan, command, messages, outcome
     RECORD/inputs/scan/...    copies of the scan and the GNSS file as used
-    RECORD/inputs/gnss.csv
+    RECORD/inputs/gnss.csv        (raw receiver logs: the survey averaged from them, dated like them)
+    RECORD/inputs/gnss-raw/...    the raw logs and their time-window file, when those were given
     RECORD/reconstruction/    pile.json, ortho.npz, preview.png, compare.png, report.json
     RECORD/plan/              plan.json, plan.png, grasp_map.png, pile.geojson, pile.sweref99tm.geojson
     RECORD/link/traffic.blf   every CAN frame of the session (CAN links)
@@ -590,7 +591,8 @@ def run_trial_record(scan_dir: str | Path, gnss_path: str | Path, link_url: str,
     ``KeyboardInterrupt``). ``confirm`` None means already confirmed (``--yes``); it may raise
     :class:`TrialAborted` (e.g. no answer)."""
     say = progress or (lambda s: None)
-    scan_dir, gnss_path, record_dir = Path(scan_dir), Path(gnss_path), Path(record_dir)
+    scan_dir, record_dir = Path(scan_dir), Path(record_dir)
+    gnss_path = gnss_path if hasattr(gnss_path, "windows") else Path(gnss_path)  # a RawGnss stays one
     if record_dir.exists():
         raise TrialAborted(f"trial record {record_dir} already exists; choose a new --record folder", kind="input")
     if probe:
@@ -613,6 +615,21 @@ def run_trial_record(scan_dir: str | Path, gnss_path: str | Path, link_url: str,
     except BaseException as exc:
         rec.failed(exc)
         raise
+
+
+def _record_raw_survey(raw, inputs: Path, allow_float: bool) -> None:
+    """Raw receiver logs (a :class:`reconstruct.survey.windows.RawGnss`) into the record: the logs
+    and windows under ``gnss-raw/``, the survey averaged from them as ``gnss.csv`` (what the trial and
+    its replay read), dated like its newest raw file so the pile's age check sees the capture time."""
+    from reconstruct.survey.gnss import read_gnss, write_gnss_csv
+
+    survey = read_gnss(raw, allow_float=allow_float, require_both_ends=False)
+    (inputs / "gnss-raw").mkdir(parents=True)
+    for k, p in enumerate([*raw.logs, raw.windows]):
+        shutil.copy2(p, inputs / "gnss-raw" / f"{k}_{Path(p).name}")
+    out = write_gnss_csv(survey, inputs / "gnss.csv")
+    newest = max(Path(p).stat().st_mtime for p in [*raw.logs, raw.windows])
+    os.utime(out, (newest, newest))
 
 
 _STATES_BEFORE_SENDING = ("SENDING", "AWAITING CONFIRMATION", "CONFIRMED (--yes)")
@@ -654,7 +671,10 @@ class _TrialRecord:
         inputs = self.tmp / "inputs"
         say("copying the inputs into the record")
         shutil.copytree(scan_dir, inputs / "scan")
-        shutil.copy2(gnss_path, inputs / "gnss.csv")
+        if isinstance(gnss_path, Path):
+            shutil.copy2(gnss_path, inputs / "gnss.csv")
+        else:
+            _record_raw_survey(gnss_path, inputs, self.options.allow_float)
         model = Path(self.options.model or DEFAULT_MODEL)
         self.record["inputs"] = {"scan": str(scan_dir), "gnss": str(gnss_path),
                                  "hashes": {str(p.relative_to(inputs)): sha256_of(p)

@@ -88,7 +88,7 @@ def a_file(work) -> Path:
 
 # -- help, version, README ---------------------------------------------------------------------------
 COMMANDS = [[], ["synth"], ["synth", "piles"], ["synth", "render"], ["synth", "dataset"], ["synth", "scan"],
-            ["train"], ["plan"], ["eval"], ["reconstruct"], ["compare-piles"], ["crane-sim"], ["trial"],
+            ["train"], ["plan"], ["eval"], ["survey"], ["reconstruct"], ["compare-piles"], ["crane-sim"], ["trial"],
             ["replay"], ["demo"], ["link-key"]]
 
 
@@ -429,6 +429,99 @@ def test_eval_bad_input(capsys, work, a_file):
     assert not (work / "e2").exists()
 
 
+# -- survey -------------------------------------------------------------------------------------------
+RAW = ROOT / "tests" / "data" / "gnss" / "raw"
+
+
+@pytest.mark.parametrize("logs", [["f9p_rover.ubx"], ["reach_rover.nmea"], ["ucenter_mixed.ubx"],
+                                  ["f9p_rover.ubx", "reach_rover.nmea"]])
+def test_survey_reads_each_receiver_kind_and_its_csv_reads_back(capsys, tmp_path, logs):
+    from reconstruct.survey.gnss import read_gnss_csv
+
+    out = tmp_path / "gnss.csv"
+    r = cli(capsys, "survey", *[RAW / f for f in logs], "--windows", RAW / "windows.csv", "--out", out, "--json")
+    assert r.code == 0, r.err
+    d = r.json()
+    assert d["format"] == "loggrasp.survey-report" and len(d["logs"]) == len(logs)
+    assert [(p["log_id"], p["end"], p["n_epochs"], p["fix"]) for p in d["points"]] == [
+        (k, e, 5 * len(logs), "rtk_fixed") for k, e in (("log0", "a"), ("log0", "b"), ("log1", "a"), ("log1", "b"))]
+    back = read_gnss_csv(out)  # what reconstruct --gnss reads
+    assert [p.n_epochs for p in back.points] == [5 * len(logs)] * 4
+    assert abs(back.points[0].spread_h_m - d["points"][0]["spread_h_m"]) < 1e-4
+    for f in logs:
+        assert f"{f}: 20 epochs" in r.err  # per file: what was read
+
+
+def test_survey_prints_per_end_and_per_file(capsys, tmp_path):
+    r = cli(capsys, "survey", RAW / "ucenter_mixed.ubx", "--windows", RAW / "windows.csv", "--out", tmp_path / "g.csv")
+    assert r.code == 0, r.err
+    assert "skipped 20 RTCM3, 65 UBX; 60 bytes not in any frame" in r.out
+    assert re.search(r"log0\s+a\s+5\s+rtk_fixed\s+0\.0123\s+0\.0186\s+0\.0031", r.out), r.out
+
+
+def test_survey_of_a_field_app_export(capsys, tmp_path):
+    from reconstruct.survey.gnss import read_gnss_csv
+
+    export = tmp_path / "export.csv"
+    export.write_text("Punkt;Lat;Lon;Ellipsoidhöjd;Lösning\n"
+                      "log0a;64,1000036164;19,9999630838;250,1131;FIX\nlog0b;64,1000182231;20,0000401711;250,2950;FIX\n")
+    fails(cli(capsys, "survey", export, "--out", tmp_path / "g.csv"), 2, "no coordinate columns", "--columns")
+    r = cli(capsys, "survey", export, "--columns", "id=Punkt,lat=Lat,lon=Lon,height=Ellipsoidhöjd,fix=Lösning",
+            "--out", tmp_path / "g.csv", "--crs", "EPSG:3006")
+    assert r.code == 0, r.err
+    assert [p.log_id for p in read_gnss_csv(tmp_path / "g.csv").points] == ["log0", "log0"]
+
+
+def test_survey_bad_input(capsys, tmp_path):
+    out = tmp_path / "g.csv"
+    late = tmp_path / "late.csv"
+    late.write_text("log_id,end,t_start_utc,t_end_utc\nlog0,a,2026-05-14T10:00:00Z,2026-05-14T10:01:00Z\n"
+                    "log0,b,2026-05-14T10:02:00Z,2026-05-14T10:03:00Z\n")
+    fails(cli(capsys, "survey", RAW / "f9p_rover.ubx", "--windows", late, "--out", out), 2, "late.csv:2",
+          "log 'log0' end 'a'", "the logs span f9p_rover.ubx 2026-05-14T09:30:00.000Z to 2026-05-14T09:31:34.000Z")
+    fails(cli(capsys, "survey", SCAN / "pair_000" / "left.png", "--windows", RAW / "windows.csv", "--out", out), 2,
+          "left.png is not a receiver log")
+    one = tmp_path / "one.csv"
+    one.write_text("\n".join((RAW / "windows.csv").read_text().splitlines()[:-1]) + "\n")
+    fails(cli(capsys, "survey", RAW / "f9p_rover.ubx", "--windows", one, "--out", out), 2,
+          "log 'log1' has a window for end 'a' but none for end 'b'")
+    assert not out.exists()
+    r = cli(capsys, "survey", RAW / "f9p_rover.ubx", "--windows", one, "--out", out, "--allow-one-end")
+    assert r.code == 0 and "log1 (no end b)" in r.err
+    out.unlink()
+    fails(cli(capsys, "survey", RAW / "f9p_rover.ubx", "--out", out), 2, "--windows")
+    fails(cli(capsys, "survey", RAW / "f9p_rover.ubx", "--windows", RAW / "windows.csv", "--out", tmp_path / "g.txt"),
+          2, "--out", ".csv")
+    fails(cli(capsys, "survey", RAW / "f9p_rover.ubx", "--windows", RAW / "windows.csv", "--out", out,
+              "--date", "14/5/2026"), 2, "--date")
+    assert not out.exists() and not list(tmp_path.glob(".*"))
+
+
+def test_reconstruct_takes_raw_logs(capsys, tmp_path):
+    """The demo's survey points as a raw F9P capture: reconstruct --gnss LOG --gnss-windows FILE places the same
+    logs as the survey CSV does."""
+    import numpy as np
+
+    from reconstruct.survey.gnss import read_gnss_csv
+    from synth.scene.pile import read_pile
+    from tests.reconstruct.survey import raw_captures as rc
+
+    survey = read_gnss_csv(GNSS)
+    points = {(p.log_id, p.end): (p.lat_deg, p.lon_deg, p.h_ell_m) for p in survey.points}
+    files = rc.write_captures(tmp_path / "raw", points)
+    fails(cli(capsys, "reconstruct", SCAN, "--gnss", files["f9p"], "--out", tmp_path / "r"), 2, "--gnss-windows")
+    fails(cli(capsys, "reconstruct", SCAN, "--gnss", GNSS, "--gnss-windows", files["windows"], "--out", tmp_path / "r"),
+          2, "--gnss-windows goes with raw receiver logs")
+    r = cli(capsys, "reconstruct", SCAN, "--gnss", files["f9p"], "--gnss", files["nmea"], "--gnss-windows",
+            files["windows"], "--out", tmp_path / "r", "--json")
+    assert r.code == 0, r.err
+    rep = r.json()
+    assert str(files["windows"]) in rep["gnss"]
+    pile = read_pile(tmp_path / "r")
+    assert pile.n_logs >= len(survey.log_ids)
+    assert np.isfinite([log.length_m for log in pile.logs]).all()
+
+
 # -- reconstruct, compare-piles --------------------------------------------------------------------------
 def run_captured(*args) -> Result:
     """:func:`run` for a module-scoped fixture (no capsys there)."""
@@ -655,11 +748,36 @@ def test_trial_bad_input_fails_before_any_work(capsys, work, a_file):
           "--record", str(a_file))
     fails(cli(capsys, "trial", "--scan", work / "none", "--gnss", GNSS, "--record", rec, "--link", "twin://"), 2,
           "--scan")
+    late = work / "late_windows.csv"
+    late.write_text("log_id,end,t_start_utc,t_end_utc\nlog0,a,2026-05-14T10:00:00Z,2026-05-14T10:01:00Z\n"
+                    "log0,b,2026-05-14T10:02:00Z,2026-05-14T10:03:00Z\n")
+    fails(cli(capsys, "trial", "--scan", SCAN, "--gnss", RAW / "f9p_rover.ubx", "--gnss-windows", late, "--record", rec,
+              "--link", "twin://"), 2, "late_windows.csv:2", "the logs span f9p_rover.ubx")
+    fails(cli(capsys, "trial", "--scan", SCAN, "--gnss", RAW / "f9p_rover.ubx", "--record", rec, "--link", "twin://"),
+          2, "--gnss-windows")
     assert time.perf_counter() - t < 20, "bad input must stop the trial before the reconstruction"
     assert not rec.exists()
     (work / "exists").mkdir(exist_ok=True)
     fails(cli(capsys, "trial", "--scan", SCAN, "--gnss", GNSS, "--record", work / "exists", "--link", "twin://"), 2,
           "--record", "already exists")
+
+
+def test_trial_records_raw_logs_and_the_survey_made_from_them(tmp_path):
+    """A trial given raw logs keeps them in its record and reads the survey averaged from them, dated
+    like the newest raw file (the pile's age check sees when the survey was made, not now)."""
+    from field.trial import _record_raw_survey
+    from reconstruct.survey.gnss import RawGnss, read_gnss_csv
+
+    raw = tmp_path / "in"
+    raw.mkdir()
+    for f in ("f9p_rover.ubx", "windows.csv"):
+        shutil.copy(RAW / f, raw / f)
+        os.utime(raw / f, (1.7e9, 1.7e9))
+    _record_raw_survey(RawGnss((raw / "f9p_rover.ubx",), raw / "windows.csv"), tmp_path / "inputs", False)
+    assert sorted(p.name for p in (tmp_path / "inputs" / "gnss-raw").iterdir()) == ["0_f9p_rover.ubx", "1_windows.csv"]
+    survey = read_gnss_csv(tmp_path / "inputs" / "gnss.csv")
+    assert [p.n_epochs for p in survey.points] == [5] * 4
+    assert (tmp_path / "inputs" / "gnss.csv").stat().st_mtime == 1.7e9
 
 
 def _free_port() -> int:

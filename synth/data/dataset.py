@@ -475,6 +475,11 @@ class DatasetJob:
     max_candidates: int | None = None  # candidate list cap per subset [-]; None = all
     trial_preset: str = "fast"  # "fast" or "careful" (synth.physics.trial.TrialConfig presets)
     piles_dir: str | None = None  # use the piles of a `synth piles` job folder instead of generating
+    # robust labels (synth.data.robust.RobustLabels): perturbed repeats of each exact success
+    label_repeats: int = 4  # [-]; 0 = the paper's labels (one exact success)
+    label_sigma_xy_m: float = 0.02  # positioning error per horizontal axis [m]
+    label_sigma_phi_deg: float = 2.0  # rotator angle error [deg]
+    label_min_fraction: float = 0.75  # accepted when this share of the repeats succeeds [-]
 
     def __post_init__(self) -> None:
         if not 1 <= self.n_piles <= 1_000_000:
@@ -495,6 +500,7 @@ class DatasetJob:
             raise ValueError("max_candidates must be >= 1 or None")
         if self.trial_preset not in ("fast", "careful"):
             raise ValueError(f"trial_preset must be 'fast' or 'careful', got {self.trial_preset!r}")
+        self.robust_labels()  # validates the label settings
         from synth.geometry.frames import OrthoGrid
 
         OrthoGrid(self.size_px)  # validates the size
@@ -523,6 +529,13 @@ class DatasetJob:
 
         return TrialConfig.preset(self.trial_preset)
 
+    def robust_labels(self):
+        from synth.data.robust import RobustLabels
+        from synth.physics.perturb import PositioningError
+
+        return RobustLabels(self.label_repeats, PositioningError(self.label_sigma_xy_m, self.label_sigma_phi_deg),
+                            self.label_min_fraction)
+
     def to_dict(self) -> dict:
         from dataclasses import asdict
 
@@ -538,6 +551,14 @@ class DatasetJob:
         d = {**self.to_dict(), "trial_revision": TRIAL_REVISION, "trial_config_values": asdict(self.trial_config()),
              "candidate_config_values": asdict(self.candidate_config()), "format_version": DATASET_FORMAT_VERSION}
         return json.loads(json.dumps(d))
+
+
+def label_fields(labels) -> dict:
+    """The :class:`DatasetJob` fields of a :class:`synth.data.robust.RobustLabels` ({} for None)."""
+    if labels is None:
+        return {}
+    return {"label_repeats": labels.repeats, "label_sigma_xy_m": labels.error.sigma_xy_m,
+            "label_sigma_phi_deg": labels.error.sigma_phi_deg, "label_min_fraction": labels.min_fraction}
 
 
 @dataclass(frozen=True)
@@ -593,7 +614,8 @@ def new_chunk_stats() -> dict[str, Any]:
     """The per-chunk statistics a data-set job accumulates (see :func:`summarise`)."""
     return {"piles": 0, "piles_failed": 0, "piles_with_obstacles": 0, "subsets": 0, "negatives": 0,
             "grasps": 0, "candidates": 0, "trials": 0, "widened": 0, "capped_subsets": 0,
-            "no_candidate_subsets": 0, "outcomes": {}, "trial_wall_s": 0.0, "wall_s": 0.0, "failed_piles": []}
+            "no_candidate_subsets": 0, "outcomes": {}, "trial_wall_s": 0.0, "wall_s": 0.0, "failed_piles": [],
+            "proven_negatives": 0, "capped_negatives": 0, "unconfirmed": 0, "repeats": 0, "repeat_outcomes": {}}
 
 
 @dataclass(frozen=True)
@@ -603,10 +625,21 @@ class SubsetResult:
 
     targets: tuple[int, ...]
     accepted: tuple[tuple[float, float, float, float, float], ...]
-    trials: tuple[dict, ...]
+    trials: tuple[dict, ...]  # each may carry "r": its robust repeats [[x, y, phi, width, outcome], ...]
     n_candidates: int
     widened: int
     capped: bool
+    unconfirmed: int = 0  # exact successes refused by their robust repeats
+
+    @property
+    def negative_kind(self) -> str | None:
+        """None for a positive; "no_candidate" (geometry refused every grasp), "proven" (every
+        candidate tried, none accepted) or "capped" (the trial cap stopped the search: untested)."""
+        if self.accepted:
+            return None
+        if not self.n_candidates:
+            return "no_candidate"
+        return "capped" if self.capped else "proven"
 
 
 def _trial_row(grasp: Grasp, result: object) -> dict:
@@ -624,7 +657,9 @@ def simulate_subsets(job: "DatasetJob", k: int, pile, simulate_factory: Callable
     import time
 
     from synth.data.candidates import generate_candidates, reduce_candidates
+    from synth.data.robust import confirmer, repeat_rows
 
+    labels = job.robust_labels()
     if simulate_factory is None:
         from synth.physics.trial import run_trial
 
@@ -641,7 +676,9 @@ def simulate_subsets(job: "DatasetJob", k: int, pile, simulate_factory: Callable
         cands = generate_candidates(pile, T, cand_cfg)
         rng = np.random.default_rng(np.random.SeedSequence([int(job.seed), int(k), *T, 0xA1]))
         t1 = time.perf_counter()
-        res = reduce_candidates(cands, simulate_factory(pile, T), rng=rng, max_trials=job.max_trials_per_subset)
+        simulate = simulate_factory(pile, T)
+        confirm = confirmer(labels, simulate, job.seed, int(k), tuple(T)) if labels.enabled else None
+        res = reduce_candidates(cands, simulate, rng=rng, max_trials=job.max_trials_per_subset, confirm=confirm)
         stats["trial_wall_s"] += time.perf_counter() - t1
         accepted = []
         for g, r in res.accepted:
@@ -650,6 +687,11 @@ def simulate_subsets(job: "DatasetJob", k: int, pile, simulate_factory: Callable
         trials = tuple(_trial_row(g, r) for g, r in res.trials)
         for t in trials:
             stats["outcomes"][t["o"]] = stats["outcomes"].get(t["o"], 0) + 1
+        for i, c in res.confirmations.items():
+            trials[i]["r"] = repeat_rows(c)
+            for row in trials[i]["r"]:
+                stats["repeat_outcomes"][row[4]] = stats["repeat_outcomes"].get(row[4], 0) + 1
+            stats["repeats"] += len(trials[i]["r"])
         stats["candidates"] += len(cands)
         stats["no_candidate_subsets"] += int(not cands)
         stats["trials"] += res.n_trials
@@ -658,8 +700,13 @@ def simulate_subsets(job: "DatasetJob", k: int, pile, simulate_factory: Callable
         stats["subsets"] += 1
         stats["negatives"] += int(not accepted)
         stats["grasps"] += len(accepted)
-        out.append(SubsetResult(targets=tuple(T), accepted=tuple(accepted), trials=trials,
-                                n_candidates=len(cands), widened=res.widened, capped=res.capped))
+        stats["unconfirmed"] += res.unconfirmed
+        sub = SubsetResult(targets=tuple(T), accepted=tuple(accepted), trials=trials, n_candidates=len(cands),
+                           widened=res.widened, capped=res.capped, unconfirmed=res.unconfirmed)
+        kind = sub.negative_kind
+        if kind in ("proven", "capped"):
+            stats[f"{kind}_negatives"] += 1
+        out.append(sub)
     return out
 
 
@@ -734,12 +781,17 @@ def _write_empty_done(out: Path, worker: str, chunk: int, stats: dict) -> dict:
 def summarise(shards: Sequence[ShardInfo]) -> dict:
     """The paper's statistics over completed shards."""
     keys = ("piles", "piles_failed", "piles_with_obstacles", "subsets", "negatives", "grasps", "candidates",
-            "trials", "widened", "capped_subsets", "no_candidate_subsets")
+            "trials", "widened", "capped_subsets", "no_candidate_subsets", "proven_negatives", "capped_negatives",
+            "unconfirmed", "repeats")
     tot = {k: sum(int(s.stats.get(k, 0)) for s in shards) for k in keys}
     outcomes: dict[str, int] = {}
+    repeat_outcomes: dict[str, int] = {}
     for s in shards:
         for k, v in s.stats.get("outcomes", {}).items():
             outcomes[k] = outcomes.get(k, 0) + int(v)
+        for k, v in s.stats.get("repeat_outcomes", {}).items():
+            repeat_outcomes[k] = repeat_outcomes.get(k, 0) + int(v)
+    all_trials = tot["trials"] + tot["repeats"]
     trial_wall = sum(float(s.stats.get("trial_wall_s", 0.0)) for s in shards)
     wall = sum(float(s.stats.get("wall_s", 0.0)) for s in shards)
     return {
@@ -749,6 +801,10 @@ def summarise(shards: Sequence[ShardInfo]) -> dict:
         "trials_per_subset": tot["trials"] / tot["subsets"] if tot["subsets"] else 0.0,
         "outcomes": dict(sorted(outcomes.items())),
         "success_rate": outcomes.get("success", 0) / tot["trials"] if tot["trials"] else 0.0,
+        "repeat_outcomes": dict(sorted(repeat_outcomes.items())),
+        "repeat_success_rate": repeat_outcomes.get("success", 0) / tot["repeats"] if tot["repeats"] else 0.0,
+        "dropped_fraction": (outcomes.get("dropped", 0) + repeat_outcomes.get("dropped", 0)) / all_trials
+        if all_trials else 0.0,
         "worker_s": wall, "trial_worker_s": trial_wall,
         "trials_per_worker_s": tot["trials"] / trial_wall if trial_wall > 0 else 0.0,
         "worker_s_per_pile": wall / tot["piles"] if tot["piles"] else 0.0,
@@ -817,7 +873,7 @@ def build_dataset(out_dir: str | Path, n_piles: int, n_logs: int = 4, obstacles_
                   max_trials_per_subset: int | None = 16, piles_per_shard: int = 1, max_obstacles: int = 7,
                   max_candidates: int | None = None, piles_dir: str | Path | None = None,
                   progress: Callable[[JobProgress], None] | None = None,
-                  simulate_factory: Callable | None = None) -> Manifest:
+                  simulate_factory: Callable | None = None, robust_labels=None) -> Manifest:
     """Build (or resume) the grasp training data set in ``out_dir``; returns its manifest.
 
     Piles come from :func:`synth.scene.generate.generate_pile` (``n_logs`` logs; a share
@@ -826,7 +882,8 @@ def build_dataset(out_dir: str | Path, n_piles: int, n_logs: int = 4, obstacles_
     geometric candidates (:func:`synth.data.candidates.generate_candidates`) -> Algorithm 1
     (:func:`synth.data.candidates.reduce_candidates`) with :func:`synth.physics.trial.run_trial` under the
     ``trial_config`` preset ("fast" or "careful") -> target maps; subsets without a successful
-    grasp are kept as negatives. One shard per chunk of ``piles_per_shard`` piles, written by one
+    grasp are kept as negatives. ``robust_labels`` (:class:`synth.data.robust.RobustLabels`; None =
+    the job's defaults) confirms each accepted grasp under the field's positioning error. One shard per chunk of ``piles_per_shard`` piles, written by one
     worker. ``engine``: "local" (``workers`` processes, 0 = all cores, 1 = in this process) or
     "dask" (``address`` of a running scheduler, or a LocalCluster of ``workers`` processes).
 
@@ -842,6 +899,7 @@ def build_dataset(out_dir: str | Path, n_piles: int, n_logs: int = 4, obstacles_
     job = DatasetJob(n_piles=n_piles, n_logs=n_logs, obstacles_fraction=obstacles_fraction,
                      max_obstacles=max_obstacles, seed=seed, size_px=size_px, n_renders=n_renders,
                      piles_per_shard=piles_per_shard, max_trials_per_subset=max_trials_per_subset,
+                     **label_fields(robust_labels),
                      max_candidates=max_candidates, trial_preset=trial_config,
                      piles_dir=None if piles_dir is None else _checked_piles_dir(piles_dir, n_piles))
     out = Path(out_dir)
