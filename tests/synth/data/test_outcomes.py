@@ -137,14 +137,15 @@ def test_a_shard_cannot_mix_subsets_with_and_without_trials(tmp_path):
 
 def test_materialized_store_samples_carry_every_stored_trial(tmp_path):
     """Each materialised sample holds its subset's trials as the chunk stores them (all outcomes,
-    in order) and its cap flag — the store's failures reach the trainer."""
+    in order; an exact success labelled by its robust repeats) and its cap flag — the store's
+    failures reach the trainer."""
     from types import SimpleNamespace
 
     from synth.data.dataset import DatasetJob
     from synth.data.datastore import build_store
 
     def factory(pile, targets):  # stand-in for run_trial: grasps centred right of the pile's middle succeed
-        def simulate(g):
+        def simulate(g):  # (robust repeats, moved 2 cm, may cross the line: fractions below 1)
             ok = g.x_m > 0
             return SimpleNamespace(success=ok, cos_beta=0.9, grasped=tuple(targets) if ok else (),
                                    outcome=SimpleNamespace(value="success" if ok else "collision"))
@@ -153,17 +154,25 @@ def test_materialized_store_samples_carry_every_stored_trial(tmp_path):
     job = DatasetJob(n_piles=2, n_logs=2, obstacles_fraction=0.0, seed=3, size_px=32, n_renders=2,
                      max_trials_per_subset=3)
     build_store(tmp_path / "s", job, simulate_factory=factory)
-    want = {}
+    want, n_robust = {}, 0
     for k in (0, 1):
         d = json.loads(gzip.decompress(chunk_path(tmp_path / "s", k).read_bytes()))
         for p in d["piles"]:
             for s in p["subsets"]:
                 want[(p["pile_id"], tuple(s["targets"]))] = (
-                    [(t["g"], 1.0 if t["o"] == "success" else 0.0) for t in s["trials"]], s["capped"])
+                    [(t["g"], _robust_or_exact(t)) for t in s["trials"]], s["capped"])
+                n_robust += sum(1 for t in s["trials"] if t.get("r"))
     n_fail = 0
     for s in iter_samples(materialize(tmp_path / "s", tmp_path / "c")):
         rows, capped = want[(s.pile_id, tuple(s.subset))]
         assert s.capped == capped
         assert [(list(r[:4]), r[4]) for r in s.trials] == [(list(map(float, g)), v) for g, v in rows]
         n_fail += int((s.trials[:, 4] == 0).sum())
-    assert n_fail > 0
+    assert n_fail > 0 and n_robust > 0
+
+
+def _robust_or_exact(t: dict) -> float:
+    """What a stored trial should be labelled: its robust repeats' success share, else its outcome."""
+    if t.get("r"):
+        return sum(r[4] == "success" for r in t["r"]) / len(t["r"])
+    return 1.0 if t["o"] == "success" else 0.0
