@@ -17,6 +17,7 @@ from typing import Callable, Literal
 
 import typer
 
+from field.audit.cli import audit_app
 from field.controller import ReachEnvelope
 from field.demo import CRANE_OFFSET_SOUTH_M, DEMO_DATA, crane_config, default_crane_base
 from field.trial import TrialOptions
@@ -61,6 +62,7 @@ app.command("eval")(eval_command)
 app.command("survey")(survey_command)
 app.command("reconstruct")(reconstruct_command)
 app.command("compare-piles")(compare_command)
+app.add_typer(audit_app, name="audit")
 
 
 def version_text() -> str:
@@ -426,6 +428,9 @@ class _CraneSimWatch:
 
 
 # -- trial ----------------------------------------------------------------------------------------
+FOXGLOVE = option("--foxglove", "Also serve the trial live to Foxglove (WebSocket, 127.0.0.1) on this port while it "
+                  "runs; the record's trial.mcap is written either way.", default=None, metavar="PORT",
+                  min=1, max=65535, names=["foxglove_port"])
 _TRIAL_CODES = {"input": EXIT_INPUT, "link": EXIT_LINK, "refused": EXIT_TRIAL, "declined": EXIT_TRIAL,
                 "interrupted": EXIT_INTERRUPTED}
 
@@ -504,6 +509,7 @@ def trial_command(
     verify_budget: float = VERIFY_BUDGET,
     verify_workers: int = VERIFY_WORKERS,
     send_rank: int = SEND_RANK,
+    foxglove: int = FOXGLOVE,
     as_json: bool = JSON,
 ) -> None:
     """Field trial: reconstruct, plan, verify in the twin, show, confirm, send, wait for the outcome, record everything.
@@ -525,6 +531,8 @@ def trial_command(
                --link "twin://?executor=pybullet&pile=s3/truth/pile.json"
     Example: loggrasp trial --scan s3/scan --gnss s3/gnss.csv --link can://virtual/ch0 --record trials/t3 \\
                --verify 16 --verify-copies 3 --verify-budget 30
+    Example: loggrasp trial --scan s3/scan --gnss s3/gnss.csv --link zenoh://127.0.0.1:7447/crane1 \
+               --record trials/t4 --foxglove 8765
     """
     from field.trial import run_trial_record
     from planner.inference import check_views
@@ -542,7 +550,8 @@ def trial_command(
     if parsed.scheme == "twin":
         link, opts = _twin_crane(o, link, gnss, opts)
     rec = _run_trial(o, record, lambda: run_trial_record(scan, gnss, link, record, opts,
-                                                         confirm=None if yes else _ask_to_send, progress=o.progress))
+                                                         confirm=None if yes else _ask_to_send, progress=o.progress,
+                                                         foxglove_port=foxglove))
     _finish_trial(o, rec, record)
 
 
@@ -696,6 +705,7 @@ def demo(
     model: Path = MODEL,
     no_verify: bool = option("--no-verify", "Send the network's best grasp without trying the best ones in the twin "
                              "on the reconstruction first.", default=False),
+    foxglove: int = FOXGLOVE,
     as_json: bool = JSON,
 ) -> None:
     """The main job on the embedded default: a bundled recorded scan (stereo pair + RTK endpoints)
@@ -706,6 +716,7 @@ def demo(
     \b
     Example: loggrasp demo --out out/demo
     Example: loggrasp demo --out out/demo-unverified --no-verify
+    Example: loggrasp demo --out out/demo --foxglove 8765   # watch it live in Foxglove (ws://127.0.0.1:8765)
     """
     import time as _time
 
@@ -726,8 +737,10 @@ def demo(
         return True
 
     options = demo_options(setup, model, verify=not no_verify)
-    rec = _run_trial(o, setup.record_dir, lambda: run_demo(setup, options, confirm=show, progress=o.progress))
-    o.progress(f"record: {setup.record_dir} (plan pictures in {setup.record_dir / 'plan'}); whole chain "
+    rec = _run_trial(o, setup.record_dir, lambda: run_demo(setup, options, confirm=show, progress=o.progress,
+                                                           foxglove_port=foxglove))
+    o.progress(f"record: {setup.record_dir} (plan pictures in {setup.record_dir / 'plan'}, the trial in time for "
+               f"Foxglove in {setup.record_dir / 'trial.mcap'}); whole chain "
                f"{_time.perf_counter() - t0:.1f} s")
     _finish_trial(o, rec, setup.record_dir)
 

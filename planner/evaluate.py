@@ -409,15 +409,22 @@ def run_evaluation(specs: list[PlannerSpec], cfg: EvalConfig, out_dir: str | Pat
     out = Path(out_dir)
     rec_dir = out / "records"
     rec_dir.mkdir(parents=True, exist_ok=True)
+    from synth.physics.trial import TRIAL_REVISION
+
     field = "" if cfg.field_error is None else f"+field{cfg.field_error.sigma_xy_m:g}m{cfg.field_error.sigma_phi_deg:g}deg"
     fingerprints = {s.name: _fingerprint(s) + field for s in specs}  # a record without this field row is made again
     params = {"format": "loggrasp.eval", "format_version": EVAL_FORMAT_VERSION, "config": asdict(cfg),
+              "trial_revision": TRIAL_REVISION,
               "planners": [asdict(s) | {"model_sha256": fingerprints[s.name]} for s in specs]}
     pfile = out / "eval.json"
     if pfile.exists():
         # the same evaluation with more (or fewer) piles per cell reuses the records of the piles
         # both share (a pile's seed depends on its cell and index only)
-        have = dict(json.loads(pfile.read_text()).get("config") or {})
+        old = json.loads(pfile.read_text())
+        if old.get("trial_revision") != TRIAL_REVISION:
+            raise ValueError(f"{out} holds an evaluation made with trial revision {old.get('trial_revision', '<= 3')}, "
+                             f"not {TRIAL_REVISION} (the twin's physics changed); choose a new --out")
+        have = dict(old.get("config") or {})
         want = json.loads(json.dumps(asdict(cfg)))
         free = ("per_cell", "field_error")  # a field row added: its records are made again (their fingerprint)
         if {k: v for k, v in have.items() if k not in free} != {k: v for k, v in want.items() if k not in free}:

@@ -130,6 +130,9 @@ def test_types_are_checked():
         Ack(1, False)
 
 
+@pytest.mark.safety_case(error="corruption", link="both",
+                         measure="E2E profile: CRC over data id + payload, 4-bit alive counter (CRC)",
+                         reaction="every single-bit flip of a command frame is rejected CRC")
 def test_every_single_bit_flip_is_detected():
     kind, data = encode(CMD, 3)
     for i in range(len(data) * 8):
@@ -140,6 +143,9 @@ def test_every_single_bit_flip_is_detected():
         assert ei.value.reason is RejectReason.CRC
 
 
+@pytest.mark.safety_case(error="addressing", link="both",
+                         measure="E2E data id per message kind inside the CRC",
+                         reaction="a frame of one kind read as another fails its CRC")
 def test_data_id_separates_message_kinds():
     _, data = encode(StatusRequest(1), 0)  # 8 bytes, same length as LaptopHeartbeat / EStop
     with pytest.raises(ProtocolError) as ei:
@@ -258,6 +264,10 @@ def _sometimes(strategy, percent: int):
 command_frames = st.tuples(commands, _sometimes(st.integers(0, 255), 10), _sometimes(st.integers(0, 63), 15))
 
 
+@pytest.mark.safety_case(error="insertion", link="both",
+                         measure="E2E profile: CRC over data id + payload, 4-bit alive counter + range checks + the"
+                                 " crane's validation",
+                         reaction="fuzzed frames are rejected; only valid commands run")
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 @given(
     frames=st.lists(
