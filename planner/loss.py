@@ -31,7 +31,8 @@ class LossWeights:
     # flat on this data (docs/results/README.md, learning-curve-plain-bce: 17-25 % success against 67-79 %)
     u_pos_weight: float = 25.0
     # balance MMSE weight when B is beta in 10 deg units (planner.model "beta_10deg") [-]: with targets of order 1 the
-    # term is ~10 % of the loss, where lambda_b on cos(beta) (targets 0.98-1.0) left it ~1e-4 of it
+    # term was 8.7 % of the validation loss of a short outcome-recipe run (docs/results/README.md, ranking-v3),
+    # where lambda_b on cos(beta) (targets 0.98-1.0) left it ~1e-4 of the loss
     lambda_beta: float = 10.0
 
     def __post_init__(self) -> None:
