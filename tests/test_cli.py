@@ -245,6 +245,32 @@ def test_synth_dataset_and_train_a_64px_network(capsys, work, a_file):
           "--mask-injection")
 
 
+def test_train_outcome_labels_and_the_beta_map(capsys, work, tmp_path):
+    """``--labels outcome`` trains on every trial of a data set made by `synth dataset` (after the test
+    above); a data set without trials, or with --skip-no-candidates, is a one-line error."""
+    import dataclasses
+
+    from planner.checkpoint import load_checkpoint
+    from synth.data.dataset import ShardWriter, iter_samples, read_manifest, write_manifest
+
+    fails(cli(capsys, "train", "--data", work / "data", "--out", work / "o1", "--labels", "outcome",
+              "--skip-no-candidates"), 2, "--skip-no-candidates", "--labels outcome")
+    r = cli(capsys, "train", "--data", work / "data", "--out", work / "outcome", "--epochs", "1", "--max-steps-per-epoch",
+            "1", "--base-channels", "4", "--batch-size", "2", "--labels", "outcome", "--b-encoding", "beta_10deg", "--json")
+    assert r.code == 0, r.err
+    assert load_checkpoint(r.json()["model"])[1].b_encoding == "beta_10deg"
+    cfg = json.loads((work / "outcome" / "train_config.json").read_text())
+    assert cfg["data"]["labels"] == "outcome" and cfg["loss"]["u_pos_weight"] == 1.0
+    old = tmp_path / "old"  # the same samples without their trials, as a data set from before outcome labels
+    w = ShardWriter(old, "t", 0)
+    for s in iter_samples(work / "data"):
+        w.add(dataclasses.replace(s, trials=None, capped=None))
+    man = read_manifest(work / "data")
+    write_manifest(old, dataclasses.replace(man, shards=[w.close()]))
+    fails(cli(capsys, "train", "--data", old, "--out", tmp_path / "r", "--epochs", "1", "--max-steps-per-epoch", "1",
+              "--base-channels", "4", "--labels", "outcome"), 2, "no trial outcomes", "--labels accepted")
+
+
 # -- plan ---------------------------------------------------------------------------------------------
 def test_plan_json_png_and_table(capsys, work, pile_dir):
     png = work / "plan.png"
@@ -344,6 +370,13 @@ def test_eval_tiny_strict_json_and_examples(capsys, work, a_file):
     for i, ln in enumerate(md):  # every Markdown table row has its header's cells
         if ln.startswith("|---"):
             assert ln.count("|") == md[i - 1].count("|") and md[i + 1].count("|") == ln.count("|"), md[i - 1:i + 2]
+    r = cli(capsys, "eval", "--per-cell", "1", "--logs", "2", "--obstacles", "no", "--objectives", "f1",
+            "--baselines", "random", "--seed-base", "900000001", "--workers", "1", "--out", out, "--field-error",
+            "0.03,2", "--json")  # the same evaluation with a field row
+    d = r.json()
+    assert r.code == 0 and set(d["planners"]) == {"unet-f1", "random", "unet-f1 (field)", "random (field)"}
+    assert d["field_error"] == {"sigma_xy_m": 0.03, "sigma_phi_deg": 2.0}
+    assert "σ 3 cm, 2°" in (out / "results.md").read_text()
 
 
 @pytest.mark.slow
@@ -388,7 +421,9 @@ def test_eval_bad_input(capsys, work, a_file):
                       (["--views", "3"], "--views must be one of (1, 2, 4, 8) (dihedral views averaged), got 3"),
                       (["--views", "1"], "--views 1 is the plain row"),
                       (["--view-spread", "2"], "--view-spread needs --views"),
-                      (["--views", "8", "--view-spread", "-1"], "--view-spread must be >= 0")):
+                      (["--views", "8", "--view-spread", "-1"], "--view-spread must be >= 0"),
+                      (["--field-error", "3cm"], "--field-error: positioning error '3cm' must be"),
+                      (["--field-error", "0.03,90"], "--field-error: positioning error")):
         fails(cli(capsys, "eval", *bad, "--out", work / "e2"), 2, flag)
     fails(cli(capsys, "eval", "--out", a_file / "e"), 2, "--out", str(a_file))
     assert not (work / "e2").exists()

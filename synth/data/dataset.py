@@ -23,6 +23,10 @@ Shard arrays (``npz``, compressed; P piles, Q renders, K subsets, N samples, G g
     maps         (K, 5, H, W) float32  C, S, W [m], U, B (synth.data.maps.MAP_CHANNELS)
     grasps       (G, 5)       float64  x [m], y [m], phi [rad, pile frame], width [m], balance cos(beta)
     grasp_start  (K + 1,)     int64    subset k's grasps are grasps[grasp_start[k]:grasp_start[k+1]]
+    trials       (T, 6)       float64  (optional) every trial of every subset: x, y, phi, width, success
+                                       value, cos beta (synth.data.outcomes); subset k's are
+                                       trials[trial_start[k]:trial_start[k+1]], its meta says "capped"
+    trial_start  (K + 1,)     int64    (with trials)
     samples      (N, 3)       int32    (pile index, intensity index, subset index)
     meta         (bytes,)     uint8    JSON: format, version, worker, chunk, piles, renders, subsets
 """
@@ -93,6 +97,8 @@ class Sample:
     negative: bool  # True when no successful grasp was found for the subset
     n_logs: int = 0  # logs in the pile [-]
     n_candidates: int | None = None  # admissible geometric candidates of the subset; None = not recorded [-]
+    trials: np.ndarray | None = None  # (t, 6) every trial run on the subset (synth.data.outcomes.TRIAL_COLUMNS); None = not recorded
+    capped: bool | None = None  # the subset's trials hit the cap with candidates left; None = not recorded
 
     @property
     def tau(self) -> int:
@@ -127,6 +133,11 @@ class Sample:
             raise ValueError(f"sample {self.pile_id}/{self.subset}: balance must be cos(beta) in [-1, 1]")
         if self.render < 0:
             raise ValueError("render index must be >= 0")
+        if self.trials is not None:
+            t = np.asarray(self.trials, dtype=np.float64)
+            if t.ndim != 2 or t.shape[1] != 6 or not np.all(np.isfinite(t[:, :5])) or np.any((t[:, 4] < 0) | (t[:, 4] > 1)):
+                raise ValueError(f"sample {self.pile_id}/{self.subset}: trials must be (n, 6) rows with finite grasps "
+                                 "and a success value in [0, 1]")
 
 
 @dataclass(frozen=True)
@@ -195,6 +206,7 @@ class ShardWriter:
         self._mask: list[np.ndarray] = []
         self._maps: list[np.ndarray] = []
         self._grasps: list[np.ndarray] = []
+        self._trials: list[np.ndarray | None] = []
         self._samples: list[tuple[int, int, int]] = []
         self._shape: tuple[int, int] | None = None
         self.closed = False
@@ -231,8 +243,12 @@ class ShardWriter:
             self._mask.append(np.asarray(sample.target_mask, dtype=bool))
             self._maps.append(np.asarray(sample.maps, dtype=np.float32))
             self._grasps.append(g)
+            self._trials.append(None if sample.trials is None else np.asarray(sample.trials, np.float64).reshape(-1, 6))
             self._subset_meta.append({"pile": p, "subset": list(subset), "negative": bool(sample.negative)}
-                                     | ({} if sample.n_candidates is None else {"n_candidates": int(sample.n_candidates)}))
+                                     | ({} if sample.n_candidates is None else {"n_candidates": int(sample.n_candidates)})
+                                     | ({} if sample.capped is None else {"capped": bool(sample.capped)}))
+            if (self._trials[-1] is None) != (self._trials[0] is None):
+                raise ValueError(f"pile {pid} subset {subset}: a shard's subsets must all carry their trials or none")
         k = self._subsets[skey]
         if not np.array_equal(self._grasps[k], g):
             raise ValueError(f"pile {pid} subset {subset} was added twice with different grasps")
@@ -257,12 +273,16 @@ class ShardWriter:
             "subsets": self._subset_meta,
         }
         buf = io.BytesIO()
+        extra = {}
+        if self._trials and self._trials[0] is not None:
+            extra["trial_start"] = np.concatenate([[0], np.cumsum([len(t) for t in self._trials])]).astype(np.int64)
+            extra["trials"] = np.concatenate(self._trials).reshape(-1, 6)
         np.savez_compressed(
             buf, depth=np.stack(self._depth), intensity=np.stack(self._intensity),
             target_mask=np.stack(self._mask), maps=np.stack(self._maps),
             grasps=np.concatenate(self._grasps).reshape(-1, 5) if starts[-1] else np.zeros((0, 5)),
             grasp_start=starts, samples=np.asarray(self._samples, dtype=np.int32).reshape(-1, 3),
-            meta=np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8),
+            meta=np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8), **extra,
         )
         data = buf.getvalue()
         info = ShardInfo(
@@ -289,7 +309,8 @@ def load_shard(path: str | Path) -> list[Sample]:
     try:
         with np.load(path) as z:
             meta = json.loads(bytes(z["meta"]).decode())
-            arrays = {k: z[k] for k in ("depth", "intensity", "target_mask", "maps", "grasps", "grasp_start", "samples")}
+            arrays = {k: z[k] for k in ("depth", "intensity", "target_mask", "maps", "grasps", "grasp_start", "samples",
+                                        "trials", "trial_start") if k in z.files}
     except FileNotFoundError as exc:
         raise DatasetFormatError(f"shard {path} does not exist; re-run the data-set job to regenerate it") from exc
     except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile, UnicodeDecodeError) as exc:
@@ -301,6 +322,9 @@ def load_shard(path: str | Path) -> list[Sample]:
     try:
         piles, renders, subsets = meta["piles"], meta["renders"], meta["subsets"]
         starts, samples = arrays["grasp_start"], arrays["samples"]
+        tstart = arrays.get("trial_start")
+        if tstart is not None and len(tstart) != len(subsets) + 1:
+            raise ValueError("trial_start disagrees with the shard's subsets")
         if len(samples) != int(meta["n_samples"]) or len(starts) != len(subsets) + 1:
             raise ValueError("array lengths disagree with the shard's metadata")
         if meta.get("format_version") == "1.0":
@@ -314,6 +338,8 @@ def load_shard(path: str | Path) -> list[Sample]:
                 maps=arrays["maps"][k], grasps=arrays["grasps"][starts[k]:starts[k + 1]],
                 negative=bool(sm["negative"]), n_logs=int(piles[p].get("n_logs", 0)),
                 n_candidates=None if sm.get("n_candidates") is None else int(sm["n_candidates"]),
+                trials=None if tstart is None else arrays["trials"][tstart[k]:tstart[k + 1]],
+                capped=None if sm.get("capped") is None else bool(sm["capped"]),
             ))
     except (KeyError, IndexError, TypeError, ValueError) as exc:
         raise DatasetFormatError(f"shard {path} is inconsistent ({exc}); delete it and re-run the job") from exc
@@ -689,6 +715,7 @@ def add_pile_samples(writer: "ShardWriter", job: "DatasetJob", pile, pile_id: st
     """The training samples of one simulated pile (every render x every subset) into ``writer``."""
     from synth.geometry.frames import OrthoGrid
     from synth.data.maps import encode_grasps
+    from synth.data.outcomes import trial_array
 
     grid = OrthoGrid(obs.depth.shape[0], obs.extent_m)
     stats["grid"] = {"size_px": grid.size_px, "extent_m": grid.extent_m, "camera_height_m": obs.camera_height_m}
@@ -697,10 +724,12 @@ def add_pile_samples(writer: "ShardWriter", job: "DatasetJob", pile, pile_id: st
         grasps = [Grasp(float(x), float(y), float(p), float(w)) for x, y, p, w, _ in arr]
         maps = encode_grasps(grid, grasps, [float(b) for b in arr[:, 4]])
         mask = obs.target_mask(sub.targets)
+        trials = trial_array(sub.trials)
         for r in range(job.n_renders):
             writer.add(Sample(pile_id=pile_id, render=r, subset=tuple(sub.targets), intensity=obs.intensity[r],
                               depth=obs.depth, target_mask=mask, maps=maps, grasps=arr,
-                              negative=not len(arr), n_logs=pile.n_logs, n_candidates=sub.n_candidates))
+                              negative=not len(arr), n_logs=pile.n_logs, n_candidates=sub.n_candidates,
+                              trials=trials, capped=sub.capped))
 
 
 def build_chunk(out_dir: str, job_dict: dict, chunk: int, worker: str | None = None,

@@ -49,8 +49,9 @@ CHUNK = VersionedJson(CHUNK_FORMAT_NAME, STORE_FORMAT_VERSION, "store chunk", Da
 CHUNK_DIR = "chunks"
 CACHE_DIR = ".cache"
 #: what the materialised shards hold beyond the chunk (a cached shard of another revision is made
-#: anew): 2 = each subset's admissible candidate count (``Sample.n_candidates``)
-MATERIALIZE_REVISION = 2
+#: anew): 2 = each subset's admissible candidate count (``Sample.n_candidates``); 3 = every trial of
+#: each subset and whether they hit the cap (``Sample.trials``, ``Sample.capped``: outcome labels)
+MATERIALIZE_REVISION = 3
 _CHUNK_RE = re.compile(r"^chunk_(\d{5,})\.json\.gz$")
 
 
