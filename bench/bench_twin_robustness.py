@@ -13,15 +13,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
-from experiments.twin_robustness import cases_from_store, fresh_pile_cases, markdown, run_cases, summarise  # noqa: E402
-from synth.common.files import atomic_write_text  # noqa: E402
+from experiments.twin_robustness import cases_from_store, fresh_pile_cases, markdown, run_cases, summarise
+from synth.common.files import atomic_write_text
 
 DEFAULT_STORE = ROOT / "data" / "paper-v4"
 FRESH_SEED = 910_000

@@ -12,19 +12,17 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
-from synth.geometry.grasp import Grasp  # noqa: E402
-from synth.physics.grapple import GrappleConfig, _claw_polyline  # noqa: E402
-from synth.physics.trial import TrialConfig, render_view, run_trial  # noqa: E402
-from synth.scene.pile import LogSpec, PileSpec, TerrainSpec, quat_from_x_axis  # noqa: E402
+from synth.geometry.grasp import Grasp
+from synth.physics.grapple import GrappleConfig
+from synth.physics.trial import TrialConfig, render_view, run_trial
+from synth.scene.pile import LogSpec, PileSpec, TerrainSpec, quat_from_x_axis
 
 OLD_BOWL_M = 0.342  # trial revisions 2-3: the stroke ended with the tips 0.60 m past each other
 
@@ -56,7 +54,7 @@ def closing_plane(ax, g: GrappleConfig, title: str) -> None:
 
     q = g.close_angle_rad()
     for sign in (1.0, -1.0):
-        P = _claw_polyline(g, q) * [sign, 1.0]
+        P = g.claw_polyline_m(q) * [sign, 1.0]
         ax.plot(P[:, 0], P[:, 1], "-", color="#d9731a", lw=6 * g.claw_thickness_m / 0.05, solid_capstyle="round")
     hu = g.head_size_m[0] / 2
     ax.add_patch(Rectangle((-hu, g.head_bottom_z_m()), 2 * hu, g.head_size_m[2], color="#d9731a", alpha=0.5))

@@ -138,6 +138,10 @@ class GrappleConfig:
     def closed_gap_m(self) -> float:
         return float(self.gap_at(0.0))
 
+    def claw_polyline_m(self, q_rad: float) -> np.ndarray:
+        """(k, 2) the +u claw's profile (u, z) [m] in the head frame at claw angle ``q_rad``."""
+        return _claw_polyline(self, q_rad)
+
     def head_bottom_z_m(self) -> float:
         """Height [m] of the head box's underside in the head frame: the top of the claws' bowl."""
         return -self.head_drop_m - _HEAD_BELOW_HINGES_M
