@@ -1,5 +1,5 @@
 # loggrasp — the two commands of the README, plus benchmarks.
-.PHONY: setup demo test soak bench clean
+.PHONY: setup demo test soak bench safety-case clean
 
 setup:
 	./scripts/setup.sh
@@ -13,6 +13,10 @@ test: setup
 # the link soak at full size on every backend (the default suite runs 10,000 on CAN, 2,000 on Zenoh)
 soak: setup
 	LOGGRASP_SOAK_CAN_N=10000 LOGGRASP_SOAK_ZENOH_N=10000 .venv/bin/python -m pytest -q -s -p no:cacheprovider tests/field/test_link_soak.py
+
+# docs/safety-case.md from a run of the tests marked safety_case (transmission errors x links)
+safety-case: setup
+	.venv/bin/python scripts/safety_case.py --out docs/safety-case.md
 
 bench: setup
 	.venv/bin/python bench/run.py --out docs/benchmarks.md

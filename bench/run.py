@@ -1,7 +1,12 @@
 """`make bench`: measure loggrasp's speed targets and write docs/benchmarks.md.
 
 Each section is a function returning Markdown; sections whose code is not there yet are skipped
-with a note. Run: .venv/bin/python bench/run.py --out docs/benchmarks.md [--only NAME]
+with a note. A run appends its sections, dated, to docs/benchmarks-history.md, replaces the figures
+it measured in docs/results/benchmarks.json (experiments.bench_measures reads them from the
+sections' tables) and writes the page from that file (experiments.bench_page): the current figure
+of every measure on top, measures this run did not touch kept with their own date and command.
+
+Run: .venv/bin/python bench/run.py --out docs/benchmarks.md [--only NAME...] [--page-only]
 """
 
 from __future__ import annotations
@@ -13,24 +18,38 @@ import os
 import platform
 import statistics
 import subprocess
+import sys
 import time
 from pathlib import Path
+
+from experiments.bench_measures import Run, measures_of_section
+from experiments.bench_page import (BenchPageError, append_history, history_entry, read_measures, updated,
+                                    write_measures, write_page)
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def machine() -> str:
-    cpu = "?"
+def _cpu() -> str:
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
             if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
+                return line.split(":", 1)[1].strip()
     except OSError:
         pass
+    return "?"
+
+
+def machine() -> str:
     load = "/".join(f"{v:.1f}" for v in os.getloadavg())
-    return (f"{platform.system()} {platform.machine()}, {os.cpu_count()} cores ({cpu}), Python "
+    return (f"{platform.system()} {platform.machine()}, {os.cpu_count()} cores ({_cpu()}), Python "
             f"{platform.python_version()}; load average at start {load} (1/5/15 min — other jobs inflate wall times)")
+
+
+def machine_short() -> str:
+    """``2-core Intel Xeon``: the page's machine column."""
+    cpu = " ".join(w for w in _cpu().replace("(R)", "").replace("(TM)", "").split()
+                   if w not in ("Processor", "CPU") and "@" not in w and not w.endswith("GHz"))
+    return f"{os.cpu_count()}-core {cpu}"
 
 
 def bench_piles(repeats: int = 5) -> str:
@@ -94,42 +113,63 @@ OPTIONAL = {  # module in bench/ -> function returning Markdown; skipped if the 
     "reconstruct": ("bench_reconstruct", "markdown"),
     "link": ("bench_link", "markdown"),
     "unposed": ("bench_unposed", "markdown"),
+    "twin robustness": ("bench_twin_robustness", "markdown_section"),
 }
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--out", default="docs/benchmarks.md")
-    ap.add_argument("--only", nargs="*", default=None)
-    args = ap.parse_args()
-    parts = []
-    names = args.only or [*SECTIONS, *OPTIONAL]
+def section_markdown(name: str) -> str:
+    if name in SECTIONS:
+        return SECTIONS[name]()
+    mod_name, fn = OPTIONAL[name]
+    try:
+        return getattr(importlib.import_module(mod_name), fn)()
+    except (ImportError, AttributeError) as exc:
+        return f"### {name}\n_not measured: {exc}_"
+
+
+def run_sections(names: list[str], only: bool, out: str, history: Path, measures: dict) -> dict:
+    """Run ``names``; append them to ``history``; ``measures`` with the figures they gave."""
+    start = dt.datetime.now(dt.timezone.utc)
+    rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
+    command = f".venv/bin/python bench/run.py --out {out}" + (f" --only {' '.join(names)}" if only else "")
+    title = f"loggrasp benchmarks, {start:%Y-%m-%d %H:%M} UTC"
+    run = Run(date=f"{start:%Y-%m-%d %H:%M}", machine=machine_short(), load=f"{os.getloadavg()[0]:.1f}",
+              command="make bench" if not only else command, commit=rev, details=title)
+    run_lines = [f"Machine: {machine()}", f"Date: {start:%Y-%m-%d %H:%M} UTC, commit {rev}",
+                 f"Command: `make bench` (= `{command}`)" if not only else f"Command: `{command}`"]
+    parts, new = [], []
     for name in names:
         t0 = time.perf_counter()
-        if name in SECTIONS:
-            md = SECTIONS[name]()
-        else:
-            mod_name, fn = OPTIONAL[name]
-            try:
-                mod = importlib.import_module(mod_name)
-                md = getattr(mod, fn)()
-            except (ImportError, AttributeError) as exc:
-                md = f"### {name}\n_not measured: {exc}_"
+        md = section_markdown(name)
         print(md, "\n", flush=True)
         parts.append(md + f"\n\n_section time {time.perf_counter() - t0:.0f} s_")
-    rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
-    head = (f"# loggrasp benchmarks\n\nMachine: {machine()}  \nDate: {dt.datetime.now(dt.timezone.utc):%Y-%m-%d %H:%M} UTC, "
-            f"commit {rev}  \nCommand: `make bench` (= `.venv/bin/python bench/run.py --out {args.out}`"
-            f"{' --only ' + ' '.join(args.only) if args.only else ''})\n\n")
-    out = ROOT / args.out
-    if args.only and out.exists():
-        # keep other sections: append a dated block for the partial run
-        text = out.read_text() + "\n\n---\n\n" + head + "\n\n".join(parts) + "\n"
-    else:
-        text = head + "\n\n".join(parts) + "\n"
-    from synth.common.files import atomic_write_bytes
+        try:
+            new += measures_of_section(name, md, run)
+        except BenchPageError as exc:
+            print(f"warning: {exc}; its measures keep the figures of their last run", file=sys.stderr)
+    append_history(history, history_entry(title, run_lines, parts))
+    return updated(measures, new)
 
-    atomic_write_bytes(out, text.encode())
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description="Measure loggrasp's speed targets; write docs/benchmarks.md.")
+    ap.add_argument("--out", default="docs/benchmarks.md",
+                    help="the page (default docs/benchmarks.md); its runs go to NAME-history.md beside it")
+    ap.add_argument("--results", default="docs/results/benchmarks.json",
+                    help="the current figure of every measure (read, updated, written)")
+    ap.add_argument("--only", nargs="+", default=None, choices=[*SECTIONS, *OPTIONAL], help="run only these sections")
+    ap.add_argument("--page-only", action="store_true", help="run nothing: write the page from --results")
+    args = ap.parse_args()
+    out, results = ROOT / args.out, ROOT / args.results
+    try:
+        measures = read_measures(results)
+    except BenchPageError as exc:
+        sys.exit(f"error: {exc}")
+    if not args.page_only:
+        measures = run_sections(args.only or [*SECTIONS, *OPTIONAL], bool(args.only), args.out,
+                                out.with_name(out.stem + "-history.md"), measures)
+        write_measures(results, measures)
+    write_page(out, measures)
     print(f"wrote {out}")
 
 

@@ -17,11 +17,13 @@ from typing import Callable, Literal
 
 import typer
 
+from field.audit.cli import audit_app
 from field.controller import ReachEnvelope
 from field.demo import CRANE_OFFSET_SOUTH_M, DEMO_DATA, crane_config, default_crane_base
 from field.trial import TrialOptions
 from planner.cli import MODEL, OBJECTIVE_HELP, VIEW_SPREAD, VIEWS, eval_command, plan_command, train_command
 from reconstruct.cli import compare_command, gnss_crs_warning, reconstruct_command, scan_command
+from reconstruct.survey.cli import GNSS_HELP, GNSS_WINDOWS_HELP, gnss_source, survey_command
 from synth.cli import APP_SETTINGS, JSON
 from synth.cli import app as synth_app
 from synth.common.cli import (EXIT_CODES, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_LINK,
@@ -58,8 +60,10 @@ app.add_typer(synth_app, name="synth")
 app.command("train")(train_command)
 app.command("plan")(plan_command)
 app.command("eval")(eval_command)
+app.command("survey")(survey_command)
 app.command("reconstruct")(reconstruct_command)
 app.command("compare-piles")(compare_command)
+app.add_typer(audit_app, name="audit")
 
 
 def version_text() -> str:
@@ -188,7 +192,7 @@ def twin_url(url: str, base_tm, max_reach_m: float, max_pile_age_s: float) -> st
     return "twin://?" + urlencode(q, safe=",/:")
 
 
-def base_from_survey(gnss: Path) -> tuple[float, float, float]:
+def base_from_survey(gnss) -> tuple[float, float, float]:
     """A crane base :data:`field.demo.CRANE_OFFSET_SOUTH_M` south (site frame) of the surveyed log
     ends' centre, at about ground height: the twin crane's default position, known before the
     reconstruction."""
@@ -463,6 +467,9 @@ class _CraneSimWatch:
 
 
 # -- trial ----------------------------------------------------------------------------------------
+FOXGLOVE = option("--foxglove", "Also serve the trial live to Foxglove (WebSocket, 127.0.0.1) on this port while it "
+                  "runs; the record's trial.mcap is written either way.", default=None, metavar="PORT",
+                  min=1, max=65535, names=["foxglove_port"])
 _TRIAL_CODES = {"input": EXIT_INPUT, "link": EXIT_LINK, "refused": EXIT_TRIAL, "declined": EXIT_TRIAL,
                 "interrupted": EXIT_INTERRUPTED}
 
@@ -519,7 +526,8 @@ def _finish_trial(o: Output, rec: dict, record: Path) -> None:
 @app.command("trial", epilog=TWIN_PARAMETERS)
 def trial_command(
     scan: Path = option("--scan", "Scan folder (stereo pair folders + scan_pose.json).", default=..., metavar="DIR"),
-    gnss: Path = option("--gnss", "RTK endpoint survey CSV.", default=..., metavar="FILE"),
+    gnss: list[Path] = option("--gnss", GNSS_HELP, default=..., metavar="FILE"),
+    gnss_windows: Path = option("--gnss-windows", GNSS_WINDOWS_HELP, default=None, metavar="FILE"),
     link: str = link_option(),
     record: Path = option("--record", "Trial record folder to create (must not exist).", default=..., metavar="DIR"),
     objective: Literal["f1", "f2", "f3"] = option("--objective", OBJECTIVE_HELP, field=(TrialOptions, "objective"),
@@ -540,6 +548,7 @@ def trial_command(
     verify_budget: float = VERIFY_BUDGET,
     verify_workers: int = VERIFY_WORKERS,
     send_rank: int = SEND_RANK,
+    foxglove: int = FOXGLOVE,
     insecure_link: bool = INSECURE_LINK,
     as_json: bool = JSON,
 ) -> None:
@@ -556,10 +565,14 @@ def trial_command(
 
     \b
     Example: loggrasp trial --scan s3/scan --gnss s3/gnss.csv --link can://virtual/ch0 --record trials/t1
+    Example: loggrasp trial --scan s3/scan --gnss rover.ubx --gnss-windows windows.csv --link can://virtual/ch0 \\
+               --record trials/t4
     Example: loggrasp trial --scan s3/scan --gnss s3/gnss.csv --record trials/t2 --yes \\
                --link "twin://?executor=pybullet&pile=s3/truth/pile.json"
     Example: loggrasp trial --scan s3/scan --gnss s3/gnss.csv --link can://virtual/ch0 --record trials/t3 \\
                --verify 16 --verify-copies 3 --verify-budget 30
+    Example: loggrasp trial --scan s3/scan --gnss s3/gnss.csv --link zenoh://127.0.0.1:7447/crane1 \
+               --record trials/t4 --foxglove 8765
     """
     from field.trial import run_trial_record
     from planner.inference import check_views
@@ -568,7 +581,7 @@ def trial_command(
     parsed = check_link(link)
     link = secured_link(link, parsed, insecure_link)
     base_tm = parse_base(base)
-    _check_trial_paths(scan, gnss, model, record)
+    gnss = _check_trial_paths(scan, gnss, gnss_windows, model, record, allow_float)
     check_views(views, view_spread)
     opts = _trial_options(objective, model, allow_float, max_pile_age, base_tm, max_reach, capacity, views, view_spread,
                           **verify_fields(verify, no_verify, verify_copies, verify_budget, verify_workers, send_rank))
@@ -585,21 +598,30 @@ def trial_command(
         return _ask_to_send(prepared, note)
 
     rec = _run_trial(o, record, lambda: run_trial_record(scan, gnss, link, record, opts,
-                                                         confirm=None if yes else ask, progress=o.progress))
+                                                         confirm=None if yes else ask, progress=o.progress,
+                                                         foxglove_port=foxglove))
     _finish_trial(o, rec, record)
 
 
-def _check_trial_paths(scan: Path, gnss: Path, model: Path | None, record: Path) -> None:
+def _check_trial_paths(scan: Path, gnss: list[Path], gnss_windows: Path | None, model: Path | None, record: Path,
+                       allow_float: bool):
+    """The inputs checked before anything is written; returns the survey source (raw logs are
+    averaged and checked here, so bad logs or windows stop the trial with nothing recorded)."""
     check_input(scan, "--scan", "dir")
-    check_input(gnss, "--gnss", "file")
+    source = gnss_source(gnss, gnss_windows)
     if model is not None:
         check_input(model, "--model", "file")
     if record.exists():
         raise CliError(f"--record {record} already exists; choose a new --record folder")
     check_output_dir(record, "--record")
+    if not isinstance(source, Path):
+        from reconstruct.survey.gnss import read_gnss
+
+        read_gnss(source, allow_float=allow_float, require_both_ends=False)
+    return source
 
 
-def _twin_crane(o: Output, link: str, gnss: Path, opts):
+def _twin_crane(o: Output, link: str, gnss, opts):
     """A twin:// link: the crane stands at --base (default: south of the surveyed pile) with the
     trial's reach and staleness limit; returns the full twin URL and the options with that base."""
     from dataclasses import replace
@@ -738,6 +760,7 @@ def demo(
     model: Path = MODEL,
     no_verify: bool = option("--no-verify", "Send the network's best grasp without trying the best ones in the twin "
                              "on the reconstruction first.", default=False),
+    foxglove: int = FOXGLOVE,
     as_json: bool = JSON,
 ) -> None:
     """The main job on the embedded default: a bundled recorded scan (stereo pair + RTK endpoints)
@@ -748,6 +771,7 @@ def demo(
     \b
     Example: loggrasp demo --out out/demo
     Example: loggrasp demo --out out/demo-unverified --no-verify
+    Example: loggrasp demo --out out/demo --foxglove 8765   # watch it live in Foxglove (ws://127.0.0.1:8765)
     """
     import time as _time
 
@@ -768,8 +792,10 @@ def demo(
         return True
 
     options = demo_options(setup, model, verify=not no_verify)
-    rec = _run_trial(o, setup.record_dir, lambda: run_demo(setup, options, confirm=show, progress=o.progress))
-    o.progress(f"record: {setup.record_dir} (plan pictures in {setup.record_dir / 'plan'}); whole chain "
+    rec = _run_trial(o, setup.record_dir, lambda: run_demo(setup, options, confirm=show, progress=o.progress,
+                                                           foxglove_port=foxglove))
+    o.progress(f"record: {setup.record_dir} (plan pictures in {setup.record_dir / 'plan'}, the trial in time for "
+               f"Foxglove in {setup.record_dir / 'trial.mcap'}); whole chain "
                f"{_time.perf_counter() - t0:.1f} s")
     _finish_trial(o, rec, setup.record_dir)
 

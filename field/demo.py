@@ -102,9 +102,10 @@ def demo_options(setup: DemoSetup, model: str | Path | None, verify: bool = True
 
 
 def run_demo(setup: DemoSetup, options: TrialOptions, confirm: Callable | None = None,
-             progress: Callable[[str], None] | None = None) -> dict:
+             progress: Callable[[str], None] | None = None, foxglove_port: int | None = None) -> dict:
     """The whole chain on the bundled scan, against a crane twin served here on the true pile;
-    the trial record (also written to ``setup.record_dir``). A trial stopped before sending raises
+    the trial record (also written to ``setup.record_dir``, with its ``trial.mcap``; served live
+    on 127.0.0.1:``foxglove_port`` when given). A trial stopped before sending raises
     :class:`field.trial.TrialAborted` with its record written."""
     from field.executor import PybulletTrialExecutor
     from field.trial import run_trial_record
@@ -112,4 +113,4 @@ def run_demo(setup: DemoSetup, options: TrialOptions, confirm: Callable | None =
     config = crane_config(setup.base_tm, options.max_reach_m, setup.max_pile_age_s, str(setup.journal_path))
     with controller_in_thread(setup.link_url, PybulletTrialExecutor(setup.truth), config):
         return run_trial_record(setup.data / "scan", setup.data / "gnss.csv", setup.link_url, setup.record_dir,
-                                options, confirm=confirm, progress=progress)
+                                options, confirm=confirm, progress=progress, foxglove_port=foxglove_port)

@@ -10,14 +10,21 @@ with the reason for a trial that was refused, declined, not answered or interrup
 :func:`replay_record` checks the recorded inputs' sha256, re-runs reconstruction and planning from
 them and says whether the command is bit-identical.
 
-Trial record (``loggrasp.trial-record`` 1.0)::
+Trial record (``loggrasp.trial-record`` 1.3)::
 
     RECORD/record.json        versions, input hashes, options, plan, command, messages, outcome
     RECORD/inputs/scan/...    copies of the scan and the GNSS file as used
-    RECORD/inputs/gnss.csv
+    RECORD/inputs/gnss.csv        (raw receiver logs: the survey averaged from them, dated like them)
+    RECORD/inputs/gnss-raw/...    the raw logs and their time-window file, when those were given
     RECORD/reconstruction/    pile.json, ortho.npz, preview.png, compare.png, report.json
     RECORD/plan/              plan.json, plan.png, grasp_map.png, pile.geojson, pile.sweref99tm.geojson
     RECORD/link/traffic.blf   every CAN frame of the session (CAN links)
+    RECORD/audit.jsonl        hash chain of every file and record.json step (field/audit/record.py)
+    RECORD/trial.mcap         the trial in time for Foxglove: scan, pile, plan, verification, command,
+                              CAN frames with their signals, the crane's state (:mod:`field.trial_view`)
+
+With a ``zenoh://`` link the plan and the sent grasp are also published as ROS 2 messages
+(:mod:`field.ros2`).
 
 Nothing unsafe is sent: no RTK fix (the survey reader refuses float/no-fix points unless
 allowed), a grasp out of reach or over the lift capacity, stale pile data, an operator who does
@@ -48,13 +55,15 @@ from typing import Callable, Literal
 
 import numpy as np
 
+from field.audit.record import RecordSeal
 from field.errors import FieldError
 from field.link.messages import DEFAULT_MAX_PILE_AGE_S, GraspCommand
 from synth.common.files import sha256_file as sha256_of
 from synth.common.formats import VersionedJson
 
 RECORD_FORMAT = "loggrasp.trial-record"
-RECORD_VERSION = "1.1"  # 1.1: verification, chosen_rank, verified (a 1.0 record was never verified)
+RECORD_VERSION = "1.3"  # 1.1: verification, chosen_rank, verified (a 1.0 record was never verified);
+# 1.2: view and view_errors (trial.mcap beside record.json); 1.3: audit (audit.jsonl hash chain)
 
 
 class TrialAborted(FieldError):
@@ -307,11 +316,12 @@ def verify_trial_plan(the_plan, pile, options: TrialOptions, fits=(), recorded: 
 
 def prepare_trial(scan_dir: str | Path, gnss_path: str | Path, work_dir: str | Path, options: TrialOptions,
                   progress: Callable[[str], None] | None = None, now: float | None = None,
-                  recorded_verification: dict | None = None) -> PreparedTrial:
+                  recorded_verification: dict | None = None, view=None) -> PreparedTrial:
     """Reconstruct, plan, verify in the twin, convert to SWEREF 99 TM and check safety. Raises
     :class:`TrialAborted` (:class:`NotVerified` when no checked grasp succeeded in the twin and
     the operator named no plan rank). ``recorded_verification``: a replay's recorded verification
-    (:func:`verify_trial_plan`)."""
+    (:func:`verify_trial_plan`). ``view``: a :class:`field.trial_view.TrialView` each stage is
+    logged to as it finishes."""
     from field.geo import grasp_to_gnss
     from reconstruct.pipeline import log_end_sigmas
 
@@ -321,11 +331,23 @@ def prepare_trial(scan_dir: str | Path, gnss_path: str | Path, work_dir: str | P
     planner = _load_trial_planner(options)  # first: a model that cannot load stops before the reconstruction
     result = _reconstruct_for(planner, scan_dir, gnss_path, work, options, say)
     pile, obs = result.pile, result.observation  # as written to reconstruction/ortho.npz, not read back
+    if view is not None:
+        view.reconstructed(result, captured)
     constraints = _constraints_for(pile, options)
     the_plan = _plan_subsets(obs, planner, pile, constraints, options, say)
+    if view is not None:
+        view.planned(the_plan, pile)
     log_fits = [log.get("fit", "scan") for log in result.report.get("logs", [])]
-    best, verification = _choose_grasp(the_plan, pile, options, log_fits, recorded_verification, say,
-                                       log_end_sigmas(result.report))
+    try:
+        best, verification = _choose_grasp(the_plan, pile, options, log_fits, recorded_verification, say,
+                                           log_end_sigmas(result.report))
+    except TrialAborted as exc:
+        if view is not None:
+            view.verified(exc.verification, pile)
+        raise
+    if view is not None:
+        view.verified(verification, pile)
+        view.chosen(best, pile, time.time())
     z = float(pile.terrain.height_at(best.grasp.x_m, best.grasp.y_m))
     geo = grasp_to_gnss(best.grasp, pile.georef, z)
     command = GraspCommand.from_grasp_geo(1, geo, len(best.targets), captured)  # the id is the link's, at sending
@@ -472,8 +494,11 @@ class TrialOutcome:
 
 
 def execute_trial(prepared: PreparedTrial, link_url: str, options: TrialOptions,
-                  record_traffic: Path | None = None, say: Callable[[str], None] | None = None) -> TrialOutcome:
-    """Send the prepared command over ``link_url`` and follow it to its final state."""
+                  record_traffic: Path | None = None, say: Callable[[str], None] | None = None,
+                  view=None) -> TrialOutcome:
+    """Send the prepared command over ``link_url`` and follow it to its final state. A link that
+    speaks ROS 2 (``zenoh://``) also publishes the plan and the grasp as it is sent
+    (:func:`field.ros2.publish_trial`); ``view`` logs the command when it is sent."""
     from field.errors import LinkError
     from field.link import open_link
     from field.link.base import LinkConfig
@@ -495,6 +520,13 @@ def execute_trial(prepared: PreparedTrial, link_url: str, options: TrialOptions,
         cid = link.new_command_id()
         cmd = GraspCommand(command_id=cid, **prepared.command_fields)
         log("command", **asdict(cmd))
+        if view is not None:
+            view.command(asdict(cmd), prepared.geo.to_dict(), msgs[-1]["t_utc_s"])
+        ros2 = getattr(link, "ros2_publisher", None)
+        if ros2 is not None and ros2() is not None:
+            from field.ros2 import publish_trial
+
+            publish_trial(ros2(), prepared, say)
         say(f"sending command {cid}")
         fate = link.execute(cmd, ack_timeout_s=options.ack_timeout_s, outcome_timeout_s=options.outcome_timeout_s)
         return _trial_outcome(fate, link, msgs, log, say)
@@ -577,8 +609,12 @@ def _stage_record(record_dir: Path) -> Path:
 def run_trial_record(scan_dir: str | Path, gnss_path: str | Path, link_url: str, record_dir: str | Path,
                      options: TrialOptions, confirm: Callable[[PreparedTrial], bool] | None = None,
                      progress: Callable[[str], None] | None = None, now: float | None = None,
-                     probe: bool = True) -> dict:
+                     probe: bool = True, foxglove_port: int | None = None) -> dict:
     """The whole trial; returns the record dict.
+
+    The record's ``trial.mcap`` is logged as the trial runs (:class:`field.trial_view.TrialView`)
+    and, with ``foxglove_port``, served live on 127.0.0.1 at that port (a port in use:
+    :class:`TrialAborted` ``kind="input"`` before anything else).
 
     First the crane link is probed (:func:`probe_link`; nothing is written when it fails). The
     record is built in a temporary sibling folder until the plan is ready, then renamed to
@@ -591,12 +627,25 @@ def run_trial_record(scan_dir: str | Path, gnss_path: str | Path, link_url: str,
     ``KeyboardInterrupt``). ``confirm`` None means already confirmed (``--yes``); it may raise
     :class:`TrialAborted` (e.g. no answer)."""
     say = progress or (lambda s: None)
-    scan_dir, gnss_path, record_dir = Path(scan_dir), Path(gnss_path), Path(record_dir)
+    scan_dir, record_dir = Path(scan_dir), Path(record_dir)
+    gnss_path = gnss_path if hasattr(gnss_path, "windows") else Path(gnss_path)  # a RawGnss stays one
     if record_dir.exists():
         raise TrialAborted(f"trial record {record_dir} already exists; choose a new --record folder", kind="input")
-    if probe:
-        say(f"crane link {link_url}: controller {probe_link(link_url, options)}")
-    rec = _TrialRecord(record_dir, _stage_record(record_dir), link_url, options)
+    from field.trial_view import ViewError, open_live_view, record_view
+
+    try:
+        live = open_live_view(record_dir, foxglove_port)
+    except ViewError as exc:
+        raise TrialAborted(str(exc), kind="input") from exc
+    try:
+        if probe:
+            say(f"crane link {link_url}: controller {probe_link(link_url, options)}")
+        tmp = _stage_record(record_dir)
+    except BaseException:
+        if live is not None:
+            live.close(None)
+        raise
+    rec = _TrialRecord(record_dir, tmp, link_url, options, view=record_view(tmp, live, say))
     say = rec.in_final_words(say)
     try:
         rec.copy_inputs(scan_dir, gnss_path, say)
@@ -614,6 +663,23 @@ def run_trial_record(scan_dir: str | Path, gnss_path: str | Path, link_url: str,
     except BaseException as exc:
         rec.failed(exc)
         raise
+    finally:
+        rec.close_view()
+
+
+def _record_raw_survey(raw, inputs: Path, allow_float: bool) -> None:
+    """Raw receiver logs (a :class:`reconstruct.survey.windows.RawGnss`) into the record: the logs
+    and windows under ``gnss-raw/``, the survey averaged from them as ``gnss.csv`` (what the trial and
+    its replay read), dated like its newest raw file so the pile's age check sees the capture time."""
+    from reconstruct.survey.gnss import read_gnss, write_gnss_csv
+
+    survey = read_gnss(raw, allow_float=allow_float, require_both_ends=False)
+    (inputs / "gnss-raw").mkdir(parents=True)
+    for k, p in enumerate([*raw.logs, raw.windows]):
+        shutil.copy2(p, inputs / "gnss-raw" / f"{k}_{Path(p).name}")
+    out = write_gnss_csv(survey, inputs / "gnss.csv")
+    newest = max(Path(p).stat().st_mtime for p in [*raw.logs, raw.windows])
+    os.utime(out, (newest, newest))
 
 
 _STATES_BEFORE_SENDING = ("SENDING", "AWAITING CONFIRMATION", "CONFIRMED (--yes)")
@@ -623,22 +689,30 @@ class _TrialRecord:
     """A field trial's record while it runs: ``record.json`` rewritten atomically at each step, in
     a temporary folder until the plan is ready (:meth:`publish`), then in ``record_dir``."""
 
-    def __init__(self, record_dir: Path, tmp: Path, link_url: str, options: TrialOptions) -> None:
+    def __init__(self, record_dir: Path, tmp: Path, link_url: str, options: TrialOptions, view=None) -> None:
         self.record_dir, self.tmp, self.where = record_dir, tmp, tmp
-        self.options, self.link_url = options, link_url
+        self.options, self.link_url, self.view = options, link_url, view
         self.record: dict = {"format": RECORD_FORMAT, "format_version": RECORD_VERSION, "versions": _versions(),
                              "started_utc_s": time.time(), "link": link_url, "options": asdict(options),
                              "final_state": "PREPARING"}
+        self._seal = RecordSeal()  # the record's hash chain, RECORD/audit.jsonl (field.audit.record)
 
     def in_final_words(self, say: Callable[[str], None]) -> Callable[[str], None]:
-        """``say`` with the temporary folder named as the record folder it becomes."""
-        return lambda text: say(str(text).replace(str(self.tmp), str(self.record_dir)))
+        """``say`` with the temporary folder named as the record folder it becomes (also logged
+        to the trial's view)."""
+        def said(text) -> None:
+            text = str(text).replace(str(self.tmp), str(self.record_dir))
+            if self.view is not None:
+                self.view.line(text)
+            say(text)
+
+        return said
 
     def write(self, **changes) -> None:
-        from synth.common.files import atomic_write_bytes
-
+        if self.view is not None and "final_state" in changes:
+            self.view.state(changes["final_state"], time.time(), reason=changes.get("reason"))
         self.record.update(changes)
-        atomic_write_bytes(self.where / "record.json", json.dumps(self.record, indent=1).encode())
+        self._seal.write(self.where, self.record)  # changed files and record.json chained, then written
 
     def publish(self) -> None:
         os.replace(self.tmp, self.record_dir)
@@ -655,7 +729,12 @@ class _TrialRecord:
         inputs = self.tmp / "inputs"
         say("copying the inputs into the record")
         shutil.copytree(scan_dir, inputs / "scan")
-        shutil.copy2(gnss_path, inputs / "gnss.csv")
+        if isinstance(gnss_path, Path):
+            shutil.copy2(gnss_path, inputs / "gnss.csv")
+        else:
+            _record_raw_survey(gnss_path, inputs, self.options.allow_float)
+        if self.view is not None:
+            self.view.scan_images(inputs / "scan", captured_time(inputs / "scan", inputs / "gnss.csv"))
         model = Path(self.options.model or DEFAULT_MODEL)
         self.record["inputs"] = {"scan": str(scan_dir), "gnss": str(gnss_path),
                                  "hashes": {str(p.relative_to(inputs)): sha256_of(p)
@@ -670,7 +749,7 @@ class _TrialRecord:
         inputs = self.tmp / "inputs"
         try:
             prepared = prepare_trial(inputs / "scan", inputs / "gnss.csv", self.tmp, self.options, progress=say,
-                                     now=now)
+                                     now=now, view=self.view)
         except TrialAborted as exc:
             if exc.verification is not None:  # every trial the twin ran, and the plan they were of
                 self.record["verification"] = json_safe(exc.verification.to_dict())
@@ -710,7 +789,33 @@ class _TrialRecord:
             (self.record_dir / "link").mkdir(exist_ok=True)
             traffic = self.record_dir / "link" / "traffic.blf"
         self.write(final_state="SENDING", confirmed_utc_s=time.time())
-        return execute_trial(prepared, self.link_url, self.options, record_traffic=traffic, say=say)
+        outcome = execute_trial(prepared, self.link_url, self.options, record_traffic=traffic, say=say,
+                                view=self.view)
+        if self.view is not None:
+            self.view.events(outcome.messages)
+            if traffic is not None and traffic.is_file():
+                from urllib.parse import parse_qs, urlsplit
+
+                self.view.can_traffic(traffic, secured="secoc_key" in parse_qs(urlsplit(self.link_url).query))
+        return outcome
+
+    def close_view(self) -> None:
+        """Finish ``trial.mcap`` in the record folder (dropped with a record that was never
+        published); problems the view had are noted in ``record.json`` (``view_errors``)."""
+        view, self.view = self.view, None
+        if view is None:
+            return
+        t0 = time.perf_counter()
+        where = self.where if self.where.is_dir() else None
+        try:
+            path = view.close(where)
+        except OSError as exc:
+            view.errors.append(f"closing {view.part_path}: {exc}")
+            path = None
+        if where is not None and (path is not None or view.errors):
+            self.write(view={"path": None if path is None else path.name, "messages": view.counts,
+                             "log_s": view.busy_s, "close_s": time.perf_counter() - t0},  # what it cost [s]
+                       **({"view_errors": view.errors} if view.errors else {}))
 
     def finish(self, outcome: TrialOutcome) -> None:
         changes = {"command_id": outcome.command_id, "accepted": outcome.accepted,

@@ -116,9 +116,10 @@ def augment(intensity, depth, mask, maps, rng: np.random.Generator, cfg: Augment
     """Randomly flip, rotate and re-light one sample.
 
     ``intensity`` (H, W) in [0, 1], ``depth`` (H, W) [m], ``mask`` (H, W) bool, ``maps`` (5, H, W)
-    (C, S, W, U, B). Returns new ``(intensity, depth, mask, maps)``; the inputs are not modified."""
-    if maps.shape[0] != 5 or maps.shape[1:] != depth.shape or intensity.shape != depth.shape or mask.shape != depth.shape:
-        raise ValueError(f"augment needs (H, W) inputs and (5, H, W) maps, got {intensity.shape}, {depth.shape}, "
+    (C, S, W, U, B), or (6, H, W) with the outcome recipe's U weight last (a scalar map, moved like U).
+    Returns new ``(intensity, depth, mask, maps)``; the inputs are not modified."""
+    if maps.shape[0] not in (5, 6) or maps.shape[1:] != depth.shape or intensity.shape != depth.shape or mask.shape != depth.shape:
+        raise ValueError(f"augment needs (H, W) inputs and (5, H, W) maps (6 with a U weight), got {intensity.shape}, {depth.shape}, "
                          f"{mask.shape}, {maps.shape}")
     maps = np.asarray(maps, dtype=np.float32)
     if rng.random() < cfg.flip_prob:

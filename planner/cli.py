@@ -18,6 +18,7 @@ from planner.inference import Objective
 from planner.loss import LossWeights
 from planner.model import UNetConfig
 from planner.subsets import SubsetPolicy
+from synth.data.outcomes import OutcomeLabelConfig
 from planner.train import TrainConfig
 from planner.verify import PerturbationConfig, VerifyConfig
 from synth.cli import JSON, WORKERS
@@ -100,8 +101,22 @@ def train_command(
         "image once per pile, the mask joins at the decoder: faster planning).",
         field=(UNetConfig, "mask_injection"), metavar="input|decoder"),
     u_pos_weight: float = option("--u-pos-weight", "BCE weight of positive U pixels (U marks ~0.3 % of pixels; "
-                                 "25 = the shipped model's, 1 = the paper's plain BCE, which leaves U flat).",
-                                 field=(LossWeights, "u_pos_weight"), min=0.0),
+                                 "25 = the shipped model's, 1 = the paper's plain BCE, which leaves U flat). "
+                                 "Default: 25 with --labels accepted, 1 with --labels outcome (a probability).",
+                                 default=None, min=0.0, metavar="FLOAT", names=["u_pos_weight"]),
+    labels: Literal["accepted", "outcome"] = option(
+        "--labels", "U's target: accepted (1 on the grasps Algorithm 1 accepted, the paper's) or outcome (every "
+        "tried grasp centre labelled by its outcome or success fraction; needs a grasp store).",
+        field=(DataConfig, "labels"), metavar="accepted|outcome"),
+    untried_weight: float = option("--untried-weight", "With --labels outcome: BCE weight of untried pixels "
+                                   "(tried centres weigh 1; untried pixels of capped subsets 0).",
+                                   field=(OutcomeLabelConfig, "untried_weight"), min=0.0),
+    b_encoding: Literal["cos_beta", "beta_10deg"] = option(
+        "--b-encoding", "What the B map learns: cos_beta (the paper's; nearly constant) or beta_10deg (the tilt in "
+        "10-degree units, weighted by --lambda-beta).", field=(UNetConfig, "b_encoding"),
+        metavar="cos_beta|beta_10deg"),
+    lambda_beta: float = option("--lambda-beta", "With --b-encoding beta_10deg: the B term's loss weight.",
+                                field=(LossWeights, "lambda_beta"), min=0.0),
     seed: int = option("--seed", "Initialisation, data order and augmentation.", field=(TrainConfig, "seed")),
     device: Literal["auto", "cpu", "cuda"] = option("--device", "auto (cuda when available), cpu or cuda.",
                                                     field=(TrainConfig, "device"), metavar="auto|cpu|cuda"),
@@ -115,6 +130,8 @@ def train_command(
     skip_no_candidates: bool = option("--skip-no-candidates", "Leave out target subsets that had no admissible "
                                       "grasp candidate (needs a data set made from a grasp store).",
                                       field=(DataConfig, "skip_no_candidates")),
+    init_from: Path = option("--init-from", "Start from this checkpoint's weights (fine-tuning; same network "
+                             "settings).", default=None, metavar="PATH", names=["init_from"]),
     as_json: bool = JSON,
 ) -> None:
     """Train the target-conditioned U-Net; re-running the same command resumes from the last checkpoint.
@@ -133,17 +150,25 @@ def train_command(
     for d in data:
         check_input(d, "--data", "dir")
     check_output_dir(out, "--out")
+    if init_from is not None:
+        check_input(init_from, "--init-from", "file")
     _, grid = list_shards(data if len(data) > 1 else data[0])
     in_ch = 2 if no_depth else 3
     size = int(grid.get("size_px", UNetConfig().size_px))
+    if labels == "outcome" and skip_no_candidates:
+        raise CliError("--skip-no-candidates cannot be combined with --labels outcome: it hides the subsets without a "
+                       "candidate, which inference scores; drop --skip-no-candidates")
+    if u_pos_weight is None:
+        u_pos_weight = 1.0 if labels == "outcome" else LossWeights().u_pos_weight
     cfg = TrainConfig(model=replace(UNetConfig(), base_channels=base_channels, in_channels=in_ch, size_px=size,
-                                         mask_injection=mask_injection),
-                      loss=replace(LossWeights(), u_pos_weight=u_pos_weight),
+                                         mask_injection=mask_injection, b_encoding=b_encoding),
+                      loss=replace(LossWeights(), u_pos_weight=u_pos_weight, lambda_beta=lambda_beta),
                       data=replace(DataConfig(), in_channels=in_ch, train_fraction=train_fraction,
-                                   skip_no_candidates=skip_no_candidates),
+                                   skip_no_candidates=skip_no_candidates, labels=labels,
+                                   outcome=OutcomeLabelConfig(untried_weight=untried_weight)),
                       epochs=epochs, batch_size=batch_size,
                       lr=lr, lr_schedule=lr_schedule, seed=seed, device=device, precision=precision,
-                      max_steps_per_epoch=max_steps_per_epoch)
+                      max_steps_per_epoch=max_steps_per_epoch, init_from=None if init_from is None else str(init_from))
     with progress_bar() as bar:
         task = bar.add_task("training", total=epochs, info="")
 
@@ -379,6 +404,9 @@ def eval_command(
                         "or 8; V times the planning time).", default=None, metavar="V"),
     view_spread: float = option("--view-spread", "With --views: lower U by K x its spread over the views.",
                                 default=0.0, metavar="K"),
+    field_error: str = option("--field-error", "Add a field row per planner: its chosen grasp executed with the "
+                              "crane's positioning error, SIGMA_XY_M,SIGMA_PHI_DEG (e.g. 0.03,2: 3 cm per axis, 2 deg).",
+                              default=None, metavar="M,DEG"),
     as_json: bool = option("--json", "Print results.json (format loggrasp.eval-results) on standard output.",
                            default=False),
 ) -> None:
@@ -398,7 +426,16 @@ def eval_command(
         raise CliError("--address needs --engine dask")
     lo, hi = parse_range(logs, "--logs")
     obs = {"yes": (True,), "no": (False,), "both": (True, False)}[obstacles]
-    cfg = EvalConfig(logs=tuple(range(lo, hi + 1)), obstacles=obs, per_cell=per_cell, trial=trial, seed_base=seed_base)
+    error = None
+    if field_error is not None:
+        from synth.physics.perturb import PositioningError
+
+        try:
+            error = PositioningError.parse(field_error)
+        except ValueError as exc:
+            raise CliError(f"--field-error: {exc}") from exc
+    cfg = EvalConfig(logs=tuple(range(lo, hi + 1)), obstacles=obs, per_cell=per_cell, trial=trial, seed_base=seed_base,
+                     field_error=error)
     specs = _eval_specs(str(model or DEFAULT_MODEL), objectives, baselines, extra_model, verify, verify_copies)
     specs += _view_specs(str(model or DEFAULT_MODEL), objectives, views, view_spread)
     check_output_dir(out, "--out")

@@ -20,14 +20,15 @@ of piles is needed.
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator
+from typing import Iterator, Literal
 
 import numpy as np
 
 from planner.augment import AugmentConfig, augment
 from planner.errors import DataError
+from synth.data.outcomes import OutcomeLabelConfig
 
 
 def normalise_depth(depth: np.ndarray, camera_height_m: float = 5.0) -> np.ndarray:
@@ -88,8 +89,16 @@ class DataConfig:
     # is a subset of a larger one; the validation piles stay the same) [-]
     skip_no_candidates: bool = False  # leave out subsets that had no admissible grasp candidate
     # (the paper's 5,491 samples of 9,060 subsets look like this; needs shards with n_candidates) [-]
+    labels: Literal["accepted", "outcome"] = "accepted"  # U's target: "accepted" (1 on the grasps Algorithm 1
+    # accepted, the paper's) or "outcome" (every tried centre labelled by its outcome, synth.data.outcomes)
+    outcome: OutcomeLabelConfig = field(default_factory=OutcomeLabelConfig)  # BCE weights of the outcome labels
 
     def __post_init__(self) -> None:
+        if self.labels not in ("accepted", "outcome"):
+            raise ValueError(f"labels must be 'accepted' or 'outcome', got {self.labels!r}")
+        if self.labels == "outcome" and self.skip_no_candidates:
+            raise ValueError("skip_no_candidates cannot be combined with outcome labels: it hides the subsets "
+                             "without a candidate, which inference scores; drop --skip-no-candidates")
         if not 0.0 <= self.val_fraction < 1.0:
             raise ValueError(f"val_fraction must be in [0, 1), got {self.val_fraction}")
         if not 0.0 < self.train_fraction <= 1.0:
@@ -152,10 +161,16 @@ class ShardStream:
     order, no augmentation). ``shards`` may be given directly (tests) instead of ``data_dir``."""
 
     def __init__(self, shards: list[Path], split: str, config: DataConfig = DataConfig(),
-                 augment_config: AugmentConfig = AugmentConfig(), seed: int = 0, loader=load_samples) -> None:
+                 augment_config: AugmentConfig = AugmentConfig(), seed: int = 0, loader=load_samples,
+                 extent_m: float = 5.0, b_encoding: str = "cos_beta") -> None:
+        from planner.model import B_ENCODINGS
+
         if split not in ("train", "val"):
             raise ValueError(f"split must be 'train' or 'val', got {split!r}")
+        if b_encoding not in B_ENCODINGS:
+            raise ValueError(f"b_encoding must be one of {list(B_ENCODINGS)}, got {b_encoding!r}")
         self.shards, self.split, self.config = list(shards), split, config
+        self.extent_m, self.b_encoding = float(extent_m), b_encoding
         self.augment_config = augment_config if split == "train" else AugmentConfig.off()
         self.seed, self.epoch, self.loader = seed, 0, loader
 
@@ -171,6 +186,10 @@ class ShardStream:
                                 "store (its shards are re-made with the counts) or drop the flag")
             if n == 0:
                 return False
+        if self.config.labels == "outcome" and getattr(sample, "trials", None) is None:
+            raise DataError(f"sample {sample_pile_id(sample)}/{tuple(sample.subset)} carries no trial outcomes, which "
+                            "--labels outcome needs; train from a grasp store (its shards are re-made with every "
+                            "trial) or use --labels accepted")
         pile_id = sample_pile_id(sample)
         val = is_validation_pile(pile_id, self.config.split_seed, self.config.val_fraction)
         if self.split == "val":
@@ -179,6 +198,17 @@ class ShardStream:
 
     def _convert(self, sample, rng) -> tuple[np.ndarray, np.ndarray]:
         inten, depth, mask, maps = sample_arrays(sample)
+        if self.config.labels == "outcome":
+            from synth.data.outcomes import outcome_targets
+            from synth.geometry.frames import OrthoGrid
+
+            maps = outcome_targets(OrthoGrid(maps.shape[-1], self.extent_m), sample.trials, bool(sample.capped),
+                                   self.config.outcome)
+        if self.b_encoding != "cos_beta":
+            from planner.model import encode_balance
+
+            maps = maps.copy()
+            maps[4] = np.where(maps[3] > 0, encode_balance(maps[4], self.b_encoding), 0.0)
         inten, depth, mask, maps = augment(inten, depth, mask, maps, rng, self.augment_config)
         x = make_inputs(inten, depth, mask, self.config.in_channels, self.config.camera_height_m)[0]
         return x, maps

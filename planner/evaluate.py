@@ -14,6 +14,11 @@ same piles, the same trials and the same tables:
   measured errors, :class:`planner.verify.PerturbationConfig`), never on the test pile itself
   (that would be the oracle); the graded trial then runs on the test pile.
 
+With ``EvalConfig.field_error`` (:class:`synth.physics.perturb.PositioningError`) every planner's
+chosen grasp is also executed as the crane would execute it — moved by one draw of the field's
+positioning error, the same draw for every planner on a pile (paired) — and each planner gets a
+second row, ``<name> (field)``, from those trials: the paper's protocol executes the grasp exactly.
+
 Test piles are drawn from seeds ``seed_base + cell * 100_000 + k`` with ``seed_base`` far from the
 training data's seeds. Planners are named by picklable specs so that workers (local processes or a
 Dask cluster) build them once each.
@@ -33,6 +38,7 @@ import numpy as np
 
 from planner.subsets import SubsetPolicy
 from synth.geometry.grasp import MAX_WIDTH_M, MIN_WIDTH_M, Grasp
+from synth.physics.perturb import PositioningError
 
 EVAL_FORMAT_VERSION = "1.0"
 PlanFn = Callable[[object, object], "tuple[Grasp, tuple[int, ...]] | None"]
@@ -82,6 +88,7 @@ class EvalConfig:
     size_px: int = 128  # render size; must match the model [px]
     trial: Literal["fast", "careful"] = "fast"  # trial preset
     oracle_max_trials: int = 40  # simulation budget of the oracle per pile [-]
+    field_error: PositioningError | None = None  # the field row's positioning error; None = no field row
 
     def __post_init__(self) -> None:
         if not self.logs or min(self.logs) < 1 or max(self.logs) > 16:
@@ -318,6 +325,22 @@ class Record:
     grasp: dict | None = None
     plan_s: float = 0.0
     trial_s: float = 0.0
+    field: dict | None = None  # with a field error: the same grasp executed moved by it (outcome, grasped, cos_beta, grasp)
+
+
+FIELD_SUFFIX = " (field)"  # the field row of a planner is named by its name and this
+
+
+def field_trial(pile, grasp: Grasp, targets, error: PositioningError, trial_cfg) -> dict:
+    """``grasp`` executed with the field's positioning error: one draw keyed by the pile's seed
+    alone, so every planner's grasp on a pile is moved by the same offset and turn."""
+    from synth.physics.perturb import grasp_rng, perturbed_grasps
+    from synth.physics.trial import run_trial
+
+    (moved,) = perturbed_grasps(grasp, error, 1, grasp_rng(int(pile.seed or 0), "eval-field"))
+    r = run_trial(pile, moved, targets, trial_cfg)
+    return {"outcome": r.outcome.value, "grasped": [int(t) for t in r.grasped], "cos_beta": float(r.cos_beta),
+            "grasp": moved.to_dict()}
 
 
 def eval_scene(task: tuple[int, bool, int, int], cfg: EvalConfig):
@@ -360,7 +383,11 @@ def evaluate_pile(task: tuple[int, bool, int, int], specs: list[PlannerSpec], cf
             rec.grasped = [int(t) for t in r.grasped]
             rec.cos_beta = float(r.cos_beta)
             rec.grasp = grasp.to_dict()
+            if cfg.field_error is not None:
+                rec.field = field_trial(pile, grasp, targets, cfg.field_error, trial_cfg)
             rec.trial_s = time.perf_counter() - t1
+        elif cfg.field_error is not None:
+            rec.field = {"outcome": "no_grasp", "grasped": [], "cos_beta": float("nan"), "grasp": None}
         out.append(asdict(rec))
     return out
 
@@ -382,18 +409,27 @@ def run_evaluation(specs: list[PlannerSpec], cfg: EvalConfig, out_dir: str | Pat
     out = Path(out_dir)
     rec_dir = out / "records"
     rec_dir.mkdir(parents=True, exist_ok=True)
-    fingerprints = {s.name: _fingerprint(s) for s in specs}
+    from synth.physics.trial import TRIAL_REVISION
+
+    field = "" if cfg.field_error is None else f"+field{cfg.field_error.sigma_xy_m:g}m{cfg.field_error.sigma_phi_deg:g}deg"
+    fingerprints = {s.name: _fingerprint(s) + field for s in specs}  # a record without this field row is made again
     params = {"format": "loggrasp.eval", "format_version": EVAL_FORMAT_VERSION, "config": asdict(cfg),
+              "trial_revision": TRIAL_REVISION,
               "planners": [asdict(s) | {"model_sha256": fingerprints[s.name]} for s in specs]}
     pfile = out / "eval.json"
     if pfile.exists():
         # the same evaluation with more (or fewer) piles per cell reuses the records of the piles
         # both share (a pile's seed depends on its cell and index only)
-        have = dict(json.loads(pfile.read_text()).get("config") or {})
+        old = json.loads(pfile.read_text())
+        if old.get("trial_revision") != TRIAL_REVISION:
+            raise ValueError(f"{out} holds an evaluation made with trial revision {old.get('trial_revision', '<= 3')}, "
+                             f"not {TRIAL_REVISION} (the twin's physics changed); choose a new --out")
+        have = dict(old.get("config") or {})
         want = json.loads(json.dumps(asdict(cfg)))
-        if {k: v for k, v in have.items() if k != "per_cell"} != {k: v for k, v in want.items() if k != "per_cell"}:
-            raise ValueError(f"{out} holds an evaluation with another configuration (only --per-cell may change "
-                             "when it is resumed); choose a new --out")
+        free = ("per_cell", "field_error")  # a field row added: its records are made again (their fingerprint)
+        if {k: v for k, v in have.items() if k not in free} != {k: v for k, v in want.items() if k not in free}:
+            raise ValueError(f"{out} holds an evaluation with another configuration (only --per-cell and "
+                             "--field-error may change when it is resumed); choose a new --out")
     atomic_write_bytes(pfile, json.dumps(params, indent=1).encode())
 
     # resume per (pile, planner): a pile's record file keeps the planners it already has; a planner
@@ -485,6 +521,10 @@ def _stats(recs: list[dict]) -> dict:
 
 
 def summarise(records: list[dict], cfg: EvalConfig, names: list[str]) -> dict:
+    if cfg.field_error is not None:  # each planner's field row: its records with the field trial's result
+        names = [*names, *(n + FIELD_SUFFIX for n in names)]
+        records = records + [{**r, **r["field"], "planner": r["planner"] + FIELD_SUFFIX}
+                             for r in records if r.get("field")]
     by = {}
     for name in names:
         mine = [r for r in records if r["planner"] == name]
@@ -493,7 +533,9 @@ def summarise(records: list[dict], cfg: EvalConfig, names: list[str]) -> dict:
             cells[f"{n}-{'yes' if ob else 'no'}"] = _stats([r for r in mine if r["n_logs"] == n and r["obstacles"] == ob])
         rows = {("yes" if ob else "no"): _stats([r for r in mine if r["obstacles"] == ob]) for ob in cfg.obstacles}
         by[name] = {"total": _stats(mine), "rows": rows, "cells": cells}
-    return {"format": "loggrasp.eval-results", "format_version": EVAL_FORMAT_VERSION, "planners": by}
+    field = None if cfg.field_error is None else cfg.field_error.to_dict()
+    return {"format": "loggrasp.eval-results", "format_version": EVAL_FORMAT_VERSION, "field_error": field,
+            "planners": by}
 
 
 def tables_markdown(tables: dict, cfg: EvalConfig) -> str:
@@ -501,6 +543,9 @@ def tables_markdown(tables: dict, cfg: EvalConfig) -> str:
     lines = [f"# Evaluation in the twin\n\n{piles} per cell, one grasp per pile, trial preset "
              f"`{cfg.trial}`, seeds from {cfg.seed_base}. Avg. logs = logs held in successful grasps "
              "(the paper's 'average number of grasped logs'); β_avg over successful grasps.\n"]
+    if cfg.field_error is not None:
+        lines.append(f"Rows '{FIELD_SUFFIX.strip()}': the same chosen grasp executed with the crane's positioning "
+                     f"error, {cfg.field_error.label()} (one draw per pile, the same for every planner).\n")
     for name, t in tables["planners"].items():
         lines.append(f"\n## Table 1 — {name}: success / avg. grasped logs\n")
         lines.append("| obstacles | " + " | ".join(f"{n} logs" for n in cfg.logs) + " | total |")

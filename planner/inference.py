@@ -31,7 +31,7 @@ import numpy as np
 from planner.constraints import Constraints, polygon_raster
 from planner.data import make_inputs
 from planner.errors import ObservationError
-from planner.model import OUTPUT_NAMES, UNetConfig
+from planner.model import OUTPUT_NAMES, UNetConfig, decode_balance
 from planner.subsets import SubsetPolicy, choose_subsets
 from synth.geometry.frames import OrthoGrid, wrap_phi
 from synth.geometry.grasp import MAX_WIDTH_M, MIN_WIDTH_M, RECT_WIDTH_M, Grasp
@@ -364,7 +364,8 @@ def plan(observation, planner: Planner, objective: Objective = Objective(), cons
 
 def _select(out, chosen, grid, objective, constraints, planner) -> tuple[list[PlannedGrasp], list[dict]]:
     u = _gaussian((1.0 / (1.0 + np.exp(-out[:, 3]))).astype(np.float32), planner.quality_smoothing_px)
-    b = _gaussian(np.ascontiguousarray(out[:, 4], dtype=np.float32), planner.quality_smoothing_px)
+    b = _gaussian(np.ascontiguousarray(decode_balance(out[:, 4], planner.config.b_encoding), dtype=np.float32),
+                  planner.quality_smoothing_px)
     tau = np.array([len(s) for s in chosen], np.float32)[:, None, None]
     q = objective.quality(u, tau, b)
     reach = constraints.reach_ok(grid)

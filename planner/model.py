@@ -10,7 +10,12 @@ Outputs, in this order (``OUTPUT_NAMES``), all (N, 5, H, W):
   (:mod:`synth.geometry.frames`);
 * ``W`` opening width [m]: ``sigmoid`` scaled to (``min_width_m``, ``max_width_m``) = (0.30, 1.55);
 * ``U`` graspability as a *logit* (train with BCE-with-logits; ``sigmoid`` gives u in (0, 1));
-* ``B`` balance = cos(beta): ``sigmoid`` -> (0, 1) (the grapple never tips past 90 degrees).
+* ``B`` balance, encoded by ``b_encoding`` (:func:`encode_balance` / :func:`decode_balance`):
+  ``"cos_beta"`` (the paper's): cos(beta) by ``sigmoid`` -> (0, 1) (the grapple never tips past 90
+  degrees) — its training targets span ~0.98-1.0, so its masked MSE is ~1e-4 of the loss and B is
+  flat; ``"beta_10deg"``: the tilt beta in units of 10 degrees by ``softplus`` -> (0, inf), a target
+  of order 1 whose MSE the loss can see. The checkpoint's config says which; inference decodes
+  either to cos(beta) for the objective f3.
 
 Architecture: ``depth`` down-sampling levels of two 3x3 conv + BatchNorm + ReLU, max-pool down,
 transposed-conv up, skip concatenation, a 1x1 head. Channels double per level from
@@ -30,6 +35,8 @@ from dataclasses import asdict, dataclass
 from typing import Literal
 
 OUTPUT_NAMES = ("C", "S", "W", "U", "B")
+B_ENCODINGS = ("cos_beta", "beta_10deg")
+_BETA_UNIT_DEG = 10.0  # the unit of beta in the "beta_10deg" encoding [deg]
 INPUT_NAMES = {3: ("I", "D", "M_T"), 2: ("I", "M_T")}
 
 
@@ -44,6 +51,7 @@ class UNetConfig:
     min_width_m: float = 0.30  # W output range low end [m]
     max_width_m: float = 1.55  # W output range high end [m]
     mask_injection: Literal["input", "decoder"] = "input"  # "input": M_T is an input channel (paper); "decoder": see module doc
+    b_encoding: Literal["cos_beta", "beta_10deg"] = "cos_beta"  # what the B output means (module doc)
 
     def __post_init__(self) -> None:
         if not 2 <= self.base_channels <= 256:
@@ -61,6 +69,8 @@ class UNetConfig:
             )
         if not 0.5 <= self.extent_m <= 100.0:
             raise ValueError(f"extent_m must be in [0.5, 100] m (the training images' side), got {self.extent_m}")
+        if self.b_encoding not in B_ENCODINGS:
+            raise ValueError(f"b_encoding must be one of {list(B_ENCODINGS)}, got {self.b_encoding!r}")
         if self.mask_injection not in ("input", "decoder"):
             raise ValueError(f"mask_injection must be 'input' or 'decoder', got {self.mask_injection!r}")
         if not 0 < self.min_width_m < self.max_width_m:
@@ -119,6 +129,7 @@ def build_unet(config: UNetConfig):
             self.head = nn.Conv2d(ch[0], cfg.out_channels, 1)
             self.w_lo = cfg.min_width_m
             self.w_span = cfg.max_width_m - cfg.min_width_m
+            self.b_act = torch.sigmoid if cfg.b_encoding == "cos_beta" else nn.functional.softplus
 
         def encode(self, x: torch.Tensor) -> list[torch.Tensor]:
             feats = []
@@ -164,10 +175,34 @@ def build_unet(config: UNetConfig):
             c_s = torch.tanh(raw[:, 0:2])
             w = self.w_lo + self.w_span * torch.sigmoid(raw[:, 2:3])
             u_logit = raw[:, 3:4]
-            b = torch.sigmoid(raw[:, 4:5])
+            b = self.b_act(raw[:, 4:5])
             return torch.cat([c_s, w, u_logit, b], dim=1)
 
     return UNet(config)
+
+
+def encode_balance(cos_beta, encoding: str):
+    """cos(beta) -> the B target of ``encoding`` (numpy, element-wise; cos beta clipped to [-1, 1])."""
+    import numpy as np
+
+    cb = np.asarray(cos_beta, dtype=np.float32)
+    if encoding == "cos_beta":
+        return cb
+    if encoding == "beta_10deg":
+        return (np.degrees(np.arccos(np.clip(cb, -1.0, 1.0))) / _BETA_UNIT_DEG).astype(np.float32)
+    raise ValueError(f"b_encoding must be one of {list(B_ENCODINGS)}, got {encoding!r}")
+
+
+def decode_balance(b, encoding: str):
+    """The network's B output of ``encoding`` -> cos(beta) (numpy, element-wise)."""
+    import numpy as np
+
+    b = np.asarray(b, dtype=np.float32)
+    if encoding == "cos_beta":
+        return b
+    if encoding == "beta_10deg":
+        return np.cos(np.radians(b * _BETA_UNIT_DEG)).astype(np.float32)
+    raise ValueError(f"b_encoding must be one of {list(B_ENCODINGS)}, got {encoding!r}")
 
 
 def count_parameters(model) -> int:

@@ -62,6 +62,8 @@ class TrainConfig:
     max_steps_per_epoch: int | None = None  # cap (tests, quick runs) [-]
     max_val_batches: int | None = None  # cap on validation batches per epoch [-]
     checkpoint_every_steps: int = 200  # resume-state interval [steps]
+    init_from: str | None = None  # checkpoint whose weights start a fresh run (fine-tuning, e.g. after an
+    # on-policy round); its network configuration must equal ``model``. None = random initialisation
 
     def __post_init__(self) -> None:
         if self.epochs < 1 or self.batch_size < 1:
@@ -223,7 +225,7 @@ def evaluate(model, stream, cfg: TrainConfig, device: str) -> dict | None:
             x, y = _prepare_batch(x, y, device, cfg.precision)
             with _step_context(device, cfg.precision):
                 pred = model(x)
-            loss, parts = grasp_loss(pred, y, cfg.loss)
+            loss, parts = grasp_loss(pred, y, cfg.loss, cfg.model.b_encoding)
             b = len(x)
             tot += float(loss) * b
             for k, v in parts.items():
@@ -258,8 +260,9 @@ def train(data_dir: str | Path | list, out_dir: str | Path, config: TrainConfig 
         torch.set_num_threads(config.num_threads)
     device = _device(config)
     run = _Run.start(out, config, device)
-    train_stream = ShardStream(shards, "train", config.data, config.augment, config.seed)
-    val_stream = ShardStream(shards, "val", config.data, config.augment, config.seed)
+    stream_kw = {"extent_m": config.model.extent_m, "b_encoding": config.model.b_encoding}
+    train_stream = ShardStream(shards, "train", config.data, config.augment, config.seed, **stream_kw)
+    val_stream = ShardStream(shards, "val", config.data, config.augment, config.seed, **stream_kw)
     n_params = count_parameters(run.model)
     meta_common = {"n_parameters": n_params, "data_dir": _data_label(data_dir), "train_config": config.to_dict()}
 
@@ -306,6 +309,7 @@ def _check_run_config(out: Path, config: TrainConfig) -> None:
             old = json.loads(cfg_path.read_text())
             old.setdefault("lr_schedule", "constant")  # runs from before the schedule existed
             old.setdefault("lr_min_frac", TrainConfig.lr_min_frac)
+            old = json.loads(json.dumps(TrainConfig.from_dict(old).to_dict()))  # fields added since: their defaults
         except (OSError, ValueError) as exc:
             raise TrainingError(f"{cfg_path} is unreadable ({exc}); delete {out} to start afresh") from exc
         now = json.loads(json.dumps(config.to_dict()))
@@ -359,6 +363,8 @@ class _Run:
             model = model.to(memory_format=torch.channels_last)
         opt = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
         run = _Run(model, opt, out, [], math.inf, {"epoch": 0, "step": 0}, None)
+        if config.init_from and not run.state_path.exists():
+            _init_weights(model, config)
         if run.state_path.exists():
             run.position = _load_state(run.state_path, model, opt)
             run.resumed = dict(run.position)
@@ -383,6 +389,20 @@ class _Run:
         _write_log(self.log_path, self.history, config, log_meta)
         plot_curve(self.history, self.curve_path)
         _save_state(self.state_path, self.model, self.opt, {"epoch": entry["epoch"] + 1, "step": 0}, config)
+
+
+def _init_weights(model, config: TrainConfig) -> None:
+    """Start ``model`` from the weights of ``config.init_from``; a checkpoint of another network
+    configuration is a :class:`CheckpointError` naming the fields that differ."""
+    from planner.checkpoint import load_checkpoint
+
+    loaded, have, _ = load_checkpoint(config.init_from)
+    if have != config.model:
+        diff = [k for k, v in have.to_dict().items() if v != config.model.to_dict()[k]]
+        raise CheckpointError(f"{config.init_from} does not fit this run: its network differs in {', '.join(diff)}; "
+                              "fine-tune with the same network settings (e.g. --base-channels, --b-encoding) or "
+                              "drop --init-from")
+    model.load_state_dict({k: v.to(next(model.parameters()).device) for k, v in loaded.state_dict().items()})
 
 
 @dataclass
@@ -410,7 +430,7 @@ def _train_epoch(run: _Run, stream, epoch: int, skip: int, config: TrainConfig, 
         x, y = _prepare_batch(x, y, device, config.precision)
         with _step_context(device, config.precision):
             pred = run.model(x)
-        loss, parts = grasp_loss(pred, y, config.loss)
+        loss, parts = grasp_loss(pred, y, config.loss, config.model.b_encoding)
         if not torch.isfinite(loss):
             raise TrainingError(f"loss became {float(loss)} at epoch {epoch} step {step}; lower the learning rate")
         run.opt.zero_grad(set_to_none=True)

@@ -97,7 +97,7 @@ class PerturbationConfig:
 
     Every log end moves by independent normal noise, the diameter changes by normal noise (the top
     diameter with it, in proportion), and every stump and rock moves sideways and scales. The
-    defaults are the reconstruction's measured errors on 500 twin scans (docs/benchmarks.md,
+    defaults are the reconstruction's measured errors on 500 twin scans (docs/benchmarks-history.md,
     session 8: end points 1.7 cm median 3-D error, i.e. ~1.1 cm per axis; diameters 0.48 cm median
     absolute error, i.e. ~0.7 cm standard deviation). ``log_sigmas_m`` overrides the log
     figures per log (e.g. from the reconstruction report's fit class: a log seen only in part or
@@ -133,7 +133,7 @@ class PerturbationConfig:
 
 #: Per-log uncertainty by how the reconstruction placed the log (its report's ``fit``): (end sigma
 #: per axis, diameter sigma) [m]. "scan" and "partial" from the reconstruction's errors on 500 twin
-#: scans (docs/benchmarks.md, session 8: partial logs 3.3 cm median end error, 1.57 cm median
+#: scans (docs/benchmarks-history.md, session 8: partial logs 3.3 cm median end error, 1.57 cm median
 #: diameter error); "hidden" (no scan points on the log) has no measurement: assumed.
 FIT_SIGMAS_M = {"scan": (0.011, 0.007), "partial": (0.021, 0.023), "hidden": (0.03, 0.04)}
 

@@ -12,6 +12,7 @@ from typing import Literal
 import typer
 
 from reconstruct.pipeline import ReconstructConfig
+from reconstruct.survey.cli import GNSS_HELP, GNSS_WINDOWS_HELP, gnss_source
 from synth.cli import JSON
 from synth.common.cli import CliError, Output, check_input, check_output_dir, option
 
@@ -29,8 +30,10 @@ def parse_site(text: str, flag: str = "--site") -> tuple[float, ...]:
     return parts
 
 
-def gnss_crs_warning(path: str | Path) -> str | None:
+def gnss_crs_warning(path) -> str | None:
     """A warning when a survey CSV names no CRS (the reader then assumes SWEREF 99)."""
+    if not isinstance(path, (str, Path)):  # raw logs: the survey is made in SWEREF 99
+        return None
     p = Path(path)
     if p.suffix.lower() != ".csv":
         return None
@@ -113,7 +116,8 @@ def next_step(scan_out: Path, n_float: int) -> str:
 
 def reconstruct_command(
     scan: Path = typer.Argument(..., metavar="SCAN", help="Scan folder: stereo pair folder(s) + scan_pose.json."),
-    gnss: Path = option("--gnss", "RTK endpoint survey CSV (see README).", default=..., metavar="FILE"),
+    gnss: list[Path] = option("--gnss", GNSS_HELP, default=..., metavar="FILE"),
+    gnss_windows: Path = option("--gnss-windows", GNSS_WINDOWS_HELP, default=None, metavar="FILE"),
     out: Path = option("--out", "Output folder: pile.json, ortho.npz, previews, report.json.", default=...,
                        metavar="DIR"),
     allow_float: bool = option("--allow-float", "Accept RTK float endpoints (decimetres off): the scan then places every "
@@ -136,6 +140,7 @@ def reconstruct_command(
     \b
     Example: loggrasp reconstruct scans/s3/scan --gnss scans/s3/gnss.csv --out recon/s3
     No poses at all (SfM + GNSS): loggrasp reconstruct scans/s3u/scan --gnss scans/s3u/gnss.csv --out recon/s3u
+    Raw rover logs: loggrasp reconstruct scans/s3/scan --gnss rover.ubx --gnss-windows windows.csv --out recon/s3
     """
     from reconstruct.pipeline import parse_log_direction, reconstruct
 
@@ -143,12 +148,12 @@ def reconstruct_command(
     cfg = ReconstructConfig(allow_float=allow_float, pair_poses=pair_poses, georegister=georegister,
                             log_direction_deg=parse_log_direction(log_direction))
     check_input(scan, "SCAN", "dir")
-    check_input(gnss, "--gnss", "file")
+    source = gnss_source(gnss, gnss_windows)
     check_output_dir(out, "--out")
-    warning = gnss_crs_warning(gnss)
+    warning = gnss_crs_warning(source)
     if warning:
         o.warn(warning)
-    result = reconstruct(scan, gnss, out, cfg, progress=o.progress)
+    result = reconstruct(scan, source, out, cfg, progress=o.progress)
     rep = result.report
     o.result("loggrasp.reconstruction-report", rep)
     o.table(f"{result.pile.n_logs} logs, {result.pile.n_obstacles} obstacles in {result.time_s:.1f} s",

@@ -376,7 +376,7 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
 
     ``scan_dir``: one pair folder (``left.png``, ``right.png``, ``calibration.yaml``) or a folder
     of pair folders, plus ``scan_pose.json`` unless ``config.scan_pose`` is given.
-    ``gnss_path``: a survey CSV (:func:`reconstruct.survey.gnss.read_gnss`). ``out_dir``: created; gets
+    ``gnss_path``: a survey CSV, or raw logs and their windows (a :class:`reconstruct.survey.windows.RawGnss`; :func:`reconstruct.survey.gnss.read_gnss`). ``out_dir``: created; gets
     ``pile.json``, ``ortho.npz``, ``preview.png``, ``compare.png``, ``report.json``.
     ``progress``: called with a short line per stage. ``cloud``: this scan's fused cloud from an
     earlier run (``ReconstructionResult.cloud``), to reconstruct it again with another survey or

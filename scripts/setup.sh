@@ -4,9 +4,10 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-# open3d needs these Debian libraries to import (libusb, GL/EGL).
+# open3d needs these Debian libraries to import (libusb, GL/EGL); the crane-side codec test
+# (tests/field/test_link_c_codec.py) compiles the C code cantools generates from the DBC (gcc, libc6-dev).
 need=()
-for pkg in libusb-1.0-0 libgl1 libegl1; do
+for pkg in libusb-1.0-0 libgl1 libegl1 gcc libc6-dev; do
   dpkg -s "$pkg" >/dev/null 2>&1 || need+=("$pkg")
 done
 if [ ${#need[@]} -gt 0 ]; then

@@ -119,6 +119,15 @@ def dataset(
                                         field=(DatasetJob, "max_trials_per_subset"), min=1),
     piles_dir: Path = option("--piles-dir", "Use the piles of a `loggrasp synth piles` job.", default=None,
                              metavar="DIR"),
+    label_repeats: int = option("--label-repeats", "Robust labels: perturbed repeats of each grasp that succeeded "
+                                "exactly (0 = the paper's one-success labels).", field=(DatasetJob, "label_repeats"),
+                                min=0, max=64),
+    label_error: str = option("--label-error", "Robust labels: the positioning error of the repeats, "
+                              "SIGMA_XY_M,SIGMA_PHI_DEG (per horizontal axis [m], rotator [deg]).",
+                              default="0.02,2", metavar="M,DEG"),
+    label_min_fraction: float = option("--label-min-fraction", "Robust labels: accept a grasp when this share of "
+                                       "its repeats succeeds.", field=(DatasetJob, "label_min_fraction"),
+                                       min=0.0, max=1.0),
     store: bool = option("--store", "Write the compact form that is committed to git (store.json + chunks/: "
                          "piles, grasps, trials; renders are re-made on load) and resumes from any clone; "
                          "local engine only.", default=False),
@@ -134,16 +143,23 @@ def dataset(
     Re-running resumes: finished shards are kept, partial ones redone. With --engine dask
     --address tcp://HOST:8786 the same job runs on a Dask cluster.
     """
-    from synth.data.dataset import build_dataset
+    from synth.data.dataset import build_dataset, label_fields
+    from synth.data.robust import RobustLabels
+    from synth.physics.perturb import PositioningError
 
     o = Output(as_json)
+    try:
+        labels = RobustLabels(label_repeats, PositioningError.parse(label_error), label_min_fraction)
+    except ValueError as exc:
+        raise CliError(f"--label-error / --label-repeats: {exc}") from exc
     if address is not None and engine != "dask":
         raise CliError("--address needs --engine dask")
     if store and (engine != "local" or piles_dir is not None):
         raise CliError("--store runs with --engine local and generates its own piles (drop --piles-dir)")
     DatasetJob(n_piles=piles, n_logs=logs, obstacles_fraction=obstacles_fraction, seed=seed, size_px=size,
                n_renders=renders, max_trials_per_subset=max_trials_per_subset, trial_preset=trial,
-               piles_dir=None if piles_dir is None else str(piles_dir))  # every value checked before any work
+               piles_dir=None if piles_dir is None else str(piles_dir),
+               **label_fields(labels))  # every value checked before any work
     if piles_dir is not None:
         check_input(piles_dir, "--piles-dir", "dir")
     check_output_dir(out, "--out")
@@ -159,14 +175,14 @@ def dataset(
 
             job = DatasetJob(n_piles=piles, n_logs=logs, obstacles_fraction=obstacles_fraction, seed=seed,
                              size_px=size, n_renders=renders, trial_preset=trial,
-                             max_trials_per_subset=max_trials_per_subset)
+                             max_trials_per_subset=max_trials_per_subset, **label_fields(labels))
             rec = build_store(out, job, workers=workers or (os.cpu_count() or 1), progress=progress)
         else:
             manifest = build_dataset(out, n_piles=piles, n_logs=logs, obstacles_fraction=obstacles_fraction,
                                      seed=seed, workers=workers, engine=engine, address=address, size_px=size,
                                      n_renders=renders, trial_config=trial,
                                      max_trials_per_subset=max_trials_per_subset, piles_dir=piles_dir,
-                                     progress=progress)
+                                     progress=progress, robust_labels=labels)
     s = rec["summary"] if store else manifest.summary
     rate = s.get("success_rate")
     what = (f"store {out}: {plural(int(s.get('map_samples', 0)), 'grasp map')}" if store

@@ -88,8 +88,8 @@ def a_file(work) -> Path:
 
 # -- help, version, README ---------------------------------------------------------------------------
 COMMANDS = [[], ["synth"], ["synth", "piles"], ["synth", "render"], ["synth", "dataset"], ["synth", "scan"],
-            ["train"], ["plan"], ["eval"], ["reconstruct"], ["compare-piles"], ["crane-sim"], ["trial"],
-            ["replay"], ["demo"], ["link-key"]]
+            ["train"], ["plan"], ["eval"], ["survey"], ["reconstruct"], ["compare-piles"], ["crane-sim"], ["trial"],
+            ["replay"], ["demo"], ["link-key"], ["audit", "verify"]]
 
 
 @pytest.mark.parametrize("args", COMMANDS)
@@ -245,6 +245,32 @@ def test_synth_dataset_and_train_a_64px_network(capsys, work, a_file):
           "--mask-injection")
 
 
+def test_train_outcome_labels_and_the_beta_map(capsys, work, tmp_path):
+    """``--labels outcome`` trains on every trial of a data set made by `synth dataset` (after the test
+    above); a data set without trials, or with --skip-no-candidates, is a one-line error."""
+    import dataclasses
+
+    from planner.checkpoint import load_checkpoint
+    from synth.data.dataset import ShardWriter, iter_samples, read_manifest, write_manifest
+
+    fails(cli(capsys, "train", "--data", work / "data", "--out", work / "o1", "--labels", "outcome",
+              "--skip-no-candidates"), 2, "--skip-no-candidates", "--labels outcome")
+    r = cli(capsys, "train", "--data", work / "data", "--out", work / "outcome", "--epochs", "1", "--max-steps-per-epoch",
+            "1", "--base-channels", "4", "--batch-size", "2", "--labels", "outcome", "--b-encoding", "beta_10deg", "--json")
+    assert r.code == 0, r.err
+    assert load_checkpoint(r.json()["model"])[1].b_encoding == "beta_10deg"
+    cfg = json.loads((work / "outcome" / "train_config.json").read_text())
+    assert cfg["data"]["labels"] == "outcome" and cfg["loss"]["u_pos_weight"] == 1.0
+    old = tmp_path / "old"  # the same samples without their trials, as a data set from before outcome labels
+    w = ShardWriter(old, "t", 0)
+    for s in iter_samples(work / "data"):
+        w.add(dataclasses.replace(s, trials=None, capped=None))
+    man = read_manifest(work / "data")
+    write_manifest(old, dataclasses.replace(man, shards=[w.close()]))
+    fails(cli(capsys, "train", "--data", old, "--out", tmp_path / "r", "--epochs", "1", "--max-steps-per-epoch", "1",
+              "--base-channels", "4", "--labels", "outcome"), 2, "no trial outcomes", "--labels accepted")
+
+
 # -- plan ---------------------------------------------------------------------------------------------
 def test_plan_json_png_and_table(capsys, work, pile_dir):
     png = work / "plan.png"
@@ -344,6 +370,13 @@ def test_eval_tiny_strict_json_and_examples(capsys, work, a_file):
     for i, ln in enumerate(md):  # every Markdown table row has its header's cells
         if ln.startswith("|---"):
             assert ln.count("|") == md[i - 1].count("|") and md[i + 1].count("|") == ln.count("|"), md[i - 1:i + 2]
+    r = cli(capsys, "eval", "--per-cell", "1", "--logs", "2", "--obstacles", "no", "--objectives", "f1",
+            "--baselines", "random", "--seed-base", "900000001", "--workers", "1", "--out", out, "--field-error",
+            "0.03,2", "--json")  # the same evaluation with a field row
+    d = r.json()
+    assert r.code == 0 and set(d["planners"]) == {"unet-f1", "random", "unet-f1 (field)", "random (field)"}
+    assert d["field_error"] == {"sigma_xy_m": 0.03, "sigma_phi_deg": 2.0}
+    assert "σ 3 cm, 2°" in (out / "results.md").read_text()
 
 
 @pytest.mark.slow
@@ -358,10 +391,10 @@ def test_eval_verify_row_is_a_real_twin_check_on_a_copy(capsys, work):
 
     out = work / "eval_verify"
     r = cli(capsys, "eval", "--per-cell", "1", "--logs", "3", "--obstacles", "no", "--objectives", "f1",
-            "--baselines", "", "--verify", "2", "--seed-base", "900000004", "--workers", "1", "--out", out, "--json")
+            "--baselines", "", "--verify", "2", "--seed-base", "900000000", "--workers", "1", "--out", out, "--json")
     d = r.json()
     assert r.code == 0 and set(d["planners"]) == {"unet-f1", "unet-f1-verify2"}
-    seed = 900000004 + 3 * 2 * 100_000  # the cell (3 logs, no obstacles), pile 0
+    seed = 900000000 + 3 * 2 * 100_000  # the cell (3 logs, no obstacles), pile 0 (trial revision 4)
     recs = {x["planner"]: x for x in json.loads((out / "records" / f"{seed}.json").read_text())}
     pile, _ = generate_pile(seed, GenerationConfig(n_logs=3, n_obstacles=0))
     cfg = TrialConfig.fast()
@@ -388,10 +421,105 @@ def test_eval_bad_input(capsys, work, a_file):
                       (["--views", "3"], "--views must be one of (1, 2, 4, 8) (dihedral views averaged), got 3"),
                       (["--views", "1"], "--views 1 is the plain row"),
                       (["--view-spread", "2"], "--view-spread needs --views"),
-                      (["--views", "8", "--view-spread", "-1"], "--view-spread must be >= 0")):
+                      (["--views", "8", "--view-spread", "-1"], "--view-spread must be >= 0"),
+                      (["--field-error", "3cm"], "--field-error: positioning error '3cm' must be"),
+                      (["--field-error", "0.03,90"], "--field-error: positioning error")):
         fails(cli(capsys, "eval", *bad, "--out", work / "e2"), 2, flag)
     fails(cli(capsys, "eval", "--out", a_file / "e"), 2, "--out", str(a_file))
     assert not (work / "e2").exists()
+
+
+# -- survey -------------------------------------------------------------------------------------------
+RAW = ROOT / "tests" / "data" / "gnss" / "raw"
+
+
+@pytest.mark.parametrize("logs", [["f9p_rover.ubx"], ["reach_rover.nmea"], ["ucenter_mixed.ubx"],
+                                  ["f9p_rover.ubx", "reach_rover.nmea"]])
+def test_survey_reads_each_receiver_kind_and_its_csv_reads_back(capsys, tmp_path, logs):
+    from reconstruct.survey.gnss import read_gnss_csv
+
+    out = tmp_path / "gnss.csv"
+    r = cli(capsys, "survey", *[RAW / f for f in logs], "--windows", RAW / "windows.csv", "--out", out, "--json")
+    assert r.code == 0, r.err
+    d = r.json()
+    assert d["format"] == "loggrasp.survey-report" and len(d["logs"]) == len(logs)
+    assert [(p["log_id"], p["end"], p["n_epochs"], p["fix"]) for p in d["points"]] == [
+        (k, e, 5 * len(logs), "rtk_fixed") for k, e in (("log0", "a"), ("log0", "b"), ("log1", "a"), ("log1", "b"))]
+    back = read_gnss_csv(out)  # what reconstruct --gnss reads
+    assert [p.n_epochs for p in back.points] == [5 * len(logs)] * 4
+    assert abs(back.points[0].spread_h_m - d["points"][0]["spread_h_m"]) < 1e-4
+    for f in logs:
+        assert f"{f}: 20 epochs" in r.err  # per file: what was read
+
+
+def test_survey_prints_per_end_and_per_file(capsys, tmp_path):
+    r = cli(capsys, "survey", RAW / "ucenter_mixed.ubx", "--windows", RAW / "windows.csv", "--out", tmp_path / "g.csv")
+    assert r.code == 0, r.err
+    assert "skipped 20 RTCM3, 65 UBX; 60 bytes not in any frame" in r.out
+    assert re.search(r"log0\s+a\s+5\s+rtk_fixed\s+0\.0123\s+0\.0186\s+0\.0031", r.out), r.out
+
+
+def test_survey_of_a_field_app_export(capsys, tmp_path):
+    from reconstruct.survey.gnss import read_gnss_csv
+
+    export = tmp_path / "export.csv"
+    export.write_text("Punkt;Lat;Lon;Ellipsoidhöjd;Lösning\n"
+                      "log0a;64,1000036164;19,9999630838;250,1131;FIX\nlog0b;64,1000182231;20,0000401711;250,2950;FIX\n")
+    fails(cli(capsys, "survey", export, "--out", tmp_path / "g.csv"), 2, "no coordinate columns", "--columns")
+    r = cli(capsys, "survey", export, "--columns", "id=Punkt,lat=Lat,lon=Lon,height=Ellipsoidhöjd,fix=Lösning",
+            "--out", tmp_path / "g.csv", "--crs", "EPSG:3006")
+    assert r.code == 0, r.err
+    assert [p.log_id for p in read_gnss_csv(tmp_path / "g.csv").points] == ["log0", "log0"]
+
+
+def test_survey_bad_input(capsys, tmp_path):
+    out = tmp_path / "g.csv"
+    late = tmp_path / "late.csv"
+    late.write_text("log_id,end,t_start_utc,t_end_utc\nlog0,a,2026-05-14T10:00:00Z,2026-05-14T10:01:00Z\n"
+                    "log0,b,2026-05-14T10:02:00Z,2026-05-14T10:03:00Z\n")
+    fails(cli(capsys, "survey", RAW / "f9p_rover.ubx", "--windows", late, "--out", out), 2, "late.csv:2",
+          "log 'log0' end 'a'", "the logs span f9p_rover.ubx 2026-05-14T09:30:00.000Z to 2026-05-14T09:31:34.000Z")
+    fails(cli(capsys, "survey", SCAN / "pair_000" / "left.png", "--windows", RAW / "windows.csv", "--out", out), 2,
+          "left.png is not a receiver log")
+    one = tmp_path / "one.csv"
+    one.write_text("\n".join((RAW / "windows.csv").read_text().splitlines()[:-1]) + "\n")
+    fails(cli(capsys, "survey", RAW / "f9p_rover.ubx", "--windows", one, "--out", out), 2,
+          "log 'log1' has a window for end 'a' but none for end 'b'")
+    assert not out.exists()
+    r = cli(capsys, "survey", RAW / "f9p_rover.ubx", "--windows", one, "--out", out, "--allow-one-end")
+    assert r.code == 0 and "log1 (no end b)" in r.err
+    out.unlink()
+    fails(cli(capsys, "survey", RAW / "f9p_rover.ubx", "--out", out), 2, "--windows")
+    fails(cli(capsys, "survey", RAW / "f9p_rover.ubx", "--windows", RAW / "windows.csv", "--out", tmp_path / "g.txt"),
+          2, "--out", ".csv")
+    fails(cli(capsys, "survey", RAW / "f9p_rover.ubx", "--windows", RAW / "windows.csv", "--out", out,
+              "--date", "14/5/2026"), 2, "--date")
+    assert not out.exists() and not list(tmp_path.glob(".*"))
+
+
+def test_reconstruct_takes_raw_logs(capsys, tmp_path):
+    """The demo's survey points as a raw F9P capture: reconstruct --gnss LOG --gnss-windows FILE places the same
+    logs as the survey CSV does."""
+    import numpy as np
+
+    from reconstruct.survey.gnss import read_gnss_csv
+    from synth.scene.pile import read_pile
+    from tests.reconstruct.survey import raw_captures as rc
+
+    survey = read_gnss_csv(GNSS)
+    points = {(p.log_id, p.end): (p.lat_deg, p.lon_deg, p.h_ell_m) for p in survey.points}
+    files = rc.write_captures(tmp_path / "raw", points)
+    fails(cli(capsys, "reconstruct", SCAN, "--gnss", files["f9p"], "--out", tmp_path / "r"), 2, "--gnss-windows")
+    fails(cli(capsys, "reconstruct", SCAN, "--gnss", GNSS, "--gnss-windows", files["windows"], "--out", tmp_path / "r"),
+          2, "--gnss-windows goes with raw receiver logs")
+    r = cli(capsys, "reconstruct", SCAN, "--gnss", files["f9p"], "--gnss", files["nmea"], "--gnss-windows",
+            files["windows"], "--out", tmp_path / "r", "--json")
+    assert r.code == 0, r.err
+    rep = r.json()
+    assert str(files["windows"]) in rep["gnss"]
+    pile = read_pile(tmp_path / "r")
+    assert pile.n_logs >= len(survey.log_ids)
+    assert np.isfinite([log.length_m for log in pile.logs]).all()
 
 
 # -- reconstruct, compare-piles --------------------------------------------------------------------------
@@ -490,7 +618,7 @@ def test_gnss_without_a_crs_line_warns():
 # -- field: demo, trial, replay, crane-sim ----------------------------------------------------------------
 @pytest.fixture(scope="module")
 def demo_record(work) -> Path:
-    r = run_captured("demo", "--out", work / "demo", "--json")
+    r = run_captured("demo", "--out", work / "demo", "--json", "--foxglove", _free_port())  # also served live
     assert r.code == 0, r.err
     d = r.json()
     assert d["format"] == "loggrasp.trial-result" and d["final_state"] == "SUCCESS"
@@ -510,6 +638,17 @@ def test_demo_record_is_complete(demo_record):
     v = rec["verification"]
     assert v["ok"] and v["k"] == 8 and rec["verified"] is True and rec["chosen_rank"] == v["chosen_rank"] + 1
     assert (demo_record / "plan" / "verification.json").exists()
+    assert run(["audit", "verify", str(demo_record)]) == 0  # the record's hash chain verifies
+
+
+@pytest.mark.slow
+def test_demo_writes_a_foxglove_recording(demo_record):
+    """The demo's trial.mcap, read back with the mcap package's reader (not the SDK that wrote it)."""
+    from tests.field.mcap_check import check_trial_mcap
+
+    rec = json.loads((demo_record / "record.json").read_text())
+    check_trial_mcap(demo_record, rec)
+    assert not list(demo_record.parent.glob(".*.part")) and not list(demo_record.glob(".*.part"))
 
 
 @pytest.mark.slow
@@ -527,6 +666,12 @@ def test_demo_bad_input(capsys, work, a_file):
     fails(cli(capsys, "demo", "--link", "twin://", "--out", work / "d2"), 3, "--link", "twin://")
     fails(cli(capsys, "demo", "--out", a_file / "d"), 2, "--out", str(a_file))
     assert not (work / "d2").exists()
+    with socket.socket() as busy:  # the live view's port in use: stopped before the trial, nothing recorded
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        fails(cli(capsys, "demo", "--out", work / "d3", "--foxglove", busy.getsockname()[1]), 2, "--foxglove",
+              "in use", "nothing was recorded")
+    assert not (work / "d3" / "trial").exists() and not list((work / "d3").glob(".*part"))
 
 
 def _replay_temp_dirs() -> set[str]:
@@ -616,15 +761,47 @@ def test_trial_bad_input_fails_before_any_work(capsys, work, a_file):
     fails(cli(capsys, *base, "--link", "twin://", "--verify-budget", "0.1"), 2, "--verify-budget 0.1",
           "too small for one twin trial")
     fails(cli(capsys, *base, "--link", "twin://", "--send-rank", "0"), 2, "--send-rank")
+    fails(cli(capsys, *base, "--link", "twin://", "--foxglove", "0"), 2, "--foxglove")
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        fails(cli(capsys, *base, "--link", "twin://", "--foxglove", busy.getsockname()[1]), 2, "--foxglove",
+              "in use")
+    assert not list(work.glob(".t_bad*"))
     fails(cli(capsys, "trial", "--scan", SCAN, "--gnss", GNSS, "--record", a_file / "r", "--link", "twin://"), 2,
           "--record", str(a_file))
     fails(cli(capsys, "trial", "--scan", work / "none", "--gnss", GNSS, "--record", rec, "--link", "twin://"), 2,
           "--scan")
+    late = work / "late_windows.csv"
+    late.write_text("log_id,end,t_start_utc,t_end_utc\nlog0,a,2026-05-14T10:00:00Z,2026-05-14T10:01:00Z\n"
+                    "log0,b,2026-05-14T10:02:00Z,2026-05-14T10:03:00Z\n")
+    fails(cli(capsys, "trial", "--scan", SCAN, "--gnss", RAW / "f9p_rover.ubx", "--gnss-windows", late, "--record", rec,
+              "--link", "twin://"), 2, "late_windows.csv:2", "the logs span f9p_rover.ubx")
+    fails(cli(capsys, "trial", "--scan", SCAN, "--gnss", RAW / "f9p_rover.ubx", "--record", rec, "--link", "twin://"),
+          2, "--gnss-windows")
     assert time.perf_counter() - t < 20, "bad input must stop the trial before the reconstruction"
     assert not rec.exists()
     (work / "exists").mkdir(exist_ok=True)
     fails(cli(capsys, "trial", "--scan", SCAN, "--gnss", GNSS, "--record", work / "exists", "--link", "twin://"), 2,
           "--record", "already exists")
+
+
+def test_trial_records_raw_logs_and_the_survey_made_from_them(tmp_path):
+    """A trial given raw logs keeps them in its record and reads the survey averaged from them, dated
+    like the newest raw file (the pile's age check sees when the survey was made, not now)."""
+    from field.trial import _record_raw_survey
+    from reconstruct.survey.gnss import RawGnss, read_gnss_csv
+
+    raw = tmp_path / "in"
+    raw.mkdir()
+    for f in ("f9p_rover.ubx", "windows.csv"):
+        shutil.copy(RAW / f, raw / f)
+        os.utime(raw / f, (1.7e9, 1.7e9))
+    _record_raw_survey(RawGnss((raw / "f9p_rover.ubx",), raw / "windows.csv"), tmp_path / "inputs", False)
+    assert sorted(p.name for p in (tmp_path / "inputs" / "gnss-raw").iterdir()) == ["0_f9p_rover.ubx", "1_windows.csv"]
+    survey = read_gnss_csv(tmp_path / "inputs" / "gnss.csv")
+    assert [p.n_epochs for p in survey.points] == [5] * 4
+    assert (tmp_path / "inputs" / "gnss.csv").stat().st_mtime == 1.7e9
 
 
 def _free_port() -> int:

@@ -4,17 +4,17 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 from pathlib import Path
 from typing import Any
 
+from field.audit.journal import chained_journal, rewrite_journal
 from field.errors import ControllerError
 from field.link.messages import Outcome, OutcomeClass, RejectReason
 
 log = logging.getLogger(__name__)
 
 JOURNAL_FORMAT = "loggrasp.controller_journal"
-JOURNAL_VERSION = "2.0"
+JOURNAL_VERSION = "2.1"  # 2.1: hash-chained lines (field/audit/chain.py); 2.0 is read and rewritten chained
 
 
 def _outcome_doc(out: Outcome) -> dict[str, Any]:
@@ -31,7 +31,9 @@ class ControllerJournal:
     controller answers. An id accepted but never finished (controller crashed mid-command) is
     reported ABORTED on load. A version-1 journal (one JSON document) is read and rewritten as
     version 2; a journal with more than ``2 * keep`` lines is compacted to its last ``keep`` ids
-    on load (an id older than that is long past any staleness limit).
+    on load (an id older than that is long past any staleness limit). Lines are hash-chained
+    (2.1, :mod:`field.audit.chain`; a compaction's head continues the old head); ``loggrasp audit
+    verify`` checks the file, and a chain that does not verify is refused on load.
     """
 
     def __init__(self, path: str | Path, keep: int = 10_000, fsync: bool = True):
@@ -40,6 +42,7 @@ class ControllerJournal:
         self.fsync = fsync
         self.entries: dict[int, dict[str, Any]] = {}
         self._lines = 0
+        self._chain = None  # the hash chain's writer (field.audit.chain.ChainFile)
         if self.path.exists():
             self._load()
         if not self.path.exists() or self._lines > 2 * keep:
@@ -63,6 +66,8 @@ class ControllerJournal:
             raise ControllerError(f"{self.path} has journal version {head.get('version')}, this code reads "
                                   f"1.x and {JOURNAL_VERSION.split('.')[0]}.x; update loggrasp")
         self._read_entries(lines[1:])
+        self._chain = chained_journal(self.path, self.fsync)  # None: rewrite it chained
+        self._lines = self._lines if self._chain is not None else 10 ** 9
 
     def _read_entries(self, lines: list[str]) -> None:
         for i, line in enumerate(lines):
@@ -82,21 +87,15 @@ class ControllerJournal:
         self.entries[cid] = entry
 
     def _rewrite(self) -> None:
-        from synth.common.files import atomic_write_bytes
-
         items = list(self.entries.values())[-self.keep:]
         self.entries = {int(e["command_id"]): e for e in items}
-        head = json.dumps({"format": JOURNAL_FORMAT, "version": JOURNAL_VERSION})
-        atomic_write_bytes(self.path, ("\n".join([head, *map(json.dumps, items)]) + "\n").encode())
+        self._chain = rewrite_journal(self.path, {"format": JOURNAL_FORMAT, "version": JOURNAL_VERSION}, items,
+                                      self._chain, self.fsync)
         self._lines = len(items)
 
     def _append(self, entry: dict[str, Any]) -> None:
         self._put(entry)
-        with open(self.path, "a") as f:
-            f.write(json.dumps(entry) + "\n")
-            f.flush()
-            if self.fsync:
-                os.fsync(f.fileno())
+        self._chain.append(entry)  # one write of a whole line, fsynced
         self._lines += 1
 
     def record_accepted(self, command_id: int, digest: str | None = None) -> None:

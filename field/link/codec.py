@@ -14,6 +14,11 @@ transmit counter per message per sender) and checked by :class:`CounterMonitor`,
 a repeated counter is a duplicated frame (dropped), a jump larger than ``max_delta`` or backwards
 is a wrong sequence (lost / reordered / replayed frames).
 
+Signal ranges are the DBC's ``[minimum|maximum]`` (SWEREF 99 TM over Sweden, heights, the plan
+time up to 2100): the strict encoder refuses a value outside them, and so does :func:`decode`
+(MALFORMED), the same line as the C ``*_is_in_range`` that ``cantools generate_c_source`` makes
+for the crane side (tests/field/test_link_c_codec.py).
+
 The Zenoh backend sends exactly these bytes as its payloads: one codec, one protection.
 """
 
@@ -164,6 +169,22 @@ def _check_reserved_zero(kind: str, data: bytearray) -> None:
         )
 
 
+def _check_ranges(kind: str, values: dict[str, Any]) -> None:
+    """Refuse a received signal outside its DBC range ``[minimum, maximum]`` (MALFORMED): the
+    receiver refuses exactly what the sender's strict cantools encoder and the generated C code's
+    ``*_is_in_range`` refuse (tests/field/test_link_c_codec.py holds the three to the same line)."""
+    for sig in _message(kind).signals:
+        v = values[sig.name]
+        low, high = sig.minimum, sig.maximum
+        if (low is not None and v < low) or (high is not None and v > high):
+            raise ProtocolError(
+                f"{kind}: {sig.name} = {v} is outside its range [{low}, {high}] in loggrasp.dbc; "
+                f"the sender does not speak this protocol: run the same loggrasp on both sides",
+                reason=RejectReason.MALFORMED,
+                integrity_ok=True,
+            )
+
+
 def _signals(msg: Message) -> dict[str, int]:
     if isinstance(msg, GraspCommand):
         return {
@@ -282,6 +303,7 @@ def decode(kind_or_id: str | int, data: bytes | bytearray) -> Decoded:
             reason=RejectReason.MALFORMED,
             integrity_ok=True,
         )
+    _check_ranges(kind, v)
     counter = int(v["Counter"])
     try:
         msg = _build(kind, v)

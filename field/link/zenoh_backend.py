@@ -23,7 +23,10 @@ URLs: ``zenoh://127.0.0.1:7447/crane1`` (the laptop connects to, the controller 
 as given: user/password auth in ``transport/auth/usrpwd``, ``access_control`` rules...). When the
 URL names an endpoint, multicast scouting and gossip are switched off and only that endpoint is
 used. Parameters: ``prefix``, ``lease_ms``, ``config`` (+ the common link options; ``record=x.blf``
-writes every payload as the CAN FD frame it is, so CAN and Zenoh sessions read back alike).
+writes every payload as the CAN FD frame it is, so CAN and Zenoh sessions read back alike),
+``ros2=on|off`` and ``ros_domain_id=N`` (default ``ROS_DOMAIN_ID``, else 0): the laptop also
+publishes the plan and the sent grasp as ROS 2 messages on rmw_zenoh key expressions
+(:mod:`field.ros2`, topics under ``/<prefix>``), so a ROS 2 crane stack subscribes without a bridge.
 """
 
 from __future__ import annotations
@@ -86,6 +89,8 @@ class ZenohTarget:
     config_path: str | None
     prefix: str
     lease_ms: int
+    ros2: bool = True  # publish the plan and the sent grasp as ROS 2 messages (field.ros2)
+    ros_domain_id: int = 0  # ROS 2 domain of those messages [-]
 
     @classmethod
     def from_url(cls, url: LinkURL, query: dict[str, str]) -> "ZenohTarget":
@@ -107,11 +112,20 @@ class ZenohTarget:
         except ValueError as exc:
             raise ValueError(f"lease_ms must be an integer [ms]: {exc}") from exc
         config_path = q.pop("config", None)
+        ros2 = q.pop("ros2", "on")
+        if ros2 not in ("on", "off"):
+            raise ValueError(f"ros2 must be on or off, got {ros2!r}")
+        from field.ros2 import domain_id_from_env
+
+        domain = q.pop("ros_domain_id", None)
+        if domain is not None and (not domain.isdigit() or int(domain) > 232):
+            raise ValueError(f"ros_domain_id must be a whole number 0-232, got {domain!r}")
+        domain_id = domain_id_from_env() if domain is None else int(domain)
         if q:
             raise ValueError(f"unknown zenoh:// parameters {sorted(q)}")
         if endpoint is None and config_path is None:
             raise ValueError("a zenoh:// URL needs an endpoint (zenoh://HOST:PORT/crane) or ?config=PATH")
-        return cls(crane, endpoint, config_path, prefix, lease_ms)
+        return cls(crane, endpoint, config_path, prefix, lease_ms, ros2 == "on", domain_id)
 
     def zenoh_config(self, role: str) -> Any:
         """A ``zenoh.Config`` for ``role`` ``"laptop"`` (client, connects) or ``"controller"``
@@ -188,6 +202,7 @@ class ZenohLink(CraneLink):
         self.keys = ZenohKeys(target.prefix)
         self._present = False
         self._zenoh = zenoh
+        self._ros2: Any = None
         self._recorder = None
         if self.config.record_path:  # the same python-can writers as the CAN backend
             from field.link.can_backend import LockedWriter
@@ -224,6 +239,17 @@ class ZenohLink(CraneLink):
 
     def controller_alive(self) -> bool:
         return self._present
+
+    def ros2_publisher(self) -> Any:
+        """The :class:`field.ros2.Ros2Publisher` on this link's session (made on first use, closed
+        with the link), or None when the URL says ``ros2=off``."""
+        if not self.target.ros2:
+            return None
+        if self._ros2 is None:
+            from field.ros2 import Ros2Publisher
+
+            self._ros2 = Ros2Publisher(self._session, self.target.prefix, self.target.ros_domain_id)
+        return self._ros2
 
     def _reply_to(self, kind: str) -> Any:
         def on_reply(reply: Any) -> None:
@@ -265,6 +291,8 @@ class ZenohLink(CraneLink):
             raise LinkError(f"the zenoh link does not send {kind} frames")
 
     def _close_transport(self) -> None:
+        if self._ros2 is not None:
+            self._ros2.close()
         try:
             self._token.undeclare()
         except Exception:

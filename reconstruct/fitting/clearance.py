@@ -5,7 +5,8 @@ interpenetrations that fit noise leaves, and refuses (``SeparationError``) when 
 move farther than noise explains. Such a log is usually not badly *fitted* but badly *ended*: an end
 placed from an RTK-float point (±20-30 cm) under other logs, where the scan cannot see it, lies
 inside a neighbour; or the scan's walk along a log ran on over a stump beside its end and put the end
-past an RTK-fixed point that the scan was then trusted over (twin scans 1100166, 1100179).
+past an RTK-fixed point that the scan was then trusted over (the cases: docs/reconstruction.md,
+"The cases behind the rules").
 
 Both are estimates with a stated uncertainty, and the twin's check is evidence too: two bodies
 cannot share space. :func:`clear_pile` therefore, for a log the check refuses, tries where else its
@@ -26,6 +27,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from reconstruct.errors import SeparationError
+from reconstruct.fitting.ends import MIN_LOG_LENGTH_M
 from synth.scene.pile import LogSpec, PileSpec
 
 #: Offsets tried, in units of the end's sigma, along and across the log (0.5 sigma steps).
@@ -128,7 +130,8 @@ def _candidates(log: LogSpec, ends_k: Sequence[dict], cfg: ClearanceConfig) -> l
         mine_is_butt = np.linalg.norm(pos - butt) <= np.linalg.norm(pos - top)
         here, there = (butt, top) if mine_is_butt else (top, butt)
         if e.get("contradicted") and e.get("gnss_position_m") is not None:
-            out.append(_moved(log, mine_is_butt, there, np.asarray(e["gnss_position_m"], dtype=float), 0.0, j, "survey"))
+            point = np.asarray(e["gnss_position_m"], dtype=float)
+            out.append(_moved(log, mine_is_butt, there, point, 0.0, j, "survey"))
         s_along = float(e.get("sigma_along_m") or e["sigma_m"])
         # sigma_m^2 = along^2 + 2 across^2 (fuse_end); an estimate with no across part moves across by its along one
         s_across = math.sqrt(max(float(e["sigma_m"]) ** 2 - s_along ** 2, 0.0) / 2) or s_along
@@ -148,9 +151,9 @@ def _candidates(log: LogSpec, ends_k: Sequence[dict], cfg: ClearanceConfig) -> l
 def _moved(log: LogSpec, moving_butt: bool, fixed_end: np.ndarray, new_end: np.ndarray, cost: float, j: int,
            how: str) -> _Candidate | None:
     """``log`` with its butt (``moving_butt``) or top at ``new_end``, the other end kept; None when the two
-    ends come closer than 30 cm."""
+    ends come closer than ``MIN_LOG_LENGTH_M``."""
     butt, top = log.endpoints_m()
-    if float(np.linalg.norm(new_end - fixed_end)) < 0.3:  # not a log any more
+    if float(np.linalg.norm(new_end - fixed_end)) < MIN_LOG_LENGTH_M:
         return None
     b, t = (new_end, fixed_end) if moving_butt else (fixed_end, new_end)
     shift = float(np.linalg.norm(new_end - (butt if moving_butt else top)))
@@ -181,4 +184,5 @@ def _at_survey_point(e: dict, why: str) -> dict:
     sigma, no longer contradicted (the scan's reading is what the pile refuted)."""
     return dict(e, position_m=list(e["gnss_position_m"]), source=FIX_LABEL.get(e.get("gnss_fix"), "float"),
                 sigma_m=float(e["gnss_sigma_m"]), sigma_along_m=float(e["gnss_sigma_m"]), contradicted=False,
-                gnss_residual_m=0.0, gnss_residual_sigma=0.0, pile_check=f"placed at its survey point: the scan's end {why}")
+                gnss_residual_m=0.0, gnss_residual_sigma=0.0,
+                pile_check=f"placed at its survey point: the scan's end {why}")

@@ -37,7 +37,7 @@ reach past it (the candidate list stays sorted narrowest first).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Callable, Iterable, Iterator, Sequence
 
 import numpy as np
@@ -452,6 +452,8 @@ class ReductionResult:
     trials: list[tuple[Grasp, object]]  # every simulated grasp and its result, in order
     widened: int = 0  # accepted grasps that were widened by Δw
     capped: bool = False  # stopped by max_trials with candidates left
+    confirmations: dict[int, object] = field(default_factory=dict)  # trial index -> its robust repeats
+    unconfirmed: int = 0  # exact successes refused because their repeats failed too often
 
     @property
     def n_trials(self) -> int:
@@ -471,7 +473,8 @@ def _succeeded(result: object) -> bool:
 def reduce_candidates(candidates: Sequence[Grasp], simulate: Callable[[Grasp], object],
                       rng: np.random.Generator | None = None, overlap_m2: float = 0.04,
                       dw_range_m: tuple[float, float] = (0.05, 0.10), max_trials: int | None = None,
-                      rect_width_m: float = RECT_WIDTH_M) -> ReductionResult:
+                      rect_width_m: float = RECT_WIDTH_M,
+                      confirm: Callable[[Grasp], object] | None = None) -> ReductionResult:
     """The paper's Algorithm 1 over ``candidates`` with ``simulate(grasp) -> result`` (a
     :class:`synth.physics.trial.TrialResult` or anything with ``.success`` or ``.outcome``).
 
@@ -480,6 +483,11 @@ def reduce_candidates(candidates: Sequence[Grasp], simulate: Callable[[Grasp], o
     exceeds 1.55 m) and keep the wider grasp if it also succeeds; accept it and drop every
     remaining candidate whose 20 cm grasp rectangle overlaps the accepted one by more than
     ``overlap_m2``; drop ``g``. ``max_trials`` (simulations, widening included) stops early.
+
+    With ``confirm(grasp) -> Confirmation`` (:mod:`synth.data.robust`), the grasp to be accepted
+    (the wider one, else ``g``) must also pass its perturbed repeats; when the wider one does not,
+    ``g`` is confirmed in its place; when neither does, nothing is accepted and no candidate is
+    dropped but ``g``. Repeats are labels, not search: they do not count towards ``max_trials``.
     """
     if not overlap_m2 >= 0:
         raise ValueError(f"overlap_m2 must be >= 0 m², got {overlap_m2}")
@@ -504,15 +512,33 @@ def reduce_candidates(candidates: Sequence[Grasp], simulate: Callable[[Grasp], o
         res.trials.append((g, r))
         if not _succeeded(r):
             continue
-        best, best_r = g, r
+        options = [(len(res.trials) - 1, g, r)]  # (trial index, grasp, result), preferred last
         dw = float(rng.uniform(*dw_range_m))
         if g.width_m + dw <= MAX_WIDTH_M and budget_left():
             wide = Grasp(g.x_m, g.y_m, g.phi_rad, g.width_m + dw)
             r2 = simulate(wide)
             res.trials.append((wide, r2))
             if _succeeded(r2):
-                best, best_r = wide, r2
-                res.widened += 1
+                options.append((len(res.trials) - 1, wide, r2))
+        chosen = _first_confirmed(options[::-1], confirm, res)
+        if chosen is None:
+            continue
+        best, best_r = chosen
+        res.widened += int(best is not g)
         res.accepted.append((best, best_r))
         G = [h for h in G if rectangle_overlap_area(best, h, rect_width_m) <= overlap_m2]
     return res
+
+
+def _first_confirmed(options, confirm, res: ReductionResult) -> tuple[Grasp, object] | None:
+    """The first option (trial index, grasp, result) whose repeats pass ``confirm`` (the first
+    option when there is no ``confirm``); the repeats are recorded under the trial index."""
+    for i, g, r in options:
+        if confirm is None:
+            return g, r
+        c = confirm(g)
+        res.confirmations[i] = c
+        if c.accepted:
+            return g, r
+        res.unconfirmed += 1
+    return None

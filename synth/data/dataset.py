@@ -23,6 +23,10 @@ Shard arrays (``npz``, compressed; P piles, Q renders, K subsets, N samples, G g
     maps         (K, 5, H, W) float32  C, S, W [m], U, B (synth.data.maps.MAP_CHANNELS)
     grasps       (G, 5)       float64  x [m], y [m], phi [rad, pile frame], width [m], balance cos(beta)
     grasp_start  (K + 1,)     int64    subset k's grasps are grasps[grasp_start[k]:grasp_start[k+1]]
+    trials       (T, 6)       float64  (optional) every trial of every subset: x, y, phi, width, success
+                                       value, cos beta (synth.data.outcomes); subset k's are
+                                       trials[trial_start[k]:trial_start[k+1]], its meta says "capped"
+    trial_start  (K + 1,)     int64    (with trials)
     samples      (N, 3)       int32    (pile index, intensity index, subset index)
     meta         (bytes,)     uint8    JSON: format, version, worker, chunk, piles, renders, subsets
 """
@@ -93,6 +97,8 @@ class Sample:
     negative: bool  # True when no successful grasp was found for the subset
     n_logs: int = 0  # logs in the pile [-]
     n_candidates: int | None = None  # admissible geometric candidates of the subset; None = not recorded [-]
+    trials: np.ndarray | None = None  # (t, 6) every trial run on the subset (synth.data.outcomes.TRIAL_COLUMNS); None = not recorded
+    capped: bool | None = None  # the subset's trials hit the cap with candidates left; None = not recorded
 
     @property
     def tau(self) -> int:
@@ -127,6 +133,11 @@ class Sample:
             raise ValueError(f"sample {self.pile_id}/{self.subset}: balance must be cos(beta) in [-1, 1]")
         if self.render < 0:
             raise ValueError("render index must be >= 0")
+        if self.trials is not None:
+            t = np.asarray(self.trials, dtype=np.float64)
+            if t.ndim != 2 or t.shape[1] != 6 or not np.all(np.isfinite(t[:, :5])) or np.any((t[:, 4] < 0) | (t[:, 4] > 1)):
+                raise ValueError(f"sample {self.pile_id}/{self.subset}: trials must be (n, 6) rows with finite grasps "
+                                 "and a success value in [0, 1]")
 
 
 @dataclass(frozen=True)
@@ -195,6 +206,7 @@ class ShardWriter:
         self._mask: list[np.ndarray] = []
         self._maps: list[np.ndarray] = []
         self._grasps: list[np.ndarray] = []
+        self._trials: list[np.ndarray | None] = []
         self._samples: list[tuple[int, int, int]] = []
         self._shape: tuple[int, int] | None = None
         self.closed = False
@@ -231,8 +243,12 @@ class ShardWriter:
             self._mask.append(np.asarray(sample.target_mask, dtype=bool))
             self._maps.append(np.asarray(sample.maps, dtype=np.float32))
             self._grasps.append(g)
+            self._trials.append(None if sample.trials is None else np.asarray(sample.trials, np.float64).reshape(-1, 6))
             self._subset_meta.append({"pile": p, "subset": list(subset), "negative": bool(sample.negative)}
-                                     | ({} if sample.n_candidates is None else {"n_candidates": int(sample.n_candidates)}))
+                                     | ({} if sample.n_candidates is None else {"n_candidates": int(sample.n_candidates)})
+                                     | ({} if sample.capped is None else {"capped": bool(sample.capped)}))
+            if (self._trials[-1] is None) != (self._trials[0] is None):
+                raise ValueError(f"pile {pid} subset {subset}: a shard's subsets must all carry their trials or none")
         k = self._subsets[skey]
         if not np.array_equal(self._grasps[k], g):
             raise ValueError(f"pile {pid} subset {subset} was added twice with different grasps")
@@ -257,12 +273,16 @@ class ShardWriter:
             "subsets": self._subset_meta,
         }
         buf = io.BytesIO()
+        extra = {}
+        if self._trials and self._trials[0] is not None:
+            extra["trial_start"] = np.concatenate([[0], np.cumsum([len(t) for t in self._trials])]).astype(np.int64)
+            extra["trials"] = np.concatenate(self._trials).reshape(-1, 6)
         np.savez_compressed(
             buf, depth=np.stack(self._depth), intensity=np.stack(self._intensity),
             target_mask=np.stack(self._mask), maps=np.stack(self._maps),
             grasps=np.concatenate(self._grasps).reshape(-1, 5) if starts[-1] else np.zeros((0, 5)),
             grasp_start=starts, samples=np.asarray(self._samples, dtype=np.int32).reshape(-1, 3),
-            meta=np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8),
+            meta=np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8), **extra,
         )
         data = buf.getvalue()
         info = ShardInfo(
@@ -289,7 +309,8 @@ def load_shard(path: str | Path) -> list[Sample]:
     try:
         with np.load(path) as z:
             meta = json.loads(bytes(z["meta"]).decode())
-            arrays = {k: z[k] for k in ("depth", "intensity", "target_mask", "maps", "grasps", "grasp_start", "samples")}
+            arrays = {k: z[k] for k in ("depth", "intensity", "target_mask", "maps", "grasps", "grasp_start", "samples",
+                                        "trials", "trial_start") if k in z.files}
     except FileNotFoundError as exc:
         raise DatasetFormatError(f"shard {path} does not exist; re-run the data-set job to regenerate it") from exc
     except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile, UnicodeDecodeError) as exc:
@@ -301,6 +322,9 @@ def load_shard(path: str | Path) -> list[Sample]:
     try:
         piles, renders, subsets = meta["piles"], meta["renders"], meta["subsets"]
         starts, samples = arrays["grasp_start"], arrays["samples"]
+        tstart = arrays.get("trial_start")
+        if tstart is not None and len(tstart) != len(subsets) + 1:
+            raise ValueError("trial_start disagrees with the shard's subsets")
         if len(samples) != int(meta["n_samples"]) or len(starts) != len(subsets) + 1:
             raise ValueError("array lengths disagree with the shard's metadata")
         if meta.get("format_version") == "1.0":
@@ -314,6 +338,8 @@ def load_shard(path: str | Path) -> list[Sample]:
                 maps=arrays["maps"][k], grasps=arrays["grasps"][starts[k]:starts[k + 1]],
                 negative=bool(sm["negative"]), n_logs=int(piles[p].get("n_logs", 0)),
                 n_candidates=None if sm.get("n_candidates") is None else int(sm["n_candidates"]),
+                trials=None if tstart is None else arrays["trials"][tstart[k]:tstart[k + 1]],
+                capped=None if sm.get("capped") is None else bool(sm["capped"]),
             ))
     except (KeyError, IndexError, TypeError, ValueError) as exc:
         raise DatasetFormatError(f"shard {path} is inconsistent ({exc}); delete it and re-run the job") from exc
@@ -449,6 +475,11 @@ class DatasetJob:
     max_candidates: int | None = None  # candidate list cap per subset [-]; None = all
     trial_preset: str = "fast"  # "fast" or "careful" (synth.physics.trial.TrialConfig presets)
     piles_dir: str | None = None  # use the piles of a `synth piles` job folder instead of generating
+    # robust labels (synth.data.robust.RobustLabels): perturbed repeats of each exact success
+    label_repeats: int = 4  # [-]; 0 = the paper's labels (one exact success)
+    label_sigma_xy_m: float = 0.02  # positioning error per horizontal axis [m]
+    label_sigma_phi_deg: float = 2.0  # rotator angle error [deg]
+    label_min_fraction: float = 0.75  # accepted when this share of the repeats succeeds [-]
 
     def __post_init__(self) -> None:
         if not 1 <= self.n_piles <= 1_000_000:
@@ -469,6 +500,7 @@ class DatasetJob:
             raise ValueError("max_candidates must be >= 1 or None")
         if self.trial_preset not in ("fast", "careful"):
             raise ValueError(f"trial_preset must be 'fast' or 'careful', got {self.trial_preset!r}")
+        self.robust_labels()  # validates the label settings
         from synth.geometry.frames import OrthoGrid
 
         OrthoGrid(self.size_px)  # validates the size
@@ -497,6 +529,13 @@ class DatasetJob:
 
         return TrialConfig.preset(self.trial_preset)
 
+    def robust_labels(self):
+        from synth.data.robust import RobustLabels
+        from synth.physics.perturb import PositioningError
+
+        return RobustLabels(self.label_repeats, PositioningError(self.label_sigma_xy_m, self.label_sigma_phi_deg),
+                            self.label_min_fraction)
+
     def to_dict(self) -> dict:
         from dataclasses import asdict
 
@@ -512,6 +551,14 @@ class DatasetJob:
         d = {**self.to_dict(), "trial_revision": TRIAL_REVISION, "trial_config_values": asdict(self.trial_config()),
              "candidate_config_values": asdict(self.candidate_config()), "format_version": DATASET_FORMAT_VERSION}
         return json.loads(json.dumps(d))
+
+
+def label_fields(labels) -> dict:
+    """The :class:`DatasetJob` fields of a :class:`synth.data.robust.RobustLabels` ({} for None)."""
+    if labels is None:
+        return {}
+    return {"label_repeats": labels.repeats, "label_sigma_xy_m": labels.error.sigma_xy_m,
+            "label_sigma_phi_deg": labels.error.sigma_phi_deg, "label_min_fraction": labels.min_fraction}
 
 
 @dataclass(frozen=True)
@@ -567,7 +614,8 @@ def new_chunk_stats() -> dict[str, Any]:
     """The per-chunk statistics a data-set job accumulates (see :func:`summarise`)."""
     return {"piles": 0, "piles_failed": 0, "piles_with_obstacles": 0, "subsets": 0, "negatives": 0,
             "grasps": 0, "candidates": 0, "trials": 0, "widened": 0, "capped_subsets": 0,
-            "no_candidate_subsets": 0, "outcomes": {}, "trial_wall_s": 0.0, "wall_s": 0.0, "failed_piles": []}
+            "no_candidate_subsets": 0, "outcomes": {}, "trial_wall_s": 0.0, "wall_s": 0.0, "failed_piles": [],
+            "proven_negatives": 0, "capped_negatives": 0, "unconfirmed": 0, "repeats": 0, "repeat_outcomes": {}}
 
 
 @dataclass(frozen=True)
@@ -577,10 +625,21 @@ class SubsetResult:
 
     targets: tuple[int, ...]
     accepted: tuple[tuple[float, float, float, float, float], ...]
-    trials: tuple[dict, ...]
+    trials: tuple[dict, ...]  # each may carry "r": its robust repeats [[x, y, phi, width, outcome], ...]
     n_candidates: int
     widened: int
     capped: bool
+    unconfirmed: int = 0  # exact successes refused by their robust repeats
+
+    @property
+    def negative_kind(self) -> str | None:
+        """None for a positive; "no_candidate" (geometry refused every grasp), "proven" (every
+        candidate tried, none accepted) or "capped" (the trial cap stopped the search: untested)."""
+        if self.accepted:
+            return None
+        if not self.n_candidates:
+            return "no_candidate"
+        return "capped" if self.capped else "proven"
 
 
 def _trial_row(grasp: Grasp, result: object) -> dict:
@@ -598,7 +657,9 @@ def simulate_subsets(job: "DatasetJob", k: int, pile, simulate_factory: Callable
     import time
 
     from synth.data.candidates import generate_candidates, reduce_candidates
+    from synth.data.robust import confirmer, repeat_rows
 
+    labels = job.robust_labels()
     if simulate_factory is None:
         from synth.physics.trial import run_trial
 
@@ -615,7 +676,9 @@ def simulate_subsets(job: "DatasetJob", k: int, pile, simulate_factory: Callable
         cands = generate_candidates(pile, T, cand_cfg)
         rng = np.random.default_rng(np.random.SeedSequence([int(job.seed), int(k), *T, 0xA1]))
         t1 = time.perf_counter()
-        res = reduce_candidates(cands, simulate_factory(pile, T), rng=rng, max_trials=job.max_trials_per_subset)
+        simulate = simulate_factory(pile, T)
+        confirm = confirmer(labels, simulate, job.seed, int(k), tuple(T)) if labels.enabled else None
+        res = reduce_candidates(cands, simulate, rng=rng, max_trials=job.max_trials_per_subset, confirm=confirm)
         stats["trial_wall_s"] += time.perf_counter() - t1
         accepted = []
         for g, r in res.accepted:
@@ -624,6 +687,11 @@ def simulate_subsets(job: "DatasetJob", k: int, pile, simulate_factory: Callable
         trials = tuple(_trial_row(g, r) for g, r in res.trials)
         for t in trials:
             stats["outcomes"][t["o"]] = stats["outcomes"].get(t["o"], 0) + 1
+        for i, c in res.confirmations.items():
+            trials[i]["r"] = repeat_rows(c)
+            for row in trials[i]["r"]:
+                stats["repeat_outcomes"][row[4]] = stats["repeat_outcomes"].get(row[4], 0) + 1
+            stats["repeats"] += len(trials[i]["r"])
         stats["candidates"] += len(cands)
         stats["no_candidate_subsets"] += int(not cands)
         stats["trials"] += res.n_trials
@@ -632,8 +700,13 @@ def simulate_subsets(job: "DatasetJob", k: int, pile, simulate_factory: Callable
         stats["subsets"] += 1
         stats["negatives"] += int(not accepted)
         stats["grasps"] += len(accepted)
-        out.append(SubsetResult(targets=tuple(T), accepted=tuple(accepted), trials=trials,
-                                n_candidates=len(cands), widened=res.widened, capped=res.capped))
+        stats["unconfirmed"] += res.unconfirmed
+        sub = SubsetResult(targets=tuple(T), accepted=tuple(accepted), trials=trials, n_candidates=len(cands),
+                           widened=res.widened, capped=res.capped, unconfirmed=res.unconfirmed)
+        kind = sub.negative_kind
+        if kind in ("proven", "capped"):
+            stats[f"{kind}_negatives"] += 1
+        out.append(sub)
     return out
 
 
@@ -642,6 +715,7 @@ def add_pile_samples(writer: "ShardWriter", job: "DatasetJob", pile, pile_id: st
     """The training samples of one simulated pile (every render x every subset) into ``writer``."""
     from synth.geometry.frames import OrthoGrid
     from synth.data.maps import encode_grasps
+    from synth.data.outcomes import trial_array
 
     grid = OrthoGrid(obs.depth.shape[0], obs.extent_m)
     stats["grid"] = {"size_px": grid.size_px, "extent_m": grid.extent_m, "camera_height_m": obs.camera_height_m}
@@ -650,10 +724,12 @@ def add_pile_samples(writer: "ShardWriter", job: "DatasetJob", pile, pile_id: st
         grasps = [Grasp(float(x), float(y), float(p), float(w)) for x, y, p, w, _ in arr]
         maps = encode_grasps(grid, grasps, [float(b) for b in arr[:, 4]])
         mask = obs.target_mask(sub.targets)
+        trials = trial_array(sub.trials)
         for r in range(job.n_renders):
             writer.add(Sample(pile_id=pile_id, render=r, subset=tuple(sub.targets), intensity=obs.intensity[r],
                               depth=obs.depth, target_mask=mask, maps=maps, grasps=arr,
-                              negative=not len(arr), n_logs=pile.n_logs, n_candidates=sub.n_candidates))
+                              negative=not len(arr), n_logs=pile.n_logs, n_candidates=sub.n_candidates,
+                              trials=trials, capped=sub.capped))
 
 
 def build_chunk(out_dir: str, job_dict: dict, chunk: int, worker: str | None = None,
@@ -705,12 +781,17 @@ def _write_empty_done(out: Path, worker: str, chunk: int, stats: dict) -> dict:
 def summarise(shards: Sequence[ShardInfo]) -> dict:
     """The paper's statistics over completed shards."""
     keys = ("piles", "piles_failed", "piles_with_obstacles", "subsets", "negatives", "grasps", "candidates",
-            "trials", "widened", "capped_subsets", "no_candidate_subsets")
+            "trials", "widened", "capped_subsets", "no_candidate_subsets", "proven_negatives", "capped_negatives",
+            "unconfirmed", "repeats")
     tot = {k: sum(int(s.stats.get(k, 0)) for s in shards) for k in keys}
     outcomes: dict[str, int] = {}
+    repeat_outcomes: dict[str, int] = {}
     for s in shards:
         for k, v in s.stats.get("outcomes", {}).items():
             outcomes[k] = outcomes.get(k, 0) + int(v)
+        for k, v in s.stats.get("repeat_outcomes", {}).items():
+            repeat_outcomes[k] = repeat_outcomes.get(k, 0) + int(v)
+    all_trials = tot["trials"] + tot["repeats"]
     trial_wall = sum(float(s.stats.get("trial_wall_s", 0.0)) for s in shards)
     wall = sum(float(s.stats.get("wall_s", 0.0)) for s in shards)
     return {
@@ -720,6 +801,10 @@ def summarise(shards: Sequence[ShardInfo]) -> dict:
         "trials_per_subset": tot["trials"] / tot["subsets"] if tot["subsets"] else 0.0,
         "outcomes": dict(sorted(outcomes.items())),
         "success_rate": outcomes.get("success", 0) / tot["trials"] if tot["trials"] else 0.0,
+        "repeat_outcomes": dict(sorted(repeat_outcomes.items())),
+        "repeat_success_rate": repeat_outcomes.get("success", 0) / tot["repeats"] if tot["repeats"] else 0.0,
+        "dropped_fraction": (outcomes.get("dropped", 0) + repeat_outcomes.get("dropped", 0)) / all_trials
+        if all_trials else 0.0,
         "worker_s": wall, "trial_worker_s": trial_wall,
         "trials_per_worker_s": tot["trials"] / trial_wall if trial_wall > 0 else 0.0,
         "worker_s_per_pile": wall / tot["piles"] if tot["piles"] else 0.0,
@@ -788,7 +873,7 @@ def build_dataset(out_dir: str | Path, n_piles: int, n_logs: int = 4, obstacles_
                   max_trials_per_subset: int | None = 16, piles_per_shard: int = 1, max_obstacles: int = 7,
                   max_candidates: int | None = None, piles_dir: str | Path | None = None,
                   progress: Callable[[JobProgress], None] | None = None,
-                  simulate_factory: Callable | None = None) -> Manifest:
+                  simulate_factory: Callable | None = None, robust_labels=None) -> Manifest:
     """Build (or resume) the grasp training data set in ``out_dir``; returns its manifest.
 
     Piles come from :func:`synth.scene.generate.generate_pile` (``n_logs`` logs; a share
@@ -797,7 +882,8 @@ def build_dataset(out_dir: str | Path, n_piles: int, n_logs: int = 4, obstacles_
     geometric candidates (:func:`synth.data.candidates.generate_candidates`) -> Algorithm 1
     (:func:`synth.data.candidates.reduce_candidates`) with :func:`synth.physics.trial.run_trial` under the
     ``trial_config`` preset ("fast" or "careful") -> target maps; subsets without a successful
-    grasp are kept as negatives. One shard per chunk of ``piles_per_shard`` piles, written by one
+    grasp are kept as negatives. ``robust_labels`` (:class:`synth.data.robust.RobustLabels`; None =
+    the job's defaults) confirms each accepted grasp under the field's positioning error. One shard per chunk of ``piles_per_shard`` piles, written by one
     worker. ``engine``: "local" (``workers`` processes, 0 = all cores, 1 = in this process) or
     "dask" (``address`` of a running scheduler, or a LocalCluster of ``workers`` processes).
 
@@ -813,6 +899,7 @@ def build_dataset(out_dir: str | Path, n_piles: int, n_logs: int = 4, obstacles_
     job = DatasetJob(n_piles=n_piles, n_logs=n_logs, obstacles_fraction=obstacles_fraction,
                      max_obstacles=max_obstacles, seed=seed, size_px=size_px, n_renders=n_renders,
                      piles_per_shard=piles_per_shard, max_trials_per_subset=max_trials_per_subset,
+                     **label_fields(robust_labels),
                      max_candidates=max_candidates, trial_preset=trial_config,
                      piles_dir=None if piles_dir is None else _checked_piles_dir(piles_dir, n_piles))
     out = Path(out_dir)

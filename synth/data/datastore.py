@@ -41,7 +41,7 @@ from synth.scene.pile import PileSpec
 
 STORE_FORMAT_NAME = "loggrasp.grasp_store"
 CHUNK_FORMAT_NAME = "loggrasp.grasp_store_chunk"
-STORE_FORMAT_VERSION = "1.0"
+STORE_FORMAT_VERSION = "1.1"  # 1.1: robust repeats ("r") per trial, "unconfirmed" per subset
 STORE_FILE = "store.json"
 STORE = VersionedJson(STORE_FORMAT_NAME, STORE_FORMAT_VERSION, "data-set store record", DatasetFormatError,
                       unreadable_fix="restore it from git", filename=STORE_FILE)
@@ -49,8 +49,9 @@ CHUNK = VersionedJson(CHUNK_FORMAT_NAME, STORE_FORMAT_VERSION, "store chunk", Da
 CHUNK_DIR = "chunks"
 CACHE_DIR = ".cache"
 #: what the materialised shards hold beyond the chunk (a cached shard of another revision is made
-#: anew): 2 = each subset's admissible candidate count (``Sample.n_candidates``)
-MATERIALIZE_REVISION = 2
+#: anew): 2 = each subset's admissible candidate count (``Sample.n_candidates``); 3 = every trial of
+#: each subset and whether they hit the cap (``Sample.trials``, ``Sample.capped``: outcome labels)
+MATERIALIZE_REVISION = 3
 _CHUNK_RE = re.compile(r"^chunk_(\d{5,})\.json\.gz$")
 
 
@@ -105,14 +106,14 @@ def simulate_chunk(job: DatasetJob, chunk: int, simulate_factory: Callable | Non
 
 def _subset_dict(s: SubsetResult) -> dict:
     return {"targets": list(s.targets), "accepted": [list(a) for a in s.accepted], "trials": list(s.trials),
-            "candidates": s.n_candidates, "widened": s.widened, "capped": s.capped}
+            "candidates": s.n_candidates, "widened": s.widened, "capped": s.capped, "unconfirmed": s.unconfirmed}
 
 
 def _subset_from(d: dict) -> SubsetResult:
     return SubsetResult(targets=tuple(int(t) for t in d["targets"]),
                         accepted=tuple(tuple(float(v) for v in a) for a in d["accepted"]),
                         trials=tuple(d["trials"]), n_candidates=int(d["candidates"]),
-                        widened=int(d["widened"]), capped=bool(d["capped"]))
+                        widened=int(d["widened"]), capped=bool(d["capped"]), unconfirmed=int(d.get("unconfirmed", 0)))
 
 
 def write_chunk(store_dir: str | Path, record: dict) -> dict:

@@ -152,3 +152,36 @@ def decode_maps(maps: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, n
         raise ValueError(f"maps must have shape (5, H, W), got {maps.shape}")
     phi = wrap_phi(np.arctan2(maps[S], maps[C]) / 2.0)
     return phi, maps[W], maps[U], maps[B]
+
+
+def encode_outcomes(grid: OrthoGrid, grasps: Sequence[Grasp], successes: Sequence[float],
+                    balances: Sequence[float], length_m: float = U_LENGTH_M,
+                    breadth_m: float = U_BREADTH_M) -> tuple[np.ndarray, np.ndarray]:
+    """Target maps ``(5, H, W)`` of *tried* grasps and the pixels they cover ``(H, W)`` bool.
+
+    Unlike :func:`encode_grasps` (U the union of successful grasps), each pixel inside a tried
+    grasp's region takes everything — U included — from the nearest tried centre: U is that
+    trial's success value in [0, 1] (1 success, 0 failure, or a success fraction), so a failed
+    centre is a negative even where a successful neighbour's region overlaps it. Ties go to the
+    grasp listed first; C, S, W, B as in :func:`encode_grasps` (a failure's B is 1, masked by U = 0)."""
+    grasps, successes = list(grasps), [float(s) for s in successes]
+    if not (len(grasps) == len(successes) == len(balances)):
+        raise ValueError(f"need one success value and one balance per grasp, got {len(grasps)} grasps, "
+                         f"{len(successes)} values and {len(balances)} balances")
+    for s in successes:
+        if not (math.isfinite(s) and 0.0 <= s <= 1.0):
+            raise ValueError(f"a trial's success value must be in [0, 1], got {s}")
+    n = grid.size_px
+    out = np.zeros((5, n, n), dtype=np.float32)
+    best = np.full((n, n), np.inf)  # distance to the winning trial's centre per pixel [m]
+    for g, s, b in zip(grasps, successes, balances):
+        u, v = _local_coords(grid, g)
+        d = np.hypot(u, v)
+        win = _inside(u, v, length_m, breadth_m) & (d < best)
+        best[win] = d[win]
+        out[C][win] = math.cos(2 * g.phi_rad)
+        out[S][win] = math.sin(2 * g.phi_rad)
+        out[W][win] = g.width_m
+        out[U][win] = s
+        out[B][win] = min(1.0, max(-1.0, float(b))) if math.isfinite(float(b)) else 1.0
+    return out, np.isfinite(best)

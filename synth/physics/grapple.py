@@ -33,6 +33,7 @@ claws use the same ``q`` (mirror images).
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -82,7 +83,10 @@ class GrappleConfig:
     # actuators
     claw_torque_limit_nm: float = 4000.0  # per claw [N·m]
     closing_speed_rad_s: float = 1.0  # claw angular speed limit [rad/s]
-    closed_overlap_m: float = 0.60  # the claws interleave: closing drives the tips this far past each other [m]
+    # the claws interleave (tines of one pass between the other's), so the cylinder stroke ends
+    # only where the bowl left between the claws and the head is this small: a single log this
+    # thin is still squeezed, not left loose in the bowl [m]
+    closed_bowl_diameter_m: float = 0.19
     hinge_damping_nms: float = 1300.0  # viscous damping of each unactuated swing hinge [N·m·s/rad]
     hinge_friction_nm: float = 5.0  # residual (seal) friction of each swing hinge [N·m]
     rotator_torque_limit_nm: float = 2500.0  # yaw motor [N·m]
@@ -104,8 +108,10 @@ class GrappleConfig:
                      "rotator_torque_limit_nm", "boom_force_limit_n"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"grapple {name} must be > 0, got {getattr(self, name)}")
-        if self.yaw_drop_m < 0 or self.hinge_friction_nm < 0 or self.hinge_damping_nms < 0 or self.closed_overlap_m < 0:
+        if self.yaw_drop_m < 0 or self.hinge_friction_nm < 0 or self.hinge_damping_nms < 0:
             raise ValueError("grapple yaw_drop_m, hinge_friction_nm and hinge_damping_nms must be >= 0")
+        if not 0.05 <= self.closed_bowl_diameter_m <= 0.5:
+            raise ValueError(f"grapple closed_bowl_diameter_m must be in [0.05, 0.5] m, got {self.closed_bowl_diameter_m}")
         if not MAX_WIDTH_M <= self.max_opening_m <= 3.0:
             raise ValueError(
                 f"grapple max_opening_m must be in [{MAX_WIDTH_M}, 3] m so every grasp width fits, "
@@ -132,14 +138,24 @@ class GrappleConfig:
     def closed_gap_m(self) -> float:
         return float(self.gap_at(0.0))
 
+    def claw_polyline_m(self, q_rad: float) -> np.ndarray:
+        """(k, 2) the +u claw's profile (u, z) [m] in the head frame at claw angle ``q_rad``."""
+        return _claw_polyline(self, q_rad)
+
+    def head_bottom_z_m(self) -> float:
+        """Height [m] of the head box's underside in the head frame: the top of the claws' bowl."""
+        return -self.head_drop_m - _HEAD_BELOW_HINGES_M
+
+    def bowl_diameter_m(self, q_rad: float) -> float:
+        """Diameter [m] of the largest log (a circle in the closing plane) that fits loose in the
+        bowl between both claws and the head when both claws stand at angle ``q_rad``; 0 when the
+        claws do not close the bowl below (the tips have not met). The circle sits on the
+        rotator axis (the claws are mirror images) above the point where the claws cross it."""
+        return _bowl_diameter(self, round(float(q_rad), 9))
+
     def close_angle_rad(self) -> float:
-        """Claw angle [rad] (<= 0) the closing drives towards: tips ``closed_overlap_m`` past each other."""
-        qs = np.linspace(-0.8, 0.0, 801)
-        gaps = self.gap_at(qs)
-        target = self.closed_gap_m() - self.closed_overlap_m
-        if not gaps[0] <= target:
-            raise ValueError(f"closed_overlap_m {self.closed_overlap_m} m is beyond the claws' reach")
-        return float(np.interp(target, gaps, qs))
+        """Claw angle [rad] (<= 0) where the stroke ends: the bowl is ``closed_bowl_diameter_m``."""
+        return _close_angle(self)
 
     def max_angle_rad(self) -> float:
         return float(self.angle_for_gap(self.max_opening_m))
@@ -167,6 +183,54 @@ class GrappleConfig:
     def hang_height_m(self, q_rad: float) -> float:
         """Height [m] of the boom tip above the claw tips when hanging plumb at angle ``q_rad``."""
         return self.swing_link_m + self.yaw_drop_m - float(self.tip_in_head(q_rad)[1])
+
+
+_HEAD_BELOW_HINGES_M = 0.05  # the head box reaches this far below the claw hinge line [m]
+_BOWL_SAMPLES = 801  # circle centres tried along the rotator axis [-]
+
+
+def _claw_polyline(g: GrappleConfig, q_rad: float) -> np.ndarray:
+    """(k, 2) the +u claw's profile (u, z) [m] in the head frame at angle ``q_rad``."""
+    prof = np.asarray(g.claw_profile_m, dtype=float)
+    c, s = math.cos(q_rad), math.sin(q_rad)
+    return np.stack([g.hinge_offset_m + prof[:, 0] * c - prof[:, 1] * s,
+                     -g.head_drop_m + prof[:, 0] * s + prof[:, 1] * c], axis=1)
+
+
+@functools.lru_cache(maxsize=4096)
+def _bowl_diameter(g: GrappleConfig, q_rad: float) -> float:
+    P = _claw_polyline(g, q_rad)
+    a, b = P[:-1], P[1:]
+    cross = (a[:, 0] > 0) != (b[:, 0] > 0)
+    if not cross.any():
+        return 0.0
+    t = a[cross, 0] / (a[cross, 0] - b[cross, 0])
+    z_cross = float(np.min(a[cross, 1] + t * (b[cross, 1] - a[cross, 1])))
+    top = g.head_bottom_z_m()
+    if z_cross >= top:
+        return 0.0
+    centres = np.stack([np.zeros(_BOWL_SAMPLES), np.linspace(z_cross, top, _BOWL_SAMPLES)], axis=1)  # (m, 2)
+    d = b - a  # (k, 2)
+    w = centres[:, None, :] - a[None, :, :]  # (m, k, 2)
+    s = np.clip((w * d).sum(-1) / (d * d).sum(-1), 0.0, 1.0)
+    dist = np.linalg.norm(w - s[..., None] * d, axis=-1).min(axis=1) - g.claw_thickness_m / 2
+    radius = np.minimum(dist, top - centres[:, 1])
+    return float(2.0 * max(0.0, radius.max()))
+
+
+@functools.lru_cache(maxsize=256)
+def _close_angle(g: GrappleConfig) -> float:
+    lo, hi = -math.pi / 2, 0.0  # bowl diameter shrinks as q falls (the claws close further)
+    if g.bowl_diameter_m(lo) > g.closed_bowl_diameter_m:
+        raise ValueError(f"closed_bowl_diameter_m {g.closed_bowl_diameter_m} m is smaller than the claws "
+                         f"can close ({g.bowl_diameter_m(lo):.3f} m)")
+    for _ in range(40):
+        mid = (lo + hi) / 2
+        if g.bowl_diameter_m(mid) > g.closed_bowl_diameter_m:
+            hi = mid
+        else:
+            lo = mid
+    return hi
 
 
 def _quat_about_y(angle_rad: float) -> list[float]:
@@ -232,7 +296,7 @@ class Grapple:
         z_hinge = -g.head_drop_m
         head_col, head_vis = boxes(
             [[hu, hv, hz], [ru, rv, rz]],
-            [[0.0, 0.0, z_hinge + hz - 0.05], [0.0, 0.0, z_hinge + 2 * hz - 0.05 + rz]],
+            [[0.0, 0.0, z_hinge + hz - _HEAD_BELOW_HINGES_M], [0.0, 0.0, z_hinge + 2 * hz - _HEAD_BELOW_HINGES_M + rz]],
         )
         claw_cv = {s: boxes(*self._claw_shape(s)) for s in (-1.0, 1.0)}
         # swing links: a small visual only (the stator and link); no collision geometry

@@ -47,8 +47,10 @@ TRIAL_FORMAT_VERSION = "1.0"
 # Revision of the trial's code (not its parameters, which TrialConfig records): data sets and
 # stores record it, and a resumed job refuses another. 2: swing dampers, interleaving claws,
 # a lift that goes on until the load hangs free. 3: a faster approach through the free air above
-# the pile; ``fast`` freezes the logs left behind during the lift.
-TRIAL_REVISION = 3
+# the pile; ``fast`` freezes the logs left behind during the lift. 4: the claws' stroke ends where
+# the bowl holds a 0.19 m log (``closed_bowl_diameter_m``), so they squeeze a thin load instead of
+# leaving it loose in the bowl; only logs at rest are frozen.
+TRIAL_REVISION = 4
 
 
 class Outcome(enum.Enum):
@@ -347,6 +349,8 @@ _AXIS_SAMPLES = 33  # points along each log's axis tested against the inside reg
 _HEAD_CLEARANCE_M = 0.05  # the inside region ends this far below the head's hinge plane [m]
 _MIN_CLOSE_S = 0.2  # closing lasts at least this long, however still the claws [s]
 _LIFT_SLACK_S = 2.0  # the lift's step budget: its travel time plus this [s]
+_FREEZE_SPEED_M_S = 0.05  # a log left behind is frozen only once slower than this ... [m/s]
+_FREEZE_SPIN_RAD_S = 0.2  # ... and turning slower than this [rad/s] (at rest on the pile)
 
 
 @dataclass
@@ -636,7 +640,7 @@ class _TrialRun:
 
     def freeze_apart_from(self, load: set[int]) -> None:
         """``freeze_when_free``: make static, where they lie, the logs that no longer touch the
-        load, directly or through other logs. Such a log costs a contact solve against the
+        load, directly or through other logs, and have come to rest. Such a log costs a contact solve against the
         terrain every step and cannot change the outcome unless the swinging load hits it,
         which a static log still models (as an immovable one). Logs are never thawed."""
         linked, todo = set(load), list(load)
@@ -646,6 +650,9 @@ class _TrialRun:
                     linked.add(cp[2])
                     todo.append(cp[2])
         for b in sorted(self.log_set - linked - self.frozen):
+            v, w = self.c.getBaseVelocity(b)
+            if math.hypot(*v) > _FREEZE_SPEED_M_S or math.hypot(*w) > _FREEZE_SPIN_RAD_S:
+                continue  # still moving (sliding off the load, falling): it may yet hit something
             self.c.resetBaseVelocity(b, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0])
             self.c.changeDynamics(b, -1, mass=0.0)
             self.frozen.add(b)

@@ -75,6 +75,17 @@ def test_full_trial_over_simulated_can(can_record):
     assert (rec / "link" / "traffic.blf").stat().st_size > 0
 
 
+def test_trial_mcap_reads_back_with_an_independent_reader(can_record):
+    """trial.mcap: every stage's topic, counts that match record.json and traffic.blf, times in order."""
+    from tests.field.mcap_check import check_trial_mcap
+
+    rec, record, _ = can_record
+    on_disk = json.loads((rec / "record.json").read_text())
+    m = check_trial_mcap(rec, on_disk)
+    assert on_disk["view"]["path"] == "trial.mcap" and "view_errors" not in on_disk
+    assert on_disk["view"]["messages"] == {t: len(v) for t, v in m.times_ns.items()}
+
+
 def test_replay_is_bit_identical(can_record, tmp_path):
     rec, record, _ = can_record
     result = replay_record(rec, tmp_path / "replay")
@@ -82,9 +93,17 @@ def test_replay_is_bit_identical(can_record, tmp_path):
 
 
 def test_trial_over_zenoh_loopback(can_record, tmp_path):
-    """The same command over Zenoh (controller listening on 127.0.0.1 only, no scouting)."""
+    """The same command over Zenoh (controller listening on 127.0.0.1 only, no scouting); a ROS 2
+    subscriber on the same loopback Zenoh network gets the sent grasp as geometry_msgs/PoseStamped
+    on rmw_zenoh's key, decoded by an independent CDR reader (rosbags)."""
+    import math
     import socket
+    import threading
 
+    import zenoh
+    from rosbags.typesys import Stores, get_typestore
+
+    from field.ros2 import POSE_STAMPED, topic_key
     from field.trial import PreparedTrial
 
     with socket.socket() as s:
@@ -93,11 +112,34 @@ def test_trial_over_zenoh_loopback(can_record, tmp_path):
     _, record, _ = can_record
     prepared = PreparedTrial(pile=None, plan=None, geo=None, command_fields=record["command"],
                              captured_utc_s=0.0, work_dir=tmp_path)
-    url = f"zenoh://127.0.0.1:{port}/crane-{uuid.uuid4().hex[:6]}?insecure=1"
+    crane_name = f"crane-{uuid.uuid4().hex[:6]}"
+    url = f"zenoh://127.0.0.1:{port}/{crane_name}?insecure=1"
+    got, heard = [], threading.Event()
+    conf = zenoh.Config()
+    for k, v in (("mode", '"client"'), ("connect/endpoints", f'["tcp/127.0.0.1:{port}"]'),
+                 ("scouting/multicast/enabled", "false"), ("scouting/gossip/enabled", "false")):
+        conf.insert_json5(k, v)
     with Crane(url) as crane:
-        out = execute_trial(prepared, url, options())
+        ros_sub = zenoh.open(conf)
+        try:
+            key = topic_key(0, f"/loggrasp/{crane_name}/grasp", POSE_STAMPED)
+            sub = ros_sub.declare_subscriber(key, lambda s: (got.append(s.payload.to_bytes()), heard.set()))
+            time.sleep(0.5)  # the subscription's declaration reaches the crane's peer
+            out = execute_trial(prepared, url, options())
+            heard.wait(5.0)
+            sub.undeclare()
+        finally:
+            ros_sub.close()
     assert crane.calls == 1 and out.accepted
     assert out.final_state == record["final_state"]  # same pile, same grasp, same outcome
+    assert len(got) == 1, "the sent grasp was not published as ROS 2 (or more than once)"
+    msg = get_typestore(Stores.ROS2_JAZZY).deserialize_cdr(got[0], POSE_STAMPED.name)
+    c = record["command"]
+    assert msg.header.frame_id == "map"
+    assert (msg.pose.position.x, msg.pose.position.y, msg.pose.position.z) == (
+        c["easting_mm"] / 1000, c["northing_mm"] / 1000, c["height_mm"] / 1000)
+    yaw_deg = math.degrees(2 * math.atan2(msg.pose.orientation.z, msg.pose.orientation.w))
+    assert yaw_deg == pytest.approx(90.0 - c["heading_cdeg"] / 100.0)
 
 
 def test_stale_pile_data_is_never_sent(tmp_path):

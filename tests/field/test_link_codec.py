@@ -65,9 +65,31 @@ def test_grasp_command_is_one_64_byte_fd_frame_and_keeps_mm_precision():
     db = load_database()
     m = db.get_message_by_name("GraspCommand")
     assert m.is_fd and m.length == 64
-    big = replace(CMD, easting_mm=2**63 - 1, northing_mm=-(2**63), plan_timestamp_ms=2**64 - 1)
-    assert decode(*encode(big, 1)).message == big
+    # millimetres kept at both ends of the DBC's ranges (SWEREF 99 TM over Sweden, up to 2100)
+    for end in (min, max):
+        far = replace(CMD, easting_mm=end(180_000_000, 1_090_000_000), northing_mm=end(6_090_000_000, 7_690_000_000),
+                      height_mm=end(-100_000, 2_500_000), plan_timestamp_ms=end(0, 4_102_444_800_000))
+        assert decode(*encode(far, 1)).message == far
     assert all(msg.is_fd for msg in db.messages)
+
+
+@pytest.mark.parametrize("signal, value", [("EastingMm", 179_999_999), ("NorthingMm", 7_690_000_001),
+                                           ("HeightMm", 2_500_001), ("PlanTimestampMs", 4_102_444_800_001),
+                                           ("BalanceCosMilli", -1001)])
+def test_a_protected_frame_with_a_value_outside_its_dbc_range_is_malformed(signal, value):
+    """The receiver refuses what the sender's strict encoder refuses: a frame whose CRC is right
+    but whose signal lies outside loggrasp.dbc's range (a sender without range checks)."""
+    from e2e.p05 import e2e_p05_protect
+
+    msg = CMD if signal != "BalanceCosMilli" else Outcome(7, OutcomeClass.SUCCESS, 3, 999)
+    kind, data = encode(msg, 4)
+    message = load_database().get_message_by_name(kind)
+    values = {**message.decode(data, decode_choices=False), signal: value}
+    bad = bytearray(message.encode(values, strict=False, padding=False))
+    e2e_p05_protect(bad, codec.data_id(kind), increment_counter=False)
+    with pytest.raises(ProtocolError, match=f"{signal} = {value} is outside its range") as ei:
+        decode(kind, bytes(bad))
+    assert ei.value.reason is RejectReason.MALFORMED and ei.value.integrity_ok
 
 
 def test_python_enums_match_the_dbc_value_tables():
@@ -109,6 +131,9 @@ def test_types_are_checked():
         Ack(1, False)
 
 
+@pytest.mark.safety_case(error="corruption", link="both",
+                         measure="E2E profile: CRC over data id + payload, 4-bit alive counter (CRC)",
+                         reaction="every single-bit flip of a command frame is rejected CRC")
 def test_every_single_bit_flip_is_detected():
     kind, data = encode(CMD, 3)
     for i in range(len(data) * 8):
@@ -119,6 +144,9 @@ def test_every_single_bit_flip_is_detected():
         assert ei.value.reason is RejectReason.CRC
 
 
+@pytest.mark.safety_case(error="addressing", link="both",
+                         measure="E2E data id per message kind inside the CRC",
+                         reaction="a frame of one kind read as another fails its CRC")
 def test_data_id_separates_message_kinds():
     _, data = encode(StatusRequest(1), 0)  # 8 bytes, same length as LaptopHeartbeat / EStop
     with pytest.raises(ProtocolError) as ei:
@@ -237,6 +265,10 @@ def _sometimes(strategy, percent: int):
 command_frames = st.tuples(commands, _sometimes(st.integers(0, 255), 10), _sometimes(st.integers(0, 63), 15))
 
 
+@pytest.mark.safety_case(error="insertion", link="both",
+                         measure="E2E profile: CRC over data id + payload, 4-bit alive counter + range checks + the"
+                                 " crane's validation",
+                         reaction="fuzzed frames are rejected; only valid commands run")
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 @given(
     frames=st.lists(

@@ -27,6 +27,9 @@ def _estop_error(link, caplog) -> LinkTimeout:
     return exc
 
 
+@pytest.mark.safety_case(abort="an e-stop whose transmission fails", link="can",
+                         reaction="the last transmit error is kept, logged and named to the operator (USE THE PHYSICAL "
+                                  "E-STOP)")
 def test_can_an_estop_that_cannot_be_sent_names_the_bus_error(caplog):
     with can_pairs("estop", LINK) as make:
         p = make()
@@ -39,6 +42,9 @@ def test_can_an_estop_that_cannot_be_sent_names_the_bus_error(caplog):
         assert p.link.abort(timeout_s=5.0).state is ControllerState.ESTOP  # the bus is back: it stops
 
 
+@pytest.mark.safety_case(abort="an e-stop whose transmission fails", link="zenoh",
+                         reaction="the last transmit error is kept, logged and named to the operator (USE THE PHYSICAL "
+                                  "E-STOP)")
 def test_zenoh_an_estop_that_cannot_be_sent_names_the_session_error(port, caplog):
     url = f"zenoh://127.0.0.1:{port}/crane-estop"
     with controller_in_thread(url, "fixed", ControllerConfig(no_journal=True, insecure_link=True), start_timeout_s=20.0):

@@ -24,6 +24,9 @@ def pair():
         yield make
 
 
+@pytest.mark.safety_case(error="loss", link="can",
+                         measure="acknowledgement timeout, then a status query",
+                         reaction="the operator is told NOT executing; the id is burned; the next command runs")
 def test_dropped_command_frame(pair, make_cmd):
     p = pair()
     p.lbus.arm("drop", "GraspCommand")
@@ -52,6 +55,10 @@ def test_dropped_ack_final_state_known(pair, make_cmd):
     assert p.executor.executed == [cmd.command_id]
 
 
+@pytest.mark.safety_case(error="unintended repetition", link="can",
+                         measure="E2E profile: CRC over data id + payload, 4-bit alive counter (counter: a copy "
+                                 "repeats the last value); command ids burned",
+                         reaction="the copy is dropped; the command runs once")
 def test_duplicated_command_frame_executes_once(pair, make_cmd):
     p = pair()
     p.lbus.arm("duplicate", "GraspCommand")
@@ -63,6 +70,10 @@ def test_duplicated_command_frame_executes_once(pair, make_cmd):
     assert p.controller.rejections == []  # the copy was recognised by its counter and dropped
 
 
+@pytest.mark.safety_case(error="corruption", link="can",
+                         measure="E2E profile: CRC over data id + payload, 4-bit alive counter (CRC)",
+                         reaction="rejected CRC and answered for command id 0 (for nobody); not executed; status "
+                                  "query: NOT executing")
 @pytest.mark.parametrize("byte", [20, 5])  # inside the northing / inside the command id
 def test_corrupted_command_frame_is_answered_for_nobody(pair, make_cmd, byte):
     """The controller answers a frame that failed its CRC with id 0: the laptop never takes it
@@ -78,6 +89,9 @@ def test_corrupted_command_frame_is_answered_for_nobody(pair, make_cmd, byte):
     assert p.executor.executed == []
 
 
+@pytest.mark.safety_case(error="incorrect sequence", link="can",
+                         measure="E2E profile: CRC over data id + payload, 4-bit alive counter (counter)",
+                         reaction="the overtaken, late command is rejected COUNTER and never executed")
 def test_reordered_late_command_is_never_executed(pair, make_cmd):
     p = pair()
     a = make_cmd(p.link.new_command_id())
@@ -92,6 +106,15 @@ def test_reordered_late_command_is_never_executed(pair, make_cmd):
     assert p.executor.executed == [b.command_id]
 
 
+@pytest.mark.safety_case(error="corruption", link="can",
+                         measure="E2E profile: CRC over data id + payload, 4-bit alive counter (CRC) on the crane's"
+                                 " answers",
+                         reaction="the corrupted acknowledgement is counted and dropped; the status query tells the"
+                                  " operator the command IS executing")
+@pytest.mark.safety_case(error="unintended repetition", link="can",
+                         measure="E2E profile: CRC over data id + payload, 4-bit alive counter (counter) on the "
+                                 "crane's answers",
+                         reaction="the copied acknowledgement is dropped as a duplicate")
 def test_corrupted_and_duplicated_answers(pair, make_cmd):
     p = pair(delay_s=3.0)
     p.cbus.arm("corrupt", "Ack")
@@ -110,6 +133,9 @@ def test_corrupted_and_duplicated_answers(pair, make_cmd):
     assert p.executor.executed == [cmd.command_id, cmd2.command_id]
 
 
+@pytest.mark.safety_case(error="loss", link="can",
+                         measure="outcome deadline, then a status query (the last outcome)",
+                         reaction="the final state is recovered from the controller's status")
 def test_lost_outcome_recovered_from_status(pair, make_cmd):
     p = pair()
     p.cbus.arm("drop", "Outcome")
@@ -120,6 +146,9 @@ def test_lost_outcome_recovered_from_status(pair, make_cmd):
     assert out.command_id == cmd.command_id and out.logs_grasped == 4
 
 
+@pytest.mark.safety_case(error="loss", link="can",
+                         measure="crane heartbeat timeout + status query before sending",
+                         reaction="nothing is sent to a mute crane (LinkTimeout: NOT sent)")
 def test_crane_heartbeat_loss(pair, make_cmd):
     p = pair()
     p.cbus.arm("drop", "CraneHeartbeat", count=None)
@@ -136,6 +165,11 @@ def test_crane_heartbeat_loss(pair, make_cmd):
     assert p.executor.executed == [cmd.command_id]
 
 
+@pytest.mark.safety_case(abort="laptop heartbeats lost", link="can",
+                         reaction="ABORTED within the 1 s laptop timeout (not at the 6 s end); a new session works")
+@pytest.mark.safety_case(error="loss", link="can",
+                         measure="laptop heartbeat timeout on the controller (1 s)",
+                         reaction="the running grasp is aborted (ABORTED outcome) within the laptop timeout")
 def test_laptop_heartbeat_loss_aborts_the_running_grasp(pair, make_cmd):
     p = pair(delay_s=6.0, laptop_timeout_s=1.0)
     cmd = make_cmd(p.link.new_command_id())
@@ -173,6 +207,9 @@ def test_bus_errors(pair, make_cmd):
     assert p.executor.executed == [nxt.command_id]
 
 
+@pytest.mark.safety_case(error="unacceptable delay", link="can",
+                         measure="pile-data age limit checked on the crane's own clock",
+                         reaction="rejected STALE; never executed")
 def test_stale_on_the_crane_clock_is_never_executed(pair, make_cmd):
     p = pair(max_pile_age_s=1.0)
     cmd = make_cmd(p.link.new_command_id(), age_s=2.0)  # fine for the laptop (30 s), stale for the crane

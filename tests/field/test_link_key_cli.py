@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 
+import pytest
 from typer.testing import CliRunner
 
 from field.cli import app
@@ -14,6 +15,8 @@ def test_link_key_help():
     assert res.exit_code == 0 and "secoc_key" in res.output
 
 
+@pytest.mark.safety_case(keys="loggrasp link-key", link="both",
+                         reaction="a new 32-byte key, mode 0600, never overwritten, never printed")
 def test_link_key_writes_a_private_key_once(tmp_path, capsys):
     from field.cli import run
     from synth.common.cli import EXIT_INPUT

@@ -48,6 +48,8 @@ def outcome_of(published: list, command_id: int) -> Outcome | None:
 # --- 1: an e-stop just after the acceptance ---------------------------------------------------
 
 
+@pytest.mark.safety_case(abort="e-stop in the acceptance window", link="both",
+                         reaction="the grasp never runs to SUCCESS: refused ESTOP or ABORTED")
 def test_estop_in_the_acceptance_window_aborts_the_grasp(make_cmd):
     """The e-stop arrives while the controller sends the acceptance (the window between marking
     the command executing and starting it): the grasp must not run to SUCCESS."""
@@ -108,6 +110,8 @@ def _grasp_fate(link):
     return run
 
 
+@pytest.mark.safety_case(abort="e-stop racing a command", link="can",
+                         reaction="20 races: every e-stop refuses or aborts the command")
 def test_estop_racing_a_command_is_never_lost_on_can(pair, make_cmd):
     p = pair(delay_s=0.5)
     node = p.node()
@@ -116,6 +120,8 @@ def test_estop_racing_a_command_is_never_lost_on_can(pair, make_cmd):
     assert set(fates) <= {"ABORTED", "ESTOP"}, fates
 
 
+@pytest.mark.safety_case(abort="e-stop racing a command", link="zenoh",
+                         reaction="20 races: every e-stop refuses or aborts the command")
 def test_estop_racing_a_command_is_never_lost_on_zenoh(port, make_cmd):
     import json
 
@@ -149,6 +155,8 @@ def test_estop_racing_a_command_is_never_lost_on_zenoh(port, make_cmd):
     assert set(fates) <= {"ABORTED", "ESTOP"}, fates
 
 
+@pytest.mark.safety_case(abort="executor stop on abort", link="both",
+                         reaction="the pybullet twin stops within one simulation step and reports the log it holds")
 def test_pybullet_twin_stops_at_once_and_reports_the_log_it_holds():
     """The twin's executor asks should_abort every simulation step: an abort in the hold phase
     stops the trial there and reports ABORTED with the one log in the air (never 0 logs)."""
@@ -224,6 +232,12 @@ def _heartbeat_case(make_cmd, frozen: str) -> Outcome:
         ctl.close()
 
 
+@pytest.mark.safety_case(abort="laptop heartbeat frozen (stuck sender)", link="can",
+                         reaction="the running grasp aborts within the laptop timeout, not at its end")
+@pytest.mark.safety_case(error="unintended repetition", link="can",
+                         measure="heartbeat counters must advance by 1-8 (application + E2E counter)",
+                         reaction="a frozen (repeated) heartbeat stream is not a live laptop: the running grasp is "
+                                  "aborted")
 @pytest.mark.parametrize("frozen", ["same-frame", "same-counter"])
 def test_frozen_laptop_heartbeat_aborts_the_grasp(make_cmd, frozen):
     t0 = time.monotonic()
@@ -250,6 +264,11 @@ class CorruptFirstCopy(ProxyBus):
         self.inner.send(msg, timeout)
 
 
+@pytest.mark.safety_case(error="corruption", link="can",
+                         measure="E2E profile: CRC over data id + payload, 4-bit alive counter (CRC): an answer "
+                                 "names an id only if the frame passed its check",
+                         reaction="a corrupted copy is answered for nobody; the intact command is accepted and runs"
+                                  " once")
 def test_a_corrupted_copy_does_not_hide_the_intact_one(pair, make_cmd):
     p = pair(laptop_bus=CorruptFirstCopy)
     cmd = make_cmd(p.link.new_command_id())
@@ -295,6 +314,10 @@ def _wait_for_frame(bus: can.BusABC, kind: str, timeout_s: float = 10.0) -> can.
     raise AssertionError(f"no {kind} frame seen")
 
 
+@pytest.mark.safety_case(error="unacceptable delay", link="can",
+                         measure="acknowledgement timeout, then revocation of the id",
+                         reaction="the operator is told it did not run; the late frame is rejected DUPLICATE_ID, "
+                                  "never executed")
 def test_a_command_delayed_past_its_timeout_never_runs_after_the_operator_was_told_it_did_not(pair, make_cmd):
     """The command frame is held on the way past the acknowledgement timeout: the operator is
     told it does not run, and when the frame finally arrives it must not run (its id was revoked)."""
@@ -388,6 +411,12 @@ def test_crane_sim_defaults_journal_every_id_and_use_the_staleness_limit(monkeyp
 # --- 6: frame format and reserved bytes -----------------------------------------------------
 
 
+@pytest.mark.safety_case(error="insertion", link="can",
+                         measure="only 11-bit CAN FD frames of the DBC are link frames",
+                         reaction="an extended-id frame on a link id is ignored on both sides")
+@pytest.mark.safety_case(error="addressing", link="can",
+                         measure="frame format and id checked (the DBC's VFrameFormat)",
+                         reaction="a frame of another protocol on the same ids is not taken as a link frame")
 def test_extended_id_frames_are_not_link_frames(pair, make_cmd):
     p = pair()
     p.link._issued.update({777, 778})  # as if the laptop had sent them: answers for its commands
@@ -431,6 +460,11 @@ def test_reserved_bits_are_malformed_on_both_sides(make_cmd):
 # --- 8: the commanding laptop --------------------------------------------------------------
 
 
+@pytest.mark.safety_case(abort="commanding laptop lost, another alive", link="can",
+                         reaction="the grasp aborts")
+@pytest.mark.safety_case(error="loss", link="can",
+                         measure="heartbeat stream of the commanding laptop supervised",
+                         reaction="the grasp aborts when its laptop is lost, whoever else is alive")
 def test_losing_the_commanding_laptop_aborts_although_another_one_is_alive(pair, make_cmd):
     p = pair(delay_s=6.0)
     other = CanLink(config=LINK, bus=can.Bus(interface="virtual", channel=p.channel, fd=True))
@@ -458,6 +492,11 @@ def test_a_second_laptop_is_reported(pair, caplog):
     assert wait_until(lambda: p.link.status().laptops == 1)  # it went: one again after the timeout
 
 
+@pytest.mark.safety_case(abort="commanding laptop lost, another alive", link="zenoh",
+                         reaction="the grasp aborts")
+@pytest.mark.safety_case(error="loss", link="zenoh",
+                         measure="liveliness token of the commanding laptop",
+                         reaction="the grasp aborts when its laptop's token goes, whoever else is connected")
 def test_commanding_zenoh_laptop_leaving_aborts_while_another_is_connected(port, controller_process, make_cmd):
     from field.link import open_link
 

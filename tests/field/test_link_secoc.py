@@ -47,6 +47,10 @@ def test_secured_round_trip_every_frame(key, msg):
     assert decode(kind, rx.verify(kind, secured)).message == msg
 
 
+@pytest.mark.safety_case(error="corruption", link="both",
+                         measure="SecOC-style MAC (HMAC-SHA256/64 over id, frame, freshness) with the pre-shared "
+                                 "key",
+                         reaction="every bit flip of an authenticated frame fails its MAC: dropped")
 def test_every_bit_flip_fails_authentication(key):
     tx, rx = SecOC.from_key_file(key), SecOC.from_key_file(key)
     kind, data = Encoder().encode(MESSAGES[0])
@@ -58,6 +62,18 @@ def test_every_bit_flip_fails_authentication(key):
             rx.verify(kind, bytes(bad))
 
 
+@pytest.mark.safety_case(error="unintended repetition", link="both",
+                         measure="SecOC-style MAC (HMAC-SHA256/64 over id, frame, freshness) with the pre-shared "
+                                 "key: freshness value seen before",
+                         reaction="a replayed authenticated frame is dropped")
+@pytest.mark.safety_case(error="unacceptable delay", link="both",
+                         measure="SecOC-style MAC (HMAC-SHA256/64 over id, frame, freshness) with the pre-shared "
+                                 "key: freshness window 2 s",
+                         reaction="a frame 5 s old is dropped")
+@pytest.mark.safety_case(error="masquerade", link="both",
+                         measure="SecOC-style MAC (HMAC-SHA256/64 over id, frame, freshness) with the pre-shared "
+                                 "key",
+                         reaction="a frame made with another key, or without one, is dropped")
 def test_replayed_late_and_foreign_frames_fail(key, tmp_path):
     rx = SecOC.from_key_file(key)
     kind, data = Encoder().encode(MESSAGES[0])
@@ -81,6 +97,9 @@ def test_replayed_late_and_foreign_frames_fail(key, tmp_path):
 # --- the key file ---------------------------------------------------------------------------
 
 
+@pytest.mark.safety_case(keys="key file rules", link="both",
+                         reaction="a missing, short or group/other-readable key file is refused with the fix (chmod"
+                                  " 600)")
 def test_key_file_rules(tmp_path):
     path = generate_key_file(tmp_path / "k")
     assert os.stat(path).st_mode & 0o777 == 0o600 and len(load_key(path)) == 32
@@ -101,6 +120,8 @@ def test_key_file_rules(tmp_path):
         open_link(f"twin://?secoc_key={path}")
 
 
+@pytest.mark.safety_case(keys="the key is never shown", link="both",
+                         reaction="no log line, message or repr holds the key")
 def test_the_key_is_never_logged_or_shown(key, caplog, make_cmd):
     secret = key.read_text().strip()
     caplog.set_level(logging.DEBUG)
@@ -140,6 +161,16 @@ def keyed_pair(key):
             (obj.shutdown if isinstance(obj, can.BusABC) else obj.close)()
 
 
+@pytest.mark.safety_case(error="insertion", link="can",
+                         measure="SecOC-style MAC (HMAC-SHA256/64 over id, frame, freshness) with the pre-shared "
+                                 "key",
+                         reaction="E2E-valid frames inserted without the MAC (outcome, status, a command with the "
+                                  "laptop's next counter) are dropped on both sides; never run")
+@pytest.mark.safety_case(error="masquerade", link="can",
+                         measure="SecOC-style MAC (HMAC-SHA256/64 over id, frame, freshness) with the pre-shared "
+                                 "key",
+                         reaction="a keyless node posing as the crane or the laptop is not believed; the real "
+                                  "outcome stands")
 def test_forged_frames_are_dropped_on_both_sides(keyed_pair, make_cmd):
     link, ctl, ex, rogue = keyed_pair(delay_s=2.0)
     link._await_controller()
@@ -163,6 +194,8 @@ def test_forged_frames_are_dropped_on_both_sides(keyed_pair, make_cmd):
     assert wait_until(lambda: ctl.state is ControllerState.ESTOP)
 
 
+@pytest.mark.safety_case(gap="CAN without keys: integrity, not origin", link="can",
+                         reaction="a forged, E2E-valid SUCCESS outcome is believed by a keyless laptop")
 def test_without_keys_a_forged_outcome_is_believed(make_cmd):
     """What the link does NOT guarantee without keys (insecure=1): E2E is integrity, not origin -
     a forged outcome for a command the laptop did send is believed."""
@@ -178,6 +211,8 @@ def test_without_keys_a_forged_outcome_is_believed(make_cmd):
         rogue.shutdown()
 
 
+@pytest.mark.safety_case(error="insertion", link="can", measure="the laptop takes answers only for command ids it sent",
+                         reaction="dropped and counted (stats.foreign_answers), never a decision")
 def test_answers_to_command_ids_the_laptop_never_sent_are_dropped_and_counted():
     """An acknowledgement or outcome naming an id this laptop never issued is never taken for a
     decision (even without keys): dropped and counted in ``stats.foreign_answers``."""
@@ -196,6 +231,8 @@ def test_answers_to_command_ids_the_laptop_never_sent_are_dropped_and_counted():
         rogue.shutdown()
 
 
+@pytest.mark.safety_case(error="insertion", link="both", measure="authenticated frames by default",
+                         reaction="a link or controller without a key is refused unless insecure=1 / --insecure-link")
 def test_a_link_without_a_key_is_refused_unless_the_operator_opts_out():
     with pytest.raises(LinkError, match="no SecOC key.*insecure=1"):
         open_link("can://virtual/no-key-ch")
@@ -206,6 +243,12 @@ def test_a_link_without_a_key_is_refused_unless_the_operator_opts_out():
         assert not twin.authenticated
 
 
+@pytest.mark.safety_case(keys="both ends need the same key", link="can",
+                         reaction="a crane with another key is not reached: the link refuses to open")
+@pytest.mark.safety_case(error="masquerade", link="can",
+                         measure="SecOC-style MAC (HMAC-SHA256/64 over id, frame, freshness) with the pre-shared "
+                                 "key",
+                         reaction="a crane with another key is not reached: the link refuses to open")
 def test_a_crane_with_another_key_is_not_reached(keyed_pair, tmp_path):
     link, *_ = keyed_pair(laptop_key=generate_key_file(tmp_path / "wrong.key"))
     with pytest.raises(LinkError, match="SecOC key"):
@@ -225,6 +268,8 @@ def test_twin_and_recording_with_a_key(key, tmp_path, make_cmd):
     assert cmd in msgs  # a keyed recording reads back with its key (MACs checked)
 
 
+@pytest.mark.safety_case(keys="MAC failures counted; past a threshold the controller goes to a safe state", link="both",
+                         reaction="FAULT: commands refused, the running grasp aborted, local reset")
 def test_mac_failures_past_the_threshold_put_the_controller_in_its_safe_state(key, tmp_path, make_cmd):
     """More than ``max_mac_failures`` frames with a bad MAC within the window: FAULT - the running
     grasp aborts and commands are refused until a local reset. Stale frames (a clock, a replay)
@@ -272,6 +317,8 @@ def _key_file(path, lines: list[str]):
     return path
 
 
+@pytest.mark.safety_case(keys="key ids in the frames (rotation without downtime)", link="both",
+                         reaction="both keys accepted during the overlap; a key id not held is dropped")
 def test_a_rotated_key_id_is_accepted_during_the_overlap(tmp_path):
     """Step 2 of a rotation: the laptop already sends with key 2, the crane still with key 1; both
     hold both, so every frame passes in both directions. A node that holds only key 1 drops a
@@ -291,6 +338,8 @@ def test_a_rotated_key_id_is_accepted_during_the_overlap(tmp_path):
     assert load_key(tmp_path / "laptop.key") == bytes.fromhex(new)  # the sending key is the first
 
 
+@pytest.mark.safety_case(keys="one MAC key per direction, derived from the key file", link="both",
+                         reaction="a MAC made for one direction is not the other's")
 def test_the_two_directions_use_different_mac_keys_from_one_file(key):
     """Per-direction keys (derived from the file's key): a MAC computed for a laptop -> crane frame
     is not the MAC of the same bytes crane -> laptop. (Frame ids already differ per kind; this

@@ -66,10 +66,14 @@ def _refused_unsupervised(crane: Crane, ack: Ack) -> None:
 # --- CAN: the laptop is its heartbeat stream ---------------------------------------------------
 
 
+@pytest.mark.safety_case(error="loss", link="can", measure="supervision: a command only from a laptop with a fresh, "
+                         "in-sequence heartbeat stream", reaction="refused UNSUPERVISED, never executed")
 def test_can_a_command_from_a_laptop_that_never_sent_a_heartbeat_is_refused(crane, make_cmd):
     _refused_unsupervised(crane, crane.command(Encoder().encode(make_cmd(11))))
 
 
+@pytest.mark.safety_case(error="loss", link="can", measure="supervision: a heartbeat frozen from its first frame "
+                         "never makes a live laptop", reaction="refused UNSUPERVISED, never executed")
 def test_can_a_command_from_a_laptop_frozen_from_its_first_frame_is_refused(crane, make_cmd):
     """The reproduction of issue 39: the same heartbeat frame again and again never makes a live
     laptop; its command ran to SUCCESS for the whole grasp before."""
@@ -85,6 +89,8 @@ def test_can_a_command_from_a_laptop_frozen_from_its_first_frame_is_refused(cran
     _refused_unsupervised(crane, ack)
 
 
+@pytest.mark.safety_case(abort="no supervising laptop at any time during a grasp", link="can",
+                         reaction="the grasp aborts within the laptop timeout (ABORTED)")
 def test_can_a_grasp_aborts_within_the_laptop_timeout_when_its_laptop_goes_silent(crane, make_cmd):
     with SupervisingLaptop(crane.ctl) as laptop:
         assert crane.command(laptop.encode(make_cmd(13))).accepted
@@ -105,10 +111,14 @@ def test_can_a_supervised_grasp_runs_to_its_end(crane, make_cmd):
 # --- Zenoh: the laptop is its liveliness token -------------------------------------------------
 
 
+@pytest.mark.safety_case(error="loss", link="zenoh", measure="supervision: a command only from a laptop whose "
+                         "liveliness token is live", reaction="refused UNSUPERVISED, never executed")
 def test_zenoh_a_command_from_a_laptop_without_a_token_is_refused(crane, make_cmd):
     _refused_unsupervised(crane, crane.command(Encoder().encode(make_cmd(21)), peer="zenoh:ab12"))
 
 
+@pytest.mark.safety_case(error="masquerade", link="zenoh", measure="supervision: the sender a command names must "
+                         "hold a live liveliness token", reaction="refused UNSUPERVISED, never executed")
 def test_zenoh_a_command_naming_another_laptop_than_the_live_one_is_refused(crane, make_cmd):
     """A frame whose attachment names a laptop with no token is unsupervised even while another
     laptop's token is live (that laptop did not send it)."""
@@ -116,6 +126,8 @@ def test_zenoh_a_command_naming_another_laptop_than_the_live_one_is_refused(cran
     _refused_unsupervised(crane, crane.command(Encoder().encode(make_cmd(22)), peer="zenoh:ab12"))
 
 
+@pytest.mark.safety_case(abort="no supervising laptop at any time during a grasp", link="zenoh",
+                         reaction="the grasp aborts at once (ABORTED)")
 def test_zenoh_a_grasp_aborts_when_its_laptops_token_goes(crane, make_cmd):
     crane.ctl.peer_present("zenoh:ab12")
     assert crane.command(Encoder().encode(make_cmd(23)), peer="zenoh:ab12").accepted

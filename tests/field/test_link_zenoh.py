@@ -51,6 +51,14 @@ def test_controller_vanishes_and_returns(port, controller_process, tmp_path, mak
     assert read_execution_log(tmp_path / "executed.jsonl") == [first.command_id, again.command_id]
 
 
+@pytest.mark.safety_case(error="insertion", link="zenoh",
+                         measure="Zenoh user/password authentication + access-control policy "
+                                 "(field/link/zenoh_acl.json5)",
+                         reaction="an unauthenticated or unauthorised session reaches no controller; nothing "
+                                  "executed")
+@pytest.mark.safety_case(error="masquerade", link="zenoh",
+                         measure="Zenoh authentication + roles",
+                         reaction="a wrong password or an observer cannot command")
 def test_auth_and_access_control(port, controller_process, tmp_path, make_cmd):
     """The shipped roles (field/link/zenoh_acl.json5); each role's denials: test_link_zenoh_acl.py."""
     base = f"zenoh://127.0.0.1:{port}/crane-a"
@@ -100,6 +108,15 @@ def test_auth_and_access_control(port, controller_process, tmp_path, make_cmd):
     assert read_execution_log(log) == [cmd.command_id]
 
 
+@pytest.mark.safety_case(error="corruption", link="zenoh",
+                         measure="E2E profile: CRC over data id + payload, 4-bit alive counter + length/version "
+                                 "checks",
+                         reaction="arbitrary bytes at the command key are rejected CRC / MALFORMED, never executed;"
+                                  " the controller keeps serving")
+@pytest.mark.safety_case(error="insertion", link="zenoh",
+                         measure="E2E profile: CRC over data id + payload, 4-bit alive counter + length/version "
+                                 "checks",
+                         reaction="frames inserted by another session are rejected, never executed")
 def test_raw_payloads_through_the_queryable(port, controller_process, tmp_path, make_cmd):
     """Arbitrary bytes sent straight to the command queryable: answered as rejections (or not at
     all), never executed, and the controller keeps serving."""
@@ -137,6 +154,11 @@ def test_raw_payloads_through_the_queryable(port, controller_process, tmp_path, 
     assert read_execution_log(tmp_path / "executed.jsonl") == [cmd.command_id]
 
 
+@pytest.mark.safety_case(abort="laptop lost (liveliness token gone)", link="zenoh",
+                         reaction="the grasp aborts; a second laptop leaving does not abort it")
+@pytest.mark.safety_case(error="loss", link="zenoh",
+                         measure="liveliness token of the commanding laptop",
+                         reaction="the running grasp aborts when its laptop is lost")
 def test_laptop_loss_aborts_but_a_second_laptop_leaving_does_not(port, controller_process, make_cmd):
     from field.link import OutcomeClass
 
@@ -174,6 +196,9 @@ def test_zenoh_session_recorded_like_can(port, controller_process, tmp_path, mak
     assert cmd in msgs and Ack(cmd.command_id, True) in msgs
 
 
+@pytest.mark.safety_case(error="loss", link="zenoh",
+                         measure="crane liveliness lease",
+                         reaction="a hung controller is detected; the operator is told")
 def test_hung_controller_detected_after_the_lease(port, controller_process, make_cmd):
     """A frozen controller (SIGSTOP) keeps its TCP connection; the 1 s transport lease
     (``transport/link/tx/lease``) expires its liveliness token; after SIGCONT it returns."""

@@ -53,6 +53,9 @@ def ok_replies(s, key: str, payload: bytes) -> list[bytes]:
 # --- on the crane's own node ----------------------------------------------------------------
 
 
+@pytest.mark.safety_case(error="masquerade", link="zenoh",
+                         measure="access-control roles by authenticated user: only the crane serves",
+                         reaction="an operator or observer cannot pose as the crane; an observer cannot command")
 def test_roles_on_the_crane_node(port, controller_process, tmp_path, sessions, make_cmd):
     url = f"zenoh://127.0.0.1:{port}/crane-n"
     controller_process(f"{url}?config={shipped_acl(tmp_path)}")
@@ -88,6 +91,31 @@ def test_roles_on_the_crane_node(port, controller_process, tmp_path, sessions, m
     with pytest.raises(LinkError, match="controller"):
         open_link(f"{url}?config={credentials(tmp_path, 'observer')}", SHORT)  # an observer is no laptop
     assert read_execution_log(tmp_path / "executed.jsonl") == [cmd.command_id, second.command_id]
+
+
+def test_ros2_publications_pass_the_roles(port, controller_process, tmp_path, sessions):
+    """An operator's laptop publishes the ROS 2 grasp; an observer (a ROS 2 crane stack) receives it
+    and sees the laptop's node in the graph; an observer cannot publish a grasp of its own."""
+    from field.ros2 import POSE_STAMPED, grasp_pose_map, topic_key
+
+    url = f"zenoh://127.0.0.1:{port}/crane-r"
+    controller_process(f"{url}?config={shipped_acl(tmp_path)}")
+    key = topic_key(0, "/loggrasp/crane-r/grasp", POSE_STAMPED)
+    with open_link(f"{url}?config={credentials(tmp_path, 'operator')}", FAST) as link:
+        ros = link.ros2_publisher()
+        watcher = sessions(port, "observer")
+        seen: list[bytes] = []
+        watcher.declare_subscriber(key, lambda smp: seen.append(smp.payload.to_bytes()))
+        operators_view: list[bytes] = []
+        link._session.declare_subscriber(key, lambda smp: operators_view.append(smp.payload.to_bytes()))
+        time.sleep(0.5)
+        ros.publish_grasp(1.0, grasp_pose_map(743497.0, 7117716.0, 250.0, 30.0), 1)
+        assert wait_until(lambda: len(seen) >= 1)
+        tokens = [str(r.ok.key_expr) for r in watcher.liveliness().get("@ros2_lv/**", timeout=2.0) if r.ok]
+        assert any("/NN/" in t for t in tokens) and any("/MP/" in t for t in tokens), tokens
+        watcher.put(key, b"forged")
+        time.sleep(0.5)
+        assert operators_view and b"forged" not in operators_view  # it hears the grasp, never the forgery
 
 
 # --- through a router -----------------------------------------------------------------------

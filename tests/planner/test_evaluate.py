@@ -61,6 +61,17 @@ def test_other_configuration_refused(tmp_path):
     assert tables["planners"]["random"]["total"]["piles"] == 2 and first[0].read_bytes() == kept
 
 
+def test_records_of_another_trial_revision_are_not_reused(tmp_path, monkeypatch):
+    """An evaluation made before the twin's physics changed is not resumed with the new physics."""
+    import synth.physics.trial
+
+    cfg = EvalConfig(logs=(2,), obstacles=(False,), per_cell=1)
+    run_evaluation([PlannerSpec("random")], cfg, tmp_path, workers=1)
+    monkeypatch.setattr(synth.physics.trial, "TRIAL_REVISION", synth.physics.trial.TRIAL_REVISION + 1)
+    with pytest.raises(ValueError, match="trial revision"):
+        run_evaluation([PlannerSpec("random")], cfg, tmp_path, workers=1)
+
+
 def test_bad_specs():
     with pytest.raises(ValueError):
         EvalConfig(per_cell=0)
@@ -222,3 +233,76 @@ def test_a_row_with_test_time_views_plans_with_them_and_keeps_its_own_records(tm
                 _fingerprint(replace(viewed, views=4))}) == 4
     with pytest.raises(ValueError, match="views must be one of"):
         build_planner(PlannerSpec("unet", model=str(ckpt), views=3))
+
+
+def test_field_row_executes_each_choice_moved_by_one_shared_draw(tmp_path):
+    """With a field error every planner's chosen grasp is tried again moved by the same draw of the
+    positioning error on a pile (paired), the table gets a '(field)' row per planner stating the
+    error, and that row counts the field trials' outcomes."""
+    import math
+
+    from synth.physics.perturb import PositioningError, grasp_rng, perturbed_grasps
+    from planner.evaluate import eval_scene
+    from synth.geometry.grasp import Grasp
+    from synth.physics.trial import TrialConfig, run_trial
+
+    err = PositioningError(0.03, 2.0)
+    cfg = EvalConfig(logs=(2,), obstacles=(False,), per_cell=2, field_error=err)
+    tables = run_evaluation([PlannerSpec("random"), PlannerSpec("geometric")], cfg, tmp_path, workers=1)
+    recs = [r for p in sorted((tmp_path / "records").glob("*.json")) for r in json.loads(p.read_text())]
+    offsets = {}
+    for r in recs:
+        if r["grasp"] is None:
+            assert r["field"]["outcome"] == "no_grasp"
+            continue
+        g, f = r["grasp"], r["field"]["grasp"]
+        (want,) = perturbed_grasps(Grasp(g["x_m"], g["y_m"], g["phi_rad"], g["width_m"]), err, 1,
+                                   grasp_rng(r["seed"], "eval-field"))
+        assert math.isclose(f["x_m"], want.x_m) and math.isclose(f["phi_rad"], want.phi_rad)
+        assert (f["x_m"], f["y_m"]) != (g["x_m"], g["y_m"]) and f["width_m"] == g["width_m"]
+        offsets.setdefault(r["seed"], set()).add((round(f["x_m"] - g["x_m"], 9), round(f["y_m"] - g["y_m"], 9)))
+    assert offsets and all(len(v) == 1 for v in offsets.values())  # the same draw for every planner on a pile
+    r = next(r for r in recs if r["grasp"] is not None)
+    pile, _ = eval_scene((r["n_logs"], r["obstacles"], r["k"], r["seed"]), cfg)
+    moved = Grasp(**{k: r["field"]["grasp"][k] for k in ("x_m", "y_m", "phi_rad", "width_m")})
+    t = run_trial(pile, moved, r["targets"], TrialConfig.preset(cfg.trial))  # the field outcome is the moved grasp's
+    assert t.outcome.value == r["field"]["outcome"]
+    for name in ("random", "geometric"):
+        field = [x for x in recs if x["planner"] == name]
+        want = sum(x["field"]["outcome"] == "success" for x in field) / len(field)
+        assert tables["planners"][name + " (field)"]["total"]["success_rate"] == want
+    assert tables["field_error"] == {"sigma_xy_m": 0.03, "sigma_phi_deg": 2.0}
+    md = (tmp_path / "results.md").read_text()
+    assert "σ 3 cm, 2°" in md and "| random (field) |" in md
+
+
+def test_a_field_row_added_later_remakes_the_records_without_it(tmp_path):
+    plain = EvalConfig(logs=(2,), obstacles=(False,), per_cell=1)
+    run_evaluation([PlannerSpec("random")], plain, tmp_path, workers=1)
+    (rec,) = json.loads(next((tmp_path / "records").glob("*.json")).read_text())
+    assert rec["field"] is None
+    from dataclasses import replace
+
+    from synth.physics.perturb import PositioningError
+
+    tables = run_evaluation([PlannerSpec("random")], replace(plain, field_error=PositioningError(0.03, 2.0)), tmp_path,
+                            workers=1)
+    (rec,) = json.loads(next((tmp_path / "records").glob("*.json")).read_text())
+    assert rec["field"] is not None and rec["model_sha256"] == "+field0.03m2deg"
+    assert "random (field)" in tables["planners"]
+
+
+def test_field_rows_count_the_field_trials_not_the_exact_ones():
+    from planner.evaluate import summarise
+    from synth.physics.perturb import PositioningError
+
+    cfg = EvalConfig(logs=(2,), obstacles=(False,), per_cell=2, field_error=PositioningError(0.03, 2.0))
+    base = {"planner": "unet-f1", "n_logs": 2, "obstacles": False, "targets": [0, 1], "cos_beta": 1.0}
+    recs = [{**base, "k": 0, "outcome": "success", "grasped": [0, 1],
+             "field": {"outcome": "collision", "grasped": [], "cos_beta": float("nan"), "grasp": None}},
+            {**base, "k": 1, "outcome": "success", "grasped": [0, 1],
+             "field": {"outcome": "success", "grasped": [0], "cos_beta": 0.99, "grasp": None}}]
+    t = summarise(recs, cfg, ["unet-f1"])["planners"]
+    assert t["unet-f1"]["total"]["success_rate"] == 1.0 and t["unet-f1"]["total"]["avg_logs_success"] == 2.0
+    field = t["unet-f1 (field)"]["total"]
+    assert field["success_rate"] == 0.5 and field["avg_logs_success"] == 1.0 and field["failures"] == {"collision": 1}

@@ -91,9 +91,9 @@ def test_training_and_validation_use_the_configured_weights(tmp_path, monkeypatc
     seen = []
     real = T.grasp_loss
 
-    def spy(pred, target, weights=LossWeights()):
+    def spy(pred, target, weights=LossWeights(), b_encoding="cos_beta"):
         seen.append(weights)
-        return real(pred, target, weights)
+        return real(pred, target, weights, b_encoding)
 
     monkeypatch.setattr(T, "grasp_loss", spy)
     cfg = T.TrainConfig(model=UNetConfig.tiny(), epochs=1, batch_size=4, precision="fp32", loss=W,

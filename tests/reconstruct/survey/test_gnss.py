@@ -123,7 +123,7 @@ def test_malformed_rows_name_file_line_and_log(tmp_path):
     p = _write(tmp_path, _rows().replace("log1,b", "log1,c"))
     with pytest.raises(GnssFormatError, match=r"s\.csv:6.*log 'log1'.*'a' or 'b'"):
         gnss.read_gnss_csv(p)
-    p = _write(tmp_path, _rows().replace("rtk_fixed,0.014,0.02,\n", "rtk_fix,0.014,0.02,\n"))
+    p = _write(tmp_path, _rows().replace("rtk_fixed,0.014,0.02,\n", "rtk_fixd,0.014,0.02,\n"))
     with pytest.raises(GnssFormatError, match="fix must be one of"):
         gnss.read_gnss_csv(p)
     p = _write(tmp_path, _rows(), header=HEADER + ",colour")
@@ -268,8 +268,12 @@ def test_nmea_float_epoch_and_empty_window(tmp_path):
     with pytest.raises(GnssQualityError, match="log 'log0' end 'b'.*no position fix"):
         gnss.read_raw_gnss(log, win)
     late = tmp_path / "late.csv"
-    late.write_text("log_id,end,t_start_utc,t_end_utc\nlog0,a,2026-05-14T10:00:00Z,2026-05-14T10:01:00Z\n")
-    with pytest.raises(GnssQualityError, match=r"late\.csv:2.*0 receiver epoch"):
+    late.write_text("log_id,end,t_start_utc,t_end_utc\nlog0,a,2026-05-14T10:00:00Z,2026-05-14T10:01:00Z\n"
+                    "log0,b,2026-05-14T10:02:00Z,2026-05-14T10:03:00Z\n")
+    # the window and the logs' time span are named
+    with pytest.raises(GnssQualityError, match=r"late\.csv:2.*0 receiver epochs between 2026-05-14T10:00:00.000Z and "
+                       r"2026-05-14T10:01:00.000Z.*the logs span rover\.nmea 2026-05-14T09:30:00.000Z to "
+                       r"2026-05-14T09:31:34.000Z"):
         gnss.read_raw_gnss(log, late)
 
 
@@ -335,5 +339,8 @@ def test_raw_log_errors(tmp_path):
     dup = _windows_file(tmp_path, keys[:3] + [("log0", "a")], 4)
     with pytest.raises(GnssFormatError, match="measured twice"):
         gnss.read_raw_gnss(_ubx_log(tmp_path, lat, lon, h), dup)
-    with pytest.raises(GnssFormatError, match="unknown raw log type"):
-        gnss.read_raw_gnss(tmp_path / "x.sbf", win)
+    win = _windows_file(tmp_path, keys, 4)
+    junk = tmp_path / "x.sbf"
+    junk.write_bytes(bytes(range(256)) * 8)
+    with pytest.raises(GnssFormatError, match=r"x\.sbf is not a receiver log: 0 % of its 2048 bytes"):
+        gnss.read_raw_gnss(junk, win)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -59,9 +60,11 @@ def test_grapple_hangs_at_the_grasp_and_follows_commands():
         world.step(120)
         assert gr.boom_z() == pytest.approx(2.5 - 0.25, abs=0.01)
         gr.close()
-        world.step(240)
-        # nothing in between: fully closed, the interleaving tips past each other
-        assert gr.gap_m() == pytest.approx(-GrappleConfig().closed_overlap_m, abs=0.01)
+        world.step(480)  # ~1.3 rad of stroke at 1 rad/s
+        # nothing in between: the stroke's end, the interleaving tips far past each other
+        g = GrappleConfig()
+        assert gr.gap_m() == pytest.approx(float(g.gap_at(g.close_angle_rad())), abs=0.01)
+        assert gr.gap_m() < -0.9
 
 
 def test_unactuated_hinges_give_compliance():
@@ -126,3 +129,21 @@ def test_claws_squeezing_a_log_do_not_pass_through_it():
         assert gr.gap_m() > 0.10  # the log is in the way
         assert worst < 0.005
         assert gr.contact_force_n({world.log_ids[0]}) > 1000.0  # it really squeezes
+
+
+def test_the_closed_bowl_is_the_configured_diameter():
+    """The stroke ends where the bowl between the claws and the head holds a log of
+    ``closed_bowl_diameter_m``: fully open it is wide, it shrinks as the claws close, and the
+    default holds nothing wider than the twin's typical 0.16-0.20 m log loosely."""
+    g = GrappleConfig()
+    q = g.close_angle_rad()
+    assert g.bowl_diameter_m(q) == pytest.approx(g.closed_bowl_diameter_m, abs=0.005)
+    assert g.bowl_diameter_m(0.0) > 0.5  # tips just touching: the whole 0.35 m² bowl
+    assert g.bowl_diameter_m(0.2) == 0.0  # tips apart: no bowl below
+    qs = [0.0, -0.2, -0.4, -0.6, q]
+    ds = [g.bowl_diameter_m(v) for v in qs]
+    assert ds == sorted(ds, reverse=True)
+    thinner = replace(g, closed_bowl_diameter_m=0.12)
+    assert thinner.close_angle_rad() < q
+    with pytest.raises(ValueError, match="closed_bowl_diameter_m"):
+        GrappleConfig(closed_bowl_diameter_m=0.01)

@@ -181,3 +181,16 @@ def test_trial_presets_by_name():
     assert TrialConfig.preset("careful") == TrialConfig.careful()
     with pytest.raises(ValueError, match="'fast' or 'careful'"):
         TrialConfig.preset("Fast")
+
+
+@pytest.mark.parametrize("along_m", [0.0, 0.6])
+def test_a_one_log_grasp_still_holds_when_the_crane_stands_1_cm_off(along_m):
+    """The grip does not hinge on a centimetre: a single 0.16 m log gripped at its middle (and
+    0.6 m from it, so it hangs tilted) is held when the grasp is moved by 1 cm / 1°, in four
+    directions. (With the claws' stroke ending at a 0.34 m bowl the log lay loose in the claws
+    and slid out when lifted off-centre: DROPPED.)"""
+    pile = flat_pile([log_along_y(0.0)])
+    for dx, dy, dphi in ((0.01, 0.0, 1.0), (-0.01, 0.0, -1.0), (0.0, 0.01, 1.0), (0.007, -0.007, -1.0)):
+        g = Grasp(dx, along_m + dy, math.radians(dphi), 0.6)
+        r = run_trial(pile, g, [0], FAST)
+        assert r.outcome is Outcome.SUCCESS, (g, r.outcome, r.final_gap_m)

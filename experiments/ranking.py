@@ -1,0 +1,172 @@
+"""Does U rank? The within-pile AUC and the calibration of the network's U on held-out piles.
+
+A planner chooses one grasp per pile, so what matters is whether U orders the grasps *of one pile*:
+on every pile, every subset is planned, the ``top_n`` best subsets by f1 and by f3 are tried in the
+twin (the union, ~5 grasps; :func:`experiments.subset_outcomes.collect_pile`, one record file per
+pile, resumable), and from those trials:
+
+* **within-pile AUC**: over the piles with at least one success and one failure among the tried
+  grasps, the share of (success, failure) pairs of the same pile in which the success has the
+  higher U (ties count half), pooled over all pairs;
+* **calibration**: the tried grasps binned by predicted U, each bin's mean U beside its observed
+  success rate, and the expected calibration error (bin-size-weighted mean gap) and Brier score;
+* **the choice**: the success of f1's and f3's top grasp, and of the best tried grasp (any success
+  among them: what a perfect ranker of these grasps would reach).
+
+Piles come from seeds ``seed_base`` on (default 930,000,000, subset-outcomes' piles; 940,000,000 for
+fresh ones — both apart from every test and training pile).
+``run`` writes ``ranking.json`` (format ``loggrasp.ranking``) and ``ranking.md`` beside the records;
+``summarise`` computes the same from an existing folder of records (e.g. docs/results/subset-outcomes)::
+
+    .venv/bin/python -m experiments.ranking run --model M --out docs/results/ranking-v3 --per-cell 4 --workers 2
+    .venv/bin/python -m experiments.ranking summarise docs/results/subset-outcomes
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from experiments.subset_outcomes import SEED_BASE, CollectConfig, collect, read_records
+from synth.common.formats import VersionedJson
+
+RANKING = VersionedJson("loggrasp.ranking", "1.0", "ranking record", ValueError)
+#: edges of the calibration bins of predicted U [-] (the shipped model's U lies mostly in 0.9-1.0)
+CALIBRATION_EDGES = (0.0, 0.5, 0.8, 0.9, 0.95, 0.98, 0.99, 1.0)
+
+
+def _by_pile(records: list[dict]) -> dict[int, list[dict]]:
+    piles: dict[int, list[dict]] = {}
+    for r in records:
+        piles.setdefault(int(r["seed"]), []).append(r)
+    return piles
+
+
+def within_pile_auc(records: list[dict], key: str = "u") -> dict:
+    """Pooled within-pile AUC of ``key`` (see the module doc): ``auc`` (NaN with no mixed pile),
+    ``pairs`` and ``piles`` (the mixed piles that give pairs)."""
+    concordant, pairs, piles = 0.0, 0, 0
+    for recs in _by_pile(records).values():
+        s = np.array([r[key] for r in recs if r["success"]], dtype=np.float64)
+        f = np.array([r[key] for r in recs if not r["success"]], dtype=np.float64)
+        if not len(s) or not len(f):
+            continue
+        diff = s[:, None] - f[None, :]
+        concordant += float((diff > 0).sum() + 0.5 * (diff == 0).sum())
+        pairs += diff.size
+        piles += 1
+    return {"auc": concordant / pairs if pairs else float("nan"), "pairs": pairs, "piles": piles}
+
+
+def calibration(records: list[dict], edges=CALIBRATION_EDGES, key: str = "u") -> dict:
+    """Tried grasps binned by predicted ``key``: per bin its range, count, mean prediction and
+    observed success rate; the expected calibration error and the Brier score over all of them."""
+    u = np.array([r[key] for r in records], dtype=np.float64)
+    ok = np.array([bool(r["success"]) for r in records], dtype=np.float64)
+    rows, gap = [], 0.0
+    for i, (lo, hi) in enumerate(zip(edges[:-1], edges[1:])):
+        m = (u >= lo) & ((u < hi) if i < len(edges) - 2 else (u <= hi))
+        n = int(m.sum())
+        mean_u = float(u[m].mean()) if n else float("nan")
+        rate = float(ok[m].mean()) if n else float("nan")
+        if n:
+            gap += n * abs(mean_u - rate)
+        rows.append({"lo": lo, "hi": hi, "n": n, "mean_u": mean_u, "success": rate})
+    n = len(u)
+    return {"bins": rows, "ece": gap / n if n else float("nan"),
+            "brier": float(np.mean((u - ok) ** 2)) if n else float("nan")}
+
+
+def choices(records: list[dict]) -> dict:
+    """Success of f1's top grasp, of f3's top grasp (f3 = u tau^(1/3) exp(-(b - 1)^2 / 0.25^2)) and
+    of the best tried grasp, over the piles."""
+    from planner.inference import Objective
+
+    f3 = Objective("f3")
+    piles = _by_pile(records)
+    top_f1 = [max(recs, key=lambda r: r["u"])["success"] for recs in piles.values()]
+    top_f3 = [max(recs, key=lambda r: float(f3.quality(r["u"], r["tau"], r["b"])))["success"] for recs in piles.values()]
+    n = len(piles)
+    return {"piles": n, "f1_success": float(np.mean(top_f1)) if n else float("nan"),
+            "f3_success": float(np.mean(top_f3)) if n else float("nan"),
+            "best_tried_success": float(np.mean([any(r["success"] for r in recs) for recs in piles.values()]))
+            if n else float("nan")}
+
+
+def ranking_metrics(records: list[dict]) -> dict:
+    """Every measure of the module doc from the trial records."""
+    if not records:
+        raise ValueError("no trial records to measure; run the collection first")
+    return {"trials": len(records), "auc": within_pile_auc(records), "calibration": calibration(records),
+            "choice": choices(records)}
+
+
+def _pct(v: float) -> str:
+    return "-" if v != v else f"{v * 100:.1f} %"
+
+
+def ranking_markdown(m: dict, what: str) -> str:
+    a, c = m["auc"], m["choice"]
+    lines = [f"# Ranking of U — {what}\n",
+             f"{c['piles']} piles, {m['trials']} tried grasps (the top subsets by f1 and by f3 per pile).\n",
+             f"- within-pile AUC of U: **{a['auc']:.3f}** ({a['pairs']} success/failure pairs on {a['piles']} piles "
+             "with both)",
+             f"- success of the choice: f1 {_pct(c['f1_success'])}, f3 {_pct(c['f3_success'])}; best tried grasp "
+             f"{_pct(c['best_tried_success'])}",
+             f"- calibration: ECE {m['calibration']['ece']:.3f}, Brier {m['calibration']['brier']:.3f}\n",
+             "| predicted U | grasps | mean U | observed success |", "|---|---|---|---|"]
+    for b in m["calibration"]["bins"]:
+        mean_u = "-" if b["mean_u"] != b["mean_u"] else f"{b['mean_u']:.3f}"
+        lines.append(f"| [{b['lo']:g}, {b['hi']:g}{']' if b['hi'] == 1.0 else ')'} | {b['n']} | {mean_u} | "
+                     f"{_pct(b['success'])} |")
+    return "\n".join(lines) + "\n"
+
+
+def run(model: str, out_dir: str | Path, per_cell: int, top_n: int = 4, workers: int = 2,
+        seed_base: int = SEED_BASE) -> dict:
+    """Collect (or resume) the trials of ``per_cell`` piles per cell and write the ranking record."""
+    from synth.common.files import atomic_write_bytes, sha256_file
+
+    cfg = CollectConfig(model=str(model), per_cell=per_cell, top_n=top_n, seed_base=seed_base)
+    records = collect(cfg, out_dir, workers)
+    m = ranking_metrics(records)
+    out = Path(out_dir)
+    from synth.physics.trial import TRIAL_REVISION
+
+    RANKING.write(out / "ranking.json", {"collect": asdict(cfg), "model_sha256": sha256_file(Path(model)),
+                                         "trial_revision": TRIAL_REVISION, **m})
+    atomic_write_bytes(out / "ranking.md", ranking_markdown(m, f"`{Path(model).name}`, seeds from {seed_base}").encode())
+    return m
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    r = sub.add_parser("run", help="plan and try the top subsets of held-out piles, then measure")
+    r.add_argument("--model", required=True)
+    r.add_argument("--out", required=True)
+    r.add_argument("--per-cell", type=int, default=4, help="piles per (size 2-7, obstacles yes/no) cell")
+    r.add_argument("--top-n", type=int, default=4)
+    r.add_argument("--workers", type=int, default=2)
+    r.add_argument("--seed-base", type=int, default=SEED_BASE, help="first pile seed (apart from test and training)")
+    s = sub.add_parser("summarise", help="measure an existing folder of trial records")
+    s.add_argument("records")
+    a = ap.parse_args(argv)
+    if a.cmd == "run":
+        m = run(a.model, a.out, a.per_cell, a.top_n, a.workers, a.seed_base)
+        what = a.out
+    else:
+        m = ranking_metrics(read_records(a.records))
+        what = a.records
+    print(ranking_markdown(m, what))
+    if not math.isfinite(m["auc"]["auc"]):
+        print("no pile had both a success and a failure among its tried grasps: the AUC is undefined")
+
+
+if __name__ == "__main__":
+    main()

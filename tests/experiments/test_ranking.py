@@ -1,0 +1,55 @@
+"""experiments.ranking: the within-pile AUC, the calibration table and the choices from trial records."""
+
+import math
+
+import pytest
+
+from experiments.ranking import calibration, choices, ranking_markdown, ranking_metrics, within_pile_auc
+
+
+def _r(seed, u, ok, tau=1, b=1.0):
+    return {"seed": seed, "u": u, "success": ok, "tau": tau, "b": b}
+
+
+def test_auc_compares_grasps_within_a_pile_only():
+    """Pile 1 ranks perfectly, pile 2 inversely (2 pairs each); pile 3 has no failure. Pooled
+    across piles, pile 1's high-U failure would beat pile 2's success — within piles it does not."""
+    recs = [_r(1, 0.9, True), _r(1, 0.8, False), _r(1, 0.7, False),
+            _r(2, 0.3, True), _r(2, 0.4, False), _r(2, 0.5, False),
+            _r(3, 0.99, True)]
+    a = within_pile_auc(recs)
+    assert a == {"auc": 0.5, "pairs": 4, "piles": 2}
+    recs[4]["u"] = 0.2  # pile 2 now ranks one of its failures below its success
+    assert within_pile_auc(recs)["auc"] == 0.75
+
+
+def test_auc_counts_ties_half_and_is_undefined_without_mixed_piles():
+    assert within_pile_auc([_r(1, 0.5, True), _r(1, 0.5, False)])["auc"] == 0.5
+    assert math.isnan(within_pile_auc([_r(1, 0.5, True), _r(2, 0.4, False)])["auc"])
+
+
+def test_calibration_bins_predicted_against_observed():
+    recs = [_r(1, 0.97, True), _r(1, 0.96, False), _r(2, 0.995, True), _r(2, 1.0, True), _r(3, 0.3, False)]
+    c = calibration(recs, edges=(0.0, 0.5, 0.99, 1.0))
+    assert [b["n"] for b in c["bins"]] == [1, 2, 2]  # 1.0 falls in the last, closed bin
+    assert c["bins"][1]["success"] == 0.5 and math.isclose(c["bins"][1]["mean_u"], 0.965)
+    assert c["bins"][2]["success"] == 1.0
+    gaps = 1 * 0.3 + 2 * abs(0.965 - 0.5) + 2 * abs(0.9975 - 1.0)
+    assert math.isclose(c["ece"], gaps / 5)
+    assert math.isclose(c["brier"], (0.03 ** 2 + 0.96 ** 2 + 0.005 ** 2 + 0 + 0.3 ** 2) / 5)
+
+
+def test_choices_follow_f1_f3_and_the_best_tried():
+    """f3 prefers the two-log, level grasp over the slightly higher U of the one-log grasp."""
+    recs = [_r(1, 0.95, False, tau=1), _r(1, 0.94, True, tau=2, b=0.99),
+            _r(2, 0.9, False), _r(2, 0.8, False)]
+    c = choices(recs)
+    assert c == {"piles": 2, "f1_success": 0.0, "f3_success": 0.5, "best_tried_success": 0.5}
+
+
+def test_metrics_and_table_need_records():
+    with pytest.raises(ValueError, match="no trial records"):
+        ranking_metrics([])
+    m = ranking_metrics([_r(1, 0.9, True), _r(1, 0.8, False)])
+    text = ranking_markdown(m, "test")
+    assert "within-pile AUC of U: **1.000**" in text and "| [0.8, 0.9) | 1 | 0.800 | 0.0 % |" in text
