@@ -162,12 +162,16 @@ ALLOWED_DIRECT_WRITES: dict[tuple[str, str], tuple[Counter, str]] = {
         Counter({"open('w')": 1}), "the crane twin's append-only execution log (its header line)"),
     ("field/controller/executors.py", "FixedOutcomeExecutor._log_start"): (
         Counter({"open('a')": 1}), "the crane twin's append-only execution log (one line per command)"),
-    ("field/controller/journal.py", "ControllerJournal._append"): (
-        Counter({"open('a')": 1}), "the burned-id journal: append-only JSON lines, fsynced per line"),
     ("field/link/secoc.py", "generate_key_file"): (
         Counter({"os.open": 1, "fdopen('w')": 1}), "a new key file created exclusively with mode 0600"),
     ("synth/common/cli.py", "quiet_c_streams"): (
         Counter({"fdopen('w')": 2}), "C-level stdout/stderr pointed at /dev/null, not a file written"),
+    ("field/audit/chain.py", "ChainFile.resume"): (
+        Counter({"open('r+b')": 1}), "cuts a torn last line (a crash mid-append) off an append-only hash chain"),
+    ("field/audit/chain.py", "ChainFile.append"): (
+        Counter({"os.open": 1}), "the hash chain: append-only lines, one write each, fsynced"),
+    ("field/trial.py", "_record_raw_survey"): (
+        Counter({"shutil.copy2": 1}), "raw receiver logs copied into a temporary record folder renamed into place"),
     ("field/trial.py", "_TrialRecord.copy_inputs"): (
         Counter({"shutil.copytree": 1, "shutil.copy2": 1}),
         "inputs copied into a temporary record folder renamed into place"),
