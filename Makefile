@@ -16,7 +16,7 @@ soak: setup
 
 # docs/safety-case.md from a run of the tests marked safety_case (transmission errors x links)
 safety-case: setup
-	.venv/bin/python scripts/safety_case.py --out docs/safety-case.md
+	PYTHONPATH=. .venv/bin/python scripts/safety_case.py --out docs/safety-case.md
 
 bench: setup
 	.venv/bin/python bench/run.py --out docs/benchmarks.md

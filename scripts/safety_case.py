@@ -178,8 +178,13 @@ def _section(ev: list[Evidence], kind: str, head: str) -> list[str]:
 KEY_TEXT = """Authenticated frames are SecOC style: an 8-byte time-based freshness value and an HMAC-SHA256
 truncated to 8 bytes over the frame id, the frame and the freshness value (`field/link/secoc.py`).
 One pre-shared key per crane (`loggrasp link-key KEYFILE`: 32 random bytes, hex, mode 0600, never
-overwritten, never printed), given to both ends with `?secoc_key=KEYFILE`. A key file readable by
-group or others is refused. Receivers drop a bad MAC, a replay (a freshness value seen before)
+overwritten, never printed), given to both ends with `?secoc_key=KEYFILE`; a link without a key is
+refused unless the operator opts out explicitly (`--insecure-link` / `insecure=1`, said in the
+confirmation and kept in the record). A key file readable by group or others is refused. Each
+direction (laptop → crane, crane → laptop) MACs with its own key derived from the file's, and a
+key file may hold several `KEY_ID HEX` lines: the key id travels in the freshness value, so keys
+rotate without downtime. More than `max_mac_failures` frames failing their MAC or key id within
+`mac_failure_window_s` put the controller in FAULT (commands refused, a running grasp aborted). Receivers drop a bad MAC, a replay (a freshness value seen before)
 and a frame more than 2 s off their clock; an e-stop frame stops the crane even when its MAC fails
 (fail-safe). On Zenoh, sessions also authenticate (user/password or mutual TLS) and an
 access-control policy gives the crane, operators and observers their roles
@@ -187,10 +192,12 @@ access-control policy gives the crane, operators and observers their roles
 
 GAPS = [
     "**CAN without keys has integrity, not origin**: E2E CRCs and counters catch corruption, loss, "
-    "repetition and reordering, but any node on the bus can forge a valid frame. Authentication is opt-in "
-    "in this tree (pending above).",
-    "**One key for both directions** (in this tree): whoever holds a laptop's key file can make crane "
-    "frames (pending above).",
+    "repetition and reordering, but any node on the bus can forge a valid frame. Authentication is on "
+    "by default; an operator who opts out (`--insecure-link`) runs without origin.",
+    "**A laptop's key file can make crane frames**: the directions use different derived keys, but the "
+    "laptop must verify crane frames and a MAC is verified by computing it, so whoever holds the file "
+    "holds both. Only signatures (Ed25519's 64 bytes do not fit a CAN FD frame beside its payload) or "
+    "delayed key disclosure (TESLA) would close this (pending above).",
     "**Frames carry no crane identity**: addressing between cranes rests on separate buses, one Zenoh key "
     "expression per crane and one key per crane. Two cranes sharing a key and a bus or router would accept "
     "each other's commands.",
@@ -267,7 +274,7 @@ def render(ev: list[Evidence], when: str, commit: str) -> tuple[str, list[str]]:
         "",
         "## Regenerate",
         "",
-        "`make safety-case` (or `.venv/bin/python scripts/safety_case.py`), about two minutes on 2 cores.",
+        "`make safety-case` (or `PYTHONPATH=. .venv/bin/python scripts/safety_case.py`: the tests folder has no packages of its own, so the repository root goes first on the path), about two minutes on 2 cores.",
         "",
     ]
     return "\n".join(lines), missing
