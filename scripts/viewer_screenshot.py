@@ -2,31 +2,24 @@
 
 Lichtblick is the open-source continuation of Foxglove Studio 1.x (MPL-2.0,
 github.com/lichtblick-suite/lichtblick); it reads MCAP files with Foxglove's schemas as Foxglove
-does. This script does not build it (see "Building the viewer" below); given its built web app
-it serves the app and the recording on 127.0.0.1 (HTTP with Range requests, as the app's remote
-file reader asks for), injects a layout (``scripts/viewer_layout.json``: a 3D panel in the pile
-frame with the scan's point cloud, the reconstructed logs and the twin-tried grasps; the scan's
-left image; the trial's, the crane's and the CAN frames' states over time; the progress log) the
-way Lichtblick's own Docker image does (its ``LICHTBLICK_SUITE_DEFAULT_LAYOUT_PLACEHOLDER`` in
-index.html), opens ``?ds=remote-file&ds.url=...&time=END`` in headless Chromium (WebGL through
-SwiftShader) and saves the page with the DevTools protocol's ``Page.captureScreenshot``.
+does. This script does not build it (see the end of this text); given its built web app it
+serves the app and the recording on 127.0.0.1 (HTTP with Range requests, as the app's remote file
+reader asks for), injects a layout (``scripts/viewer_layout.json``: a 3D panel in the pile frame
+with the scan's point cloud, the reconstructed logs and the twin-tried grasps; the scan's left
+image; the trial's, the crane's and the CAN frames' states over time; the progress log) the way
+Lichtblick's own Docker image does (its ``LICHTBLICK_SUITE_DEFAULT_LAYOUT_PLACEHOLDER`` in
+index.html), opens ``?ds=remote-file&ds.url=...`` in headless Chromium (WebGL through
+SwiftShader), closes the left sidebar, plays the recording to its end at the layout's speed (5x;
+the Log panel lists what it played through) and saves the page with the DevTools protocol's
+``Page.captureScreenshot``. ``--play-s 0`` instead opens the file at its last message time.
 
     .venv/bin/python scripts/viewer_screenshot.py --viewer /work/viewer-build/lichtblick/web/.webpack \\
         --mcap out/demo/trial/trial.mcap --out docs/img/trial_foxglove.png
 
-Building the viewer (outside this repository; nothing of it is committed)::
-
-    # Lichtblick v1.28.1, commit 66adecb99ca4363b1028c750919c9046609f5c85, from its git snapshot
-    git archive 66adecb | tar -x -C /work/viewer-build/lichtblick
-    # yarn 4.17.0 from npm (@yarnpkg/cli-dist) as .yarnrc.yml's yarnPath; the npm registry this
-    # machine reaches lacks five pinned packages, so package.json's resolutions pin the versions it
-    # has: @lichtblick/tsconfig 1.0.0, @lichtblick/rosbag2 1.0.0, @lichtblick/rosbag2-web 1.0.0,
-    # flatbuffers_reflection 0.0.7, and the lint-only @lichtblick/eslint-plugin is dropped
-    ELECTRON_SKIP_BINARY_DOWNLOAD=1 PLAYWRIGHT_SKIP_BROWSER_DOWNLOAD=1 HUSKY=0 yarn install
-    # web:build:prod without the type-check plugin and source maps (two environment switches
-    # added to packages/suite-base/webpack.ts and web/webpack.config.ts; the bundle is the same)
-    LOGGRASP_SKIP_TSCHECK=1 LOGGRASP_NO_SOURCEMAP=1 webpack --mode production --config web/webpack.config.ts
-    apt-get install chromium   # Debian's, 156 when this was written
+The viewer: Lichtblick v1.28.1 (commit 66adecb99ca4363b1028c750919c9046609f5c85), its web app
+built from source by ``scripts/build_lichtblick.sh GIT_DIR DEST`` outside this repository (that
+script lists what its build changes from upstream's and why); Chromium is Debian's (156 when the
+README's screenshot was taken).
 """
 
 from __future__ import annotations
