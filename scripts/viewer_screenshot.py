@@ -178,6 +178,9 @@ async def capture(devtools_port: int, url: str, width: int, height: int, load_s:
             await asyncio.sleep(play_s)
         else:
             await asyncio.sleep(load_s / 3)
+        # the Log panel stops following when lines arrive faster than it scrolls: show its last ones
+        await js("document.querySelector('[data-testid=scroll-to-bottom-button]')?.click()")
+        await asyncio.sleep(1.0)
         if dump_text:
             print(await js("document.body.innerText"))
         shot = await call("Page.captureScreenshot", format="png")
