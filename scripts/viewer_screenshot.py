@@ -46,6 +46,10 @@ DEVTOOLS_WAIT_S = 20.0  # how long Chromium may take to open its DevTools port [
 MAX_PNG_KB = 600  # a larger screenshot is stored with a 256-colour palette [kB]
 
 
+class ScreenshotError(Exception):
+    """A one-line reason the screenshot cannot be taken (the CLI exits 2 with it)."""
+
+
 class QuietServer(http.server.ThreadingHTTPServer):
     """The app cancels range requests it no longer needs; a closed connection is no error here."""
 
@@ -167,7 +171,7 @@ async def capture(devtools_port: int, url: str, width: int, height: int, load_s:
         deadline = time.monotonic() + load_s
         while not await js("!!document.querySelector('[data-testid=play-button]')"):
             if time.monotonic() > deadline:
-                raise SystemExit(f"the viewer showed no playback controls in {load_s:.0f} s: {url}")
+                raise ScreenshotError(f"the viewer showed no playback controls in {load_s:.0f} s: {url}")
             await asyncio.sleep(0.5)
         await asyncio.sleep(load_s / 3)  # let the panels subscribe and the file's index load
         for kind in ("keyDown", "keyUp"):  # Lichtblick's "[" shortcut: close the left sidebar
@@ -187,7 +191,50 @@ async def capture(devtools_port: int, url: str, width: int, height: int, load_s:
     return base64.b64decode(shot["data"])
 
 
-def main() -> None:
+def serve(viewer: Path, mcap: Path, layout_path: Path, port: int) -> QuietServer:
+    """The viewer and the recording on http://127.0.0.1:PORT, index.html carrying the layout."""
+    if not (viewer / "index.html").is_file():
+        raise ScreenshotError(f"--viewer {viewer}: no index.html (give Lichtblick's built web/.webpack folder)")
+    if not mcap.is_file():
+        raise ScreenshotError(f"--mcap {mcap}: no such file (loggrasp demo --out out/demo writes one)")
+    index = (viewer / "index.html").read_text()
+    if PLACEHOLDER not in index:
+        raise ScreenshotError(f"{viewer}/index.html has no {PLACEHOLDER}: not a Lichtblick web build")
+    try:
+        layout = json.dumps(json.loads(layout_path.read_text()))
+    except (OSError, ValueError) as e:
+        raise ScreenshotError(f"--layout {layout_path}: {e}") from e
+    try:
+        handler = make_handler(viewer, mcap, index.replace(PLACEHOLDER, layout).encode())
+        server = QuietServer(("127.0.0.1", port), handler)
+    except OSError as e:
+        raise ScreenshotError(f"--port {port}: {e.strerror}") from e
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    return server
+
+
+def start_browser(chromium: str, profile: str, devtools_port: int, width: int, height: int) -> subprocess.Popen:
+    """Headless Chromium with WebGL through SwiftShader, its DevTools on 127.0.0.1:``devtools_port``."""
+    browser = subprocess.Popen(
+        [chromium, "--headless", "--no-sandbox", "--no-first-run", "--hide-scrollbars", f"--user-data-dir={profile}",
+         f"--remote-debugging-port={devtools_port}", "--remote-debugging-address=127.0.0.1",
+         "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist",
+         f"--window-size={width},{height}", "about:blank"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + DEVTOOLS_WAIT_S
+    while True:
+        try:
+            urllib.request.urlopen(f"http://127.0.0.1:{devtools_port}/json/version").close()
+            return browser
+        except OSError:
+            if time.monotonic() > deadline:
+                browser.kill()
+                browser.wait()
+                raise ScreenshotError(f"--chromium {chromium} opened no DevTools port in {DEVTOOLS_WAIT_S:.0f} s")
+            time.sleep(0.3)
+
+
+def parse_args() -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--viewer", type=Path, required=True, help="Lichtblick's built web app (web/.webpack)")
     ap.add_argument("--mcap", type=Path, default=Path("out/demo/trial/trial.mcap"))
@@ -201,48 +248,44 @@ def main() -> None:
     ap.add_argument("--dump-text", action="store_true", help="print the page's text (to see the app's alerts)")
     ap.add_argument("--port", type=int, default=8765, help="HTTP port on 127.0.0.1")
     ap.add_argument("--devtools-port", type=int, default=9333)
-    args = ap.parse_args()
-    index = (args.viewer / "index.html").read_text()
-    if PLACEHOLDER not in index:
-        raise SystemExit(f"{args.viewer}/index.html has no {PLACEHOLDER}: not a Lichtblick web build")
-    layout = json.dumps(json.loads(args.layout.read_text()))
-    handler = make_handler(args.viewer, args.mcap, index.replace(PLACEHOLDER, layout).encode())
-    server = QuietServer(("127.0.0.1", args.port), handler)
-    threading.Thread(target=server.serve_forever, daemon=True).start()
-    width, height = (int(v) for v in args.size.split("x"))
+    return ap.parse_args()
+
+
+def main() -> None:
+    args = parse_args()
+    m = re.fullmatch(r"(\d+)x(\d+)", args.size)
+    if not m:
+        raise ScreenshotError(f"--size {args.size}: give WxH in pixels, e.g. 1600x900")
+    width, height = int(m[1]), int(m[2])
+    server = serve(args.viewer, args.mcap, args.layout, args.port)
     base = f"http://127.0.0.1:{args.port}"
     url = f"{base}/?ds=remote-file&ds.url={base}{MCAP_URL_PATH}"
     if args.play_s <= 0:
         url += "&time=" + recording_end(args.mcap).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
-    with tempfile.TemporaryDirectory() as profile:
-        browser = subprocess.Popen(
-            [args.chromium, "--headless", "--no-sandbox", "--no-first-run", "--hide-scrollbars",
-             f"--user-data-dir={profile}", f"--remote-debugging-port={args.devtools_port}",
-             "--remote-debugging-address=127.0.0.1", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
-             "--ignore-gpu-blocklist", f"--window-size={width},{height}", "about:blank"],
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        try:
-            deadline = time.monotonic() + DEVTOOLS_WAIT_S
-            while True:
-                try:
-                    urllib.request.urlopen(f"http://127.0.0.1:{args.devtools_port}/json/version").close()
-                    break
-                except OSError:
-                    if time.monotonic() > deadline:
-                        raise SystemExit(f"{args.chromium} opened no DevTools port in {DEVTOOLS_WAIT_S:.0f} s")
-                    time.sleep(0.3)
-            png = asyncio.run(capture(args.devtools_port, url, width, height, args.load_s, args.play_s, args.dump_text))
-        finally:
-            browser.terminate()
-            browser.wait(timeout=10)
-            server.shutdown()
+    try:
+        with tempfile.TemporaryDirectory() as profile:
+            browser = start_browser(args.chromium, profile, args.devtools_port, width, height)
+            try:
+                png = asyncio.run(capture(args.devtools_port, url, width, height, args.load_s, args.play_s,
+                                          args.dump_text))
+            finally:
+                browser.terminate()
+                browser.wait(timeout=10)
+    finally:
+        server.shutdown()
+    data, how = png_bytes(png)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     tmp = args.out.with_suffix(".tmp.png")
-    data, how = png_bytes(png)
     tmp.write_bytes(data)
     os.replace(tmp, args.out)
     print(f"{args.out}: {width}x{height}, {len(data) / 1000:.0f} kB ({how}), {url}")
 
 
 if __name__ == "__main__":
-    main()
+    import sys
+
+    try:
+        main()
+    except ScreenshotError as e:
+        print(f"error: {e}", file=sys.stderr)
+        sys.exit(2)
