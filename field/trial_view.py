@@ -14,7 +14,8 @@ Topics (frames: docs/robotics-interfaces.md)::
 
     /scan/<pair>/left|right  foxglove.CompressedImage  the scan's images (JPEG of the recorded PNGs)
     /scan/points             foxglove.PointCloud       the fused stereo cloud (frame scan; at most MAX_CLOUD_POINTS)
-    /tf                      foxglove.FrameTransforms  map -> site -> pile, site -> scan; pile -> grasp when chosen
+    /tf                      foxglove.FrameTransforms  map -> site -> pile, site -> scan; when the grasp is
+                                                       chosen, the same tree again with pile -> grasp
     /pile/logs               foxglove.SceneUpdate      the reconstructed logs as cylinders (frame pile)
     /plan/grasps             foxglove.SceneUpdate      every planned grasp, numbered by rank (frame pile)
     /plan                    JSON                      the plan (plan.json's content)
@@ -92,6 +93,7 @@ class TrialView:
         self.counts: dict[str, int] = {}
         self._channels: dict[str, Any] = {}
         self._last_ns: dict[str, int] = {}
+        self._tree: list[tuple[str, str, np.ndarray]] = []  # the static frames (parent, child, T) once known
         self._lock = threading.RLock()
         self.ctx = foxglove.Context()
         self.server = None
@@ -232,10 +234,11 @@ class TrialView:
         T_map_site = np.eye(4)
         T_map_site[:2, :2] = [[math.cos(yaw), -math.sin(yaw)], [math.sin(yaw), math.cos(yaw)]]
         T_map_site[:3, 3] = (e[0], n[0], h[0])
-        tfs = [self._tf("map", "site", T_map_site, t_s), self._tf("site", "pile", pile.georef.matrix(), t_s)]
+        self._tree = [("map", "site", T_map_site), ("site", "pile", pile.georef.matrix())]
         T_site_scan = (result.report or {}).get("T_site_scan_refined")
         if T_site_scan is not None:
-            tfs.append(self._tf("site", "scan", np.asarray(T_site_scan), t_s))
+            self._tree.append(("site", "scan", np.asarray(T_site_scan)))
+        tfs = [self._tf(parent, child, T, t_s) for parent, child, T in self._tree]
         self._log("/tf", "FrameTransforms", self._fg.messages.FrameTransforms(transforms=tfs), t_s)
 
     def _pile(self, pile: Any, t_s: float) -> None:
@@ -313,8 +316,11 @@ class TrialView:
             T = np.eye(4)
             T[:2, :2] = [[math.cos(g.phi_rad), -math.sin(g.phi_rad)], [math.sin(g.phi_rad), math.cos(g.phi_rad)]]
             T[:3, 3] = (g.x_m, g.y_m, float(pile.terrain.height_at(g.x_m, g.y_m)))
+            # the whole tree again with the grasp: a viewer that seeks past this point (and reads
+            # only the last message of /tf) still has map -> site -> pile and the scan
+            tree = [self._tf(parent, child, T_pc, t_s) for parent, child, T_pc in self._tree]
             self._log("/tf", "FrameTransforms",
-                      self._fg.messages.FrameTransforms(transforms=[self._tf("pile", "grasp", T, t_s)]), t_s)
+                      self._fg.messages.FrameTransforms(transforms=[*tree, self._tf("pile", "grasp", T, t_s)]), t_s)
 
         self.guarded("the chosen grasp", log_it)
 
