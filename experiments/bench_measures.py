@@ -36,6 +36,9 @@ SPECS: dict[str, Spec] = {
     "trials.agreement": Spec("Grasp trials", "same outcome class as the careful preset, fast preset", "≥ 95 %"),
     "trials.dataset_projection": Spec("Grasp trials", "paper-scale data set (604 piles, ~70,700 trials), "
                                                       "projected wall on 2 cores"),
+    "trials.robust_1cm": Spec("Grasp trials", "grasps that succeeded, moved by 1 cm / 1° (the crane off): success",
+                              "≥ 95 %"),
+    "trials.robust_3cm": Spec("Grasp trials", "grasps that succeeded, moved by 3 cm / 3°: success", "≥ 85 %"),
     "planner.plan_7": Spec("Planner", "plan a 7-log pile (127 subsets), shipped width, wall median", "≤ 0.5 s"),
     "planner.plan_12": Spec("Planner", "plan a 12-log pile with pre-selection (127 of 4095 subsets), wall median",
                             "≤ 1 s"),
@@ -173,10 +176,18 @@ def _link(md: str) -> dict[str, tuple[str, str]]:
                           _yes(wall < 30.0 and result == "ok"))}
 
 
+def _twin_robustness(md: str) -> dict[str, tuple[str, str]]:
+    out = {}
+    for key, level, target in (("trials.robust_1cm", "1 cm / 1°", 95.0), ("trials.robust_3cm", "3 cm / 3°", 85.0)):
+        text = cell(md, "success", moved_by=level)
+        out[key] = (text, _yes(number(text) >= target))
+    return out
+
+
 #: section name (bench/run.py) -> reader of its figures
 SECTION_READERS: dict[str, Callable[[str], dict[str, tuple[str, str]]]] = {
     "piles": _piles, "render": _render, "stereo": _stereo, "trials": _trials, "planner": _planner,
-    "reconstruct": _reconstruct, "unposed": _unposed, "link": _link,
+    "reconstruct": _reconstruct, "unposed": _unposed, "link": _link, "twin robustness": _twin_robustness,
 }
 
 

@@ -180,7 +180,8 @@ def markdown(summary: dict, cases_by_source: dict[str, int]) -> str:
             c = levels.get(label)
             if c is None:
                 continue
-            logs = [(_pct(*c["by_logs"][k]) if k in c["by_logs"] else "—") for k in range(1, 6)]
+            by_logs = {int(k): v for k, v in c["by_logs"].items()}  # a record read back has string keys
+            logs = [(_pct(*by_logs[k]) if k in by_logs else "—") for k in range(1, 6)]
             kinds = ", ".join(f"{k} {v}" for k, v in sorted(c["kinds"].items())) or "none"
             lines.append(f"| {label} | {_pct(c['ok'], c['n'])} | " + " | ".join(logs) + f" | {kinds} | {c['cpu_s']:.2f} |")
         lines.append("")

@@ -98,6 +98,7 @@ HEADINGS = {
     "stereo": ("### Stereo pair render", False), "trials": ("### Grasp trials (fast vs careful", True),
     "planner": ("### Planner (U-Net)", True), "reconstruct": ("### Reconstruction (stereo scan", False),
     "unposed": ("### Unposed scans (pycolmap", False), "link": ("### Crane link", True),
+    "twin robustness": ("### Twin robustness", True),
 }
 
 

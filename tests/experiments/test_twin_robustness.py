@@ -24,3 +24,13 @@ def test_moves_repeat_and_the_old_stroke_drops_the_load():
     s = summarise(old)["store"]["1 cm / 1°"]
     assert s["ok"] < s["n"] and s["kinds"].get("grip", 0) >= 1  # revision 3's loose bowl: DROPPED, a grip failure
     assert "grip" in markdown(summarise(old), {"store": 1})
+
+
+def test_a_record_read_back_gives_the_same_table():
+    import json
+
+    rows = [{"case": "c", "source": "store", "level": "1 cm / 1°", "rep": 0, "n_targets": 2, "outcome": "success",
+             "cos_beta": 1.0, "cpu_s": 0.5}]
+    s = summarise(rows)
+    assert markdown(json.loads(json.dumps(s)), {"store": 1}) == markdown(s, {"store": 1})
+    assert "100.0 % (1/1)" in markdown(s, {"store": 1}).split("| 1 cm / 1° |")[1].split("|")[2]
