@@ -9,7 +9,8 @@ Wrap any bus and arm faults; each armed fault applies to the next ``count`` matc
 
 Actions: ``drop``, ``duplicate`` (sent / delivered twice), ``corrupt`` (one bit flipped at
 ``byte``), ``hold`` (kept back until :meth:`release`; frames behind it overtake it = reordering),
-``error`` (the operation raises ``can.CanOperationError`` = a bus error).
+``error`` (the operation raises ``can.CanOperationError`` = a bus error), ``freeze`` (sent frames
+only: the first matching frame is sent again in place of each later one = a stuck sender).
 
 For soak tests, :class:`FaultPlan` draws a random fault (drop, duplicate, corrupt, delay,
 reorder) per frame from a seed, and :class:`ChaosChannel` applies it to any ``send(kind,
@@ -32,7 +33,7 @@ import can
 from field.link.can_backend import ProxyBus
 from field.link.codec import kind_of_frame_id
 
-ACTIONS = ("drop", "duplicate", "corrupt", "hold", "error")
+ACTIONS = ("drop", "duplicate", "corrupt", "hold", "error", "freeze")
 
 
 @dataclass
@@ -43,6 +44,7 @@ class _Fault:
     count: int | None  # None = until disarmed
     byte: int
     bit: int
+    frozen: bytes | None = None  # freeze: the data every matching frame is sent with
 
 
 CHAOS_ACTIONS = ("drop", "duplicate", "corrupt", "delay", "reorder")
@@ -170,8 +172,8 @@ class FaultyBus(ProxyBus):
             raise ValueError(f"unknown fault {action!r}; choose one of {ACTIONS}")
         if direction not in ("tx", "rx"):
             raise ValueError(f"direction must be 'tx' or 'rx', got {direction!r}")
-        if action == "hold" and direction != "tx":
-            raise ValueError("'hold' (reordering) applies to sent frames only (direction='tx')")
+        if action in ("hold", "freeze") and direction != "tx":
+            raise ValueError(f"{action!r} applies to sent frames only (direction='tx')")
         if count is not None and count < 1:
             raise ValueError(f"count must be >= 1 or None, got {count}")
         with self._lock:
@@ -253,6 +255,14 @@ class FaultyBus(ProxyBus):
             return
         if f.action == "corrupt":
             self.inner.send(self._corrupt(msg, f), timeout)
+            return
+        if f.action == "freeze":
+            with self._lock:
+                if f.frozen is None:
+                    f.frozen = bytes(msg.data)
+                data = f.frozen
+            self.inner.send(can.Message(arbitration_id=msg.arbitration_id, is_extended_id=msg.is_extended_id,
+                                        is_fd=msg.is_fd, bitrate_switch=msg.bitrate_switch, data=data), timeout)
             return
         if f.action == "duplicate":
             self.inner.send(msg, timeout)

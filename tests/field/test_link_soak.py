@@ -1,14 +1,30 @@
-"""Soak: thousands of commands with random drops, duplicates, corruption, delays and reordering
-in both directions, over the virtual CAN bus and over Zenoh on loopback.
+"""Soak: thousands of authenticated commands under every transmission error class of IEC
+61784-3, over the virtual CAN bus and over Zenoh on loopback, with supervision outages and
+e-stops at random moments.
 
-For every command the operator's final state (:meth:`CraneLink.execute`, what the trial tells
-the operator) must equal the controller's: executed exactly once if and only if the operator
-is told it ran, with the same outcome; never executed when rejected or when the operator was
-told it was not. Commands run on several independent lanes (a laptop and a controller each) at
-once, so the waits on lost frames overlap.
+Faults injected (each lane: a laptop and a controller, one key file per lane = per crane):
 
-Counts: ``LOGGRASP_SOAK_CAN_N`` (default 10000) and ``LOGGRASP_SOAK_ZENOH_N`` (default 2000;
-``LOGGRASP_SOAK_ZENOH_N=10000`` for the full run, about 4 minutes here). Loopback only.
+- channel faults in both directions (:class:`field.link.faults.ChaosChannel`): loss (drop),
+  unintended repetition (duplicate), corruption (one bit flipped), incorrect sequence (reorder),
+  unacceptable delay (delay) - on commands, status queries, e-stops and every answer;
+- insertion, masquerade and addressing (:mod:`tests.field.soak_intruder`): frames without the
+  key, MACed with a foreign key or the wrong direction's key, another crane's genuine frames, and
+  genuine frames under another kind's identifier / key expression, toward both sides;
+- supervision outages on half the lanes: the laptop's heartbeat frames dropped or frozen (CAN),
+  its liveliness token withdrawn (Zenoh), for longer than the controller's laptop timeout;
+- e-stops at random moments during commands on a quarter of the lanes (confirmed by the laptop,
+  then reset locally on the crane).
+
+Invariants: every command's final state for the operator (:meth:`CraneLink.execute`) equals the
+controller's (executed exactly once iff the operator is told it ran, same outcome; never run
+when rejected); nothing runs that nobody sent; 0 commands executed unsupervised (none started
+while its laptop was silenced beyond the laptop timeout, none while the controller counted no
+live laptop); 0 e-stops lost (the controller saw every e-stop the laptop confirmed, or the
+laptop reported the failure); every class above injected at least once.
+
+Counts: ``LOGGRASP_SOAK_CAN_N`` (default 8000), ``LOGGRASP_SOAK_ZENOH_N`` (default 2000) and
+``LOGGRASP_SOAK_LANES`` (default 16 lanes per link, the waits on lost frames overlap);
+``make soak`` runs 100,000 and 20,000 (docs/link-safety.md, "Soak"). Loopback only.
 """
 
 from __future__ import annotations
@@ -25,37 +41,125 @@ import can
 import pytest
 
 from field.controller import ControllerConfig, CraneController, FixedOutcomeExecutor
+from field.errors import ControllerError, LinkError
 from field.link.base import CommandFate, CraneLink, LinkConfig
-from field.link.can_backend import CanControllerTransport, CanLink
+from field.link.can_backend import CanControllerTransport, CanLink, make_frame
 from field.link.faults import CHAOS_ACTIONS, ChaosChannel, FaultPlan, FaultyBus
-from field.link.messages import GraspCommand
+from field.link.messages import ControllerState, GraspCommand, RejectReason
+from field.link.secoc import generate_key_file
+from tests.field.soak_intruder import Forger, Intruder, Outages
 
-CAN_N = int(os.environ.get("LOGGRASP_SOAK_CAN_N", "10000"))
+CAN_N = int(os.environ.get("LOGGRASP_SOAK_CAN_N", "8000"))
 ZENOH_N = int(os.environ.get("LOGGRASP_SOAK_ZENOH_N", "2000"))
-LANES = 8
+LANES = int(os.environ.get("LOGGRASP_SOAK_LANES", "16"))
 P_FAULT = {"drop": 0.006, "duplicate": 0.006, "corrupt": 0.006, "delay": 0.006, "reorder": 0.006}
-TO_CRANE = ("GraspCommand", "StatusRequest")
+TO_CRANE = ("GraspCommand", "StatusRequest", "EStop")
 TO_LAPTOP = ("Ack", "Outcome", "Status")
-LINK = LinkConfig(insecure=True, heartbeat_timeout_s=1.0, status_timeout_s=0.5, connect_timeout_s=20.0)
+LAPTOP_TIMEOUT_S = 0.5  # the controller's laptop timeout [s]
 ACK_TIMEOUT_S = 0.5
+FORGE_PERIOD_S = 0.4  # mean time between forged frames per lane [s]
+OUTAGE_EVERY_S = 6.0  # mean time between supervision outages on an outage lane [s]
+OUTAGE_S = (1.2, 2.0)  # outage length range [s]
+SUPERVISION_GRACE_S = {"can": LAPTOP_TIMEOUT_S + 0.4, "zenoh": 0.4}  # silence after which nothing may start [s]
+P_ESTOP = 0.004  # per command, on an e-stop lane
+MATRIX = {"corruption": "corrupt", "unintended repetition": "duplicate", "incorrect sequence": "reorder",
+          "loss": "drop", "unacceptable delay": "delay", "insertion": "insertion", "masquerade": "masquerade",
+          "addressing": "addressing"}
+
+
+def _link_config(key: str) -> LinkConfig:
+    return LinkConfig(secoc_key_path=key, heartbeat_timeout_s=1.0, status_timeout_s=0.5, connect_timeout_s=20.0)
+
+
+class TimedExecutor(FixedOutcomeExecutor):
+    """Instant outcomes; keeps when each command started and how many live laptops the
+    controller counted then."""
+
+    def __init__(self) -> None:
+        super().__init__(delay_s=0.0)
+        self.controller: CraneController | None = None
+        self.started: dict[int, tuple[float, int]] = {}
+
+    def execute(self, cmd, should_abort):
+        self.started[cmd.command_id] = (time.monotonic(), self.controller.status(0).laptops)
+        return super().execute(cmd, should_abort)
+
+
+class CountingController(CraneController):
+    """The real controller, counting the e-stops it latched."""
+
+    estops = 0
+
+    def estop(self, why: str = "e-stop") -> None:
+        super().estop(why)
+        self.estops += 1
 
 
 @dataclass
 class Lane:
     """One laptop and one controller with faults injected on both sides."""
 
+    backend: str
     link: CraneLink
-    controller: CraneController
-    executor: FixedOutcomeExecutor
+    controller: CountingController
+    executor: TimedExecutor
     closers: list = field(default_factory=list)
     fates: list[CommandFate] = field(default_factory=list)
     commands: list[GraspCommand] = field(default_factory=list)
+    injected: list = field(default_factory=list)  # Counters of (chaos action, kind) -> count
+    intruder: Intruder | None = None
+    outages: Outages | None = None
+    p_estop: float = 0.0
+    estops: collections.Counter = field(default_factory=collections.Counter)
+    resets: collections.Counter = field(default_factory=collections.Counter)
+
+    def last_id(self) -> int:
+        return self.commands[-1].command_id if self.commands else 0
 
     def run(self, n: int, rng: random.Random, make_cmd) -> None:
         for _ in range(n):
             cmd = make_cmd(self.link.new_command_id(), **_variant(rng))
             self.commands.append(cmd)
+            stop = self._estop_soon(rng.uniform(0.0, 0.004)) if rng.random() < self.p_estop else None
             self.fates.append(self.link.execute(cmd, ack_timeout_s=ACK_TIMEOUT_S, outcome_timeout_s=10.0))
+            if stop is not None:
+                self._settle_estop(*stop)
+            if self.controller.status(0).state is ControllerState.FAULT:  # MAC-failure safe state tripped
+                self.resets["fault"] += 1
+                self._reset()
+
+    def _estop_soon(self, delay_s: float) -> tuple[threading.Thread, int, list]:
+        """An e-stop from another thread ``delay_s`` from now, while the next command runs."""
+        before, result = self.controller.estops, []
+
+        def fire() -> None:
+            time.sleep(delay_s)
+            try:
+                self.link.abort(timeout_s=2.0)
+                result.append("confirmed")
+            except LinkError as exc:
+                result.append(f"reported: {exc}")
+
+        t = threading.Thread(target=fire, name="soak-estop", daemon=True)
+        t.start()
+        return t, before, result
+
+    def _settle_estop(self, t: threading.Thread, before: int, result: list) -> None:
+        t.join(10.0)
+        seen = self.controller.estops > before
+        outcome = result[0] if result else "hung"
+        key = "confirmed" if outcome == "confirmed" else "hung" if outcome == "hung" else "reported"
+        self.estops[(key, "seen by the crane" if seen else "not seen")] += 1
+        self._reset()
+
+    def _reset(self) -> None:
+        """The crane's local reset (a grasp still winding down: retry)."""
+        for _ in range(200):
+            try:
+                self.controller.reset_estop()
+                return
+            except ControllerError:
+                time.sleep(0.01)
 
     def close(self) -> None:
         for c in reversed(self.closers):
@@ -74,32 +178,60 @@ def _variant(rng: random.Random) -> dict:
     return {"logs": rng.randint(1, 4)}
 
 
-def _controller(seed: int) -> tuple[CraneController, FixedOutcomeExecutor]:
-    ex = FixedOutcomeExecutor(delay_s=0.0)
-    return CraneController(ControllerConfig(max_pile_age_s=5.0, laptop_timeout_s=2.0, no_journal=True, insecure_link=True), ex), ex
+def _controller(key: str) -> tuple[CountingController, TimedExecutor]:
+    ex = TimedExecutor()
+    # the MAC-failure safe state is tested on its own (test_link_safety); here its threshold sits
+    # above the forged + corrupted frames a lane sees in its window, and a trip is reset and counted
+    cfg = ControllerConfig(max_pile_age_s=5.0, laptop_timeout_s=LAPTOP_TIMEOUT_S, no_journal=True, secoc_key_path=key,
+                           max_mac_failures=200)
+    ctl = CountingController(cfg, ex)
+    ex.controller = ctl
+    return ctl, ex
 
 
-def can_lane(seed: int) -> Lane:
+def _attach(lane: Lane, i: int, keys: list[str], make_cmd, to_crane, to_laptop, to_crane_kinds, silence, restore,
+            modes: tuple[str, ...]) -> None:
+    """The lane's intruder, and on some lanes supervision outages and e-stops."""
+    forger = Forger(keys[i], keys[(i + 1) % len(keys)], make_cmd, seed=7 * i + 1, to_crane_kinds=to_crane_kinds)
+    lane.intruder = Intruder(forger, to_crane, to_laptop, lane.last_id, FORGE_PERIOD_S, seed=7 * i + 2)
+    lane.closers.append(lane.intruder.close)
+    if i % 2 == 0:
+        lane.outages = Outages(silence, restore, modes, OUTAGE_EVERY_S, OUTAGE_S, seed=7 * i + 3)
+        lane.closers.append(lane.outages.close)
+    if i % 4 in (1, 2):
+        lane.p_estop = P_ESTOP
+
+
+def can_lane(i: int, keys: list[str], make_cmd) -> Lane:
+    seed = 1000 + 10 * i
     channel = f"soak-{uuid.uuid4().hex[:8]}"
-    ctl, ex = _controller(seed)
+    ctl, ex = _controller(keys[i])
     cbus = FaultyBus(can.Bus(interface="virtual", channel=channel, fd=True), FaultPlan(seed, P_FAULT, TO_LAPTOP))
     tr = CanControllerTransport(bus=cbus)
     tr.start(ctl)
     ctl.start()
     lbus = FaultyBus(can.Bus(interface="virtual", channel=channel, fd=True), FaultPlan(seed + 1, P_FAULT, TO_CRANE))
-    link = CanLink(config=LINK, bus=lbus)
-    lane = Lane(link, ctl, ex, [ctl.close, tr.close, link.close])
-    lane.injected = [cbus.chaos_injected, lbus.chaos_injected]
+    link = CanLink(config=_link_config(keys[i]), bus=lbus)
+    lane = Lane("can", link, ctl, ex, [ctl.close, tr.close, link.close], injected=[cbus.chaos_injected, lbus.chaos_injected])
     link._await_controller()
+    # an intruder node: what the laptop's bus node sends reaches the crane and vice versa (a virtual
+    # bus does not echo a node's own frames)
+    _attach(lane, i, keys, make_cmd,
+            to_crane=lambda k, d: lbus.inner.send(make_frame(k, d)), to_laptop=lambda k, d: cbus.inner.send(make_frame(k, d)),
+            to_crane_kinds=("GraspCommand", "StatusRequest", "LaptopHeartbeat"),
+            silence=lambda mode: lbus.arm(mode, "LaptopHeartbeat", count=None), restore=lbus.disarm,
+            modes=("drop", "freeze"))
     return lane
 
 
-def zenoh_lane(seed: int, port: int) -> Lane:
+def zenoh_lane(i: int, keys: list[str], make_cmd, port: int) -> Lane:
     from field.link.base import LinkURL
     from field.link.zenoh_backend import ZenohControllerTransport, ZenohLink, ZenohTarget
 
+    seed = 2000 + 10 * i
+
     class ChaosZenohLink(ZenohLink):
-        """Faults on the laptop's sends (commands, status queries) and on what it receives."""
+        """Faults on the laptop's sends (commands, status queries, e-stops) and on what it receives."""
 
         def __init__(self, target, config):
             self.tx = ChaosChannel(FaultPlan(seed + 1, P_FAULT, TO_CRANE), lambda k, d: ZenohLink._transmit(self, k, d))
@@ -117,16 +249,27 @@ def zenoh_lane(seed: int, port: int) -> Lane:
             self.rx.close()
             super()._close_transport()
 
+        def withdraw_token(self, _mode: str) -> None:
+            self._token.undeclare()
+
+        def restore_token(self) -> None:
+            self._token = self._session.liveliness().declare_token(f"{self.keys.alive_laptop}/{self._session.zid()}")
+
     url = LinkURL.parse(f"zenoh://127.0.0.1:{port}/soak-{seed}")
     target = ZenohTarget.from_url(url, url.pop_link_config()[1])
-    ctl, ex = _controller(seed)
+    ctl, ex = _controller(keys[i])
     tr = ZenohControllerTransport(target)
     tr.start(ctl)
     ctl.start()
-    link = ChaosZenohLink(target, LINK)
-    lane = Lane(link, ctl, ex, [ctl.close, tr.close, link.close])
-    lane.injected = [link.tx.injected, link.rx.injected]
+    link = ChaosZenohLink(target, _link_config(keys[i]))
+    lane = Lane("zenoh", link, ctl, ex, [ctl.close, tr.close, link.close], injected=[link.tx.injected, link.rx.injected])
     link._await_controller()
+    # the intruder's frames enter where the network's do: the laptop's session (toward the crane)
+    # and the laptop's receive path (toward the laptop)
+    _attach(lane, i, keys, make_cmd,
+            to_crane=lambda k, d: ZenohLink._transmit(link, k, d), to_laptop=lambda k, d: ZenohLink._deliver(link, k, d),
+            to_crane_kinds=("GraspCommand", "StatusRequest"),
+            silence=link.withdraw_token, restore=link.restore_token, modes=("token withdrawn",))
     return lane
 
 
@@ -148,38 +291,79 @@ def soak(lanes: list[Lane], n: int, make_cmd) -> dict:
         t.join()
     if errors:
         raise errors[0]
+    elapsed = time.monotonic() - t0
+    print(f"\nsoak: {n} commands on {len(lanes)} lanes in {elapsed:.1f} s ({n / elapsed:.0f} commands/s)")
+    for lane in lanes:  # no new faults; open outages end (their windows kept)
+        for part in (lane.intruder, lane.outages):
+            if part is not None:
+                part.close()
     time.sleep(0.5)  # late frames (delays, reorders) land before the final check
-    return check(lanes, time.monotonic() - t0)
+    return check(lanes, elapsed)
+
+
+def check_final_states(lane: Lane, tally: collections.Counter) -> None:
+    """Every command's final state for the operator equals the controller's; exactly once."""
+    executed = lane.executor.executed
+    assert len(executed) == len(set(executed)), "a command ran twice"
+    assert set(executed) <= {c.command_id for c in lane.commands}, "a command nobody sent ran"
+    for cmd, fate in zip(lane.commands, lane.fates):
+        final = fate
+        if fate.executed is None or (fate.executed and fate.outcome is None):
+            final = lane.link.fate(cmd.command_id)  # settled after the fact (late answers, a status)
+            tally["settled afterwards"] += 1
+        ran = cmd.command_id in executed
+        assert final.executed is not None, f"final state UNKNOWN: {final}"
+        assert final.executed == ran, f"operator told {final.final_state}, the crane {'ran' if ran else 'did not run'} it: {final}"
+        if ran:
+            assert final.outcome == lane.controller.outcome_of(cmd.command_id), final
+        if fate.reason is not None:  # rejected: never run
+            assert not ran, final
+        tally[final.final_state] += 1
+        tally["with notes"] += bool(final.notes)
+
+
+def check_supervised(lane: Lane, tally: collections.Counter) -> None:
+    """Nothing started while its laptop was silenced past the laptop timeout, nor while the
+    controller itself counted no live laptop."""
+    grace = SUPERVISION_GRACE_S[lane.backend]
+    windows = [] if lane.outages is None else lane.outages.windows
+    for cid, (t, live) in lane.executor.started.items():
+        assert live > 0, f"command {cid} started while the controller counted no live laptop"
+        for mode, t_off, t_on in windows:
+            assert not t_off + grace < t <= t_on, (
+                f"command {cid} started {t - t_off:.2f} s into a supervision outage ({mode}, "
+                f"{t_on - t_off:.2f} s long): executed unsupervised")
+    tally["outages"] += len(windows)
+    tally["outage s"] += sum(t_on - t_off for _, t_off, t_on in windows)
+    tally["refused UNSUPERVISED"] += sum(r is RejectReason.UNSUPERVISED for _, r in lane.controller.rejections)
 
 
 def check(lanes: list[Lane], elapsed_s: float) -> dict:
-    """Every command's final state for the operator equals the controller's."""
     tally: collections.Counter = collections.Counter()
     faults: collections.Counter = collections.Counter()
+    estops: collections.Counter = collections.Counter()
+    auth: collections.Counter = collections.Counter()
     for lane in lanes:
-        executed = lane.executor.executed
-        assert len(executed) == len(set(executed)), "a command ran twice"
-        assert set(executed) <= {c.command_id for c in lane.commands}, "a command nobody sent ran"
-        for cmd, fate in zip(lane.commands, lane.fates):
-            final = fate
-            if fate.executed is None or (fate.executed and fate.outcome is None):
-                final = lane.link.fate(cmd.command_id)  # settled after the fact (late answers, a status)
-                tally["settled afterwards"] += 1
-            ran = cmd.command_id in executed
-            assert final.executed is not None, f"final state UNKNOWN: {final}"
-            assert final.executed == ran, f"operator told {final.final_state}, the crane {'ran' if ran else 'did not run'} it: {final}"
-            if ran:
-                assert final.outcome == lane.controller.outcome_of(cmd.command_id), final
-            if fate.reason is not None:  # rejected: never run
-                assert not ran, final
-            tally[final.final_state] += 1
-            tally["with notes"] += bool(final.notes)
+        check_final_states(lane, tally)
+        check_supervised(lane, tally)
+        lost = lane.estops[("confirmed", "not seen")] + lane.estops[("hung", "seen by the crane")] + lane.estops[("hung", "not seen")]
+        assert lost == 0, f"e-stops lost (confirmed to the operator but not seen by the crane, or never answered): {lane.estops}"
+        estops.update({f"{k[0]}, {k[1]}": v for k, v in lane.estops.items()})
         for counter in lane.injected:
             for (action, _), k in counter.items():
                 faults[action] += k
-    assert all(faults[a] > 0 for a in CHAOS_ACTIONS), faults
+        for (cls, _), k in lane.intruder.injected.items():
+            faults[cls] += k
+        auth["controller"] += lane.controller.auth_failures
+        auth["laptops"] += lane.link.stats.auth_failures
+        auth["MAC-failure FAULT resets"] += lane.resets["fault"]
+    missing = [c for c, a in MATRIX.items() if faults[a] == 0]
+    assert not missing, f"fault classes never injected: {missing} ({faults})"
+    assert sum(estops.values()) > 0 and tally["outages"] > 0, (estops, tally)
+    tally["outage s"] = round(tally["outage s"], 1)
     return {"commands": sum(len(lane.commands) for lane in lanes), "elapsed_s": round(elapsed_s, 1),
-            "states": dict(tally), "faults": dict(faults)}
+            "states": dict(tally), "faults": {c: faults[a] for c, a in MATRIX.items()}, "e-stops": dict(estops),
+            "dropped by authentication": dict(auth)}
 
 
 @pytest.fixture
@@ -190,20 +374,26 @@ def lanes():
         lane.close()
 
 
-@pytest.mark.timeout(900)
-def test_soak_can_virtual(lanes, make_cmd, record_property):
-    lanes.extend(can_lane(1000 + 10 * i) for i in range(LANES))
+def _keys(tmp_path) -> list[str]:
+    return [str(generate_key_file(tmp_path / f"crane{i}.key")) for i in range(LANES)]
+
+
+@pytest.mark.timeout(3600)
+def test_soak_can_virtual(lanes, make_cmd, record_property, tmp_path):
+    keys = _keys(tmp_path)
+    lanes.extend(can_lane(i, keys, make_cmd) for i in range(LANES))
     report = soak(lanes, CAN_N, make_cmd)
     record_property("soak_can", report)
     print("soak can-virtual:", report)
     assert report["commands"] == CAN_N
 
 
-@pytest.mark.timeout(900)
-def test_soak_zenoh(lanes, make_cmd, record_property):
+@pytest.mark.timeout(3600)
+def test_soak_zenoh(lanes, make_cmd, record_property, tmp_path):
     from tests.field.conftest import free_port
 
-    lanes.extend(zenoh_lane(2000 + 10 * i, free_port()) for i in range(LANES))
+    keys = _keys(tmp_path)
+    lanes.extend(zenoh_lane(i, keys, make_cmd, free_port()) for i in range(LANES))
     report = soak(lanes, ZENOH_N, make_cmd)
     record_property("soak_zenoh", report)
     print("soak zenoh:", report)
