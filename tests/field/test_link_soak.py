@@ -59,8 +59,10 @@ LAPTOP_TIMEOUT_S = 0.5  # the controller's laptop timeout [s]
 ACK_TIMEOUT_S = 0.5
 FORGE_PERIOD_S = 0.4  # mean time between forged frames per lane [s]
 OUTAGE_EVERY_S = 6.0  # mean time between supervision outages on an outage lane [s]
-OUTAGE_S = (1.2, 2.0)  # outage length range [s]
-SUPERVISION_GRACE_S = {"can": LAPTOP_TIMEOUT_S + 0.4, "zenoh": 0.4}  # silence after which nothing may start [s]
+OUTAGE_S = (2.0, 3.0)  # outage length range [s]
+# silence after which nothing may start [s]: the timeout, plus frames (or a token) still on their way on a
+# loaded machine
+SUPERVISION_GRACE_S = {"can": LAPTOP_TIMEOUT_S + 1.0, "zenoh": 1.0}
 P_ESTOP = 0.004  # per command, on an e-stop lane
 MATRIX = {"corruption": "corrupt", "unintended repetition": "duplicate", "incorrect sequence": "reorder",
           "loss": "drop", "unacceptable delay": "delay", "insertion": "insertion", "masquerade": "masquerade",
