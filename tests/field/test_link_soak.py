@@ -19,7 +19,7 @@ Invariants: every command's final state for the operator (:meth:`CraneLink.execu
 controller's (executed exactly once iff the operator is told it ran, same outcome; never run
 when rejected); nothing runs that nobody sent; 0 commands executed unsupervised (none started
 while its laptop was silenced beyond the laptop timeout, none while the controller counted no
-live laptop); 0 e-stops lost (the controller saw every e-stop the laptop confirmed, or the
+live laptop unless the controller aborted it); 0 e-stops lost (the controller saw every e-stop the laptop confirmed, or the
 laptop reported the failure); every class above injected at least once.
 
 Counts: ``LOGGRASP_SOAK_CAN_N`` (default 8000), ``LOGGRASP_SOAK_ZENOH_N`` (default 2000) and
@@ -45,7 +45,7 @@ from field.errors import ControllerError, LinkError
 from field.link.base import CommandFate, CraneLink, LinkConfig
 from field.link.can_backend import CanControllerTransport, CanLink, make_frame
 from field.link.faults import CHAOS_ACTIONS, ChaosChannel, FaultPlan, FaultyBus
-from field.link.messages import ControllerState, GraspCommand, RejectReason
+from field.link.messages import ControllerState, GraspCommand, OutcomeClass, RejectReason
 from field.link.secoc import generate_key_file
 from tests.field.soak_intruder import Forger, Intruder, Outages
 
@@ -64,6 +64,7 @@ OUTAGE_S = (2.0, 3.0)  # outage length range [s]
 # loaded machine
 SUPERVISION_GRACE_S = {"can": LAPTOP_TIMEOUT_S + 1.0, "zenoh": 1.0}
 P_ESTOP = 0.004  # per command, on an e-stop lane
+ABORT_WAIT_S = 2.0  # a grasp started with no live laptop lasts this long unless aborted [s]
 MATRIX = {"corruption": "corrupt", "unintended repetition": "duplicate", "incorrect sequence": "reorder",
           "loss": "drop", "unacceptable delay": "delay", "insertion": "insertion", "masquerade": "masquerade",
           "addressing": "addressing"}
@@ -75,7 +76,9 @@ def _link_config(key: str) -> LinkConfig:
 
 class TimedExecutor(FixedOutcomeExecutor):
     """Instant outcomes; keeps when each command started and how many live laptops the
-    controller counted then."""
+    controller counted then. A command that starts when the controller counts none (its laptop's
+    liveness ran out between the acceptance and the start) lasts until the controller aborts it,
+    or ``ABORT_WAIT_S``: the supervision must abort it."""
 
     def __init__(self) -> None:
         super().__init__(delay_s=0.0)
@@ -83,7 +86,11 @@ class TimedExecutor(FixedOutcomeExecutor):
         self.started: dict[int, tuple[float, int]] = {}
 
     def execute(self, cmd, should_abort):
-        self.started[cmd.command_id] = (time.monotonic(), self.controller.status(0).laptops)
+        live = self.controller.status(0).laptops
+        self.started[cmd.command_id] = (time.monotonic(), live)
+        end = time.monotonic() + ABORT_WAIT_S
+        while not live and not should_abort() and time.monotonic() < end:
+            time.sleep(0.005)
         return super().execute(cmd, should_abort)
 
 
@@ -330,7 +337,11 @@ def check_supervised(lane: Lane, tally: collections.Counter) -> None:
     grace = SUPERVISION_GRACE_S[lane.backend]
     windows = [] if lane.outages is None else lane.outages.windows
     for cid, (t, live) in lane.executor.started.items():
-        assert live > 0, f"command {cid} started while the controller counted no live laptop"
+        if not live:  # the laptop ran out between the acceptance and the start: aborted, not run
+            outcome = lane.controller.outcome_of(cid)
+            assert outcome is not None and outcome.outcome_class is OutcomeClass.ABORTED, (
+                f"command {cid} started while the controller counted no live laptop and was not aborted: {outcome}")
+            tally["started as supervision ran out, aborted"] += 1
         for mode, t_off, t_on in windows:
             assert not t_off + grace < t <= t_on, (
                 f"command {cid} started {t - t_off:.2f} s into a supervision outage ({mode}, "
