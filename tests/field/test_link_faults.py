@@ -187,6 +187,23 @@ def test_laptop_heartbeat_loss_aborts_the_running_grasp(pair, make_cmd):
     assert p.executor.executed == [cmd.command_id, nxt.command_id]
 
 
+def test_frozen_laptop_heartbeat_means_unsupervised(pair, make_cmd):
+    """A stuck sender (FaultyBus 'freeze': its first heartbeat frame again and again) is no
+    supervision: the controller counts no live laptop and refuses commands UNSUPERVISED."""
+    p = pair(laptop_timeout_s=0.5)
+    p.lbus.arm("freeze", "LaptopHeartbeat", count=None)
+    assert wait_until(lambda: p.controller.status().laptops == 0)
+    cmd = make_cmd(p.link.new_command_id())
+    with pytest.raises(CommandRejected) as ei:
+        p.link.send_grasp(cmd, timeout_s=5.0)
+    assert ei.value.reason is RejectReason.UNSUPERVISED
+    p.lbus.disarm()
+    assert wait_until(lambda: p.controller.status().laptops == 1)
+    assert p.executor.executed == []
+    with pytest.raises(ValueError, match="sent frames only"):
+        p.lbus.arm("freeze", "LaptopHeartbeat", direction="rx")
+
+
 def test_bus_errors(pair, make_cmd):
     p = pair()
     p.lbus.arm("error", "GraspCommand")
