@@ -134,18 +134,28 @@ class Outages:
         self.windows: list[tuple[str, float, float]] = []
         self._rng = random.Random(seed)
         self._stop = threading.Event()
+        self._kick = threading.Event()
         self._thread = threading.Thread(target=self._run, name="soak-outages", daemon=True)
         self._thread.start()
 
     def _run(self) -> None:
-        while not self._stop.wait(self._rng.uniform(0.5, 1.5) * self.every_s):
+        while True:
+            self._kick.wait(self._rng.uniform(0.5, 1.5) * self.every_s)
+            if self._stop.is_set():
+                return
             mode = self._rng.choice(self.modes)
             self._silence(mode)
             t_off = time.monotonic()
             self._stop.wait(self._rng.uniform(*self.length_s))
             self._restore()
             self.windows.append((mode, t_off, time.monotonic()))
+            self._kick.clear()
+
+    def kick(self) -> None:
+        """An outage now (unless one is on): e.g. while a grasp runs."""
+        self._kick.set()
 
     def close(self) -> None:
         self._stop.set()
+        self._kick.set()
         self._thread.join(5.0)

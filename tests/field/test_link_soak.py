@@ -11,7 +11,8 @@ Faults injected (each lane: a laptop and a controller, one key file per lane = p
   key, MACed with a foreign key or the wrong direction's key, another crane's genuine frames, and
   genuine frames under another kind's identifier / key expression, toward both sides;
 - supervision outages on half the lanes: the laptop's heartbeat frames dropped or frozen (CAN),
-  its liveliness token withdrawn (Zenoh), for longer than the controller's laptop timeout;
+  its liveliness token withdrawn (Zenoh), for longer than the controller's laptop timeout, now
+  and then and as one of the lane's few long (3 s) grasps starts;
 - e-stops at random moments during commands on a quarter of the lanes (confirmed by the laptop,
   then reset locally on the crane).
 
@@ -19,7 +20,7 @@ Invariants: every command's final state for the operator (:meth:`CraneLink.execu
 controller's (executed exactly once iff the operator is told it ran, same outcome; never run
 when rejected); nothing runs that nobody sent; 0 commands executed unsupervised (none started
 while its laptop was silenced beyond the laptop timeout, none while the controller counted no
-live laptop unless the controller aborted it); 0 e-stops lost (the controller saw every e-stop the laptop confirmed, or the
+live laptop unless the controller aborted it, every grasp still running then aborted); 0 e-stops lost (the controller saw every e-stop the laptop confirmed, or the
 laptop reported the failure); every class above injected at least once.
 
 Counts: ``LOGGRASP_SOAK_CAN_N`` (default 8000), ``LOGGRASP_SOAK_ZENOH_N`` (default 2000) and
@@ -65,6 +66,9 @@ OUTAGE_S = (2.0, 3.0)  # outage length range [s]
 SUPERVISION_GRACE_S = {"can": LAPTOP_TIMEOUT_S + 1.0, "zenoh": 1.0}
 P_ESTOP = 0.004  # per command, on an e-stop lane
 ABORT_WAIT_S = 2.0  # a grasp started with no live laptop lasts this long unless aborted [s]
+# on outage lanes, 1 % of grasps (5 target logs) last 3 s, and an outage starts as one starts
+SLOW_LOGS, SLOW_S, P_SLOW = 5, 3.0, 0.01
+ABORT_LATE_S = 1.0  # a running grasp is aborted by the laptop timeout + grace + this [s]
 MATRIX = {"corruption": "corrupt", "unintended repetition": "duplicate", "incorrect sequence": "reorder",
           "loss": "drop", "unacceptable delay": "delay", "insertion": "insertion", "masquerade": "masquerade",
           "addressing": "addressing"}
@@ -81,17 +85,26 @@ class TimedExecutor(FixedOutcomeExecutor):
     or ``ABORT_WAIT_S``: the supervision must abort it."""
 
     def __init__(self) -> None:
-        super().__init__(delay_s=0.0)
+        super().__init__(delay_s=0.0, delay_by_target_logs={SLOW_LOGS: SLOW_S})
         self.controller: CraneController | None = None
         self.started: dict[int, tuple[float, int]] = {}
+        self.ended: dict[int, float] = {}  # command id -> time.monotonic() at the executor's return [s]
+        self.due: dict[int, float] = {}  # command id -> when it would end unaborted (time.monotonic()) [s]
+        self.on_slow_start = lambda: None  # called as a long grasp starts
 
     def execute(self, cmd, should_abort):
         live = self.controller.status(0).laptops
         self.started[cmd.command_id] = (time.monotonic(), live)
+        self.due[cmd.command_id] = time.monotonic() + self.delay_by_target_logs.get(cmd.target_log_count, self.delay_s)
+        if cmd.target_log_count == SLOW_LOGS:
+            self.on_slow_start()
         end = time.monotonic() + ABORT_WAIT_S
         while not live and not should_abort() and time.monotonic() < end:
             time.sleep(0.005)
-        return super().execute(cmd, should_abort)
+        try:
+            return super().execute(cmd, should_abort)
+        finally:
+            self.ended[cmd.command_id] = time.monotonic()
 
 
 class CountingController(CraneController):
@@ -119,6 +132,7 @@ class Lane:
     intruder: Intruder | None = None
     outages: Outages | None = None
     p_estop: float = 0.0
+    p_slow: float = 0.0
     estops: collections.Counter = field(default_factory=collections.Counter)
     resets: collections.Counter = field(default_factory=collections.Counter)
 
@@ -127,7 +141,7 @@ class Lane:
 
     def run(self, n: int, rng: random.Random, make_cmd) -> None:
         for _ in range(n):
-            cmd = make_cmd(self.link.new_command_id(), **_variant(rng))
+            cmd = make_cmd(self.link.new_command_id(), **_variant(rng, self.p_slow))
             self.commands.append(cmd)
             stop = self._estop_soon(rng.uniform(0.0, 0.004)) if rng.random() < self.p_estop else None
             self.fates.append(self.link.execute(cmd, ack_timeout_s=ACK_TIMEOUT_S, outcome_timeout_s=10.0))
@@ -175,7 +189,7 @@ class Lane:
             c()
 
 
-def _variant(rng: random.Random) -> dict:
+def _variant(rng: random.Random, p_slow: float) -> dict:
     """Mostly executable commands; some the controller must refuse."""
     x = rng.random()
     if x < 0.08:
@@ -184,6 +198,8 @@ def _variant(rng: random.Random) -> dict:
         return {"width_m": 2.0}  # wider than the grapple
     if x < 0.15:
         return {"age_s": 10.0}  # stale for the controller (5 s), fine for the laptop (30 s)
+    if x < 0.15 + p_slow:
+        return {"logs": SLOW_LOGS}  # a long grasp
     return {"logs": rng.randint(1, 4)}
 
 
@@ -207,6 +223,7 @@ def _attach(lane: Lane, i: int, keys: list[str], make_cmd, to_crane, to_laptop, 
     if i % 2 == 0:
         lane.outages = Outages(silence, restore, modes, OUTAGE_EVERY_S, OUTAGE_S, seed=7 * i + 3)
         lane.closers.append(lane.outages.close)
+        lane.p_slow, lane.executor.on_slow_start = P_SLOW, lane.outages.kick
     if i % 4 in (1, 2):
         lane.p_estop = P_ESTOP
 
@@ -337,6 +354,7 @@ def check_supervised(lane: Lane, tally: collections.Counter) -> None:
     grace = SUPERVISION_GRACE_S[lane.backend]
     windows = [] if lane.outages is None else lane.outages.windows
     for cid, (t, live) in lane.executor.started.items():
+        _check_aborted_when_silenced(lane, cid, t, windows, grace, tally)
         if not live:  # the laptop ran out between the acceptance and the start: aborted, not run
             outcome = lane.controller.outcome_of(cid)
             assert outcome is not None and outcome.outcome_class is OutcomeClass.ABORTED, (
@@ -349,6 +367,22 @@ def check_supervised(lane: Lane, tally: collections.Counter) -> None:
     tally["outages"] += len(windows)
     tally["outage s"] += sum(t_on - t_off for _, t_off, t_on in windows)
     tally["refused UNSUPERVISED"] += sum(r is RejectReason.UNSUPERVISED for _, r in lane.controller.rejections)
+
+
+def _check_aborted_when_silenced(lane: Lane, cid: int, t_start: float, windows: list, grace: float,
+                                 tally: collections.Counter) -> None:
+    """A grasp running when its laptop fell silent, that would run on past ``grace`` into the outage,
+    must end ABORTED by ``ABORT_LATE_S`` after that."""
+    t_end = lane.executor.ended.get(cid, float("inf"))
+    for mode, t_off, t_on in windows:
+        due = t_off + grace
+        if t_start <= t_off < t_end and lane.executor.due[cid] > due and due <= t_on:
+            outcome = lane.controller.outcome_of(cid)
+            assert outcome is not None and outcome.outcome_class is OutcomeClass.ABORTED, (
+                f"command {cid} was still running {grace:.1f} s into a supervision outage ({mode}) and not "
+                f"aborted: {outcome}")
+            assert t_end <= due + ABORT_LATE_S, f"command {cid} aborted only {t_end - t_off:.2f} s into an outage"
+            tally["running when silenced, aborted"] += 1
 
 
 def check(lanes: list[Lane], elapsed_s: float) -> dict:
@@ -372,7 +406,7 @@ def check(lanes: list[Lane], elapsed_s: float) -> dict:
         auth["MAC-failure FAULT resets"] += lane.resets["fault"]
     missing = [c for c, a in MATRIX.items() if faults[a] == 0]
     assert not missing, f"fault classes never injected: {missing} ({faults})"
-    assert sum(estops.values()) > 0 and tally["outages"] > 0, (estops, tally)
+    assert sum(estops.values()) > 0 and tally["outages"] > 0 and tally["running when silenced, aborted"] > 0, (estops, tally)
     tally["outage s"] = round(tally["outage s"], 1)
     return {"commands": sum(len(lane.commands) for lane in lanes), "elapsed_s": round(elapsed_s, 1),
             "states": dict(tally), "faults": {c: faults[a] for c, a in MATRIX.items()}, "e-stops": dict(estops),
