@@ -19,9 +19,11 @@ Faults injected (each lane: a laptop and a controller, one key file per lane = p
 Invariants: every command's final state for the operator (:meth:`CraneLink.execute`) equals the
 controller's (executed exactly once iff the operator is told it ran, same outcome; never run
 when rejected); nothing runs that nobody sent; 0 commands executed unsupervised (none started
-while its laptop was silenced beyond the laptop timeout, none while the controller counted no
-live laptop unless the controller aborted it, every grasp still running then aborted); 0 e-stops lost (the controller saw every e-stop the laptop confirmed, or the
-laptop reported the failure); every class above injected at least once.
+while its laptop was silenced beyond the laptop timeout, none started while the controller
+counted no live laptop unless the controller aborted it, and every grasp running when its
+laptop fell silent ended ABORTED within the timeout and a grace); 0 e-stops lost (the controller
+saw every e-stop the laptop confirmed, or the laptop reported the failure); every class above
+injected at least once.
 
 Counts: ``LOGGRASP_SOAK_CAN_N`` (default 8000), ``LOGGRASP_SOAK_ZENOH_N`` (default 2000) and
 ``LOGGRASP_SOAK_LANES`` (default 16 lanes per link, the waits on lost frames overlap);
