@@ -4,7 +4,7 @@
 #
 #   scripts/build_lichtblick.sh GIT_DIR DEST     # e.g. GIT_DIR=lichtblick/.git from
 #                                                # git clone https://github.com/lichtblick-suite/lichtblick
-#   -> DEST/lichtblick/web/.webpack (about 42 MB; 2-core Xeon under load ~8: install 2 min, webpack 9 min)
+#   -> DEST/lichtblick/web/.webpack (about 42 MB; 2-core AMD EPYC under load ~8: install 2 min, webpack 9 min)
 #
 # Version: v1.28.1, commit 66adecb99ca4363b1028c750919c9046609f5c85. Needs node >= 20, npm, the npm
 # registry. What differs from upstream's `yarn install --immutable && yarn web:build:prod`, and why:
