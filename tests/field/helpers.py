@@ -176,3 +176,24 @@ class SupervisingLaptop:
     def __exit__(self, *exc) -> None:
         self._stop.set()
         self._thread.join(5)
+
+
+def lost_command_is_known_not_executed(link, executor, make_cmd, timeout_s: float = 1.0) -> None:
+    """A command whose frame was lost: the acknowledgement times out and the status query tells
+    the operator NOT executing; its id is burned (never re-sent); the next command runs once."""
+    import pytest
+
+    from field.errors import CommandRejected, LinkTimeout
+    from field.link import ControllerState
+
+    cmd = make_cmd(link.new_command_id())
+    with pytest.raises(LinkTimeout) as ei:
+        link.send_grasp(cmd, timeout_s=timeout_s)
+    assert ei.value.status is not None and ei.value.status.state is ControllerState.IDLE
+    assert "NOT executing" in str(ei.value)
+    with pytest.raises(CommandRejected):  # never re-sent with the same id
+        link.send_grasp(cmd)
+    nxt = make_cmd(link.new_command_id())
+    assert link.send_grasp(nxt, timeout_s=5.0).accepted  # one lost frame is within the counter tolerance
+    link.wait_outcome(nxt.command_id, 10.0)
+    assert executor.executed == [nxt.command_id]

@@ -13,10 +13,10 @@ from typing import Iterator
 import pytest
 
 from field.controller import ControllerConfig, CraneController, FixedOutcomeExecutor
-from field.errors import CommandRejected, LinkTimeout
+from field.errors import LinkTimeout
 from field.link import ControllerState, RejectReason
 from field.link.base import LinkConfig, LinkURL
-from tests.field.helpers import wait_until
+from tests.field.helpers import lost_command_is_known_not_executed, wait_until
 
 LINK = LinkConfig(insecure=True, heartbeat_timeout_s=1.0, status_timeout_s=1.0, connect_timeout_s=20.0)
 E2E = "E2E profile: CRC over data id + payload, and a 4-bit alive counter"
@@ -154,17 +154,7 @@ def test_zenoh_reordered_late_command_is_never_executed(zpair, make_cmd):
 def test_zenoh_dropped_command_is_known_not_executed(zpair, make_cmd):
     p = zpair()
     p.arm("drop")
-    cmd = make_cmd(p.link.new_command_id())
-    with pytest.raises(LinkTimeout) as ei:
-        p.link.send_grasp(cmd, timeout_s=1.0)
-    assert ei.value.status is not None and ei.value.status.state is ControllerState.IDLE
-    assert "NOT executing" in str(ei.value)
-    with pytest.raises(CommandRejected):  # never re-sent with the same id
-        p.link.send_grasp(cmd)
-    nxt = make_cmd(p.link.new_command_id())
-    assert p.link.send_grasp(nxt, timeout_s=5.0).accepted
-    p.link.wait_outcome(nxt.command_id, 10.0)
-    assert p.executor.executed == [nxt.command_id]
+    lost_command_is_known_not_executed(p.link, p.executor, make_cmd)
 
 
 @pytest.mark.safety_case(error="unacceptable delay", link="zenoh",
