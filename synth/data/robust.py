@@ -19,6 +19,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Callable
 
+from synth.data.candidates import _succeeded as _ok
 from synth.geometry.grasp import Grasp
 from synth.physics.perturb import PositioningError, grasp_rng, perturbed_grasps
 
@@ -79,13 +80,6 @@ class Confirmation:
     @property
     def fraction(self) -> float:
         return self.successes / len(self.repeats) if self.repeats else float("nan")
-
-
-def _ok(result: object) -> bool:
-    ok = getattr(result, "success", None)
-    if ok is None:
-        ok = str(getattr(getattr(result, "outcome", None), "value", "")).lower() == "success"
-    return bool(ok)
 
 
 def confirmer(labels: RobustLabels, simulate: Callable[[Grasp], object], seed: int,
