@@ -68,7 +68,7 @@ def in_train_fraction(pile_id, seed: int = 0, fraction: float = 1.0) -> bool:
 
 
 def sample_pile_id(sample) -> str:
-    """The pile identifier of a :mod:`synth.data.dataset` sample (its ``pile_id`` attribute or metadata)."""
+    """The pile identifier of a :mod:`synth.data.shards` sample (its ``pile_id`` attribute or metadata)."""
     for obj in (sample, getattr(sample, "meta", None), getattr(sample, "metadata", None)):
         if obj is None:
             continue
@@ -111,7 +111,7 @@ class DataConfig:
 
 def list_shards(data_dir: str | Path | list) -> tuple[list[Path], dict]:
     """Shard files of a data set in manifest order, and the manifest's grid (size_px, extent_m,
-    camera_height_m), via :func:`synth.data.dataset.read_manifest`. A list of folders gives all their
+    camera_height_m), via :func:`synth.data.shards.read_manifest`. A list of folders gives all their
     shards (in the order given); their grids must agree."""
     if isinstance(data_dir, (list, tuple)):
         if not data_dir:
@@ -124,7 +124,7 @@ def list_shards(data_dir: str | Path | list) -> tuple[list[Path], dict]:
                                 "data sets trained together must share size_px, extent_m and camera height")
             shards += more
         return shards, grid
-    from synth.data import dataset as ds
+    from synth.data import shards as ds
     from synth.data.datastore import data_folder
 
     try:
@@ -139,7 +139,7 @@ def list_shards(data_dir: str | Path | list) -> tuple[list[Path], dict]:
 
 
 def load_samples(shard: Path):
-    from synth.data import dataset as ds
+    from synth.data import shards as ds
 
     try:
         return list(ds.load_shard(shard))

@@ -72,7 +72,7 @@ class RoundConfig:
 
 def _store_params(cfg: RoundConfig, model_sha256: str) -> dict:
     """The round's store record parameters: what a store reader needs (size, renders) and the round."""
-    from synth.data.dataset import DATASET_FORMAT_VERSION
+    from synth.data.shards import DATASET_FORMAT_VERSION
     from synth.physics.trial import TRIAL_REVISION
 
     # n_logs / obstacles_fraction only describe a generated store's piles; a round's piles are its own

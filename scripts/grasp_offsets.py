@@ -39,7 +39,7 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
-    from synth.data.dataset import load_shard
+    from synth.data.shards import load_shard
 
     rng = np.random.default_rng(args.seed)
     jobs = []

@@ -251,7 +251,7 @@ def test_train_outcome_labels_and_the_beta_map(capsys, work, tmp_path):
     import dataclasses
 
     from planner.checkpoint import load_checkpoint
-    from synth.data.dataset import ShardWriter, iter_samples, read_manifest, write_manifest
+    from synth.data.shards import ShardWriter, iter_samples, read_manifest, write_manifest
 
     fails(cli(capsys, "train", "--data", work / "data", "--out", work / "o1", "--labels", "outcome",
               "--skip-no-candidates"), 2, "--skip-no-candidates", "--labels outcome")

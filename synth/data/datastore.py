@@ -31,9 +31,10 @@ import time
 from pathlib import Path
 from typing import Callable
 
-from synth.data.dataset import (DatasetFormatError, DatasetIntegrityError, DatasetJob, DatasetJobError,
-                           JobProgress, Manifest, ShardInfo, ShardWriter, SubsetResult, add_pile_samples,
-                           new_chunk_stats, read_manifest, simulate_subsets, summarise, write_manifest)
+from synth.data.dataset import (DatasetJob, DatasetJobError, JobProgress, SubsetResult, add_pile_samples, new_chunk_stats,
+                                simulate_subsets, summarise)
+from synth.data.shards import (DatasetFormatError, DatasetIntegrityError, Manifest, ShardInfo, ShardWriter, read_manifest,
+                               write_manifest)
 from synth.common.files import atomic_write_bytes
 from synth.common.formats import VersionedJson
 from synth.common.runner import pending, run_tasks

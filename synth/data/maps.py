@@ -18,7 +18,7 @@ Channels (index order is fixed, see :data:`MAP_CHANNELS`):
   moving the centre along the closing axis by 0.1/0.2/0.3 m leaves 79/26/5 % successes, across it
   95/84/68 % — so marking the footprint taught a network grasps 0.3–0.7 m off centre.
   (Data set format 1.0 marked the footprint; its shards are re-encoded from their grasps on
-  load, :func:`synth.data.dataset.load_shard`.)
+  load, :func:`synth.data.shards.load_shard`.)
 * ``B`` — balance ``cos β`` of the grasp (β: grapple tilt from the world z axis after the lift).
 
 Outside every region C, S, W and B are 0 (the paper's convention: only pixels with ``U = 1``

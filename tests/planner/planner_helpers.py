@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from synth.data.dataset import Manifest, Sample, ShardWriter, write_manifest
+from synth.data.shards import Manifest, Sample, ShardWriter, write_manifest
 from synth.geometry.frames import OrthoGrid
 from synth.geometry.grasp import Grasp
 from synth.data.maps import encode_grasps

@@ -32,7 +32,7 @@ def test_a_round_stores_each_choice_with_its_repeated_outcomes(tmp_path, tiny_mo
     """Each tried grasp is one trial whose repeats are real twin trials of the grasp moved by the
     positioning error; the round is a store whose shards carry the success fraction as the label."""
     from synth.data.datastore import materialize
-    from synth.data.dataset import iter_samples
+    from synth.data.shards import iter_samples
 
     store = run_round(CFG, tiny_model, tmp_path / "r0")
     assert store["summary"]["complete"] and store["params"]["onpolicy"]["repeats"] == 3

@@ -10,7 +10,7 @@ import pytest
 from planner.data import DataConfig, ShardStream, list_shards
 from planner.errors import DataError
 from planner_helpers import bar_pile, make_dataset, observation, subset_grasp
-from synth.data.dataset import Manifest, Sample, ShardWriter, write_manifest
+from synth.data.shards import Manifest, Sample, ShardWriter, write_manifest
 from synth.data.maps import encode_grasps
 from synth.geometry.frames import OrthoGrid
 

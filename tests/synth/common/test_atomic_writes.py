@@ -94,7 +94,7 @@ def _write_ortho(path: Path, version: int) -> None:
 
 def _write_shard(path: Path, version: int) -> None:
     """A data-set shard and its done record (through the data set's own write seam)."""
-    from synth.data.dataset import Sample, ShardWriter
+    from synth.data.shards import Sample, ShardWriter
     from synth.geometry.frames import OrthoGrid
     from synth.data.maps import encode_grasps
 
@@ -109,7 +109,7 @@ def _write_shard(path: Path, version: int) -> None:
 
 
 def _write_manifest(path: Path, version: int) -> None:
-    from synth.data.dataset import Manifest, write_manifest
+    from synth.data.shards import Manifest, write_manifest
 
     write_manifest(path, Manifest(params={"seed": version, "pad": "m" * (10 if version == 0 else 100_000)},
                                   grid={"size_px": 32}, shards=[], summary={}))

@@ -4,11 +4,9 @@ import json
 import numpy as np
 import pytest
 
-import synth.data.dataset as ds
-from synth.data.dataset import (
-    DatasetFormatError, DatasetIntegrityError, Manifest, Sample, ShardWriter, iter_samples, load_shard,
-    read_manifest, write_manifest,
-)
+import synth.data.shards as shards
+from synth.data.shards import (DatasetFormatError, DatasetIntegrityError, Manifest, Sample, ShardWriter, iter_samples,
+                               load_shard, read_manifest, write_manifest)
 from synth.geometry.frames import OrthoGrid
 from synth.geometry.grasp import Grasp
 from synth.data.maps import encode_grasps
@@ -104,7 +102,7 @@ def test_full_disk_leaves_no_shard(tmp_path, monkeypatch):
     def full(path, data):
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(ds, "_write_bytes", full)
+    monkeypatch.setattr(shards, "write_bytes", full)
     with pytest.raises(OSError):
         w.close()
     assert not list(tmp_path.glob("shard_*"))
@@ -137,7 +135,8 @@ def test_bad_worker_label():
 # ---------------------------------------------------------------------------------------------
 from types import SimpleNamespace  # noqa: E402
 
-from synth.data.dataset import DatasetJobError, build_dataset, verify_dataset  # noqa: E402
+from synth.data.dataset import DatasetJobError, build_dataset  # noqa: E402
+from synth.data.shards import verify_dataset  # noqa: E402
 
 TINY = dict(n_logs=2, obstacles_fraction=0.0, seed=3, size_px=32, n_renders=2, max_trials_per_subset=3)
 
@@ -222,20 +221,20 @@ def test_resume_with_other_parameters_is_refused(tmp_path):
 
 
 def test_full_disk_keeps_the_manifest_consistent(tmp_path, monkeypatch):
-    real = ds._write_bytes
+    real = shards.write_bytes
 
     def fill_after_first_shard(path, data):
         if path.name.endswith(".npz") and list(tmp_path.glob("shard_*.npz")):
             raise OSError(errno.ENOSPC, "No space left on device")
         real(path, data)
 
-    monkeypatch.setattr(ds, "_write_bytes", fill_after_first_shard)
+    monkeypatch.setattr(shards, "write_bytes", fill_after_first_shard)
     with pytest.raises(DatasetJobError, match="No space left.*1 of 2 chunks"):
         build_dataset(tmp_path, n_piles=2, workers=1, simulate_factory=_fake_factory, **TINY)
     man = verify_dataset(tmp_path)
     assert len(man.shards) == 1 and not man.summary["complete"]
     assert len(list(iter_samples(tmp_path))) == man.n_samples == 6
-    monkeypatch.setattr(ds, "_write_bytes", real)
+    monkeypatch.setattr(shards, "write_bytes", real)
     man = build_dataset(tmp_path, n_piles=2, workers=1, simulate_factory=_fake_factory, **TINY)
     assert man.summary["complete"] and man.n_samples == 12
 
@@ -381,7 +380,7 @@ def _as_format_1_0(path, stats_grid=True):
         for x, y, p, w, _ in G[starts[k]:starts[k + 1]]:
             arrays["maps"][k, 3][rectangle_mask(GRID, Grasp(x, y, p, w))] = 1.0
     np.savez_compressed(path, **arrays)
-    rec_path = ds.done_record_path(path)
+    rec_path = shards.done_record_path(path)
     rec = json.loads(rec_path.read_text())
     rec["stats"] = {"grid": {"size_px": 32, "extent_m": 5.0}} if stats_grid else {}
     rec_path.write_text(json.dumps(rec))

@@ -7,7 +7,8 @@ from types import SimpleNamespace
 
 import pytest
 
-from synth.data.dataset import DatasetIntegrityError, build_dataset, iter_samples, read_manifest, verify_dataset
+from synth.data.shards import DatasetIntegrityError, iter_samples, read_manifest, verify_dataset
+from synth.data.dataset import build_dataset
 
 TINY = dict(n_logs=2, obstacles_fraction=0.0, seed=3, size_px=32, n_renders=2, max_trials_per_subset=3)
 

@@ -8,8 +8,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from synth.data.dataset import (DatasetFormatError, DatasetIntegrityError, DatasetJob, DatasetJobError,
-                           build_dataset, iter_samples)
+from synth.data.shards import DatasetFormatError, DatasetIntegrityError, iter_samples
+from synth.data.dataset import DatasetJob, DatasetJobError, build_dataset
 from synth.data.datastore import build_store, chunk_path, materialize, open_store, read_store
 
 TINY = dict(n_logs=2, obstacles_fraction=0.0, seed=3, size_px=32, n_renders=2, max_trials_per_subset=3)

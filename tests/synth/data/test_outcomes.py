@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from synth.data.dataset import Sample, ShardWriter, iter_samples, load_shard
+from synth.data.shards import Sample, ShardWriter, iter_samples, load_shard
 from synth.data.datastore import chunk_path, materialize
 from synth.data.outcomes import (OutcomeLabelConfig, merge_centres, outcome_targets, trial_array,
                                  trial_success)
