@@ -9,7 +9,7 @@ from ``--work-dir``) and objective, side by side on the same pile:
 * ``verify K=k``: :class:`planner.verify.Verifier` with ``k`` candidates on the reconstruction, no
   perturbed copies; ``verify K=k +C copies``: the same with ``C`` perturbed copies of the
   reconstruction (per-log sigmas from the reconstruction report's fit classes,
-  :func:`planner.verify.perturbation_for_fits`).
+  :func:`planner.pile_copies.perturbation_for_fits`).
 
 A verification that finds no successful grasp counts as a failure (the field stack would not send).
 Trials on the reconstruction are shared between the variants of a pile (the K=4 candidates are the
@@ -70,7 +70,8 @@ def pile_rows(case, net, objectives, ks, copies) -> list[dict]:
     from planner.errors import PlannerError
     from planner.inference import Objective, plan
     from reconstruct.pipeline import log_end_sigmas
-    from planner.verify import PerturbationConfig, Verifier, VerifyConfig, perturbation_for_fits
+    from planner.pile_copies import PerturbationConfig, perturbation_for_fits
+    from planner.verify import Verifier, VerifyConfig
 
     executed: dict = {}
 
@@ -217,7 +218,7 @@ def run(cfg: VerifyBenchConfig, work_dir: Path, out: Path, progress=print) -> di
     from reconstruct.fitting.fit import FIT_REVISION
     from synth.common.files import sha256_file
     from synth.common.runner import run_tasks
-    from synth.physics.trial import TRIAL_REVISION
+    from synth.physics.trial_spec import TRIAL_REVISION
 
     model = Path(cfg.model or DEFAULT_MODEL)
     config = {"piles": cfg.piles, "seed": cfg.seed, "logs": list(cfg.logs), "obstacles": list(cfg.obstacles),

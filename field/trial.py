@@ -155,7 +155,8 @@ class TrialOptions:
         """The :class:`planner.verify.VerifyConfig` of these options; ``fits``: how the
         reconstruction placed each log (its report's ``fit``) and ``end_sigmas_m`` its less certain
         end's sigma per log (:func:`reconstruct.pipeline.log_end_sigmas`), for per-log perturbation sigmas."""
-        from planner.verify import PerturbationConfig, VerifyConfig, perturbation_for_fits
+        from planner.pile_copies import PerturbationConfig, perturbation_for_fits
+        from planner.verify import VerifyConfig
 
         pert = PerturbationConfig(copies=self.verify_copies, seed=self.verify_seed)
         if fits:

@@ -20,7 +20,8 @@ from planner.model import UNetConfig
 from planner.subsets import SubsetPolicy
 from synth.data.outcomes import OutcomeLabelConfig
 from planner.train import TrainConfig
-from planner.verify import PerturbationConfig, VerifyConfig
+from planner.pile_copies import PerturbationConfig
+from planner.verify import VerifyConfig
 from synth.cli import JSON, WORKERS
 from synth.common.cli import progress_bar
 from synth.common.cli import (EXIT_TRIAL, CliError, Output, check_input, check_output_dir, check_output_file,
@@ -334,7 +335,7 @@ def _check_plan_flags(pile: Path, model: Path, png: Path | None, views: int, vie
 
         spec = read_pile(pile_json)  # a bad pile file stops the command before the network loads
         if verify is not None:
-            from planner.verify import check_twin_loads
+            from planner.pile_copies import check_twin_loads
 
             check_twin_loads(spec)
     vcfg = None

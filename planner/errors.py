@@ -22,3 +22,8 @@ class DataError(PlannerError):
 
 class TrainingError(PlannerError):
     """Training cannot start or continue (e.g. the output folder holds a different run)."""
+
+
+class VerificationError(PlannerError):
+    """Verification cannot run on this input (no pile, a pile the twin cannot load, a plan made on
+    another pile, a time budget too small for one trial)."""

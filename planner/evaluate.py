@@ -11,7 +11,7 @@ same piles, the same trials and the same tables:
   simulation before the graded trial — an upper bound;
 * ``unet`` with ``verify_k`` > 0: the U-Net's plan checked by :mod:`planner.verify` — its ``k``
   best grasps tried in the twin on a *perturbed copy* of the test pile (the reconstruction's
-  measured errors, :class:`planner.verify.PerturbationConfig`), never on the test pile itself
+  measured errors, :class:`planner.pile_copies.PerturbationConfig`), never on the test pile itself
   (that would be the oracle); the graded trial then runs on the test pile.
 
 With ``EvalConfig.field_error`` (:class:`synth.physics.perturb.PositioningError`) every planner's
@@ -243,12 +243,13 @@ def verified_planner(plan_all: Callable[[object, object], object], objective: st
                      trial_preset: str = "fast", trial_fn=None) -> PlanFn:
     """``plan_all(obs, pile) -> planner.inference.Plan`` (every subset's best grasp) checked by the
     verifier: its ``k`` best grasps are tried on a perturbed copy of the test pile (copy 1 of
-    :func:`planner.verify.perturb_pile` with the default sigmas, seeded by the pile's seed) and, with
+    :func:`planner.pile_copies.perturb_pile` with the default sigmas, seeded by the pile's seed) and, with
     ``copies``, on that many perturbed copies of it; the chosen grasp, or None (declined) when none
     succeeded. Sequential and without a time budget, so that the evaluation is repeatable.
     ``trial_fn``: the twin trial (default :func:`synth.physics.trial.run_trial`)."""
     from planner.inference import Objective
-    from planner.verify import PerturbationConfig, Verifier, VerifyConfig, perturb_pile
+    from planner.pile_copies import PerturbationConfig, perturb_pile
+    from planner.verify import Verifier, VerifyConfig
     from synth.physics.trial import TrialConfig
 
     obj = Objective(kind=objective)
@@ -409,7 +410,7 @@ def run_evaluation(specs: list[PlannerSpec], cfg: EvalConfig, out_dir: str | Pat
     out = Path(out_dir)
     rec_dir = out / "records"
     rec_dir.mkdir(parents=True, exist_ok=True)
-    from synth.physics.trial import TRIAL_REVISION
+    from synth.physics.trial_spec import TRIAL_REVISION
 
     field = "" if cfg.field_error is None else f"+field{cfg.field_error.sigma_xy_m:g}m{cfg.field_error.sigma_phi_deg:g}deg"
     fingerprints = {s.name: _fingerprint(s) + field for s in specs}  # a record without this field row is made again

@@ -73,7 +73,7 @@ class RoundConfig:
 def _store_params(cfg: RoundConfig, model_sha256: str) -> dict:
     """The round's store record parameters: what a store reader needs (size, renders) and the round."""
     from synth.data.shards import DATASET_FORMAT_VERSION
-    from synth.physics.trial import TRIAL_REVISION
+    from synth.physics.trial_spec import TRIAL_REVISION
 
     # n_logs / obstacles_fraction only describe a generated store's piles; a round's piles are its own
     return {"n_piles": cfg.piles, "n_logs": cfg.max_logs, "obstacles_fraction": 1 / cfg.obstacles_every,

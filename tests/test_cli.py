@@ -384,7 +384,7 @@ def test_eval_verify_row_is_a_real_twin_check_on_a_copy(capsys, work):
     """``eval --verify 2`` adds a verified row that really tries grasps in the twin, on a perturbed
     copy of the test pile: on this pile the network's best grasp drops on that copy, so the verified
     row must choose another grasp, one that succeeds on the copy."""
-    from planner.verify import PerturbationConfig, perturb_pile
+    from planner.pile_copies import PerturbationConfig, perturb_pile
     from synth.scene.generate import GenerationConfig, generate_pile
     from synth.geometry.grasp import Grasp
     from synth.physics.trial import TrialConfig, run_trial

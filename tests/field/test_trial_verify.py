@@ -113,7 +113,7 @@ def test_the_perturbed_copies_jitter_each_log_by_the_reconstructions_own_sigma(v
     """Each log's copies move its ends by at least the reconstruction's sigma of its less certain end
     (an end from an RTK float point would be jittered by decimetres, not its fit class's centimetre;
     the bundled survey is all fixed, and one of its logs is still less sure than its class)."""
-    from planner.verify import FIT_SIGMAS_M
+    from planner.pile_copies import FIT_SIGMAS_M
     from reconstruct.pipeline import log_end_sigmas, read_report
 
     rec, record = verified

@@ -16,10 +16,9 @@ import pytest
 
 from planner.errors import PlannerError
 from planner.inference import Objective, Plan, PlannedGrasp
-from planner.verify import (
-    NOT_CHECKED, PRUNED, NoVerifiedGrasp, PerturbationConfig, VerificationBudgetError, VerificationError,
-    VerifyConfig, measured_quality, perturb_pile, select_candidates, verify_plan,
-)
+from planner.pile_copies import PerturbationConfig, perturb_pile
+from planner.verify import (NOT_CHECKED, PRUNED, NoVerifiedGrasp, VerificationBudgetError, VerificationError, VerifyConfig,
+                            measured_quality, select_candidates, verify_plan)
 from synth.geometry.grasp import Grasp
 from synth.scene.pile import LogSpec, PileSpec, RockSpec, TerrainSpec, quat_from_x_axis
 from synth.physics.trial import Outcome, TrialResult
@@ -302,7 +301,7 @@ def test_a_written_verification_reads_back_and_a_newer_major_version_is_refused(
 
 
 def test_logs_the_reconstruction_hardly_saw_are_jittered_more():
-    from planner.verify import FIT_SIGMAS_M, perturbation_for_fits
+    from planner.pile_copies import FIT_SIGMAS_M, perturbation_for_fits
 
     cfg = perturbation_for_fits(["scan", "partial", "hidden", "what"], PerturbationConfig(copies=2, seed=3))
     assert cfg.copies == 2 and cfg.seed == 3
@@ -316,7 +315,7 @@ def test_logs_the_reconstruction_hardly_saw_are_jittered_more():
 def test_ends_the_reconstruction_is_unsure_of_are_jittered_by_its_own_sigma():
     """A log whose end came from an RTK float point (+-17 cm, 3-D) is jittered by that, not by its fit
     class's centimetre; a log the reconstruction is surer of than its class keeps the class figure."""
-    from planner.verify import FIT_SIGMAS_M, perturbation_for_fits
+    from planner.pile_copies import FIT_SIGMAS_M, perturbation_for_fits
 
     cfg = perturbation_for_fits(["scan", "scan", "partial"], PerturbationConfig(copies=1), [0.17, 0.005, None])
     assert cfg.log_sigmas_m[0] == (pytest.approx(0.17 / math.sqrt(3)), FIT_SIGMAS_M["scan"][1])
