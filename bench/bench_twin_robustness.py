@@ -40,7 +40,7 @@ def measure(store: Path | None, n: int, fresh_piles: int, reps: int, workers: in
     cases = (cases_from_store(store, n) if store is not None else []) + (
         fresh_cases(fresh_piles, fresh_seed, workers) if fresh_piles else [])
     rows = run_cases(cases, reps=reps, workers=workers, levels=levels, preset=preset, grapple=grapple)
-    from synth.physics.trial import TRIAL_REVISION
+    from synth.physics.trial_spec import TRIAL_REVISION
 
     counts = {s: sum(c.source == s for c in cases) for s in ("store", "fresh")}
     return {"format": "loggrasp.twin-robustness", "format_version": "1.0", "trial_revision": TRIAL_REVISION,

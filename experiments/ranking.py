@@ -136,7 +136,7 @@ def run(model: str, out_dir: str | Path, per_cell: int, top_n: int = 4, workers:
     records = collect(cfg, out_dir, workers)
     m = ranking_metrics(records)
     out = Path(out_dir)
-    from synth.physics.trial import TRIAL_REVISION
+    from synth.physics.trial_spec import TRIAL_REVISION
 
     RANKING.write(out / "ranking.json", {"collect": asdict(cfg), "model_sha256": sha256_file(Path(model)),
                                          "trial_revision": TRIAL_REVISION, **m})

@@ -52,7 +52,8 @@ from pathlib import Path
 import numpy as np
 
 from synth.data.datastore import chunk_path, open_store, read_chunk
-from synth.physics.trial import TRIAL_REVISION, TrialConfig, run_trial
+from synth.physics.trial import TrialConfig, run_trial
+from synth.physics.trial_spec import TRIAL_REVISION
 from synth.geometry.grasp import Grasp
 from synth.scene.pile import LogSpec, PileSpec, TerrainSpec, quat_from_x_axis
 

@@ -118,7 +118,7 @@ class DatasetJob:
         (so a resumed job notices changed trial settings), JSON-normalised."""
         from dataclasses import asdict
 
-        from synth.physics.trial import TRIAL_REVISION
+        from synth.physics.trial_spec import TRIAL_REVISION
 
         d = {**self.to_dict(), "trial_revision": TRIAL_REVISION, "trial_config_values": asdict(self.trial_config()),
              "candidate_config_values": asdict(self.candidate_config()), "format_version": DATASET_FORMAT_VERSION}

@@ -58,7 +58,7 @@ def test_a_record_made_by_other_fitting_or_trial_code_is_not_resumed(tmp_path, m
 
     from experiments.verification import run
     from reconstruct.fitting.fit import FIT_REVISION
-    from synth.physics.trial import TRIAL_REVISION
+    from synth.physics.trial_spec import TRIAL_REVISION
 
     measured = []
 

@@ -63,11 +63,11 @@ def test_other_configuration_refused(tmp_path):
 
 def test_records_of_another_trial_revision_are_not_reused(tmp_path, monkeypatch):
     """An evaluation made before the twin's physics changed is not resumed with the new physics."""
-    import synth.physics.trial
+    import synth.physics.trial_spec
 
     cfg = EvalConfig(logs=(2,), obstacles=(False,), per_cell=1)
     run_evaluation([PlannerSpec("random")], cfg, tmp_path, workers=1)
-    monkeypatch.setattr(synth.physics.trial, "TRIAL_REVISION", synth.physics.trial.TRIAL_REVISION + 1)
+    monkeypatch.setattr(synth.physics.trial_spec, "TRIAL_REVISION", synth.physics.trial_spec.TRIAL_REVISION + 1)
     with pytest.raises(ValueError, match="trial revision"):
         run_evaluation([PlannerSpec("random")], cfg, tmp_path, workers=1)
 

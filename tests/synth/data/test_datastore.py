@@ -86,9 +86,9 @@ def test_resume_with_other_parameters_is_refused(clone):
 
 def test_chunk_from_another_trial_revision_is_not_mixed_in(clone, tmp_path, monkeypatch):
     other = tmp_path / "other"
-    import synth.physics.trial
+    import synth.physics.trial_spec
 
-    monkeypatch.setattr(synth.physics.trial, "TRIAL_REVISION", synth.physics.trial.TRIAL_REVISION + 1)
+    monkeypatch.setattr(synth.physics.trial_spec, "TRIAL_REVISION", synth.physics.trial_spec.TRIAL_REVISION + 1)
     build_store(other, _job(3), simulate_factory=_fake_factory)
     monkeypatch.undo()
     shutil.copy(chunk_path(other, 2), chunk_path(clone, 2))
