@@ -26,6 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
+from experiments.case_study_panels import (describe_trial, fmt_targets, grid_image, outcome_colour, render_panel,
+                                           stack_blocks, titled, u_panel, with_heading)
 from planner.errors import PlannerError
 from synth.common.formats import VersionedJson
 
@@ -268,97 +270,6 @@ def graspability_map(obs, planner, targets) -> np.ndarray:
     return 1.0 / (1.0 + np.exp(-out[0, 3]))
 
 
-# -- drawing ------------------------------------------------------------------------------------
-_GREEN, _RED, _WHITE = (80, 220, 80), (80, 80, 255), (255, 255, 255)
-
-
-def _scale(obs, cfg: CaseStudyConfig) -> int:
-    return max(1, round(cfg.panel_px / obs.depth.shape[0]))
-
-
-def _titled(img: np.ndarray, lines: list[str], colour=_WHITE) -> np.ndarray:
-    import cv2
-
-    w = img.shape[1]
-    fs = 0.45 if w >= 200 else 0.3
-    lh = int(round(40 * fs))
-    strip = np.zeros((lh * len(lines) + 6, w, 3), np.uint8)
-    for k, line in enumerate(lines):
-        cv2.putText(strip, line, (4, lh * (k + 1)), cv2.FONT_HERSHEY_SIMPLEX, fs, colour, 1, cv2.LINE_AA)
-    return np.concatenate([strip, img], axis=0)
-
-
-def _render_panel(obs, grasps, cfg: CaseStudyConfig) -> np.ndarray:
-    """The render (left half of :func:`synth.render.preview.draw_grasps`) with the grasps drawn."""
-    from synth.render.preview import draw_grasps
-
-    s = _scale(obs, cfg)
-    return draw_grasps(obs, grasps, scale=s)[:, : obs.depth.shape[0] * s]
-
-
-def _u_panel(u: np.ndarray, obs, cfg: CaseStudyConfig, u_max: float = 1.0) -> np.ndarray:
-    """U as a colour map, 0 .. ``u_max`` (share it between panels that are compared)."""
-    import cv2
-
-    s = _scale(obs, cfg)
-    n = u.shape[0] * s
-    img = cv2.applyColorMap(cv2.resize((np.clip(u / max(u_max, 1e-6), 0, 1) * 255).astype(np.uint8), (n, n),
-                                       interpolation=cv2.INTER_NEAREST), cv2.COLORMAP_INFERNO)
-    inst = cv2.resize(obs.instance.astype(np.int32), (n, n), interpolation=cv2.INTER_NEAREST)
-    for code, colour in (((inst > 0) & (inst < 1000), (200, 200, 200)), (inst >= 1000, (80, 80, 255))):
-        contours, _ = cv2.findContours(code.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-        cv2.drawContours(img, contours, -1, colour, 1)
-    return img
-
-
-def _outcome_colour(outcome: str):
-    return _GREEN if outcome == "success" else _RED
-
-
-def _fmt_targets(t) -> str:
-    return "{" + ",".join(str(i) for i in t) + "}"
-
-
-def _describe(rec: dict) -> str:
-    return f"{rec['outcome']} {len(rec['grasped'])}/{len(rec['targets'])}"
-
-
-def grid_image(panels: list[np.ndarray], columns: int) -> np.ndarray:
-    """Panels (any sizes) on a white grid, ``columns`` per row, 4 px apart."""
-    if not panels:
-        raise CaseStudyError("nothing to draw")
-    h = max(p.shape[0] for p in panels)
-    w = max(p.shape[1] for p in panels)
-    rows = []
-    for k in range(0, len(panels), columns):
-        row = []
-        for p in panels[k : k + columns] + [np.full((h, w, 3), 255, np.uint8)] * (columns - len(panels[k : k + columns])):
-            cell = np.full((h, w, 3), 255, np.uint8)
-            cell[: p.shape[0], : p.shape[1]] = p
-            row.append(cell)
-            row.append(np.full((h, 4, 3), 255, np.uint8))
-        rows.append(np.concatenate(row[:-1], axis=1))
-        rows.append(np.full((4, rows[-1].shape[1], 3), 255, np.uint8))
-    return np.concatenate(rows[:-1], axis=0)
-
-
-def _heading(img: np.ndarray, text: str) -> np.ndarray:
-    import cv2
-
-    strip = np.full((30, img.shape[1], 3), 40, np.uint8)
-    cv2.putText(strip, text, (6, 21), cv2.FONT_HERSHEY_SIMPLEX, 0.6, _WHITE, 1, cv2.LINE_AA)
-    return np.concatenate([strip, img], axis=0)
-
-
-def _stack(blocks: list[np.ndarray]) -> np.ndarray:
-    w = max(b.shape[1] for b in blocks)
-    out = []
-    for b in blocks:
-        pad = np.full((b.shape[0], w - b.shape[1], 3), 255, np.uint8)
-        out += [np.concatenate([b, pad], axis=1), np.full((8, w, 3), 255, np.uint8)]
-    return np.concatenate(out[:-1], axis=0)
-
-
 # -- the four case studies ------------------------------------------------------------------------
 def ranking_case(planner, cfg: CaseStudyConfig) -> tuple[np.ndarray, list[dict]]:
     """One pile, the best grasp of every subset ranked by Q, per objective; all tried."""
@@ -377,15 +288,15 @@ def ranking_case(planner, cfg: CaseStudyConfig) -> tuple[np.ndarray, list[dict]]
             rec = {"case": "ranking", "panel": f"{obj} #{rank}", "seed": seed, "objective": obj, "rank": rank,
                    **try_grasp(pile, g, tc)}
             records.append(rec)
-            panels.append(_titled(_render_panel(obs, [(g.grasp, g.targets)], cfg),
-                                  [f"#{rank} {_fmt_targets(g.targets)} q={g.quality:.3f}",
-                                   f"u={g.graspability:.2f} b={g.balance:.2f} {_describe(rec)}"],
-                                  _outcome_colour(rec["outcome"])))
+            panels.append(titled(render_panel(obs, [(g.grasp, g.targets)], cfg),
+                                  [f"#{rank} {fmt_targets(g.targets)} q={g.quality:.3f}",
+                                   f"u={g.graspability:.2f} b={g.balance:.2f} {describe_trial(rec)}"],
+                                  outcome_colour(rec["outcome"])))
         n_ok = sum(r["outcome"] == "success" for r in records if r["objective"] == obj)
-        blocks.append(_heading(grid_image(panels, cfg.ranking_columns),
+        blocks.append(with_heading(grid_image(panels, cfg.ranking_columns),
                                f"seed {seed}: best grasp of every target subset ranked by Q = {obj} "
                                f"({n_ok}/{len(panels)} succeed in the twin)"))
-    return _stack(blocks), records
+    return stack_blocks(blocks), records
 
 
 def obstacle_case(planner, cfg: CaseStudyConfig) -> tuple[np.ndarray, list[dict]]:
@@ -417,18 +328,18 @@ def obstacle_case(planner, cfg: CaseStudyConfig) -> tuple[np.ndarray, list[dict]
         u0 = graspability_map(obs, planner, before.targets)
         u1 = graspability_map(obs2, planner, before.targets)
         u_max = float(max(u0.max(), u1.max()))
-        t0 = _fmt_targets(before.targets)
+        t0 = fmt_targets(before.targets)
         rows += [
-            _titled(_render_panel(obs, [(before.grasp, before.targets)], cfg),
-                    [f"seed {seed}, no obstacle: {t0}", f"q={before.quality:.3f} {_describe(r0)}"],
-                    _outcome_colour(r0["outcome"])),
-            _titled(_render_panel(obs2, [(after.grasp, after.targets)], cfg),
-                    [f"{kind} placed: {_fmt_targets(after.targets)}", f"q={after.quality:.3f} {_describe(r1)}"],
-                    _outcome_colour(r1["outcome"])),
-            _titled(_render_panel(obs2, [(before.grasp, before.targets)], cfg),
-                    [f"first grasp with the {kind}", f"{_describe(r2)}"], _outcome_colour(r2["outcome"])),
-            _titled(_u_panel(u0, obs, cfg, u_max), [f"U for {t0}, no obstacle", f"max {u0.max():.2f} (scale 0-{u_max:.2f})"]),
-            _titled(_u_panel(u1, obs2, cfg, u_max), [f"U for {t0}, with {kind}", f"max {u1.max():.2f} (scale 0-{u_max:.2f})"]),
+            titled(render_panel(obs, [(before.grasp, before.targets)], cfg),
+                    [f"seed {seed}, no obstacle: {t0}", f"q={before.quality:.3f} {describe_trial(r0)}"],
+                    outcome_colour(r0["outcome"])),
+            titled(render_panel(obs2, [(after.grasp, after.targets)], cfg),
+                    [f"{kind} placed: {fmt_targets(after.targets)}", f"q={after.quality:.3f} {describe_trial(r1)}"],
+                    outcome_colour(r1["outcome"])),
+            titled(render_panel(obs2, [(before.grasp, before.targets)], cfg),
+                    [f"first grasp with the {kind}", f"{describe_trial(r2)}"], outcome_colour(r2["outcome"])),
+            titled(u_panel(u0, obs, cfg, u_max), [f"U for {t0}, no obstacle", f"max {u0.max():.2f} (scale 0-{u_max:.2f})"]),
+            titled(u_panel(u1, obs2, cfg, u_max), [f"U for {t0}, with {kind}", f"max {u1.max():.2f} (scale 0-{u_max:.2f})"]),
         ]
         seed += 1
     return grid_image(rows, 5), records
@@ -470,10 +381,10 @@ def packed_case(planner, cfg: CaseStudyConfig) -> tuple[np.ndarray, list[dict]]:
             rec = {"case": "packed", "panel": f"{label}, {which}", "seed": seed, "objective": cfg.objective,
                    **try_grasp(pile, g, tc)}
             records.append(rec)
-            panels.append(_titled(_render_panel(obs, [(g.grasp, g.targets)], cfg),
+            panels.append(titled(render_panel(obs, [(g.grasp, g.targets)], cfg),
                                   [f"seed {seed} {label}, {which}",
-                                   f"{_fmt_targets(g.targets)} q={g.quality:.3f} {_describe(rec)}"],
-                                  _outcome_colour(rec["outcome"])))
+                                   f"{fmt_targets(g.targets)} q={g.quality:.3f} {describe_trial(rec)}"],
+                                  outcome_colour(rec["outcome"])))
     return grid_image(panels, 2), records
 
 
@@ -504,10 +415,10 @@ def logs_case(planner, cfg: CaseStudyConfig) -> tuple[np.ndarray, list[dict]]:
                    **try_grasp(pile, p.best, tc)}
             records.append(rec)
             top = p.grasps[:3]
-            panels.append(_titled(_render_panel(obs, [(g.grasp, g.targets) for g in top], cfg),
+            panels.append(titled(render_panel(obs, [(g.grasp, g.targets) for g in top], cfg),
                                   [f"seed {seed} {label}",
-                                   f"{_fmt_targets(p.best.targets)} q={p.best.quality:.3f} {_describe(rec)}"],
-                                  _outcome_colour(rec["outcome"])))
+                                   f"{fmt_targets(p.best.targets)} q={p.best.quality:.3f} {describe_trial(rec)}"],
+                                  outcome_colour(rec["outcome"])))
             seed += 1
     return grid_image(panels, min(4, len(panels))), records
 
@@ -592,11 +503,11 @@ def readme_markdown(results: dict) -> str:
                 ok = sum(r["outcome"] == "success" for r in ro)
                 top = ro[0]
                 lines += [f"{obj}: {ok}/{len(ro)} subsets' best grasps succeed; the top-ranked grasp "
-                          f"({_fmt_targets(top['targets'])}, q = {top['q']:.3f}) gives `{top['outcome']}`.", ""]
+                          f"({fmt_targets(top['targets'])}, q = {top['q']:.3f}) gives `{top['outcome']}`.", ""]
         lines += ["| panel | seed | targets | q | u | b | outcome | held (enclosed if not lifted) |", "|---|---|---|---|---|---|---|---|"]
         for r in mine:
-            lines.append(f"| {r['panel']} | {r['seed']} | {_fmt_targets(r['targets'])} | {r['q']:.3f} | "
-                         f"{r['u']:.3f} | {r['b']:.2f} | {r['outcome']} | {_fmt_targets(r['grasped'])} |")
+            lines.append(f"| {r['panel']} | {r['seed']} | {fmt_targets(r['targets'])} | {r['q']:.3f} | "
+                         f"{r['u']:.3f} | {r['b']:.2f} | {r['outcome']} | {fmt_targets(r['grasped'])} |")
         lines.append("")
     return "\n".join(lines)
 
