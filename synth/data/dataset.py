@@ -151,7 +151,7 @@ def _subsets(n: int) -> list[tuple[int, ...]]:
     return [c for k in range(1, n + 1) for c in combinations(range(n), k)]
 
 
-def _load_source_pile(job: DatasetJob, k: int):
+def load_source_pile(job: DatasetJob, k: int):
     """Pile ``k`` and its render: generated from (seed, k), or read from ``job.piles_dir``."""
     from synth.scene.generate import GenerationConfig, generate_pile
     from synth.render.ortho import OrthoObservation, OrthoRenderConfig, render_ortho
@@ -323,7 +323,7 @@ def build_chunk(out_dir: str, job_dict: dict, chunk: int, worker: str | None = N
     t0 = time.perf_counter()
     for k in job.chunk_piles(chunk):
         try:
-            pile, obs, pile_id, info = _load_source_pile(job, k)
+            pile, obs, pile_id, info = load_source_pile(job, k)
         except GenerationError as exc:  # no valid pile for this seed: recorded, skipped
             stats["piles_failed"] += 1
             stats["failed_piles"].append({"pile": k, "reason": str(exc)})
@@ -346,7 +346,7 @@ def _write_empty_done(out: Path, worker: str, chunk: int, stats: dict) -> dict:
                      sha256="", bytes=0, stats=stats)
     path = out / shard_name(worker, chunk)
     record = {"format": SHARD_FORMAT_NAME + ".done", "format_version": DATASET_FORMAT_VERSION, **info.to_dict()}
-    shards.write_bytes(done_record_path(path), json.dumps(record, indent=1).encode())
+    shards.write_atomic(done_record_path(path), json.dumps(record, indent=1).encode())
     return info.to_dict()
 
 

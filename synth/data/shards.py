@@ -287,14 +287,14 @@ class ShardWriter:
             n_subsets=len(self._maps), n_grasps=int(starts[-1]), sha256=hashlib.sha256(data).hexdigest(),
             bytes=len(data), stats=dict(stats or {}),
         )
-        write_bytes(self.path, data)
+        write_atomic(self.path, data)
         record = {"format": SHARD_FORMAT_NAME + ".done", "format_version": DATASET_FORMAT_VERSION, **info.to_dict()}
-        write_bytes(done_record_path(self.path), json.dumps(record, indent=1).encode())
+        write_atomic(done_record_path(self.path), json.dumps(record, indent=1).encode())
         self.closed = True
         return info
 
 
-def write_bytes(path: Path, data: bytes) -> None:
+def write_atomic(path: Path, data: bytes) -> None:
     """Atomic write (temp + rename); the seam where tests inject a full disk."""
     atomic_write_bytes(path, data)
 
@@ -394,7 +394,7 @@ class Manifest:
 
 def write_manifest(out_dir: str | Path, manifest: Manifest) -> Path:
     path = Path(out_dir) / MANIFEST_NAME
-    write_bytes(path, json.dumps(manifest.to_dict(), indent=1).encode())
+    write_atomic(path, json.dumps(manifest.to_dict(), indent=1).encode())
     return path
 
 

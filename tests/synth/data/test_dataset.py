@@ -102,7 +102,7 @@ def test_full_disk_leaves_no_shard(tmp_path, monkeypatch):
     def full(path, data):
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(shards, "write_bytes", full)
+    monkeypatch.setattr(shards, "write_atomic", full)
     with pytest.raises(OSError):
         w.close()
     assert not list(tmp_path.glob("shard_*"))
@@ -221,20 +221,20 @@ def test_resume_with_other_parameters_is_refused(tmp_path):
 
 
 def test_full_disk_keeps_the_manifest_consistent(tmp_path, monkeypatch):
-    real = shards.write_bytes
+    real = shards.write_atomic
 
     def fill_after_first_shard(path, data):
         if path.name.endswith(".npz") and list(tmp_path.glob("shard_*.npz")):
             raise OSError(errno.ENOSPC, "No space left on device")
         real(path, data)
 
-    monkeypatch.setattr(shards, "write_bytes", fill_after_first_shard)
+    monkeypatch.setattr(shards, "write_atomic", fill_after_first_shard)
     with pytest.raises(DatasetJobError, match="No space left.*1 of 2 chunks"):
         build_dataset(tmp_path, n_piles=2, workers=1, simulate_factory=_fake_factory, **TINY)
     man = verify_dataset(tmp_path)
     assert len(man.shards) == 1 and not man.summary["complete"]
     assert len(list(iter_samples(tmp_path))) == man.n_samples == 6
-    monkeypatch.setattr(shards, "write_bytes", real)
+    monkeypatch.setattr(shards, "write_atomic", real)
     man = build_dataset(tmp_path, n_piles=2, workers=1, simulate_factory=_fake_factory, **TINY)
     assert man.summary["complete"] and man.n_samples == 12
 
