@@ -48,16 +48,23 @@ from synth.scene.pile import PileSpec, rotate
 
 @dataclass(frozen=True)
 class CandidateConfig:
-    """How candidates are sampled and filtered."""
+    """How candidates are sampled and filtered.
 
-    n_phi: int = 7  # closing-axis angles sampled around the mean perpendicular [-]
-    max_dphi_rad: float = math.radians(30.0)  # largest deviation from the mean perpendicular [rad]
+    The rules only drop what the trial would refuse anyway, so that the trial budget
+    (``max_trials_per_subset``) goes to grasps that can work: docs/trials.md ("Negatives and the
+    candidate rules") has the measurement behind each value."""
+
+    n_phi: int = 9  # closing-axis angles sampled around the mean perpendicular [-] (11.25 deg apart)
+    max_dphi_rad: float = math.radians(45.0)  # largest deviation from the mean perpendicular [rad]:
+    # crossed logs' best closing axis can lie 45 deg off their mean perpendicular
     step_m: float = 0.10  # spacing of candidate centres along the targets' common extent [m]
-    end_margin_m: float = 0.30  # keep crossings this far from a target's ends [m]
+    end_margin_m: float = 0.15  # keep crossings this far from a target's ends [m]: the 0.22 m claw
+    # plate, centred 0.15 m in, still bears on the log
     side_margin_m: float = 0.08  # free space between the outermost target and a claw [m]
     claw_width_m: float = 0.22  # claw extent across the closing axis [m]
     claw_clearance_m: float = 0.03  # claws keep this far from logs and obstacles (> half the 5 cm plate) [m]
-    under_tolerance_m: float = 0.10  # a non-target this far below the lowest target may cross [m]
+    under_tolerance_m: float = 0.20  # a non-target this far below the lowest target may cross [m]: nearer,
+    # the closing claws sweep it up with the targets (MORE_THAN_INTENDED)
     extra_widths_m: tuple[float, ...] = (0.0, 0.15, 0.30)  # also try this much wider, shifted [m]
     max_candidates: int | None = None  # keep at most this many (narrowest first); None = all
 

@@ -27,18 +27,22 @@ def _claws(g, cfg=CandidateConfig()):
 
 
 def test_two_parallel_logs_yield_candidates_spanning_both():
+    cfg = CandidateConfig()
     pile = _pile([_log(0.0), _log(0.3)])
-    cands = generate_candidates(pile, [0, 1])
+    cands = generate_candidates(pile, [0, 1], cfg)
     assert len(cands) > 20
     widths = [g.width_m for g in cands]
     assert widths == sorted(widths)
     for g in cands:
         c1, c2 = _claws(g)
-        # closing axis across the logs (within 30 deg of pile y), claws outside both logs
-        assert abs(math.sin(g.phi_rad)) >= math.cos(math.radians(30)) - 1e-9
+        # closing axis across the logs (within max_dphi of pile y), claws outside both logs, crossings
+        # at least end_margin from the logs' ends
+        assert abs(math.sin(g.phi_rad)) >= math.cos(cfg.max_dphi_rad) - 1e-9
         ys = sorted([c1[1], c2[1]])
         assert ys[0] < 0.0 - 0.08 and ys[1] > 0.3 + 0.08
-        assert -1.2 + 0.3 - 1e-6 <= g.x_m <= 1.2 - 0.3 + 1e-6
+        for y_log in (0.0, 0.3):
+            x_cross = g.x_m + (y_log - g.y_m) * math.cos(g.phi_rad) / math.sin(g.phi_rad)
+            assert -1.2 + cfg.end_margin_m - 1e-6 <= x_cross <= 1.2 - cfg.end_margin_m + 1e-6
     # the narrowest is perpendicular, centred between the logs, span + 2 radii + 2 margins
     g0 = cands[0]
     assert g0.y_m == pytest.approx(0.15, abs=1e-6)
