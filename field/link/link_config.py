@@ -22,11 +22,14 @@ class LinkConfig:
     secoc_key_path: str | None = None  # pre-shared key file: authenticated frames only (SecOC style)
     insecure: bool = False  # the explicit opt-out: no key, frames not authenticated (URL insecure=1) [-]
     secoc_window_s: float = 2.0  # SecOC freshness window [s]
+    crane_key_path: str | None = None  # laptop: the crane's Ed25519 public key; its answers must carry its signature
+    signing_key_path: str | None = None  # crane: its Ed25519 signing key (controllers sharing a URL; laptops ignore it)
+    signature_wait_s: float = 0.25  # CAN: a crane frame waits this long for its signature frame, then is dropped [s]
     safety: SafetyConfig = field(default_factory=SafetyConfig)
 
     def __post_init__(self) -> None:
         for name in ("heartbeat_period_s", "heartbeat_timeout_s", "status_timeout_s", "connect_timeout_s",
-                     "secoc_window_s"):
+                     "secoc_window_s", "signature_wait_s"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and v > 0):
                 raise ValueError(f"LinkConfig.{name} must be > 0 s, got {v!r}")
@@ -75,6 +78,12 @@ class LinkURL:
                 kw["record_path"] = q.pop("record")
             if "secoc_key" in q:
                 kw["secoc_key_path"] = q.pop("secoc_key")
+            if "crane_key" in q:
+                kw["crane_key_path"] = q.pop("crane_key")
+            if "signing_key" in q:
+                kw["signing_key_path"] = q.pop("signing_key")
+            if "signature_wait_s" in q:
+                kw["signature_wait_s"] = float(q.pop("signature_wait_s"))
             if "insecure" in q:
                 kw["insecure"] = _flag(q.pop("insecure"), "insecure")
             if "secoc_window_s" in q:

@@ -33,9 +33,10 @@ node sends with it while the others still accept the old one), (3) removing the 
 frame naming a key id the receiver does not hold fails (``check="key_id"``).
 
 Per-direction keys: the MAC key of a frame is derived from the file's key and the frame's
-direction, so a laptop frame can never pass as a crane frame under any identifier. This does
-NOT stop a holder of the file from making crane frames: with any MAC the laptop, which must
-verify crane frames, can also compute them (docs/link-safety.md says what would).
+direction, so a laptop frame can never pass as a crane frame under any identifier. A MAC alone
+does not stop a holder of the file from making crane frames (the laptop, which must verify
+crane frames, can also compute them): crane frames are therefore also signed with a key only
+the crane holds (:mod:`field.link.signing`).
 """
 
 from __future__ import annotations
@@ -255,6 +256,16 @@ class SecOC:
             if why is not None:
                 raise AuthenticationError(f"{kind}: {why}", check="freshness")
         return pdu + bytes(_message(kind).length - n)
+
+    def check_freshness(self, kind: str, data: bytes) -> AuthenticationError | None:
+        """The freshness check of an authenticated frame whose MAC :meth:`verify` passed without it
+        (a signed crane frame is checked, and its freshness value remembered, once its signature
+        verified): None if fresh, else why not."""
+        from field.link.codec import authentic_length
+
+        n = authentic_length(kind)
+        why = self._replay.check(kind, int.from_bytes(bytes(data[n:n + FV_BYTES]), "little"))
+        return None if why is None else AuthenticationError(f"{kind}: {why}", check="freshness")
 
 
 _DIRECTIONS = ("laptop->crane", "crane->laptop")
