@@ -39,6 +39,7 @@ class Receiving:
 
     def _accept(self, kind: str, plain: bytes | None) -> None:
         check = self._answer_check
+        check.expire()
         self.stats.unsigned_dropped, self.stats.orphan_signatures = check.unsigned_dropped, check.orphan_signatures
         d = None if plain is None else self._decode(kind, plain)
         if d is None:

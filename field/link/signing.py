@@ -127,12 +127,12 @@ def load_signing_key(path: str | Path) -> Any:
 
     path = Path(path)
     data = _read(path, "crane signing key", "signing_key=")
-    if stat.S_IMODE(path.stat().st_mode) & (stat.S_IRWXG | stat.S_IRWXO):
-        raise KeyFileError(f"crane signing key {path} is accessible by group/others (mode "
-                           f"{stat.S_IMODE(path.stat().st_mode):04o}); run `chmod 600 {path}`")
     if b"PUBLIC KEY-----" in data:
         raise KeyFileError(f"signing_key={path} is a public key; the crane needs its private signing key "
                            f"(the file without .pub)")
+    if stat.S_IMODE(path.stat().st_mode) & (stat.S_IRWXG | stat.S_IRWXO):
+        raise KeyFileError(f"crane signing key {path} is accessible by group/others (mode "
+                           f"{stat.S_IMODE(path.stat().st_mode):04o}); run `chmod 600 {path}`")
     try:
         key = load_pem_private_key(data, password=None)
     except (ValueError, TypeError) as exc:
@@ -309,6 +309,15 @@ class AnswerCheck:
                                                  f"frame)", check="signature")
             pending.remove(match)
         return self._fresh(kind, match.secured, match.plain)
+
+    def expire(self) -> None:
+        """Drop (and count) every held frame and signature past the wait, of every kind (a
+        receiver calls it on each frame: a crane heartbeat comes every period)."""
+        with self._lock:
+            for kind in list(self._pending):
+                self._expire(self._pending, kind, "unsigned_dropped")
+            for kind in list(self._early):
+                self._expire(self._early, kind, "orphan_signatures")
 
     def _checked(self, kind: str, secured: bytes, signature: bytes) -> tuple[bytes | None, AuthenticationError | None]:
         plain, why = self._mac(kind, secured)

@@ -283,11 +283,14 @@ class ZenohLink(CraneLink):
         z = self._zenoh
         self._record(kind, data, False)
         if kind == "GraspCommand":  # the attachment names this laptop: the controller's commanding peer
+            # every reply, unconsolidated: another queryable on the key (a misconfigured ACL) cannot hide the
+            # crane's own answer behind one of its own - the laptop checks each (signature) and keeps the crane's
             self._session.get(self.keys.cmd, self._reply_to("Ack"), payload=data, timeout=self.query_timeout_s,
                               priority=z.Priority.INTERACTIVE_HIGH, congestion_control=z.CongestionControl.BLOCK,
-                              attachment=str(self._session.zid()).encode())
+                              attachment=str(self._session.zid()).encode(), consolidation=z.ConsolidationMode.NONE)
         elif kind == "StatusRequest":
-            self._session.get(self.keys.status, self._reply_to("Status"), payload=data, timeout=self.query_timeout_s)
+            self._session.get(self.keys.status, self._reply_to("Status"), payload=data, timeout=self.query_timeout_s,
+                              consolidation=z.ConsolidationMode.NONE)
         elif kind == "EStop":
             self._session.put(self.keys.estop, data, priority=z.Priority.REAL_TIME,
                               congestion_control=z.CongestionControl.BLOCK, express=True)
