@@ -108,3 +108,16 @@ def _flag(text: str, name: str) -> bool:
 def with_insecure(url: str) -> str:
     """``url`` with ``insecure=1`` (the explicit opt-out of authenticated frames)."""
     return f"{url}{'&' if '?' in url else '?'}insecure=1"
+
+
+def keyed_url(url: str, secoc_key: str | None, signing_key: str | None = None) -> str:
+    """One URL for both ends of a link on one machine (a rig, the demo, a benchmark): the SecOC key,
+    the crane's public key (``signing_key`` + ``.pub``) for the laptop and its signing key for the
+    controller (a laptop never uses ``signing_key=``). Without a signing key ``insecure=1`` opts out of
+    signed answers; without any key, of authentication."""
+    if secoc_key is None:
+        return with_insecure(url)
+    url = f"{url}{'&' if '?' in url else '?'}secoc_key={secoc_key}"
+    if signing_key is None:
+        return with_insecure(url)
+    return f"{url}&crane_key={signing_key}.pub&signing_key={signing_key}"

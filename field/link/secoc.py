@@ -132,6 +132,34 @@ def generate_key_file(path: str | Path) -> Path:
     return path
 
 
+def add_key(path: str | Path) -> int:
+    """Add a new random key to the key file ``path`` as its last ``KEY_ID HEX`` line (the next free key
+    id; the sending key, the first line, stays) - step 1 of a rotation. The file is replaced whole
+    (mode 0600), never left half-written. Returns the new key id."""
+    path = Path(path)
+    sending, keys = load_keys(path)  # refuses an unreadable, open or malformed file first
+    new_id = next((kid for kid in range(max(keys) + 1, MAX_KEY_ID + 1)), None)
+    if new_id is None:
+        new_id = next((kid for kid in range(MAX_KEY_ID + 1) if kid not in keys), None)
+    if new_id is None:
+        raise KeyFileError(f"SecOC key file {path} holds {len(keys)} keys, every key id in 0..{MAX_KEY_ID}; remove "
+                           f"old lines first")
+    order = [sending, *(kid for kid in keys if kid != sending)]
+    text = "".join(f"{kid} {keys[kid].hex()}\n" for kid in order) + f"{new_id} {secrets.token_hex(KEY_BYTES)}\n"
+    tmp = path.with_name(f".{path.name}.{secrets.token_hex(4)}.tmp")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return new_id
+
+
 # --- freshness ------------------------------------------------------------------------------
 
 
