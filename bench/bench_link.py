@@ -81,7 +81,7 @@ def markdown(n: int = 500) -> str:
                                           backends=("can-virtual", "can-remote", "zenoh"), secoc_key=secoc):
                     rows.append(f"| {s.label.split()[0]} | {SIGNED if secoc else 'E2E only'} | {mode} "
                                 f"| {s.n} | {s.p50_ms:.2f} | {s.p99_ms:.2f} | {s.mean_ms:.2f} |")
-    costs = ["| per frame (an Ack) | median µs | p99 µs |", "|---|---|---|"]
+    costs = ["| operation on one Ack frame | median µs | p99 µs |", "|---|---|---|"]
     costs += [f"| {what} | {med:.1f} | {p99:.1f} |" for what, med, p99 in per_frame_costs()]
     t0 = time.perf_counter()
     # the interpreter running the bench (the venv's), so the demo is the code being measured
@@ -97,7 +97,7 @@ def markdown(n: int = 500) -> str:
             "signature frame after each answer, checked before the answer counts), `E2E only` = CRC and counter "
             "alone.\n\n"
             + "\n".join(rows)
-            + "\n\n### Crane link: cost of authenticating one frame\n"
+            + "\n\n### Cost of authenticating one link frame\n"
               "One process, one thread, the `cryptography` package (OpenSSL); HMAC is Python's hmac module. The "
               "AES-128-CMAC row is what SecOC's own profiles use, measured over the bytes today's MAC covers "
               "(not wired into the link).\n\n"

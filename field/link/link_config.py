@@ -25,14 +25,20 @@ class LinkConfig:
     crane_key_path: str | None = None  # laptop: the crane's Ed25519 public key; its answers must carry its signature
     signing_key_path: str | None = None  # crane: its Ed25519 signing key (controllers sharing a URL; laptops ignore it)
     signature_wait_s: float = 0.25  # CAN: a crane frame waits this long for its signature frame, then is dropped [s]
+    # more crane frames than this failing their MAC, signature or key id within auth_failure_window_s: a node
+    # forging the crane's answers is on the link - it fails (LinkError), the laptop stops commanding
+    max_auth_failures: int = 20  # [-]
+    auth_failure_window_s: float = 10.0  # [s]
     safety: SafetyConfig = field(default_factory=SafetyConfig)
 
     def __post_init__(self) -> None:
         for name in ("heartbeat_period_s", "heartbeat_timeout_s", "status_timeout_s", "connect_timeout_s",
-                     "secoc_window_s", "signature_wait_s"):
+                     "secoc_window_s", "signature_wait_s", "auth_failure_window_s"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and v > 0):
                 raise ValueError(f"LinkConfig.{name} must be > 0 s, got {v!r}")
+        if not (isinstance(self.max_auth_failures, int) and self.max_auth_failures >= 1):
+            raise ValueError(f"LinkConfig.max_auth_failures must be an integer >= 1, got {self.max_auth_failures!r}")
         if self.heartbeat_timeout_s <= self.heartbeat_period_s:
             raise ValueError(
                 f"heartbeat_timeout_s ({self.heartbeat_timeout_s}) must exceed heartbeat_period_s "
@@ -82,6 +88,8 @@ class LinkURL:
                 kw["crane_key_path"] = q.pop("crane_key")
             if "signing_key" in q:
                 kw["signing_key_path"] = q.pop("signing_key")
+            if "max_auth_failures" in q:
+                kw["max_auth_failures"] = int(q.pop("max_auth_failures"))
             if "signature_wait_s" in q:
                 kw["signature_wait_s"] = float(q.pop("signature_wait_s"))
             if "insecure" in q:

@@ -12,7 +12,7 @@ import logging
 import time
 from typing import Any
 
-from field.errors import ProtocolError
+from field.errors import AuthenticationError, ProtocolError
 from field.link.fate import _ack_word
 from field.link.messages import Ack, ControllerStatus, Outcome, RejectReason
 
@@ -85,11 +85,22 @@ class Receiving:
         self._count_failure(kind, why)
         return plain
 
-    def _count_failure(self, kind: str, why: Exception | None) -> None:
-        """A frame that failed its MAC, signature, freshness or length: dropped, counted."""
-        if why is not None:
-            self.stats.auth_failures += 1
-            log.debug("dropped %s: %s", kind, why)
+    def _count_failure(self, kind: str, why: Any) -> None:
+        """A frame that failed its MAC, signature, freshness or length: dropped, counted; past the
+        link's ``max_auth_failures`` the link fails (its waiters raise :class:`LinkError`)."""
+        if why is None:
+            return
+        self.stats.auth_failures += 1
+        log.debug("dropped %s: %s", kind, why)
+        cause = self._answer_check.count_failure(why)
+        if cause is not None:
+            with self._cond:
+                first = self._failure is None
+                if first:
+                    self._failure = AuthenticationError(cause, check="threshold")
+                self._cond.notify_all()
+            if first:
+                log.error("the %s link fails: %s", self.backend_name, cause)
 
     def _decode(self, kind: str, data: bytes) -> Any:
         from field.link.codec import CounterCheck, decode

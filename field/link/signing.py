@@ -247,9 +247,11 @@ class AnswerCheck:
     data frame matched within ``wait_s``)."""
 
     def __init__(self, secoc: Any, verifier: AnswerVerifier | None, *, inline: bool, wait_s: float,
-                 clock: Callable[[], float] = time.monotonic):
+                 clock: Callable[[], float] = time.monotonic, max_failures: int = 20, failure_window_s: float = 10.0):
         if not wait_s > 0:
             raise ValueError(f"signature_wait_s must be > 0 s, got {wait_s}")
+        self.max_failures, self.failure_window_s = max_failures, failure_window_s
+        self._failures: deque[float] = deque()  # clock times of recent MAC / signature / key id failures [s]
         self.secoc = secoc
         self.verifier = verifier
         self.inline = inline
@@ -309,6 +311,24 @@ class AnswerCheck:
                                                  f"frame)", check="signature")
             pending.remove(match)
         return self._fresh(kind, match.secured, match.plain)
+
+    def count_failure(self, why: AuthenticationError) -> str | None:
+        """Count one crane frame that failed its check; past ``max_failures`` MAC, signature or key id
+        failures within ``failure_window_s``, why the link must fail (stale frames do not count: a
+        clock or a replay, not a forger)."""
+        if why.check == "freshness":
+            return None
+        now = self._clock()
+        with self._lock:
+            window = self._failures
+            window.append(now)
+            while window and now - window[0] > self.failure_window_s:
+                window.popleft()
+            if len(window) <= self.max_failures:
+                return None
+        return (f"{len(window)} crane frames failed their MAC or the crane's signature within "
+                f"{self.failure_window_s:g} s (limit {self.max_failures}): a node is forging the crane's answers - "
+                f"check the bus / network and its key files, then open a new link")
 
     def expire(self) -> None:
         """Drop (and count) every held frame and signature past the wait, of every kind (a
@@ -405,7 +425,8 @@ def load_answer_check(config: Any, clock: Callable[[], float], backend: str, req
     elif secoc is not None and requires_key:
         log.warning("the %s link does NOT check the crane's signatures (insecure=1): whoever holds a laptop's key "
                     "file can forge the crane's answers", backend)
-    return AnswerCheck(secoc, verifier, inline=inline, wait_s=config.signature_wait_s)
+    return AnswerCheck(secoc, verifier, inline=inline, wait_s=config.signature_wait_s,
+                       max_failures=config.max_auth_failures, failure_window_s=config.auth_failure_window_s)
 
 
 def load_crane_keys(config: Any, clock: Callable[[], float]) -> tuple[Any, AnswerSigner | None]:

@@ -251,9 +251,10 @@ def test_a_data_frame_whose_signature_never_arrives_is_never_acted_on(signed_pai
     assert p.executor.executed == [cmd.command_id]
 
 
-@pytest.mark.safety_case(abort="crane heartbeat signatures lost", link="can",
-                         reaction="unsigned crane heartbeats do not keep the crane alive for the laptop: the "
-                                  "controller counts as lost")
+@pytest.mark.safety_case(error="loss", link="can",
+                         measure="a crane heartbeat counts only once its signature frame verifies",
+                         reaction="crane heartbeats whose signature frames are lost do not keep the crane alive for "
+                                  "the laptop: the controller counts as lost until they come again")
 def test_unsigned_heartbeats_do_not_keep_the_crane_alive(signed_pairs):
     p = signed_pairs()
     assert wait_until(p.link.controller_alive)
@@ -275,6 +276,33 @@ def test_a_forged_signature_counts_as_an_authentication_failure(keys):
     assert plain is None and why.check == "signature"
     plain, why = inline.unwrap(kind, data[:-SIG_BYTES])  # no signature at all
     assert plain is None and why.check == "length"
+
+
+@pytest.mark.safety_case(keys="forged crane frames counted; past a threshold the laptop's link fails", link="can",
+                         reaction="more than max_auth_failures crane frames failing their MAC or signature within "
+                                  "the window: the link fails (LinkError naming the forger), the laptop stops "
+                                  "commanding; stale frames do not count")
+def test_forged_signatures_past_the_threshold_fail_the_link(keys, make_cmd):
+    key, sign, pub = keys
+    cfg = replace(LINK, secoc_key_path=str(key), crane_key_path=str(pub), max_auth_failures=3)
+    with can_pairs("threshold", cfg) as make:
+        p = make(secoc_key_path=str(key), signing_key_path=str(sign))
+        forger, rogue = LaptopKeyHolder(key), p.node()
+        stale = SecOC.from_key_file(key, clock=lambda: time.time() - 60)
+        for i in range(10):  # stale frames with genuine signatures: a clock or a replay, not a forger
+            kind, plain = Encoder().encode(CraneHeartbeat(i, ControllerState.IDLE))
+            secured = stale.secure(kind, plain)
+            send_on_can(rogue, kind, secured + AnswerSigner.from_file(sign).sign(kind, secured))
+        assert wait_until(lambda: p.link.stats.auth_failures >= 10)
+        assert p.link.status().state is ControllerState.IDLE
+        for i in range(3):  # forged: the 4th passes the limit of 3
+            send_on_can(rogue, *forger.forge(Outcome(1000 + i, OutcomeClass.SUCCESS, 2, 999)))
+        assert wait_until(lambda: p.link.stats.auth_failures >= 13)
+        assert p.link.status().state is ControllerState.IDLE
+        send_on_can(rogue, *forger.forge(Outcome(2000, OutcomeClass.SUCCESS, 2, 999)))
+        assert wait_until(lambda: p.link._failure is not None)
+        with pytest.raises(LinkError, match="forging the crane's answers"):
+            p.link.send_grasp(make_cmd(p.link.new_command_id()))
 
 
 # --- keys: each end refuses the wrong ones ----------------------------------------------------

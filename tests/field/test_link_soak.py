@@ -79,8 +79,10 @@ MATRIX = {"corruption": "corrupt", "unintended repetition": "duplicate", "incorr
 
 
 def _link_config(key: str) -> LinkConfig:
+    # the laptop's authentication-failure threshold, like the controller's, sits above what a lane's forged and
+    # corrupted frames reach in its window (it is tested on its own in test_link_signing)
     return LinkConfig(secoc_key_path=key, crane_key_path=f"{signing_key_of(key)}.pub", heartbeat_timeout_s=1.0,
-                      status_timeout_s=0.5, connect_timeout_s=20.0)
+                      status_timeout_s=0.5, connect_timeout_s=20.0, max_auth_failures=200)
 
 
 class TimedExecutor(FixedOutcomeExecutor):
