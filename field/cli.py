@@ -18,7 +18,7 @@ from typing import Callable, Literal
 import typer
 
 from field.audit.cli import audit_app
-from field.controller import ReachEnvelope
+from field.controller import ControllerConfig, ReachEnvelope
 from field.demo import CRANE_OFFSET_SOUTH_M, DEMO_DATA, crane_config, default_crane_base
 from field.link_cli import INSECURE_LINK, link_key_command, link_security_note, secured_link
 from field.trial import TrialOptions
@@ -314,6 +314,10 @@ def crane_sim(
                               default=False),
     trial: Literal["fast", "careful"] = option("--trial", "Trial preset of the grasps it executes.", default="fast",
                                                 metavar="fast|careful"),
+    max_mac_failures: int = option("--max-mac-failures", "More frames than this failing their MAC within 10 s put "
+                                   "the crane in FAULT (a node without the key is on the bus: commands refused, the "
+                                   "running grasp aborted, local reset).",
+                                   field=(ControllerConfig, "max_mac_failures"), min=1),
     insecure_link: bool = INSECURE_LINK,
 ) -> None:
     """Run the crane controller twin: validates commands like a real controller and executes
@@ -342,13 +346,16 @@ def crane_sim(
     journal = _crane_journal(link, journal, no_journal)
     executor = PybulletTrialExecutor(pile, trial=trial)
     base_tm = base_tm or default_crane_base(executor.pile)
-    config = crane_config(base_tm, max_reach, max_pile_age, None if journal is None else str(journal),
-                          no_journal=no_journal)
+    from dataclasses import replace
+
+    config = replace(crane_config(base_tm, max_reach, max_pile_age, None if journal is None else str(journal),
+                                  no_journal=no_journal), max_mac_failures=max_mac_failures)
     stop = threading.Event()
     previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
     watch = _CraneSimWatch(o, stop, f"crane controller twin serving {link}: base E {base_tm[0]:.3f} N {base_tm[1]:.3f} "
                            f"h {base_tm[2]:.3f} m, reach {max_reach:g} m, pile age limit {max_pile_age:g} s; "
-                           f"journal {journal or 'OFF (ids forgotten on restart)'}; Ctrl-C stops")
+                           f"journal {journal or 'OFF (ids forgotten on restart)'}; FAULT past {max_mac_failures} MAC "
+                           f"failures in {config.mac_failure_window_s:g} s; Ctrl-C stops")
     try:
         final = field.controller.run_controller(link, _Announcing(executor, o.say), stop, config,
                                                 on_serve=watch.serving)
