@@ -395,11 +395,14 @@ class CraneLink(Receiving, Reconciling, abc.ABC):
 
     def _await_controller(self) -> None:
         """Open-time handshake: raise :class:`LinkError` (and close) when no controller answers."""
-        if self.config.require_controller and not self.wait_for_controller(self.config.connect_timeout_s):
-            auth = self.stats.auth_failures
+        try:
+            found = not self.config.require_controller or self.wait_for_controller(self.config.connect_timeout_s)
+        except LinkError:  # the link failed while opening (a bus error, too many frames failing their check)
             self.close()
-            hint = (f"; {auth} frames failed authentication: the crane uses another SecOC key or none "
-                    f"(secoc_key= on both sides)" if auth else "")
+            raise
+        if not found:
+            self.close()
+            hint = self._auth_hint()
             heard = self._latest_status is not None and self.controller_alive()
             raise LinkError(
                 f"the crane controller answered but hears no live laptop heartbeat from this laptop within "

@@ -85,6 +85,15 @@ class Receiving:
         self._count_failure(kind, why)
         return plain
 
+    def _auth_hint(self) -> str:
+        """Why a crane that is there may not have been heard: frames that failed authentication, or
+        crane frames whose signature never came ("" when neither)."""
+        auth, unsigned = self.stats.auth_failures, self.stats.unsigned_dropped
+        return ((f"; {auth} frames failed authentication: the crane uses another SecOC key or none (secoc_key= on "
+                 f"both sides), or crane_key= is not this crane's public key" if auth else "")
+                + (f"; {unsigned} crane frames came without their signature frame: does the crane sign its answers "
+                   f"(signing_key=)?" if unsigned else ""))
+
     def _count_failure(self, kind: str, why: Any) -> None:
         """A frame that failed its MAC, signature, freshness or length: dropped, counted; past the
         link's ``max_auth_failures`` the link fails (its waiters raise :class:`LinkError`)."""

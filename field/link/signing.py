@@ -327,8 +327,9 @@ class AnswerCheck:
             if len(window) <= self.max_failures:
                 return None
         return (f"{len(window)} crane frames failed their MAC or the crane's signature within "
-                f"{self.failure_window_s:g} s (limit {self.max_failures}): a node is forging the crane's answers - "
-                f"check the bus / network and its key files, then open a new link")
+                f"{self.failure_window_s:g} s (limit {self.max_failures}): a node is forging the crane's answers, or "
+                f"this laptop's secoc_key= / crane_key= are not this crane's - check the bus / network and the key "
+                f"files, then open a new link")
 
     def expire(self) -> None:
         """Drop (and count) every held frame and signature past the wait, of every kind (a

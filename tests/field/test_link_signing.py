@@ -305,6 +305,31 @@ def test_forged_signatures_past_the_threshold_fail_the_link(keys, make_cmd):
             p.link.send_grasp(make_cmd(p.link.new_command_id()))
 
 
+@pytest.mark.parametrize("mismatch", ["another crane's public key", "a crane that does not sign"])
+def test_a_laptop_with_the_wrong_crane_key_does_not_open_and_says_why(keys, tmp_path, mismatch):
+    from field.link.can_backend import CanControllerTransport, CanLink
+
+    key, sign, pub = keys
+    channel = f"mismatch-{uuid.uuid4().hex[:8]}"
+    signing = None if mismatch == "a crane that does not sign" else str(sign)
+    ctl = CraneController(ControllerConfig(secoc_key_path=str(key), signing_key_path=signing, no_journal=True,
+                                           insecure_link=signing is None), FixedOutcomeExecutor())
+    tr = CanControllerTransport(bus=can.Bus(interface="virtual", channel=channel, fd=True))
+    tr.start(ctl)
+    ctl.start()
+    laptop_pub = generate_signing_key(tmp_path / "other.sign")[1] if signing else pub
+    cfg = replace(LINK, secoc_key_path=str(key), crane_key_path=str(laptop_pub), connect_timeout_s=2.0)
+    link = CanLink(config=cfg, bus=can.Bus(interface="virtual", channel=channel, fd=True))
+    try:
+        with pytest.raises(LinkError, match="crane_key=" if signing else "signature frame.*signing_key="):
+            link._await_controller()
+        assert link.closed
+    finally:
+        link.close()
+        ctl.close()
+        tr.close()
+
+
 # --- keys: each end refuses the wrong ones ----------------------------------------------------
 
 
