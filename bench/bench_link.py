@@ -29,12 +29,12 @@ def per_frame_costs(repeats: int = 2000) -> list[tuple[str, float, float]]:
     from field.link.codec import Encoder
     from field.link.messages import Ack
     from field.link.secoc import SecOC
-    from field.link.signing import AnswerSigner, AnswerVerifier, _signed_bytes
+    from field.link.signing import AnswerSigner, AnswerVerifier, signed_bytes
 
     kind, plain = Encoder().encode(Ack(123456, True))
     secoc = SecOC(secrets.token_bytes(32))
     secured = secoc.secure(kind, plain)
-    covered = _signed_bytes(kind, secured)
+    covered = signed_bytes(kind, secured)
     aes_key = secrets.token_bytes(16)
     signing = Ed25519PrivateKey.generate()
     signer, verifier = AnswerSigner(signing), AnswerVerifier(signing.public_key())

@@ -20,7 +20,7 @@ import typer
 from field.audit.cli import audit_app
 from field.controller import ControllerConfig, ReachEnvelope
 from field.demo import CRANE_OFFSET_SOUTH_M, DEMO_DATA, crane_config, default_crane_base
-from field.link_cli import INSECURE_LINK, link_key_command, link_security_note, secured_link
+from field.link.cli import INSECURE_LINK, link_key_command, link_security_note, secured_link
 from field.trial import TrialOptions
 from planner.cli import MODEL, OBJECTIVE_HELP, VIEW_SPREAD, VIEWS, eval_command, plan_command, train_command
 from reconstruct.cli import compare_command, gnss_crs_warning, reconstruct_command, scan_command

@@ -165,7 +165,7 @@ def load_public_key(path: str | Path) -> Any:
 # --- signing and verifying ------------------------------------------------------------------
 
 
-def _signed_bytes(kind: str, secured: bytes) -> bytes:
+def signed_bytes(kind: str, secured: bytes) -> bytes:
     """What a signature covers: label | frame id | authentic PDU | freshness value."""
     from field.link.codec import authentic_length, frame_id
     from field.link.secoc import FV_BYTES
@@ -189,7 +189,7 @@ class AnswerSigner:
         return f"<AnswerSigner key={self.source}>"
 
     def sign(self, kind: str, secured: bytes) -> bytes:
-        return self._key.sign(_signed_bytes(kind, secured))
+        return self._key.sign(signed_bytes(kind, secured))
 
 
 class AnswerVerifier:
@@ -208,7 +208,7 @@ class AnswerVerifier:
         from cryptography.exceptions import InvalidSignature
 
         try:
-            self._key.verify(bytes(signature), _signed_bytes(kind, secured))
+            self._key.verify(bytes(signature), signed_bytes(kind, secured))
         except InvalidSignature:
             return AuthenticationError(f"{kind}: the crane's signature does not verify with {self.source} (a forged "
                                        f"crane frame - made with a laptop's key file? - or a signature for another "
