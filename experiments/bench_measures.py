@@ -53,11 +53,13 @@ SPECS: dict[str, Spec] = {
     "reconstruction.unposed_end_point": Spec("Reconstruction", "unposed scans (SfM + GNSS): end point error, median"),
     "reconstruction.unposed_wall": Spec("Reconstruction", "unposed scan (4 pairs) reconstructed, wall median"),
     "link.can_virtual": Spec("Crane link", "command → ack, can-virtual, E2E frames, rejected command: p50 / p99"),
-    "link.can_virtual_secoc": Spec("Crane link", "command → ack, can-virtual, authenticated frames, rejected command: "
-                                                 "p50 / p99", "p99 ≤ 5 ms"),
+    "link.can_virtual_secoc": Spec("Crane link", "command → ack, can-virtual, authenticated frames, crane answers "
+                                                 "signed (Ed25519), rejected command: p50 / p99", "p99 ≤ 5 ms"),
     "link.zenoh": Spec("Crane link", "command → ack, Zenoh on 127.0.0.1, E2E frames, rejected command: p50 / p99"),
-    "link.zenoh_secoc_accept": Spec("Crane link", "command → ack, Zenoh, authenticated frames, executed command: "
-                                                  "p50 / p99"),
+    "link.zenoh_secoc_accept": Spec("Crane link", "command → ack, Zenoh, authenticated frames, crane answers signed, "
+                                                  "executed command: p50 / p99"),
+    "link.frame_auth_cost": Spec("Crane link", "per-frame cost (an Ack), median: HMAC-SHA256/64 verify / "
+                                               "AES-128-CMAC / Ed25519 sign / Ed25519 verify"),
     "demo.wall": Spec("End to end", "`loggrasp demo`, process start to exit", "< 30 s"),
 }
 
@@ -171,11 +173,16 @@ def _link(md: str) -> dict[str, tuple[str, str]]:
     demo = cell(md, "wall s", command="`loggrasp demo`")
     result = cell(md, "result", command="`loggrasp demo`")
     wall = number(demo)
-    keyed = {"backend": "can-virtual", "frames": "authenticated (SecOC)", "mode": "reject"}
+    signed = "authenticated (SecOC) + signed answers (Ed25519)"
+    keyed = {"backend": "can-virtual", "frames": signed, "mode": "reject"}
+    cost = [number(cell(md, "median µs", operation_on_one_Ack_frame=what)) for what in (
+        "HMAC-SHA256/64: verify (MAC only)", "AES-128-CMAC/64 over the same bytes", "Ed25519: sign (crane)",
+        "Ed25519: verify (laptop)")]
     return {"link.can_virtual": (p("can-virtual", "E2E only", "reject"), ""),
             "link.can_virtual_secoc": (p(**keyed), _yes(number(cell(md, "p99 ms", **keyed)) <= 5.0)),
             "link.zenoh": (p("zenoh", "E2E only", "reject"), ""),
-            "link.zenoh_secoc_accept": (p("zenoh", "authenticated (SecOC)", "accept"), ""),
+            "link.zenoh_secoc_accept": (p("zenoh", signed, "accept"), ""),
+            "link.frame_auth_cost": (" / ".join(f"{c:.1f}" for c in cost) + " µs", ""),
             "demo.wall": (f"{wall:.1f} s" + ("" if result == "ok" else f" ({result})"),
                           _yes(wall < 30.0 and result == "ok"))}
 

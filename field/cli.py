@@ -18,8 +18,9 @@ from typing import Callable, Literal
 import typer
 
 from field.audit.cli import audit_app
-from field.controller import ReachEnvelope
+from field.controller import ControllerConfig, ReachEnvelope
 from field.demo import CRANE_OFFSET_SOUTH_M, DEMO_DATA, crane_config, default_crane_base
+from field.link.cli import INSECURE_LINK, link_key_command, link_security_note, secured_link
 from field.trial import TrialOptions
 from planner.cli import MODEL, OBJECTIVE_HELP, VIEW_SPREAD, VIEWS, eval_command, plan_command, train_command
 from reconstruct.cli import compare_command, gnss_crs_warning, reconstruct_command, scan_command
@@ -41,8 +42,10 @@ TWIN_PARAMETERS = (
     "executor=fixed|pybullet (fixed: always the outcome=SUCCESS|COLLISION|... after delay_ms=MS; "
     "pybullet: a grasp trial on pile=PILE.json with trial=fast|careful), and the link options "
     "record=PATH.blf, heartbeat_ms, heartbeat_timeout_ms, connect_timeout_s, max_pile_age_s, secoc_key=KEYFILE "
-    "(authenticated frames, SecOC style: both ends use the key; see `loggrasp link-key`; a can:// or zenoh:// "
-    "link needs one unless insecure=1 / --insecure-link opts out).")
+    "(authenticated frames, SecOC style: both ends use the key; see `loggrasp link-key`), crane_key=CRANE.pub "
+    "(laptop: the crane's public key, its answers are signed) and signing_key=CRANE (crane: its signing key; "
+    "`loggrasp link-key --crane-signing CRANE` writes both); a can:// or zenoh:// link needs them unless "
+    "insecure=1 / --insecure-link opts out.")
 ROOT_HELP = f"""loggrasp — multi-log grasp planning for forestry cranes, from simulator twin to field.
 
 \b
@@ -60,6 +63,7 @@ app.add_typer(synth_app, name="synth")
 app.command("train")(train_command)
 app.command("plan")(plan_command)
 app.command("eval")(eval_command)
+app.command("link-key")(link_key_command)
 app.command("survey")(survey_command)
 app.command("reconstruct")(reconstruct_command)
 app.command("compare-piles")(compare_command)
@@ -97,37 +101,6 @@ def root(
 # -- shared field flags ----------------------------------------------------------------------------
 def link_option(help: str = f"Crane link URL: {LINK_FORMS}."):
     return option("--link", help, default=..., metavar="URL")
-
-
-INSECURE_LINK = option("--insecure-link", "Run the crane link WITHOUT a SecOC key (frames not authenticated: any "
-                       "node on the bus could forge commands and answers); the explicit opt-out, said in the "
-                       "confirmation and the record. Without it a link needs ?secoc_key=KEYFILE.", default=False)
-
-
-def secured_link(url: str, parsed, insecure: bool, flag: str = "--link") -> str:
-    """``url`` as the link to a crane is opened: with its SecOC key, or with the explicit opt-out
-    (``insecure=1`` added by --insecure-link); a :class:`CliError` (exit 3) for neither. A
-    ``twin://`` crane lives on a private in-process bus and needs no key."""
-    from field.link.link_config import with_insecure
-
-    if parsed.scheme == "twin" or "secoc_key" in parsed.query:
-        return url
-    if insecure or parsed.query.get("insecure", "").lower() in ("1", "true", "yes"):
-        return url if "insecure" in parsed.query else with_insecure(url)
-    raise CliError(f"{flag} {url} has no SecOC key: without one any node on the bus can forge commands and the "
-                   "crane's answers. Add ?secoc_key=KEYFILE (create one with `loggrasp link-key KEYFILE`; the crane "
-                   "uses the same file), or opt out explicitly with --insecure-link", EXIT_LINK)
-
-
-def link_security_note(url: str) -> str | None:
-    """The warning an unauthenticated crane link gets in the confirmation (None when it has a key)."""
-    from field.link.base import LinkURL
-
-    parsed = LinkURL.parse(url)
-    if parsed.scheme == "twin" or "secoc_key" in parsed.query:
-        return None
-    return ("the crane link is NOT authenticated (--insecure-link): any node on the bus could forge this command "
-            "or the crane's answers")
 
 
 BASE_HELP = "Crane base E,N,H (SWEREF 99 TM easting, northing [m], ellipsoidal height [m])"
@@ -208,30 +181,6 @@ def base_from_survey(gnss) -> tuple[float, float, float]:
     point = np.array([c[0], c[1] - CRANE_OFFSET_SOUTH_M, float(ends[:, 2].min()) - 0.3])
     e, n, h = site_to_tm(origin, point)
     return float(np.ravel(e)[0]), float(np.ravel(n)[0]), float(np.ravel(h)[0])
-
-
-@app.command("link-key")
-def link_key_command(path: Path = typer.Argument(..., metavar="KEYFILE",
-                                                 help="Key file to create (mode 0600; never overwritten).")) -> None:
-    """Create a pre-shared key for authenticated crane-link frames (SecOC style).
-
-    Give the same file to both ends, e.g. --link 'can://socketcan/can0?secoc_key=PATH' on the
-    laptop and on the crane (crane-sim). The key is never printed.
-
-    \b
-    Example: loggrasp link-key ~/.config/loggrasp/crane1.key
-    """
-    from field.errors import KeyFileError
-    from field.link.secoc import generate_key_file
-
-    if path.exists():
-        raise CliError(f"KEYFILE {path} exists; a key is never overwritten - remove it first or choose another path")
-    check_output_file(path, "KEYFILE")
-    try:
-        written = generate_key_file(path)
-    except KeyFileError as exc:
-        raise CliError(str(exc)) from exc
-    Output().say(f"wrote a new key to {written} (mode 0600); copy it to the crane over a secure channel")
 
 
 
@@ -365,12 +314,17 @@ def crane_sim(
                               default=False),
     trial: Literal["fast", "careful"] = option("--trial", "Trial preset of the grasps it executes.", default="fast",
                                                 metavar="fast|careful"),
+    max_mac_failures: int = option("--max-mac-failures", "More frames than this failing their MAC within 10 s put "
+                                   "the crane in FAULT (a node without the key is on the bus: commands refused, the "
+                                   "running grasp aborted, local reset).",
+                                   field=(ControllerConfig, "max_mac_failures"), min=1),
     insecure_link: bool = INSECURE_LINK,
 ) -> None:
     """Run the crane controller twin: validates commands like a real controller and executes
     accepted grasps in pybullet on the given pile; says what it does with each command. Stops on
-    Ctrl-C / SIGTERM. Authenticated frames: add ?secoc_key=KEYFILE to --link (the laptop uses the
-    same key; see `loggrasp link-key`); without a key it refuses to serve unless --insecure-link.
+    Ctrl-C / SIGTERM. Authenticated frames: add ?secoc_key=KEYFILE&signing_key=CRANE to --link (the
+    laptop uses the same KEYFILE and crane_key=CRANE.pub; see `loggrasp link-key`); without them it
+    refuses to serve unless --insecure-link.
     It burns every command id in its journal and accepts a command only from a laptop whose
     heartbeat it hears.
 
@@ -384,21 +338,24 @@ def crane_sim(
     from field.executor import PybulletTrialExecutor
 
     o = Output()
-    link = secured_link(link, check_link(link, serve=True), insecure_link)
-    if link_security_note(link):
-        o.warn(link_security_note(link))
+    link = secured_link(link, check_link(link, serve=True), insecure_link, serve=True)
+    if link_security_note(link, serve=True):
+        o.warn(link_security_note(link, serve=True))
     check_input(pile, "--pile", "file")
     base_tm = parse_base(base)
     journal = _crane_journal(link, journal, no_journal)
     executor = PybulletTrialExecutor(pile, trial=trial)
     base_tm = base_tm or default_crane_base(executor.pile)
-    config = crane_config(base_tm, max_reach, max_pile_age, None if journal is None else str(journal),
-                          no_journal=no_journal)
+    from dataclasses import replace
+
+    config = replace(crane_config(base_tm, max_reach, max_pile_age, None if journal is None else str(journal),
+                                  no_journal=no_journal), max_mac_failures=max_mac_failures)
     stop = threading.Event()
     previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
     watch = _CraneSimWatch(o, stop, f"crane controller twin serving {link}: base E {base_tm[0]:.3f} N {base_tm[1]:.3f} "
                            f"h {base_tm[2]:.3f} m, reach {max_reach:g} m, pile age limit {max_pile_age:g} s; "
-                           f"journal {journal or 'OFF (ids forgotten on restart)'}; Ctrl-C stops")
+                           f"journal {journal or 'OFF (ids forgotten on restart)'}; FAULT past {max_mac_failures} MAC "
+                           f"failures in {config.mac_failure_window_s:g} s; Ctrl-C stops")
     try:
         final = field.controller.run_controller(link, _Announcing(executor, o.say), stop, config,
                                                 on_serve=watch.serving)
@@ -813,10 +770,12 @@ def clean_message(text: str) -> str:
 
 def classify(exc: BaseException) -> tuple[int, str]:
     """(exit code, message) of an exception that reached :func:`run`."""
-    from field.errors import FieldError, LinkError
+    from field.errors import FieldError, KeyFileError, LinkError
 
     if isinstance(exc, CliError):
         return exc.code, str(exc)
+    if isinstance(exc, KeyFileError):  # a key file named in a link URL: bad input, the message names it
+        return EXIT_INPUT, f"crane link key: {exc}"
     if isinstance(exc, LinkError):
         return EXIT_LINK, f"crane link: {exc}"
     if isinstance(exc, OSError):

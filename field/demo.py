@@ -66,11 +66,14 @@ class DemoSetup:
     scan_age_s: float  # how old the bundled scan is [s]
     max_pile_age_s: float  # the staleness limit, raised past that age [s]
     notes: list[str] = field(default_factory=list)  # what a person should be told
+    signing_key_path: Path | None = None  # the crane twin's signing key (its public key: + .pub; made once)
 
 
 def prepare_demo(out_dir: str | Path, link_url: str, data: Path = DEMO_DATA) -> DemoSetup:
     """Key, journal and staleness limit for a demo into ``out_dir``; the old record is removed."""
+    from field.link.link_config import keyed_url
     from field.link.secoc import generate_key_file
+    from field.link.signing import generate_signing_key
     from field.trial import captured_time
     from synth.scene.pile import read_pile
 
@@ -80,16 +83,20 @@ def prepare_demo(out_dir: str | Path, link_url: str, data: Path = DEMO_DATA) -> 
     record = out / "trial"
     if record.exists():
         shutil.rmtree(record)
-    key = out / "link.key"
+    key, sign = out / "link.key", out / "crane.sign"
     if not key.exists():
         generate_key_file(key)
+    if not sign.exists():
+        generate_signing_key(sign)
     journal = out / "crane-journal.jsonl"
-    link = f"{link_url}{'&' if '?' in link_url else '?'}secoc_key={key}"
+    link = keyed_url(link_url, str(key), str(sign))  # the twin crane and the laptop share the URL
     notes = [f"bundled scan recorded {age / 86400:.1f} days ago: staleness limit raised to {max_age:.0f} s "
              "for the demo",
-             f"authenticated frames on (SecOC-style MACs, key {key}); crane journal {journal}"]
+             f"authenticated frames on (SecOC-style MACs, key {key}; the crane's answers signed, key {sign}); "
+             f"crane journal {journal}"]
     truth = read_pile(data / "truth" / "pile.json")
-    return DemoSetup(data, truth, record, link, key, journal, default_crane_base(truth), age, max_age, notes)
+    return DemoSetup(data, truth, record, link, key, journal, default_crane_base(truth), age, max_age, notes,
+                     signing_key_path=sign)
 
 
 def demo_options(setup: DemoSetup, model: str | Path | None, verify: bool = True) -> TrialOptions:

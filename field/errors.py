@@ -70,9 +70,10 @@ class ProtocolError(LinkError):
 
 
 class AuthenticationError(ProtocolError):
-    """An authenticated (SecOC-style) frame failed its check: wrong MAC, wrong length, or a
-    freshness value that is stale or seen before (a replay). The frame is dropped. ``check``
-    names which: ``"mac"``, ``"length"``, ``"key_id"`` or ``"freshness"``."""
+    """An authenticated (SecOC-style) frame failed its check: wrong MAC, wrong length, a crane
+    frame without the crane's signature, or a freshness value that is stale or seen before (a
+    replay). The frame is dropped. ``check`` names which: ``"mac"``, ``"length"``, ``"key_id"``,
+    ``"signature"`` or ``"freshness"``; ``"threshold"``: too many of them, the link failed."""
 
     def __init__(self, message: str, *, check: str = "mac", **kwargs: Any):
         super().__init__(message, **kwargs)

@@ -4,7 +4,8 @@ Each frame becomes a JSON-able dict: its recorded time, id, direction, bytes, th
 (``field/link/loggrasp.dbc``, value tables by name) and whether it passed the codec's checks
 (E2E CRC, length, reserved bits, protocol version: :func:`field.link.codec.decode`). On a link
 with authenticated (SecOC-style) frames each frame is decoded from its authentic part; its MAC
-is not checked here (the key stays with the link). Status and crane heartbeat frames also give the crane's
+is not checked here (the key stays with the link), and a crane answer's signature frame shows its
+64 bytes (checked by the laptop when it arrived). Status and crane heartbeat frames also give the crane's
 state at that time (``crane_state``).
 """
 
@@ -27,7 +28,7 @@ def decode_frame(t_s: float, arbitration_id: int, data: bytes, is_rx: bool, secu
     """One recorded frame as a dict (see the module docstring); ``secured``: the link carried
     authenticated frames (:mod:`field.link.secoc`)."""
     from field.errors import ProtocolError
-    from field.link.codec import authentic_length, decode, kind_of_frame_id, load_database
+    from field.link.codec import SIGNED_KIND, authentic_length, decode, kind_of_frame_id, load_database
 
     out: dict[str, Any] = {"t_utc_s": t_s, "id": f"0x{arbitration_id:03X}", "direction": "rx" if is_rx else "tx",
                            "length": len(data), "data_hex": data.hex(), "kind": None, "signals": {}, "check": None}
@@ -39,6 +40,11 @@ def decode_frame(t_s: float, arbitration_id: int, data: bytes, is_rx: bool, secu
     message = load_database().get_message_by_frame_id(arbitration_id)
     pdu = bytes(data)
     out["secured"] = secured
+    if kind in SIGNED_KIND:  # the crane's signature of the frame before it: 64 bytes, no E2E header
+        ok = len(pdu) == message.length
+        out["check"] = "ok" if ok else f"{kind}: {len(pdu)} bytes, expected {message.length}"
+        out["signals"] = {k: _plain(v) for k, v in message.decode(pdu).items()} if ok else {}
+        return out
     if secured:  # the authentic PDU, then freshness and MAC where the plain frame's reserved tail is
         a = authentic_length(kind)
         pdu = pdu[:a] + bytes(message.length - a)

@@ -41,11 +41,8 @@ ERRORS = {  # IEC 61784-3's transmission errors, as the standard's "black channe
 }
 LINKS = {"can": "CAN", "zenoh": "Zenoh"}
 SECTIONS = ("abort", "keys", "gap")
-KEYS = "per-direction keys and key identifiers (issue 39, helper safety-link)"
-PENDING = [  # evidence that waits on work not in this tree: (key, value, link, what it will prove, waits on)
-    ("error", "masquerade", "both", "a laptop's key file cannot make crane frames (acknowledgements, outcomes, "
-                                    "status): not possible with any MAC - needs signed crane frames", KEYS),
-]
+#: evidence that waits on work not in this tree: (key, value, link, what it will prove, waits on)
+PENDING: list[tuple[str, str, str, str, str]] = []
 
 
 @dataclass
@@ -186,7 +183,14 @@ key file may hold several `KEY_ID HEX` lines: the key id travels in the freshnes
 rotate without downtime. More than `max_mac_failures` frames failing their MAC or key id within
 `mac_failure_window_s` put the controller in FAULT (commands refused, a running grasp aborted). Receivers drop a bad MAC, a replay (a freshness value seen before)
 and a frame more than 2 s off their clock; an e-stop frame stops the crane even when its MAC fails
-(fail-safe). On Zenoh, sessions also authenticate (user/password or mutual TLS) and an
+(fail-safe). A MAC cannot tell the crane from a laptop (the laptop, which verifies crane frames, could
+compute them), so every crane → laptop frame is also signed with Ed25519 by a key only the crane holds
+(`field/link/signing.py`; `loggrasp link-key --crane-signing CRANE` writes CRANE, mode 0600, for the
+crane's `signing_key=`, and CRANE.pub for the laptops' `crane_key=`): a laptop's key file cannot make
+crane frames. On Zenoh the signature follows the frame in its payload; on CAN FD it follows in a
+signature frame of its own identifier, and the laptop acts on a crane frame only once its signature
+frame verifies (a frame left unsigned for `signature_wait_s` is dropped: a lost frame). A failed
+signature is an authentication failure, dropped and counted like a failed MAC. On Zenoh, sessions also authenticate (user/password or mutual TLS) and an
 access-control policy gives the crane, operators and observers their roles
 (`field/link/zenoh_acl.json5`)."""
 
@@ -194,10 +198,14 @@ GAPS = [
     "**CAN without keys has integrity, not origin**: E2E CRCs and counters catch corruption, loss, "
     "repetition and reordering, but any node on the bus can forge a valid frame. Authentication is on "
     "by default; an operator who opts out (`--insecure-link`) runs without origin.",
-    "**A laptop's key file can make crane frames**: the directions use different derived keys, but the "
-    "laptop must verify crane frames and a MAC is verified by computing it, so whoever holds the file "
-    "holds both. Only signatures (Ed25519's 64 bytes do not fit a CAN FD frame beside its payload) or "
-    "delayed key disclosure (TESLA) would close this (pending above).",
+    "**Laptop → crane frames are MAC'd with a shared key**: the crane's answers are signed, but a command "
+    "is only MAC'd, so whoever holds any copy of the SecOC key file (another laptop, or the crane's own "
+    "disk) can make laptop frames, commands included. The crane's signing key is the crane's identity: "
+    "whoever steals it can make crane answers.",
+    "**On CAN a crane answer is two frames** (the data frame, then its 64-byte signature frame): twice the "
+    "crane's frames on the bus, and an answer whose signature frame is lost or more than "
+    "`signature_wait_s` (0.25 s) late is dropped - a lost frame, which the link survives but which costs "
+    "a status query.",
     "**Frames carry no crane identity**: addressing between cranes rests on separate buses, one Zenoh key "
     "expression per crane and one key per crane. Two cranes sharing a key and a bus or router would accept "
     "each other's commands.",
@@ -274,7 +282,7 @@ def render(ev: list[Evidence], when: str, commit: str) -> tuple[str, list[str]]:
         "",
         "## Regenerate",
         "",
-        "`make safety-case` (or `PYTHONPATH=. .venv/bin/python scripts/safety_case.py`: the tests folder has no packages of its own, so the repository root goes first on the path), about two minutes on 2 cores.",
+        "`make safety-case` (or `PYTHONPATH=. .venv/bin/python scripts/safety_case.py`: the tests folder has no packages of its own, so the repository root goes first on the path), about four minutes on 2 cores (the soak's default sizes, 8,000 commands on CAN and 2,000 on Zenoh, included).",
         "",
     ]
     return "\n".join(lines), missing

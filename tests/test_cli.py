@@ -831,13 +831,14 @@ def test_crane_sim_says_why_it_rejects(capsys, work):
     (STALE) although the laptop's --max-pile-age lets it through; both sides say why."""
     url = f"zenoh://127.0.0.1:{_free_port()}/crane-test"
     crane = _loggrasp("crane-sim", "--link", url, "--insecure-link", "--pile", str(DEMO_DATA / "truth" / "pile.json"),
-                      "--max-pile-age", "60")
+                      "--max-pile-age", "60", "--max-mac-failures", "50")
     try:
         deadline = time.time() + 60
         line = ""
         while "serving" not in line and time.time() < deadline:
             line = crane.stdout.readline()
             assert line or crane.poll() is None, crane.stderr.read()
+        assert "FAULT past 50 MAC failures in 10 s" in line, line
         rec = work / "t_stale"
         r = cli(capsys, "trial", "--scan", SCAN, "--gnss", GNSS, "--record", rec, "--yes", "--max-pile-age", OLD,
                 "--link", url, "--insecure-link")
@@ -887,6 +888,7 @@ def test_crane_sim_bad_input(capsys, work, a_file):
     fails(cli(capsys, "crane-sim", *insecure, "--pile", work / "none.json"), 2, "--pile")
     fails(cli(capsys, "crane-sim", *insecure, "--pile", pile, "--base", "1,2"), 2, "--base")
     fails(cli(capsys, "crane-sim", *insecure, "--pile", pile, "--max-reach", "-1"), 2, "--max-reach")
+    fails(cli(capsys, "crane-sim", *insecure, "--pile", pile, "--max-mac-failures", "0"), 2, "--max-mac-failures")
 
 
 def test_trial_and_replay_refuse_a_crane_link_without_a_key(capsys, work, demo_record):

@@ -6,6 +6,9 @@ session, :data:`field.link.base.CONTROLLER_TRANSPORTS`) feeds it frames with
 it checks, in this order, and rejects with the first failing reason:
 
 0. with a SecOC key: the frame's MAC and freshness (a failing frame is dropped unanswered);
+   every frame it sends is secured and, with its signing key (``signing_key_path``, needed beside
+   a SecOC key unless ``insecure_link``), signed, so no laptop's key file can pass for the crane
+   (:mod:`field.link.signing`);
 1. end-to-end CRC (CRC), frame length / reserved bits / version / field sanity (MALFORMED). A
    reply names the command id only when the frame passed its E2E check; otherwise it carries
    id 0, so no laptop ever takes the answer to a corrupted frame for the answer to its command;

@@ -80,6 +80,7 @@ class ControllerConfig:
     secoc_key_path: str | None = None  # pre-shared key file: accept authenticated frames only
     insecure_link: bool = False  # the explicit opt-out: no key, frames not authenticated (logged) [-]
     secoc_window_s: float = 2.0  # SecOC freshness window [s]
+    signing_key_path: str | None = None  # Ed25519 signing key: every answer signed (needed with a SecOC key)
     # more frames than this failing their MAC (or key id) within mac_failure_window_s: someone
     # without the key is on the bus - FAULT (commands refused, a running grasp aborted, local reset)
     max_mac_failures: int = 20  # [-]

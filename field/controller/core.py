@@ -74,7 +74,9 @@ class CraneController:
             raise ValueError(f"executor must have execute(cmd, should_abort) or be callable, got {self.executor!r}")
         self._clock = clock
         self._encoder = Encoder(first_counter=secrets.randbits(8))  # a restart is a new counter session
-        self._secoc = self._load_secoc()
+        from field.link.signing import load_crane_keys
+
+        self._secoc, self._signer = load_crane_keys(self.config, self._clock)
         self._counters: dict[str, Any] = {}  # command channel -> CounterMonitor
         self._streams = HeartbeatStreams(self.config.laptop_timeout_s)
         self._peers = PeerTracker(self.config.laptop_timeout_s)
@@ -96,20 +98,6 @@ class CraneController:
         self._auth_warned_s: dict[str, float] = {}
         self._stop = threading.Event()
         self._supervisor: threading.Thread | None = None
-
-    def _load_secoc(self) -> Any:
-        if self.config.secoc_key_path is None:
-            if not self.config.insecure_link:
-                raise ControllerError("a crane controller needs a SecOC key (ControllerConfig.secoc_key_path, or "
-                                      "secoc_key=KEYFILE in the link URL): without one any node on the bus can "
-                                      "command the crane. Opt out explicitly with insecure_link=True (URL insecure=1, "
-                                      "crane-sim --insecure-link)")
-            log.warning("crane controller WITHOUT authentication (insecure_link=True): any node on the bus can "
-                        "command the crane")
-            return None
-        from field.link.secoc import SecOC
-
-        return SecOC.from_key_file(self.config.secoc_key_path, window_s=self.config.secoc_window_s, clock=self._clock)
 
     def _open_journal(self) -> ControllerJournal | None:
         if self.config.no_journal:
@@ -469,9 +457,14 @@ class CraneController:
     # ---- output --------------------------------------------------------------------------
 
     def _wire(self, msg: Any) -> bytes:
-        """``msg`` as frame bytes: E2E, then SecOC when a key is configured."""
+        """``msg`` as frame bytes: E2E, then SecOC when a key is configured, then the crane's
+        signature appended when it has its signing key (the transport carries it:
+        :func:`field.link.signing.carriage_frames`)."""
         kind, data = self._encoder.encode(msg)
-        return data if self._secoc is None else self._secoc.secure(kind, data)
+        if self._secoc is None:
+            return data
+        data = self._secoc.secure(kind, data)
+        return data if self._signer is None else data + self._signer.sign(kind, data)
 
     def _publish_status(self) -> None:
         self._publish_frame("Status", self._wire(self.status(0)))

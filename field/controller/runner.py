@@ -35,7 +35,7 @@ def run_controller(
     ``zenoh://127.0.0.1:7447/crane1`` — the controller LISTENS on that endpoint — ...).
     ``ready_event`` is set once the controller serves; ``on_serve(controller)`` is called just
     before (e.g. to watch its ``rejections``). A ``secoc_key=PATH`` in the URL is the
-    controller's key when ``config`` names none; ``insecure=1`` there is the explicit opt-out
+    controller's key when ``config`` names none, and ``signing_key=PATH`` its signing key; ``insecure=1`` there is the explicit opt-out
     (``insecure_link``) of a controller without one. The journal is on: ``config.journal_path``, or
     :func:`default_journal_path` of the link unless ``config.no_journal`` opts out.
     """
@@ -48,6 +48,8 @@ def run_controller(
     url_config = LinkURL.parse(link_url).pop_link_config()[0]
     if url_config.secoc_key_path is not None and config.secoc_key_path is None:
         config = replace(config, secoc_key_path=url_config.secoc_key_path)
+    if url_config.signing_key_path is not None and config.signing_key_path is None:
+        config = replace(config, signing_key_path=url_config.signing_key_path)
     if url_config.insecure and not config.insecure_link:
         config = replace(config, insecure_link=True)
     if config.journal_path is None and not config.no_journal:

@@ -14,8 +14,9 @@ Backends are registered in :data:`BACKENDS` as ``"module:Class"`` and imported o
 chosen, so ``import field.link`` loads neither python-can nor zenoh. Link options common to all
 backends may be given as URL query parameters: ``record=PATH`` (CAN: BLF recording),
 ``heartbeat_ms``, ``heartbeat_timeout_ms``, ``max_pile_age_s``, ``connect_timeout_s``,
-``secoc_key=PATH`` (authenticated frames, :mod:`field.link.secoc`; the crane needs the same key;
-without one a link to a crane is refused unless ``insecure=1`` opts out explicitly).
+``secoc_key=PATH`` (authenticated frames, :mod:`field.link.secoc`; the crane needs the same key)
+and ``crane_key=PATH.pub`` (the crane's public key: its answers are signed, :mod:`field.link.signing`);
+without them a link to a crane is refused unless ``insecure=1`` opts out explicitly.
 
 Frames delivered by a backend go through :meth:`CraneLink._deliver`: SecOC check (with a key),
 E2E check, rolling counter check, decode, then into an inbox that ``send_grasp`` /
@@ -99,11 +100,13 @@ class LinkStats:
     duplicates_dropped: int = 0  # repeated rolling counter
     sequence_errors: int = 0  # counter jumped (lost / reordered frames)
     bus_errors: int = 0
-    auth_failures: int = 0  # frames dropped by the SecOC check (MAC, freshness, length)
+    auth_failures: int = 0  # frames dropped by the SecOC check (MAC, signature, freshness, length)
     unattributed_answers: int = 0  # controller answers with id 0 (to a frame that failed its check)
     stale_heartbeats: int = 0  # crane heartbeats whose counter did not advance (frozen sender)
     conflicts: int = 0  # answers that contradicted an earlier one (reconciled; see CraneLink.notes)
     foreign_answers: int = 0  # acks / outcomes naming a command id this link never sent (dropped)
+    unsigned_dropped: int = 0  # CAN: crane frames whose signature frame never came in time (lost)
+    orphan_signatures: int = 0  # CAN: signature frames with no frame of their kind waiting (late / lost)
 
 
 
@@ -123,6 +126,8 @@ class CraneLink(Receiving, Reconciling, abc.ABC):
     #: a link to a crane needs a SecOC key unless the operator opts out (``insecure``); only a
     #: twin on a private in-process bus may run without one
     _requires_key = True
+    #: the crane's signature travels in the frame's own payload (Zenoh), not in a frame of its own (CAN)
+    _inline_signatures = False
 
     def __init__(self, config: LinkConfig | None = None, *, clock: Callable[[], float] = time.time):
         from field.link.codec import CounterMonitor, Encoder
@@ -130,7 +135,11 @@ class CraneLink(Receiving, Reconciling, abc.ABC):
         self.config = config or LinkConfig()
         self.guard = CommandGuard(self.config.safety, clock)
         self.stats = LinkStats()
-        self._secoc = _load_secoc(self.config, clock, self.backend_name, self._requires_key)
+        from field.link.signing import load_answer_check
+
+        self._answer_check = load_answer_check(self.config, clock, self.backend_name, self._requires_key,
+                                               inline=self._inline_signatures)
+        self._secoc = self._answer_check.secoc
         self._issued: set[int] = set()  # command ids this link sent: answers to others are foreign
         self._encoder = Encoder(first_counter=secrets.randbits(8))
         self._counters = CounterMonitor(max_delta=8)  # laptop side: drop duplicates, count jumps
@@ -386,11 +395,14 @@ class CraneLink(Receiving, Reconciling, abc.ABC):
 
     def _await_controller(self) -> None:
         """Open-time handshake: raise :class:`LinkError` (and close) when no controller answers."""
-        if self.config.require_controller and not self.wait_for_controller(self.config.connect_timeout_s):
-            auth = self.stats.auth_failures
+        try:
+            found = not self.config.require_controller or self.wait_for_controller(self.config.connect_timeout_s)
+        except LinkError:  # the link failed while opening (a bus error, too many frames failing their check)
             self.close()
-            hint = (f"; {auth} frames failed authentication: the crane uses another SecOC key or none "
-                    f"(secoc_key= on both sides)" if auth else "")
+            raise
+        if not found:
+            self.close()
+            hint = self._auth_hint()
             heard = self._latest_status is not None and self.controller_alive()
             raise LinkError(
                 f"the crane controller answered but hears no live laptop heartbeat from this laptop within "
@@ -405,6 +417,11 @@ class CraneLink(Receiving, Reconciling, abc.ABC):
     def authenticated(self) -> bool:
         """Whether frames carry SecOC MACs (False only with the explicit ``insecure`` opt-out or a twin)."""
         return self._secoc is not None
+
+    @property
+    def answers_signed(self) -> bool:
+        """Whether the crane's answers must carry its signature (the laptop holds its public key)."""
+        return self._answer_check.verifier is not None
 
     @property
     def closed(self) -> bool:
@@ -549,24 +566,6 @@ class CraneLink(Receiving, Reconciling, abc.ABC):
     def _prune(d: dict, keep: int = 4096) -> None:
         while len(d) > keep:
             d.pop(next(iter(d)))
-
-
-def _load_secoc(config: LinkConfig, clock: Callable[[], float], backend: str, requires_key: bool) -> Any:
-    """The link's SecOC (None without a key, which needs the explicit ``insecure`` opt-out)."""
-    if config.secoc_key_path is None:
-        if requires_key and not config.insecure:
-            raise LinkError(
-                f"the {backend} link has no SecOC key: without one any node on the bus can forge commands and the "
-                f"crane's answers. Give both ends a key (secoc_key=KEYFILE in the URL; create one with `loggrasp "
-                f"link-key KEYFILE`), or opt out explicitly with insecure=1 in the URL (--insecure-link)")
-        if requires_key:
-            log.warning("the %s link runs WITHOUT authentication (insecure=1): any node on the bus can forge "
-                        "commands and the crane's answers", backend)
-        return None
-    from field.link.secoc import SecOC
-
-    return SecOC.from_key_file(config.secoc_key_path, window_s=config.secoc_window_s, clock=clock)
-
 
 
 def open_link(url_or_config: "str | LinkURL | Mapping[str, Any]", config: LinkConfig | None = None, **backend_kwargs: Any) -> CraneLink:

@@ -32,7 +32,14 @@ import can
 
 from field.errors import LinkError
 from field.link.base import CraneLink, LinkConfig, LinkURL, track_resource, untrack_resource
-from field.link.codec import CRANE_TO_LAPTOP, LAPTOP_TO_CRANE, frame_id, kind_of_can_frame, kind_of_frame_id
+from field.link.codec import (
+    CRANE_TO_LAPTOP,
+    LAPTOP_TO_CRANE,
+    SIGNED_KIND,
+    frame_id,
+    kind_of_can_frame,
+    kind_of_frame_id,
+)
 
 #: python-can config keys accepted as URL query parameters (passed to can.Bus as given)
 _INT_KEYS = {"bitrate", "data_bitrate", "rx_queue_size"}
@@ -274,8 +281,12 @@ class CanLink(_CanEndpoint, CraneLink):
             self.stats.bus_errors += 1
             return
         kind = kind_of_can_frame(msg.arbitration_id, msg.is_extended_id, msg.is_fd)
-        if kind in CRANE_TO_LAPTOP and not msg.is_remote_frame:
+        if msg.is_remote_frame:
+            return
+        if kind in CRANE_TO_LAPTOP:
             self._deliver(kind, bytes(msg.data))
+        elif kind in SIGNED_KIND:
+            self._deliver_signature(SIGNED_KIND[kind], bytes(msg.data))
 
     def _on_bus_error(self, exc: Exception) -> None:
         self._fail(exc)
@@ -290,8 +301,35 @@ class CanLink(_CanEndpoint, CraneLink):
 # --- crane side -----------------------------------------------------------------------------
 
 
+class _Periodic:
+    """Calls ``send()`` every ``period_s`` on a thread of its own (the crane's heartbeat: a signed
+    heartbeat is two frames, which python-can's periodic task cannot send); ``stop()`` joins it."""
+
+    def __init__(self, period_s: float, send: Callable[[], None], on_error: Callable[[Exception], None]):
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, args=(period_s, send, on_error), daemon=True,
+                                        name="crane-heartbeat")
+        self._thread.start()
+
+    def _run(self, period_s: float, send: Callable[[], None], on_error: Callable[[Exception], None]) -> None:
+        next_s = time.monotonic()
+        while not self._stop.wait(max(0.0, next_s - time.monotonic())):
+            next_s += period_s
+            try:
+                send()
+            except Exception as exc:  # a bus error: counted; the laptop's staleness check covers a silent crane
+                on_error(exc)
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not threading.current_thread():
+            self._thread.join(1.0)
+
+
 class CanControllerTransport(_CanEndpoint):
-    """Crane side over CAN FD: feeds frames to a :class:`field.controller.CraneController`."""
+    """Crane side over CAN FD: feeds frames to a :class:`field.controller.CraneController`. A
+    signed crane frame goes out as two frames, the data frame and then its signature frame
+    (:func:`field.link.signing.carriage_frames`), never interleaved with another pair."""
 
     def __init__(self, bus_kwargs: dict[str, Any] | None = None, *, bus: can.BusABC | None = None, heartbeat_period_s: float = 0.05, record_path: str | None = None):
         self.bus_kwargs = dict(bus_kwargs or {})
@@ -301,6 +339,7 @@ class CanControllerTransport(_CanEndpoint):
         self.controller: Any = None
         self._closed = False
         self.bus_errors = 0
+        self._send_lock = threading.Lock()
 
     @classmethod
     def from_url(cls, url: LinkURL, *, bus: can.BusABC | None = None, heartbeat_period_s: float = 0.05) -> "CanControllerTransport":
@@ -312,13 +351,13 @@ class CanControllerTransport(_CanEndpoint):
         controller.attach(self.send)
         try:
             self._setup_bus(self._raw, self.record_path, self._on_message, f"CanControllerTransport bus {self._raw.channel_info}")
-            self._start_heartbeat("CraneHeartbeat", self.heartbeat_period_s, controller.heartbeat_frame(), self._next_heartbeat)
+            self._hb_task = _Periodic(self.heartbeat_period_s, self._send_heartbeat, self._on_bus_error)
         except BaseException:
             self._raw.shutdown()
             raise
 
-    def _next_heartbeat(self, msg: can.Message) -> None:
-        msg.data = bytearray(self.controller.heartbeat_frame())
+    def _send_heartbeat(self) -> None:
+        self.send("CraneHeartbeat", self.controller.heartbeat_frame())
 
     def _on_message(self, msg: can.Message) -> None:
         if msg.is_error_frame or msg.is_remote_frame:
@@ -331,8 +370,13 @@ class CanControllerTransport(_CanEndpoint):
         self.bus_errors += 1
 
     def send(self, kind: str, data: bytes) -> None:
-        if not self._closed:
-            self._bus.send(make_frame(kind, data), timeout=0.2)
+        from field.link.signing import carriage_frames
+
+        if self._closed:
+            return
+        with self._send_lock:
+            for k, frame in carriage_frames(kind, data):
+                self._bus.send(make_frame(k, frame), timeout=0.2)
 
     def close(self) -> None:
         if self._closed:
@@ -372,8 +416,8 @@ def decode_recording(path: str | Path, secoc_key: str | Path | None = None) -> l
     out: list[tuple[float, str, Any]] = []
     for msg in read_recording(path):
         kind = kind_of_frame_id(msg.arbitration_id)
-        if kind is None:
-            continue
+        if kind is None or kind in SIGNED_KIND:
+            continue  # not a link frame, or a signature frame (what it signs is decoded)
         try:
             data = bytes(msg.data) if secoc is None else secoc.verify(kind, bytes(msg.data), check_freshness=False)
             out.append((msg.timestamp, kind, decode(kind, data).message))

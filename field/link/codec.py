@@ -88,6 +88,10 @@ KIND_OF: dict[type, str] = {
 #: frames the laptop sends / the crane sends
 LAPTOP_TO_CRANE = ("GraspCommand", "StatusRequest", "LaptopHeartbeat", "EStop")
 CRANE_TO_LAPTOP = ("Ack", "Outcome", "Status", "CraneHeartbeat")
+#: CAN FD: the signature frame that follows each crane -> laptop frame (field/link/signing.py),
+#: and the reverse map; signature frames carry 64 signature bytes, no E2E header
+SIGNATURE_KIND = {kind: f"{kind}Signature" for kind in CRANE_TO_LAPTOP}
+SIGNED_KIND = {sig: kind for kind, sig in SIGNATURE_KIND.items()}
 
 
 @functools.lru_cache(maxsize=1)

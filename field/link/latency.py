@@ -142,9 +142,12 @@ def _controller_process(url: str, delay_s: float) -> Iterator[None]:
 
 
 def _keyed(url: str, secoc_key: str | None) -> str:
-    from field.link.link_config import with_insecure
+    """``url`` with the rig's keys: ``secoc_key`` and, when one lies beside it (``KEY.sign``, made by
+    ``loggrasp link-key --crane-signing KEY.sign``), the crane's signing key: signed answers."""
+    from field.link.link_config import keyed_url
 
-    return with_insecure(url) if secoc_key is None else f"{url}{'&' if '?' in url else '?'}secoc_key={secoc_key}"
+    sign = None if secoc_key is None else f"{secoc_key}.sign"
+    return keyed_url(url, secoc_key, sign if sign is not None and os.path.exists(sign) else None)
 
 
 @contextlib.contextmanager

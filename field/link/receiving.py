@@ -1,8 +1,9 @@
 """The laptop side's receive path: check, decode and store crane -> laptop frames.
 
 A mixin of :class:`field.link.base.CraneLink` (its state lives there): frames delivered by a
-backend go through :meth:`Receiving._deliver`: SecOC check (with a key), E2E check, rolling
-counter check, decode, then into the inbox that the public API waits on.
+backend go through :meth:`Receiving._deliver`: SecOC check (with a key) and the crane's
+signature (with its public key; on CAN it comes in a frame of its own, :meth:`Receiving._deliver_signature`),
+E2E check, rolling counter check, decode, then into the inbox that the public API waits on.
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ import logging
 import time
 from typing import Any
 
-from field.errors import ProtocolError
+from field.errors import AuthenticationError, ProtocolError
 from field.link.fate import _ack_word
 from field.link.messages import Ack, ControllerStatus, Outcome, RejectReason
 
@@ -22,10 +23,24 @@ class Receiving:
     """Crane -> laptop frames into :class:`field.link.base.CraneLink`'s inbox (under its ``_cond``)."""
 
     def _deliver(self, kind: str, data: bytes) -> None:
-        """Feed one crane -> laptop frame (any thread): check, decode, store, notify."""
+        """Feed one crane -> laptop frame (any thread): check, decode, store, notify. On CAN a
+        signed frame is only held here, until :meth:`_deliver_signature` gets its signature."""
         self.stats.frames_received += 1
         self._resync_after_silence()
-        plain = self._unwrap(kind, data)
+        self._accept(kind, self._unwrap(kind, data))
+
+    def _deliver_signature(self, kind: str, signature: bytes) -> None:
+        """Feed one CAN signature frame of a ``kind`` frame (any thread): the frame it releases
+        goes on like :meth:`_deliver`'s."""
+        self.stats.frames_received += 1
+        plain, why = self._answer_check.on_signature(kind, signature)
+        self._count_failure(kind, why)
+        self._accept(kind, plain)
+
+    def _accept(self, kind: str, plain: bytes | None) -> None:
+        check = self._answer_check
+        check.expire()
+        self.stats.unsigned_dropped, self.stats.orphan_signatures = check.unsigned_dropped, check.orphan_signatures
         d = None if plain is None else self._decode(kind, plain)
         if d is None:
             return
@@ -64,14 +79,37 @@ class Receiving:
             self._crane_heartbeat = None
 
     def _unwrap(self, kind: str, data: bytes) -> bytes | None:
-        """The plain frame, after the SecOC check when a key is configured (None: dropped, counted)."""
-        from field.link.secoc import unwrap
-
-        plain, why = unwrap(self._secoc, kind, data)
-        if why is not None:
-            self.stats.auth_failures += 1
-            log.debug("dropped %s: %s", kind, why)
+        """The plain frame, after the SecOC check (and the crane's signature) when a key is
+        configured (None: dropped and counted, or held for its signature frame)."""
+        plain, why = self._answer_check.unwrap(kind, data)
+        self._count_failure(kind, why)
         return plain
+
+    def _auth_hint(self) -> str:
+        """Why a crane that is there may not have been heard: frames that failed authentication, or
+        crane frames whose signature never came ("" when neither)."""
+        auth, unsigned = self.stats.auth_failures, self.stats.unsigned_dropped
+        return ((f"; {auth} frames failed authentication: the crane uses another SecOC key or none (secoc_key= on "
+                 f"both sides), or crane_key= is not this crane's public key" if auth else "")
+                + (f"; {unsigned} crane frames came without their signature frame: does the crane sign its answers "
+                   f"(signing_key=)?" if unsigned else ""))
+
+    def _count_failure(self, kind: str, why: Any) -> None:
+        """A frame that failed its MAC, signature, freshness or length: dropped, counted; past the
+        link's ``max_auth_failures`` the link fails (its waiters raise :class:`LinkError`)."""
+        if why is None:
+            return
+        self.stats.auth_failures += 1
+        log.debug("dropped %s: %s", kind, why)
+        cause = self._answer_check.count_failure(why)
+        if cause is not None:
+            with self._cond:
+                first = self._failure is None
+                if first:
+                    self._failure = AuthenticationError(cause, check="threshold")
+                self._cond.notify_all()
+            if first:
+                log.error("the %s link fails: %s", self.backend_name, cause)
 
     def _decode(self, kind: str, data: bytes) -> Any:
         from field.link.codec import CounterCheck, decode

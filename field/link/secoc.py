@@ -33,9 +33,10 @@ node sends with it while the others still accept the old one), (3) removing the 
 frame naming a key id the receiver does not hold fails (``check="key_id"``).
 
 Per-direction keys: the MAC key of a frame is derived from the file's key and the frame's
-direction, so a laptop frame can never pass as a crane frame under any identifier. This does
-NOT stop a holder of the file from making crane frames: with any MAC the laptop, which must
-verify crane frames, can also compute them (docs/link-safety.md says what would).
+direction, so a laptop frame can never pass as a crane frame under any identifier. A MAC alone
+does not stop a holder of the file from making crane frames (the laptop, which must verify
+crane frames, can also compute them): crane frames are therefore also signed with a key only
+the crane holds (:mod:`field.link.signing`).
 """
 
 from __future__ import annotations
@@ -129,6 +130,34 @@ def generate_key_file(path: str | Path) -> Path:
     with os.fdopen(fd, "w") as f:
         f.write(secrets.token_hex(KEY_BYTES) + "\n")
     return path
+
+
+def add_key(path: str | Path) -> int:
+    """Add a new random key to the key file ``path`` as its last ``KEY_ID HEX`` line (the next free key
+    id; the sending key, the first line, stays) - step 1 of a rotation. The file is replaced whole
+    (mode 0600), never left half-written. Returns the new key id."""
+    path = Path(path)
+    sending, keys = load_keys(path)  # refuses an unreadable, open or malformed file first
+    new_id = next((kid for kid in range(max(keys) + 1, MAX_KEY_ID + 1)), None)
+    if new_id is None:
+        new_id = next((kid for kid in range(MAX_KEY_ID + 1) if kid not in keys), None)
+    if new_id is None:
+        raise KeyFileError(f"SecOC key file {path} holds {len(keys)} keys, every key id in 0..{MAX_KEY_ID}; remove "
+                           f"old lines first")
+    order = [sending, *(kid for kid in keys if kid != sending)]
+    text = "".join(f"{kid} {keys[kid].hex()}\n" for kid in order) + f"{new_id} {secrets.token_hex(KEY_BYTES)}\n"
+    tmp = path.with_name(f".{path.name}.{secrets.token_hex(4)}.tmp")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return new_id
 
 
 # --- freshness ------------------------------------------------------------------------------
@@ -255,6 +284,16 @@ class SecOC:
             if why is not None:
                 raise AuthenticationError(f"{kind}: {why}", check="freshness")
         return pdu + bytes(_message(kind).length - n)
+
+    def check_freshness(self, kind: str, data: bytes) -> AuthenticationError | None:
+        """The freshness check of an authenticated frame whose MAC :meth:`verify` passed without it
+        (a signed crane frame is checked, and its freshness value remembered, once its signature
+        verified): None if fresh, else why not."""
+        from field.link.codec import authentic_length
+
+        n = authentic_length(kind)
+        why = self._replay.check(kind, int.from_bytes(bytes(data[n:n + FV_BYTES]), "little"))
+        return None if why is None else AuthenticationError(f"{kind}: {why}", check="freshness")
 
 
 _DIRECTIONS = ("laptop->crane", "crane->laptop")

@@ -31,12 +31,15 @@ class TwinLink(CanLink):
         from field.controller import ControllerConfig, CraneController, FixedOutcomeExecutor
 
         self.channel = f"loggrasp-twin-{uuid.uuid4().hex[:12]}"
-        key = (config or LinkConfig()).secoc_key_path
+        key, signing = (config or LinkConfig()).secoc_key_path, (config or LinkConfig()).signing_key_path
         # the twin's bus is private to this process and gone with it: nothing can replay a command into
-        # a restarted twin, so it opts out of the journal (explicitly; the controller logs it)
-        controller_config = controller_config or ControllerConfig(no_journal=True, insecure_link=key is None)
+        # a restarted twin, so it opts out of the journal (explicitly; the controller logs it); it signs
+        # its answers only when given a signing key (signing_key=), as nothing else speaks on its bus
+        controller_config = controller_config or ControllerConfig(no_journal=True, insecure_link=_unsigned(key, signing))
         if key is not None:  # the twin crane holds the same key as the laptop
-            controller_config = replace(controller_config, secoc_key_path=key)
+            signing = signing or controller_config.signing_key_path
+            controller_config = replace(controller_config, secoc_key_path=key, signing_key_path=signing,
+                                        insecure_link=controller_config.insecure_link or signing is None)
         self.controller = CraneController(controller_config, executor if executor is not None else FixedOutcomeExecutor())
         self.transport = CanControllerTransport(
             bus=can.Bus(interface="virtual", channel=self.channel, fd=True),
@@ -70,7 +73,8 @@ class TwinLink(CanLink):
                     kw["max_pile_age_s"] = float(q.pop("crane_max_pile_age_s"))
             except ValueError as exc:
                 raise ValueError(f"twin:// crane_base must be E,N,H and crane_max_pile_age_s a number: {exc}") from exc
-            controller_config = ControllerConfig(**kw, no_journal=True, insecure_link=cfg.secoc_key_path is None)
+            controller_config = ControllerConfig(**kw, no_journal=True,
+                                                 insecure_link=_unsigned(cfg.secoc_key_path, cfg.signing_key_path))
         if executor is None:
             name = q.pop("executor", "fixed")
             kwargs: dict[str, Any] = {}
@@ -96,3 +100,8 @@ class TwinLink(CanLink):
         finally:
             self.controller.close()
             self.transport.close()
+
+
+def _unsigned(key: str | None, signing: str | None) -> bool:
+    """Whether the twin crane opts out (insecure_link): no SecOC key, or no signing key beside it."""
+    return key is None or signing is None

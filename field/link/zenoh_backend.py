@@ -14,7 +14,8 @@ Key expressions, under a configurable prefix (default ``loggrasp/<crane>``)::
 Request/acknowledge uses a **queryable** (``session.get``): the reply goes to the requester
 only, the query has its own timeout, and an unreachable or unauthorised crane simply produces no
 reply (-> ``LinkTimeout``). Payloads are exactly the CAN FD frame bytes (same DBC codec, same
-AUTOSAR E2E protection). Presence uses liveliness tokens: a killed peer's token disappears at
+AUTOSAR E2E protection; a signed crane answer is its frame followed by the crane's 64-byte
+Ed25519 signature, :mod:`field.link.signing`). Presence uses liveliness tokens: a killed peer's token disappears at
 once, a hung one after the transport lease (``lease_ms``, default 1000 ms via
 ``transport/link/tx/lease``).
 
@@ -192,6 +193,7 @@ def _payload(sample_or_query: Any) -> bytes:
 class ZenohLink(CraneLink):
     backend_name = "zenoh"
     _resync_on_silence = False  # liveliness tells when the controller (re)appears
+    _inline_signatures = True  # a crane answer's payload is its frame followed by the crane's signature
     query_timeout_s = 10.0  # zenoh-level query lifetime; the link's own deadlines are shorter
 
     def __init__(self, target: ZenohTarget, config: LinkConfig | None = None):
@@ -266,10 +268,12 @@ class ZenohLink(CraneLink):
             import can
 
             from field.link.codec import frame_id
+            from field.link.signing import carriage_frames
 
-            self._recorder.on_message_received(can.Message(
-                timestamp=_time.time(), arbitration_id=frame_id(kind), is_extended_id=False, is_fd=True,
-                data=data, is_rx=is_rx, check=False))
+            for k, frame in carriage_frames(kind, data):  # a signed answer: as its two CAN FD frames
+                self._recorder.on_message_received(can.Message(
+                    timestamp=_time.time(), arbitration_id=frame_id(k), is_extended_id=False, is_fd=True,
+                    data=frame, is_rx=is_rx, check=False))
 
     def _deliver(self, kind: str, data: bytes) -> None:
         self._record(kind, data, True)
@@ -279,11 +283,14 @@ class ZenohLink(CraneLink):
         z = self._zenoh
         self._record(kind, data, False)
         if kind == "GraspCommand":  # the attachment names this laptop: the controller's commanding peer
+            # every reply, unconsolidated: another queryable on the key (a misconfigured ACL) cannot hide the
+            # crane's own answer behind one of its own - the laptop checks each (signature) and keeps the crane's
             self._session.get(self.keys.cmd, self._reply_to("Ack"), payload=data, timeout=self.query_timeout_s,
                               priority=z.Priority.INTERACTIVE_HIGH, congestion_control=z.CongestionControl.BLOCK,
-                              attachment=str(self._session.zid()).encode())
+                              attachment=str(self._session.zid()).encode(), consolidation=z.ConsolidationMode.NONE)
         elif kind == "StatusRequest":
-            self._session.get(self.keys.status, self._reply_to("Status"), payload=data, timeout=self.query_timeout_s)
+            self._session.get(self.keys.status, self._reply_to("Status"), payload=data, timeout=self.query_timeout_s,
+                              consolidation=z.ConsolidationMode.NONE)
         elif kind == "EStop":
             self._session.put(self.keys.estop, data, priority=z.Priority.REAL_TIME,
                               congestion_control=z.CongestionControl.BLOCK, express=True)

@@ -118,7 +118,7 @@ class CMessage:
     name: str  # DBC message name
     prefix: str  # C prefix, e.g. loggrasp_grasp_command
     length: int  # frame bytes
-    data_id: int  # E2EDataID attribute
+    data_id: int  # E2EDataID attribute; -1: no E2E header (a signature frame)
     signals: tuple[CSignal, ...]  # DBC order
 
 
@@ -148,7 +148,8 @@ def read_header(header: Path, db: Any) -> list[CMessage]:
             if f'#define {macro}_{member.upper()}_NAME "{sig.name}"' not in text:
                 raise RuntimeError(f"{header}: {prefix}_t.{member} is not signal {sig.name}")
             signals.append(CSignal(sig.name, member, ctype))
-        data_id = int(message.dbc.attributes["E2EDataID"].value)
+        e2e = message.dbc.attributes.get("E2EDataID")  # none: a signature frame (no E2E header)
+        data_id = int(e2e.value) if e2e is not None else -1
         messages.append(CMessage(message.name, prefix, message.length, data_id, tuple(signals)))
     return messages
 
@@ -165,7 +166,13 @@ def _message_source(m: CMessage) -> str:
         show_raw.append(f'    printf(" {fmt}", ({cast})msg->{s.member});')
         show_phys.append(f'    printf(" %.17g", {f}_decode(msg->{s.member}));')
         ranges.append(f'    printf(" %d", {f}_is_in_range({raw}) ? 1 : 0);')
-    crc = next(s.member for s in m.signals if s.name == "CRC")
+    crc = next((s.member for s in m.signals if s.name == "CRC"), None)
+    check = f'msg->{crc} == e2e_p05_crc(buf, sizeof(buf), {m.data_id}u) ? "ok" : "crc"' if crc else '"ok"'
+    protect = (f"""    if (n >= 0 && op[0] == 'e') {{
+        msg->{crc} = e2e_p05_crc(buf, (size_t)n, {m.data_id}u);
+        n = {m.prefix}_pack(buf, msg, sizeof(buf));
+    }}
+""" if crc else "")
     nl = "\n"
     return f"""
 static void fill_{m.prefix}({t} *msg, char **tok, int phys)
@@ -193,7 +200,7 @@ static void run_{m.prefix}(const char *op, char **tok, int ntok)
             printf("raw");
 {nl.join("    " + x for x in show_raw)}
         }} else {{
-            printf("%s", msg->{crc} == e2e_p05_crc(buf, sizeof(buf), {m.data_id}u) ? "ok" : "crc");
+            printf("%s", {check});
 {nl.join("    " + x for x in show_phys)}
         }}
         printf("\\n");
@@ -215,11 +222,7 @@ static void run_{m.prefix}(const char *op, char **tok, int ntok)
     }}
     fill_{m.prefix}(msg, tok, op[0] == 'e');
     n = {m.prefix}_pack(buf, msg, sizeof(buf));
-    if (n >= 0 && op[0] == 'e') {{
-        msg->{crc} = e2e_p05_crc(buf, (size_t)n, {m.data_id}u);
-        n = {m.prefix}_pack(buf, msg, sizeof(buf));
-    }}
-    if (n != {upper}_LENGTH) {{
+{protect}    if (n != {upper}_LENGTH) {{
         printf("error pack %d\\n", n);
         return;
     }}

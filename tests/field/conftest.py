@@ -175,15 +175,29 @@ RIG_EXECUTOR = {"delay_s": 0.05, "delay_by_target_logs": {"9": 1.5}}
 
 @pytest.fixture(scope="session")
 def link_key(tmp_path_factory) -> Path:
-    """A generated SecOC key (mode 0600): the rigs run authenticated, as a field link should."""
+    """A generated SecOC key (mode 0600) and beside it the crane's signing key pair
+    (:func:`signing_key_of`): the rigs run authenticated, as a field link should."""
     from field.link.secoc import generate_key_file
+    from field.link.signing import generate_signing_key
 
-    return generate_key_file(tmp_path_factory.mktemp("secoc") / "link.key")
+    key = generate_key_file(tmp_path_factory.mktemp("secoc") / "link.key")
+    generate_signing_key(signing_key_of(key))
+    return key
+
+
+def signing_key_of(key: str | Path) -> Path:
+    """Where a test keeps the crane's signing key that goes with SecOC key ``key`` (its public key: + .pub)."""
+    key = Path(key)
+    return key.with_name(key.name + ".sign")
 
 
 def keyed(url: str, key: Path | None) -> str:
-    """``url`` with its SecOC key, or without one the explicit opt-out ``insecure=1``."""
-    return f"{url}{'&' if '?' in url else '?'}" + ("insecure=1" if key is None else f"secoc_key={key}")
+    """``url`` with its SecOC key and the crane's keys (public for the laptop, signing for the crane:
+    one URL serves both ends of a rig), or without one the explicit opt-out ``insecure=1``."""
+    if key is None:
+        return f"{url}{'&' if '?' in url else '?'}insecure=1"
+    sign = signing_key_of(key)
+    return f"{url}{'&' if '?' in url else '?'}secoc_key={key}&crane_key={sign}.pub&signing_key={sign}"
 
 
 def build_rig(name: str, tmp_path: Path, *, config: dict | None = None, executor: dict | None = None,

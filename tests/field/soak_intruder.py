@@ -5,7 +5,9 @@
 
 - ``insertion``: an E2E-valid frame from a node without the key (no SecOC trailer, or a random one);
 - ``masquerade``: an E2E-valid frame MACed with a key no crane holds, or with the lane's own key
-  file but the other direction's key (a laptop's key posing as the crane, and the reverse);
+  file but the other direction's key (a laptop's key posing as the crane, and the reverse), or -
+  toward the laptop - what a holder of a laptop's key file can make: the right MAC, but a
+  signature not by the crane (random bytes, or another Ed25519 key's; on CAN its own frame);
 - ``addressing``: a genuine frame of another crane (MACed with that crane's key), or a genuine
   frame of this lane sent under another kind's identifier / key expression.
 
@@ -44,6 +46,11 @@ class Forger:
         self.own = SecOC.from_key_file(key_path)
         self.other = SecOC.from_key_file(other_key_path)
         self.foreign = SecOC(secrets.token_bytes(32))  # a key no crane holds
+        from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
+
+        from field.link.signing import AnswerSigner
+
+        self.not_the_crane = AnswerSigner(Ed25519PrivateKey.generate(), "a laptop's own Ed25519 key")
         self._own_key = load_key(key_path)
         self._enc = Encoder()
         self._make_cmd = make_cmd
@@ -73,9 +80,14 @@ class Forger:
             n = authentic_length(kind)
             return cls, kind, plain[:n] + secrets.token_bytes(16) + bytes(secured_length(kind) - n - 16)
         if cls == "masquerade":
-            if r.random() < 0.5:
+            x = r.random()
+            if x < 1 / 3:
                 return cls, kind, self.foreign.secure(kind, plain)
-            return cls, kind, self._wrong_direction(kind, plain)
+            if x < 2 / 3 or to_crane:
+                return cls, kind, self._wrong_direction(kind, plain)
+            secured = self.own.secure(kind, plain)  # a laptop's key file: the crane -> laptop MAC is right
+            signature = secrets.token_bytes(64) if r.random() < 0.5 else self.not_the_crane.sign(kind, secured)
+            return cls, kind, secured + signature
         if r.random() < 0.5 or len(kinds) < 2:
             return cls, kind, self.other.secure(kind, plain)  # another crane's genuine frame
         under = r.choice([k for k in kinds if k != kind])

@@ -215,7 +215,8 @@ def test_dbc_ranges_are_one_line_for_cantools_c_and_our_decoder(harness):
     for msg in ONE_PER_KIND:
         kind, frame = codec.encode(msg, 0)
         base[kind] = DB.get_message_by_name(kind).decode(frame, decode_choices=False)
-    assert sorted(base) == sorted(m.name for m in DB.messages)
+    # every message with signals to range-check (a signature frame's 64 bytes take every value)
+    assert sorted(base) == sorted(m.name for m in DB.messages if m.name not in codec.SIGNED_KIND)
     checks, requests = [], []
     for kind, values in base.items():
         message = DB.get_message_by_name(kind)

@@ -20,6 +20,7 @@ from field.link.can_backend import CanControllerTransport, CanLink
 from field.link.codec import EStopRequest, Encoder, LaptopHeartbeat, StatusRequest, decode, frame_id
 from field.link.messages import Ack, ControllerStatus, Outcome
 from field.link.secoc import SecOC, generate_key_file, load_key, secured_length
+from tests.field.conftest import signing_key_of
 from tests.field.helpers import wait_until
 from tests.field.test_link_codec import MESSAGES
 
@@ -28,7 +29,13 @@ LINK = LinkConfig(heartbeat_timeout_s=1.0, status_timeout_s=1.0, connect_timeout
 
 @pytest.fixture
 def key(tmp_path):
-    return generate_key_file(tmp_path / "link.key")
+    """A SecOC key, and beside it the crane's signing key pair (``signing_key_of``; + .pub)."""
+    from field.link.signing import generate_signing_key
+    from tests.field.conftest import signing_key_of
+
+    path = generate_key_file(tmp_path / "link.key")
+    generate_signing_key(signing_key_of(path))
+    return path
 
 
 def frame(kind: str, data: bytes) -> can.Message:
@@ -144,13 +151,14 @@ def keyed_pair(key):
     def make(delay_s: float = 0.05, laptop_key=None):
         channel = f"secoc-{uuid.uuid4().hex[:8]}"
         ex = FixedOutcomeExecutor(delay_s=delay_s)
-        ctl = CraneController(ControllerConfig(secoc_key_path=str(key), no_journal=True), ex)
+        ctl = CraneController(ControllerConfig(secoc_key_path=str(key), signing_key_path=str(signing_key_of(key)),
+                                               no_journal=True), ex)
         tr = CanControllerTransport(bus=can.Bus(interface="virtual", channel=channel, fd=True))
         tr.start(ctl)
         ctl.start()
         rogue = can.Bus(interface="virtual", channel=channel, fd=True)
         made.append((ctl, tr, rogue))
-        cfg = replace(LINK, secoc_key_path=str(laptop_key or key))
+        cfg = replace(LINK, secoc_key_path=str(laptop_key or key), crane_key_path=f"{signing_key_of(key)}.pub")
         link = CanLink(config=cfg, bus=can.Bus(interface="virtual", channel=channel, fd=True))
         made.append((link,))
         return link, ctl, ex, rogue
@@ -275,14 +283,15 @@ def test_mac_failures_past_the_threshold_put_the_controller_in_its_safe_state(ke
     grasp aborts and commands are refused until a local reset. Stale frames (a clock, a replay)
     do not count."""
     ex = FixedOutcomeExecutor(delay_s=5.0)
-    ctl = CraneController(ControllerConfig(secoc_key_path=str(key), no_journal=True, max_mac_failures=3), ex)
+    ctl = CraneController(ControllerConfig(secoc_key_path=str(key), signing_key_path=str(signing_key_of(key)),
+                                           no_journal=True, max_mac_failures=3), ex)
     published: list = []
     ctl.attach(lambda k, d: published.append(k))
     ctl.start()
     laptop = SecOC.from_key_file(key)
     forger = SecOC.from_key_file(generate_key_file(tmp_path / "forger.key"))
     enc, hb, acks = Encoder(), [100], []
-    on = lambda k, d: acks.append(decode(k, laptop.verify(k, d)).message)  # noqa: E731
+    on = lambda k, d: acks.append(decode(k, laptop.verify(k, d[:secured_length(k)])).message)  # noqa: E731
 
     def beat() -> None:
         hb[0] += 1
