@@ -201,7 +201,7 @@ def record_demo(out: Path, work: Path) -> str:
 
 
 def record_reconstruction(out: Path, work: Path) -> str:
-    from field.cli import DEMO_DATA
+    from field.demo import DEMO_DATA
 
     loggrasp(out / "logs" / "reconstruct.txt", "reconstruct", DEMO_DATA / "scan", "--gnss", DEMO_DATA / "gnss.csv",
              "--out", work / "recon", "--json")

@@ -134,7 +134,7 @@ MUTATIONS: tuple[Mutation, ...] = (
       'digest = (hash(f"{seed}:{pile_id}") % 2 ** 64).to_bytes(8, "little")',
       ("tests/planner/test_planner_train.py::test_split_is_by_pile_and_deterministic",)),
     M("cli-slow-import", "`loggrasp --help` imports dask.distributed (0.2-0.8 s of CPU)",
-      "field/cli.py", "import typer\n", "import typer\nimport distributed  # noqa: F401\n",
+      "field/cli/__init__.py", "import typer\n", "import typer\nimport distributed  # noqa: F401\n",
       ("tests/test_cli_startup.py", "tests/test_cli.py::test_help_is_fast_and_imports_nothing_heavy")),
     # -- ROS 2 over Zenoh and the trial's Foxglove recording -------------------------------------------
     M("ros2-cdr-unaligned", "the CDR writer does not align float64 to 8 bytes",

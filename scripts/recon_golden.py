@@ -63,7 +63,7 @@ def loggrasp(*args) -> tuple[int, str]:
 
 
 def make_scans(scans: Path) -> None:
-    from field.cli import DEMO_DATA
+    from field.demo import DEMO_DATA
 
     scans.mkdir(parents=True, exist_ok=True)
     if not (scans / "demo").exists():

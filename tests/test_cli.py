@@ -26,7 +26,8 @@ from pathlib import Path
 
 import pytest
 
-from field.cli import DEMO_DATA, app, run
+from field.cli import app, run
+from field.demo import DEMO_DATA
 
 ROOT = Path(__file__).resolve().parents[1]
 SCAN, GNSS = DEMO_DATA / "scan", DEMO_DATA / "gnss.csv"

@@ -391,7 +391,8 @@ def test_crane_sim_defaults_journal_every_id_and_use_the_staleness_limit(monkeyp
     from typer.testing import CliRunner
 
     import field.controller
-    from field.cli import DEMO_DATA, app
+    from field.cli import app
+    from field.demo import DEMO_DATA
 
     seen: dict = {}
 

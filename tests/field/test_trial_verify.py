@@ -16,7 +16,8 @@ import time
 import pytest
 
 import planner.verify
-from field.cli import run, twin_url
+from field.cli import run
+from field.cli.options import twin_url
 from field.demo import DEMO_DATA, default_crane_base
 from field.trial import NotVerified, TrialAborted, TrialOptions, replay_record, run_trial_record
 from planner.verify import read_verification

@@ -1,0 +1,5 @@
+"""``python -m field.cli``: the ``loggrasp`` console script."""
+
+from field.cli import main
+
+main()
