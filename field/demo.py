@@ -2,7 +2,7 @@
 
 :func:`run_demo` wires the whole chain on the bundled recorded scan (:data:`DEMO_DATA`): a crane
 controller twin is served in this process on the link (executing grasps in pybullet on the true
-pile), then :func:`field.trial.run_trial_record` reconstructs the scan, plans, verifies in the
+pile), then :func:`field.trial_record.run_trial_record` reconstructs the scan, plans, verifies in the
 twin on the reconstruction, sends the SWEREF 99 TM grasp and records everything. The CLI command
 only checks flags, prints and maps errors to exit codes.
 
@@ -115,7 +115,7 @@ def run_demo(setup: DemoSetup, options: TrialOptions, confirm: Callable | None =
     on 127.0.0.1:``foxglove_port`` when given). A trial stopped before sending raises
     :class:`field.trial.TrialAborted` with its record written."""
     from field.executor import PybulletTrialExecutor
-    from field.trial import run_trial_record
+    from field.trial_record import run_trial_record
 
     config = crane_config(setup.base_tm, options.max_reach_m, setup.max_pile_age_s, str(setup.journal_path))
     with controller_in_thread(setup.link_url, PybulletTrialExecutor(setup.truth), config):

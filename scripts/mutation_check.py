@@ -156,7 +156,7 @@ MUTATIONS: tuple[Mutation, ...] = (
       "field/trial_view.py", '            self.errors.append(f"{what}: {type(exc).__name__}: {exc}")\n', "            raise\n",
       ("tests/field/test_trial_view.py",)),
     M("view-no-can-frames", "the trial's recording leaves out the CAN frames",
-      "field/trial.py", "                self.view.can_traffic(traffic, secured=",
+      "field/trial_record.py", "                self.view.can_traffic(traffic, secured=",
       "                0 and self.view.can_traffic(traffic, secured=",
       ("tests/field/test_field_trial.py::test_trial_mcap_reads_back_with_an_independent_reader",)),
     # issue 39: each safety-case cell fails when its measure is removed; the records' hash chain

@@ -790,7 +790,7 @@ def test_trial_bad_input_fails_before_any_work(capsys, work, a_file):
 def test_trial_records_raw_logs_and_the_survey_made_from_them(tmp_path):
     """A trial given raw logs keeps them in its record and reads the survey averaged from them, dated
     like the newest raw file (the pile's age check sees when the survey was made, not now)."""
-    from field.trial import _record_raw_survey
+    from field.trial_record import _record_raw_survey
     from reconstruct.survey.gnss import RawGnss, read_gnss_csv
 
     raw = tmp_path / "in"

@@ -129,7 +129,7 @@ def trial_command(
     Example: loggrasp trial --scan s3/scan --gnss s3/gnss.csv --link zenoh://127.0.0.1:7447/crane1 \
                --record trials/t4 --foxglove 8765
     """
-    from field.trial import run_trial_record
+    from field.trial_record import run_trial_record
     from planner.inference import check_views
 
     o = Output(as_json)
@@ -228,7 +228,7 @@ def replay_command(
     import tempfile
     import time
 
-    from field.trial import read_record, replay_record
+    from field.trial_record import read_record, replay_record
 
     o = Output(as_json)
     check_input(record, "RECORD", "dir")

@@ -14,7 +14,8 @@ from field.cli import run
 from field.controller import ControllerJournal
 from field.errors import ControllerError
 from field.link.messages import Outcome, OutcomeClass, RejectReason
-from field.trial import TrialOptions, _TrialRecord
+from field.trial import TrialOptions
+from field.trial_record import _TrialRecord
 
 
 def _journal(path: Path, n: int = 4, keep: int = 10_000) -> ControllerJournal:

@@ -13,7 +13,8 @@ import pytest
 from field.controller import controller_in_thread
 from field.demo import DEMO_DATA, crane_config, default_crane_base
 from field.executor import PybulletTrialExecutor
-from field.trial import TrialAborted, TrialOptions, execute_trial, prepare_trial, replay_record, run_trial_record
+from field.trial import TrialAborted, TrialOptions, execute_trial, prepare_trial
+from field.trial_record import replay_record, run_trial_record
 from synth.scene.pile import read_pile
 
 pytestmark = pytest.mark.slow

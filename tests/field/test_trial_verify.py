@@ -19,7 +19,8 @@ import planner.verify
 from field.cli import run
 from field.cli.options import twin_url
 from field.demo import DEMO_DATA, default_crane_base
-from field.trial import NotVerified, TrialAborted, TrialOptions, replay_record, run_trial_record
+from field.trial import NotVerified, TrialAborted, TrialOptions
+from field.trial_record import replay_record, run_trial_record
 from planner.verify import read_verification
 from synth.scene.pile import read_pile
 from synth.physics.trial import Outcome, TrialResult

@@ -164,15 +164,19 @@ ALLOWED_DIRECT_WRITES: dict[tuple[str, str], tuple[Counter, str]] = {
         Counter({"open('a')": 1}), "the crane twin's append-only execution log (one line per command)"),
     ("field/link/secoc.py", "generate_key_file"): (
         Counter({"os.open": 1, "fdopen('w')": 1}), "a new key file created exclusively with mode 0600"),
+    ("field/link/secoc.py", "add_key"): (
+        Counter({"os.open": 1, "fdopen('w')": 1}), "a mode-0600 temp file, fsynced, then os.replace over the key file"),
+    ("field/link/signing.py", "_write_new"): (
+        Counter({"os.open": 1, "fdopen('wb')": 1}), "a new key file created exclusively (O_EXCL, its mode), removed if cut short"),
     ("synth/common/cli.py", "quiet_c_streams"): (
         Counter({"fdopen('w')": 2}), "C-level stdout/stderr pointed at /dev/null, not a file written"),
     ("field/audit/chain.py", "ChainFile.resume"): (
         Counter({"open('r+b')": 1}), "cuts a torn last line (a crash mid-append) off an append-only hash chain"),
     ("field/audit/chain.py", "ChainFile.append"): (
         Counter({"os.open": 1}), "the hash chain: append-only lines, one write each, fsynced"),
-    ("field/trial.py", "_record_raw_survey"): (
+    ("field/trial_record.py", "_record_raw_survey"): (
         Counter({"shutil.copy2": 1}), "raw receiver logs copied into a temporary record folder renamed into place"),
-    ("field/trial.py", "_TrialRecord.copy_inputs"): (
+    ("field/trial_record.py", "_TrialRecord.copy_inputs"): (
         Counter({"shutil.copytree": 1, "shutil.copy2": 1}),
         "inputs copied into a temporary record folder renamed into place"),
 }

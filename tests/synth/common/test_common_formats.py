@@ -12,7 +12,7 @@ from synth.common.formats import VersionedJson, major
 #: modules that declare the tree's versioned JSON formats (module-level VersionedJson objects)
 MODULES = ("synth.scene.pile", "synth.data.shards", "synth.data.datastore", "synth.render.ortho", "synth.render.stereo",
            "synth.geometry.calibration", "experiments.case_studies", "planner.verify", "planner.train", "field.geo", "experiments.real_test",
-           "field.trial")
+           "field.trial_record")
 
 
 def all_formats() -> list[tuple[str, VersionedJson]]:
