@@ -102,7 +102,11 @@ def render(
 def dataset(
     piles: int = option("--piles", "Number of piles.", default=..., min=1, metavar="INT", names=["n_piles"]),
     out: Path = option("--out", "Data set folder (manifest.json + shards).", default=..., metavar="DIR"),
-    logs: int = option("--logs", "Logs per pile (the paper: 4).", field=(DatasetJob, "n_logs"), min=1),
+    logs: str = option("--logs", "Logs per pile, 'A' or 'A-B' (piles cycle over A..B; the paper: 4).", default="4",
+                       metavar="A[-B]", names=["logs"]),
+    max_subsets: int = option("--max-subsets", "Target subsets simulated per pile: every single log, then "
+                              "subsets of 2, 3, ... logs in turn, drawn at random (default: all 2^n - 1).",
+                              field=(DatasetJob, "max_subsets"), min=1, metavar="INT"),
     obstacles_fraction: float = option("--obstacles-fraction", "Share of piles with obstacles.",
                                        field=(DatasetJob, "obstacles_fraction"), min=0.0, max=1.0),
     seed: int = option("--seed", "Job seed: same seed, same data set.", field=(DatasetJob, "seed")),
@@ -143,11 +147,19 @@ def dataset(
     Re-running resumes: finished shards are kept, partial ones redone. With --engine dask
     --address tcp://HOST:8786 the same job runs on a Dask cluster.
     """
+    from synth.common.ranges import parse_range
     from synth.data.dataset import build_dataset, label_fields
     from synth.data.robust import RobustLabels
     from synth.physics.perturb import PositioningError
 
     o = Output(as_json)
+    try:
+        min_logs, max_logs = parse_range(logs, "--logs")
+    except ValueError as exc:
+        raise CliError(str(exc)) from exc
+    if not 1 <= min_logs <= max_logs <= 10:
+        raise CliError(f"--logs must lie in 1-10 (2^n - 1 target subsets per pile), got {logs!r}")
+    sizes = {"n_logs": min_logs, "max_logs": None if max_logs == min_logs else max_logs, "max_subsets": max_subsets}
     try:
         labels = RobustLabels(label_repeats, PositioningError.parse(label_error), label_min_fraction)
     except ValueError as exc:
@@ -156,7 +168,7 @@ def dataset(
         raise CliError("--address needs --engine dask")
     if store and (engine != "local" or piles_dir is not None):
         raise CliError("--store runs with --engine local and generates its own piles (drop --piles-dir)")
-    DatasetJob(n_piles=piles, n_logs=logs, obstacles_fraction=obstacles_fraction, seed=seed, size_px=size,
+    DatasetJob(n_piles=piles, **sizes, obstacles_fraction=obstacles_fraction, seed=seed, size_px=size,
                n_renders=renders, max_trials_per_subset=max_trials_per_subset, trial_preset=trial,
                piles_dir=None if piles_dir is None else str(piles_dir),
                **label_fields(labels))  # every value checked before any work
@@ -173,12 +185,12 @@ def dataset(
         if store:
             from synth.data.datastore import build_store
 
-            job = DatasetJob(n_piles=piles, n_logs=logs, obstacles_fraction=obstacles_fraction, seed=seed,
+            job = DatasetJob(n_piles=piles, **sizes, obstacles_fraction=obstacles_fraction, seed=seed,
                              size_px=size, n_renders=renders, trial_preset=trial,
                              max_trials_per_subset=max_trials_per_subset, **label_fields(labels))
             rec = build_store(out, job, workers=workers or (os.cpu_count() or 1), progress=progress)
         else:
-            manifest = build_dataset(out, n_piles=piles, n_logs=logs, obstacles_fraction=obstacles_fraction,
+            manifest = build_dataset(out, n_piles=piles, **sizes, obstacles_fraction=obstacles_fraction,
                                      seed=seed, workers=workers, engine=engine, address=address, size_px=size,
                                      n_renders=renders, trial_config=trial,
                                      max_trials_per_subset=max_trials_per_subset, piles_dir=piles_dir,

@@ -230,6 +230,9 @@ def test_synth_dataset_and_train_a_64px_network(capsys, work, a_file):
 
     fails(cli(capsys, "synth", "dataset", "--piles", "1", "--engine", "spark", "--out", work / "d"), 2, "--engine")
     fails(cli(capsys, "synth", "dataset", "--piles", "1", "--out", a_file / "d"), 2, "--out")
+    for logs in ("5-3", "2-12", "two"):
+        fails(cli(capsys, "synth", "dataset", "--piles", "1", "--logs", logs, "--out", work / "d"), 2, "--logs")
+    assert not (work / "d").exists()
     r = cli(capsys, "synth", "dataset", "--piles", "2", "--logs", "2", "--size", "64", "--renders", "1",
             "--max-trials-per-subset", "1", "--workers", "1", "--out", work / "data", "--json")
     assert r.code == 0 and r.json()["summary"]["samples"] > 0

@@ -36,7 +36,9 @@ class DatasetJob:
     """Parameters of a data-set job (recorded in the manifest; a resumed job must match them)."""
 
     n_piles: int  # piles to simulate [-]
-    n_logs: int = 4  # logs per pile [-] (the paper: 4)
+    n_logs: int = 4  # logs per pile [-] (the paper: 4); with max_logs the smallest pile
+    max_logs: int | None = None  # piles cycle over n_logs..max_logs logs [-]; None = all have n_logs
+    max_subsets: int | None = None  # target subsets simulated per pile [-]; None = all 2^n - 1
     obstacles_fraction: float = 0.33  # share of piles with obstacles [-] (the paper: a third)
     max_obstacles: int = 7  # piles with obstacles get 1..max_obstacles [-] (the paper: 0–7)
     seed: int = 0
@@ -58,6 +60,10 @@ class DatasetJob:
             raise ValueError(f"n_piles must be in [1, 1,000,000], got {self.n_piles}")
         if not 1 <= self.n_logs <= 10:
             raise ValueError(f"n_logs must be in [1, 10] (2^n - 1 subsets per pile), got {self.n_logs}")
+        if self.max_logs is not None and not self.n_logs <= self.max_logs <= 10:
+            raise ValueError(f"max_logs must be in [n_logs = {self.n_logs}, 10] or None, got {self.max_logs}")
+        if self.max_subsets is not None and not self.max_subsets >= 1:
+            raise ValueError(f"max_subsets must be >= 1 or None, got {self.max_subsets}")
         if not (isinstance(self.obstacles_fraction, (int, float)) and 0.0 <= self.obstacles_fraction <= 1.0):
             raise ValueError(f"obstacles_fraction must be in [0, 1], got {self.obstacles_fraction}")
         if not 1 <= self.max_obstacles <= 12:
@@ -91,6 +97,31 @@ class DatasetJob:
         n_obst = int(rng.integers(1, self.max_obstacles + 1)) if rng.random() < self.obstacles_fraction else 0
         return pile_seed, n_obst
 
+    def pile_logs(self, k: int) -> int:
+        """Logs in pile ``k``: ``n_logs``, or n_logs..max_logs in turn (every size equally often)."""
+        if self.max_logs is None:
+            return self.n_logs
+        return self.n_logs + k % (self.max_logs - self.n_logs + 1)
+
+    def pile_subsets(self, k: int, n_logs: int) -> list[tuple[int, ...]]:
+        """The target subsets simulated on pile ``k`` of ``n_logs`` logs, smallest first: all 2^n - 1, or
+        with ``max_subsets`` every single log and then subsets of 2, 3, ... n logs in turn, each size's
+        drawn at random from (seed, k), until ``max_subsets`` are chosen (so large subsets, which the
+        planner is asked about, are sampled as often as small ones)."""
+        every = all_subsets(n_logs)
+        if self.max_subsets is None or len(every) <= self.max_subsets:
+            return every
+        rng = np.random.default_rng(np.random.SeedSequence([int(self.seed), int(k), 0x5B5E]))
+        by_size = {m: [t for t in every if len(t) == m] for m in range(1, n_logs + 1)}
+        for m in range(2, n_logs + 1):
+            by_size[m] = [by_size[m][i] for i in rng.permutation(len(by_size[m]))]
+        chosen = by_size[1][: self.max_subsets]
+        while len(chosen) < self.max_subsets:
+            for m in range(2, n_logs + 1):
+                if by_size[m] and len(chosen) < self.max_subsets:
+                    chosen.append(by_size[m].pop(0))
+        return sorted(chosen, key=lambda t: (len(t), t))
+
     def candidate_config(self):
         from synth.data.candidates import CandidateConfig
 
@@ -122,6 +153,9 @@ class DatasetJob:
 
         d = {**self.to_dict(), "trial_revision": TRIAL_REVISION, "trial_config_values": asdict(self.trial_config()),
              "candidate_config_values": asdict(self.candidate_config()), "format_version": DATASET_FORMAT_VERSION}
+        for name in ("max_logs", "max_subsets"):  # left out at their defaults: older jobs' records match
+            if d[name] is None:
+                del d[name]
         return json.loads(json.dumps(d))
 
 
@@ -145,7 +179,8 @@ class JobProgress:
     elapsed_s: float  # wall time of this run [s]
 
 
-def _subsets(n: int) -> list[tuple[int, ...]]:
+def all_subsets(n: int) -> list[tuple[int, ...]]:
+    """Every non-empty subset of ``n`` logs, smallest first."""
     from itertools import combinations
 
     return [c for k in range(1, n + 1) for c in combinations(range(n), k)]
@@ -175,7 +210,7 @@ def load_source_pile(job: DatasetJob, k: int):
                                    seed=int(pile.seed or k))
         return pile, obs, pile_id, {"obstacles": pile.n_obstacles}
     pile_seed, n_obst = job.pile_params(k)
-    pile, report = generate_pile(pile_seed, GenerationConfig(n_logs=job.n_logs, n_obstacles=n_obst))
+    pile, report = generate_pile(pile_seed, GenerationConfig(n_logs=job.pile_logs(k), n_obstacles=n_obst))
     with World(pile) as world:
         obs = render_ortho(world, OrthoRenderConfig(size_px=job.size_px, n_renders=job.n_renders), seed=pile_seed)
     return pile, obs, f"pile_{k:05d}", {"obstacles": n_obst, "pile_seed": pile_seed,
@@ -244,7 +279,7 @@ def simulate_subsets(job: "DatasetJob", k: int, pile, simulate_factory: Callable
     stats["piles"] += 1
     stats["piles_with_obstacles"] += int(pile.n_obstacles > 0)
     out = []
-    for T in _subsets(pile.n_logs):
+    for T in job.pile_subsets(k, pile.n_logs):
         cands = generate_candidates(pile, T, cand_cfg)
         rng = np.random.default_rng(np.random.SeedSequence([int(job.seed), int(k), *T, 0xA1]))
         t1 = time.perf_counter()
@@ -440,6 +475,7 @@ def _manifest_for(job: DatasetJob, done: dict[int, ShardInfo]) -> Manifest:
 
 
 def build_dataset(out_dir: str | Path, n_piles: int, n_logs: int = 4, obstacles_fraction: float = 0.33,
+                  max_logs: int | None = None, max_subsets: int | None = None,
                   seed: int = 0, workers: int = 0, engine: str = "local", address: str | None = None,
                   size_px: int = 128, n_renders: int = 3, trial_config: str = "fast",
                   max_trials_per_subset: int | None = 16, piles_per_shard: int = 1, max_obstacles: int = 7,
@@ -468,7 +504,8 @@ def build_dataset(out_dir: str | Path, n_piles: int, n_logs: int = 4, obstacles_
     from synth.common.runner import check_engine, pending, run_tasks
 
     check_engine(engine, workers)
-    job = DatasetJob(n_piles=n_piles, n_logs=n_logs, obstacles_fraction=obstacles_fraction,
+    job = DatasetJob(n_piles=n_piles, n_logs=n_logs, max_logs=max_logs, max_subsets=max_subsets,
+                     obstacles_fraction=obstacles_fraction,
                      max_obstacles=max_obstacles, seed=seed, size_px=size_px, n_renders=n_renders,
                      piles_per_shard=piles_per_shard, max_trials_per_subset=max_trials_per_subset,
                      **label_fields(robust_labels),

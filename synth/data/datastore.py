@@ -91,7 +91,7 @@ def simulate_chunk(job: DatasetJob, chunk: int, simulate_factory: Callable | Non
     for k in job.chunk_piles(chunk):
         pile_seed, n_obst = job.pile_params(k)
         try:
-            pile, report = generate_pile(pile_seed, GenerationConfig(n_logs=job.n_logs, n_obstacles=n_obst))
+            pile, report = generate_pile(pile_seed, GenerationConfig(n_logs=job.pile_logs(k), n_obstacles=n_obst))
         except GenerationError as exc:
             stats["piles_failed"] += 1
             stats["failed_piles"].append({"pile": k, "reason": str(exc)})

@@ -167,3 +167,46 @@ def test_materialized_samples_carry_each_subsets_candidate_count(store, tmp_path
                 want[(p["pile_id"], tuple(s["targets"]))] = s["candidates"]
     got = {(s.pile_id, tuple(s.subset)): s.n_candidates for s in iter_samples(materialize(store, tmp_path / "c"))}
     assert got == want and all(v is not None for v in got.values())
+
+
+# -- piles of several sizes, a cap on the subsets simulated per pile ---------------------------------
+def test_piles_cycle_over_the_log_range_and_the_subset_cap_samples_every_size():
+    job = DatasetJob(n_piles=8, n_logs=2, max_logs=5, max_subsets=9, seed=4)
+    assert [job.pile_logs(k) for k in range(8)] == [2, 3, 4, 5, 2, 3, 4, 5]
+    for k in range(8):
+        n = job.pile_logs(k)
+        subsets = job.pile_subsets(k, n)
+        assert subsets == job.pile_subsets(k, n)  # a pure function of (seed, k)
+        assert len(subsets) == min(9, 2 ** n - 1) and len(set(subsets)) == len(subsets)
+        assert [t for t in subsets if len(t) == 1] == [(i,) for i in range(n)]  # every single log
+        assert {len(t) for t in subsets} == set(range(1, n + 1))  # and every size up to the whole pile
+        assert subsets == sorted(subsets, key=lambda t: (len(t), t))
+    assert job.pile_subsets(3, 5) != DatasetJob(n_piles=8, n_logs=2, max_logs=5, max_subsets=9, seed=5).pile_subsets(3, 5)
+    with pytest.raises(ValueError, match="max_logs"):
+        DatasetJob(n_piles=1, n_logs=4, max_logs=3)
+    with pytest.raises(ValueError, match="max_subsets"):
+        DatasetJob(n_piles=1, max_subsets=0)
+
+
+def test_a_store_of_mixed_pile_sizes_records_each_piles_chosen_subsets(tmp_path):
+    job = _job(3, n_logs=2, max_logs=4, max_subsets=5)
+    build_store(tmp_path / "s", job, simulate_factory=_fake_factory)
+    for k in range(3):
+        pile = json.loads(gzip.decompress(chunk_path(tmp_path / "s", k).read_bytes()))["piles"][0]
+        n = len(pile["pile"]["logs"])
+        assert n == job.pile_logs(k) == 2 + k
+        assert [tuple(s["targets"]) for s in pile["subsets"]] == job.pile_subsets(k, n)
+
+
+def test_the_new_job_fields_leave_older_stores_parameters_as_they_were():
+    """A job at the defaults records no max_logs / max_subsets, so the committed store (made before
+    they existed) still resumes: its parameter hash is the default job's."""
+    from pathlib import Path
+
+    from synth.data.datastore import params_sha256
+
+    store = json.loads((Path(__file__).resolve().parents[3] / "data" / "paper-v4" / "store.json").read_text())
+    job = DatasetJob(n_piles=604, n_logs=4, obstacles_fraction=0.33, seed=0)
+    assert "max_logs" not in job.params() and "max_subsets" not in job.params()
+    assert params_sha256(job.params()) == store["params_sha256"]
+    assert "max_logs" in _job(1, n_logs=2, max_logs=3).params()
