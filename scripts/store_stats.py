@@ -12,12 +12,35 @@ capped (the trial cap stopped the search: untested).
 
 from __future__ import annotations
 
+import math
 import sys
 from collections import Counter
 
+import numpy as np
+
 from synth.data.datastore import chunk_path, open_store, read_chunk
+from synth.scene.pile import PileSpec
+
+NEAR_END_M = 0.30  # a crossing this near a target's end is "near the end" (the revision-4 rules' end margin) [m]
 
 PAPER = {"piles": 604, "subsets": 604 * 15, "samples": 5491, "grasps": 12124, "negatives": 2039}
+
+
+def end_distance_m(pile: PileSpec, targets, grasp) -> float:
+    """How far the grasp's closing line crosses the nearest target end [m] (along that target's axis)."""
+    x, y, phi = grasp[0], grasp[1], grasp[2]
+    a = np.array([math.cos(phi), math.sin(phi)])
+    best = math.inf
+    for i in targets:
+        e0, e1 = (np.asarray(v[:2], dtype=float) for v in pile.logs[i].endpoints_m())
+        length = float(np.linalg.norm(e1 - e0))
+        u = (e1 - e0) / length
+        m = np.array([a, -u]).T
+        if abs(np.linalg.det(m)) < 1e-9:  # closing along the log: no crossing
+            continue
+        _, r = np.linalg.solve(m, e0 - np.array([x, y]))
+        best = min(best, min(r, length - r))
+    return best
 
 
 def stats(store_dir: str) -> dict:
@@ -28,6 +51,7 @@ def stats(store_dir: str) -> dict:
     for k in sorted(chunks):
         rec = read_chunk(chunk_path(store_dir, k), store["params_sha256"])
         for p in rec["piles"]:
+            pile = PileSpec.from_dict(p["pile"])
             c["piles"] += 1
             c["obstacle_piles"] += int(p.get("obstacles", 0) > 0)
             for s in p["subsets"]:
@@ -43,6 +67,9 @@ def stats(store_dir: str) -> dict:
                 outcomes.update(t["o"] for t in s["trials"])
                 for t in s["trials"]:
                     repeats.update(r[4] for r in t.get("r", ()))
+                    band = "near" if end_distance_m(pile, s["targets"], t["g"]) < NEAR_END_M else "far"
+                    c[f"{band}_trials"] += 1
+                    c[f"{band}_dropped"] += int(t["o"] == "dropped")
     return {"counts": dict(c), "outcomes": dict(outcomes), "repeats": dict(repeats),
             "trial_revision": store["params"].get("trial_revision"), "labels": {
                 k: store["params"].get(k) for k in ("label_repeats", "label_sigma_xy_m", "label_sigma_phi_deg",
@@ -76,6 +103,10 @@ def column(s: dict) -> dict[str, str]:
         "repeats (per pile); success": (f"{n_rep} ({n_rep / max(c['piles'], 1):.0f}); "
                                         f"{100 * r.get('success', 0) / n_rep:.1f} %") if n_rep else "—",
         "DROPPED, all trials and repeats": _pct(o.get("dropped", 0) + r.get("dropped", 0), n_tr + n_rep),
+        f"DROPPED, trials crossing a target < {NEAR_END_M:.2f} m from its end": (
+            f"{_pct(c['near_dropped'], c['near_trials'])} of {c['near_trials']}"),
+        f"DROPPED, trials crossing every target >= {NEAR_END_M:.2f} m from its ends": (
+            f"{_pct(c['far_dropped'], c['far_trials'])} of {c['far_trials']}"),
     }
     for k in ("success", "collision", "dropped", "not_closed", "more_than_intended", "fewer_or_other"):
         col[f"trial outcome: {k}"] = _pct(o.get(k, 0), n_tr)
