@@ -196,6 +196,10 @@ def test_a_store_of_mixed_pile_sizes_records_each_piles_chosen_subsets(tmp_path)
         n = len(pile["pile"]["logs"])
         assert n == job.pile_logs(k) == 2 + k
         assert [tuple(s["targets"]) for s in pile["subsets"]] == job.pile_subsets(k, n)
+    samples = list(iter_samples(materialize(tmp_path / "s", tmp_path / "cache")))  # what training reads
+    want = {(f"pile_{k:05d}", t) for k in range(3) for t in job.pile_subsets(k, job.pile_logs(k))}
+    assert {(x.pile_id, x.subset) for x in samples} == want and len(samples) == len(want) * TINY["n_renders"]
+    assert {x.n_logs for x in samples} == {2, 3, 4}
 
 
 def test_the_new_job_fields_leave_older_stores_parameters_as_they_were():
