@@ -54,6 +54,7 @@ from pathlib import Path
 from typing import Callable
 
 from field.errors import AuthenticationError, KeyFileError
+from synth.common.files import atomic_write_bytes
 
 MAC_BYTES = 8  # truncated MAC length [bytes]
 FV_BYTES = 8  # freshness value length [bytes]
@@ -146,17 +147,7 @@ def add_key(path: str | Path) -> int:
                            f"old lines first")
     order = [sending, *(kid for kid in keys if kid != sending)]
     text = "".join(f"{kid} {keys[kid].hex()}\n" for kid in order) + f"{new_id} {secrets.token_hex(KEY_BYTES)}\n"
-    tmp = path.with_name(f".{path.name}.{secrets.token_hex(4)}.tmp")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    atomic_write_bytes(path, text.encode(), mode=0o600)  # mkstemp makes it 0600 from the start
     return new_id
 
 

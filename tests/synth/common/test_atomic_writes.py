@@ -164,8 +164,6 @@ ALLOWED_DIRECT_WRITES: dict[tuple[str, str], tuple[Counter, str]] = {
         Counter({"open('a')": 1}), "the crane twin's append-only execution log (one line per command)"),
     ("field/link/secoc.py", "generate_key_file"): (
         Counter({"os.open": 1, "fdopen('w')": 1}), "a new key file created exclusively with mode 0600"),
-    ("field/link/secoc.py", "add_key"): (
-        Counter({"os.open": 1, "fdopen('w')": 1}), "a mode-0600 temp file, fsynced, then os.replace over the key file"),
     ("field/link/signing.py", "_write_new"): (
         Counter({"os.open": 1, "fdopen('wb')": 1}), "a new key file created exclusively (O_EXCL, its mode), removed if cut short"),
     ("synth/common/cli.py", "quiet_c_streams"): (
