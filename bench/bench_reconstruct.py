@@ -5,6 +5,7 @@
     .venv/bin/python bench/bench_reconstruct.py --piles 3
     .venv/bin/python bench/bench_reconstruct.py --real-only --real-piles 24 --model PATH
     .venv/bin/python bench/bench_reconstruct.py --survey-scans 200 --survey-out DIR [--survey-shard K/N]
+    .venv/bin/python bench/bench_reconstruct.py --survey-scans 200 --survey-set heldout --survey-out DIR
 """
 
 from __future__ import annotations
@@ -40,11 +41,20 @@ if __name__ == "__main__":
                          "with allow_float)")
     ap.add_argument("--survey-scans", type=int, default=0,
                     help="run only the survey-conditions bench on this many fresh twin scans (one process)")
-    ap.add_argument("--survey-seed", type=int, default=1_100_000, help="first seed of the survey-conditions bench")
-    ap.add_argument("--survey-work", type=Path, default=Path("runs/survey-work"), help="its scans and reconstructions")
-    ap.add_argument("--survey-out", type=Path, default=Path("docs/results/survey-conditions"),
+    ap.add_argument("--survey-set", default="tuning", choices=("tuning", "heldout"),
+                    help="which scans: 'tuning' (seeds from 1,100,000, dropped piles: what the fitting was tuned on) "
+                         "or 'heldout' (seeds from 3,300,000; packed, loose and dropped piles in turn); the record "
+                         "says which")
+    ap.add_argument("--survey-estimator", default="rules22", choices=("rules22", "joint"),
+                    help="ReconstructConfig.estimator the survey-conditions bench reconstructs with")
+    ap.add_argument("--survey-seed", type=int, default=None,
+                    help="first seed of the survey-conditions bench (default: the --survey-set's)")
+    ap.add_argument("--survey-work", type=Path, default=None,
+                    help="its scans and reconstructions (default runs/survey-work, runs/survey-work-heldout)")
+    ap.add_argument("--survey-out", type=Path, default=None,
                     help="its record: a folder with one JSON per scan (kept: the same command with more "
-                         "--survey-scans extends the run) and summary.json")
+                         "--survey-scans extends the run) and summary.json (default "
+                         "docs/results/survey-conditions, docs/results/survey-conditions-heldout)")
     ap.add_argument("--survey-shard", default="0/1", metavar="K/N",
                     help="do only the survey scans whose seed - --survey-seed is K modulo N (run N processes, "
                          "K = 0..N-1, on one --survey-out)")
@@ -60,9 +70,16 @@ if __name__ == "__main__":
         except ValueError:
             raise SystemExit(f"--survey-shard must be K/N with 0 <= K < N, got {args.survey_shard!r}") from None
 
-        rec = (read_survey_records(args.survey_out) if args.survey_report else
-               survey_bench(args.survey_scans, args.survey_seed, args.survey_work, args.survey_out, shard=shard,
-                            progress=lambda s: print(s, file=sys.stderr, flush=True)))
+        tail = "" if args.survey_set == "tuning" else "-" + args.survey_set
+        out = args.survey_out or Path(f"docs/results/survey-conditions{tail}")
+        work = args.survey_work or Path(f"runs/survey-work{tail}")
+        try:
+            rec = (read_survey_records(out) if args.survey_report else
+                   survey_bench(args.survey_scans, args.survey_seed, work, out, shard=shard,
+                                survey_set=args.survey_set, estimator=args.survey_estimator,
+                                progress=lambda s: print(s, file=sys.stderr, flush=True)))
+        except ValueError as exc:
+            raise SystemExit(str(exc)) from None
         fig = survey_figure(rec, args.figure) if args.figure is not None else None
         print("\n".join(survey_markdown(rec, fig)))
         raise SystemExit(0)
