@@ -55,7 +55,9 @@ def survey_set_key(survey_set: str, seed0: int | None = None, estimator: str = "
     if survey_set != "tuning":
         key.update(set=survey_set, shapes=list(SURVEY_SETS[survey_set]["shapes"]))
     if estimator != "rules22":
-        key["estimator"] = estimator
+        from reconstruct.fitting.joint_config import JOINT_REVISION
+
+        key.update(estimator=estimator, estimator_revision=JOINT_REVISION)
     return key
 
 
@@ -173,7 +175,8 @@ def _condition_entry(root: Path, cond: str, gnss: Path, cloud, truth, estimator:
     entry: dict = {}
     t0, c0 = time.perf_counter(), time.process_time()
     try:
-        res = reconstruct(root / "scan", gnss, root / f"recon_{cond}", ReconstructConfig(allow_float=True, **_estimator_kw(estimator)),
+        out = root / (f"recon_{cond}" if estimator == "rules22" else f"recon_{cond}_{estimator}")
+        res = reconstruct(root / "scan", gnss, out, ReconstructConfig(allow_float=True, **_estimator_kw(estimator)),
                           cloud=cloud)
     except ReconstructError as exc:
         entry["error"] = f"{type(exc).__name__}: {exc}"
