@@ -15,7 +15,8 @@ import sys
 from pathlib import Path
 
 from experiments.reconstruct_bench import markdown, real_test, real_test_markdown
-from experiments.survey_conditions import read_survey_records, survey_bench, survey_figure, survey_markdown
+from experiments.survey_conditions import (compare_markdown, read_survey_records, survey_bench, survey_figure,
+                                           survey_markdown)
 
 __all__ = ["markdown"]
 
@@ -61,7 +62,17 @@ if __name__ == "__main__":
     ap.add_argument("--figure", type=Path, default=None, help="write the error-distribution figure here")
     ap.add_argument("--survey-report", action="store_true",
                     help="print the markdown (and write --figure) of an existing --survey-out record, run nothing")
+    ap.add_argument("--survey-compare", nargs="+", type=Path, default=None, metavar="LABEL=DIR",
+                    help="print survey-conditions records side by side on the scans they share (seed and stereo "
+                         "cloud), e.g. rules22=docs/results/survey-conditions-heldout-r22 joint=DIR; run nothing")
     args = ap.parse_args()
+    if args.survey_compare:
+        try:
+            recs = {str(a).split("=", 1)[0]: read_survey_records(Path(str(a).split("=", 1)[1]), write=False) for a in args.survey_compare}
+        except IndexError:
+            raise SystemExit("--survey-compare takes LABEL=DIR arguments") from None
+        print("\n".join(compare_markdown(recs)))
+        raise SystemExit(0)
     if args.survey_scans > 0 or args.survey_report:
         try:
             shard = tuple(int(v) for v in args.survey_shard.split("/"))

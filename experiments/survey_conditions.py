@@ -208,9 +208,9 @@ def _estimator_kw(estimator: str) -> dict:
     return {} if estimator == "rules22" else {"estimator": estimator}
 
 
-def read_survey_records(out: Path, key: dict | None = None) -> dict:
+def read_survey_records(out: Path, key: dict | None = None, write: bool = True) -> dict:
     """The survey-conditions record of folder ``out``: every scan record (of ``key``'s settings; by
-    default those of the most records), written to ``out/summary.json`` too."""
+    default those of the most records), written to ``out/summary.json`` too (unless ``write`` is off)."""
     import json
 
     from synth.common.files import atomic_write_bytes
@@ -222,7 +222,7 @@ def read_survey_records(out: Path, key: dict | None = None) -> dict:
     rows = sorted((r for r in rows if r.get("key") == key), key=lambda r: r["seed"])
     rec = {"format": SURVEY_BENCH_FORMAT, "format_version": "2.1", "key": key,
            "set": (key or {}).get("set", "tuning"), "conditions": SURVEY_CONDITIONS, "scans": rows}
-    if rows:
+    if rows and write:
         atomic_write_bytes(out / "summary.json", json.dumps(
             {k: v for k, v in rec.items() if k != "scans"} | {"seeds": [r["seed"] for r in rows],
                                                               "summary": survey_summary(rec)}, indent=1).encode())
@@ -410,3 +410,55 @@ def survey_figure(rec: dict, path: Path) -> Path:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def compare_summary(recs: dict[str, dict]) -> dict[str, dict[str, dict]]:
+    """Records of several estimators (or revisions) side by side on the scans they all measured, matched by
+    seed and stereo cloud (:func:`cloud_fingerprint`): ``{condition: {label: figures}}``. The figures are the
+    issue 37 targets': failures, worst end median / p95, diameter median, logs over 8 cm (and how many of those
+    the report did not warn about), survey points called wrong (every one on the all-fixed survey is a correct
+    fixed point discarded), logs made that are not in the truth, and how many blind logs' worst end lies within
+    2 sigma of their less certain end (the coverage of the reported sigma)."""
+    common = None
+    for rec in recs.values():
+        got = {(r["seed"], r.get("cloud_sha256")) for r in rec["scans"]}
+        common = got if common is None else common & got
+    out: dict[str, dict[str, dict]] = {}
+    for cond in SURVEY_CONDITIONS:
+        out[cond] = {}
+        for label, rec in recs.items():
+            rows = [r for r in rec["scans"] if (r["seed"], r.get("cloud_sha256")) in common and cond in r["conditions"]]
+            ok = [r["conditions"][cond] for r in rows if "error" not in r["conditions"][cond]]
+            logs = [lg for e in ok for lg in e["logs"]]
+            blind = [lg for lg in logs if blind_log(lg)]
+            worst = _stats([lg["worst_end_m"] for lg in logs])
+            out[cond][label] = {
+                "scans": len(rows), "failures": len(rows) - len(ok), "logs": len(logs),
+                "worst_median_m": worst.get("median"), "worst_p95_m": worst.get("p95"),
+                "diameter_median_m": _stats([abs(lg["diameter_err_m"]) for lg in logs]).get("median"),
+                "over_8cm": sum(lg["worst_end_m"] > 0.08 for lg in logs),
+                "silent_over_8cm": sum(lg["worst_end_m"] > 0.08 and not flagged_log(lg) for lg in logs),
+                "points_called_wrong": sum(e["contradicted_points"] for e in ok),
+                "phantom_logs": sum(len(e["unmatched_recon"]) for e in ok),
+                "blind_logs": len(blind),
+                "blind_within_2sigma": sum(lg["worst_end_m"] <= 2 * max(x["sigma_m"] for x in lg["ends"]) for lg in blind),
+            }
+    return out
+
+
+def compare_markdown(recs: dict[str, dict]) -> list[str]:
+    """:func:`compare_summary` as a markdown table (one row per condition and record)."""
+    s = compare_summary(recs)
+    cm = (lambda v: "-" if v is None else f"{100 * v:.1f}")  # noqa: E731
+    lines = ["| survey | estimator | scans | failures | worst end median [cm] | p95 | abs diameter median [cm] | "
+             "logs over 8 cm | of them silent | points called wrong | phantom logs | blind logs within 2 sigma |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for cond, by_label in s.items():
+        for label, d in by_label.items():
+            cov = f"{d['blind_within_2sigma']} / {d['blind_logs']}" if d["blind_logs"] else "-"
+            dia = "-" if d["diameter_median_m"] is None else f"{100 * d['diameter_median_m']:.2f}"
+            fail = f"{d['failures']} ({100 * d['failures'] / max(d['scans'], 1):.1f} %)"
+            lines.append(f"| {cond} | {label} | {d['scans']} | {fail} | {cm(d['worst_median_m'])} | {cm(d['worst_p95_m'])} | "
+                         f"{dia} | {d['over_8cm']} | {d['silent_over_8cm']} | {d['points_called_wrong']} | "
+                         f"{d['phantom_logs']} | {cov} |")
+    return lines

@@ -141,3 +141,26 @@ def test_a_loose_shape_scatters_the_pile():
         return float(np.linalg.norm(c - c.mean(axis=0), axis=1).mean())
 
     assert spread(**PILE_SHAPES["loose"]) > 1.3 * spread()
+
+
+def test_estimators_are_compared_on_the_scans_they_share(tmp_path):
+    from experiments.survey_conditions import compare_markdown, compare_summary
+
+    blind = _log(30, 0.5, sources=("float", "scan"), scan=("open", "seen"), sigma_cm=(20, 1.5))
+    a = [{**_scan(10, {"fixed": _ok(_log(1, 0.2)), "degraded": _ok(blind)}), "cloud_sha256": "x"},
+         {**_scan(11, {"fixed": {"error": "SeparationError: ..."}}), "cloud_sha256": "y"}]
+    b = [{**_scan(10, {"fixed": {**_ok(_log(12, 0.3, contradicted=(True, False))), "contradicted_points": 1}, "degraded": _ok(_log(2, 0.1))}),
+          "cloud_sha256": "x"},
+         {**_scan(11, {"fixed": _ok(_log(1, 0.1))}), "cloud_sha256": "other"},  # another scan of seed 11
+         {**_scan(12, {"fixed": _ok(_log(1, 0.1))}), "cloud_sha256": "z"}]
+    _write(tmp_path / "a", a)
+    _write(tmp_path / "b", b)
+    recs = {"rules22": read_survey_records(tmp_path / "a", write=False),
+            "joint": read_survey_records(tmp_path / "b", write=False)}
+    assert not (tmp_path / "a" / "summary.json").exists()
+    s = compare_summary(recs)
+    assert s["fixed"]["rules22"]["scans"] == s["fixed"]["joint"]["scans"] == 1  # seed 10 only
+    assert s["fixed"]["joint"]["over_8cm"] == 1 and s["fixed"]["joint"]["points_called_wrong"] == 1
+    assert s["fixed"]["joint"]["silent_over_8cm"] == 0  # its end is weak: warned about
+    assert s["degraded"]["rules22"]["blind_logs"] == 1 and s["degraded"]["rules22"]["blind_within_2sigma"] == 1
+    assert "| degraded | rules22 | 1 | 0 (0.0 %) | 30.0 |" in "\n".join(compare_markdown(recs))
