@@ -8,9 +8,9 @@ Gaussian (its accuracy, the scan pose's and the axis's) mixed with an outlier co
 point costs a bounded amount instead of being gated by a rule. Its zero is a perfect point: the costs of the
 hidden and missed choices are in the same units (nats).
 
-An assignment that makes a different pile (another set of scan logs taken) within ``ambiguity_nats`` of the
-best is an :class:`~reconstruct.fitting.matching.AmbiguousSurveyError` naming the log; one that only swaps two
-surveyed logs between the same scan logs is the same pile. A surveyed log left hidden with fewer than two
+An assignment that makes a different pile (a scan log kept or dropped, a surveyed log hidden instead of seen)
+within ``ambiguity_nats`` of the best is an :class:`~reconstruct.fitting.matching.AmbiguousSurveyError` naming the
+log; one that only changes which ids the same logs get is the same pile. A surveyed log left hidden with fewer than two
 points cannot be placed: its point is reported as an outlier and the log is left out.
 """
 
@@ -137,6 +137,14 @@ def joint_match(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]],
     missed = np.array([cfg.missed_nats_per_m * log.seen_m for log in scan_logs])
     best, pick = _solve(cost, hidden, missed)
     taken = frozenset(j for j in pick if j is not None)
+
+    def pile(p: list[int | None]) -> tuple[frozenset, frozenset]:
+        """What an assignment makes: the scan logs in the pile (taken, or long enough to stand as logs the
+        survey missed) and the surveyed logs placed hidden; ids aside."""
+        used = {j for j in p if j is not None}
+        return (frozenset(j for j in range(m) if j in used or scan_logs[j].seen_m >= fcfg.min_new_log_m),
+                frozenset(k for k, j in zip(ids, p) if j is None))
+
     alternatives = {}
     for i, k in enumerate(ids):
         if pick[i] is None:
@@ -146,7 +154,7 @@ def joint_match(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]],
         alt, alt_pick = _solve(c2, hidden, missed)
         delta = alt - best
         alternatives[k] = f"{'nothing' if alt_pick[i] is None else f'scan log {alt_pick[i]}'} (+{delta:.1f} nats)"
-        if delta < cfg.ambiguity_nats and frozenset(j for j in alt_pick if j is not None) != taken:
+        if delta < cfg.ambiguity_nats and pile(alt_pick) != pile(pick):
             raise _ambiguity(k, survey[k], scan_logs[pick[i]],
                              None if alt_pick[i] is None else scan_logs[alt_pick[i]], delta)
     matches, dropped, outliers = {}, {}, {}

@@ -118,9 +118,11 @@ def test_two_float_logs_that_fit_two_ridges_either_way_are_no_ambiguity_but_a_ke
               "log1": (_end(0.0, 0.15, fix="rtk_float"), _end(2.0, 0.15, fix="rtk_float"))}
     m = joint_match(survey, scan_logs, CFG, FCFG)  # a swap makes the same pile
     assert {m.matches[k].scan_index for k in survey} == {0, 1}
-    one = {"log0": survey["log0"]}  # one float log between two ridges: which ridge is a log the survey missed?
-    with pytest.raises(AmbiguousSurveyError, match="log0"):
-        joint_match(one, scan_logs, CFG, FCFG)
+    one = {"log0": survey["log0"]}  # one float log between two long ridges: the other is a log the survey
+    assert joint_match(one, scan_logs, CFG, FCFG).matches["log0"].scan_index in (0, 1)  # missed: the same pile
+    short = [_scan_log(0.6, 1.4, 0.0), _scan_log(0.6, 1.4, 0.25)]  # too short to stand as logs of their own:
+    with pytest.raises(AmbiguousSurveyError, match="log0"):  # which one is in the pile, the survey cannot say
+        joint_match({"log0": (_end(0.0, 0.125, fix="rtk_float"), _end(2.0, 0.125, fix="rtk_float"))}, short, CFG, FCFG)
 
 
 def test_the_estimator_and_its_parameters_are_checked():
