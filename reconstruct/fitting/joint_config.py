@@ -16,7 +16,7 @@ from dataclasses import dataclass, fields
 ESTIMATORS = ("rules22", "joint")
 #: raised whenever a change to the joint estimator makes different piles from the same scan (recorded in the
 #: report as ``estimator_revision`` and in bench keys)
-JOINT_REVISION = 3
+JOINT_REVISION = 5
 
 
 @dataclass(frozen=True)
@@ -41,8 +41,14 @@ class JointConfig:
     p_below_inside: float = 0.02  # ... or the scan sees below its top there (a gap between logs over it) [-]
     p_on_outside: float = 0.04  # a bin past the end shows a surface at the top's height (a neighbour's flank) [-]
     p_below_outside: float = 0.75  # ... or the scan sees below where the top would be (ground, lower logs) [-]
-    end_prior_sigma_m: float = 0.30  # the cylinder fit's end as a weak prior where nothing else says (a log
-    #                                  under others: a third of a typical 2.5 m log's length scale) [m]
+    p_over_inside: float = 0.10  # a bin shows something over the top: another log across this one, inside it ...
+    p_over_outside: float = 0.10  # ... as often as a log across the ground past its end (piles cross): no
+    #                               evidence either way (taken as the rest: tuning scan 1100001 put an end
+    #                               41 cm short of a stretch under a crossing log) [-]
+    end_prior_sigma_m: float = 1.0  # the cylinder fit's end as a weak prior where nothing else says: a fit on a
+    #                                 log seen in part stops where its points do, so no surer than a log's half
+    #                                 length (at 0.3 m tuning scan 1100001 put an end 40 cm short of an
+    #                                 unseen stretch its float point lay in) [m]
     search_m: float = 0.8  # each end's posterior is evaluated this far either side of its prior [m]
     min_end_sigma_m: float = 0.01  # an end is never surer than this (2 cm bins, stereo smear) [m]
     # -- the matching: one assignment, explicit costs --
@@ -67,8 +73,9 @@ class JointConfig:
             if not getattr(self, f.name) > 0:
                 raise ValueError(f"JointConfig.{f.name} must be > 0, got {getattr(self, f.name)}")
         for name in ("outlier_prior", "outlier_flag_prob", "p_on_inside", "p_below_inside", "p_on_outside",
-                     "p_below_outside"):
+                     "p_below_outside", "p_over_inside", "p_over_outside"):
             if not getattr(self, name) < 1:
                 raise ValueError(f"JointConfig.{name} is a probability: must be in (0, 1), got {getattr(self, name)}")
-        if self.p_on_inside + self.p_below_inside >= 1 or self.p_on_outside + self.p_below_outside >= 1:
-            raise ValueError("JointConfig: p_on_* + p_below_* must stay below 1 (a bin may also show neither)")
+        if (self.p_on_inside + self.p_below_inside + self.p_over_inside > 1
+                or self.p_on_outside + self.p_below_outside + self.p_over_outside > 1):
+            raise ValueError("JointConfig: p_on_* + p_below_* + p_over_* must not exceed 1 (a bin may also be unseen)")

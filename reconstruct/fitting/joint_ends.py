@@ -78,11 +78,10 @@ def bin_states(points: np.ndarray, pa: np.ndarray, u: np.ndarray, radius_m: floa
 
 def _bin_llr(states: np.ndarray, cfg: JointConfig) -> np.ndarray:
     """Per bin: log p(what it shows | inside the log) - log p(... | past its end). A bin with no scan points
-    says nothing (0); one that shows something over the top takes what neither the top nor below leaves."""
-    neither_in = 1.0 - cfg.p_on_inside - cfg.p_below_inside
-    neither_out = 1.0 - cfg.p_on_outside - cfg.p_below_outside
+    says nothing (0)."""
     table = np.array([0.0, math.log(cfg.p_on_inside / cfg.p_on_outside),
-                      math.log(cfg.p_below_inside / cfg.p_below_outside), math.log(neither_in / neither_out)])
+                      math.log(cfg.p_below_inside / cfg.p_below_outside),
+                      math.log(cfg.p_over_inside / cfg.p_over_outside)])
     return table[states]
 
 

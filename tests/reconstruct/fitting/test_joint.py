@@ -133,5 +133,5 @@ def test_the_estimator_and_its_parameters_are_checked():
     with pytest.raises(ValueError, match="hidden_cost"):
         JointConfig(hidden_cost=0.0)
     with pytest.raises(ValueError, match="p_on"):
-        JointConfig(p_on_inside=0.9, p_below_inside=0.2)
+        JointConfig(p_on_inside=0.9, p_below_inside=0.05)
     assert ReconstructConfig().estimator == "rules22"  # revision 22 stays the default
