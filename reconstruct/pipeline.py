@@ -457,6 +457,7 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
     }
     if cfg.estimator != "rules22":  # revision 22's reports stay as they were
         report.update(estimator=cfg.estimator, estimator_revision=JOINT_REVISION, survey_logs_dropped=matching.dropped)
+        report["survey_warnings"] += matching.ambiguous
     files["report"] = out_dir / "report.json"
     atomic_write_bytes(files["report"], json.dumps(report, indent=1, default=_json_default).encode())
     say(f"done in {timings['total_s']:.1f} s")
@@ -550,6 +551,7 @@ class _Matching:
     new_ids: dict[str, int]
     dropped: dict[str, str] = field(default_factory=dict)  # surveyed logs left out (joint estimator): why
     outliers: dict[str, set[int]] = field(default_factory=dict)  # points (0: a, 1: b) that set no prior axis
+    ambiguous: list[str] = field(default_factory=list)  # logs another pile explains as well (joint estimator)
 
     def priors(self, survey_ends: dict, logs_found: list, fuse_cfg: FuseConfig) -> dict:
         """Each log's prior axis ``(a, b, lateral sigma)``: from its match in ``logs_found`` and its
@@ -566,10 +568,10 @@ class _Matching:
 
 def _match_logs(pts_site: np.ndarray, survey_site: dict, fuse_cfg: FuseConfig, cfg: ReconstructConfig) -> _Matching:
     scan_logs = find_scan_logs(pts_site, fuse_cfg)
-    dropped, outliers = {}, {}
+    dropped, outliers, ambiguous = {}, {}, []
     if cfg.estimator == "joint":
         jm = joint_match(survey_site, scan_logs, cfg.joint, fuse_cfg)
-        matches, unmatched, dropped, outliers = jm.matches, jm.unmatched, jm.dropped, jm.outliers
+        matches, unmatched, dropped, outliers, ambiguous = jm.matches, jm.unmatched, jm.dropped, jm.outliers, jm.ambiguous
     else:
         matches, unmatched = match_survey(survey_site, scan_logs, fuse_cfg)
     unmatched = absorb_pieces(matches, unmatched, scan_logs)
@@ -579,7 +581,7 @@ def _match_logs(pts_site: np.ndarray, survey_site: dict, fuse_cfg: FuseConfig, c
             raise FitError(f"log {k!r} has no end {end!r} in the survey and the scan shows no log near its other end: "
                            f"measure both ends of log {k!r}, or remove it from the survey")
     new_ids = _new_log_ids([j for j in unmatched if scan_logs[j].seen_m >= fuse_cfg.min_new_log_m], survey_site)
-    return _Matching(scan_logs, matches, unmatched, new_ids, dropped, outliers)
+    return _Matching(scan_logs, matches, unmatched, new_ids, dropped, outliers, ambiguous)
 
 
 @dataclass(frozen=True)

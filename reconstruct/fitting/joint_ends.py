@@ -34,6 +34,7 @@ from reconstruct.fitting.survey_points import SurveyEnd
 
 UNSEEN, ON, BELOW, OVER = 0, 1, 2, 3  # what a bin along the axis shows
 SUBSTEPS = 4  # the posterior's grid is this many times finer than the bins (5 mm for 2 cm bins) [-]
+EXTRAPOLATION_SIGMAS = 2.0  # a bin past the fitted axis is on or below its top only beyond this many sigma [-]
 MODE_WINDOW_M = 0.05  # an end is the posterior's mean within this of its mode (a mode alone snaps to the grid) [m]
 
 
@@ -49,11 +50,14 @@ class JointEndEstimate(EndEstimate):
 
 
 def bin_states(points: np.ndarray, pa: np.ndarray, u: np.ndarray, radius_m: float, lo_m: float, n_bins: int,
-               fcfg: FuseConfig, on_mask: np.ndarray | None = None) -> np.ndarray:
+               fcfg: FuseConfig, on_mask: np.ndarray | None = None, fitted_m: float | None = None) -> np.ndarray:
     """What each bin of ``fcfg.end_bin_m`` along the axis ``pa + t u`` (t from ``lo_m``) shows
     (:data:`ON`, :data:`BELOW`, :data:`OVER` or :data:`UNSEEN`), from the scan ``points`` within half a
     radius of the axis's vertical plane; ``on_mask``: which points may show this log's top (those near
-    another log only show where the scan sees below it)."""
+    another log only show where the scan sees below it). ``fitted_m``: the axis was fitted over t in
+    [0, fitted_m]; past that its height is less sure (``extrapolation_sigma_per_m``), and a bin is on the top
+    or below it only beyond twice that uncertainty (a log fitted over 60 cm and extended 2 m has its top
+    there to +-8 cm: its own top read as 'below' threw out a correct fixed point, held-out scan 3300005)."""
     P = np.asarray(points, dtype=np.float64)
     rel = P - pa
     t = rel @ u
@@ -67,11 +71,15 @@ def bin_states(points: np.ndarray, pa: np.ndarray, u: np.ndarray, radius_m: floa
     may = np.ones(int(m.sum()), bool) if on_mask is None else np.asarray(on_mask, bool)[m]
     e = h[m] - np.sqrt(np.clip(r * r - s[m] ** 2, 0.0, None))  # height over the top there
     k = k[m]
-    on = np.bincount(k, weights=((np.abs(e) < fcfg.on_band_m) & may).astype(float), minlength=n_bins) >= fcfg.min_on_points
+    c = lo_m + fcfg.end_bin_m * (np.arange(n_bins) + 0.5)
+    past = np.zeros(n_bins) if fitted_m is None else np.maximum(0.0, np.maximum(-c, c - fitted_m))
+    slack = EXTRAPOLATION_SIGMAS * fcfg.extrapolation_sigma_per_m * past  # per bin [m]
+    on = np.bincount(k, weights=((np.abs(e) < fcfg.on_band_m + slack[k]) & may).astype(float),
+                     minlength=n_bins) >= fcfg.min_on_points
     top = np.full(n_bins, -np.inf)
     np.maximum.at(top, k, e)
     seen = np.bincount(k, minlength=n_bins) >= MIN_BIN_POINTS
-    below = ~on & seen & (top < -max(fcfg.below_min_m, fcfg.below_radius_share * r))
+    below = ~on & seen & (top < -max(fcfg.below_min_m, fcfg.below_radius_share * r) - slack)
     over = ~on & ~below & seen & (top > fcfg.on_band_m)
     return np.select([on, below, over], [ON, BELOW, OVER], UNSEEN)
 
@@ -200,7 +208,7 @@ def place_joint_ends(points: np.ndarray, spec: Any, how: str, survey: tuple[Surv
     for k, point in enumerate(survey):
         lo, n = _grid(axis, k, point, cfg, fcfg)
         states = (np.zeros(n, np.int64) if how == "hidden" else
-                  bin_states(points, axis.pa, axis.u, r, lo, n, fcfg, on_mask=on_mask))
+                  bin_states(points, axis.pa, axis.u, r, lo, n, fcfg, on_mask=on_mask, fitted_m=L))
         post = end_posterior(states, lo, k, axis, point, lateral_sigma_m, cfg, fcfg)
         ests.append(_estimate(post, states, lo, k, axis, point, lateral_sigma_m, cfg, fcfg))
     a, b = ests

@@ -9,8 +9,9 @@ point costs a bounded amount instead of being gated by a rule. Its zero is a per
 hidden and missed choices are in the same units (nats).
 
 An assignment that makes a different pile (a scan log kept or dropped, a surveyed log hidden instead of seen)
-within ``ambiguity_nats`` of the best is an :class:`~reconstruct.fitting.matching.AmbiguousSurveyError` naming the
-log; one that only changes which ids the same logs get is the same pile. A surveyed log left hidden with fewer than two
+within ``ambiguity_nats`` of the best is a warning naming the log and the points to re-measure (the likelier
+pile is placed), or with ``ambiguity_is_error`` an :class:`~reconstruct.fitting.matching.AmbiguousSurveyError`;
+one that only changes which ids the same logs get is the same pile. A surveyed log left hidden with fewer than two
 points cannot be placed: its point is reported as an outlier and the log is left out.
 """
 
@@ -43,6 +44,7 @@ class JointMatching:
     dropped: dict[str, str]
     cost_nats: float
     outliers: dict[str, set[int]]  # per matched log, its points (0: a, 1: b) likelier outliers than its ends
+    ambiguous: list[str]  # one line per surveyed log another assignment, making another pile, explains as well
 
 
 def point_cost(e: SurveyEnd, log: ScanLog, at_start: bool, cfg: JointConfig, fcfg: FuseConfig,
@@ -145,7 +147,7 @@ def joint_match(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]],
         return (frozenset(j for j in range(m) if j in used or scan_logs[j].seen_m >= fcfg.min_new_log_m),
                 frozenset(k for k, j in zip(ids, p) if j is None))
 
-    alternatives = {}
+    alternatives, ambiguous = {}, []
     for i, k in enumerate(ids):
         if pick[i] is None:
             continue
@@ -155,8 +157,11 @@ def joint_match(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]],
         delta = alt - best
         alternatives[k] = f"{'nothing' if alt_pick[i] is None else f'scan log {alt_pick[i]}'} (+{delta:.1f} nats)"
         if delta < cfg.ambiguity_nats and pile(alt_pick) != pile(pick):
-            raise _ambiguity(k, survey[k], scan_logs[pick[i]],
-                             None if alt_pick[i] is None else scan_logs[alt_pick[i]], delta)
+            err = _ambiguity(k, survey[k], scan_logs[pick[i]], None if alt_pick[i] is None else scan_logs[alt_pick[i]],
+                             delta)
+            if cfg.ambiguity_is_error:
+                raise err
+            ambiguous.append(str(err).replace("chi2 differs by", "nats apart:") + " (the likelier is placed)")
     matches, dropped, outliers = {}, {}, {}
     for i, (k, j) in enumerate(zip(ids, pick)):
         if j is None and sum(e is not None for e in survey[k]) < 2:
@@ -167,4 +172,4 @@ def joint_match(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]],
         if j is not None:
             outliers[k] = {n for n, e in enumerate(survey[k]) if e is not None and point_cost(
                 e, scan_logs[j], (n == 0) != rev[i, j], cfg, fcfg, outlier_prob=True) > cfg.outlier_flag_prob}
-    return JointMatching(matches, [j for j in range(m) if j not in taken], dropped, best, outliers)
+    return JointMatching(matches, [j for j in range(m) if j not in taken], dropped, best, outliers, ambiguous)

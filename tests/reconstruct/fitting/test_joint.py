@@ -121,8 +121,11 @@ def test_two_float_logs_that_fit_two_ridges_either_way_are_no_ambiguity_but_a_ke
     one = {"log0": survey["log0"]}  # one float log between two long ridges: the other is a log the survey
     assert joint_match(one, scan_logs, CFG, FCFG).matches["log0"].scan_index in (0, 1)  # missed: the same pile
     short = [_scan_log(0.6, 1.4, 0.0), _scan_log(0.6, 1.4, 0.25)]  # too short to stand as logs of their own:
+    between = {"log0": (_end(0.0, 0.125, fix="rtk_float"), _end(2.0, 0.125, fix="rtk_float"))}
     with pytest.raises(AmbiguousSurveyError, match="log0"):  # which one is in the pile, the survey cannot say
-        joint_match({"log0": (_end(0.0, 0.125, fix="rtk_float"), _end(2.0, 0.125, fix="rtk_float"))}, short, CFG, FCFG)
+        joint_match(between, short, JointConfig(ambiguity_is_error=True), FCFG)
+    warned = joint_match(between, short, CFG, FCFG)  # by default: said, and the likelier placed
+    assert len(warned.ambiguous) == 1 and "log0" in warned.ambiguous[0] and "re-measure" in warned.ambiguous[0].lower()
 
 
 def test_the_estimator_and_its_parameters_are_checked():
