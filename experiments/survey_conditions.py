@@ -442,6 +442,9 @@ def compare_summary(recs: dict[str, dict]) -> dict[str, dict[str, dict]]:
                 "phantom_logs": sum(len(e["unmatched_recon"]) for e in ok),
                 "blind_logs": len(blind),
                 "blind_within_2sigma": sum(lg["worst_end_m"] <= 2 * max(x["sigma_m"] for x in lg["ends"]) for lg in blind),
+                "recon_cpu_median_s": _stats([e["cpu_s"] for e in ok]).get("median"),
+                "scan_cpu_median_s": _stats([r["stereo_cpu_s"] + r["conditions"][cond]["cpu_s"] for r in rows
+                                             if "error" not in r["conditions"][cond]]).get("median"),
             }
     return out
 
@@ -450,9 +453,11 @@ def compare_markdown(recs: dict[str, dict]) -> list[str]:
     """:func:`compare_summary` as a markdown table (one row per condition and record)."""
     s = compare_summary(recs)
     cm = (lambda v: "-" if v is None else f"{100 * v:.1f}")  # noqa: E731
+    sec = (lambda v: "-" if v is None else f"{v:.1f}")  # noqa: E731
     lines = ["| survey | estimator | scans | failures | worst end median [cm] | p95 | abs diameter median [cm] | "
-             "logs over 8 cm | of them silent | points called wrong | phantom logs | blind logs within 2 sigma |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "logs over 8 cm | of them silent | points called wrong | phantom logs | blind logs within 2 sigma | "
+             "reconstruction CPU median [s] | 4-pair scan CPU median [s] |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for cond, by_label in s.items():
         for label, d in by_label.items():
             cov = f"{d['blind_within_2sigma']} / {d['blind_logs']}" if d["blind_logs"] else "-"
@@ -460,5 +465,5 @@ def compare_markdown(recs: dict[str, dict]) -> list[str]:
             fail = f"{d['failures']} ({100 * d['failures'] / max(d['scans'], 1):.1f} %)"
             lines.append(f"| {cond} | {label} | {d['scans']} | {fail} | {cm(d['worst_median_m'])} | {cm(d['worst_p95_m'])} | "
                          f"{dia} | {d['over_8cm']} | {d['silent_over_8cm']} | {d['points_called_wrong']} | "
-                         f"{d['phantom_logs']} | {cov} |")
+                         f"{d['phantom_logs']} | {cov} | {sec(d['recon_cpu_median_s'])} | {sec(d['scan_cpu_median_s'])} |")
     return lines
