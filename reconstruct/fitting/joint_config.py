@@ -16,7 +16,7 @@ from dataclasses import dataclass, fields
 ESTIMATORS = ("rules22", "joint")
 #: raised whenever a change to the joint estimator makes different piles from the same scan (recorded in the
 #: report as ``estimator_revision`` and in bench keys)
-JOINT_REVISION = 7
+JOINT_REVISION = 8
 
 
 @dataclass(frozen=True)
@@ -41,8 +41,10 @@ class JointConfig:
     p_below_inside: float = 0.08  # ... or the scan sees below its top there (gaps between crossing logs over it,
     #                               a log sagging under its straight fit: at 0.02 the held-out scan 3300005 threw
     #                               out a correct fixed point 75 cm past a few such bins) [-]
-    p_on_outside: float = 0.04  # a bin past the end shows a surface at the top's height (a neighbour's flank) [-]
-    p_below_outside: float = 0.75  # ... or the scan sees below where the top would be (ground, lower logs) [-]
+    p_on_outside: float = 0.30  # a bin past the end shows a surface at the top's height: in a pile the next log
+    #                             in line, a crossing log's flank, an obstacle (at 0.04 a neighbour's top 20-50 cm
+    #                             on outweighed a correct fixed point: held-out scans 3300010, 3300011) [-]
+    p_below_outside: float = 0.55  # ... or the scan sees below where the top would be (ground, lower logs) [-]
     p_over_inside: float = 0.10  # a bin shows something over the top: another log across this one, inside it ...
     p_over_outside: float = 0.10  # ... as often as a log across the ground past its end (piles cross): no
     #                               evidence either way (taken as the rest: tuning scan 1100001 put an end

@@ -40,7 +40,7 @@ def _states_b(end_m: float, past: int, inside=ON, lo_m: float = 1.0, n: int = 80
 
 def test_a_seen_end_is_where_the_top_gives_way_to_the_ground():
     post = end_posterior(_states_b(2.0, BELOW), 1.0, 1, AXIS, None, 0.005, CFG, FCFG)
-    assert abs(post["t_m"] - (2.0 - CFG.top_smear_m)) < 0.01 and post["sigma_along_m"] < 0.02
+    assert abs(post["t_m"] - (2.0 - CFG.top_smear_m)) < 0.01 and post["sigma_along_m"] < 0.03  # well under weak
     assert post["outlier_prob"] is None
 
 
