@@ -35,6 +35,8 @@ from reconstruct.fitting.survey_points import SurveyEnd
 UNSEEN, ON, BELOW, OVER = 0, 1, 2, 3  # what a bin along the axis shows
 SUBSTEPS = 4  # the posterior's grid is this many times finer than the bins (5 mm for 2 cm bins) [-]
 EXTRAPOLATION_SIGMAS = 2.0  # a bin past the fitted axis is on or below its top only beyond this many sigma [-]
+LENGTH_MARGIN_M = 1e-3  # ends closer than the shortest log plus this keep the fit's (LogSpec's own length
+#                         differs from the ends' distance in the last digits: tuning scan 1100028 crashed) [m]
 MODE_WINDOW_M = 0.05  # an end is the posterior's mean within this of its mode (a mode alone snaps to the grid) [m]
 
 
@@ -212,8 +214,8 @@ def place_joint_ends(points: np.ndarray, spec: Any, how: str, survey: tuple[Surv
         post = end_posterior(states, lo, k, axis, point, lateral_sigma_m, cfg, fcfg)
         ests.append(_estimate(post, states, lo, k, axis, point, lateral_sigma_m, cfg, fcfg))
     a, b = ests
-    if float(np.linalg.norm(b.position_m - a.position_m)) < MIN_LOG_LENGTH_M:  # nonsense: keep the fit's ends
-        return spec, (a, b)
+    if float(np.linalg.norm(b.position_m - a.position_m)) < MIN_LOG_LENGTH_M + LENGTH_MARGIN_M:  # nonsense: keep
+        return spec, (a, b)                                                                         # the fit's ends
     new_butt, new_top = (b.position_m, a.position_m) if swapped else (a.position_m, b.position_m)
     return LogSpec.from_endpoints(new_butt, new_top, spec.diameter_m, spec.top_diameter_m, spec.colour), (a, b)
 
