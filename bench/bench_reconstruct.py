@@ -16,7 +16,7 @@ from pathlib import Path
 
 from experiments.reconstruct_bench import markdown, real_test, real_test_markdown
 from experiments.survey_conditions import (compare_markdown, read_survey_records, survey_bench, survey_figure,
-                                           survey_markdown)
+                                           survey_markdown, survey_set_key)
 
 __all__ = ["markdown"]
 
@@ -85,12 +85,13 @@ if __name__ == "__main__":
         out = args.survey_out or Path(f"docs/results/survey-conditions{tail}")
         work = args.survey_work or Path(f"runs/survey-work{tail}")
         try:
-            rec = (read_survey_records(out) if args.survey_report else
-                   survey_bench(args.survey_scans, args.survey_seed, work, out, shard=shard,
-                                survey_set=args.survey_set, estimator=args.survey_estimator,
-                                progress=lambda s: print(s, file=sys.stderr, flush=True)))
+            survey_set_key(args.survey_set, args.survey_seed, args.survey_estimator)
         except ValueError as exc:
             raise SystemExit(str(exc)) from None
+        rec = (read_survey_records(out) if args.survey_report else
+               survey_bench(args.survey_scans, args.survey_seed, work, out, shard=shard,
+                            survey_set=args.survey_set, estimator=args.survey_estimator,
+                            progress=lambda s: print(s, file=sys.stderr, flush=True)))
         fig = survey_figure(rec, args.figure) if args.figure is not None else None
         print("\n".join(survey_markdown(rec, fig)))
         raise SystemExit(0)

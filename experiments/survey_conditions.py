@@ -181,6 +181,9 @@ def _condition_entry(root: Path, cond: str, gnss: Path, cloud, truth, estimator:
     except ReconstructError as exc:
         entry["error"] = f"{type(exc).__name__}: {exc}"
         return entry
+    except ValueError as exc:  # a bug, not a refusal: counted as a failure, named as a crash, the run goes on
+        entry["error"] = f"crash: {type(exc).__name__}: {exc}"
+        return entry
     entry["wall_s"], entry["cpu_s"] = time.perf_counter() - t0, time.process_time() - c0
     cmp = compare_piles(truth, res.pile)
     by_recon = {lf["index"]: lf for lf in res.report["logs"]}
