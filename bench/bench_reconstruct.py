@@ -5,6 +5,7 @@
     .venv/bin/python bench/bench_reconstruct.py --piles 3
     .venv/bin/python bench/bench_reconstruct.py --real-only --real-piles 24 --model PATH
     .venv/bin/python bench/bench_reconstruct.py --survey-scans 200 --survey-out DIR [--survey-shard K/N]
+    .venv/bin/python bench/bench_reconstruct.py --survey-scans 200 --survey-set heldout --survey-out DIR
 """
 
 from __future__ import annotations
@@ -14,7 +15,8 @@ import sys
 from pathlib import Path
 
 from experiments.reconstruct_bench import markdown, real_test, real_test_markdown
-from experiments.survey_conditions import read_survey_records, survey_bench, survey_figure, survey_markdown
+from experiments.survey_conditions import (compare_markdown, read_survey_records, survey_bench, survey_figure,
+                                           survey_markdown, survey_set_key)
 
 __all__ = ["markdown"]
 
@@ -40,18 +42,37 @@ if __name__ == "__main__":
                          "with allow_float)")
     ap.add_argument("--survey-scans", type=int, default=0,
                     help="run only the survey-conditions bench on this many fresh twin scans (one process)")
-    ap.add_argument("--survey-seed", type=int, default=1_100_000, help="first seed of the survey-conditions bench")
-    ap.add_argument("--survey-work", type=Path, default=Path("runs/survey-work"), help="its scans and reconstructions")
-    ap.add_argument("--survey-out", type=Path, default=Path("docs/results/survey-conditions"),
+    ap.add_argument("--survey-set", default="tuning", choices=("tuning", "heldout"),
+                    help="which scans: 'tuning' (seeds from 1,100,000, dropped piles: what the fitting was tuned on) "
+                         "or 'heldout' (seeds from 3,300,000; packed, loose and dropped piles in turn); the record "
+                         "says which")
+    ap.add_argument("--survey-estimator", default="rules22", choices=("rules22", "joint"),
+                    help="ReconstructConfig.estimator the survey-conditions bench reconstructs with")
+    ap.add_argument("--survey-seed", type=int, default=None,
+                    help="first seed of the survey-conditions bench (default: the --survey-set's)")
+    ap.add_argument("--survey-work", type=Path, default=None,
+                    help="its scans and reconstructions (default runs/survey-work, runs/survey-work-heldout)")
+    ap.add_argument("--survey-out", type=Path, default=None,
                     help="its record: a folder with one JSON per scan (kept: the same command with more "
-                         "--survey-scans extends the run) and summary.json")
+                         "--survey-scans extends the run) and summary.json (default "
+                         "docs/results/survey-conditions, docs/results/survey-conditions-heldout)")
     ap.add_argument("--survey-shard", default="0/1", metavar="K/N",
                     help="do only the survey scans whose seed - --survey-seed is K modulo N (run N processes, "
                          "K = 0..N-1, on one --survey-out)")
     ap.add_argument("--figure", type=Path, default=None, help="write the error-distribution figure here")
     ap.add_argument("--survey-report", action="store_true",
                     help="print the markdown (and write --figure) of an existing --survey-out record, run nothing")
+    ap.add_argument("--survey-compare", nargs="+", type=Path, default=None, metavar="LABEL=DIR",
+                    help="print survey-conditions records side by side on the scans they share (seed and stereo "
+                         "cloud), e.g. rules22=docs/results/survey-conditions-heldout-r22 joint=DIR; run nothing")
     args = ap.parse_args()
+    if args.survey_compare:
+        try:
+            recs = {str(a).split("=", 1)[0]: read_survey_records(Path(str(a).split("=", 1)[1]), write=False) for a in args.survey_compare}
+        except IndexError:
+            raise SystemExit("--survey-compare takes LABEL=DIR arguments") from None
+        print("\n".join(compare_markdown(recs)))
+        raise SystemExit(0)
     if args.survey_scans > 0 or args.survey_report:
         try:
             shard = tuple(int(v) for v in args.survey_shard.split("/"))
@@ -60,8 +81,16 @@ if __name__ == "__main__":
         except ValueError:
             raise SystemExit(f"--survey-shard must be K/N with 0 <= K < N, got {args.survey_shard!r}") from None
 
-        rec = (read_survey_records(args.survey_out) if args.survey_report else
-               survey_bench(args.survey_scans, args.survey_seed, args.survey_work, args.survey_out, shard=shard,
+        tail = "" if args.survey_set == "tuning" else "-" + args.survey_set
+        out = args.survey_out or Path(f"docs/results/survey-conditions{tail}")
+        work = args.survey_work or Path(f"runs/survey-work{tail}")
+        try:
+            survey_set_key(args.survey_set, args.survey_seed, args.survey_estimator)
+        except ValueError as exc:
+            raise SystemExit(str(exc)) from None
+        rec = (read_survey_records(out) if args.survey_report else
+               survey_bench(args.survey_scans, args.survey_seed, work, out, shard=shard,
+                            survey_set=args.survey_set, estimator=args.survey_estimator,
                             progress=lambda s: print(s, file=sys.stderr, flush=True)))
         fig = survey_figure(rec, args.figure) if args.figure is not None else None
         print("\n".join(survey_markdown(rec, fig)))

@@ -21,9 +21,55 @@ SURVEY_CONDITIONS = {
 }
 SURVEY_BENCH_FORMAT = "loggrasp.bench-survey-conditions"
 
+# -- the tuning set and the held-out set (issue 37): other seeds, other pile shapes --
+#: pile shapes: ``make_twin_scan`` keyword arguments. "dropped" is the generator's default stack (the
+#: tuning set's only shape); "packed": aligned logs side by side, touching; "loose": the dropped stack
+#: with its log centres and yaws scattered twice as far (0.6 m, 0.7 rad against 0.3 m, 0.35 rad)
+PILE_SHAPES = {
+    "dropped": {},
+    "packed": {"packed": True},
+    "loose": {"pile_spread_m": 0.6, "yaw_spread_rad": 0.7},
+}
+#: the survey-conditions sets. "tuning": the scans the fitting's rules were written against (seeds from
+#: 1,100,000, one shape); "heldout": scans no rule was written against (seeds from 3,300,000, the three
+#: shapes in turn: seed - seed0 modulo 3 picks one)
+SURVEY_SETS = {
+    "tuning": {"seed0": 1_100_000, "shapes": ("dropped",)},
+    "heldout": {"seed0": 3_300_000, "shapes": ("packed", "loose", "dropped")},
+}
+#: seeds a held-out run may not start in: the tuning set's range (its benches used up to 1,100,199)
+TUNING_SEED_RANGE = (1_100_000, 1_200_000)
 
-def survey_bench(n_scans: int, seed0: int, work_dir: Path, out: Path, logs=(3, 7), obstacles=(0, 3),
-                 progress=print, shard: tuple[int, int] = (0, 1)) -> dict:
+
+def survey_set_key(survey_set: str, seed0: int | None = None, estimator: str = "rules22") -> dict:
+    """The part of a survey-conditions record's key that says which set (and estimator) it measured; the
+    tuning set with revision 22 adds nothing (its records from before the held-out set resume as they
+    are). A held-out run whose seeds start inside :data:`TUNING_SEED_RANGE` is a ValueError."""
+    if survey_set not in SURVEY_SETS:
+        raise ValueError(f"--survey-set must be one of {', '.join(SURVEY_SETS)}, got {survey_set!r}")
+    seed0 = SURVEY_SETS[survey_set]["seed0"] if seed0 is None else int(seed0)
+    if survey_set == "heldout" and TUNING_SEED_RANGE[0] <= seed0 < TUNING_SEED_RANGE[1]:
+        raise ValueError(f"--survey-seed {seed0} lies in the tuning set's seeds "
+                         f"({TUNING_SEED_RANGE[0]}..{TUNING_SEED_RANGE[1] - 1}); a held-out set needs others")
+    key: dict = {}
+    if survey_set != "tuning":
+        key.update(set=survey_set, shapes=list(SURVEY_SETS[survey_set]["shapes"]))
+    if estimator != "rules22":
+        from reconstruct.fitting.joint_config import JOINT_REVISION
+
+        key.update(estimator=estimator, estimator_revision=JOINT_REVISION)
+    return key
+
+
+def pile_shape(key: dict, seed: int) -> str:
+    """The pile shape of ``seed`` in a record of ``key``: the set's shapes in turn."""
+    shapes = key.get("shapes", ["dropped"])
+    return shapes[(seed - key["seed0"]) % len(shapes)]
+
+
+def survey_bench(n_scans: int, seed0: int | None, work_dir: Path, out: Path, logs=(3, 7), obstacles=(0, 3),
+                 progress=print, shard: tuple[int, int] = (0, 1), survey_set: str = "tuning",
+                 estimator: str = "rules22") -> dict:
     """Reconstruction under the three survey conditions (:data:`SURVEY_CONDITIONS`) on ``n_scans``
     fresh twin scans (``loggrasp synth scan`` piles, seeds ``seed0``...): the stereo cloud of each scan
     is matched once and reconstructed with each survey; every log is measured against the truth (worst
@@ -33,14 +79,18 @@ def survey_bench(n_scans: int, seed0: int, work_dir: Path, out: Path, logs=(3, 7
     ``summary.json``. A run with the same settings skips the scans it has records of, so the same
     command with a larger ``n_scans`` extends the run. ``work_dir`` keeps each scan's images and
     stereo cloud (not needed to resume). ``shard`` (k, n): this process does the scans whose
-    ``seed - seed0`` is k modulo n, so n processes with the same settings share one ``out``."""
+    ``seed - seed0`` is k modulo n, so n processes with the same settings share one ``out``.
+    ``survey_set``: "tuning" or "heldout" (:data:`SURVEY_SETS`: its first seed when ``seed0`` is None,
+    its pile shapes); ``estimator``: ``ReconstructConfig.estimator``. Both go into the record's key."""
     import json
     import os
 
     from reconstruct.fitting.fit import FIT_REVISION
     from synth.common.files import atomic_write_bytes
 
-    key = {"seed0": seed0, "logs": list(logs), "obstacles": list(obstacles), "fit_revision": FIT_REVISION}
+    set_key = survey_set_key(survey_set, seed0, estimator)
+    seed0 = SURVEY_SETS[survey_set]["seed0"] if seed0 is None else int(seed0)
+    key = {"seed0": seed0, "logs": list(logs), "obstacles": list(obstacles), "fit_revision": FIT_REVISION} | set_key
     records = out / "scans"
     records.mkdir(parents=True, exist_ok=True)
     work_dir.mkdir(parents=True, exist_ok=True)
@@ -50,16 +100,17 @@ def survey_bench(n_scans: int, seed0: int, work_dir: Path, out: Path, logs=(3, 7
         if path.exists() and json.loads(path.read_text()).get("key") == key:
             continue
         root = work_dir / f"scan_{seed}"
-        surveys, make_s, truth = _scan_and_surveys(root, seed, logs, obstacles)
+        shape = pile_shape(key, seed)
+        surveys, make_s, truth = _scan_and_surveys(root, seed, logs, obstacles, PILE_SHAPES[shape])
         cloud, stereo = _stereo_cloud(root)
         row = {"format": SURVEY_BENCH_FORMAT, "format_version": "2.1", "key": key,
-               "seed": seed, "n_logs": truth.n_logs, "n_obstacles": len(truth.stumps) + len(truth.rocks),
+               "seed": seed, "set": survey_set, "shape": shape, "n_logs": truth.n_logs, "n_obstacles": len(truth.stumps) + len(truth.rocks),
                "n_pairs": int(len(cloud.camera_positions)), "cpus": os.cpu_count(), "processes": n_shard,
                "cloud_sha256": cloud_fingerprint(cloud),
                "stereo_wall_s": stereo[0], "stereo_cpu_s": stereo[1], "scan_make_s": make_s,
                "load": os.getloadavg()[0], "conditions": {}}
         for cond, gnss in surveys.items():
-            row["conditions"][cond] = _condition_entry(root, cond, gnss, cloud, truth)
+            row["conditions"][cond] = _condition_entry(root, cond, gnss, cloud, truth, estimator)
         atomic_write_bytes(path, json.dumps(row, indent=1).encode())
         errs = {c: e.get("error", "")[:80] for c, e in row["conditions"].items() if "error" in e}
         worst = {c: max((lg["worst_end_m"] for lg in e.get("logs", [])), default=float("nan"))
@@ -69,15 +120,15 @@ def survey_bench(n_scans: int, seed0: int, work_dir: Path, out: Path, logs=(3, 7
     return read_survey_records(out, key)
 
 
-def _scan_and_surveys(root: Path, seed: int, logs, obstacles):
-    """The twin scan of ``seed`` in ``root`` (made once) and its three surveys; returns the survey
-    paths by condition, the seconds it took to make them, and the true pile."""
+def _scan_and_surveys(root: Path, seed: int, logs, obstacles, shape: dict):
+    """The twin scan of ``seed`` in ``root`` (made once, its pile of ``shape``: :data:`PILE_SHAPES`) and its
+    three surveys; returns the survey paths by condition, the seconds it took to make them, and the true pile."""
     from reconstruct.scan.twin_scan import make_twin_scan, write_twin_survey
     from synth.scene.pile import read_pile
 
     t0 = time.perf_counter()
     if not (root / "scan.json").exists():
-        make_twin_scan(root, seed, logs=tuple(logs), obstacles=tuple(obstacles))
+        make_twin_scan(root, seed, logs=tuple(logs), obstacles=tuple(obstacles), **shape)
     surveys = {"default": root / "gnss.csv",
                "fixed": write_twin_survey(root, root / "gnss_fixed.csv", n_float=0),
                "degraded": write_twin_survey(root, root / "gnss_degraded.csv", n_float=-1, n_unsurveyed=1)}
@@ -114,7 +165,7 @@ def _stereo_cloud(root: Path):
     return cloud, stereo
 
 
-def _condition_entry(root: Path, cond: str, gnss: Path, cloud, truth) -> dict:
+def _condition_entry(root: Path, cond: str, gnss: Path, cloud, truth, estimator: str = "rules22") -> dict:
     """One survey condition of a scan: the reconstruction's error (or its refusal), every log
     against the truth with its ends' sources, and what the report flagged."""
     from reconstruct.compare import compare_piles
@@ -124,9 +175,14 @@ def _condition_entry(root: Path, cond: str, gnss: Path, cloud, truth) -> dict:
     entry: dict = {}
     t0, c0 = time.perf_counter(), time.process_time()
     try:
-        res = reconstruct(root / "scan", gnss, root / f"recon_{cond}", ReconstructConfig(allow_float=True), cloud=cloud)
+        out = root / (f"recon_{cond}" if estimator == "rules22" else f"recon_{cond}_{estimator}")
+        res = reconstruct(root / "scan", gnss, out, ReconstructConfig(allow_float=True, **_estimator_kw(estimator)),
+                          cloud=cloud)
     except ReconstructError as exc:
         entry["error"] = f"{type(exc).__name__}: {exc}"
+        return entry
+    except ValueError as exc:  # a bug, not a refusal: counted as a failure, named as a crash, the run goes on
+        entry["error"] = f"crash: {type(exc).__name__}: {exc}"
         return entry
     entry["wall_s"], entry["cpu_s"] = time.perf_counter() - t0, time.process_time() - c0
     cmp = compare_piles(truth, res.pile)
@@ -150,9 +206,14 @@ def _condition_entry(root: Path, cond: str, gnss: Path, cloud, truth) -> dict:
     return entry
 
 
-def read_survey_records(out: Path, key: dict | None = None) -> dict:
+def _estimator_kw(estimator: str) -> dict:
+    """``ReconstructConfig`` keywords of an estimator name (revision 22 is the config's default)."""
+    return {} if estimator == "rules22" else {"estimator": estimator}
+
+
+def read_survey_records(out: Path, key: dict | None = None, write: bool = True) -> dict:
     """The survey-conditions record of folder ``out``: every scan record (of ``key``'s settings; by
-    default those of the most records), written to ``out/summary.json`` too."""
+    default those of the most records), written to ``out/summary.json`` too (unless ``write`` is off)."""
     import json
 
     from synth.common.files import atomic_write_bytes
@@ -162,9 +223,9 @@ def read_survey_records(out: Path, key: dict | None = None) -> dict:
         keys = [json.dumps(r["key"], sort_keys=True) for r in rows]
         key = json.loads(max(set(keys), key=keys.count))
     rows = sorted((r for r in rows if r.get("key") == key), key=lambda r: r["seed"])
-    rec = {"format": SURVEY_BENCH_FORMAT, "format_version": "2.0", "key": key, "conditions": SURVEY_CONDITIONS,
-           "scans": rows}
-    if rows:
+    rec = {"format": SURVEY_BENCH_FORMAT, "format_version": "2.1", "key": key,
+           "set": (key or {}).get("set", "tuning"), "conditions": SURVEY_CONDITIONS, "scans": rows}
+    if rows and write:
         atomic_write_bytes(out / "summary.json", json.dumps(
             {k: v for k, v in rec.items() if k != "scans"} | {"seeds": [r["seed"] for r in rows],
                                                               "summary": survey_summary(rec)}, indent=1).encode())
@@ -258,12 +319,15 @@ def survey_markdown(rec: dict, figure: Path | None = None) -> list[str]:
     n = len(rec["scans"])
     loads = [r["load"] for r in rec["scans"]]
     lines = [
-        "#### Reconstruction under three survey conditions (the same scans)",
+        "#### Reconstruction under three survey conditions (the same scans)"
+        + (f": the {rec['set']} set" if rec.get("set", "tuning") != "tuning" else ""),
         f"{n} fresh twin scans (`loggrasp synth scan` piles, seeds {_seed_ranges(rec)}, "
+        f"{_shapes_text(rec)}"
         f"{rec['key']['logs'][0]}-{rec['key']['logs'][1]} logs, {rec['key']['obstacles'][0]}-{rec['key']['obstacles'][1]} "
         "obstacles, 2x2 pairs at 3 m), each reconstructed with three surveys of its pile "
-        f"(fitting revision {rec['key']['fit_revision']}). Per log: worst end error (the farther of its two ends "
-        "from the truth), absolute mean-diameter error, mask IoU (128 px). Targets (issue 18): <= 1 % failures, "
+        f"(fitting revision {rec['key']['fit_revision']}"
+        f"{', estimator ' + rec['key']['estimator'] if 'estimator' in rec['key'] else ''}). "
+        "Per log: worst end error (the farther of its two ends from the truth), absolute mean-diameter error, mask IoU (128 px). Targets (issue 18): <= 1 % failures, "
         "worst end <= 3 cm median and <= 8 cm p95, diameter <= 1 cm median, <= 15 s per 4-pair scan. "
         f"{max(r.get('processes', 1) for r in rec['scans'])} bench process(es) on {rec['scans'][0].get('cpus', '?')} cores; "
         f"load average {min(loads):.1f}-{max(loads):.1f} "
@@ -312,6 +376,14 @@ def survey_markdown(rec: dict, figure: Path | None = None) -> list[str]:
     return lines
 
 
+def _shapes_text(rec: dict) -> str:
+    """The record's pile shapes and how many scans of each, e.g. ``packed 10, loose 10, dropped 10 piles, ``."""
+    counts: dict[str, int] = {}
+    for r in rec["scans"]:
+        counts[r.get("shape", "dropped")] = counts.get(r.get("shape", "dropped"), 0) + 1
+    return ", ".join(f"{k} {v}" for k, v in counts.items()) + " piles, " if counts else ""
+
+
 def survey_figure(rec: dict, path: Path) -> Path:
     """Histograms (cumulative) of the per-log worst end error and the diameter error, per condition."""
     import matplotlib
@@ -341,3 +413,60 @@ def survey_figure(rec: dict, path: Path) -> Path:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def compare_summary(recs: dict[str, dict]) -> dict[str, dict[str, dict]]:
+    """Records of several estimators (or revisions) side by side on the scans they all measured, matched by
+    seed and stereo cloud (:func:`cloud_fingerprint`): ``{condition: {label: figures}}``. The figures are the
+    issue 37 targets': failures, worst end median / p95, diameter median, logs over 8 cm (and how many of those
+    the report did not warn about), survey points called wrong (every one on the all-fixed survey is a correct
+    fixed point discarded), logs made that are not in the truth, and how many blind logs' worst end lies within
+    2 sigma of their less certain end (the coverage of the reported sigma)."""
+    common = None
+    for rec in recs.values():
+        got = {(r["seed"], r.get("cloud_sha256")) for r in rec["scans"]}
+        common = got if common is None else common & got
+    out: dict[str, dict[str, dict]] = {}
+    for cond in SURVEY_CONDITIONS:
+        out[cond] = {}
+        for label, rec in recs.items():
+            rows = [r for r in rec["scans"] if (r["seed"], r.get("cloud_sha256")) in common and cond in r["conditions"]]
+            ok = [r["conditions"][cond] for r in rows if "error" not in r["conditions"][cond]]
+            logs = [lg for e in ok for lg in e["logs"]]
+            blind = [lg for lg in logs if blind_log(lg)]
+            worst = _stats([lg["worst_end_m"] for lg in logs])
+            out[cond][label] = {
+                "scans": len(rows), "failures": len(rows) - len(ok), "logs": len(logs),
+                "worst_median_m": worst.get("median"), "worst_p95_m": worst.get("p95"),
+                "diameter_median_m": _stats([abs(lg["diameter_err_m"]) for lg in logs]).get("median"),
+                "over_8cm": sum(lg["worst_end_m"] > 0.08 for lg in logs),
+                "silent_over_8cm": sum(lg["worst_end_m"] > 0.08 and not flagged_log(lg) for lg in logs),
+                "points_called_wrong": sum(e["contradicted_points"] for e in ok),
+                "phantom_logs": sum(len(e["unmatched_recon"]) for e in ok),
+                "blind_logs": len(blind),
+                "blind_within_2sigma": sum(lg["worst_end_m"] <= 2 * max(x["sigma_m"] for x in lg["ends"]) for lg in blind),
+                "recon_cpu_median_s": _stats([e["cpu_s"] for e in ok]).get("median"),
+                "scan_cpu_median_s": _stats([r["stereo_cpu_s"] + r["conditions"][cond]["cpu_s"] for r in rows
+                                             if "error" not in r["conditions"][cond]]).get("median"),
+            }
+    return out
+
+
+def compare_markdown(recs: dict[str, dict]) -> list[str]:
+    """:func:`compare_summary` as a markdown table (one row per condition and record)."""
+    s = compare_summary(recs)
+    cm = (lambda v: "-" if v is None else f"{100 * v:.1f}")  # noqa: E731
+    sec = (lambda v: "-" if v is None else f"{v:.1f}")  # noqa: E731
+    lines = ["| survey | estimator | scans | failures | worst end median [cm] | p95 | abs diameter median [cm] | "
+             "logs over 8 cm | of them silent | points called wrong | phantom logs | blind logs within 2 sigma | "
+             "reconstruction CPU median [s] | 4-pair scan CPU median [s] |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for cond, by_label in s.items():
+        for label, d in by_label.items():
+            cov = f"{d['blind_within_2sigma']} / {d['blind_logs']}" if d["blind_logs"] else "-"
+            dia = "-" if d["diameter_median_m"] is None else f"{100 * d['diameter_median_m']:.2f}"
+            fail = f"{d['failures']} ({100 * d['failures'] / max(d['scans'], 1):.1f} %)"
+            lines.append(f"| {cond} | {label} | {d['scans']} | {fail} | {cm(d['worst_median_m'])} | {cm(d['worst_p95_m'])} | "
+                         f"{dia} | {d['over_8cm']} | {d['silent_over_8cm']} | {d['points_called_wrong']} | "
+                         f"{d['phantom_logs']} | {cov} | {sec(d['recon_cpu_median_s'])} | {sec(d['scan_cpu_median_s'])} |")
+    return lines

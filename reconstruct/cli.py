@@ -132,6 +132,11 @@ def reconstruct_command(
     log_direction: str = option("--log-direction", "Turn the pile frame so the logs' mean direction lies at this angle "
                                 "[deg] from +x, or 'site' to keep the site's axes.", default="45", metavar="DEG|site",
                                 names=["log_direction_deg"]),
+    estimator: Literal["rules22", "joint"] = option(
+        "--estimator", "How logs are matched and their ends placed: rules22 (fitting revision 22, the default) or "
+        "joint (one assignment, each end a posterior of the scan and its survey point with an outlier component; "
+        "being measured, see docs/reconstruction.md).", field=(ReconstructConfig, "estimator"),
+        metavar="rules22|joint"),
     as_json: bool = option("--json", "Print report.json (format loggrasp.reconstruction-report) on standard output.",
                            default=False),
 ) -> None:
@@ -146,7 +151,7 @@ def reconstruct_command(
 
     o = Output(as_json)
     cfg = ReconstructConfig(allow_float=allow_float, pair_poses=pair_poses, georegister=georegister,
-                            log_direction_deg=parse_log_direction(log_direction))
+                            log_direction_deg=parse_log_direction(log_direction), estimator=estimator)
     check_input(scan, "SCAN", "dir")
     source = gnss_source(gnss, gnss_windows)
     check_output_dir(out, "--out")

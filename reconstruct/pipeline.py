@@ -61,6 +61,9 @@ import numpy as np
 
 from reconstruct.errors import FitError, ReconstructError, RegistrationError, ScanError
 from reconstruct.fitting.fit import FitConfig, PileFit, fit_log, fit_pile, log_spec_from_fit
+from reconstruct.fitting.joint_config import ESTIMATORS, JOINT_REVISION, JointConfig
+from reconstruct.fitting.joint_ends import JointEndPlacer, dropped_point_lines, joint_after_check
+from reconstruct.fitting.joint_match import joint_match
 from reconstruct.fitting.fuse import (
     FuseConfig, SurveyEnd, a_piece_of_a_surveyed_log, absorb_pieces, after_pile_check, find_scan_logs, match_survey,
     place_log_ends, point_accuracy, prior_axis,
@@ -120,6 +123,9 @@ class ReconstructConfig:
     #                                  (1 sigma, per axis; the twin's scans are made so) [m]
     scan_pose_sigma_deg: float = 0.5  # ... and its rotation to this [deg]
     fuse: FuseConfig = field(default_factory=FuseConfig)  # logs found in the scan, matched, their ends placed
+    estimator: str = "rules22"  # ESTIMATORS: "rules22" (fitting revision 22, the default until the joint one
+    #                             matches it on the held-out set) or "joint" (reconstruct.fitting.joint_*)
+    joint: JointConfig = field(default_factory=JointConfig)  # the joint estimator's parameters
     max_correction_m: float = 0.30  # larger refinement translations are an error [m]
     max_correction_deg: float = 5.0  # larger refinement rotations are an error [deg]
     terrain_margin_m: float = 0.75  # terrain reaches this far beyond the outermost log end [m]
@@ -153,6 +159,8 @@ class ReconstructConfig:
             raise ValueError(f"pair_poses must be one of {PAIR_POSES}, got {self.pair_poses!r}")
         if self.georegister not in GEOREGISTER:
             raise ValueError(f"georegister must be one of {GEOREGISTER}, got {self.georegister!r}")
+        if self.estimator not in ESTIMATORS:
+            raise ValueError(f"estimator must be one of {', '.join(ESTIMATORS)}, got {self.estimator!r}")
         if self.refine_iterations < 1 or self.refine_rounds < 1:
             raise ValueError("refine_iterations and refine_rounds must be >= 1")
         for name in ("registration_robust_sigma", "registration_outlier_sigma", "registration_prior_sigma_m",
@@ -410,7 +418,7 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
     coverage = _check_coverage(pts_site[:, :2], survey_site, cfg.max_endpoint_distance_m)
     clock.reset()
     say("finding the logs in the scan and matching them to the survey")
-    matching = _match_logs(pts_site, survey_site, placed.fuse_cfg)
+    matching = _match_logs(pts_site, survey_site, placed.fuse_cfg, cfg)
     clock.lap("matching_s")
     frame = _pile_frame(pts_site, matching.priors(survey_site, matching.scan_logs, placed.fuse_cfg), cfg)
     pts = apply_T(frame.T_pile_site, pts_site)
@@ -443,10 +451,13 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
         "survey_warnings": list(survey.warnings),
         "logs": [lf.to_dict() for lf in fit.logs],
         "fusion": fusion, "weak_ends": weak_ends(fit.logs, placed.fuse_cfg),
-        "contradicted_points": contradicted_points(fit.logs),
+        "contradicted_points": contradicted_points(fit.logs) + dropped_point_lines(matching.dropped, survey_site),
         "terrain_coverage": fit.terrain_coverage, "obstacles": fit.obstacles, "moves": fit.moves, "end_moves": fit.end_moves,
         "timings_s": timings,
     }
+    if cfg.estimator != "rules22":  # revision 22's reports stay as they were
+        report.update(estimator=cfg.estimator, estimator_revision=JOINT_REVISION, survey_logs_dropped=matching.dropped)
+        report["survey_warnings"] += matching.ambiguous
     files["report"] = out_dir / "report.json"
     atomic_write_bytes(files["report"], json.dumps(report, indent=1, default=_json_default).encode())
     say(f"done in {timings['total_s']:.1f} s")
@@ -538,6 +549,9 @@ class _Matching:
     matches: dict
     unmatched: list
     new_ids: dict[str, int]
+    dropped: dict[str, str] = field(default_factory=dict)  # surveyed logs left out (joint estimator): why
+    outliers: dict[str, set[int]] = field(default_factory=dict)  # points (0: a, 1: b) that set no prior axis
+    ambiguous: list[str] = field(default_factory=list)  # logs another pile explains as well (joint estimator)
 
     def priors(self, survey_ends: dict, logs_found: list, fuse_cfg: FuseConfig) -> dict:
         """Each log's prior axis ``(a, b, lateral sigma)``: from its match in ``logs_found`` and its
@@ -545,15 +559,21 @@ class _Matching:
         out = {}
         for k, m in self.matches.items():
             found = None if m.scan_index is None else logs_found[m.scan_index]
-            out[k] = prior_axis(survey_ends[k], found, m.reversed, fuse_cfg)
+            ends = tuple(None if n in self.outliers.get(k, ()) else e for n, e in enumerate(survey_ends[k]))
+            out[k] = prior_axis(ends, found, m.reversed, fuse_cfg)
         for k, j in self.new_ids.items():
             out[k] = (logs_found[j].start_m.copy(), logs_found[j].end_m.copy(), fuse_cfg.axis_sigma_m)
         return out
 
 
-def _match_logs(pts_site: np.ndarray, survey_site: dict, fuse_cfg: FuseConfig) -> _Matching:
+def _match_logs(pts_site: np.ndarray, survey_site: dict, fuse_cfg: FuseConfig, cfg: ReconstructConfig) -> _Matching:
     scan_logs = find_scan_logs(pts_site, fuse_cfg)
-    matches, unmatched = match_survey(survey_site, scan_logs, fuse_cfg)
+    dropped, outliers, ambiguous = {}, {}, []
+    if cfg.estimator == "joint":
+        jm = joint_match(survey_site, scan_logs, cfg.joint, fuse_cfg)
+        matches, unmatched, dropped, outliers, ambiguous = jm.matches, jm.unmatched, jm.dropped, jm.outliers, jm.ambiguous
+    else:
+        matches, unmatched = match_survey(survey_site, scan_logs, fuse_cfg)
     unmatched = absorb_pieces(matches, unmatched, scan_logs)
     for k, m in matches.items():
         if m.scan_index is None and None in survey_site[k]:
@@ -561,7 +581,7 @@ def _match_logs(pts_site: np.ndarray, survey_site: dict, fuse_cfg: FuseConfig) -
             raise FitError(f"log {k!r} has no end {end!r} in the survey and the scan shows no log near its other end: "
                            f"measure both ends of log {k!r}, or remove it from the survey")
     new_ids = _new_log_ids([j for j in unmatched if scan_logs[j].seen_m >= fuse_cfg.min_new_log_m], survey_site)
-    return _Matching(scan_logs, matches, unmatched, new_ids)
+    return _Matching(scan_logs, matches, unmatched, new_ids, dropped, outliers, ambiguous)
 
 
 @dataclass(frozen=True)
@@ -628,16 +648,20 @@ def _fit(pts: np.ndarray, matching: _Matching, survey_ends: dict, logs_pile: lis
     new_ids = dict(matching.new_ids)
     dropped_new = _fit_new_logs(pts, new_ids, priors, first_pass, cfg, placed.fuse_cfg)
     lateral = {k: s for k, (_, _, s) in priors.items()}
+    joint = cfg.estimator == "joint"
+    placer = (JointEndPlacer(survey_ends, lateral, cfg.joint, placed.fuse_cfg) if joint
+              else _EndPlacer(survey_ends, lateral, placed.fuse_cfg))
     fit = fit_pile(pts, {k: (a, b) for k, (a, b, _) in priors.items()}, frame.extent, cfg.fit, progress=say,
                    georef=georef, notes=notes, first_pass=first_pass,
                    sigmas={k: (s, s) for k, s in lateral.items()},
-                   place_ends=_EndPlacer(survey_ends, lateral, placed.fuse_cfg), optional=set(new_ids),
+                   place_ends=placer, optional=set(new_ids),
                    in_part={k for k, m in matching.matches.items() if m.scan_index is not None
                             and a_piece_of_a_surveyed_log(survey_ends[k], logs_pile[m.scan_index], placed.fuse_cfg)})
     for lf in fit.logs:  # ends where the pile check left their log, tested against the survey again
         if lf.ends:
-            lf.ends = after_pile_check(lf.ends, (np.asarray(lf.butt_m), np.asarray(lf.top_m)),
-                                       survey_ends.get(lf.log_id, (None, None)), placed.fuse_cfg)
+            check_args = (lf.ends, (np.asarray(lf.butt_m), np.asarray(lf.top_m)), survey_ends.get(lf.log_id, (None, None)))
+            lf.ends = (joint_after_check(*check_args, cfg.joint) if joint
+                       else after_pile_check(*check_args, placed.fuse_cfg))
             lf.gnss_residual_a_m, lf.gnss_residual_b_m = (
                 math.nan if e.get("gnss_axis_distance_m") is None else float(e["gnss_axis_distance_m"]) for e in lf.ends)
     for k, why in fit.dropped.items():  # a log the survey missed whose points the other logs took: not a log

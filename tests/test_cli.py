@@ -526,6 +526,17 @@ def test_reconstruct_takes_raw_logs(capsys, tmp_path):
     assert np.isfinite([log.length_m for log in pile.logs]).all()
 
 
+def test_reconstruct_with_the_joint_estimator(capsys, tmp_path):
+    """--estimator joint reconstructs the demo scan and says so in its report; an unknown estimator is bad input."""
+    r = cli(capsys, "reconstruct", SCAN, "--gnss", GNSS, "--out", tmp_path / "j", "--estimator", "joint", "--json")
+    assert r.code == 0, r.err
+    rep = r.json()
+    assert rep["estimator"] == "joint" and rep["estimator_revision"] >= 1 and len(rep["logs"]) >= 4
+    assert all("outlier_prob" in e for log in rep["logs"] for e in log["ends"])
+    fails(cli(capsys, "reconstruct", SCAN, "--gnss", GNSS, "--out", tmp_path / "k", "--estimator", "rules23"), 2,
+          "--estimator")
+
+
 # -- reconstruct, compare-piles --------------------------------------------------------------------------
 def run_captured(*args) -> Result:
     """:func:`run` for a module-scoped fixture (no capsys there)."""

