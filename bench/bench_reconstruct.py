@@ -42,9 +42,10 @@ if __name__ == "__main__":
                          "with allow_float)")
     ap.add_argument("--survey-scans", type=int, default=0,
                     help="run only the survey-conditions bench on this many fresh twin scans (one process)")
-    ap.add_argument("--survey-set", default="tuning", choices=("tuning", "heldout"),
-                    help="which scans: 'tuning' (seeds from 1,100,000, dropped piles: what the fitting was tuned on) "
-                         "or 'heldout' (seeds from 3,300,000; packed, loose and dropped piles in turn); the record "
+    ap.add_argument("--survey-set", default="tuning", choices=("tuning", "heldout", "final"),
+                    help="which scans: 'tuning' (seeds from 1,100,000, dropped piles: what the fitting was tuned on), "
+                         "'heldout' (seeds from 3,300,000; packed, loose and dropped piles in turn) or 'final' (the "
+                         "same shapes from 5,500,000: the ship decision, once an estimator is frozen); the record "
                          "says which")
     ap.add_argument("--survey-estimator", default="rules22", choices=("rules22", "joint"),
                     help="ReconstructConfig.estimator the survey-conditions bench reconstructs with")

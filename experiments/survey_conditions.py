@@ -32,25 +32,32 @@ PILE_SHAPES = {
 }
 #: the survey-conditions sets. "tuning": the scans the fitting's rules were written against (seeds from
 #: 1,100,000, one shape); "heldout": scans no rule was written against (seeds from 3,300,000, the three
-#: shapes in turn: seed - seed0 modulo 3 picks one)
+#: shapes in turn: seed - seed0 modulo 3 picks one) - but the joint estimator's revisions 6-8 looked at
+#: held-out scans 3,300,005, 3,300,010 and 3,300,011; "final": the same shapes from 5,500,000, for the
+#: decision to ship an estimator, run only once it is frozen and never read scan by scan before
 SURVEY_SETS = {
     "tuning": {"seed0": 1_100_000, "shapes": ("dropped",)},
     "heldout": {"seed0": 3_300_000, "shapes": ("packed", "loose", "dropped")},
+    "final": {"seed0": 5_500_000, "shapes": ("packed", "loose", "dropped")},
 }
-#: seeds a held-out run may not start in: the tuning set's range (its benches used up to 1,100,199)
-TUNING_SEED_RANGE = (1_100_000, 1_200_000)
+#: seeds each set owns: a run of one set may not start inside another's (the tuning benches used up to
+#: 1,100,199)
+SET_SEED_RANGES = {"tuning": (1_100_000, 1_200_000), "heldout": (3_300_000, 3_400_000),
+                   "final": (5_500_000, 5_600_000)}
+TUNING_SEED_RANGE = SET_SEED_RANGES["tuning"]
 
 
 def survey_set_key(survey_set: str, seed0: int | None = None, estimator: str = "rules22") -> dict:
     """The part of a survey-conditions record's key that says which set (and estimator) it measured; the
     tuning set with revision 22 adds nothing (its records from before the held-out set resume as they
-    are). A held-out run whose seeds start inside :data:`TUNING_SEED_RANGE` is a ValueError."""
+    are). A held-out or final run whose seeds start inside another set's (:data:`SET_SEED_RANGES`) is a ValueError."""
     if survey_set not in SURVEY_SETS:
         raise ValueError(f"--survey-set must be one of {', '.join(SURVEY_SETS)}, got {survey_set!r}")
     seed0 = SURVEY_SETS[survey_set]["seed0"] if seed0 is None else int(seed0)
-    if survey_set == "heldout" and TUNING_SEED_RANGE[0] <= seed0 < TUNING_SEED_RANGE[1]:
-        raise ValueError(f"--survey-seed {seed0} lies in the tuning set's seeds "
-                         f"({TUNING_SEED_RANGE[0]}..{TUNING_SEED_RANGE[1] - 1}); a held-out set needs others")
+    for other, (lo, hi) in SET_SEED_RANGES.items():
+        if other != survey_set and survey_set != "tuning" and lo <= seed0 < hi:
+            raise ValueError(f"--survey-seed {seed0} lies in the {other} set's seeds ({lo}..{hi - 1}); "
+                             f"the {survey_set} set needs its own")
     key: dict = {}
     if survey_set != "tuning":
         key.update(set=survey_set, shapes=list(SURVEY_SETS[survey_set]["shapes"]))
@@ -80,7 +87,7 @@ def survey_bench(n_scans: int, seed0: int | None, work_dir: Path, out: Path, log
     command with a larger ``n_scans`` extends the run. ``work_dir`` keeps each scan's images and
     stereo cloud (not needed to resume). ``shard`` (k, n): this process does the scans whose
     ``seed - seed0`` is k modulo n, so n processes with the same settings share one ``out``.
-    ``survey_set``: "tuning" or "heldout" (:data:`SURVEY_SETS`: its first seed when ``seed0`` is None,
+    ``survey_set``: "tuning", "heldout" or "final" (:data:`SURVEY_SETS`: its first seed when ``seed0`` is None,
     its pile shapes); ``estimator``: ``ReconstructConfig.estimator``. Both go into the record's key."""
     import json
     import os

@@ -112,6 +112,12 @@ def test_the_heldout_set_has_other_seeds_and_other_shapes():
     assert survey_set_key("heldout", estimator="joint")["estimator"] == "joint"
     with pytest.raises(ValueError, match="tuning set's seeds"):
         survey_set_key("heldout", 1_100_050)
+    # the final set (the ship decision) has seeds of its own, and no other set may take them or the held-out's
+    assert survey_set_key("final")["set"] == "final" and SURVEY_SETS["final"]["seed0"] == 5_500_000
+    with pytest.raises(ValueError, match="heldout set's seeds"):
+        survey_set_key("final", 3_300_005)
+    with pytest.raises(ValueError, match="final set's seeds"):
+        survey_set_key("heldout", 5_500_000)
     with pytest.raises(ValueError, match="--survey-set"):
         survey_set_key("other")
 
