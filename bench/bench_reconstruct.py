@@ -96,7 +96,7 @@ if __name__ == "__main__":
         fig = survey_figure(rec, args.figure) if args.figure is not None else None
         print("\n".join(survey_markdown(rec, fig)))
         raise SystemExit(0)
-    from reconstruct.pipeline import parse_log_direction
+    from reconstruct.config import parse_log_direction
 
     try:
         log_direction = parse_log_direction(args.log_direction)

@@ -5,7 +5,7 @@ Why: the truth is rendered in its generation frame, the reconstruction in the si
 frame of its own logs, ``ReconstructConfig.log_direction_deg``); the U-Net is not rotation
 equivariant, so the two plans differ by the frames as well as by the reconstruction. Here both
 piles are turned (:func:`real_test_views.moved`, terrain resampled) so their logs' mean direction
-(:func:`reconstruct.pipeline.logs_direction`) lies at ``--direction`` degrees, centred on the logs,
+(:func:`reconstruct.config.logs_direction`) lies at ``--direction`` degrees, centred on the logs,
 planned with one view, and both grasps executed on the true pile. Scans and reconstructions come
 from a real-test work folder (``bench_reconstruct.py --work-dir``); reconstructions on a larger
 patch than 5 m are left out (their terrain patch would need another pitch).
@@ -37,7 +37,7 @@ from real_test_views import WORKER, init_worker, kept_seeds, moved
 def T_turned_pile(pile, direction_deg: float) -> np.ndarray:
     """``T_turned_pile``: a turn about z and a shift putting the logs' mean direction at
     ``direction_deg`` and the centre of their end points' bounding box at the origin."""
-    from reconstruct.pipeline import logs_direction
+    from reconstruct.config import logs_direction
     from synth.geometry.frames import make_T, rot_z
 
     ends = {i: lg.endpoints_m() for i, lg in enumerate(pile.logs)}

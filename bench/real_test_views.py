@@ -223,7 +223,7 @@ def main() -> None:
                          "site's axes (default 45, ReconstructConfig's)")
     ap.add_argument("--out", type=Path, required=True, help="JSON record (written atomically)")
     args = ap.parse_args()
-    from reconstruct.pipeline import parse_log_direction
+    from reconstruct.config import parse_log_direction
 
     try:
         log_direction = parse_log_direction(args.log_direction)

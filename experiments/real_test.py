@@ -69,7 +69,7 @@ class RealTestConfig:
     views: int = 1  # dihedral views the planner averages (planner.inference.Planner.views) [-]
     view_spread_k: float = 0.0  # U logit lowered by k x its spread over the views (Planner.view_spread_k) [-]
     log_direction_deg: float | None = 45.0  # reconstructed pile frames turned so the logs lie at this angle
-    # (reconstruct.pipeline.ReconstructConfig.log_direction_deg) [deg]; None: site axes
+    # (reconstruct.config.ReconstructConfig.log_direction_deg) [deg]; None: site axes
 
     def __post_init__(self) -> None:
         if self.n_piles < 1:
@@ -195,7 +195,9 @@ def prepare_case(seed: int, work_dir: str | Path, planner_config: Any, cfg: Real
     from planner.inference import check_grid
     from reconstruct.compare import compare_piles
     from reconstruct.errors import ReconstructError
-    from reconstruct.pipeline import ReconstructConfig, read_report, reconstruct
+    from reconstruct.config import ReconstructConfig
+    from reconstruct.report import read_report
+    from reconstruct.pipeline import reconstruct
     from reconstruct.scan.twin_scan import make_twin_scan
     from synth.common.files import atomic_write_bytes
     from synth.scene.pile import read_pile

@@ -40,7 +40,8 @@ from experiments.measure import load_average, percentile
 def accuracy(n_piles: int = 3, workdir: Path | None = None) -> dict:
     from reconstruct.compare import compare_piles, simulate_scan
     from reconstruct.errors import ReconstructError
-    from reconstruct.pipeline import ReconstructConfig, reconstruct
+    from reconstruct.config import ReconstructConfig
+    from reconstruct.pipeline import reconstruct
     from reconstruct.registration import read_scan_pose
     from synth.geometry.frames import make_T, rot_z
     from synth.scene.generate import GenerationConfig, generate_pile

@@ -177,7 +177,8 @@ def _condition_entry(root: Path, cond: str, gnss: Path, cloud, truth, estimator:
     against the truth with its ends' sources, and what the report flagged."""
     from reconstruct.compare import compare_piles
     from reconstruct.errors import ReconstructError
-    from reconstruct.pipeline import ReconstructConfig, reconstruct
+    from reconstruct.config import ReconstructConfig
+    from reconstruct.pipeline import reconstruct
 
     entry: dict = {}
     t0, c0 = time.perf_counter(), time.process_time()

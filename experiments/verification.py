@@ -69,7 +69,7 @@ def pile_rows(case, net, objectives, ks, copies) -> list[dict]:
     from experiments.real_test import execute_on_truth
     from planner.errors import PlannerError
     from planner.inference import Objective, plan
-    from reconstruct.pipeline import log_end_sigmas
+    from reconstruct.report import log_end_sigmas
     from planner.pile_copies import PerturbationConfig, perturbation_for_fits
     from planner.verify import Verifier, VerifyConfig
 

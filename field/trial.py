@@ -127,7 +127,7 @@ class TrialOptions:
     def verify_config(self, fits: tuple[str, ...] | list[str] = (), end_sigmas_m=None):
         """The :class:`planner.verify.VerifyConfig` of these options; ``fits``: how the
         reconstruction placed each log (its report's ``fit``) and ``end_sigmas_m`` its less certain
-        end's sigma per log (:func:`reconstruct.pipeline.log_end_sigmas`), for per-log perturbation sigmas."""
+        end's sigma per log (:func:`reconstruct.report.log_end_sigmas`), for per-log perturbation sigmas."""
         from planner.pile_copies import PerturbationConfig, perturbation_for_fits
         from planner.verify import VerifyConfig
 
@@ -297,7 +297,7 @@ def prepare_trial(scan_dir: str | Path, gnss_path: str | Path, work_dir: str | P
     (:func:`verify_trial_plan`). ``view``: a :class:`field.trial_view.TrialView` each stage is
     logged to as it finishes."""
     from field.geo import grasp_to_gnss
-    from reconstruct.pipeline import log_end_sigmas
+    from reconstruct.report import log_end_sigmas
 
     say = progress or (lambda s: None)
     scan_dir, gnss_path, work = Path(scan_dir), Path(gnss_path), Path(work_dir)
@@ -360,7 +360,8 @@ def _load_trial_planner(options: TrialOptions):
 def _reconstruct_for(planner, scan_dir: Path, gnss_path: Path, work: Path, options: TrialOptions, say):
     """The reconstruction, re-rendered at the network's pixel pitch, into ``work/reconstruction``."""
     from reconstruct.errors import ReconstructError
-    from reconstruct.pipeline import ReconstructConfig, reconstruct
+    from reconstruct.config import ReconstructConfig
+    from reconstruct.pipeline import reconstruct
     from synth.errors import SynthError
 
     say("reconstructing the pile from the scan and the RTK endpoints")

@@ -11,7 +11,7 @@ from typing import Literal
 
 import typer
 
-from reconstruct.pipeline import ReconstructConfig
+from reconstruct.config import ReconstructConfig
 from reconstruct.survey.cli import GNSS_HELP, GNSS_WINDOWS_HELP, gnss_source
 from synth.cli import JSON
 from synth.common.cli import CliError, Output, check_input, check_output_dir, option
@@ -147,7 +147,8 @@ def reconstruct_command(
     No poses at all (SfM + GNSS): loggrasp reconstruct scans/s3u/scan --gnss scans/s3u/gnss.csv --out recon/s3u
     Raw rover logs: loggrasp reconstruct scans/s3/scan --gnss rover.ubx --gnss-windows windows.csv --out recon/s3
     """
-    from reconstruct.pipeline import parse_log_direction, reconstruct
+    from reconstruct.config import parse_log_direction
+    from reconstruct.pipeline import reconstruct
 
     o = Output(as_json)
     cfg = ReconstructConfig(allow_float=allow_float, pair_poses=pair_poses, georegister=georegister,

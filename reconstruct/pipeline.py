@@ -59,151 +59,30 @@ from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
+from reconstruct.config import ReconstructConfig, logs_direction, patch_extent
 from reconstruct.errors import FitError, ReconstructError, RegistrationError, ScanError
-from reconstruct.fitting.fit import FitConfig, PileFit, fit_log, fit_pile, log_spec_from_fit
-from reconstruct.fitting.joint_config import ESTIMATORS, JOINT_REVISION, JointConfig
+from reconstruct.fitting.fit import PileFit, fit_log, fit_pile, log_spec_from_fit
+from reconstruct.fitting.joint_config import JOINT_REVISION
 from reconstruct.fitting.joint_ends import JointEndPlacer, dropped_point_lines, joint_after_check
 from reconstruct.fitting.joint_match import joint_match
 from reconstruct.fitting.fuse import (
     FuseConfig, SurveyEnd, a_piece_of_a_surveyed_log, absorb_pieces, after_pile_check, find_scan_logs, match_survey,
     place_log_ends, point_accuracy, prior_axis,
 )
-from reconstruct.registration import CoarseConfig, ScanPose, coarse_scan_pose, read_scan_pose, refine_registration
-from reconstruct.scan.sfm import SfmConfig
-from reconstruct.scan.stereo import ScanCloud, StereoConfig, scan_cloud
+from reconstruct.registration import ScanPose, coarse_scan_pose, read_scan_pose, refine_registration
+from reconstruct.report import REPORT_FORMAT, REPORT_VERSION, contradicted_points, json_default, weak_ends
+from reconstruct.scan.pictures import comparison_image
+from reconstruct.scan.stereo import ScanCloud, scan_cloud
 from synth.geometry.frames import apply_T, invert_T, make_T, rot_z
 from synth.common.files import atomic_write_bytes
-from synth.common.formats import VersionedJson
 from synth.scene.pile import Georeference, PileSpec, write_pile
 
 if TYPE_CHECKING:
     from synth.render.ortho import OrthoObservation
 
-REPORT_FORMAT = "loggrasp.reconstruction-report"
-REPORT_VERSION = "1.3"  # 1.1: per-log "fit" (scan, partial, hidden); 1.2: per-end "ends" (source, sigma), "fusion",
-#                       "weak_ends", "contradicted_points"; 1.3: per-end "gnss_position_m", "gnss_sigma_m"
-#                       and, for an end the pile check placed at its survey point, "pile_check"; "end_moves"
-REPORT = VersionedJson(REPORT_FORMAT, REPORT_VERSION, "reconstruction report", ReconstructError,
-                       unreadable_fix="reconstruct the scan again", filename="report.json")
-PAIR_POSES = ("auto", "calibration", "sfm")
-GEOREGISTER = ("auto", "scan-pose", "gnss")
-RENDER_PX_MULTIPLE = 16  # re-render sides are a multiple of this (a depth-4 U-Net pools 4 times) [px]
-MAX_EXTENT_M = 100.0  # largest pile patch [m]
 
 
-# -- configuration and result ------------------------------------------------------------------
-@dataclass(frozen=True)
-class ReconstructConfig:
-    """Every setting of :func:`reconstruct` (units in the names/comments)."""
-
-    stereo: StereoConfig = field(default_factory=StereoConfig)
-    fit: FitConfig = field(default_factory=FitConfig)
-    scan_pose: ScanPose | None = None  # None: read scan_pose.json from the scan folder
-    pair_poses: str = "auto"  # "auto": the calibrations' T_pile_cam when every pair has one, else
-    #                           SfM; "calibration"; "sfm" (pycolmap, reconstruct.scan.sfm)
-    georegister: str = "auto"  # "auto": the scan pose (scan_pose / scan_pose.json); for an unposed
-    #                            scan (no pair poses, no scan pose) from the GNSS end points;
-    #                            "scan-pose": a scan pose is required; "gnss": from the GNSS end points
-    sfm: SfmConfig = field(default_factory=SfmConfig)
-    coarse: CoarseConfig = field(default_factory=CoarseConfig)
-    allow_float: bool = False  # accept RTK float end points
-    max_endpoint_distance_m: float = 1.0  # an end point this far from every scan point is an error [m]
-    refine: bool = True  # refine the scan pose against the GNSS end points
-    refine_dof: str = "4dof"  # "4dof": yaw + translation (gravity from the camera's IMU kept),
-    #                           "6dof": full rotation (roll about a parallel pile is weakly seen)
-    refine_with_scale: bool = False  # let the refinement scale the scan (a stereo baseline error)
-    refine_iterations: int = 10  # point-to-line iterations per round [-]
-    refine_rounds: int = 3  # kept for old configs: the fits start from the scan's own log axes, one round [-]
-    registration_max_sigma_m: float = 0.05  # points less accurate than this (radial) are not in the reported
-    #                                         residual RMS; they steer by their accuracy (weight 1/sigma^2) [m]
-    registration_robust_sigma: float = 2.5  # Cauchy scale of the registration's normalised residuals [-]
-    registration_outlier_sigma: float = 4.0  # a point this many sigma off its fitted axis after it is reported [-]
-    registration_prior_sigma_m: float = 0.03  # how far the fitted axis may stray from its prior (scan log) [m]
-    scan_pose_sigma_m: float = 0.03  # the given scan pose (the crane's RTK/IMU camera pose) is right to this
-    #                                  (1 sigma, per axis; the twin's scans are made so) [m]
-    scan_pose_sigma_deg: float = 0.5  # ... and its rotation to this [deg]
-    fuse: FuseConfig = field(default_factory=FuseConfig)  # logs found in the scan, matched, their ends placed
-    estimator: str = "rules22"  # ESTIMATORS: "rules22" (fitting revision 22, the default until the joint one
-    #                             matches it on the held-out set) or "joint" (reconstruct.fitting.joint_*)
-    joint: JointConfig = field(default_factory=JointConfig)  # the joint estimator's parameters
-    max_correction_m: float = 0.30  # larger refinement translations are an error [m]
-    max_correction_deg: float = 5.0  # larger refinement rotations are an error [deg]
-    terrain_margin_m: float = 0.75  # terrain reaches this far beyond the outermost log end [m]
-    min_extent_m: float = 5.0  # smallest terrain patch [m]
-    log_direction_deg: float | None = 45.0  # the pile frame is turned so the logs' mean direction lies at this
-    # angle from its +x axis [deg]: the render does not depend on the site's axes, and at 45 deg a long pile lies
-    # along the square patch's diagonal (more of them fit the training images' 5 m); None: site axes
-    render_size_px: int = 128  # re-render pixels over render_extent_m (the training format) [px]
-    render_extent_m: float = 5.0  # side of the training images [m]; a larger patch keeps their pixel pitch
-    # (render_extent_m / render_size_px) with more pixels, a multiple of RENDER_PX_MULTIPLE
-    render_n: int = 3  # intensity renders [-]
-    seed: int = 0  # render colours [-]
-
-    def __post_init__(self) -> None:
-        if not self.max_endpoint_distance_m > 0:
-            raise ValueError("max_endpoint_distance_m must be > 0 m")
-        if self.max_correction_m < 0 or self.max_correction_deg < 0 or self.terrain_margin_m < 0:
-            raise ValueError("max_correction_m, max_correction_deg and terrain_margin_m must be >= 0")
-        if not 1.0 <= self.min_extent_m <= 100.0:
-            raise ValueError("min_extent_m must be in [1, 100] m")
-        if self.log_direction_deg is not None and not -180.0 <= self.log_direction_deg <= 180.0:
-            raise ValueError(f"log_direction_deg must be in [-180, 180] deg or None, got {self.log_direction_deg}")
-        if not 16 <= self.render_size_px <= 2048 or self.render_size_px % RENDER_PX_MULTIPLE:
-            raise ValueError(f"render_size_px must be a multiple of {RENDER_PX_MULTIPLE} in [16, 2048], "
-                             f"got {self.render_size_px}")
-        if not 0.5 <= self.render_extent_m <= 100.0:
-            raise ValueError(f"render_extent_m must be in [0.5, 100] m, got {self.render_extent_m}")
-        if self.refine_dof not in ("4dof", "6dof"):
-            raise ValueError(f"refine_dof must be '4dof' or '6dof', got {self.refine_dof!r}")
-        if self.pair_poses not in PAIR_POSES:
-            raise ValueError(f"pair_poses must be one of {PAIR_POSES}, got {self.pair_poses!r}")
-        if self.georegister not in GEOREGISTER:
-            raise ValueError(f"georegister must be one of {GEOREGISTER}, got {self.georegister!r}")
-        if self.estimator not in ESTIMATORS:
-            raise ValueError(f"estimator must be one of {', '.join(ESTIMATORS)}, got {self.estimator!r}")
-        if self.refine_iterations < 1 or self.refine_rounds < 1:
-            raise ValueError("refine_iterations and refine_rounds must be >= 1")
-        for name in ("registration_robust_sigma", "registration_outlier_sigma", "registration_prior_sigma_m",
-                     "scan_pose_sigma_m", "scan_pose_sigma_deg", "registration_max_sigma_m"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
-
-
-def parse_log_direction(text: str) -> float | None:
-    """A command line's ``--log-direction``: an angle [deg], or ``site`` for the site's axes (None)."""
-    if text.strip().lower() == "site":
-        return None
-    try:
-        return float(text)
-    except ValueError:
-        raise ValueError(f"--log-direction must be an angle in degrees or 'site', got {text!r}") from None
-
-
-def logs_direction(ends: dict) -> float:
-    """The logs' mean direction [rad] in the horizontal plane of ``ends`` (``{log_id: (a, b)}`` end
-    points), in (-pi/2, pi/2]: the length-weighted mean of the axes' directions, which are
-    pi-periodic (which end was surveyed first does not matter), so taken on doubled angles."""
-    d = np.array([np.asarray(b, dtype=float)[:2] - np.asarray(a, dtype=float)[:2] for a, b in ends.values()])
-    length = np.linalg.norm(d, axis=1)
-    doubled = length * np.exp(2j * np.arctan2(d[:, 1], d[:, 0]))
-    direction = 0.5 * math.atan2(float(doubled.sum().imag), float(doubled.sum().real))
-    return direction if direction > -math.pi / 2 else direction + math.pi
-
-
-def patch_extent(span_m: float, cfg: ReconstructConfig) -> tuple[float, int]:
-    """The side of the square pile patch [m] and its re-render size [px] for logs spanning
-    ``span_m`` (with margins): at least ``cfg.min_extent_m``, at the training images' pixel pitch
-    (``render_extent_m / render_size_px``), a whole multiple of ``RENDER_PX_MULTIPLE`` pixels, so the
-    planner sees logs at the size it learned them whatever the pile's spread."""
-    pitch = cfg.render_extent_m / cfg.render_size_px
-    step = RENDER_PX_MULTIPLE * pitch
-    n = RENDER_PX_MULTIPLE * max(math.ceil(cfg.min_extent_m / step - 1e-9), math.ceil(span_m / step - 1e-9), 1)
-    if n * pitch > MAX_EXTENT_M + 1e-9:
-        raise RegistrationError(f"the surveyed log ends span {span_m:.1f} m with margins; a pile patch is at most "
-                                f"{MAX_EXTENT_M:g} m: check the GNSS file for points of another pile")
-    return n * pitch, n
-
-
+# -- the result ------------------------------------------------------------------
 @dataclass
 class ReconstructionResult:
     """What :func:`reconstruct` produced."""
@@ -281,46 +160,6 @@ def _check_coverage(points_xy: np.ndarray, endpoints: dict[str, tuple[Any, Any]]
             "scanned area. Check the log id and the scan pose, or scan the whole pile"
         )
     return out
-
-
-# -- pictures ---------------------------------------------------------------------------------
-def scan_top_view(points: np.ndarray, colours: np.ndarray, extent_m: float, size_px: int) -> np.ndarray:
-    """BGR uint8 top view of a coloured cloud (pile frame) on the ortho grid: the highest point
-    per pixel; grey where nothing was seen."""
-    from synth.geometry.frames import OrthoGrid
-
-    g = OrthoGrid(size_px, extent_m)
-    r, c = g.pile_to_pixel(points[:, 0], points[:, 1])
-    r, c = np.rint(r).astype(np.int64), np.rint(c).astype(np.int64)
-    ok = (r >= 0) & (r < size_px) & (c >= 0) & (c < size_px)
-    r, c, z, col = r[ok], c[ok], points[ok, 2], colours[ok]
-    order = np.argsort(z)  # later (higher) points overwrite lower ones
-    img = np.full((size_px, size_px, 3), 128, np.uint8)
-    img[r[order], c[order]] = (np.clip(col[order][:, ::-1], 0, 1) * 255).astype(np.uint8)
-    return img
-
-
-def comparison_image(points: np.ndarray, colours: np.ndarray, obs: Any, scale: int = 4) -> np.ndarray:
-    """The scan from above (left) beside the re-render with log outlines (right), BGR uint8."""
-    import cv2
-
-    from synth.render.preview import log_colour_bgr
-
-    n = obs.depth.shape[0]
-    size = n * scale
-    left = scan_top_view(points, colours, obs.extent_m, size)
-    grey = (np.clip(obs.intensity[0], 0, 1) * 255).astype(np.uint8)
-    right = cv2.cvtColor(cv2.resize(grey, (size, size), interpolation=cv2.INTER_NEAREST), cv2.COLOR_GRAY2BGR)
-    inst = cv2.resize(obs.instance.astype(np.int32), (size, size), interpolation=cv2.INTER_NEAREST)
-    for i in range(obs.n_logs):
-        mask = (inst == i + 1).astype(np.uint8)
-        if mask.any():
-            contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-            cv2.drawContours(left, contours, -1, log_colour_bgr(i), 1)  # thin: the scan stays visible
-            cv2.drawContours(right, contours, -1, log_colour_bgr(i), 2)
-    cv2.putText(left, "scan (top view) + fitted logs", (6, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (255, 255, 255), 1)
-    cv2.putText(right, "re-render (training format)", (6, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (255, 255, 255), 1)
-    return np.concatenate([left, np.full((size, 4, 3), 255, np.uint8), right], axis=1)
 
 
 # -- the pipeline -----------------------------------------------------------------------------
@@ -459,7 +298,7 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
         report.update(estimator=cfg.estimator, estimator_revision=JOINT_REVISION, survey_logs_dropped=matching.dropped)
         report["survey_warnings"] += matching.ambiguous
     files["report"] = out_dir / "report.json"
-    atomic_write_bytes(files["report"], json.dumps(report, indent=1, default=_json_default).encode())
+    atomic_write_bytes(files["report"], json.dumps(report, indent=1, default=json_default).encode())
     say(f"done in {timings['total_s']:.1f} s")
     return ReconstructionResult(pile=fit.pile, fit=fit, report=report, out_dir=out_dir, files=files, cloud=cloud,
                                 observation=obs)
@@ -744,48 +583,3 @@ def _write_outputs(fit: PileFit, render_px: int, cfg: ReconstructConfig, out_dir
     files["preview"] = write_png(out_dir / "preview.png", preview_image(obs))
     files["compare"] = write_png(out_dir / "compare.png", comparison_image(pts, colours, obs))
     return obs, files
-
-
-def weak_ends(logs: list, cfg: FuseConfig | None = None) -> list[str]:
-    """One line per log end placed on a weak estimate (less certain than ``weak_sigma_m``, or against
-    its survey point): what placed it and how sure it is."""
-    cfg = cfg or FuseConfig()
-    out = []
-    for lf in logs:
-        for end, e in zip("ab", lf.ends or []):
-            if e["sigma_m"] > cfg.weak_sigma_m or e["contradicted"]:
-                out.append(f"{lf.log_id} end {end}: {e['source']} (scan: {e['scan']}), +-{e['sigma_m'] * 100:.0f} cm")
-    return out
-
-
-def log_end_sigmas(report: dict) -> list[float | None]:
-    """Per log of a reconstruction report (:func:`reconstruct`'s ``report``): the 1-sigma 3-D
-    uncertainty of its less certain end [m], None for a log whose ends were not fused."""
-    return [max((float(e["sigma_m"]) for e in log.get("ends") or []), default=None)
-            for log in report.get("logs", [])]
-
-
-def contradicted_points(logs: list) -> list[str]:
-    """One line per survey point the scan contradicts (not used): how far it is from the placed end."""
-    out = []
-    for lf in logs:
-        for end, e in zip("ab", lf.ends or []):
-            if e["contradicted"]:
-                out.append(f"{lf.log_id} end {end} ({e['gnss_fix']}): {e['gnss_residual_m'] * 100:.0f} cm from where "
-                           f"the scan puts it ({e['gnss_residual_sigma']:.1f} sigma); check or re-measure it")
-    return out
-
-
-def read_report(path: str | Path) -> dict:
-    """Read a ``report.json`` written by :func:`reconstruct` (the version is checked)."""
-    return REPORT.read(path)
-
-
-def _json_default(o: Any) -> Any:
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    if isinstance(o, Path):
-        return str(o)
-    raise TypeError(f"cannot serialise {type(o).__name__}")

@@ -29,7 +29,7 @@ from synth.geometry.frames import apply_T, make_T
 from synth.scene.pile import Georeference
 
 if TYPE_CHECKING:
-    from reconstruct.pipeline import ReconstructConfig
+    from reconstruct.config import ReconstructConfig
 
 SCAN_POSE_FORMAT = "loggrasp.scan-pose"
 SCAN_POSE_VERSION = "1.0"

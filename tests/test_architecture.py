@@ -109,10 +109,11 @@ def test_synth_is_split_by_stage():
 
 
 #: reconstruct's stages, and what sits at its top: georegistration (scan pose, coarse placement,
-#: refinement), the pipeline that runs the stages, the comparison with a true pile, the command line
-#: and the errors
+#: refinement), the pipeline that runs the stages, its configuration and its report, the comparison
+#: with a true pile, the command line and the errors
 RECONSTRUCT_STAGES = {"scan", "survey", "fitting"}
-RECONSTRUCT_TOP_MODULES = {"__init__.py", "cli.py", "errors.py", "registration.py", "pipeline.py", "compare.py"}
+RECONSTRUCT_TOP_MODULES = {"__init__.py", "cli.py", "errors.py", "registration.py", "pipeline.py", "config.py",
+                           "report.py", "compare.py"}
 
 
 def test_reconstruct_is_split_by_stage():

@@ -116,7 +116,7 @@ def test_the_perturbed_copies_jitter_each_log_by_the_reconstructions_own_sigma(v
     (an end from an RTK float point would be jittered by decimetres, not its fit class's centimetre;
     the bundled survey is all fixed, and one of its logs is still less sure than its class)."""
     from planner.pile_copies import FIT_SIGMAS_M
-    from reconstruct.pipeline import log_end_sigmas, read_report
+    from reconstruct.report import log_end_sigmas, read_report
 
     rec, record = verified
     report = read_report(rec / "reconstruction" / "report.json")

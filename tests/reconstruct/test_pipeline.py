@@ -14,7 +14,9 @@ import pytest
 from reconstruct.compare import compare_piles, simulate_scan
 from reconstruct.errors import GnssFormatError, ReconstructError, RegistrationError, ScanError
 from reconstruct.fitting.fit import FitConfig
-from reconstruct.pipeline import ReconstructConfig, logs_direction, patch_extent, read_report, reconstruct
+from reconstruct.config import ReconstructConfig, logs_direction, patch_extent
+from reconstruct.report import read_report
+from reconstruct.pipeline import reconstruct
 from reconstruct.scan.stereo import find_pairs, read_pair, scan_cloud
 from synth.geometry.frames import apply_T, make_T, rot_z
 from synth.scene.pile import LogSpec, read_pile

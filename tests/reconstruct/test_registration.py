@@ -11,7 +11,7 @@ import pytest
 
 from reconstruct.errors import RegistrationError
 from reconstruct.fitting.fit import sample_top_view_points
-from reconstruct.pipeline import ReconstructConfig
+from reconstruct.config import ReconstructConfig
 from reconstruct.registration import ScanPose, read_scan_pose, refine_registration, write_scan_pose
 from synth.geometry.frames import apply_T, make_T, rot_z
 

@@ -25,7 +25,8 @@ import numpy as np
 import pytest
 
 from reconstruct.compare import compare_piles
-from reconstruct.pipeline import ReconstructConfig, reconstruct
+from reconstruct.config import ReconstructConfig
+from reconstruct.pipeline import reconstruct
 from reconstruct.survey.gnss import GnssSurvey, read_gnss, write_gnss_csv
 from synth.geometry import geodesy
 from synth.scene.pile import PileSpec, read_pile

@@ -19,7 +19,8 @@ from reconstruct.fitting.fuse import (
     scan_end_interval, seen_end,
 )
 from reconstruct.survey.gnss import GnssPoint, GnssSurvey, write_gnss_csv
-from reconstruct.pipeline import ReconstructConfig, reconstruct
+from reconstruct.config import ReconstructConfig
+from reconstruct.pipeline import reconstruct
 from reconstruct.registration import ScanPose, write_scan_pose
 from reconstruct.scan.stereo import ScanCloud
 from synth.geometry import geodesy

@@ -16,7 +16,7 @@ from reconstruct.fitting.joint_match import joint_match
 from reconstruct.fitting.matching import AmbiguousSurveyError
 from reconstruct.fitting.scan_logs import ScanLog
 from reconstruct.fitting.survey_points import SurveyEnd
-from reconstruct.pipeline import ReconstructConfig
+from reconstruct.config import ReconstructConfig
 
 CFG, FCFG = JointConfig(), FuseConfig()
 STEP = FCFG.end_bin_m

@@ -13,7 +13,9 @@ import numpy as np
 import pytest
 
 from reconstruct.errors import CoarseRegistrationError, ReconstructError, SfmRegistrationError
-from reconstruct.pipeline import ReconstructConfig, read_report, reconstruct
+from reconstruct.config import ReconstructConfig
+from reconstruct.report import read_report
+from reconstruct.pipeline import reconstruct
 from reconstruct.registration import CoarseConfig, coarse_scan_pose
 from reconstruct.scan.sfm import SfmConfig
 from synth.geometry.frames import apply_T, invert_T, make_T, rot_z
