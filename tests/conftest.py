@@ -23,3 +23,17 @@ def no_leaked_pybullet_clients():
     gc.collect()
     after = connected()
     assert after <= before, f"test leaked {after - before} pybullet client(s): close every World"
+
+
+# the command-line tests' scratch folder and a plain file (tests/cli_helpers.py has the runner)
+@pytest.fixture(scope="module")
+def work(tmp_path_factory):
+    return tmp_path_factory.mktemp("cli")
+
+
+@pytest.fixture(scope="module")
+def a_file(work):
+    """A plain file: an output path under it can never be made (also as root)."""
+    f = work / "a_file"
+    f.write_text("x")
+    return f
