@@ -11,7 +11,7 @@ log ends (no float fixes). The *same images* are reconstructed twice:
   with the crane's usual error (3 cm / 0.5 deg, 1 sigma) -> refinement only;
 * **unposed**: no pose anywhere -> pair poses by pycolmap SfM anchored to the pairs' stereo
   depth (:mod:`reconstruct.scan.sfm`), the scan placed from the GNSS end points alone
-  (:func:`reconstruct.registration.coarse_scan_pose`) and then refined as usual.
+  (:func:`reconstruct.scan.coarse_pose.coarse_scan_pose`) and then refined as usual.
 
 Both are compared with the truth (:func:`reconstruct.compare.compare_piles`); the SfM pair
 poses with the true ones. Wall times depend on other load on the 2 cores: the load average is

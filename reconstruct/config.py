@@ -12,7 +12,8 @@ from reconstruct.errors import RegistrationError
 from reconstruct.fitting.fit import FitConfig
 from reconstruct.fitting.joint_config import ESTIMATORS, JointConfig
 from reconstruct.fitting.fuse import FuseConfig
-from reconstruct.registration import CoarseConfig, ScanPose
+from reconstruct.registration import ScanPose
+from reconstruct.scan.coarse_pose import CoarseConfig
 from reconstruct.scan.sfm import SfmConfig
 from reconstruct.scan.stereo import StereoConfig
 

@@ -14,7 +14,7 @@
    or from ``scan_pose.json`` in the scan folder (:func:`reconstruct.registration.write_scan_pose` /
    :func:`~reconstruct.registration.read_scan_pose`; e.g. the crane's own RTK/IMU pose of the camera, or a survey of the
    rig), or — for an unposed scan, or ``georegister="gnss"`` — from the GNSS end points alone
-   (:func:`reconstruct.registration.coarse_scan_pose`: ground plane, yaw and shift search; the site origin is then the
+   (:func:`reconstruct.scan.coarse_pose.coarse_scan_pose`: ground plane, yaw and shift search; the site origin is then the
    mean surveyed point, and the refinement below runs in 6 DoF). ``report.json`` names the
    source (``scan_pose_source``: "config", the scan_pose.json path, or "gnss-coarse"). Every
    GNSS end point must then lie within ``max_endpoint_distance_m`` (horizontally; four sigma for an
@@ -69,7 +69,8 @@ from reconstruct.fitting.fuse import (
     FuseConfig, SurveyEnd, a_piece_of_a_surveyed_log, absorb_pieces, after_pile_check, find_scan_logs, match_survey,
     place_log_ends, point_accuracy, prior_axis,
 )
-from reconstruct.registration import ScanPose, coarse_scan_pose, read_scan_pose, refine_registration
+from reconstruct.registration import ScanPose, read_scan_pose, refine_registration
+from reconstruct.scan.coarse_pose import coarse_scan_pose
 from reconstruct.report import REPORT_FORMAT, REPORT_VERSION, contradicted_points, json_default, weak_ends
 from reconstruct.scan.pictures import comparison_image
 from reconstruct.scan.stereo import ScanCloud, scan_cloud
@@ -187,7 +188,8 @@ def _scan(scan_dir: Path, cfg: ReconstructConfig, say: Callable[[str], None]) ->
     """The fused cloud (scan frame), where the pair poses came from ("calibration", "sfm",
     "single pair") and the SfM report (None without SfM)."""
     from reconstruct.scan.calibration import pair_pose_present
-    from reconstruct.scan.sfm import camera_clouds, estimate_pair_poses, fuse_pairs
+    from reconstruct.scan.sfm import estimate_pair_poses
+    from reconstruct.scan.stereo import camera_clouds, fuse_pairs
     from reconstruct.scan.stereo import find_pairs, read_pair
 
     folders = find_pairs(scan_dir)

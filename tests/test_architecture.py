@@ -108,9 +108,9 @@ def test_synth_is_split_by_stage():
     assert stages == SYNTH_STAGES, f"synth's sub-packages are {sorted(stages)}, want {sorted(SYNTH_STAGES)}"
 
 
-#: reconstruct's stages, and what sits at its top: georegistration (scan pose, coarse placement,
-#: refinement), the pipeline that runs the stages, its configuration and its report, the comparison
-#: with a true pile, the command line and the errors
+#: reconstruct's stages, and what sits at its top: georegistration (the scan pose and its refinement;
+#: the coarse placement is the scan stage's), the pipeline that runs the stages, its configuration and
+#: its report, the comparison with a true pile, the command line and the errors
 RECONSTRUCT_STAGES = {"scan", "survey", "fitting"}
 RECONSTRUCT_TOP_MODULES = {"__init__.py", "cli.py", "errors.py", "registration.py", "pipeline.py", "config.py",
                            "report.py", "compare.py"}

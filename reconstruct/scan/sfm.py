@@ -42,7 +42,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from reconstruct.errors import SfmError, SfmRegistrationError, SfmScaleError
-from reconstruct.scan.stereo import ScanCloud, ScanPair, StereoConfig, clean_cloud, pair_points, thin_pair
+from reconstruct.scan.stereo import ScanPair, camera_clouds
 
 POSE_KEY = "T_pile_cam"
 
@@ -231,17 +231,6 @@ def _run_colmap(pairs: Sequence[ScanPair], names: list[str], work: Path, cfg: Sf
     t3 = time.perf_counter()
     best = max(models.values(), key=lambda r: r.num_reg_images()) if models else None
     return best, {"sift_s": t1 - t0, "match_s": t2 - t1, "mapping_s": t3 - t2}
-
-
-def camera_clouds(pairs: Sequence[ScanPair], stereo: StereoConfig | None = None,
-                  progress: Callable[[str], None] | None = None) -> list[tuple[np.ndarray, np.ndarray, float]]:
-    """Every pair's stereo points, colours and matched share, in its own left camera frame."""
-    say = progress or (lambda s: None)
-    out = []
-    for p in pairs:
-        say(f"matching {p.folder}")
-        out.append(_camera_points(p, stereo or StereoConfig()))
-    return out
 
 
 def estimate_pair_poses(pairs: Sequence[ScanPair], config: SfmConfig | None = None,
@@ -590,39 +579,3 @@ def _stereo_anchor(T_w_cam: list[np.ndarray], tracks: np.ndarray, who: np.ndarra
         report[labels[i]] = {"correspondences": int(sel.sum()),
                              "residual_rms_m": float(np.sqrt(np.mean(r[sel] ** 2))) if sel.any() else math.nan}
     return out, report
-
-
-def _camera_points(pair: ScanPair, stereo: StereoConfig) -> tuple[np.ndarray, np.ndarray, float]:
-    """A pair's stereo points in its own left camera frame."""
-    from dataclasses import replace as dc_replace
-
-    calib = dc_replace(pair.calibration, T_pile_cam=np.eye(4))
-    return pair_points(ScanPair(pair.folder, pair.left, pair.right, calib), stereo)
-
-
-def fuse_pairs(pairs: Sequence[ScanPair], T_scan_cam: dict[str, np.ndarray], config: StereoConfig | None = None,
-               clouds: Sequence[tuple[np.ndarray, np.ndarray, float]] | None = None,
-               progress: Callable[[str], None] | None = None) -> ScanCloud:
-    """Every pair's points placed by ``T_scan_cam`` (pair folder name -> 4x4) and fused in the
-    scan frame: per-pair and joint voxel downsampling, statistical outlier removal (open3d), as
-    :func:`reconstruct.scan.stereo.scan_cloud` does with the calibrations' poses. ``clouds``:
-    :func:`camera_clouds` of the pairs when already computed."""
-    cfg = config or StereoConfig()
-    say = progress or (lambda s: None)
-    t0 = time.perf_counter()
-    all_p, all_c, fracs, cams = [], [], [], []
-    clouds = clouds if clouds is not None else camera_clouds(pairs, cfg, progress=say)
-    for pair, (p, c, frac) in zip(pairs, clouds):
-        T = np.asarray(T_scan_cam[pair.folder.name], dtype=np.float64)
-        p = p @ T[:3, :3].T + T[:3, 3]
-        p, c = thin_pair(p, c, cfg)
-        all_p.append(p)
-        all_c.append(c)
-        fracs.append(frac)
-        cams.append(T[:3, 3].copy())
-    t1 = time.perf_counter()
-    P, C = clean_cloud(all_p, all_c, cfg)
-    return ScanCloud(points=P, colours=C, pairs=[str(p.folder) for p in pairs], camera_positions=np.array(cams),
-                     valid_fractions=fracs,
-                     timings_s={"match_s": t1 - t0, "clean_s": time.perf_counter() - t1,
-                                "total_s": time.perf_counter() - t0})

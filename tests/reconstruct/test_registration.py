@@ -62,7 +62,7 @@ def _ground_and_clutter(seed: int = 0):
 
 
 def test_ransac_plane_finds_the_ground_under_clutter():
-    from reconstruct.registration import ransac_plane
+    from reconstruct.scan.coarse_pose import ransac_plane
 
     P, n, d = _ground_and_clutter()
     plane, inl = ransac_plane(P, 0.02, 500, np.random.default_rng(0))
@@ -74,7 +74,7 @@ def test_ransac_plane_finds_the_ground_under_clutter():
 
 
 def test_ransac_plane_is_deterministic():
-    from reconstruct.registration import ransac_plane
+    from reconstruct.scan.coarse_pose import ransac_plane
 
     P, _, _ = _ground_and_clutter(1)
     runs = [ransac_plane(P, 0.04, 60, np.random.default_rng(3)) for _ in range(3)]

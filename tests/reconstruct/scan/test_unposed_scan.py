@@ -16,7 +16,7 @@ from reconstruct.errors import CoarseRegistrationError, ReconstructError, SfmReg
 from reconstruct.config import ReconstructConfig
 from reconstruct.report import read_report
 from reconstruct.pipeline import reconstruct
-from reconstruct.registration import CoarseConfig, coarse_scan_pose
+from reconstruct.scan.coarse_pose import CoarseConfig, coarse_scan_pose
 from reconstruct.scan.sfm import SfmConfig
 from synth.geometry.frames import apply_T, invert_T, make_T, rot_z
 from synth.scene.pile import LogSpec, PileSpec, TerrainSpec
