@@ -9,9 +9,8 @@ import numpy as np
 import pytest
 
 from reconstruct.errors import FitError, LogNotSeenError, ReconstructError
-from reconstruct.fitting.fit import (
-    FitConfig, fit_log, fit_pile, log_spec_from_fit, natural_key, sample_top_view_points, separate_logs,
-)
+from reconstruct.fitting.fit import (FitConfig, fit_log, fit_pile, log_spec_from_fit, natural_key,
+                                     sample_top_view_points, separate_logs)
 from synth.scene.pile import LogSpec, PileSpec, RockSpec, StumpSpec, TerrainSpec, quat_from_euler
 
 SLOPE = 0.02  # terrain z = SLOPE * x
