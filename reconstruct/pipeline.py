@@ -61,6 +61,7 @@ import numpy as np
 
 from reconstruct.config import ReconstructConfig, logs_direction, patch_extent
 from reconstruct.errors import FitError, ReconstructError, RegistrationError, ScanError
+from reconstruct.fitting.ends import axis_sigma_m
 from reconstruct.fitting.fit import PileFit, fit_log, fit_pile, log_spec_from_fit
 from reconstruct.fitting.joint_config import JOINT_REVISION
 from reconstruct.fitting.joint_ends import JointEndPlacer, dropped_point_lines, joint_after_check
@@ -543,20 +544,12 @@ class _EndPlacer:
     """``fit_pile``'s ``place_ends``: a log's ends from the scan where it sees them, else from its
     survey points (:func:`place_log_ends`), its axis as sure as how it was fitted."""
 
-    SCAN_AXIS_SIGMA_M = 0.005  # a fitted axis: a few millimetres across [m]
-    PARTIAL_AXIS_SIGMA_M = 0.04  # seen in part: its axis is a few centimetres sure (at least) [m]
-
     def __init__(self, survey_ends: dict, lateral: dict[str, float], fuse_cfg: FuseConfig) -> None:
         self.survey_ends, self.lateral, self.fuse_cfg = survey_ends, lateral, fuse_cfg
 
     def __call__(self, log_id: str, spec, how: str, points: np.ndarray, swapped: bool, on_mask: np.ndarray):
         ends_k = self.survey_ends.get(log_id, (None, None))
-        if how == "scan":
-            sig = self.SCAN_AXIS_SIGMA_M
-        elif how == "partial":
-            sig = max(self.lateral[log_id], self.PARTIAL_AXIS_SIGMA_M)
-        else:
-            sig = max((e.sigma_h_m for e in ends_k if e is not None), default=self.lateral[log_id])
+        sig = axis_sigma_m(how, self.lateral[log_id], ends_k)
         try:
             return place_log_ends(points, spec, how, ends_k, swapped, sig, self.fuse_cfg, on_mask=on_mask)
         except FitError as exc:

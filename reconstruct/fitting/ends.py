@@ -50,6 +50,21 @@ LINE_REACH_M = 2.5
 #: ends placed closer than this are nonsense: the fit's ends are kept [m]
 MIN_LOG_LENGTH_M = 0.3
 
+#: how sure a log's axis is across itself when its ends are placed, by how the log was found
+SCAN_AXIS_SIGMA_M = 0.005  # fitted to the scan: a few millimetres across (the cylinder fit's RMS / sqrt(n)) [m]
+PARTIAL_AXIS_SIGMA_M = 0.04  # seen in part: a few centimetres (at least) [m]
+
+
+def axis_sigma_m(how: str, lateral_m: float, ends: Sequence[SurveyEnd | None]) -> float:
+    """The lateral 1-sigma of a log's axis [m]: fitted to the scan (``how`` "scan"), seen in part
+    ("partial": at least its prior's ``lateral_m``), or hidden (its survey points' horizontal sigma,
+    else ``lateral_m``)."""
+    if how == "scan":
+        return SCAN_AXIS_SIGMA_M
+    if how == "partial":
+        return max(lateral_m, PARTIAL_AXIS_SIGMA_M)
+    return max((e.sigma_h_m for e in ends if e is not None), default=lateral_m)
+
 
 @dataclass(frozen=True)
 class EndInterval:

@@ -27,7 +27,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from reconstruct.fitting.ends import MIN_BIN_POINTS, MIN_LOG_LENGTH_M, TOP_BAND_RADII, UNMOVED_M, EndEstimate
+from reconstruct.fitting.ends import (MIN_BIN_POINTS, MIN_LOG_LENGTH_M, TOP_BAND_RADII, UNMOVED_M, EndEstimate,
+                                      axis_sigma_m)
 from reconstruct.fitting.fuse_config import FuseConfig
 from reconstruct.fitting.joint_config import JointConfig
 from reconstruct.fitting.survey_points import SurveyEnd
@@ -297,9 +298,6 @@ class JointEndPlacer:
     sure across as how it was fitted (a scan-fitted axis to millimetres, a log seen in part to centimetres,
     a hidden one to its points)."""
 
-    SCAN_AXIS_SIGMA_M = 0.005  # a fitted axis: a few millimetres across (the cylinder fit's RMS / sqrt(n)) [m]
-    PARTIAL_AXIS_SIGMA_M = 0.04  # seen in part: its axis is a few centimetres sure (at least) [m]
-
     def __init__(self, survey_ends: dict, lateral: dict[str, float], cfg: JointConfig, fcfg: FuseConfig) -> None:
         self.survey_ends, self.lateral, self.cfg, self.fcfg = survey_ends, lateral, cfg, fcfg
 
@@ -307,12 +305,7 @@ class JointEndPlacer:
         from reconstruct.errors import FitError
 
         ends_k = self.survey_ends.get(log_id, (None, None))
-        if how == "scan":
-            sig = self.SCAN_AXIS_SIGMA_M
-        elif how == "partial":
-            sig = max(self.lateral[log_id], self.PARTIAL_AXIS_SIGMA_M)
-        else:
-            sig = max((e.sigma_h_m for e in ends_k if e is not None), default=self.lateral[log_id])
+        sig = axis_sigma_m(how, self.lateral[log_id], ends_k)
         try:
             return place_joint_ends(points, spec, how, ends_k, swapped, sig, self.cfg, self.fcfg, on_mask=on_mask)
         except FitError as exc:
