@@ -82,15 +82,15 @@ def calibration(records: list[dict], edges=CALIBRATION_EDGES, key: str = "u") ->
             "brier": float(np.mean((u - ok) ** 2)) if n else float("nan")}
 
 
-def choices(records: list[dict]) -> dict:
-    """Success of f1's top grasp, of f3's top grasp (f3 = u tau^(1/3) exp(-(b - 1)^2 / 0.25^2)) and
-    of the best tried grasp, over the piles."""
+def choices(records: list[dict], key: str = "u") -> dict:
+    """Success of f1's top grasp, of f3's top grasp (f3 = u tau^(1/3) exp(-(b - 1)^2 / 0.25^2), u read
+    from ``key``) and of the best tried grasp, over the piles."""
     from planner.inference import Objective
 
     f3 = Objective("f3")
     piles = _by_pile(records)
-    top_f1 = [max(recs, key=lambda r: r["u"])["success"] for recs in piles.values()]
-    top_f3 = [max(recs, key=lambda r: float(f3.quality(r["u"], r["tau"], r["b"])))["success"] for recs in piles.values()]
+    top_f1 = [max(recs, key=lambda r: r[key])["success"] for recs in piles.values()]
+    top_f3 = [max(recs, key=lambda r: float(f3.quality(r[key], r["tau"], r["b"])))["success"] for recs in piles.values()]
     n = len(piles)
     return {"piles": n, "f1_success": float(np.mean(top_f1)) if n else float("nan"),
             "f3_success": float(np.mean(top_f3)) if n else float("nan"),
@@ -98,12 +98,13 @@ def choices(records: list[dict]) -> dict:
             if n else float("nan")}
 
 
-def ranking_metrics(records: list[dict]) -> dict:
-    """Every measure of the module doc from the trial records."""
+def ranking_metrics(records: list[dict], key: str = "u") -> dict:
+    """Every measure of the module doc from the trial records, of the score ``key`` ("u": the network's
+    U; "p": a ranker's probability, :func:`rescore`)."""
     if not records:
         raise ValueError("no trial records to measure; run the collection first")
-    return {"trials": len(records), "auc": within_pile_auc(records), "calibration": calibration(records),
-            "choice": choices(records)}
+    return {"trials": len(records), "key": key, "auc": within_pile_auc(records, key),
+            "calibration": calibration(records, key=key), "choice": choices(records, key)}
 
 
 def _pct(v: float) -> str:
@@ -112,14 +113,15 @@ def _pct(v: float) -> str:
 
 def ranking_markdown(m: dict, what: str) -> str:
     a, c = m["auc"], m["choice"]
-    lines = [f"# Ranking of U — {what}\n",
+    score = {"u": "U", "p": "the ranker's p"}.get(m.get("key", "u"), m.get("key", "u"))
+    lines = [f"# Ranking of {score} — {what}\n",
              f"{c['piles']} piles, {m['trials']} tried grasps (the top subsets by f1 and by f3 per pile).\n",
-             f"- within-pile AUC of U: **{a['auc']:.3f}** ({a['pairs']} success/failure pairs on {a['piles']} piles "
+             f"- within-pile AUC of {score}: **{a['auc']:.3f}** ({a['pairs']} success/failure pairs on {a['piles']} piles "
              "with both)",
              f"- success of the choice: f1 {_pct(c['f1_success'])}, f3 {_pct(c['f3_success'])}; best tried grasp "
              f"{_pct(c['best_tried_success'])}",
              f"- calibration: ECE {m['calibration']['ece']:.3f}, Brier {m['calibration']['brier']:.3f}\n",
-             "| predicted U | grasps | mean U | observed success |", "|---|---|---|---|"]
+             f"| predicted {score} | grasps | mean {score} | observed success |", "|---|---|---|---|"]
     for b in m["calibration"]["bins"]:
         mean_u = "-" if b["mean_u"] != b["mean_u"] else f"{b['mean_u']:.3f}"
         lines.append(f"| [{b['lo']:g}, {b['hi']:g}{']' if b['hi'] == 1.0 else ')'} | {b['n']} | {mean_u} | "
@@ -144,6 +146,29 @@ def run(model: str, out_dir: str | Path, per_cell: int, top_n: int = 4, workers:
     return m
 
 
+def rescore(records_dir: str | Path, ranker: str | Path, out: str | Path | None = None) -> list[dict]:
+    """The records of ``records_dir`` with ``p``, the ranker's success probability of each tried grasp
+    on its pile's observation (the scene made again from the pile's seed); written to ``out`` (one JSON
+    list) when given."""
+    from planner.evaluate import EvalConfig, eval_scene
+    from planner.ranker import load_ranker
+    from synth.common.files import atomic_write_bytes
+    from synth.geometry.grasp import Grasp
+
+    rk = load_ranker(ranker)
+    seed_base = json.loads((Path(records_dir) / "collect.json").read_text())["seed_base"]
+    records = read_records(records_dir)
+    for seed, recs in sorted(_by_pile(records).items()):
+        _, obs = eval_scene((recs[0]["n_logs"], bool(recs[0]["obstacles"]), 0, seed), EvalConfig(seed_base=seed_base))
+        p = rk.score(obs, [Grasp(**{k: r["grasp"][k] for k in ("x_m", "y_m", "phi_rad", "width_m")}) for r in recs],
+                     [r["targets"] for r in recs])
+        for r, pi in zip(recs, p):
+            r["p"] = float(pi)
+    if out is not None:
+        atomic_write_bytes(Path(out), json.dumps(records).encode())
+    return records
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -156,10 +181,17 @@ def main(argv=None) -> None:
     r.add_argument("--seed-base", type=int, default=SEED_BASE, help="first pile seed (apart from test and training)")
     s = sub.add_parser("summarise", help="measure an existing folder of trial records")
     s.add_argument("records")
+    q = sub.add_parser("rescore", help="score a folder's tried grasps with a ranker and measure its p")
+    q.add_argument("records")
+    q.add_argument("--ranker", required=True)
+    q.add_argument("--out", default=None, help="write the records with p here (JSON)")
     a = ap.parse_args(argv)
     if a.cmd == "run":
         m = run(a.model, a.out, a.per_cell, a.top_n, a.workers, a.seed_base)
         what = a.out
+    elif a.cmd == "rescore":
+        m = ranking_metrics(rescore(a.records, a.ranker, a.out), key="p")
+        what = f"{a.records}, ranker {a.ranker}"
     else:
         m = ranking_metrics(read_records(a.records))
         what = a.records

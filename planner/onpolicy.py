@@ -130,8 +130,11 @@ def _network(model: str):
 
 
 def run_round(cfg: RoundConfig, model: str | Path, out_dir: str | Path,
-              progress: Callable[[int, int], None] | None = None, plan_fn: Callable | None = None) -> dict:
-    """Run (or resume) the round into the store folder ``out_dir``; returns its store record."""
+              progress: Callable[[int, int], None] | None = None, plan_fn: Callable | None = None,
+              workers: int = 1) -> dict:
+    """Run (or resume) the round into the store folder ``out_dir``, ``workers`` piles at a time (a
+    ``plan_fn`` runs in this process only); returns its store record."""
+    from synth.common.runner import run_tasks
     from synth.common.files import sha256_file
     from synth.data.datastore import CHUNK, STORE, STORE_FILE, chunk_path, params_sha256, read_chunk, write_chunk
 
@@ -150,7 +153,7 @@ def run_round(cfg: RoundConfig, model: str | Path, out_dir: str | Path,
             what = "another model" if "model_sha256" in diff else "other piles or settings"
             raise RoundError(f"{out} holds an on-policy round made with {what} ({', '.join(diff)} differ); resume it "
                              "with the same model and round, or choose a new folder")
-    listed = {}
+    listed, todo = {}, {}
     for k in range(cfg.piles):
         path = chunk_path(out, k)
         if path.exists():
@@ -161,7 +164,9 @@ def run_round(cfg: RoundConfig, model: str | Path, out_dir: str | Path,
             if rec is not None and rec.get("params_sha256") == psha:
                 listed[k] = _entry(out, path, rec)
                 continue
-        pile = round_pile(cfg, k, str(model), plan_fn)
+        todo[k] = (cfg, k, str(model), plan_fn)
+
+    def finished(k: int, pile: dict) -> None:
         trials = sum(len(s["trials"]) for s in pile["subsets"])
         record = CHUNK.document({"chunk": k, "params_sha256": psha, "piles": [pile],
                                  "stats": {"piles": 1, "subsets": len(pile["subsets"]), "trials": trials,
@@ -171,6 +176,8 @@ def run_round(cfg: RoundConfig, model: str | Path, out_dir: str | Path,
         _write_round_store(out, params, psha, listed, cfg.piles)
         if progress:
             progress(len(listed), cfg.piles)
+
+    run_tasks(round_pile, todo, finished, workers=1 if plan_fn is not None else workers)
     _write_round_store(out, params, psha, listed, cfg.piles)
     return STORE.read(out / STORE_FILE)
 

@@ -21,6 +21,7 @@ from field.cli.options import TWIN_PARAMETERS
 from field.cli.trial import demo, replay_command, trial_command
 from field.link.cli import link_key_command
 from planner.cli import eval_command, plan_command, train_command
+from planner.learn_cli import round_command, train_ranker_command
 from reconstruct.cli import compare_command, reconstruct_command, scan_command
 from reconstruct.survey.cli import survey_command
 from synth.cli import APP_SETTINGS
@@ -45,6 +46,8 @@ app.add_typer(synth_app, name="synth")
 app.command("train")(train_command)
 app.command("plan")(plan_command)
 app.command("eval")(eval_command)
+app.command("round")(round_command)
+app.command("train-ranker")(train_ranker_command)
 app.command("link-key")(link_key_command)
 app.command("survey")(survey_command)
 app.command("reconstruct")(reconstruct_command)

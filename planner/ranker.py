@@ -1,0 +1,213 @@
+"""A grasp-centred success ranker: the U-Net proposes, a small crop network re-scores.
+
+The U-Net's U marks where grasps were accepted; it orders a pile's grasps only a little better than
+chance (docs/results/ranking-v3). Its top few subsets, though, usually hold a grasp that works. The
+ranker is a GQ-CNN-like network (Mahler et al. 2017) that looks at one grasp at a time: a crop of
+the observation centred on the grasp and turned so that its closing axis runs along the crop's
+columns, with the claws drawn where they will come down, and predicts the probability that the grasp
+lifts exactly its targets when the crane stands off by the field's positioning error (its training
+label: the robust labels' success fraction, :func:`synth.data.outcomes.trial_success`).
+
+Crop channels (``CROP_CHANNELS``), ``crop_px`` square at the observation's pixel pitch:
+
+* ``I``: intensity of the render, in [0, 1];
+* ``H``: height [m] relative to the highest target pixel in the crop (the top the claws meet);
+* ``M_T``: the target mask, {0, 1};
+* ``claws``: 1 on the two claw plates' footprints (``claw_width_m`` along the log, ``claw_plate_m``
+  across, just outside the opening ``width_m``), 0 elsewhere.
+
+The head also sees the opening width [m] and the number of targets / 7. Re-ranking (:func:`rerank`)
+takes the union of the best ``k`` grasps by f1 and by f3 of a :class:`planner.inference.Plan`, scores
+them and orders them by the objective with U replaced by the ranker's probability. Checkpoints are
+safetensors files of format ``loggrasp.planner.ranker`` (:func:`save_ranker`, :func:`load_ranker`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from planner.errors import CheckpointError
+from synth.geometry.frames import OrthoGrid
+from synth.geometry.grasp import Grasp
+
+RANKER_FORMAT_NAME = "loggrasp.planner.ranker"
+CROP_CHANNELS = ("I", "H", "M_T", "claws")
+MAX_TARGETS = 7  # the number of targets is fed to the head divided by this [-]
+
+
+@dataclass(frozen=True)
+class RankerConfig:
+    """The ranker's crop and network."""
+
+    crop_px: int = 48  # crop side [px] (at the observation's pitch: 48 x 3.9 cm = 1.88 m, the widest opening + claws)
+    pixel_m: float = 5.0 / 128  # the pixel pitch crops are taken at [m] (the U-Net's training images)
+    claw_width_m: float = 0.22  # claw plate extent along the logs [m] (the twin's grapple)
+    claw_plate_m: float = 0.05  # claw plate thickness across the logs [m] (the twin's grapple)
+    channels: int = 32  # channels of the first convolution (doubled once) [-]
+    hidden: int = 128  # units of the fully connected layer [-]
+
+    def __post_init__(self) -> None:
+        if not 16 <= self.crop_px <= 128 or self.crop_px % 8:
+            raise ValueError(f"crop_px must be a multiple of 8 in [16, 128], got {self.crop_px}")
+        for k in ("pixel_m", "claw_width_m", "claw_plate_m"):
+            if not (math.isfinite(getattr(self, k)) and getattr(self, k) > 0):
+                raise ValueError(f"{k} must be > 0, got {getattr(self, k)}")
+        if self.channels < 4 or self.hidden < 8:
+            raise ValueError(f"channels must be >= 4 and hidden >= 8, got {self.channels}, {self.hidden}")
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "RankerConfig":
+        return cls(**d)
+
+
+def grasp_crops(intensity: np.ndarray, height_m: np.ndarray, masks: Sequence[np.ndarray] | np.ndarray,
+                grid: OrthoGrid, grasps: Sequence[Grasp], config: RankerConfig = RankerConfig()) -> np.ndarray:
+    """The ranker's input crops (N, 4, S, S) float32 for ``grasps``, each with its own target mask.
+
+    ``height_m`` is the height image (:func:`planner.data.normalise_depth`); ``masks`` one target mask
+    per grasp (or one for all). Crop row 0 is on the left of the closing axis; column 0 at its
+    negative end; pixels outside the image repeat its border."""
+    from scipy.ndimage import map_coordinates
+
+    s = config.crop_px
+    c = (np.arange(s) - (s - 1) / 2) * config.pixel_m
+    u, v = np.meshgrid(c, -c)  # u along the closing axis (columns), v to its left (rows, up)
+    masks = np.asarray(masks)
+    out = np.empty((len(grasps), len(CROP_CHANNELS), s, s), dtype=np.float32)
+    for n, g in enumerate(grasps):
+        a = np.array([math.cos(g.phi_rad), math.sin(g.phi_rad)])
+        x = g.x_m + u * a[0] - v * a[1]
+        y = g.y_m + u * a[1] + v * a[0]
+        rc = np.stack(grid.pile_to_pixel(x, y))
+        mask = masks if masks.ndim == 2 else masks[n]
+        out[n, 0] = map_coordinates(intensity, rc, order=1, mode="nearest")
+        h = map_coordinates(height_m, rc, order=1, mode="nearest")
+        m = map_coordinates(mask.astype(np.float32), rc, order=1, mode="nearest") > 0.5
+        top = float(h[m].max()) if m.any() else float(h[s // 2, s // 2])
+        out[n, 1] = h - top
+        out[n, 2] = m
+        out[n, 3] = claw_footprint(u, v, g.width_m, config)
+    return out
+
+
+def claw_footprint(u: np.ndarray, v: np.ndarray, width_m: float, config: RankerConfig) -> np.ndarray:
+    """1 where the claw plates of an opening ``width_m`` come down in crop coordinates (u, v) [m]."""
+    across = (np.abs(u) >= width_m / 2) & (np.abs(u) <= width_m / 2 + config.claw_plate_m)
+    return (across & (np.abs(v) <= config.claw_width_m / 2)).astype(np.float32)
+
+
+def grasp_scalars(grasps: Sequence[Grasp], taus: Sequence[int]) -> np.ndarray:
+    """The head's scalar inputs (N, 2): opening width [m] and number of targets / 7."""
+    return np.array([[g.width_m, t / MAX_TARGETS] for g, t in zip(grasps, taus)], dtype=np.float32).reshape(-1, 2)
+
+
+def build_ranker(config: RankerConfig = RankerConfig()):
+    """The crop network: three conv + max-pool stages, a fully connected layer with the scalars, a logit."""
+    import torch
+    from torch import nn
+
+    k = config.channels
+    flat = 2 * k * (config.crop_px // 8) ** 2
+
+    class RankerNet(nn.Module):
+        def __init__(self) -> None:
+            super().__init__()
+            self.features = nn.Sequential(
+                nn.Conv2d(len(CROP_CHANNELS), k, 5, padding=2), nn.ReLU(), nn.MaxPool2d(2),
+                nn.Conv2d(k, 2 * k, 3, padding=1), nn.ReLU(), nn.MaxPool2d(2),
+                nn.Conv2d(2 * k, 2 * k, 3, padding=1), nn.ReLU(), nn.MaxPool2d(2))
+            self.head = nn.Sequential(nn.Linear(flat + 2, config.hidden), nn.ReLU(), nn.Linear(config.hidden, 1))
+
+        def forward(self, crops, scalars):
+            f = self.features(crops).flatten(1)
+            return self.head(torch.cat([f, scalars], dim=1)).squeeze(1)
+
+    return RankerNet()
+
+
+def save_ranker(path: str | Path, model, config: RankerConfig, meta: dict[str, Any] | None = None) -> Path:
+    from planner.checkpoint import CHECKPOINT_FORMAT_VERSION, save_tensors
+
+    header = {"format": RANKER_FORMAT_NAME, "format_version": CHECKPOINT_FORMAT_VERSION,
+              "ranker_config": config.to_dict(), "meta": dict(meta or {})}
+    return save_tensors(path, model.state_dict(), header)
+
+
+def load_ranker(path: str | Path) -> "Ranker":
+    """A ranker checkpoint, ready to score; :class:`CheckpointError` for a missing, foreign or broken file."""
+    from planner.checkpoint import load_tensors
+
+    tensors, header = load_tensors(path, RANKER_FORMAT_NAME)
+    try:
+        config = RankerConfig.from_dict(header["ranker_config"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise CheckpointError(f"{path}: the stored ranker configuration is invalid ({exc})") from exc
+    model = build_ranker(config)
+    try:
+        model.load_state_dict(tensors, strict=True)
+    except RuntimeError as exc:
+        raise CheckpointError(f"{path}: the weights do not fit the stored ranker ({exc}); retrain it") from exc
+    model.eval()
+    return Ranker(model, config, header.get("meta", {}))
+
+
+@dataclass
+class Ranker:
+    model: Any
+    config: RankerConfig
+    meta: dict
+
+    def probabilities(self, crops: np.ndarray, scalars: np.ndarray) -> np.ndarray:
+        """Success probabilities of crops (N, 4, S, S) with their scalars (N, 2)."""
+        import torch
+
+        if not len(crops):
+            return np.zeros(0)
+        with torch.inference_mode():
+            logits = self.model(torch.from_numpy(np.ascontiguousarray(crops, dtype=np.float32)),
+                                torch.from_numpy(np.ascontiguousarray(scalars, dtype=np.float32)))
+        return torch.sigmoid(logits.float()).numpy().astype(np.float64)
+
+    def score(self, observation, grasps: Sequence[Grasp], targets: Sequence[Sequence[int]]) -> np.ndarray:
+        """Success probability of each grasp on its targets (log indices) in ``observation``."""
+        from planner.data import normalise_depth
+        from planner.inference import observation_arrays
+
+        inten, depth, inst, extent_m, cam_h = observation_arrays(observation)
+        grid = OrthoGrid(depth.shape[0], extent_m)
+        if abs(grid.pixel_m / self.config.pixel_m - 1.0) > 0.005:
+            raise CheckpointError(f"the ranker was trained on {100 * self.config.pixel_m:.2f} cm pixels but the "
+                                  f"observation has {100 * grid.pixel_m:.2f} cm; render at the ranker's pitch")
+        masks = np.stack([np.isin(inst, [i + 1 for i in t]) for t in targets]) if len(targets) else np.zeros((0,) + inst.shape)
+        crops = grasp_crops(inten, normalise_depth(depth, cam_h), masks, grid, grasps, self.config)
+        return self.probabilities(crops, grasp_scalars(grasps, [len(t) for t in targets]))
+
+
+def rerank(plan, observation, ranker: Ranker, objective, k: int = 4):
+    """``plan`` with the union of its best ``k`` grasps by f1 and by f3 scored by ``ranker`` and put
+    first, ordered by ``objective`` with U replaced by the ranker's probability (``quality`` and
+    ``graspability`` of those grasps become the ranker's; U stays in ``info["u_network"]``)."""
+    from planner.inference import Objective
+
+    f3 = Objective("f3")
+    by_f1 = sorted(plan.grasps, key=lambda g: -g.graspability)[:k]
+    by_f3 = sorted(plan.grasps, key=lambda g: -float(f3.quality(g.graspability, len(g.targets), g.balance)))[:k]
+    chosen = list({g.targets: g for g in by_f1 + by_f3}.values())
+    if not chosen:
+        return plan
+    p = ranker.score(observation, [g.grasp for g in chosen], [g.targets for g in chosen])
+    scored = [replace(g, graspability=float(pi), quality=float(objective.quality(pi, len(g.targets), g.balance)))
+              for g, pi in zip(chosen, p)]
+    scored.sort(key=lambda g: -g.quality)
+    rest = [g for g in plan.grasps if g.targets not in {s.targets for s in scored}]
+    info = {**plan.info, "reranked": len(scored),
+            "u_network": {",".join(map(str, g.targets)): g.graspability for g in chosen}}
+    return replace(plan, grasps=scored + rest, info=info)

@@ -1,0 +1,197 @@
+"""Training the grasp ranker (:mod:`planner.ranker`) on every stored trial.
+
+Each trial a grasp store holds (Algorithm 1's, successes and failures alike, and the on-policy
+rounds' choices of the network) is one example: the crop around the tried grasp in each render of
+its pile, labelled by the trial's success value (:func:`synth.data.outcomes.trial_success`: the
+robust repeats' success fraction, else the outcome). Piles are split into training and validation
+by :func:`planner.data.is_validation_pile`; validation reports the loss, the Brier score and the
+**within-pile AUC** (over the validation piles with a success (label >= 0.5) and a failure, the share
+of their (success, failure) pairs the ranker orders right, ties half) — the figure issue 36 asks of U.
+
+Augmentation keeps a grasp's meaning: the crop mirrored across the closing axis (the mirror pile's
+same grasp) and turned by 180 degrees (phi + pi is the same grasp).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from planner.errors import DataError, TrainingError
+from planner.ranker import RankerConfig, build_ranker, grasp_crops, grasp_scalars, save_ranker
+from synth.geometry.frames import OrthoGrid
+from synth.geometry.grasp import Grasp
+
+
+@dataclass(frozen=True)
+class RankerTrainConfig:
+    epochs: int = 12  # passes over the training examples [-]
+    batch_size: int = 128  # examples per step [-]
+    lr: float = 1e-3  # AdamW learning rate, cosine-decayed to 5 % over the run [-]
+    weight_decay: float = 1e-4  # AdamW weight decay [-]
+    renders: int = 3  # renders of each pile used (the intensity differs, the geometry not) [-]
+    val_fraction: float = 0.2  # share of piles held out for validation [-]
+    split_seed: int = 0  # seed of the by-pile split (planner.data.is_validation_pile) [-]
+    seed: int = 0  # initialisation and batch order [-]
+    num_threads: int = 1  # torch CPU threads [-]
+
+    def __post_init__(self) -> None:
+        if self.epochs < 1 or self.batch_size < 1 or self.renders < 1 or self.num_threads < 1:
+            raise ValueError("epochs, batch_size, renders and num_threads must be >= 1")
+        if not (self.lr > 0 and self.weight_decay >= 0):
+            raise ValueError(f"lr must be > 0 and weight_decay >= 0, got {self.lr}, {self.weight_decay}")
+        if not 0.0 < self.val_fraction < 1.0:
+            raise ValueError(f"val_fraction must be in (0, 1), got {self.val_fraction}")
+
+
+@dataclass
+class Examples:
+    crops: np.ndarray  # (N, 4, S, S) float16
+    scalars: np.ndarray  # (N, 2) float32
+    labels: np.ndarray  # (N,) float32 success value in [0, 1]
+    piles: np.ndarray  # (N,) str pile id
+    render: np.ndarray  # (N,) int
+    val: np.ndarray  # (N,) bool
+
+
+def load_examples(data: list[str | Path], ranker: RankerConfig, cfg: RankerTrainConfig,
+                  progress: Callable[[int, int], None] | None = None) -> Examples:
+    """Every stored trial of the data sets (grasp stores or materialised folders) as ranker examples."""
+    from planner.data import is_validation_pile, list_shards, load_samples, normalise_depth, sample_arrays
+
+    shards, grid_d = list_shards([str(d) for d in data])
+    grid = OrthoGrid(int(grid_d["size_px"]), float(grid_d["extent_m"]))
+    cam_h = float(grid_d.get("camera_height_m", 5.0))
+    if abs(grid.pixel_m / ranker.pixel_m - 1.0) > 0.005:
+        raise DataError(f"the data's pixels are {100 * grid.pixel_m:.2f} cm, the ranker's {100 * ranker.pixel_m:.2f} cm")
+    parts: dict[str, list] = {k: [] for k in ("crops", "scalars", "labels", "piles", "render")}
+    for i, shard in enumerate(shards):
+        for s in load_samples(shard):
+            if s.trials is None:
+                raise DataError(f"{shard} keeps no trials (materialised before outcome labels); materialise the "
+                                "store again with this version")
+            if s.render >= cfg.renders or not len(s.trials):
+                continue
+            inten, depth, mask, _ = sample_arrays(s)
+            grasps = [Grasp(float(t[0]), float(t[1]), float(t[2]), float(t[3])) for t in s.trials]
+            parts["crops"].append(grasp_crops(inten, normalise_depth(depth, cam_h), mask, grid, grasps, ranker)
+                                  .astype(np.float16))
+            parts["scalars"].append(grasp_scalars(grasps, [len(s.subset)] * len(grasps)))
+            parts["labels"].append(np.asarray(s.trials[:, 4], dtype=np.float32))
+            parts["piles"] += [f"{shard.parent.name}/{s.pile_id}"] * len(grasps)
+            parts["render"] += [s.render] * len(grasps)
+        if progress:
+            progress(i + 1, len(shards))
+    if not parts["labels"]:
+        raise DataError(f"no stored trials in {', '.join(map(str, data))}; give grasp stores with trials")
+    piles = np.asarray(parts["piles"])
+    val = np.array([is_validation_pile(p.split("/", 1)[1], cfg.split_seed, cfg.val_fraction) for p in piles])
+    return Examples(np.concatenate(parts["crops"]), np.concatenate(parts["scalars"]),
+                    np.concatenate(parts["labels"]), piles, np.asarray(parts["render"]), val)
+
+
+def within_pile_auc(scores: np.ndarray, labels: np.ndarray, piles: np.ndarray) -> tuple[float, int, int]:
+    """Pooled within-pile AUC (successes: label >= 0.5), its pairs and mixed piles; NaN without pairs."""
+    good, pairs, mixed = 0.0, 0, 0
+    for p in np.unique(piles):
+        sel = piles == p
+        s, f = scores[sel & (labels >= 0.5)], scores[sel & (labels < 0.5)]
+        if len(s) and len(f):
+            d = s[:, None] - f[None, :]
+            good += float((d > 0).sum() + 0.5 * (d == 0).sum())
+            pairs += d.size
+            mixed += 1
+    return (good / pairs if pairs else float("nan")), pairs, mixed
+
+
+def _augment(x, rng: np.random.Generator):
+    if rng.random() < 0.5:
+        x = x.flip(2)  # mirrored across the closing axis
+    if rng.random() < 0.5:
+        x = x.flip(2).flip(3)  # phi + pi
+    return x
+
+
+def _predict(model, ex: Examples, sel: np.ndarray, batch: int) -> np.ndarray:
+    import torch
+
+    out = []
+    idx = np.flatnonzero(sel)
+    with torch.inference_mode():
+        for i in range(0, len(idx), 4 * batch):
+            j = idx[i:i + 4 * batch]
+            out.append(torch.sigmoid(model(torch.from_numpy(ex.crops[j].astype(np.float32)),
+                                           torch.from_numpy(ex.scalars[j]))).numpy())
+    return np.concatenate(out) if out else np.zeros(0)
+
+
+def validate(model, ex: Examples, batch: int) -> dict:
+    """Loss, Brier score and within-pile AUC on the validation piles (render 0: each trial once)."""
+    sel = ex.val & (ex.render == 0)
+    p = _predict(model, ex, sel, batch)
+    y = ex.labels[sel]
+    pc = np.clip(p, 1e-6, 1 - 1e-6)
+    auc, pairs, mixed = within_pile_auc(p, y, ex.piles[sel])
+    return {"examples": int(sel.sum()), "bce": float(-np.mean(y * np.log(pc) + (1 - y) * np.log(1 - pc))),
+            "brier": float(np.mean((p - y) ** 2)), "auc": auc, "auc_pairs": pairs, "auc_piles": mixed}
+
+
+def train_ranker(data: list[str | Path], out: str | Path, cfg: RankerTrainConfig = RankerTrainConfig(),
+                 ranker: RankerConfig = RankerConfig(), progress: Callable[[str], None] | None = None) -> dict:
+    """Train a ranker on the data sets' trials; writes ``out`` (the checkpoint) and ``out`` + ``.json``
+    (the run's log); returns the log. :class:`TrainingError` when a side of the split is empty."""
+    import torch
+
+    say = progress or (lambda s: None)
+    t0 = time.perf_counter()
+    torch.set_num_threads(cfg.num_threads)
+    torch.manual_seed(cfg.seed)
+    ex = load_examples(data, ranker, cfg, lambda i, n: say(f"crops: shard {i}/{n}") if i % 25 == 0 or i == n else None)
+    train_idx = np.flatnonzero(~ex.val)
+    if not len(train_idx) or not ex.val.any():
+        raise TrainingError(f"{len(train_idx)} training and {int(ex.val.sum())} validation examples: both sides of "
+                            "the by-pile split need piles; give more data or another --val-fraction")
+    say(f"{len(train_idx)} training examples, {int(ex.val.sum())} validation ({len(np.unique(ex.piles))} piles), "
+        f"{time.perf_counter() - t0:.0f} s")
+    model = build_ranker(ranker)
+    opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    steps = cfg.epochs * math.ceil(len(train_idx) / cfg.batch_size)
+    sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: 0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * s / steps)))
+    rng = np.random.default_rng(cfg.seed)
+    history = []
+    for epoch in range(cfg.epochs):
+        model.train()
+        order = rng.permutation(train_idx)
+        total = 0.0
+        for i in range(0, len(order), cfg.batch_size):
+            j = np.sort(order[i:i + cfg.batch_size])
+            x = _augment(torch.from_numpy(ex.crops[j].astype(np.float32)), rng)
+            loss = torch.nn.functional.binary_cross_entropy_with_logits(
+                model(x, torch.from_numpy(ex.scalars[j])), torch.from_numpy(ex.labels[j]))
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            sched.step()
+            total += float(loss.detach()) * len(j)
+        model.eval()
+        entry = {"epoch": epoch + 1, "train_bce": total / len(order), **{f"val_{k}": v for k, v in
+                                                                         validate(model, ex, cfg.batch_size).items()},
+                 "elapsed_s": time.perf_counter() - t0}
+        history.append(entry)
+        say(f"epoch {epoch + 1}/{cfg.epochs}: train BCE {entry['train_bce']:.4f}, val BCE {entry['val_bce']:.4f}, "
+            f"within-pile AUC {entry['val_auc']:.3f} ({entry['val_auc_piles']} piles)")
+    log = {"data": [str(d) for d in data], "train_config": asdict(cfg), "ranker_config": ranker.to_dict(),
+           "examples": {"train": int(len(train_idx)), "val": int(ex.val.sum()),
+                        "train_positive_mean": float(ex.labels[train_idx].mean())},
+           "history": history, "final": history[-1]}
+    save_ranker(out, model, ranker, {k: log[k] for k in ("data", "train_config", "examples", "final")})
+    from synth.common.files import atomic_write_bytes
+
+    atomic_write_bytes(Path(str(out) + ".json"), json.dumps(log, indent=1).encode())
+    return log
