@@ -32,6 +32,11 @@ OBJECTIVE_HELP = "f1 (graspability), f2 (+ more logs), f3 (+ balance)."
 MODEL = option("--model", "Checkpoint (.safetensors); default: the shipped model.", default=None, metavar="PATH")
 VIEWS = option("--views", "Dihedral views the planner averages: 1, 2, 4 or 8 (slower, steadier).", default=1,
                names=["views"])
+RANKER = option("--ranker", "A ranker checkpoint (loggrasp train-ranker) that re-scores the best --rerank-k grasps "
+                "by f1 and by f3 and orders them by the objective with its success probability.", default=None,
+                metavar="PATH")
+RERANK_K = option("--rerank-k", "With --ranker: grasps re-scored per objective.", field=(PlannerSpec, "rerank_k"),
+                  min=1, max=127)
 VIEW_SPREAD = option("--view-spread", "Lower U by K x its spread over the views (needs --views > 1).", default=0.0,
                      names=["view_spread_k"], metavar="K")
 
@@ -265,6 +270,8 @@ def plan_command(
     verify_workers: int = option("--verify-workers", "With --verify: processes for the twin's trials (0 = all "
                                  "cores, 1 = in this process).", default=field_default(VerifyConfig, "workers"),
                                  min=0, names=["verify_workers"]),
+    ranker: Path = RANKER,
+    rerank_k: int = RERANK_K,
 ) -> None:
     """Plan the best multi-log grasp on a pile: every target subset scored with Q = f(U, tau, B).
 
@@ -286,13 +293,26 @@ def plan_command(
     path = model or DEFAULT_MODEL
     pile_json, spec, vcfg = _check_plan_flags(pile, path, png, views, view_spread, verify, verify_copies,
                                               verify_budget, verify_workers)
+    rk = None
+    if ranker is not None:
+        from planner.ranker import load_ranker
+
+        rk = load_ranker(check_input(ranker, "--ranker", "file"))
     planner = load_planner(path, views=views, view_spread_k=view_spread)
     obs, spec = load_observation(pile, planner.config, warn=o.warn)
     obj = Objective(kind=objective)
     o.progress(f"planning on {pile}: {obs.n_logs} logs, up to {max_subsets} target subsets x {views} view(s)")
     with Console(stderr=True).status("planning"):
-        result = plan(obs, planner, obj, top_k=top if vcfg is None else max(top, vcfg.k),
-                      subsets=SubsetPolicy(max_subsets=max_subsets), pile=spec)
+        keep = top if vcfg is None else max(top, vcfg.k)
+        result = plan(obs, planner, obj, top_k=None if rk else keep, subsets=SubsetPolicy(max_subsets=max_subsets),
+                      pile=spec)
+        if rk is not None:
+            from dataclasses import replace
+
+            from planner.ranker import rerank
+
+            result = rerank(result, obs, rk, obj, rerank_k)
+            result = replace(result, grasps=result.grasps[:keep])
     verification = None
     if vcfg is not None:
         from planner.verify import VerificationBudgetError, verify_plan
@@ -351,6 +371,10 @@ def _print_plan(o: Output, pile: Path, result, verification, objective: str, png
     doc = {k: v for k, v in result.to_dict().items() if k != "info"} | {"pile": str(pile)}
     if verification is not None:
         doc["verification"] = verification.to_dict()
+    if "reranked" in result.info:  # the first n grasps' U is the ranker's p; the network's U beside it
+        doc["ranker"] = {k: result.info[k] for k in ("reranked", "u_network")}
+        o.progress(f"ranker: the first {result.info['reranked']} grasps re-scored (their U is the ranker's "
+                   "success probability); the others follow with Q 0")
     o.result("loggrasp.plan", doc)
     rows = [[str(i + 1), ",".join(map(str, g.targets)), f"{g.grasp.x_m:.3f}", f"{g.grasp.y_m:.3f}",
              f"{math.degrees(g.grasp.phi_rad):.1f}", f"{g.grasp.width_m:.3f}", f"{g.quality:.3f}",
@@ -405,6 +429,9 @@ def eval_command(
                         "or 8; V times the planning time).", default=None, metavar="V"),
     view_spread: float = option("--view-spread", "With --views: lower U by K x its spread over the views.",
                                 default=0.0, metavar="K"),
+    ranker: Path = option("--ranker", "Add a U-Net row per objective (and per verified row) whose best --rerank-k "
+                          "grasps by f1 and by f3 a ranker checkpoint re-scores.", default=None, metavar="PATH"),
+    rerank_k: int = RERANK_K,
     field_error: str = option("--field-error", "Add a field row per planner: its chosen grasp executed with the "
                               "crane's positioning error, SIGMA_XY_M,SIGMA_PHI_DEG (e.g. 0.03,2: 3 cm per axis, 2 deg).",
                               default=None, metavar="M,DEG"),
@@ -418,6 +445,7 @@ def eval_command(
     Re-running resumes (one record file per pile).
     """
     import json
+    from dataclasses import replace
 
     from planner.evaluate import run_evaluation
     from synth.common.ranges import parse_range
@@ -439,6 +467,10 @@ def eval_command(
                      field_error=error)
     specs = _eval_specs(str(model or DEFAULT_MODEL), objectives, baselines, extra_model, verify, verify_copies)
     specs += _view_specs(str(model or DEFAULT_MODEL), objectives, views, view_spread)
+    if ranker is not None:
+        check_input(ranker, "--ranker", "file")
+        specs += [replace(s, ranker=str(ranker), rerank_k=rerank_k) for s in specs
+                  if s.kind == "unet" and not s.label and s.views == 1]
     check_output_dir(out, "--out")
     with progress_bar() as bar:
         task = bar.add_task("piles", total=len(cfg.tasks()), info="")

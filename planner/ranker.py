@@ -194,7 +194,9 @@ class Ranker:
 def rerank(plan, observation, ranker: Ranker, objective, k: int = 4):
     """``plan`` with the union of its best ``k`` grasps by f1 and by f3 scored by ``ranker`` and put
     first, ordered by ``objective`` with U replaced by the ranker's probability (``quality`` and
-    ``graspability`` of those grasps become the ranker's; U stays in ``info["u_network"]``)."""
+    ``graspability`` of those grasps become the ranker's; U stays in ``info["u_network"]``). The grasps
+    the ranker did not score follow in their order with quality 0: no grasp outside the scored union
+    outranks one in it, wherever the plan is sorted by quality (the verifier's candidates)."""
     from planner.inference import Objective
 
     f3 = Objective("f3")
@@ -207,7 +209,7 @@ def rerank(plan, observation, ranker: Ranker, objective, k: int = 4):
     scored = [replace(g, graspability=float(pi), quality=float(objective.quality(pi, len(g.targets), g.balance)))
               for g, pi in zip(chosen, p)]
     scored.sort(key=lambda g: -g.quality)
-    rest = [g for g in plan.grasps if g.targets not in {s.targets for s in scored}]
+    rest = [replace(g, quality=0.0) for g in plan.grasps if g.targets not in {s.targets for s in scored}]
     info = {**plan.info, "reranked": len(scored),
             "u_network": {",".join(map(str, g.targets)): g.graspability for g in chosen}}
     return replace(plan, grasps=scored + rest, info=info)

@@ -142,23 +142,19 @@ def validate(model, ex: Examples, batch: int) -> dict:
             "brier": float(np.mean((p - y) ** 2)), "auc": auc, "auc_pairs": pairs, "auc_piles": mixed}
 
 
-def train_ranker(data: list[str | Path], out: str | Path, cfg: RankerTrainConfig = RankerTrainConfig(),
-                 ranker: RankerConfig = RankerConfig(), progress: Callable[[str], None] | None = None) -> dict:
-    """Train a ranker on the data sets' trials; writes ``out`` (the checkpoint) and ``out`` + ``.json``
-    (the run's log); returns the log. :class:`TrainingError` when a side of the split is empty."""
+def fit(ex: Examples, cfg: RankerTrainConfig, ranker: RankerConfig = RankerConfig(),
+        say: Callable[[str], None] = lambda s: None) -> tuple[object, list[dict]]:
+    """A ranker trained on ``ex``'s training piles, validated each epoch: (model, history).
+    :class:`TrainingError` when a side of the split is empty."""
     import torch
 
-    say = progress or (lambda s: None)
     t0 = time.perf_counter()
     torch.set_num_threads(cfg.num_threads)
     torch.manual_seed(cfg.seed)
-    ex = load_examples(data, ranker, cfg, lambda i, n: say(f"crops: shard {i}/{n}") if i % 25 == 0 or i == n else None)
     train_idx = np.flatnonzero(~ex.val)
     if not len(train_idx) or not ex.val.any():
         raise TrainingError(f"{len(train_idx)} training and {int(ex.val.sum())} validation examples: both sides of "
-                            "the by-pile split need piles; give more data or another --val-fraction")
-    say(f"{len(train_idx)} training examples, {int(ex.val.sum())} validation ({len(np.unique(ex.piles))} piles), "
-        f"{time.perf_counter() - t0:.0f} s")
+                            "the by-pile split need piles; give more data")
     model = build_ranker(ranker)
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     steps = cfg.epochs * math.ceil(len(train_idx) / cfg.batch_size)
@@ -180,18 +176,30 @@ def train_ranker(data: list[str | Path], out: str | Path, cfg: RankerTrainConfig
             sched.step()
             total += float(loss.detach()) * len(j)
         model.eval()
-        entry = {"epoch": epoch + 1, "train_bce": total / len(order), **{f"val_{k}": v for k, v in
-                                                                         validate(model, ex, cfg.batch_size).items()},
-                 "elapsed_s": time.perf_counter() - t0}
-        history.append(entry)
-        say(f"epoch {epoch + 1}/{cfg.epochs}: train BCE {entry['train_bce']:.4f}, val BCE {entry['val_bce']:.4f}, "
-            f"within-pile AUC {entry['val_auc']:.3f} ({entry['val_auc_piles']} piles)")
-    log = {"data": [str(d) for d in data], "train_config": asdict(cfg), "ranker_config": ranker.to_dict(),
-           "examples": {"train": int(len(train_idx)), "val": int(ex.val.sum()),
-                        "train_positive_mean": float(ex.labels[train_idx].mean())},
-           "history": history, "final": history[-1]}
-    save_ranker(out, model, ranker, {k: log[k] for k in ("data", "train_config", "examples", "final")})
+        val = validate(model, ex, cfg.batch_size)
+        history.append({"epoch": epoch + 1, "train_bce": total / len(order), **{f"val_{k}": v for k, v in val.items()},
+                        "elapsed_s": time.perf_counter() - t0})
+        say(f"epoch {epoch + 1}/{cfg.epochs}: train BCE {history[-1]['train_bce']:.4f}, val BCE {val['bce']:.4f}, "
+            f"within-pile AUC {val['auc']:.3f} ({val['auc_piles']} piles)")
+    return model, history
+
+
+def train_ranker(data: list[str | Path], out: str | Path, cfg: RankerTrainConfig = RankerTrainConfig(),
+                 ranker: RankerConfig = RankerConfig(), progress: Callable[[str], None] | None = None) -> dict:
+    """Train a ranker on the data sets' trials; writes ``out`` (the checkpoint) and ``out`` + ``.json``
+    (the run's log); returns the log."""
     from synth.common.files import atomic_write_bytes
 
+    say = progress or (lambda s: None)
+    t0 = time.perf_counter()
+    ex = load_examples(data, ranker, cfg, lambda i, n: say(f"crops: shard {i}/{n}") if i % 25 == 0 or i == n else None)
+    say(f"{int((~ex.val).sum())} training examples, {int(ex.val.sum())} validation ({len(np.unique(ex.piles))} "
+        f"piles), {time.perf_counter() - t0:.0f} s")
+    model, history = fit(ex, cfg, ranker, say)
+    log = {"data": [str(d) for d in data], "train_config": asdict(cfg), "ranker_config": ranker.to_dict(),
+           "examples": {"train": int((~ex.val).sum()), "val": int(ex.val.sum()),
+                        "train_positive_mean": float(ex.labels[~ex.val].mean())},
+           "history": history, "final": history[-1]}
+    save_ranker(out, model, ranker, {k: log[k] for k in ("data", "train_config", "examples", "final")})
     atomic_write_bytes(Path(str(out) + ".json"), json.dumps(log, indent=1).encode())
     return log

@@ -5,7 +5,8 @@ import math
 
 import pytest
 
-from planner.evaluate import EvalConfig, PlannerSpec, evaluate_pile, geometric_planner, run_evaluation
+from planner.evaluate import EvalConfig, evaluate_pile, run_evaluation
+from planner.planners import PlannerSpec, geometric_planner
 from synth.scene.generate import GenerationConfig, generate_pile
 from synth.geometry.grasp import Grasp
 from synth.render.ortho import OrthoRenderConfig, render_ortho
@@ -76,7 +77,7 @@ def test_bad_specs():
     with pytest.raises(ValueError):
         EvalConfig(per_cell=0)
     with pytest.raises(ValueError, match="unknown planner"):
-        from planner.evaluate import build_planner
+        from planner.planners import build_planner
 
         build_planner(PlannerSpec("magic"))
 
@@ -123,7 +124,7 @@ def test_resume_adds_planners_and_reruns_records_of_another_checkpoint(tmp_path)
 def test_the_verified_row_checks_on_a_perturbed_copy_never_on_the_test_pile():
     """The verifier in the evaluation tries the plan's grasps on a perturbed copy of the test pile
     (on the pile itself it would be the oracle) and returns the grasp that succeeded there."""
-    from planner.evaluate import verified_planner
+    from planner.planners import verified_planner
     from planner.inference import Objective, Plan, PlannedGrasp
     from synth.physics.trial import Outcome, TrialResult
 
@@ -155,7 +156,7 @@ def test_the_verified_row_checks_on_a_perturbed_copy_never_on_the_test_pile():
     assert PlannerSpec("unet", model="m", objective="f3", verify_k=8).name == "unet-f3-verify8"
     assert PlannerSpec("unet", model="m", objective="f3", verify_k=8, verify_copies=3).name == "unet-f3-verify8x3"
     with pytest.raises(ValueError, match="verify_k"):
-        from planner.evaluate import build_planner
+        from planner.planners import build_planner
 
         build_planner(PlannerSpec("unet", model="m", objective="f3", verify_k=-1))
 
@@ -199,7 +200,7 @@ def test_a_row_with_a_subset_cap_plans_only_the_subsets_it_keeps(tmp_path, monke
     assert set(tables["planners"]) == {"unet-f1-cap1", "unet-f1"}
     assert seen[0] == [(0,), (1,)] and seen[1] == [(0,), (0, 1), (1,)], seen
     with pytest.raises(ValueError, match="max_subsets"):
-        from planner.evaluate import build_planner
+        from planner.planners import build_planner
 
         build_planner(PlannerSpec("unet", model=str(ckpt), max_subsets=-1))
 
@@ -211,7 +212,8 @@ def test_a_row_with_test_time_views_plans_with_them_and_keeps_its_own_records(tm
     from dataclasses import replace
 
     import planner.inference as inference
-    from planner.evaluate import _fingerprint, build_planner
+    from planner.evaluate import _fingerprint
+    from planner.planners import build_planner
 
     cfg = EvalConfig(logs=(2,), obstacles=(False,), per_cell=1)
     ckpt = _tiny_checkpoint(tmp_path / "m.safetensors", cfg)

@@ -1,0 +1,191 @@
+"""The grasp ranker: its crops, its training, its checkpoints and the re-ranking of a plan."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from planner.errors import CheckpointError, DataError, TrainingError
+from planner.ranker import (RankerConfig, build_ranker, claw_footprint, grasp_crops, grasp_scalars, load_ranker,
+                            rerank, save_ranker, Ranker)
+from planner.ranker_train import Examples, RankerTrainConfig, fit, load_examples, within_pile_auc
+from synth.geometry.frames import OrthoGrid
+from synth.geometry.grasp import Grasp
+
+GRID = OrthoGrid(128, 5.0)
+CFG = RankerConfig()
+
+
+def _point_image(x_m: float, y_m: float) -> np.ndarray:
+    img = np.zeros((128, 128), np.float32)
+    r, c = (int(round(float(v))) for v in GRID.pile_to_pixel(x_m, y_m))
+    img[r, c] = 1.0
+    return img
+
+
+@pytest.mark.parametrize("phi, row_off, col_off", [(0.0, 0, 8), (-math.pi / 2, -8, 0),
+                                                    (math.pi / 3, 8 * math.sin(math.pi / 3), 4)])
+def test_the_crop_turns_with_the_closing_axis(phi, row_off, col_off):
+    """A point 8 px along pile +x from the grasp centre lies 8 px along the closing axis (columns) when
+    the grasp closes along x, 8 px to its left (rows, up) when it closes along -y, and in between."""
+    g = Grasp(*(float(v) for v in GRID.pixel_to_pile(60, 70)), phi, 0.6)
+    p = GRID.pixel_m
+    img = _point_image(g.x_m + 8 * p, g.y_m)
+    crop = grasp_crops(img, np.zeros_like(img), img > 0, GRID, [g], CFG)[0]
+    r, c = np.unravel_index(np.argmax(crop[0]), crop[0].shape)
+    centre = (CFG.crop_px - 1) / 2
+    assert (r - centre, c - centre) == pytest.approx((row_off, col_off), abs=0.51)
+
+
+def test_the_claws_come_down_just_outside_the_opening():
+    s = CFG.crop_px
+    c = (np.arange(s) - (s - 1) / 2) * CFG.pixel_m
+    u, v = np.meshgrid(c, -c)
+    f = claw_footprint(u, v, 0.8, CFG)
+    on = np.abs(u[f > 0])
+    assert on.min() >= 0.4 and on.max() <= 0.4 + CFG.claw_plate_m
+    assert np.abs(v[f > 0]).max() <= CFG.claw_width_m / 2
+    assert (u[f > 0] > 0).any() and (u[f > 0] < 0).any()
+
+
+def test_height_is_measured_from_the_targets_top():
+    height = np.zeros((128, 128), np.float32)
+    mask = np.zeros((128, 128), bool)
+    height[60:68, :] = 0.4  # the target, 0.4 m high
+    mask[60:68, :] = True
+    height[40:44, :] = 0.7  # a neighbour on top of it
+    g = Grasp(*GRID.pixel_to_pile(63.5, 64), math.pi / 2, 0.6)
+    crop = grasp_crops(np.zeros_like(height), height, mask, GRID, [g], CFG)[0]
+    assert crop[1][crop[2] > 0].max() == pytest.approx(0.0, abs=1e-6)
+    assert crop[1].max() == pytest.approx(0.3, abs=1e-5)
+
+
+def test_within_pile_auc_pools_pairs_and_counts_ties_half():
+    scores = np.array([0.9, 0.1, 0.5, 0.5, 0.7, 0.2])
+    labels = np.array([1.0, 0.0, 1.0, 0.0, 1.0, 1.0])
+    piles = np.array(["a", "a", "b", "b", "c", "c"])  # c has no failure: no pairs
+    auc, pairs, mixed = within_pile_auc(scores, labels, piles)
+    assert (auc, pairs, mixed) == (pytest.approx(0.75), 2, 2)
+
+
+def _rule_examples(n: int, seed: int = 0) -> Examples:
+    """Crops whose label is 1 exactly when the target mask covers the crop's centre."""
+    rng = np.random.default_rng(seed)
+    s = 16
+    crops = rng.normal(0, 0.1, (n, 4, s, s)).astype(np.float16)
+    labels = (rng.random(n) < 0.5).astype(np.float32)
+    crops[:, 2] = 0
+    for i in np.flatnonzero(labels):
+        crops[i, 2, s // 2 - 3:s // 2 + 3, s // 2 - 3:s // 2 + 3] = 1
+    for i in np.flatnonzero(labels == 0):  # the mask elsewhere: in a corner
+        crops[i, 2, :4, :4] = 1
+    piles = np.array([f"d/p{i % 40}" for i in range(n)])
+    return Examples(crops, np.zeros((n, 2), np.float32), labels, piles, np.zeros(n, int),
+                    np.array([i % 40 < 8 for i in range(n)]))
+
+
+def test_fit_learns_what_the_crops_show():
+    """Trained on crops labelled by where the target mask lies, the ranker orders held-out piles' crops."""
+    ex = _rule_examples(1200)
+    _, history = fit(ex, RankerTrainConfig(epochs=4, batch_size=32, lr=3e-3), RankerConfig(crop_px=16, channels=8))
+    assert history[-1]["val_auc"] > 0.95 and history[-1]["val_auc_piles"] == 8
+
+
+def test_fit_needs_both_sides_of_the_split():
+    ex = _rule_examples(40)
+    ex.val[:] = False
+    with pytest.raises(TrainingError, match="validation"):
+        fit(ex, RankerTrainConfig(epochs=1), RankerConfig(crop_px=16, channels=8))
+
+
+def _width_ranker(threshold_m: float = 0.7) -> Ranker:
+    """A real ranker whose weights make p = sigmoid(10 (width - threshold)): it prefers wide grasps."""
+    import torch
+
+    cfg = RankerConfig(crop_px=16, channels=4, hidden=8)
+    model = build_ranker(cfg)
+    with torch.no_grad():
+        for p in model.parameters():
+            p.zero_()
+        model.head[0].weight[0, -2] = 1.0  # hidden 0 = relu(width)
+        model.head[2].weight[0, 0] = 10.0
+        model.head[2].bias[0] = -10.0 * threshold_m
+    model.eval()
+    return Ranker(model, replace_pitch(cfg), {})
+
+
+def replace_pitch(cfg: RankerConfig) -> RankerConfig:
+    from dataclasses import replace
+
+    return replace(cfg, pixel_m=GRID.pixel_m)
+
+
+def test_a_checkpoint_round_trips_and_a_foreign_file_is_refused(tmp_path):
+    from planner.checkpoint import save_checkpoint
+    from planner.model import UNetConfig, build_unet
+
+    rk = _width_ranker()
+    path = save_ranker(tmp_path / "r.safetensors", rk.model, rk.config, {"note": 1})
+    back = load_ranker(path)
+    crops = np.zeros((3, 4, 16, 16), np.float32)
+    scal = grasp_scalars([Grasp(0, 0, 0, w) for w in (0.5, 0.7, 0.9)], [1, 2, 3])
+    assert np.allclose(back.probabilities(crops, scal), rk.probabilities(crops, scal))
+    assert back.meta == {"note": 1} and back.config == rk.config
+    unet = tmp_path / "unet.safetensors"
+    save_checkpoint(unet, build_unet(UNetConfig.tiny(size_px=32)), UNetConfig.tiny(size_px=32))
+    with pytest.raises(CheckpointError, match="format"):
+        load_ranker(unet)
+    (tmp_path / "cut.safetensors").write_bytes(path.read_bytes()[:100])
+    with pytest.raises(CheckpointError, match="truncated or corrupt"):
+        load_ranker(tmp_path / "cut.safetensors")
+
+
+def test_rerank_puts_the_ranked_union_first_in_the_ranker_s_order():
+    """The best k by f1 and by f3 are scored and ordered by the ranker's p; the rest follow unchanged."""
+    from planner.inference import Objective, Plan, PlannedGrasp
+
+    from tests.planner.planner_helpers import observation
+
+    obs = observation(4, size=128)
+    widths = [0.5, 0.9, 0.6, 1.2, 0.8, 1.0]
+    grasps = [PlannedGrasp(Grasp(0.0, 0.1 * i, math.pi / 2, w), 0.9 - 0.1 * i, 0.9 - 0.1 * i, 1.0, (i % 4,) if i < 4
+                           else (0, 1 + i % 3), (0, 0)) for i, w in enumerate(widths)]
+    plan = Plan(grasps, 6, 0.0)
+    out = rerank(plan, obs, _width_ranker(), Objective("f1"), k=2)
+    ranked = out.grasps[:out.info["reranked"]]
+    assert sorted(g.grasp.width_m for g in ranked) == sorted([0.5, 0.9])  # f1 and f3 agree on the top two here
+    assert [g.grasp.width_m for g in ranked] == [0.9, 0.5]
+    assert ranked[0].graspability == pytest.approx(1 / (1 + math.exp(-10 * 0.2)))
+    assert [g.grasp.width_m for g in out.grasps[2:]] == [0.6, 1.2, 0.8, 1.0]
+    assert [g.quality for g in out.grasps[2:]] == [0.0] * 4 and out.grasps[3].graspability == pytest.approx(0.6)
+    assert out.info["u_network"]["0"] == pytest.approx(0.9)
+
+
+def test_examples_need_stored_trials(tmp_path):
+    from tests.planner.planner_helpers import make_dataset
+
+    make_dataset(tmp_path / "d", n_piles=2, size=128, shards=1)
+    with pytest.raises(DataError, match="keeps no trials"):
+        load_examples([tmp_path / "d"], replace_pitch(RankerConfig()), RankerTrainConfig())
+
+
+def test_a_ranked_row_is_named_and_fingerprinted_by_its_ranker(tmp_path):
+    """An evaluation record planned with one ranker is not reused for another (or another k)."""
+    from planner.evaluate import _fingerprint
+    from planner.planners import PlannerSpec
+
+    model = tmp_path / "m.safetensors"
+    model.write_bytes(b"model")
+    a, b = _width_ranker(0.7), _width_ranker(0.9)
+    pa = save_ranker(tmp_path / "a.safetensors", a.model, a.config)
+    pb = save_ranker(tmp_path / "b.safetensors", b.model, b.config)
+    plain = PlannerSpec("unet", model=str(model), objective="f3")
+    ra = PlannerSpec("unet", model=str(model), objective="f3", ranker=str(pa))
+    assert (plain.name, ra.name) == ("unet-f3", "unet-f3-ranked4")
+    prints = {_fingerprint(s) for s in (plain, ra, PlannerSpec("unet", model=str(model), objective="f3",
+                                                                ranker=str(pb)),
+                                        PlannerSpec("unet", model=str(model), objective="f3", ranker=str(pa),
+                                                    rerank_k=2))}
+    assert len(prints) == 4

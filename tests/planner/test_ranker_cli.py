@@ -1,0 +1,110 @@
+"""``loggrasp train-ranker``, ``loggrasp round`` and ``plan --ranker``: tiny real runs and bad input."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from tests.cli_helpers import cli, fails
+
+
+def _trial_dataset(out, n_piles: int = 12):
+    """128 px bar piles whose subsets each hold a centred grasp that worked and one 1.2 m along the logs'
+    ends that did not (a synthetic store's shards: trials with success values)."""
+    from synth.data.shards import Manifest, Sample, ShardWriter, write_manifest
+    from synth.geometry.frames import OrthoGrid
+    from tests.planner.planner_helpers import bar_pile, subset_grasp
+
+    grid = OrthoGrid(128, 5.0)
+    w = ShardWriter(out, "t", 0)
+    for p in range(n_piles):
+        inten, depth, inst, _ = bar_pile(3, 128, seed=p)
+        for subset in [(0,), (1,), (0, 1, 2)]:
+            g = subset_grasp(inst, subset, grid)
+            trials = np.array([[g.x_m, g.y_m, g.phi_rad, g.width_m, 1.0, 0.99],
+                               [g.x_m + 1.2, g.y_m, g.phi_rad, g.width_m, 0.0, math.nan]])
+            w.add(Sample(pile_id=f"pile_{p:03d}", render=0, subset=subset, intensity=inten, depth=depth,
+                         target_mask=np.isin(inst, [i + 1 for i in subset]), maps=np.zeros((5, 128, 128), np.float32),
+                         grasps=trials[:1, :5], negative=False, n_logs=3, trials=trials, capped=False))
+    write_manifest(out, Manifest(params={"test": True}, grid={"size_px": 128, "extent_m": 5.0, "camera_height_m": 5.0},
+                                 shards=[w.close()], summary={}))
+    return out
+
+
+@pytest.fixture(scope="module")
+def trials_dir(tmp_path_factory):
+    return _trial_dataset(tmp_path_factory.mktemp("trials"))
+
+
+def test_train_ranker_writes_a_checkpoint_that_loads(capsys, tmp_path, trials_dir):
+    from planner.ranker import load_ranker
+
+    out = tmp_path / "r.safetensors"
+    r = cli(capsys, "train-ranker", "--data", trials_dir, "--out", out, "--epochs", "2", "--batch-size", "8", "--json")
+    assert r.code == 0, r.err
+    d = r.json()
+    assert d["format"] == "loggrasp.train_ranker" and d["examples"]["train"] + d["examples"]["val"] == 72
+    assert 0.0 <= d["final"]["val_auc"] <= 1.0
+    rk = load_ranker(out)
+    assert rk.meta["examples"] == d["examples"] and json.loads((tmp_path / "r.safetensors.json").read_text())["history"]
+
+
+def test_train_ranker_bad_input(capsys, tmp_path, trials_dir):
+    from tests.planner.planner_helpers import make_dataset
+
+    fails(cli(capsys, "train-ranker", "--data", trials_dir, "--out", tmp_path / "r.pt"), 2, "--out", ".safetensors")
+    fails(cli(capsys, "train-ranker", "--data", tmp_path / "nothing", "--out", tmp_path / "r.safetensors"), 2,
+          "--data")
+    make_dataset(tmp_path / "old", n_piles=2, size=128, shards=1)
+    fails(cli(capsys, "train-ranker", "--data", tmp_path / "old", "--out", tmp_path / "r.safetensors"), 2,
+          "keeps no trials")
+
+
+@pytest.fixture(scope="module")
+def tiny_model(tmp_path_factory):
+    import torch
+
+    from planner.checkpoint import save_checkpoint
+    from planner.model import UNetConfig, build_unet
+
+    path = tmp_path_factory.mktemp("m") / "tiny.safetensors"
+    torch.manual_seed(0)
+    save_checkpoint(path, build_unet(UNetConfig.tiny(size_px=128)), UNetConfig.tiny(size_px=128), {})
+    return path
+
+
+def test_round_runs_a_pile_and_refuses_bad_flags(capsys, tmp_path, tiny_model):
+    r = cli(capsys, "round", "--round", "0", "--piles", "1", "--model", tiny_model, "--top-k", "1", "--repeats", "1",
+            "--logs", "2-2", "--workers", "1", "--out", tmp_path / "r0", "--json")
+    assert r.code == 0, r.err
+    d = r.json()
+    assert d["chunks_done"] == 1 and d["complete"] and d["trials"] == d["subsets"] >= 1
+    base = ["round", "--round", "0", "--piles", "1", "--model", tiny_model, "--out", tmp_path / "r1"]
+    fails(cli(capsys, *base, "--error", "3cm"), 2, "--error")
+    fails(cli(capsys, *base, "--logs", "7"), 2, "--logs")
+    fails(cli(capsys, *base, "--logs", "5-3"), 2, "max_logs")
+    fails(cli(capsys, "round", "--round", "0", "--piles", "2", "--model", tmp_path / "none.safetensors", "--out",
+              tmp_path / "r2"), 2, "--model")
+
+
+def test_plan_with_a_ranker_lists_its_probabilities(capsys, tmp_path, trials_dir):
+    """plan --ranker: the listed grasps' U are the ranker's probabilities, in the objective's order."""
+    assert cli(capsys, "synth", "piles", "--count", "1", "--logs", "3", "--renders", "1", "--workers", "1",
+               "--out", tmp_path / "piles").code == 0
+    out = tmp_path / "r.safetensors"
+    assert cli(capsys, "train-ranker", "--data", trials_dir, "--out", out, "--epochs", "1").code == 0
+    pile = tmp_path / "piles" / "pile_00000"
+    plain = cli(capsys, "plan", pile, "--json", "--top", "7").json()
+    r = cli(capsys, "plan", pile, "--json", "--top", "7", "--ranker", out, "--rerank-k", "2")
+    assert r.code == 0, r.err
+    ranked = r.json()
+    n = ranked["ranker"]["reranked"]
+    assert 2 <= n <= 4
+    us = [g["graspability"] for g in ranked["grasps"][:n]]
+    assert [g["quality"] for g in ranked["grasps"][:n]] == sorted(us, reverse=True)  # f1: quality = p
+    assert [g["quality"] for g in ranked["grasps"][n:]] == [0.0] * (len(ranked["grasps"]) - n)
+    assert set(ranked["ranker"]["u_network"].values()) <= {g["graspability"] for g in plain["grasps"]}
+    fails(cli(capsys, "plan", pile, "--ranker", tmp_path / "missing.safetensors"), 2, "--ranker")
