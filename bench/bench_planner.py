@@ -2,14 +2,15 @@
 :mod:`experiments.planner_bench` (training throughput, planning latency, averaged views, the cost of
 subset pre-selection).
 
-    .venv/bin/python bench/bench_planner.py [--pruning-only --model M --piles 20] [--views-only]
+    .venv/bin/python bench/bench_planner.py [--pruning-only --model M --piles 20] [--views-only] [--ranker-only]
 """
 
 from __future__ import annotations
 
 import os
 
-from experiments.planner_bench import markdown, pruning_markdown, pruning_quality, views_latency, views_markdown
+from experiments.planner_bench import (markdown, pruning_markdown, pruning_quality, ranker_latency, ranker_markdown,
+                                       views_latency, views_markdown)
 
 __all__ = ["markdown"]
 
@@ -25,8 +26,11 @@ if __name__ == "__main__":
     ap.add_argument("--cache", default=None, help="folder keeping each pile's pruning rows (resume a run)")
     ap.add_argument("--cached-only", action="store_true", help="tabulate the piles in --cache, compute nothing")
     ap.add_argument("--views-only", action="store_true", help="only the planning time with averaged test-time views")
+    ap.add_argument("--ranker-only", action="store_true", help="only the planning time with re-ranking by a ranker")
     args = ap.parse_args()
-    if args.views_only:
+    if args.ranker_only:
+        print("\n".join(ranker_markdown(ranker_latency())))
+    elif args.views_only:
         print("\n".join(views_markdown(views_latency())))
     elif args.pruning_only:
         print("\n".join(pruning_markdown(pruning_quality(args.model, n_piles=args.piles, cache_dir=args.cache,

@@ -125,6 +125,44 @@ def views_latency(n_logs=(4, 7), views=(1, 4, 8), repeats: int = 3) -> list[dict
     return rows
 
 
+def ranker_latency(n_logs=(4, 7), ks=(4, 8), repeats: int = 5) -> list[dict]:
+    """Planning time of the shipped model (f3, all subsets, 2 threads) without and with re-ranking by a
+    ranker (:mod:`planner.ranker`, untrained weights: the time does not depend on them) of the best k
+    grasps by f1 and by f3: the re-ranking's own time is the crops plus one small forward pass."""
+    import torch
+
+    from planner.inference import Objective, load_planner, plan
+    from planner.ranker import Ranker, RankerConfig, build_ranker, rerank
+
+    torch.set_num_threads(2)
+    torch.manual_seed(0)
+    rk = Ranker(build_ranker(RankerConfig()).eval(), RankerConfig(), {})
+    pl = load_planner(DEFAULT_MODEL, device="cpu")
+    obs = {n: _pile_observations(n, 1)[0][0] for n in n_logs}
+    f3 = Objective(kind="f3")
+    plan(obs[n_logs[0]], pl)  # warm-up
+    rows = []
+    for n in n_logs:
+        for k in (0,) + tuple(ks):
+            walls, reranked = [], 0
+            for _ in range(repeats):
+                t0 = time.perf_counter()
+                p = plan(obs[n], pl, f3)
+                if k:
+                    p = rerank(p, obs[n], rk, f3, k)
+                    reranked = p.info["reranked"]
+                walls.append(time.perf_counter() - t0)
+            rows.append({"logs": n, "k": k, "reranked": reranked, "wall_s": statistics.median(walls)})
+    return rows
+
+
+def ranker_markdown(rows: list[dict]) -> list[str]:
+    lines = [f"Planning with re-ranking (`--ranker R --rerank-k K`), shipped model, f3, all subsets, 2 threads, "
+             f"median of 5 ({load_average()}); K 0 = no ranker. Target: a 7-log pile (127 subsets) <= 0.5 s.", "",
+             "| logs | K | grasps re-scored | wall s |", "|---|---|---|---|"]
+    return lines + [f"| {r['logs']} | {r['k']} | {r['reranked']} | {r['wall_s']:.3f} |" for r in rows]
+
+
 def views_markdown(rows: list[dict]) -> list[str]:
     lines = [f"Planning with averaged test-time views (`--views V --view-spread 2`), shipped model, f3, all subsets, "
              f"2 threads, median of 3 ({load_average()}):", "", "| views | logs | wall s |", "|---|---|---|"]
@@ -326,6 +364,7 @@ def markdown(repeats: int = 3) -> str:
               f"{fit_note(r)} | "
               f"{r['wall_s']:.2f} | {r['cpu_s']:.2f} |" for r in lat]
     parts += [""] + views_markdown(views_latency())
+    parts += [""] + ranker_markdown(ranker_latency())
     parts += [""] + pruning_markdown(pruning_quality(
         os.environ.get("LOGGRASP_PLANNER_CKPT"), n_piles=int(os.environ.get("LOGGRASP_BENCH_PRUNING_PILES", "20"))))
     return "\n".join(parts)
