@@ -65,13 +65,14 @@ def load_examples(data: list[str | Path], ranker: RankerConfig, cfg: RankerTrain
     """Every stored trial of the data sets (grasp stores or materialised folders) as ranker examples."""
     from planner.data import is_validation_pile, list_shards, load_samples, normalise_depth, sample_arrays
 
-    shards, grid_d = list_shards([str(d) for d in data])
+    sources = [(k, shard) for k, d in enumerate(data) for shard in list_shards(str(d))[0]]
+    _, grid_d = list_shards([str(d) for d in data])  # the data sets' grids must agree
     grid = OrthoGrid(int(grid_d["size_px"]), float(grid_d["extent_m"]))
     cam_h = float(grid_d.get("camera_height_m", 5.0))
     if abs(grid.pixel_m / ranker.pixel_m - 1.0) > 0.005:
         raise DataError(f"the data's pixels are {100 * grid.pixel_m:.2f} cm, the ranker's {100 * ranker.pixel_m:.2f} cm")
     parts: dict[str, list] = {k: [] for k in ("crops", "scalars", "labels", "piles", "render")}
-    for i, shard in enumerate(shards):
+    for i, (k, shard) in enumerate(sources):
         for s in load_samples(shard):
             if s.trials is None:
                 raise DataError(f"{shard} keeps no trials (materialised before outcome labels); materialise the "
@@ -84,10 +85,10 @@ def load_examples(data: list[str | Path], ranker: RankerConfig, cfg: RankerTrain
                                   .astype(np.float16))
             parts["scalars"].append(grasp_scalars(grasps, [len(s.subset)] * len(grasps)))
             parts["labels"].append(np.asarray(s.trials[:, 4], dtype=np.float32))
-            parts["piles"] += [f"{shard.parent.name}/{s.pile_id}"] * len(grasps)
+            parts["piles"] += [f"{k}/{s.pile_id}"] * len(grasps)  # the data set's index: pile ids repeat across sets
             parts["render"] += [s.render] * len(grasps)
         if progress:
-            progress(i + 1, len(shards))
+            progress(i + 1, len(sources))
     if not parts["labels"]:
         raise DataError(f"no stored trials in {', '.join(map(str, data))}; give grasp stores with trials")
     piles = np.asarray(parts["piles"])
@@ -132,14 +133,19 @@ def _predict(model, ex: Examples, sel: np.ndarray, batch: int) -> np.ndarray:
 
 
 def validate(model, ex: Examples, batch: int) -> dict:
-    """Loss, Brier score and within-pile AUC on the validation piles (render 0: each trial once)."""
+    """Loss, Brier score and within-pile AUC on the validation piles (render 0: each trial once), and the
+    AUC per data set (``auc_by_data``, keyed by its index in ``--data``)."""
     sel = ex.val & (ex.render == 0)
     p = _predict(model, ex, sel, batch)
     y = ex.labels[sel]
     pc = np.clip(p, 1e-6, 1 - 1e-6)
-    auc, pairs, mixed = within_pile_auc(p, y, ex.piles[sel])
+    piles = ex.piles[sel]
+    auc, pairs, mixed = within_pile_auc(p, y, piles)
+    source = np.array([q.split("/", 1)[0] for q in piles])
     return {"examples": int(sel.sum()), "bce": float(-np.mean(y * np.log(pc) + (1 - y) * np.log(1 - pc))),
-            "brier": float(np.mean((p - y) ** 2)), "auc": auc, "auc_pairs": pairs, "auc_piles": mixed}
+            "brier": float(np.mean((p - y) ** 2)), "auc": auc, "auc_pairs": pairs, "auc_piles": mixed,
+            "auc_by_data": {k: within_pile_auc(p[source == k], y[source == k], piles[source == k])[0]
+                            for k in sorted(set(source))}}
 
 
 def fit(ex: Examples, cfg: RankerTrainConfig, ranker: RankerConfig = RankerConfig(),

@@ -108,3 +108,14 @@ def test_plan_with_a_ranker_lists_its_probabilities(capsys, tmp_path, trials_dir
     assert [g["quality"] for g in ranked["grasps"][n:]] == [0.0] * (len(ranked["grasps"]) - n)
     assert set(ranked["ranker"]["u_network"].values()) <= {g["graspability"] for g in plain["grasps"]}
     fails(cli(capsys, "plan", pile, "--ranker", tmp_path / "missing.safetensors"), 2, "--ranker")
+
+
+def test_piles_of_two_data_sets_stay_apart(trials_dir):
+    """Two data sets name their piles alike (pile_00000 ...): the examples keep them apart (the
+    within-pile AUC pairs grasps of one pile only), and validation reports each set's AUC."""
+    from planner.ranker import RankerConfig
+    from planner.ranker_train import RankerTrainConfig, load_examples
+
+    ex = load_examples([trials_dir, trials_dir], RankerConfig(), RankerTrainConfig())
+    assert len(np.unique(ex.piles)) == 24 and len(ex.labels) == 144
+    assert {p.split("/")[0] for p in ex.piles} == {"0", "1"}
