@@ -40,6 +40,9 @@ class RankerTrainConfig:
     split_seed: int = 0  # seed of the by-pile split (planner.data.is_validation_pile) [-]
     seed: int = 0  # initialisation and batch order [-]
     num_threads: int = 1  # torch CPU threads [-]
+    balance_data: bool = True  # each --data set gives an equal share of every epoch's examples (drawn with
+    # replacement): an on-policy round, a few hundred of the network's own choices, is not drowned by a
+    # store's tens of thousands of Algorithm 1 trials, whose grasps the planner never proposes [-]
 
     def __post_init__(self) -> None:
         if self.epochs < 1 or self.batch_size < 1 or self.renders < 1 or self.num_threads < 1:
@@ -119,6 +122,17 @@ def _augment(x, rng: np.random.Generator):
     return x
 
 
+def _epoch_order(ex: Examples, train_idx: np.ndarray, balance: bool, rng: np.random.Generator) -> np.ndarray:
+    """The training examples of one epoch, shuffled; with ``balance`` as many drawn from each data set
+    (with replacement) as the epoch has examples divided by the number of sets."""
+    if not balance:
+        return rng.permutation(train_idx)
+    source = np.array([int(p.split("/", 1)[0]) for p in ex.piles[train_idx]])
+    sets = np.unique(source)
+    share = len(train_idx) // len(sets)
+    return rng.permutation(np.concatenate([rng.choice(train_idx[source == k], share) for k in sets]))
+
+
 def _predict(model, ex: Examples, sel: np.ndarray, batch: int) -> np.ndarray:
     import torch
 
@@ -169,7 +183,7 @@ def fit(ex: Examples, cfg: RankerTrainConfig, ranker: RankerConfig = RankerConfi
     history = []
     for epoch in range(cfg.epochs):
         model.train()
-        order = rng.permutation(train_idx)
+        order = _epoch_order(ex, train_idx, cfg.balance_data, rng)
         total = 0.0
         for i in range(0, len(order), cfg.batch_size):
             j = np.sort(order[i:i + cfg.batch_size])

@@ -81,7 +81,7 @@ def _rule_examples(n: int, seed: int = 0) -> Examples:
         crops[i, 2, s // 2 - 3:s // 2 + 3, s // 2 - 3:s // 2 + 3] = 1
     for i in np.flatnonzero(labels == 0):  # the mask elsewhere: in a corner
         crops[i, 2, :4, :4] = 1
-    piles = np.array([f"d/p{i % 40}" for i in range(n)])
+    piles = np.array([f"0/p{i % 40}" for i in range(n)])
     return Examples(crops, np.zeros((n, 2), np.float32), labels, piles, np.zeros(n, int),
                     np.array([i % 40 < 8 for i in range(n)]))
 
@@ -189,3 +189,16 @@ def test_a_ranked_row_is_named_and_fingerprinted_by_its_ranker(tmp_path):
                                         PlannerSpec("unet", model=str(model), objective="f3", ranker=str(pa),
                                                     rerank_k=2))}
     assert len(prints) == 4
+
+
+def test_a_balanced_epoch_draws_each_data_set_equally():
+    from planner.ranker_train import _epoch_order
+
+    n = 500
+    piles = np.array([f"{0 if i < 450 else 1}/p{i % 9}" for i in range(n)])
+    ex = Examples(np.zeros((n, 4, 16, 16), np.float16), np.zeros((n, 2), np.float32), np.zeros(n, np.float32), piles,
+                  np.zeros(n, int), np.zeros(n, bool))
+    rng = np.random.default_rng(0)
+    order = _epoch_order(ex, np.arange(n), True, rng)
+    assert len(order) == 500 and (order >= 450).sum() == 250
+    assert sorted(_epoch_order(ex, np.arange(n), False, rng)) == list(range(n))
