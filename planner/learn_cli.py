@@ -81,6 +81,8 @@ def train_ranker_command(
     crop_px: int = option("--crop-px", "Crop side.", field=(RankerConfig, "crop_px"), min=16, max=128),
     seed: int = option("--seed", "Initialisation and batch order.", field=(RankerTrainConfig, "seed")),
     threads: int = option("--threads", "Torch CPU threads.", field=(RankerTrainConfig, "num_threads"), min=1),
+    no_repeats: bool = option("--no-repeats", "Leave out the robust labels' repeats (default: each repeat is an "
+                              "example of its own, labelled by its outcome).", default=False, names=["repeats"]),
     no_balance: bool = option("--no-balance", "Pool the --data sets' examples (default: each set an equal share of "
                               "every epoch).", default=False, names=["balance_data"]),
     as_json: bool = JSON,
@@ -97,7 +99,7 @@ def train_ranker_command(
         check_input(d, "--data", "dir")
     check_output_file(out, "--out", ".safetensors")
     cfg = RankerTrainConfig(epochs=epochs, batch_size=batch_size, lr=lr, renders=renders, seed=seed,
-                            num_threads=threads, balance_data=not no_balance)
+                            num_threads=threads, balance_data=not no_balance, repeats=not no_repeats)
     log = train_ranker(list(data), out, cfg, RankerConfig(crop_px=crop_px), progress=o.progress)
     f = log["final"]
     o.say(f"ranker: {out}; validation: within-pile AUC {f['val_auc']:.3f} on {f['val_auc_piles']} piles, "

@@ -40,6 +40,8 @@ class RankerTrainConfig:
     split_seed: int = 0  # seed of the by-pile split (planner.data.is_validation_pile) [-]
     seed: int = 0  # initialisation and batch order [-]
     num_threads: int = 1  # torch CPU threads [-]
+    repeats: bool = True  # also every repeat of a robust label (the grasp as executed, moved by the positioning
+    # error) as an example of its own, labelled by its outcome: 4 more real trials per accepted grasp [-]
     balance_data: bool = True  # each --data set gives an equal share of every epoch's examples (drawn with
     # replacement): an on-policy round, a few hundred of the network's own choices, is not drowned by a
     # store's tens of thousands of Algorithm 1 trials, whose grasps the planner never proposes [-]
@@ -61,6 +63,7 @@ class Examples:
     piles: np.ndarray  # (N,) str pile id
     render: np.ndarray  # (N,) int
     val: np.ndarray  # (N,) bool
+    repeat: np.ndarray | None = None  # (N,) bool: a robust label's repeat (validation leaves them out)
 
 
 def load_examples(data: list[str | Path], ranker: RankerConfig, cfg: RankerTrainConfig,
@@ -69,12 +72,13 @@ def load_examples(data: list[str | Path], ranker: RankerConfig, cfg: RankerTrain
     from planner.data import is_validation_pile, list_shards, load_samples, normalise_depth, sample_arrays
 
     sources = [(k, shard) for k, d in enumerate(data) for shard in list_shards(str(d))[0]]
+    moved = {k: stored_repeats(d) for k, d in enumerate(data)} if cfg.repeats else {}
     _, grid_d = list_shards([str(d) for d in data])  # the data sets' grids must agree
     grid = OrthoGrid(int(grid_d["size_px"]), float(grid_d["extent_m"]))
     cam_h = float(grid_d.get("camera_height_m", 5.0))
     if abs(grid.pixel_m / ranker.pixel_m - 1.0) > 0.005:
         raise DataError(f"the data's pixels are {100 * grid.pixel_m:.2f} cm, the ranker's {100 * ranker.pixel_m:.2f} cm")
-    parts: dict[str, list] = {k: [] for k in ("crops", "scalars", "labels", "piles", "render")}
+    parts: dict[str, list] = {k: [] for k in ("crops", "scalars", "labels", "piles", "render", "repeat")}
     for i, (k, shard) in enumerate(sources):
         for s in load_samples(shard):
             if s.trials is None:
@@ -83,13 +87,17 @@ def load_examples(data: list[str | Path], ranker: RankerConfig, cfg: RankerTrain
             if s.render >= cfg.renders or not len(s.trials):
                 continue
             inten, depth, mask, _ = sample_arrays(s)
+            reps = moved.get(k, {}).get((str(s.pile_id), tuple(s.subset)), [])
             grasps = [Grasp(float(t[0]), float(t[1]), float(t[2]), float(t[3])) for t in s.trials]
+            grasps += [Grasp(*map(float, r[:4])) for r in reps]
             parts["crops"].append(grasp_crops(inten, normalise_depth(depth, cam_h), mask, grid, grasps, ranker)
                                   .astype(np.float16))
             parts["scalars"].append(grasp_scalars(grasps, [len(s.subset)] * len(grasps)))
-            parts["labels"].append(np.asarray(s.trials[:, 4], dtype=np.float32))
+            parts["labels"].append(np.concatenate([np.asarray(s.trials[:, 4], dtype=np.float32),
+                                                   np.array([r[4] == "success" for r in reps], np.float32)]))
             parts["piles"] += [f"{k}/{s.pile_id}"] * len(grasps)  # the data set's index: pile ids repeat across sets
             parts["render"] += [s.render] * len(grasps)
+            parts["repeat"] += [False] * len(s.trials) + [True] * len(reps)
         if progress:
             progress(i + 1, len(sources))
     if not parts["labels"]:
@@ -97,7 +105,26 @@ def load_examples(data: list[str | Path], ranker: RankerConfig, cfg: RankerTrain
     piles = np.asarray(parts["piles"])
     val = np.array([is_validation_pile(p.split("/", 1)[1], cfg.split_seed, cfg.val_fraction) for p in piles])
     return Examples(np.concatenate(parts["crops"]), np.concatenate(parts["scalars"]),
-                    np.concatenate(parts["labels"]), piles, np.asarray(parts["render"]), val)
+                    np.concatenate(parts["labels"]), piles, np.asarray(parts["render"]), val,
+                    np.asarray(parts["repeat"], dtype=bool))
+
+
+def stored_repeats(data_dir: str | Path) -> dict[tuple[str, tuple[int, ...]], list[list]]:
+    """A grasp store's repeats by (pile id, subset): ``[x, y, phi, width, outcome]`` rows (none for a
+    materialised folder, which keeps only each trial's success fraction)."""
+    from synth.data.datastore import chunk_path, is_store, open_store, read_chunk
+
+    if not is_store(data_dir):
+        return {}
+    _, chunks, store = open_store(data_dir)
+    out: dict[tuple[str, tuple[int, ...]], list[list]] = {}
+    for c in sorted(chunks):
+        for p in read_chunk(chunk_path(data_dir, c), store["params_sha256"])["piles"]:
+            for sub in p["subsets"]:
+                rows = [r for t in sub["trials"] for r in t.get("r", ())]
+                if rows:
+                    out[(str(p["pile_id"]), tuple(sub["targets"]))] = rows
+    return out
 
 
 def within_pile_auc(scores: np.ndarray, labels: np.ndarray, piles: np.ndarray) -> tuple[float, int, int]:
@@ -147,9 +174,9 @@ def _predict(model, ex: Examples, sel: np.ndarray, batch: int) -> np.ndarray:
 
 
 def validate(model, ex: Examples, batch: int) -> dict:
-    """Loss, Brier score and within-pile AUC on the validation piles (render 0: each trial once), and the
-    AUC per data set (``auc_by_data``, keyed by its index in ``--data``)."""
-    sel = ex.val & (ex.render == 0)
+    """Loss, Brier score and within-pile AUC on the validation piles' trials as tried (render 0: each
+    once; repeats left out), and the AUC per data set (``auc_by_data``, keyed by its index in ``--data``)."""
+    sel = ex.val & (ex.render == 0) & (~ex.repeat if ex.repeat is not None else True)
     p = _predict(model, ex, sel, batch)
     y = ex.labels[sel]
     pc = np.clip(p, 1e-6, 1 - 1e-6)

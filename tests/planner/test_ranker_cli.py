@@ -119,3 +119,24 @@ def test_piles_of_two_data_sets_stay_apart(trials_dir):
     ex = load_examples([trials_dir, trials_dir], RankerConfig(), RankerTrainConfig())
     assert len(np.unique(ex.piles)) == 24 and len(ex.labels) == 144
     assert {p.split("/")[0] for p in ex.piles} == {"0", "1"}
+
+
+def test_each_repeat_of_a_round_is_an_example_of_its_own(tmp_path, tiny_model):
+    """A round's grasp tried exactly and twice moved: three examples, the moved ones labelled by their own
+    outcome at the pose executed; --no-repeats keeps the grasp as tried, labelled by the success fraction."""
+    import gzip
+
+    from planner.onpolicy import RoundConfig, run_round
+    from planner.ranker import RankerConfig
+    from planner.ranker_train import RankerTrainConfig, load_examples
+
+    run_round(RoundConfig(round=0, piles=1, top_k=1, repeats=2, min_logs=2, max_logs=2), tiny_model, tmp_path / "r0")
+    chunk = json.loads(gzip.decompress((tmp_path / "r0" / "chunks" / "chunk_00000.json.gz").read_bytes()))
+    trials = [t for s in chunk["piles"][0]["subsets"] for t in s["trials"]]
+    ex = load_examples([tmp_path / "r0"], RankerConfig(), RankerTrainConfig())
+    assert len(ex.labels) == 3 * len(trials) and int(ex.repeat.sum()) == 2 * len(trials)
+    want = sorted(float(r[4] == "success") for t in trials for r in t["r"])
+    assert sorted(ex.labels[ex.repeat].tolist()) == want
+    plain = load_examples([tmp_path / "r0"], RankerConfig(), RankerTrainConfig(repeats=False))
+    assert len(plain.labels) == len(trials) and not plain.repeat.any()
+    assert sorted(plain.labels.tolist()) == sorted([r[4] for r in t["r"]].count("success") / 2 for t in trials)
