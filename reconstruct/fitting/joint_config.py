@@ -16,7 +16,7 @@ from dataclasses import dataclass, fields
 ESTIMATORS = ("rules22", "joint")
 #: raised whenever a change to the joint estimator makes different piles from the same scan (recorded in the
 #: report as ``estimator_revision`` and in bench keys)
-JOINT_REVISION = 8
+JOINT_REVISION = 9
 
 
 @dataclass(frozen=True)
@@ -72,6 +72,26 @@ class JointConfig:
     ambiguity_is_error: bool = False  # stop with AmbiguousSurveyError instead (as rules22 does): on the held-out
     #                                   set's packed piles, float logs beside touching neighbours stopped 4 of
     #                                   the first 10 default surveys
+    # -- the pile: every log's pose correction against its evidence and the other bodies (joint_settle) --
+    settle_scan_sigma_m: float = 0.015  # a placed log's ends across its axis and in height, 1 sigma, as the pile
+    #                                     sees them: the cylinder fit's RMS says millimetres, but a packed
+    #                                     log's sides are hidden by its neighbours (held-out diameter error
+    #                                     ~1 cm median on packed piles) and its height carries its radius' error;
+    #                                     a log seen in part or hidden keeps its placement's larger sigma [m]
+    survey_loss_sigmas: float = 3.0  # a kept survey point pulls its log as a Gaussian within this many of its
+    #                                  sigmas, by a bounded force past them (soft-L1: a wrong point the end
+    #                                  posteriors kept does not drag a log by its distance squared) [-]
+    contact_sigma_m: float = 0.002  # an interpenetration this deep costs what a 1-sigma move does: the twin's own
+    #                                 contact margin is millimetres, so the bodies win against any evidence
+    #                                 within a few sigma [m]
+    contact_reach_m: float = 0.15  # bodies farther apart than this beyond touching are not tested (twice the
+    #                                most a log moves within refuse_sigma) [m]
+    refuse_sigma: float = 4.0  # a log whose evidence costs more than this squared more with the bodies than
+    #                            without (a 4-sigma move of one Gaussian; 6 cm of a scan-placed log's end) is
+    #                            refused: its fit or its points are wrong, not its noise [-]
+    twin_rounds: int = 4  # the twin checks the estimate this many times at most; a contact it still finds is
+    #                       allowed less overlap each time, none on the last two [-]
+    settle_max_evaluations: int = 400  # least_squares' budget per estimate (a 7-log pile converges in ~30) [-]
     # -- what is reported --
     weak_sigma_m: float = 0.05  # an end less certain than this is a weak estimate (warned about), as in rules22 [m]
 

@@ -223,17 +223,13 @@ def place_joint_ends(points: np.ndarray, spec: Any, how: str, survey: tuple[Surv
 
 def _estimate(post: dict, states: np.ndarray, lo: float, k: int, axis: _Axis, point: SurveyEnd | None,
               lateral_sigma_m: float, cfg: JointConfig, fcfg: FuseConfig) -> JointEndEstimate:
-    """An end's estimate from its posterior: on the axis at the mode, pulled across toward an inlying point
-    by the two accuracies; its source is what knew it best."""
+    """An end's estimate from its posterior: on the axis at the mode (an inlying point's pull across it is
+    the pile estimate's), its sigma across both accuracies combined; its source is what knew it best."""
     pos = axis.pa + post["t_m"] * axis.u
     lat = max(lateral_sigma_m, cfg.axis_lateral_sigma_m)
     inlier = point is not None and post["outlier_prob"] <= cfg.outlier_flag_prob
-    if inlier:
-        rel = point.position_m - pos
-        off = rel - (rel @ axis.u) * axis.u
+    if inlier:  # the point's pull across the axis is made with the pile's (reconstruct.fitting.joint_settle)
         s_pt = math.sqrt(point.sigma_h_m ** 2 + cfg.pose_sigma_m ** 2)
-        wgt = lat ** 2 / (lat ** 2 + s_pt ** 2)
-        pos = pos + wgt * off
         lat = math.sqrt(1.0 / (1.0 / lat ** 2 + 1.0 / s_pt ** 2))
     s_al = post["sigma_along_m"]
     if inlier and post["sigma_point_m"] < post["sigma_scan_m"]:

@@ -1,0 +1,152 @@
+"""The bodies of a pile as penalty terms: how deep a log runs into another log, an obstacle or the terrain,
+over what the twin's pentagonal prism allows (:mod:`reconstruct.fitting.joint_settle` weighs these against
+each log's evidence).
+
+Every log is a cylinder of its butt and top radii about the segment between its end centres (what the scan
+sees: the twin's log is round to the eye). The twin collides it as a pentagonal prism inside that round
+surface, of a roll the scan cannot see: with a face toward a contact, its surface lies ``1 - cos(36 deg)`` of
+its radius inside the round one. A term's ``allow_m`` starts at that (each log of a contact turned face-on)
+and is lowered where the twin, with every log at its best roll, still finds the two bodies interpenetrating;
+at zero the round surfaces clear, and so do the prisms inside them."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from reconstruct.fitting.geometry import points_to_segment, segment_closest
+from reconstruct.fitting.separation import PRISM_SIDES
+from synth.scene.pile import PileSpec, rotate
+
+#: a prism face lies this share of the round surface's radius inside it (1 - cos(pi / sides)) [-]
+ROLL_SHARE = 1.0 - math.cos(math.pi / PRISM_SIDES)
+#: a term samples each log this many times along it (two logs side by side meet along a line, not at a point) [-]
+SAMPLES = 9
+#: a stump's foot sinks this far into the ground in the twin (synth.physics.world) [m]
+STUMP_SINK_M = 0.05
+
+
+@dataclass
+class Segment:
+    """A log as the terms see it: end centres ``a``, ``b`` [m] and radii there [m]."""
+
+    a: np.ndarray
+    b: np.ndarray
+    ra: float
+    rb: float
+
+    def radius(self, t: np.ndarray | float) -> np.ndarray | float:
+        return self.ra + (self.rb - self.ra) * t
+
+    def points(self, n: int = SAMPLES) -> tuple[np.ndarray, np.ndarray]:
+        t = np.linspace(0.0, 1.0, n)
+        return self.a + np.outer(t, self.b - self.a), t
+
+
+@dataclass
+class Term:
+    """One contact: log ``i`` against ``kind`` ("log", "obstacle", "terrain") number ``j`` (a log: ``j > i``),
+    allowed to overlap ``allow_m`` [m] (the prism's roll)."""
+
+    i: int
+    kind: str
+    j: int
+    allow_m: float
+
+    def other(self, k: int) -> str:
+        """What log ``k`` meets in this contact."""
+        if self.kind == "log":
+            return f"log {self.j if k == self.i else self.i}"
+        return "the terrain" if self.kind == "terrain" else f"{self.kind} {self.j}"
+
+
+def log_log_depths(s: Segment, o: Segment) -> np.ndarray:
+    """How deep two logs' round surfaces overlap [m] at their closest points and at samples along each
+    (negative: apart): 1 + 2 * SAMPLES values."""
+    u, v, d = segment_closest(s.a, s.b, o.a, o.b)
+    out = [float(s.radius(u) + o.radius(v)) - d]
+    P, t = s.points()
+    tv, dv = points_to_segment(P, o.a, o.b)
+    out.extend(s.radius(t) + o.radius(tv) - dv)
+    Q, t = o.points()
+    tu, du = points_to_segment(Q, s.a, s.b)
+    out.extend(o.radius(t) + s.radius(tu) - du)
+    return np.asarray(out)
+
+
+def stump_segment(pile: PileSpec, j: int) -> Segment:
+    """Stump ``j`` as a vertical segment from its sunk foot to its top, with its radii there."""
+    st = pile.stumps[j]
+    x, y = st.position_m
+    r = st.bottom_radius_m
+    foot = float(np.min(pile.terrain.height_at(np.array([x - r, x, x + r, x, x]), np.array([y, y - r, y, y + r, y]))))
+    return Segment(np.array([x, y, foot - STUMP_SINK_M]), np.array([x, y, foot + st.height_m]), r, st.top_radius_m)
+
+
+def rock_points(pile: PileSpec, j: int) -> np.ndarray:
+    """Points on rock ``j``'s surface (pile frame): its hull's vertices, edge midpoints and face centres."""
+    from scipy.spatial import ConvexHull
+
+    rk = pile.rocks[j]
+    V = np.array([rotate(rk.orientation, v) for v in rk.vertices_m]) + np.asarray(rk.position_m, dtype=float)
+    try:
+        simplices = ConvexHull(V).simplices
+    except Exception:  # a flat hull (scipy's QhullError): its vertices are all there is
+        return V
+    faces = V[simplices]
+    edges = np.concatenate([(faces[:, 0] + faces[:, 1]) / 2, (faces[:, 1] + faces[:, 2]) / 2,
+                            (faces[:, 2] + faces[:, 0]) / 2])
+    return np.vstack([V, faces.mean(axis=1), edges])
+
+
+class Bodies:
+    """The fixed bodies of a pile (obstacles, terrain) and the depth of a log into each."""
+
+    def __init__(self, pile: PileSpec) -> None:
+        self.pile = pile
+        self.stumps = [stump_segment(pile, j) for j in range(len(pile.stumps))]
+        self.rocks = [rock_points(pile, j) for j in range(len(pile.rocks))]
+
+    @property
+    def n_obstacles(self) -> int:
+        return len(self.stumps) + len(self.rocks)
+
+    def obstacle_depths(self, s: Segment, j: int) -> np.ndarray:
+        """How deep log ``s`` and obstacle ``j`` (stumps first, then rocks: the twin's order) overlap [m]."""
+        if j < len(self.stumps):
+            return log_log_depths(s, self.stumps[j])
+        V = self.rocks[j - len(self.stumps)]
+        t, d = points_to_segment(V, s.a, s.b)
+        return s.radius(t) - d
+
+    def terrain_depths(self, s: Segment) -> np.ndarray:
+        """How far log ``s``'s round underside lies under the terrain at samples along it [m]."""
+        P, t = s.points()
+        return self.pile.terrain.height_at(P[:, 0], P[:, 1]) - (P[:, 2] - s.radius(t))
+
+    def depths(self, term: Term, segs: Sequence[Segment]) -> np.ndarray:
+        s = segs[term.i]
+        if term.kind == "log":
+            return log_log_depths(s, segs[term.j])
+        if term.kind == "obstacle":
+            return self.obstacle_depths(s, term.j)
+        return self.terrain_depths(s)
+
+    def terms(self, segs: Sequence[Segment], reach_m: float) -> list[Term]:
+        """The contacts that may matter: every pair of bodies closer than ``reach_m`` (a log's largest
+        correction) beyond touching, each allowed the prism's roll."""
+        out = []
+        for i, s in enumerate(segs):
+            r_i = 0.5 * (s.ra + s.rb)
+            for j in range(i + 1, len(segs)):
+                o = segs[j]
+                if log_log_depths(s, o).max() > -reach_m:
+                    out.append(Term(i, "log", j, ROLL_SHARE * (r_i + 0.5 * (o.ra + o.rb))))
+            for j in range(self.n_obstacles):
+                if self.obstacle_depths(s, j).max() > -reach_m:
+                    out.append(Term(i, "obstacle", j, ROLL_SHARE * r_i))
+            out.append(Term(i, "terrain", -1, ROLL_SHARE * r_i))
+        return out
