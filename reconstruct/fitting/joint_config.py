@@ -73,11 +73,13 @@ class JointConfig:
     #                                   set's packed piles, float logs beside touching neighbours stopped 4 of
     #                                   the first 10 default surveys
     # -- the pile: every log's pose correction against its evidence and the other bodies (joint_settle) --
-    settle_scan_sigma_m: float = 0.015  # a placed log's ends across its axis and in height, 1 sigma, as the pile
-    #                                     sees them: the cylinder fit's RMS says millimetres, but a packed
-    #                                     log's sides are hidden by its neighbours (held-out diameter error
-    #                                     ~1 cm median on packed piles) and its height carries its radius' error;
-    #                                     a log seen in part or hidden keeps its placement's larger sigma [m]
+    settle_scan_sigma_m: float = 0.02  # a placed log's ends across its axis and in height, 1 sigma, as the pile
+    #                                    sees them: the cylinder fit's RMS says millimetres, but a packed log's
+    #                                    sides are hidden by its neighbours (held-out diameter error ~1 cm
+    #                                    median on packed piles) and its height carries its radius' error; at
+    #                                    0.015 m tuning scans refused 6.7 cm moves that revision 22 took (its
+    #                                    limit, 8 cm, is refuse_sigma of this); a log seen in part or hidden
+    #                                    keeps its placement's larger sigma [m]
     survey_loss_sigmas: float = 3.0  # a kept survey point pulls its log as a Gaussian within this many of its
     #                                  sigmas, by a bounded force past them (soft-L1: a wrong point the end
     #                                  posteriors kept does not drag a log by its distance squared) [-]
@@ -87,7 +89,7 @@ class JointConfig:
     contact_reach_m: float = 0.15  # bodies farther apart than this beyond touching are not tested (twice the
     #                                most a log moves within refuse_sigma) [m]
     refuse_sigma: float = 4.0  # a log whose evidence costs more than this squared more with the bodies than
-    #                            without (a 4-sigma move of one Gaussian; 6 cm of a scan-placed log's end) is
+    #                            without (a 4-sigma move of one Gaussian: 8 cm of a scan-placed log's end) is
     #                            refused: its fit or its points are wrong, not its noise [-]
     twin_rounds: int = 4  # the twin checks the estimate this many times at most; a contact it still finds is
     #                       allowed less overlap each time, none on the last two [-]

@@ -25,6 +25,8 @@ from synth.scene.pile import PileSpec, rotate
 ROLL_SHARE = 1.0 - math.cos(math.pi / PRISM_SIDES)
 #: a term samples each log this many times along it (two logs side by side meet along a line, not at a point) [-]
 SAMPLES = 9
+#: ... and a rock's faces this many times (rocks are a few tens of centimetres across) [-]
+ROCK_SAMPLES = 41
 #: a stump's foot sinks this far into the ground in the twin (synth.physics.world) [m]
 STUMP_SINK_M = 0.05
 
@@ -86,20 +88,35 @@ def stump_segment(pile: PileSpec, j: int) -> Segment:
     return Segment(np.array([x, y, foot - STUMP_SINK_M]), np.array([x, y, foot + st.height_m]), r, st.top_radius_m)
 
 
-def rock_points(pile: PileSpec, j: int) -> np.ndarray:
-    """Points on rock ``j``'s surface (pile frame): its hull's vertices, edge midpoints and face centres."""
+@dataclass(frozen=True)
+class Rock:
+    """A rock as the terms see it: points on its surface (its hull's vertices, edge midpoints and face
+    centres) and its faces' planes (``n . x + b <= 0`` inside), pile frame."""
+
+    points: np.ndarray
+    planes: np.ndarray
+
+    def depths(self, s: Segment) -> np.ndarray:
+        """How deep log ``s`` and the rock overlap [m]: at each surface point (a corner in the log's side) and
+        at samples along the log's axis (a face across it: the axis' distance outside the planes, which is at
+        most its distance from the rock)."""
+        t, d = points_to_segment(self.points, s.a, s.b)
+        P, tp = s.points(ROCK_SAMPLES)
+        outside = np.max(P @ self.planes[:, :3].T + self.planes[:, 3], axis=1)
+        return np.concatenate([s.radius(t) - d, s.radius(tp) - outside])
+
+
+def rock_of(pile: PileSpec, j: int) -> Rock:
+    """Rock ``j`` of ``pile`` as a :class:`Rock`."""
     from scipy.spatial import ConvexHull
 
     rk = pile.rocks[j]
     V = np.array([rotate(rk.orientation, v) for v in rk.vertices_m]) + np.asarray(rk.position_m, dtype=float)
-    try:
-        simplices = ConvexHull(V).simplices
-    except Exception:  # a flat hull (scipy's QhullError): its vertices are all there is
-        return V
-    faces = V[simplices]
+    hull = ConvexHull(V)  # a rock is the hull of its vertices: the reconstruction made it from one
+    faces = V[hull.simplices]
     edges = np.concatenate([(faces[:, 0] + faces[:, 1]) / 2, (faces[:, 1] + faces[:, 2]) / 2,
                             (faces[:, 2] + faces[:, 0]) / 2])
-    return np.vstack([V, faces.mean(axis=1), edges])
+    return Rock(np.vstack([V, faces.mean(axis=1), edges]), hull.equations)
 
 
 class Bodies:
@@ -108,7 +125,7 @@ class Bodies:
     def __init__(self, pile: PileSpec) -> None:
         self.pile = pile
         self.stumps = [stump_segment(pile, j) for j in range(len(pile.stumps))]
-        self.rocks = [rock_points(pile, j) for j in range(len(pile.rocks))]
+        self.rocks = [rock_of(pile, j) for j in range(len(pile.rocks))]
 
     @property
     def n_obstacles(self) -> int:
@@ -118,9 +135,7 @@ class Bodies:
         """How deep log ``s`` and obstacle ``j`` (stumps first, then rocks: the twin's order) overlap [m]."""
         if j < len(self.stumps):
             return log_log_depths(s, self.stumps[j])
-        V = self.rocks[j - len(self.stumps)]
-        t, d = points_to_segment(V, s.a, s.b)
-        return s.radius(t) - d
+        return self.rocks[j - len(self.stumps)].depths(s)
 
     def terrain_depths(self, s: Segment) -> np.ndarray:
         """How far log ``s``'s round underside lies under the terrain at samples along it [m]."""

@@ -13,7 +13,7 @@ from reconstruct.fitting.joint_config import JointConfig
 from reconstruct.fitting.joint_contact import ROLL_SHARE
 from reconstruct.fitting.joint_settle import JointSettler, LogEvidence, settle_pile, survey_pull
 from reconstruct.fitting.survey_points import SurveyEnd
-from synth.scene.pile import LogSpec, PileSpec, StumpSpec, TerrainSpec
+from synth.scene.pile import LogSpec, PileSpec, RockSpec, StumpSpec, TerrainSpec
 
 CFG = JointConfig()
 R = 0.1  # the logs' radius [m]
@@ -88,6 +88,16 @@ def test_a_log_sunk_into_the_ground_is_lifted_and_one_in_a_stump_pushed_off_it()
     stump = StumpSpec(position_m=(0.0, 0.25), height_m=0.5, bottom_radius_m=0.2, top_radius_m=0.2)
     pile = PileSpec(terrain=FLAT, logs=(_log(0.0),), stumps=(stump,))  # 5 cm into the stump's side
     out, _ = settle_pile(pile, [_free()], CFG, TOL, 12)
+    assert _axis_y(out.pile.logs[0]) == pytest.approx(-(0.05 - R * ROLL_SHARE), abs=3e-3)
+    assert _twin_accepts(out.pile)
+
+
+def test_a_log_through_a_rock_face_is_pushed_off_it():
+    # a 80 x 80 x 40 cm block whose face cuts 5 cm into the log, none of its corners, edges' or faces' middles
+    # within the log: only the face's plane shows it
+    box = tuple((x, y, z) for x in (-0.4, 0.4) for y in (-0.4, 0.4) for z in (-0.2, 0.2))
+    rock = RockSpec(position_m=(0.0, 0.45, 0.2), orientation=(0.0, 0.0, 0.0, 1.0), vertices_m=box)
+    out, _ = settle_pile(PileSpec(terrain=FLAT, logs=(_log(0.0),), rocks=(rock,)), [_free()], CFG, TOL, 12)
     assert _axis_y(out.pile.logs[0]) == pytest.approx(-(0.05 - R * ROLL_SHARE), abs=3e-3)
     assert _twin_accepts(out.pile)
 
