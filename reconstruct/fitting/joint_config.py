@@ -16,7 +16,7 @@ from dataclasses import dataclass, fields
 ESTIMATORS = ("rules22", "joint")
 #: raised whenever a change to the joint estimator makes different piles from the same scan (recorded in the
 #: report as ``estimator_revision`` and in bench keys)
-JOINT_REVISION = 9
+JOINT_REVISION = 10
 
 
 @dataclass(frozen=True)
@@ -49,6 +49,22 @@ class JointConfig:
     p_over_outside: float = 0.10  # ... as often as a log across the ground past its end (piles cross): no
     #                               evidence either way (taken as the rest: otherwise an end
     #                               falls short of a stretch under a crossing log) [-]
+    contiguity: bool = True  # what a bin shows is a Markov chain inside the log and another past its end, not
+    #                          independent bins (joint_ends.edge_log_likelihood): a neighbour's top in line
+    #                          20-50 cm past a log's end counted once per 2 cm bin and pulled the end off a
+    #                          correct fixed point (held-out 3300010)
+    run_on_inside_m: float = 0.5  # a log's top, once seen, goes on this far on average before a bin shows
+    #                               something else (logs are 1-4 m long; stereo drops a few bins) [m]
+    run_below_inside_m: float = 0.02  # a bin under a log's top (a sag, a gap between logs across it) is
+    #                                   rarely followed by another: a bin's width (no run) [m]
+    run_over_inside_m: float = 0.10  # a log across this one hides its top over about its own width [m]
+    run_outside_m: float = 0.10  # past an end, the ground or a log across go on this far on average (tens of
+    #                              centimetres, smeared over a few bins by stereo) [m]
+    run_on_outside_m: float = 0.04  # ... and a surface at the top's height past the end (a neighbour's flank
+    #                                 or top) this far: the longer, the more cheaply a neighbour abutting
+    #                                 explains a log's own last stretch (a seen end with the ground past it is
+    #                                 sure to ~4.5 cm along at 0.04 m; with p_on_outside 0.1 it would be 2.3 cm
+    #                                 but the end would go onto a neighbour in line past a 6 cm gap) [m]
     end_prior_sigma_m: float = 1.0  # the cylinder fit's end as a weak prior where nothing else says: a fit on a
     #                                 log seen in part stops where its points do, so no surer than a log's half
     #                                 length (at 0.3 m an end fell 40 cm short of an

@@ -124,6 +124,6 @@ def test_the_settler_pulls_a_log_to_its_kept_points_and_lets_a_contradicted_one_
 
 def test_the_pile_parameters_are_checked():
     for name in ("settle_scan_sigma_m", "survey_loss_sigmas", "contact_sigma_m", "contact_reach_m", "refuse_sigma",
-                 "twin_rounds"):
+                 "twin_rounds", "run_on_inside_m", "run_below_inside_m", "run_outside_m", "run_on_outside_m"):
         with pytest.raises(ValueError, match=name):
             JointConfig(**{name: 0})
