@@ -90,20 +90,39 @@ def stump_segment(pile: PileSpec, j: int) -> Segment:
 
 @dataclass(frozen=True)
 class Rock:
-    """A rock as the terms see it: points on its surface (its hull's vertices, edge midpoints and face
-    centres) and its faces' planes (``n . x + b <= 0`` inside), pile frame."""
+    """A rock as the terms see it: its hull's vertices, triangles (vertex indices) and their planes
+    (``n . x + b <= 0`` inside), pile frame."""
 
-    points: np.ndarray
+    vertices: np.ndarray
+    triangles: np.ndarray
     planes: np.ndarray
 
+    def signed_distance(self, P: np.ndarray) -> np.ndarray:
+        """Each point's distance from the rock [m], negative inside (how deep): inside, the nearest face's
+        plane; outside, the nearest triangle (its plane where the point lies over it, else its edges)."""
+        off = P @ self.planes[:, :3].T + self.planes[:, 3]  # (N, F): outside each face's plane by
+        inside = off.max(axis=1)
+        T = self.vertices[self.triangles]  # (F, 3 corners, 3)
+        q = P[:, None, :] - off[:, :, None] * self.planes[None, :, :3]  # each point projected on each plane
+        over = np.ones(off.shape, bool)
+        for c in range(3):  # over the triangle: on the inner side of each of its edges
+            a, b, o = T[:, c], T[:, (c + 1) % 3], T[:, (c + 2) % 3]
+            e = np.cross(b - a, self.planes[:, :3])  # in the plane, across the edge
+            over &= np.sign(np.einsum("nfk,fk->nf", q - a[None], e)) == np.sign(np.einsum("fk,fk->f", o - a, e))[None]
+        d = np.where(over & (off >= 0), off, np.inf).min(axis=1)
+        for c in range(3):
+            a, b = T[:, c], T[:, (c + 1) % 3]
+            ab = b - a
+            t = np.clip(np.einsum("nfk,fk->nf", P[:, None] - a[None], ab) / np.maximum((ab * ab).sum(1), 1e-12), 0, 1)
+            d = np.minimum(d, np.linalg.norm(P[:, None] - (a[None] + t[..., None] * ab[None]), axis=2).min(axis=1))
+        return np.where(inside <= 0, inside, d)
+
     def depths(self, s: Segment) -> np.ndarray:
-        """How deep log ``s`` and the rock overlap [m]: at each surface point (a corner in the log's side) and
-        at samples along the log's axis (a face across it: the axis' distance outside the planes, which is at
-        most its distance from the rock)."""
-        t, d = points_to_segment(self.points, s.a, s.b)
+        """How deep log ``s`` and the rock overlap [m]: at each rock vertex (a corner in the log's side) and at
+        samples along the log's axis (a face or an edge across it)."""
+        t, d = points_to_segment(self.vertices, s.a, s.b)
         P, tp = s.points(ROCK_SAMPLES)
-        outside = np.max(P @ self.planes[:, :3].T + self.planes[:, 3], axis=1)
-        return np.concatenate([s.radius(t) - d, s.radius(tp) - outside])
+        return np.concatenate([s.radius(t) - d, s.radius(tp) - self.signed_distance(P)])
 
 
 def rock_of(pile: PileSpec, j: int) -> Rock:
@@ -113,10 +132,7 @@ def rock_of(pile: PileSpec, j: int) -> Rock:
     rk = pile.rocks[j]
     V = np.array([rotate(rk.orientation, v) for v in rk.vertices_m]) + np.asarray(rk.position_m, dtype=float)
     hull = ConvexHull(V)  # a rock is the hull of its vertices: the reconstruction made it from one
-    faces = V[hull.simplices]
-    edges = np.concatenate([(faces[:, 0] + faces[:, 1]) / 2, (faces[:, 1] + faces[:, 2]) / 2,
-                            (faces[:, 2] + faces[:, 0]) / 2])
-    return Rock(np.vstack([V, faces.mean(axis=1), edges]), hull.equations)
+    return Rock(V, hull.simplices, hull.equations)
 
 
 class Bodies:
