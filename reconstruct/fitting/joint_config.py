@@ -49,10 +49,12 @@ class JointConfig:
     p_over_outside: float = 0.10  # ... as often as a log across the ground past its end (piles cross): no
     #                               evidence either way (taken as the rest: otherwise an end
     #                               falls short of a stretch under a crossing log) [-]
-    contiguity: bool = True  # what a bin shows is a Markov chain inside the log and another past its end, not
-    #                          independent bins (joint_ends.edge_log_likelihood): a neighbour's top in line
-    #                          20-50 cm past a log's end counted once per 2 cm bin and pulled the end off a
-    #                          correct fixed point (held-out 3300010)
+    contiguity: bool = False  # what a bin shows is a Markov chain inside the log and another past its end, not
+    #                           independent bins (joint_ends.edge_log_likelihood), so a neighbour's top in line
+    #                           past a gap counts once, not once per 2 cm bin (held-out 3300010); off: on the
+    #                           tuning scans it made 4 of 48 reconstructions worse and 1 better (a log seen in
+    #                           part, its extrapolated top over a run of 'below' bins, lost a correct fixed end:
+    #                           1100012, 7 cm -> 115 cm), see docs/reconstruction.md
     run_on_inside_m: float = 0.5  # a log's top, once seen, goes on this far on average before a bin shows
     #                               something else (logs are 1-4 m long; stereo drops a few bins) [m]
     run_below_inside_m: float = 0.02  # a bin under a log's top (a sag, a gap between logs across it) is

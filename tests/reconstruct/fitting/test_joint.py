@@ -19,6 +19,7 @@ from reconstruct.fitting.survey_points import SurveyEnd
 from reconstruct.config import ReconstructConfig
 
 CFG, FCFG = JointConfig(), FuseConfig()
+CHAIN = JointConfig(contiguity=True)  # the per-bin end model with contiguity
 STEP = FCFG.end_bin_m
 AXIS = _Axis(np.zeros(3), np.array([1.0, 0.0, 0.0]), 2.0)  # a 2 m log along x, end a at 0, end b at 2 m
 
@@ -48,12 +49,14 @@ def test_a_neighbours_top_in_line_past_a_gap_does_not_pull_the_end_onto_it():
     # the top to 2.0 m, 6 cm of ground, then a neighbour's top in line for 34 cm, then ground again
     c = 1.0 + STEP * (np.arange(80) + 0.5)
     states = np.where(c < 2.0, ON, np.where(c < 2.06, BELOW, np.where(c < 2.4, ON, BELOW)))
-    fixed = end_posterior(states, 1.0, 1, AXIS, _end(1.995, 0.0, 0.0), 0.005, CFG, FCFG)
+    fixed = end_posterior(states, 1.0, 1, AXIS, _end(1.995, 0.0, 0.0), 0.005, CHAIN, FCFG)
     assert fixed["outlier_prob"] < 0.01 and abs(fixed["t_m"] - 1.995) < 0.01  # a correct fixed point stands
-    floating = end_posterior(states, 1.0, 1, AXIS, _end(2.0, 0.0, 0.0, fix="rtk_float"), 0.005, CFG, FCFG)
+    floating = end_posterior(states, 1.0, 1, AXIS, _end(2.0, 0.0, 0.0, fix="rtk_float"), 0.005, CHAIN, FCFG)
     assert abs(floating["t_m"] - (2.0 - CFG.top_smear_m)) < 0.02  # the end at the gap, not the neighbour's far end
-    alone = end_posterior(states, 1.0, 1, AXIS, None, 0.005, CFG, FCFG)
+    alone = end_posterior(states, 1.0, 1, AXIS, None, 0.005, CHAIN, FCFG)
     assert abs(alone["t_m"] - (2.0 - CFG.top_smear_m)) < 0.02 and alone["sigma_along_m"] > 0.1  # the other, less likely
+    independent = end_posterior(states, 1.0, 1, AXIS, _end(2.0, 0.0, 0.0, fix="rtk_float"), 0.005, CFG, FCFG)
+    assert independent["t_m"] > 2.3  # without contiguity each bin of the neighbour's top pulls: its far end
 
 
 def test_a_fixed_point_at_a_seen_end_agrees_and_one_30_cm_past_it_is_an_outlier():
@@ -143,13 +146,13 @@ def test_two_float_logs_that_fit_two_ridges_either_way_are_no_ambiguity_but_a_ke
 def test_contiguity_counts_a_run_where_it_starts():
     # 20 bins of top past 20 bins of top: independent bins count each; a chain counts the run once
     run = np.full(40, ON)
-    ll_chain = edge_log_likelihood(run, CFG, STEP)
-    ll_independent = edge_log_likelihood(run, JointConfig(contiguity=False), STEP)
+    ll_chain = edge_log_likelihood(run, CHAIN, STEP)
+    ll_independent = edge_log_likelihood(run, CFG, STEP)
     assert ll_independent[40] - ll_independent[20] == pytest.approx(20 * math.log(CFG.p_on_inside / CFG.p_on_outside))
     assert 0 < ll_chain[40] - ll_chain[20] < 0.5 * (ll_independent[40] - ll_independent[20])
     # the end where the top gives way to the ground beats an end inside the top's run or inside the ground's
     seen = np.r_[np.full(20, ON), np.full(20, BELOW)]
-    ll = edge_log_likelihood(seen, CFG, STEP)
+    ll = edge_log_likelihood(seen, CHAIN, STEP)
     assert int(np.argmax(ll)) == 20
 
 
