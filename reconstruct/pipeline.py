@@ -66,6 +66,7 @@ from reconstruct.fitting.fit import PileFit, fit_log, fit_pile, log_spec_from_fi
 from reconstruct.fitting.joint_config import JOINT_REVISION
 from reconstruct.fitting.joint_ends import JointEndPlacer, dropped_point_lines, joint_after_check
 from reconstruct.fitting.joint_match import joint_match
+from reconstruct.fitting.joint_settle import JointSettler
 from reconstruct.fitting.fuse import (
     FuseConfig, SurveyEnd, a_piece_of_a_surveyed_log, absorb_pieces, after_pile_check, find_scan_logs, match_survey,
     place_log_ends, point_accuracy, prior_axis,
@@ -497,6 +498,8 @@ def _fit(pts: np.ndarray, matching: _Matching, survey_ends: dict, logs_pile: lis
                    georef=georef, notes=notes, first_pass=first_pass,
                    sigmas={k: (s, s) for k, s in lateral.items()},
                    place_ends=placer, optional=set(new_ids),
+                   settle=(JointSettler(survey_ends, lateral, cfg.joint, cfg.fit.penetration_tolerance_m,
+                                        cfg.fit.roll_steps) if joint else None),
                    in_part={k for k, m in matching.matches.items() if m.scan_index is not None
                             and a_piece_of_a_surveyed_log(survey_ends[k], logs_pile[m.scan_index], placed.fuse_cfg)})
     for lf in fit.logs:  # ends where the pile check left their log, tested against the survey again

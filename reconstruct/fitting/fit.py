@@ -400,6 +400,7 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
              place_ends: Callable[[str, LogSpec, str, np.ndarray, bool, np.ndarray], tuple[LogSpec, Any]] | None = None,
              optional: Collection[str] = (),
              in_part: Collection[str] = (),
+             settle: Callable[[PileSpec, list[LogFit]], Any] | None = None,
              ) -> PileFit:
     """Fit a whole pile to scan ``points`` ((N, 3), pile frame) and GNSS ``endpoints``
     (``{log_id: (end_a, end_b)}``, pile frame: where each log is searched for). ``extent_m``: side
@@ -418,6 +419,9 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
     the reason in ``PileFit.dropped``, instead of failing the pile; it cannot be hidden, it was seen.
     ``in_part``: ids of logs the scan shows only a piece of (the matching's word: a ridge far shorter
     than the log's two precise survey points are apart): seen only in part, on their survey axes.
+    ``settle``: in place of the twin's check (:func:`clear_pile`), called with the pile and the log fits;
+    returns a :class:`reconstruct.fitting.clearance.Cleared` (the joint estimator's
+    :class:`reconstruct.fitting.joint_settle.JointSettler`).
 
     Steps: :func:`_first_pass` (each log on its own), :class:`_Placement` (each scan point to the log
     whose surface it lies on, then each log refitted among the others; its ends placed), :func:`_ground`
@@ -465,8 +469,9 @@ def fit_pile(points: np.ndarray, endpoints: Mapping[str, tuple[Any, Any]], exten
         before = pile.logs
         thinnable = [placement.placed[i].how == "scan" for i in keep]
         try:
-            cleared = clear_pile(pile, [lf.ends or [] for lf in fits],
-                                 lambda p: separate_logs(p, cfg, thinnable=thinnable), cfg.clearance)
+            cleared = (settle(pile, fits) if settle is not None else
+                       clear_pile(pile, [lf.ends or [] for lf in fits],
+                                  lambda p: separate_logs(p, cfg, thinnable=thinnable), cfg.clearance))
         except SeparationError as exc:
             raise SeparationError(f"{exc}{_remeasure_hint(exc.logs, fits)}", logs=exc.logs) from exc
         pile, move_notes, end_moves = cleared.pile, cleared.notes, cleared.end_moves

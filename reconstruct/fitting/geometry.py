@@ -76,8 +76,9 @@ def _owners(P: np.ndarray, logs: Sequence[LogSpec], band_m: float,
     return owner
 
 
-def _segment_distance_3d(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.ndarray) -> float:
-    """Shortest distance between the 3-D segments p1q1 and p2q2 (both of non-zero length) [m]."""
+def segment_closest(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.ndarray) -> tuple[float, float, float]:
+    """The closest points of the 3-D segments p1q1 and p2q2 (both of non-zero length): where along each
+    (0 at p, 1 at q) and their distance [m]."""
     d1, d2, r = q1 - p1, q2 - p2, p1 - p2
     a, e, f = float(d1 @ d1), float(d2 @ d2), float(d2 @ r)
     b, c = float(d1 @ d2), float(d1 @ r)
@@ -88,7 +89,20 @@ def _segment_distance_3d(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.
         t, s = 0.0, float(np.clip(-c / a, 0.0, 1.0))
     elif t > 1.0:
         t, s = 1.0, float(np.clip((b - c) / a, 0.0, 1.0))
-    return float(np.linalg.norm(p1 + d1 * s - (p2 + d2 * t)))
+    return s, float(t), float(np.linalg.norm(p1 + d1 * s - (p2 + d2 * t)))
+
+
+def _segment_distance_3d(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.ndarray) -> float:
+    """Shortest distance between the 3-D segments p1q1 and p2q2 (both of non-zero length) [m]."""
+    return segment_closest(p1, q1, p2, q2)[2]
+
+
+def points_to_segment(P: np.ndarray, p: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where along the segment ``p`` → ``q`` (0 at p, 1 at q, clipped) each point of ``P`` ((N, 3)) is
+    nearest, and its distance from the segment [m]."""
+    d = q - p
+    t = np.clip((P - p) @ d / max(float(d @ d), 1e-12), 0.0, 1.0)
+    return t, np.linalg.norm(P - (p + np.outer(t, d)), axis=1)
 
 
 def _interpenetration(a: LogSpec, b: LogSpec) -> float:

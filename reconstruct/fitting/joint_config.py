@@ -16,7 +16,7 @@ from dataclasses import dataclass, fields
 ESTIMATORS = ("rules22", "joint")
 #: raised whenever a change to the joint estimator makes different piles from the same scan (recorded in the
 #: report as ``estimator_revision`` and in bench keys)
-JOINT_REVISION = 8
+JOINT_REVISION = 10
 
 
 @dataclass(frozen=True)
@@ -49,6 +49,24 @@ class JointConfig:
     p_over_outside: float = 0.10  # ... as often as a log across the ground past its end (piles cross): no
     #                               evidence either way (taken as the rest: otherwise an end
     #                               falls short of a stretch under a crossing log) [-]
+    contiguity: bool = False  # what a bin shows is a Markov chain inside the log and another past its end, not
+    #                           independent bins (joint_ends.edge_log_likelihood), so a neighbour's top in line
+    #                           past a gap counts once, not once per 2 cm bin (held-out 3300010). Off: on the
+    #                           first 21 tuning scans it moved 8 of 63 worst ends by over 2 cm, 7 for the worse
+    #                           (a log seen in part, its extrapolated top over a run of 'below' bins, lost a
+    #                           correct fixed end: 1100012, 7 cm -> 115 cm); docs/reconstruction.md
+    run_on_inside_m: float = 0.5  # a log's top, once seen, goes on this far on average before a bin shows
+    #                               something else (logs are 1-4 m long; stereo drops a few bins) [m]
+    run_below_inside_m: float = 0.02  # a bin under a log's top (a sag, a gap between logs across it) is
+    #                                   rarely followed by another: a bin's width (no run) [m]
+    run_over_inside_m: float = 0.10  # a log across this one hides its top over about its own width [m]
+    run_outside_m: float = 0.10  # past an end, the ground or a log across go on this far on average (tens of
+    #                              centimetres, smeared over a few bins by stereo) [m]
+    run_on_outside_m: float = 0.04  # ... and a surface at the top's height past the end (a neighbour's flank
+    #                                 or top) this far: the longer, the more cheaply a neighbour abutting
+    #                                 explains a log's own last stretch (a seen end with the ground past it is
+    #                                 sure to ~4.5 cm along at 0.04 m; with p_on_outside 0.1 it would be 2.3 cm
+    #                                 but the end would go onto a neighbour in line past a 6 cm gap) [m]
     end_prior_sigma_m: float = 1.0  # the cylinder fit's end as a weak prior where nothing else says: a fit on a
     #                                 log seen in part stops where its points do, so no surer than a log's half
     #                                 length (at 0.3 m an end fell 40 cm short of an
@@ -72,6 +90,28 @@ class JointConfig:
     ambiguity_is_error: bool = False  # stop with AmbiguousSurveyError instead (as rules22 does): on the held-out
     #                                   set's packed piles, float logs beside touching neighbours stopped 4 of
     #                                   the first 10 default surveys
+    # -- the pile: every log's pose correction against its evidence and the other bodies (joint_settle) --
+    settle_scan_sigma_m: float = 0.02  # a placed log's ends across its axis and in height, 1 sigma, as the pile
+    #                                    sees them: the cylinder fit's RMS says millimetres, but a packed log's
+    #                                    sides are hidden by its neighbours (held-out diameter error ~1 cm
+    #                                    median on packed piles) and its height carries its radius' error; at
+    #                                    0.015 m tuning scans refused 6.7 cm moves that revision 22 took (its
+    #                                    limit, 8 cm, is refuse_sigma of this); a log seen in part or hidden
+    #                                    keeps its placement's larger sigma [m]
+    survey_loss_sigmas: float = 3.0  # a kept survey point pulls its log as a Gaussian within this many of its
+    #                                  sigmas, by a bounded force past them (soft-L1: a wrong point the end
+    #                                  posteriors kept does not drag a log by its distance squared) [-]
+    contact_sigma_m: float = 0.002  # an interpenetration this deep costs what a 1-sigma move does: the twin's own
+    #                                 contact margin is millimetres, so the bodies win against any evidence
+    #                                 within a few sigma [m]
+    contact_reach_m: float = 0.15  # bodies farther apart than this beyond touching are not tested (twice the
+    #                                most a log moves within refuse_sigma) [m]
+    refuse_sigma: float = 4.0  # a log whose evidence costs more than this squared more with the bodies than
+    #                            without (a 4-sigma move of one Gaussian: 8 cm of a scan-placed log's end) is
+    #                            refused: its fit or its points are wrong, not its noise [-]
+    twin_rounds: int = 4  # the twin checks the estimate this many times at most; a contact it still finds is
+    #                       allowed less overlap each time, none on the last two [-]
+    settle_max_evaluations: int = 400  # least_squares' budget per estimate (a 7-log pile converges in ~30) [-]
     # -- what is reported --
     weak_sigma_m: float = 0.05  # an end less certain than this is a weak estimate (warned about), as in rules22 [m]
 

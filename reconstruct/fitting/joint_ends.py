@@ -87,13 +87,66 @@ def bin_states(points: np.ndarray, pa: np.ndarray, u: np.ndarray, radius_m: floa
     return np.select([on, below, over], [ON, BELOW, OVER], UNSEEN)
 
 
+def _state_probs(cfg: JointConfig) -> tuple[np.ndarray, np.ndarray]:
+    """What a bin shows (UNSEEN, ON, BELOW, OVER) inside the log and past its end: the ``p_*`` shares."""
+    inside = np.array([0.0, cfg.p_on_inside, cfg.p_below_inside, cfg.p_over_inside])
+    outside = np.array([0.0, cfg.p_on_outside, cfg.p_below_outside, cfg.p_over_outside])
+    inside[UNSEEN], outside[UNSEEN] = 1 - inside.sum(), 1 - outside.sum()
+    return inside, outside
+
+
 def _bin_llr(states: np.ndarray, cfg: JointConfig) -> np.ndarray:
-    """Per bin: log p(what it shows | inside the log) - log p(... | past its end). A bin with no scan points
-    says nothing (0)."""
+    """Per bin, bins independent: log p(what it shows | inside the log) - log p(... | past its end). A bin
+    with no scan points says nothing (0)."""
     table = np.array([0.0, math.log(cfg.p_on_inside / cfg.p_on_outside),
                       math.log(cfg.p_below_inside / cfg.p_below_outside),
                       math.log(cfg.p_over_inside / cfg.p_over_outside)])
     return table[states]
+
+
+def _persistence(cfg: JointConfig, bin_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per state (UNSEEN, ON, BELOW, OVER), the chance it goes on to the next bin, inside the log and past
+    its end: ``1 - bin_m / run`` of its mean run (``run_*_m``)."""
+    def rho(run_m: float) -> float:
+        return max(0.0, 1.0 - bin_m / run_m)
+
+    inside = np.array([0.0, rho(cfg.run_on_inside_m), rho(cfg.run_below_inside_m), rho(cfg.run_over_inside_m)])
+    outside = np.array([0.0, rho(cfg.run_on_outside_m), rho(cfg.run_outside_m), rho(cfg.run_outside_m)])
+    return inside, outside
+
+
+def edge_log_likelihood(states_out: np.ndarray, cfg: JointConfig, bin_m: float) -> np.ndarray:
+    """The log-likelihood (up to a constant) of the log ending at each bin edge, ``states_out`` ordered
+    outward from the log's middle (edge m: bins before m inside, from m on past the end; m = 0 ... n).
+
+    Independent bins (``cfg.contiguity`` off): the sum of :func:`_bin_llr` inside. With contiguity, what a
+    bin shows is a first-order Markov chain inside the log and another past its end: a state goes on to the
+    next bin with its chance (:func:`_persistence`: inside, the top runs the log's length, a gap under it
+    is a bin or two, a log across it its width; past the end, the ground, a neighbour's top or flank run
+    ``run_outside_m``), else the next bin is drawn afresh from the ``p_*`` shares; the first bin past the end
+    is drawn afresh (the log's end is where what the scan sees changes). So a neighbour's top in line past a
+    gap counts where it starts, not once per bin, and an end inside a run of one state costs what a run
+    broken there would. Unseen bins say nothing and do not break a run."""
+    if not cfg.contiguity:
+        return np.r_[0.0, np.cumsum(_bin_llr(states_out, cfg))]
+    p_in, p_out = _state_probs(cfg)
+    rho_in, rho_out = _persistence(cfg, bin_m)
+    n = len(states_out)
+    prev = np.full(n, -1)  # the last seen state before each bin (-1: none)
+    last = -1
+    for i, s in enumerate(states_out):
+        prev[i] = last
+        if s != UNSEEN:
+            last = s
+    seen = states_out != UNSEEN
+    stay = (states_out == prev) & (prev >= 0)
+    fresh = prev < 0
+    p = np.maximum(prev, 0)
+    t_in = np.where(fresh, p_in[states_out], rho_in[p] * stay + (1 - rho_in[p]) * p_in[states_out])
+    t_out = np.where(fresh, p_out[states_out], rho_out[p] * stay + (1 - rho_out[p]) * p_out[states_out])
+    llr = np.where(seen, np.log(t_in) - np.log(t_out), 0.0)
+    boundary = np.where(seen, np.log(p_out[states_out]) - np.log(t_out), 0.0)  # the first bin past the end
+    return np.r_[0.0, np.cumsum(llr)] + np.r_[boundary, 0.0]
 
 
 @dataclass(frozen=True)
@@ -140,10 +193,11 @@ def end_posterior(states: np.ndarray, lo_m: float, k: int, axis: _Axis, point: S
     mode and spread (``t_scan_m``, ``sigma_scan_m``) and the point's posterior outlier probability."""
     step = fcfg.end_bin_m
     n = len(states)
-    llr = _bin_llr(states, cfg)
-    # bins between the middle and an end at edge j are inside: for end b those before j, for end a those after;
-    # an end inside a bin takes its share of it (linear between the edges, on a grid SUBSTEPS times finer)
-    log_edges = np.r_[0.0, np.cumsum(llr)] if k == 1 else np.r_[np.cumsum(llr[::-1])[::-1], 0.0]
+    # bins between the middle and an end at edge j are inside: for end b those before j, for end a those after
+    # (outward: the bins reversed); an end inside a bin takes its share of it (linear between the edges, on a
+    # grid SUBSTEPS times finer)
+    log_edges = (edge_log_likelihood(states, cfg, step) if k == 1 else
+                 edge_log_likelihood(states[::-1], cfg, step)[::-1])
     edges = lo_m + (step / SUBSTEPS) * np.arange(n * SUBSTEPS + 1)
     inward = cfg.top_smear_m if k == 1 else -cfg.top_smear_m
     log_scan = np.interp(edges + inward, lo_m + step * np.arange(n + 1), log_edges)
@@ -223,17 +277,13 @@ def place_joint_ends(points: np.ndarray, spec: Any, how: str, survey: tuple[Surv
 
 def _estimate(post: dict, states: np.ndarray, lo: float, k: int, axis: _Axis, point: SurveyEnd | None,
               lateral_sigma_m: float, cfg: JointConfig, fcfg: FuseConfig) -> JointEndEstimate:
-    """An end's estimate from its posterior: on the axis at the mode, pulled across toward an inlying point
-    by the two accuracies; its source is what knew it best."""
+    """An end's estimate from its posterior: on the axis at the mode (an inlying point's pull across it is
+    the pile estimate's), its sigma across both accuracies combined; its source is what knew it best."""
     pos = axis.pa + post["t_m"] * axis.u
     lat = max(lateral_sigma_m, cfg.axis_lateral_sigma_m)
     inlier = point is not None and post["outlier_prob"] <= cfg.outlier_flag_prob
-    if inlier:
-        rel = point.position_m - pos
-        off = rel - (rel @ axis.u) * axis.u
+    if inlier:  # the point's pull across the axis is made with the pile's (reconstruct.fitting.joint_settle)
         s_pt = math.sqrt(point.sigma_h_m ** 2 + cfg.pose_sigma_m ** 2)
-        wgt = lat ** 2 / (lat ** 2 + s_pt ** 2)
-        pos = pos + wgt * off
         lat = math.sqrt(1.0 / (1.0 / lat ** 2 + 1.0 / s_pt ** 2))
     s_al = post["sigma_along_m"]
     if inlier and post["sigma_point_m"] < post["sigma_scan_m"]:

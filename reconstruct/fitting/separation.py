@@ -94,12 +94,12 @@ def _thinning_split(need_m: float, gains: Sequence[float], room: Sequence[float]
     return out
 
 
-def _roll_to_clear(world: Any, body: int, log: LogSpec, steps: int) -> tuple[LogSpec, float, float]:
-    """``log`` (body ``body`` of ``world``) turned about its own axis to the roll, of ``steps`` over the
-    prism's 72 deg period, at which its deepest contact with any body is least (the twin's log is a
-    pentagonal prism to the physics and round to the eye: the scan cannot tell its roll). Returns the
-    log at that roll (as it was when no roll does better by 1 mm) and its deepest contact before and
-    after [m, <= 0]. The body is left at the returned roll."""
+def best_roll(world: Any, body: int, log: LogSpec, steps: int) -> tuple[float | None, float, float]:
+    """The roll about its own axis, of ``steps`` over the prism's 72 deg period, at which log ``log`` (body
+    ``body`` of ``world``) meets any body least deep (the twin's log is a pentagonal prism to the physics and
+    round to the eye: the scan cannot tell its roll). Returns that roll [rad] (None when no roll does better
+    by 1 mm than the log's own orientation) and its deepest contact before and after [m, <= 0]. The body is
+    left at the returned roll."""
     from synth.scene.pile import quat_from_x_axis
 
     c = world.client
@@ -109,17 +109,27 @@ def _roll_to_clear(world: Any, body: int, log: LogSpec, steps: int) -> tuple[Log
         return min((cp[CONTACT_DISTANCE] for cp in c.getContactPoints(bodyA=body)), default=0.0)
 
     before = deepest()
-    best, best_q = before, None
+    best, best_roll_rad = before, None
     for k in range(steps):
-        q = quat_from_x_axis(log.axis(), 2 * math.pi / PRISM_SIDES * k / steps)
-        c.resetBasePositionAndOrientation(body, list(log.centre_m), list(q))
+        roll = 2 * math.pi / PRISM_SIDES * k / steps
+        c.resetBasePositionAndOrientation(body, list(log.centre_m), list(quat_from_x_axis(log.axis(), roll)))
         d = deepest()
         if d > best + MIN_ROLL_GAIN_M:
-            best, best_q = d, q
-    c.resetBasePositionAndOrientation(body, list(log.centre_m), list(best_q or log.orientation))
-    if best_q is None:
+            best, best_roll_rad = d, roll
+    q = log.orientation if best_roll_rad is None else quat_from_x_axis(log.axis(), best_roll_rad)
+    c.resetBasePositionAndOrientation(body, list(log.centre_m), list(q))
+    return best_roll_rad, before, (before if best_roll_rad is None else best)
+
+
+def _roll_to_clear(world: Any, body: int, log: LogSpec, steps: int) -> tuple[LogSpec, float, float]:
+    """``log`` turned to its :func:`best_roll`: the log at that roll (as it was when no roll does better by
+    1 mm) and its deepest contact before and after [m, <= 0]. The body is left at the returned roll."""
+    from synth.scene.pile import quat_from_x_axis
+
+    roll, before, best = best_roll(world, body, log, steps)
+    if roll is None:
         return log, before, before
-    return replace(log, orientation=tuple(float(v) for v in best_q)), before, best
+    return replace(log, orientation=tuple(float(v) for v in quat_from_x_axis(log.axis(), roll))), before, best
 
 
 def separate_logs(pile: PileSpec, cfg: FitConfig | None = None, thinnable: Sequence[bool] | None = None,

@@ -10,8 +10,8 @@ import pytest
 
 from reconstruct.fitting.fuse_config import FuseConfig
 from reconstruct.fitting.joint_config import JointConfig
-from reconstruct.fitting.joint_ends import (BELOW, ON, OVER, UNSEEN, _Axis, bin_states, end_posterior,
-                                            outlier_probability)
+from reconstruct.fitting.joint_ends import (BELOW, ON, OVER, UNSEEN, _Axis, bin_states, edge_log_likelihood,
+                                            end_posterior, outlier_probability)
 from reconstruct.fitting.joint_match import joint_match
 from reconstruct.fitting.matching import AmbiguousSurveyError
 from reconstruct.fitting.scan_logs import ScanLog
@@ -19,6 +19,7 @@ from reconstruct.fitting.survey_points import SurveyEnd
 from reconstruct.config import ReconstructConfig
 
 CFG, FCFG = JointConfig(), FuseConfig()
+CHAIN = JointConfig(contiguity=True)  # the per-bin end model with contiguity
 STEP = FCFG.end_bin_m
 AXIS = _Axis(np.zeros(3), np.array([1.0, 0.0, 0.0]), 2.0)  # a 2 m log along x, end a at 0, end b at 2 m
 
@@ -40,8 +41,22 @@ def _states_b(end_m: float, past: int, inside=ON, lo_m: float = 1.0, n: int = 80
 
 def test_a_seen_end_is_where_the_top_gives_way_to_the_ground():
     post = end_posterior(_states_b(2.0, BELOW), 1.0, 1, AXIS, None, 0.005, CFG, FCFG)
-    assert abs(post["t_m"] - (2.0 - CFG.top_smear_m)) < 0.01 and post["sigma_along_m"] < 0.03  # well under weak
+    assert abs(post["t_m"] - (2.0 - CFG.top_smear_m)) < 0.01 and post["sigma_along_m"] < CFG.weak_sigma_m
     assert post["outlier_prob"] is None
+
+
+def test_a_neighbours_top_in_line_past_a_gap_does_not_pull_the_end_onto_it():
+    # the top to 2.0 m, 6 cm of ground, then a neighbour's top in line for 34 cm, then ground again
+    c = 1.0 + STEP * (np.arange(80) + 0.5)
+    states = np.where(c < 2.0, ON, np.where(c < 2.06, BELOW, np.where(c < 2.4, ON, BELOW)))
+    fixed = end_posterior(states, 1.0, 1, AXIS, _end(1.995, 0.0, 0.0), 0.005, CHAIN, FCFG)
+    assert fixed["outlier_prob"] < 0.01 and abs(fixed["t_m"] - 1.995) < 0.01  # a correct fixed point stands
+    floating = end_posterior(states, 1.0, 1, AXIS, _end(2.0, 0.0, 0.0, fix="rtk_float"), 0.005, CHAIN, FCFG)
+    assert abs(floating["t_m"] - (2.0 - CFG.top_smear_m)) < 0.02  # the end at the gap, not the neighbour's far end
+    alone = end_posterior(states, 1.0, 1, AXIS, None, 0.005, CHAIN, FCFG)
+    assert abs(alone["t_m"] - (2.0 - CFG.top_smear_m)) < 0.02 and alone["sigma_along_m"] > 0.1  # the other, less likely
+    independent = end_posterior(states, 1.0, 1, AXIS, _end(2.0, 0.0, 0.0, fix="rtk_float"), 0.005, CFG, FCFG)
+    assert independent["t_m"] > 2.3  # without contiguity each bin of the neighbour's top pulls: its far end
 
 
 def test_a_fixed_point_at_a_seen_end_agrees_and_one_30_cm_past_it_is_an_outlier():
@@ -126,6 +141,19 @@ def test_two_float_logs_that_fit_two_ridges_either_way_are_no_ambiguity_but_a_ke
         joint_match(between, short, JointConfig(ambiguity_is_error=True), FCFG)
     warned = joint_match(between, short, CFG, FCFG)  # by default: said, and the likelier placed
     assert len(warned.ambiguous) == 1 and "log0" in warned.ambiguous[0] and "re-measure" in warned.ambiguous[0].lower()
+
+
+def test_contiguity_counts_a_run_where_it_starts():
+    # 20 bins of top past 20 bins of top: independent bins count each; a chain counts the run once
+    run = np.full(40, ON)
+    ll_chain = edge_log_likelihood(run, CHAIN, STEP)
+    ll_independent = edge_log_likelihood(run, CFG, STEP)
+    assert ll_independent[40] - ll_independent[20] == pytest.approx(20 * math.log(CFG.p_on_inside / CFG.p_on_outside))
+    assert 0 < ll_chain[40] - ll_chain[20] < 0.5 * (ll_independent[40] - ll_independent[20])
+    # the end where the top gives way to the ground beats an end inside the top's run or inside the ground's
+    seen = np.r_[np.full(20, ON), np.full(20, BELOW)]
+    ll = edge_log_likelihood(seen, CHAIN, STEP)
+    assert int(np.argmax(ll)) == 20
 
 
 def test_the_estimator_and_its_parameters_are_checked():

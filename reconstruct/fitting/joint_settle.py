@@ -1,0 +1,292 @@
+"""The joint estimator's pile check (issue 37, step 2): every log's pose correction estimated at once from
+what holds it where it is and from the other bodies, in place of revision 22's roll → thin → move → re-test
+(:mod:`reconstruct.fitting.separation`, :mod:`reconstruct.fitting.clearance`).
+
+Each log's state is its placed axis with its two ends moved across it, horizontally (``c``) and up (``h``):
+four numbers per log (a shift, a height, a small yaw and pitch). One ``scipy.optimize.least_squares`` weighs:
+
+- **the scan**: a Gaussian on each end's correction, its sigma the fit's uncertainty (``settle_scan_sigma_m``
+  for a log fitted to its points, its placement's own for one seen in part or hidden);
+- **its survey points** (those its end posteriors kept): each point's offset across the moved axis, by its
+  receiver's accuracy and the scan pose's, through a soft-L1 loss (a wrong point the posteriors missed pulls
+  by a bounded force, not by its distance squared);
+- **non-interpenetration**: for every pair of bodies whose round cross-sections overlap by more than the
+  twin's prism allows (:mod:`reconstruct.fitting.joint_contact`), the excess depth over ``contact_sigma_m``;
+  zero when apart.
+
+Without the bodies the estimate is where the scan and the survey put each log (the survey's pull across the
+axis is made here, not by the end placer). A log whose evidence costs more than ``refuse_sigma`` squared more
+at the estimate than there has to move farther than what holds it allows: that is the refusal
+(:class:`SeparationError`, naming the log and what it ran into), not a fixed distance. The twin then checks the
+estimate with each touching log at its best roll (:func:`reconstruct.fitting.separation.best_roll`); a contact
+it still finds is allowed less overlap and the estimate is made again."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Sequence
+
+import numpy as np
+
+from reconstruct.errors import SeparationError
+from reconstruct.fitting.clearance import Cleared
+from reconstruct.fitting.joint_config import JointConfig
+from reconstruct.fitting.joint_contact import Bodies, Segment, Term
+from reconstruct.fitting.separation import SEPARATION_MARGIN_M, best_roll
+from synth.scene.pile import LogSpec, PileSpec, quat_from_x_axis
+
+UP = np.array([0.0, 0.0, 1.0])
+#: a log moved less than this by the bodies is not reported as moved [m]
+REPORT_MOVE_M = 1e-3
+
+
+@dataclass(frozen=True)
+class SurveyPull:
+    """A kept survey point of a log: where it lies across the log's placed axis at ``s`` (its share of the
+    way from the butt to the top), horizontally and vertically [m], and the sigmas of those [m]."""
+
+    s: float
+    across_m: float
+    up_m: float
+    sigma_across_m: float
+    sigma_up_m: float
+
+
+@dataclass(frozen=True)
+class LogEvidence:
+    """What holds a log where it was placed: the sigmas of its ends' correction across its axis and in
+    height [m] (the scan's, or its placement's) and its kept survey points."""
+
+    sigma_across_m: float
+    sigma_up_m: float
+    pulls: tuple[SurveyPull, ...] = ()
+
+
+def survey_pull(log: LogSpec, point: np.ndarray, sigma_across_m: float, sigma_up_m: float) -> SurveyPull:
+    """A survey point against ``log``'s placed axis (butt to top)."""
+    butt, top = log.endpoints_m()
+    d = top - butt
+    s = float((point - butt) @ d / float(d @ d))
+    off = point - (butt + s * d)
+    n = _across(d)
+    return SurveyPull(s, float(off @ n), float(off[2]), sigma_across_m, sigma_up_m)
+
+
+def _across(d: np.ndarray) -> np.ndarray:
+    """The horizontal unit vector across an axis of direction ``d``."""
+    n = np.array([-d[1], d[0], 0.0])
+    return n / max(float(np.linalg.norm(n)), 1e-9)
+
+
+def _robust(r: np.ndarray, scale: float) -> np.ndarray:
+    """A residual whose square is the soft-L1 cost 2 f^2 (sqrt(1 + (r / f)^2) - 1) of ``scale`` f, its sign
+    kept: r itself within f, growing as sqrt(2 f r) past it."""
+    return np.sign(r) * scale * np.sqrt(2.0 * (np.sqrt(1.0 + (r / scale) ** 2) - 1.0))
+
+
+class _Problem:
+    """The least-squares problem: variables are each log's four end corrections in units of their sigmas."""
+
+    def __init__(self, pile: PileSpec, evidence: Sequence[LogEvidence], cfg: JointConfig) -> None:
+        self.pile, self.evidence, self.cfg = pile, list(evidence), cfg
+        self.base = [log.endpoints_m() for log in pile.logs]
+        self.across = [_across(b - a) for a, b in self.base]
+        self.radii = [(log.diameter_m / 2, log.top_d_m / 2) for log in pile.logs]
+        self.scale = np.concatenate([[e.sigma_across_m, e.sigma_across_m, e.sigma_up_m, e.sigma_up_m]
+                                     for e in self.evidence])
+        self.bodies = Bodies(pile)
+        self.terms: list[Term] = []
+
+    @property
+    def n(self) -> int:
+        return len(self.base)
+
+    def segments(self, x: np.ndarray) -> list[Segment]:
+        X = (x * self.scale).reshape(-1, 4)
+        out = []
+        for (a, b), n, (ra, rb), (ca, cb, ha, hb) in zip(self.base, self.across, self.radii, X):
+            out.append(Segment(a + ca * n + ha * UP, b + cb * n + hb * UP, ra, rb))
+        return out
+
+    def evidence_residuals(self, x: np.ndarray, k: int) -> np.ndarray:
+        """Log ``k``'s scan prior and robust survey residuals at ``x`` (dimensionless)."""
+        ca, cb, ha, hb = (x * self.scale).reshape(-1, 4)[k]
+        out = list(x[4 * k:4 * k + 4])
+        for p in self.evidence[k].pulls:
+            out.append((p.across_m - ((1 - p.s) * ca + p.s * cb)) / p.sigma_across_m)
+            out.append((p.up_m - ((1 - p.s) * ha + p.s * hb)) / p.sigma_up_m)
+        return np.concatenate([out[:4], _robust(np.asarray(out[4:], dtype=float), self.cfg.survey_loss_sigmas)])
+
+    def contact_depths(self, x: np.ndarray) -> list[np.ndarray]:
+        """Per term: depths [m] over what it allows (> 0: interpenetrating beyond the prism's roll)."""
+        segs = self.segments(x)
+        return [self.bodies.depths(t, segs) - t.allow_m for t in self.terms]
+
+    def residuals(self, x: np.ndarray, contacts: bool) -> np.ndarray:
+        parts = [self.evidence_residuals(x, k) for k in range(self.n)]
+        if contacts:
+            parts += [np.maximum(d, 0.0) / self.cfg.contact_sigma_m for d in self.contact_depths(x)]
+        return np.concatenate(parts)
+
+    def solve(self, x0: np.ndarray, contacts: bool) -> np.ndarray:
+        from scipy.optimize import least_squares
+
+        return least_squares(self.residuals, x0, args=(contacts,), method="trf", xtol=1e-10, ftol=1e-10,
+                             max_nfev=self.cfg.settle_max_evaluations).x
+
+    def cost(self, x: np.ndarray, k: int) -> float:
+        return float(np.sum(self.evidence_residuals(x, k) ** 2))
+
+    def moved_pile(self, x: np.ndarray, rolls: Sequence[float]) -> PileSpec:
+        logs = []
+        for log, seg, roll in zip(self.pile.logs, self.segments(x), rolls):
+            d = seg.b - seg.a
+            L = float(np.linalg.norm(d))
+            logs.append(replace(log, centre_m=tuple(float(v) for v in (seg.a + seg.b) / 2), length_m=L,
+                                orientation=tuple(float(v) for v in quat_from_x_axis(d / L, roll))))
+        return self.pile.with_logs(tuple(logs))
+
+
+def settle_pile(pile: PileSpec, evidence: Sequence[LogEvidence], cfg: JointConfig, tolerance_m: float,
+                roll_steps: int) -> tuple[Cleared, list[tuple[np.ndarray, np.ndarray]]]:
+    """``pile``'s logs moved to the estimate of what holds each (``evidence``, per log) and the other bodies,
+    checked in the twin to ``tolerance_m`` (``roll_steps`` rolls tried per touching log). Returns what was
+    done (:class:`Cleared`: the pile, notes, each log's move by the bodies [m]) and each log's end centres
+    (butt, top) without the bodies. Raises :class:`SeparationError` for a log the bodies move farther than
+    its evidence allows, or that the twin still finds in another body."""
+    prob = _Problem(pile, evidence, cfg)
+    x_free = prob.solve(np.zeros(4 * prob.n), contacts=False)
+    prob.terms = prob.bodies.terms(prob.segments(x_free), cfg.contact_reach_m)
+    rolls = [0.0] * prob.n
+    x = x_free
+    for round_ in range(cfg.twin_rounds):
+        x = prob.solve(x, contacts=True)
+        _refuse(prob, x, x_free, tolerance_m)
+        moved = prob.moved_pile(x, rolls)
+        bad = _twin_check(moved, rolls, tolerance_m, roll_steps)
+        if not bad:
+            return _cleared(prob, x, x_free, rolls), [(s.a, s.b) for s in prob.segments(x_free)]
+        _allow_less(prob, bad, last=round_ >= cfg.twin_rounds - 2)
+    i, other, depth = bad[0]
+    raise SeparationError(f"log {i} still runs {depth * 100:.1f} cm into {other.other(i)} at its estimate (tolerance "
+                          f"{tolerance_m * 100:.0f} cm); its fit or its GNSS end points are wrong",
+                          logs=(i,) + ((other.j,) if other.kind == "log" else ()))  # i < j: the pair
+
+
+def _refuse(prob: _Problem, x: np.ndarray, x_free: np.ndarray, tolerance_m: float) -> None:
+    """Raise :class:`SeparationError` for the log whose evidence the bodies cost most, when that is over
+    ``refuse_sigma`` squared, or for a contact the estimate leaves deeper than ``tolerance_m``."""
+    cfg = prob.cfg
+    extra = [prob.cost(x, k) - prob.cost(x_free, k) for k in range(prob.n)]
+    depths = prob.contact_depths(x)
+    k = int(np.argmax(extra))
+    if extra[k] <= cfg.refuse_sigma ** 2 and all(d.max() <= tolerance_m for d in depths):
+        return
+    if extra[k] <= cfg.refuse_sigma ** 2:
+        t = max(range(len(depths)), key=lambda m: depths[m].max())
+        k = prob.terms[t].i
+    term = _pressing(prob, x_free, k)
+    other = term.other(k)
+    seg, free = prob.segments(x)[k], prob.segments(x_free)[k]
+    move = max(float(np.linalg.norm(seg.a - free.a)), float(np.linalg.norm(seg.b - free.b)))
+    others = () if term.kind != "log" else (term.j if term.i == k else term.i,)
+    raise SeparationError(
+        f"log {k} would have to move {move * 100:.1f} cm to clear {other}, {math.sqrt(max(extra[k], 0.0)):.1f} sigma "
+        f"of what its scan and survey points allow (limit {cfg.refuse_sigma:.0f} sigma); its fit or its GNSS end "
+        f"points are wrong", logs=(k,) + others)
+
+
+def _pressing(prob: _Problem, x_free: np.ndarray, k: int) -> Term:
+    """The contact of log ``k`` that overlaps most where its evidence alone puts it."""
+    depths = prob.contact_depths(x_free)
+    mine = [m for m, t in enumerate(prob.terms) if k in (t.i, t.j if t.kind == "log" else -1)]
+    if not mine:
+        return Term(k, "terrain", -1, 0.0)
+    return prob.terms[max(mine, key=lambda m: depths[m].max())]
+
+
+def _twin_check(pile: PileSpec, rolls: list[float], tolerance_m: float, roll_steps: int
+                ) -> list[tuple[int, Term, float]]:
+    """Each log touching another body deeper than ``tolerance_m`` turned to its best roll (``rolls`` updated),
+    then what the twin still finds interpenetrating: (log, the contact as a term, depth [m])."""
+    from synth.physics.world import World
+
+    with World(pile, visuals=False) as world:
+        for i, body in enumerate(world.log_ids):
+            if roll_steps > 0 and world.deepest_contact(i)[0] > tolerance_m:
+                roll, _, _ = best_roll(world, body, world.pile.logs[i], roll_steps)
+                if roll is not None:
+                    rolls[i] = roll
+        found = world.penetrations(tolerance_m)
+    return [_as_term(a, b, depth) for a, b, depth in found]
+
+
+def _as_term(a: str, b: str, depth: float) -> tuple[int, Term, float]:
+    """A twin penetration ("log i" / "log j", "obstacle j" or "terrain") as (log, term, depth)."""
+    names = sorted((a, b), key=lambda n: (not n.startswith("log "), n))
+    i = int(names[0].split()[1])
+    kind, _, j = names[1].partition(" ")
+    if kind == "log":
+        i, j_ = sorted((i, int(j)))
+        return i, Term(i, "log", j_, 0.0), depth
+    return i, Term(i, kind, int(j) if j else -1, 0.0), depth
+
+
+def _allow_less(prob: _Problem, bad: list[tuple[int, Term, float]], last: bool) -> None:
+    """Each contact the twin still finds allowed its depth (and a margin) less overlap; none at all on the
+    ``last`` round (round surfaces that clear hold prisms that clear)."""
+    for _, found, depth in bad:
+        term = next((t for t in prob.terms if (t.i, t.kind, t.j) == (found.i, found.kind, found.j)), None)
+        if term is None:
+            term = Term(found.i, found.kind, found.j, 0.0)
+            prob.terms.append(term)
+        term.allow_m = 0.0 if last else max(0.0, term.allow_m - depth - SEPARATION_MARGIN_M)
+
+
+def _cleared(prob: _Problem, x: np.ndarray, x_free: np.ndarray, rolls: Sequence[float]) -> Cleared:
+    """The settled pile, a note per log the bodies moved, and each log's move by the bodies [m]."""
+    notes, moved = [], []
+    segs, free = prob.segments(x), prob.segments(x_free)
+    for k, (s, f) in enumerate(zip(segs, free)):
+        move = max(float(np.linalg.norm(s.a - f.a)), float(np.linalg.norm(s.b - f.b)))
+        moved.append(move)
+        if move >= REPORT_MOVE_M:
+            extra = math.sqrt(max(prob.cost(x, k) - prob.cost(x_free, k), 0.0))
+            notes.append(f"log {k} moved {move * 1000:.1f} mm ({extra:.1f} sigma of its evidence) clear of "
+                         f"{_pressing(prob, x_free, k).other(k)}")
+    return Cleared(prob.moved_pile(x, rolls), [], notes, moved, {})
+
+
+class JointSettler:
+    """``fit_pile``'s ``settle`` for the joint estimator: each log's evidence from how it was placed and its
+    kept survey points (``survey_ends``: per log id, its points in the pile frame; ``lateral``: per log id,
+    its placement's sigma across [m]), :func:`settle_pile`, and each end moved to where the scan and the
+    survey put it without the bodies (the pipeline then takes it to the settled log's end, its sigma grown
+    by that last move: :func:`reconstruct.fitting.joint_ends.joint_after_check`)."""
+
+    def __init__(self, survey_ends: dict, lateral: dict[str, float], cfg: JointConfig, tolerance_m: float,
+                 roll_steps: int) -> None:
+        self.survey_ends, self.lateral, self.cfg = survey_ends, lateral, cfg
+        self.tolerance_m, self.roll_steps = tolerance_m, roll_steps
+
+    def evidence(self, log: LogSpec, lf) -> LogEvidence:
+        from reconstruct.fitting.ends import axis_sigma_m
+
+        ends_k = self.survey_ends.get(lf.log_id, (None, None))
+        sig = max(axis_sigma_m(lf.fit, self.lateral.get(lf.log_id, 0.0), ends_k), self.cfg.settle_scan_sigma_m)
+        pulls = [survey_pull(log, pt.position_m, math.hypot(pt.sigma_h_m, self.cfg.pose_sigma_m),
+                             math.hypot(pt.sigma_v_m, self.cfg.pose_sigma_m))
+                 for pt, e in zip(ends_k, lf.ends or (None, None))
+                 if pt is not None and not (e or {}).get("contradicted")]
+        return LogEvidence(sig, sig, tuple(pulls))
+
+    def __call__(self, pile: PileSpec, fits: Sequence) -> Cleared:
+        evidence = [self.evidence(log, lf) for log, lf in zip(pile.logs, fits)]
+        cleared, free = settle_pile(pile, evidence, self.cfg, self.tolerance_m, self.roll_steps)
+        for k, lf in enumerate(fits):
+            for j, e in enumerate(lf.ends or []):
+                pos = np.asarray(e["position_m"], dtype=float)
+                near = min(free[k], key=lambda q: float(np.linalg.norm(q - pos)))
+                cleared.at_survey[(k, j)] = dict(e, position_m=[float(v) for v in near])
+        return cleared
