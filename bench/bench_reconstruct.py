@@ -6,6 +6,7 @@
     .venv/bin/python bench/bench_reconstruct.py --real-only --real-piles 24 --model PATH
     .venv/bin/python bench/bench_reconstruct.py --survey-scans 200 --survey-out DIR [--survey-shard K/N]
     .venv/bin/python bench/bench_reconstruct.py --survey-scans 200 --survey-set heldout --survey-out DIR
+    .venv/bin/python bench/bench_reconstruct.py --survey-rescore DIR --survey-work WORK
 """
 
 from __future__ import annotations
@@ -66,7 +67,23 @@ if __name__ == "__main__":
     ap.add_argument("--survey-compare", nargs="+", type=Path, default=None, metavar="LABEL=DIR",
                     help="print survey-conditions records side by side on the scans they share (seed and stereo "
                          "cloud), e.g. rules22=docs/results/survey-conditions-heldout-r22 joint=DIR; run nothing")
+    ap.add_argument("--survey-rescore", type=Path, default=None, metavar="DIR",
+                    help="add the obstacle comparison to the scan records of DIR from the kept piles of --survey-work "
+                         "(those the record measured only), rewrite its summary; reconstruct nothing")
     args = ap.parse_args()
+    if args.survey_rescore:
+        from experiments.survey_rescore import RescoreError, rescore_obstacles
+
+        if args.survey_work is None:
+            raise SystemExit("--survey-rescore needs --survey-work: the folder with the scans' kept piles")
+        try:
+            done = rescore_obstacles(args.survey_rescore, args.survey_work,
+                                     progress=lambda s: print(s, file=sys.stderr, flush=True))
+        except RescoreError as exc:
+            raise SystemExit(str(exc)) from None
+        print(f"{args.survey_rescore}: {done['scans']} scan records; conditions: "
+              + ", ".join(f"{k} {v}" for k, v in sorted(done["counts"].items())))
+        raise SystemExit(0)
     if args.survey_compare:
         try:
             recs = {str(a).split("=", 1)[0]: read_survey_records(Path(str(a).split("=", 1)[1]), write=False) for a in args.survey_compare}

@@ -20,6 +20,8 @@ SURVEY_CONDITIONS = {
     "degraded": "half the ends float and one log (one the scan shows well) not surveyed at all",
 }
 SURVEY_BENCH_FORMAT = "loggrasp.bench-survey-conditions"
+#: 2.2: each reconstructed condition has ``obstacles`` (:func:`obstacle_entry`); 2.1 records lack it
+SURVEY_BENCH_VERSION = "2.2"
 
 # -- the tuning set and the held-out set (issue 37): other seeds, other pile shapes --
 #: pile shapes: ``make_twin_scan`` keyword arguments. "dropped" is the generator's default stack (the
@@ -110,7 +112,7 @@ def survey_bench(n_scans: int, seed0: int | None, work_dir: Path, out: Path, log
         shape = pile_shape(key, seed)
         surveys, make_s, truth = _scan_and_surveys(root, seed, logs, obstacles, PILE_SHAPES[shape])
         cloud, stereo = _stereo_cloud(root)
-        row = {"format": SURVEY_BENCH_FORMAT, "format_version": "2.1", "key": key,
+        row = {"format": SURVEY_BENCH_FORMAT, "format_version": SURVEY_BENCH_VERSION, "key": key,
                "seed": seed, "set": survey_set, "shape": shape, "n_logs": truth.n_logs, "n_obstacles": len(truth.stumps) + len(truth.rocks),
                "n_pairs": int(len(cloud.camera_positions)), "cpus": os.cpu_count(), "processes": n_shard,
                "cloud_sha256": cloud_fingerprint(cloud),
@@ -204,6 +206,7 @@ def _condition_entry(root: Path, cond: str, gnss: Path, cloud, truth, estimator:
         "ends": [{k: end[k] for k in ("source", "scan", "sigma_m", "gnss_fix", "contradicted")}
                  for end in by_recon[e["recon_index"]]["ends"]]}
         for e in cmp["logs"]]
+    entry["obstacles"] = obstacle_entry(cmp)
     entry["unmatched_truth"] = cmp["unmatched_truth"]
     entry["unmatched_recon"] = cmp["unmatched_recon"]
     entry["new_logs"] = list(res.report["fusion"]["new_logs"])
@@ -212,6 +215,35 @@ def _condition_entry(root: Path, cond: str, gnss: Path, cloud, truth, estimator:
     entry["registration"] = {k: res.report["registration"].get(k) for k in
                              ("mode", "correction_m", "correction_deg", "residual_rms_after_m")}
     return entry
+
+
+def obstacle_entry(cmp: dict) -> dict:
+    """A condition's obstacles against the truth, from :func:`reconstruct.compare.compare_piles`'s one-to-one
+    matching (:func:`reconstruct.compare.match_obstacles`, its default gate :data:`reconstruct.compare.OBSTACLE_GATE_M`):
+    the pairs, ``phantom_obstacles`` (reconstructed ones no true one explains) and ``missed_obstacles`` (true ones
+    not reconstructed: hidden under logs or outside the scan as well as not found), as indices into each pile."""
+    from reconstruct.compare import OBSTACLE_GATE_M
+
+    matches = cmp["obstacles"]
+    used = {m["recon_index"] for m in matches if m["recon_index"] is not None}
+    return {"gate_m": OBSTACLE_GATE_M, "n_truth": len(matches), "n_recon": cmp["summary"]["n_recon_obstacles"],
+            "matched": [{k: m[k] for k in ("truth_index", "recon_index", "kind", "recon_kind", "distance_m")}
+                        for m in matches if m["recon_index"] is not None],
+            "phantom_obstacles": [j for j in range(cmp["summary"]["n_recon_obstacles"]) if j not in used],
+            "missed_obstacles": [m["truth_index"] for m in matches if m["recon_index"] is None]}
+
+
+def obstacle_figures(entries: list[dict]) -> dict:
+    """Obstacle figures over reconstructed conditions (refusals have no pile): how many carry an obstacle
+    comparison (records older than format 2.2 do not), how many of those have at least one phantom obstacle
+    (the issue 37 target: <= 2 % of scans), and the phantom, missed and true obstacles in all."""
+    got = [e["obstacles"] for e in entries if "error" not in e and "obstacles" in e]
+    with_phantom = sum(bool(o["phantom_obstacles"]) for o in got)
+    return {"scans": len(got), "scans_with_phantom": with_phantom,
+            "phantom_share": with_phantom / len(got) if got else None,
+            "phantom_obstacles": sum(len(o["phantom_obstacles"]) for o in got),
+            "missed_obstacles": sum(len(o["missed_obstacles"]) for o in got),
+            "true_obstacles": sum(o["n_truth"] for o in got)}
 
 
 def _estimator_kw(estimator: str) -> dict:
@@ -231,7 +263,7 @@ def read_survey_records(out: Path, key: dict | None = None, write: bool = True) 
         keys = [json.dumps(r["key"], sort_keys=True) for r in rows]
         key = json.loads(max(set(keys), key=keys.count))
     rows = sorted((r for r in rows if r.get("key") == key), key=lambda r: r["seed"])
-    rec = {"format": SURVEY_BENCH_FORMAT, "format_version": "2.1", "key": key,
+    rec = {"format": SURVEY_BENCH_FORMAT, "format_version": SURVEY_BENCH_VERSION, "key": key,
            "set": (key or {}).get("set", "tuning"), "conditions": SURVEY_CONDITIONS, "scans": rows}
     if rows and write:
         atomic_write_bytes(out / "summary.json", json.dumps(
@@ -267,6 +299,7 @@ def survey_summary(rec: dict) -> dict:
             "scan_wall_s": _stats([w for w, _ in four]), "scan_cpu_s": _stats([c for _, c in four]),
             "recon_cpu_s": _stats([e["cpu_s"] for _, e in ok]),
             "tail": _tail(logs),
+            "obstacles": obstacle_figures([e for _, e in entries]),
         }
     return out
 
@@ -451,6 +484,7 @@ def compare_summary(recs: dict[str, dict]) -> dict[str, dict[str, dict]]:
                 "silent_over_8cm": sum(lg["worst_end_m"] > 0.08 and not flagged_log(lg) for lg in logs),
                 "points_called_wrong": sum(e["contradicted_points"] for e in ok),
                 "phantom_logs": sum(len(e["unmatched_recon"]) for e in ok),
+                "obstacles": obstacle_figures(ok),
                 "blind_logs": len(blind),
                 "blind_within_2sigma": sum(lg["worst_end_m"] <= 2 * max(x["sigma_m"] for x in lg["ends"]) for lg in blind),
                 "recon_cpu_median_s": _stats([e["cpu_s"] for e in ok]).get("median"),
@@ -466,9 +500,10 @@ def compare_markdown(recs: dict[str, dict]) -> list[str]:
     cm = (lambda v: "-" if v is None else f"{100 * v:.1f}")  # noqa: E731
     sec = (lambda v: "-" if v is None else f"{v:.1f}")  # noqa: E731
     lines = ["| survey | estimator | scans | failures | worst end median [cm] | p95 | abs diameter median [cm] | "
-             "logs over 8 cm | of them silent | points called wrong | phantom logs | blind logs within 2 sigma | "
-             "reconstruction CPU median [s] | 4-pair scan CPU median [s] |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "logs over 8 cm | of them silent | points called wrong | phantom logs | scans with a phantom obstacle | "
+             "phantom / missed obstacles | blind logs within 2 sigma | reconstruction CPU median [s] | "
+             "4-pair scan CPU median [s] |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for cond, by_label in s.items():
         for label, d in by_label.items():
             cov = f"{d['blind_within_2sigma']} / {d['blind_logs']}" if d["blind_logs"] else "-"
@@ -476,5 +511,14 @@ def compare_markdown(recs: dict[str, dict]) -> list[str]:
             fail = f"{d['failures']} ({100 * d['failures'] / max(d['scans'], 1):.1f} %)"
             lines.append(f"| {cond} | {label} | {d['scans']} | {fail} | {cm(d['worst_median_m'])} | {cm(d['worst_p95_m'])} | "
                          f"{dia} | {d['over_8cm']} | {d['silent_over_8cm']} | {d['points_called_wrong']} | "
-                         f"{d['phantom_logs']} | {cov} | {sec(d['recon_cpu_median_s'])} | {sec(d['scan_cpu_median_s'])} |")
+                         f"{d['phantom_logs']} | {_phantom_text(d['obstacles'])} | {cov} | {sec(d['recon_cpu_median_s'])} | {sec(d['scan_cpu_median_s'])} |")
     return lines
+
+
+def _phantom_text(o: dict) -> str:
+    """The compare table's two obstacle cells, e.g. ``2 / 80 (2.5 %) | 2 / 31``; ``- | -`` for records without
+    obstacle comparisons (format 2.1)."""
+    if not o["scans"]:
+        return "- | -"
+    return (f"{o['scans_with_phantom']} / {o['scans']} ({100 * o['phantom_share']:.1f} %) | "
+            f"{o['phantom_obstacles']} / {o['missed_obstacles']}")

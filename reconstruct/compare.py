@@ -11,7 +11,8 @@ the distance between their axes; a log's two ends may be swapped), and reports p
   of a pile made of the TRUE terrain and obstacles with the RECONSTRUCTED logs, against its mask in
   the render of the true pile — the same occluders in both, so only the logs' geometry differs;
 
-plus obstacle matching (nearest, within ``obstacle_match_m`` + half the obstacle's size) and a
+plus obstacle matching (:func:`match_obstacles`: one-to-one, centres within ``obstacle_match_m`` + half the
+true obstacle's size) and a
 summary (medians, 95th percentiles, worst cases, counts). The reconstructed pile is brought into
 the true pile's frame through both georeferences (:mod:`synth.geometry.geodesy`) when both have one,
 otherwise the two frames are taken to be the same. Everything returned is JSON-serialisable.
@@ -29,6 +30,14 @@ from pathlib import Path
 import numpy as np
 
 from synth.scene.pile import Georeference, LogSpec, PileSpec
+
+
+#: an obstacle gate [m]: a reconstructed obstacle is a true one's when its centre lies within this much plus half
+#: the true one's size of the true centre (horizontally). Half the size: a rock seen in part (half under a log,
+#: cut by the scan's edge) is centred on the part the scan shows, anywhere over its footprint. 0.3 m beyond the
+#: footprint is the smallest generated rock's diameter (``GenerationConfig.rock_size_m``): registration (1-2 cm)
+#: and stereo smear are far less, and a centre a whole smallest obstacle outside the footprint is another thing
+OBSTACLE_GATE_M = 0.3
 
 
 def T_truth_recon(truth: PileSpec, recon: PileSpec) -> tuple[np.ndarray | None, str]:
@@ -103,7 +112,7 @@ def _stats(values: list[float]) -> dict[str, float | None]:
 
 
 def compare_piles(truth: PileSpec, recon: PileSpec, size_px: int = 128, render: bool = True,
-                  obstacle_match_m: float = 0.3) -> dict:
+                  obstacle_match_m: float = OBSTACLE_GATE_M) -> dict:
     """Measure ``recon`` against ``truth`` (see the module docstring). Returns a JSON-serialisable
     dict: ``logs`` (one entry per matched log: ``truth_index``, ``recon_index``,
     ``endpoint_err_m``, ``endpoint_max_err_m``, ``length_err_m``, ``axis_angle_err_deg``,
@@ -122,7 +131,7 @@ def compare_piles(truth: PileSpec, recon: PileSpec, size_px: int = 128, render: 
     obs_t, obs_r = _obstacles(truth), _obstacles(recon)
     for o in obs_r:
         o["xy"] = _to_truth(np.array([[o["xy"][0], o["xy"][1], 0.0]]), truth, recon)[0, :2]
-    obstacle_matches = _match_obstacles(obs_t, obs_r, obstacle_match_m)
+    obstacle_matches = match_obstacles(obs_t, obs_r, obstacle_match_m)
     matched_t = {i for i, _ in pairs}
     matched_r = {j for _, j in pairs}
     return {
@@ -179,23 +188,29 @@ def _log_errors(t, r, i: int, j: int, inst_t, inst_r) -> dict:
     return entry
 
 
-def _match_obstacles(obs_t: list[dict], obs_r: list[dict], match_m: float) -> list[dict]:
-    """Each true obstacle's nearest unused reconstructed one within ``match_m`` plus half its size."""
-    used: set[int] = set()
+def match_obstacles(obs_t: list[dict], obs_r: list[dict], gate_m: float = OBSTACLE_GATE_M) -> list[dict]:
+    """True obstacles paired one-to-one with reconstructed ones (dicts with ``xy`` in the same frame, ``kind``
+    and ``size_m``): a pair is allowed when the horizontal centre distance is under ``gate_m`` plus half the
+    true obstacle's size (:data:`OBSTACLE_GATE_M`); of the allowed pairings the one with the most pairs, then
+    the least total distance (an assignment, so a reconstructed obstacle serves one true one at most and a
+    near one is not taken from the true obstacle that has no other). One entry per true obstacle, in order;
+    ``recon_index`` None: missed."""
+    from scipy.optimize import linear_sum_assignment
+
+    if gate_m < 0:
+        raise ValueError(f"the obstacle gate must be >= 0 m, got {gate_m}")
+    pair: dict[int, tuple[int, float]] = {}
+    if obs_t and obs_r:
+        d = np.array([[float(np.linalg.norm(o["xy"] - q["xy"])) for q in obs_r] for o in obs_t])
+        allowed = d < gate_m + np.array([o["size_m"] / 2 for o in obs_t])[:, None]
+        # a forbidden pair costs more than every allowed pair together: the most pairs first, then the least distance
+        rows, cols = linear_sum_assignment(np.where(allowed, d, 1.0 + d.sum()))
+        pair = {int(i): (int(j), float(d[i, j])) for i, j in zip(rows, cols) if allowed[i, j]}
     out = []
     for k, o in enumerate(obs_t):
-        best, best_d = None, math.inf
-        for m, q in enumerate(obs_r):
-            d = float(np.linalg.norm(o["xy"] - q["xy"]))
-            if m not in used and d < best_d:
-                best, best_d = m, d
-        if best is not None and best_d < match_m + o["size_m"] / 2:
-            used.add(best)
-            out.append({"truth_index": k, "recon_index": best, "kind": o["kind"],
-                        "recon_kind": obs_r[best]["kind"], "distance_m": best_d})
-        else:
-            out.append({"truth_index": k, "recon_index": None, "kind": o["kind"], "recon_kind": None,
-                        "distance_m": None})
+        j, dist = pair.get(k, (None, None))
+        out.append({"truth_index": k, "recon_index": j, "kind": o["kind"],
+                    "recon_kind": None if j is None else obs_r[j]["kind"], "distance_m": dist})
     return out
 
 
