@@ -37,11 +37,13 @@ def rescore_obstacles(out: Path, work_dir: Path, progress=print) -> dict:
     if not paths:
         raise RescoreError(f"{out}/scans holds no scan records: check --survey-rescore")
     counts: dict[str, int] = {}
+    keys: dict[str, dict] = {}  # the records' keys as written (the summary keeps its own order, else theirs)
     for path in paths:
         text = path.read_text()
         row = json.loads(text)
         if json.dumps(row, indent=1) != text:
             raise RescoreError(f"{path} is not as the bench writes it: rescoring would rewrite more than its obstacles")
+        keys.setdefault(json.dumps(row["key"], sort_keys=True), row["key"])
         root = work_dir / f"scan_{row['seed']}"
         same_cloud = _cloud_sha(root) == row.get("cloud_sha256")
         changed = False
@@ -55,7 +57,9 @@ def rescore_obstacles(out: Path, work_dir: Path, progress=print) -> dict:
         progress(f"scan {row['seed']}: " + ", ".join(
             f"{c} {len(e['obstacles']['phantom_obstacles'])} phantom / {len(e['obstacles']['missed_obstacles'])} missed"
             if "obstacles" in e else f"{c} -" for c, e in row["conditions"].items()))
-    rec = read_survey_records(out)
+    most = read_survey_records(out, write=False)["key"]
+    old = json.loads((out / "summary.json").read_text()).get("key") if (out / "summary.json").exists() else None
+    rec = read_survey_records(out, old if old == most else keys.get(json.dumps(most, sort_keys=True), most))
     return {"counts": counts, "scans": len(rec["scans"])}
 
 
