@@ -409,6 +409,16 @@ def survey_markdown(rec: dict, figure: Path | None = None) -> list[str]:
         lines.append(f"| {cond} | {t['blind_logs']} | {100 * t['blind_share']:.1f} % | {cm(bw, 'median')} | "
                      f"{cm(bw, 'p95')} | {t['blind_over_far']} | {cm(ow, 'p95')} | {t['over_far']} | "
                      f"{t['silent_over_far']} |")
+    if any(d["obstacles"]["scans"] for d in s.values()):
+        lines += ["", "Obstacles against the truth (one-to-one within the gate of `reconstruct.compare.OBSTACLE_GATE_M` plus "
+                  "half the true obstacle's size; missed ones include those outside the scan or under logs).", "",
+                  "| survey | reconstructed scans | with a phantom obstacle | phantom obstacles | missed / true obstacles |",
+                  "|---|---|---|---|---|"]
+        for cond, d in s.items():
+            o = d["obstacles"]
+            if o["scans"]:
+                lines.append(f"| {cond} | {o['scans']} | {o['scans_with_phantom']} ({100 * o['phantom_share']:.1f} %) | "
+                             f"{o['phantom_obstacles']} | {o['missed_obstacles']} / {o['true_obstacles']} |")
     for cond, d in s.items():
         for m in d["failure_messages"]:
             lines.append(f"- {cond}, seed {m}")

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from experiments.survey_conditions import (cloud_fingerprint, compare_markdown, compare_summary, read_survey_records,
-                                           survey_summary)
+                                           survey_markdown, survey_summary)
 from experiments.survey_rescore import RescoreError, rescore_obstacles
 from synth.scene.pile import LogSpec, PileSpec, StumpSpec, TerrainSpec, write_pile
 
@@ -50,6 +50,7 @@ def test_the_summary_gives_the_share_of_scans_with_a_phantom_obstacle(tmp_path):
     o = survey_summary(read_survey_records(tmp_path))["fixed"]["obstacles"]
     assert (o["scans"], o["scans_with_phantom"], o["phantom_obstacles"], o["missed_obstacles"]) == (3, 1, 2, 2)
     assert abs(o["phantom_share"] - 1 / 3) < 1e-12 and o["true_obstacles"] == 6
+    assert "| fixed | 3 | 1 (33.3 %) | 2 | 2 / 6 |" in "\n".join(survey_markdown(read_survey_records(tmp_path)))
 
 
 def test_the_compare_table_has_the_phantom_obstacle_column(tmp_path):
