@@ -21,7 +21,7 @@ from field.cli.options import TWIN_PARAMETERS
 from field.cli.trial import demo, replay_command, trial_command
 from field.link.cli import link_key_command
 from planner.cli import eval_command, plan_command, train_command
-from planner.learn_cli import round_command, train_ranker_command
+from planner.cli.learn import round_command, train_ranker_command
 from reconstruct.cli import compare_command, reconstruct_command, scan_command
 from reconstruct.survey.cli import survey_command
 from synth.cli import APP_SETTINGS
