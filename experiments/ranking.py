@@ -98,6 +98,22 @@ def choices(records: list[dict], key: str = "u") -> dict:
             if n else float("nan")}
 
 
+def paired_choices(records: list[dict], a: str = "u", b: str = "p") -> dict:
+    """Per objective, on how many piles the choice by ``b`` succeeds where the choice by ``a`` fails
+    (``wins``) and the other way round (``losses``): the same tried grasps, paired."""
+    from planner.inference import Objective
+
+    f3 = Objective("f3")
+    out = {}
+    for obj in ("f1", "f3"):
+        def top(recs, key):
+            return max(recs, key=(lambda r: r[key]) if obj == "f1" else
+                       (lambda r: float(f3.quality(r[key], r["tau"], r["b"]))))["success"]
+        pairs = [(top(recs, a), top(recs, b)) for recs in _by_pile(records).values()]
+        out[obj] = {"wins": sum(y and not x for x, y in pairs), "losses": sum(x and not y for x, y in pairs)}
+    return out
+
+
 def ranking_metrics(records: list[dict], key: str = "u") -> dict:
     """Every measure of the module doc from the trial records, of the score ``key`` ("u": the network's
     U; "p": a ranker's probability, :func:`rescore`)."""
@@ -190,8 +206,12 @@ def main(argv=None) -> None:
         m = run(a.model, a.out, a.per_cell, a.top_n, a.workers, a.seed_base)
         what = a.out
     elif a.cmd == "rescore":
-        m = ranking_metrics(rescore(a.records, a.ranker, a.out), key="p")
+        records = rescore(a.records, a.ranker, a.out)
+        m = ranking_metrics(records, key="p")
         what = f"{a.records}, ranker {a.ranker}"
+        for obj, wl in paired_choices(records).items():
+            print(f"- {obj}: the ranker's choice succeeds where U's fails on {wl['wins']} piles, fails where U's "
+                  f"succeeds on {wl['losses']}")
     else:
         m = ranking_metrics(read_records(a.records))
         what = a.records

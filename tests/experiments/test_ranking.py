@@ -53,3 +53,16 @@ def test_metrics_and_table_need_records():
     m = ranking_metrics([_r(1, 0.9, True), _r(1, 0.8, False)])
     text = ranking_markdown(m, "test")
     assert "within-pile AUC of U: **1.000**" in text and "| [0.8, 0.9) | 1 | 0.800 | 0.0 % |" in text
+
+
+def test_paired_choices_count_the_piles_each_scorer_alone_gets_right():
+    from experiments.ranking import paired_choices, within_pile_auc
+
+    recs = [_r(1, 0.9, False), _r(1, 0.5, True), _r(2, 0.9, True), _r(2, 0.5, False), _r(3, 0.9, True)]
+    for r, p in zip(recs, (0.2, 0.8, 0.1, 0.6, 0.5)):
+        r["p"] = p
+    # pile 1: U picks the failure, p the success; pile 2: the other way round; pile 3: both succeed
+    assert paired_choices(recs)["f1"] == {"wins": 1, "losses": 1}
+    recs[3]["success"] = True  # pile 2: p's choice succeeds too
+    assert paired_choices(recs)["f1"] == {"wins": 1, "losses": 0}
+    assert within_pile_auc(recs, "p")["auc"] == 1.0
