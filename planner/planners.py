@@ -9,7 +9,7 @@ checked by :mod:`planner.verify`), the random and geometric baselines and the or
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from itertools import combinations
 from typing import Callable, Literal
 
@@ -174,7 +174,7 @@ def unet_planner(model: str, objective: str, subsets: SubsetPolicy = SubsetPolic
                  view_spread_k: float = 0.0, ranker: str | None = None, rerank_k: int = 4) -> PlanFn:
     """The network's best grasp among the subsets ``subsets`` keeps (default: every subset), its maps
     averaged over ``views`` dihedral test-time views, re-ranked by ``ranker`` when given."""
-    plan_all = _unet_plan_all(model, objective, subsets, views, view_spread_k, ranker, rerank_k)
+    plan_all = _unet_plan_all(model, objective, subsets, views, view_spread_k, ranker, rerank_k, keep=1)
 
     def plan_fn(obs, pile):
         result = plan_all(obs, pile)
@@ -185,8 +185,9 @@ def unet_planner(model: str, objective: str, subsets: SubsetPolicy = SubsetPolic
 
 
 def _unet_plan_all(model: str, objective: str, subsets: SubsetPolicy, views: int, view_spread_k: float,
-                   ranker: str | None, rerank_k: int) -> Callable[[object, object], object]:
-    """``(obs, pile) -> Plan`` of every subset, best first (re-ranked by ``ranker`` when given)."""
+                   ranker: str | None, rerank_k: int, keep: int | None = None) -> Callable[[object, object], object]:
+    """``(obs, pile) -> Plan`` of every subset, best first (re-ranked by ``ranker`` when given), its
+    best ``keep`` only when given (all of them go to the ranker)."""
     import torch
 
     from planner.inference import Objective, load_planner, plan
@@ -198,8 +199,10 @@ def _unet_plan_all(model: str, objective: str, subsets: SubsetPolicy, views: int
     rk = load_ranker(ranker) if ranker else None
 
     def plan_all(obs, pile):
-        result = plan(obs, net, obj, top_k=None if rk else 1, pile=pile, subsets=subsets)
-        return rerank(result, obs, rk, obj, rerank_k) if rk else result
+        if rk is None:
+            return plan(obs, net, obj, top_k=keep, pile=pile, subsets=subsets)
+        result = rerank(plan(obs, net, obj, pile=pile, subsets=subsets), obs, rk, obj, rerank_k)
+        return replace(result, grasps=result.grasps[:keep]) if keep else result
     return plan_all
 
 
