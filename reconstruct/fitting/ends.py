@@ -303,7 +303,7 @@ def _off_the_fitted_axis(point: SurveyEnd, p0: np.ndarray, u: np.ndarray, lat_m:
         return False
     sg_across = math.sqrt(0.5 * (point.sigma_h_m ** 2 + point.sigma_v_m ** 2))
     limit = cfg.contradiction_sigma * math.sqrt(lat_m ** 2 + sg_across ** 2 + cfg.axis_sigma_m ** 2)
-    return _axis_distance(point, p0, u) > limit
+    return axis_distance(point, p0, u) > limit
 
 
 def _point_test(point: SurveyEnd, pos: np.ndarray, sigma_m: float, cfg: FuseConfig) -> tuple[float, float, bool]:
@@ -314,10 +314,17 @@ def _point_test(point: SurveyEnd, pos: np.ndarray, sigma_m: float, cfg: FuseConf
     return res, res_sigma, res_sigma > cfg.contradiction_sigma * math.sqrt(3.0)
 
 
-def _axis_distance(point: SurveyEnd, p0: np.ndarray, u: np.ndarray) -> float:
+def axis_distance(point: SurveyEnd, p0: np.ndarray, u: np.ndarray) -> float:
     """A survey point's distance from the axis line ``p0 + t u`` [m]."""
     rel = point.position_m - p0
     return float(np.linalg.norm(rel - (rel @ u) * u))
+
+
+def final_end(e: dict, endpoints: Sequence[np.ndarray]) -> tuple[np.ndarray, float]:
+    """The end of the checked log nearest the end estimate ``e`` and how far it lies from it [m]."""
+    pos = np.asarray(e["position_m"], dtype=float)
+    final = min((np.asarray(q, dtype=float) for q in endpoints), key=lambda q: float(np.linalg.norm(q - pos)))
+    return final, float(np.linalg.norm(final - pos))
 
 
 def after_pile_check(ends: Sequence[dict], endpoints: Sequence[np.ndarray],
@@ -332,9 +339,7 @@ def after_pile_check(ends: Sequence[dict], endpoints: Sequence[np.ndarray],
     cfg = cfg or FuseConfig()
     out = []
     for e, point in zip(ends, survey):
-        pos = np.asarray(e["position_m"], dtype=float)
-        final = min((np.asarray(q, dtype=float) for q in endpoints), key=lambda q: float(np.linalg.norm(q - pos)))
-        shift = float(np.linalg.norm(final - pos))
+        final, shift = final_end(e, endpoints)
         if shift < UNMOVED_M:
             out.append(dict(e))
             continue
@@ -343,7 +348,7 @@ def after_pile_check(ends: Sequence[dict], endpoints: Sequence[np.ndarray],
             e["gnss_residual_m"], e["gnss_residual_sigma"], against = _point_test(point, final, e["sigma_m"], cfg)
             e["contradicted"] = bool(e["contradicted"] or against)
             p0, p1 = (np.asarray(q, dtype=float) for q in endpoints)
-            e["gnss_axis_distance_m"] = _axis_distance(point, p0, (p1 - p0) / max(float(np.linalg.norm(p1 - p0)), 1e-9))
+            e["gnss_axis_distance_m"] = axis_distance(point, p0, (p1 - p0) / max(float(np.linalg.norm(p1 - p0)), 1e-9))
         e["sigma_m"] = float(math.hypot(e["sigma_m"], shift))
         out.append(e)
     return out
@@ -355,7 +360,7 @@ def _on_axis(point: SurveyEnd, p0: np.ndarray, u: np.ndarray, t_g: float, interv
     3-D accuracy and of the axis's across, that growing past what the scan shows of the log)."""
     past = 0.0 if interval.last_on_m is None else abs(t_g - interval.last_on_m)
     lat = lateral_sigma_m + cfg.extrapolation_sigma_per_m * past
-    return _axis_distance(point, p0, u) <= cfg.contradiction_sigma * math.hypot(point.sigma_3d_m, lat)
+    return axis_distance(point, p0, u) <= cfg.contradiction_sigma * math.hypot(point.sigma_3d_m, lat)
 
 
 def _end_along(interval: EndInterval, sign: float, survey: SurveyEnd | None, t_g: float | None, sg: float | None,
@@ -487,7 +492,7 @@ def place_log_ends(points: np.ndarray, spec: Any, how: str, survey: tuple[Survey
     a, b = ests
     for est, e in zip(ests, survey):
         if e is not None:
-            est.gnss_axis_distance_m = _axis_distance(e, pa, u)
+            est.gnss_axis_distance_m = axis_distance(e, pa, u)
     if float(np.linalg.norm(b.position_m - a.position_m)) < MIN_LOG_LENGTH_M:  # nonsense: keep the fit's ends
         return spec, (a, b)
     new_butt, new_top = (b.position_m, a.position_m) if swapped else (a.position_m, b.position_m)

@@ -28,7 +28,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from reconstruct.fitting.ends import (MIN_BIN_POINTS, MIN_LOG_LENGTH_M, TOP_BAND_RADII, UNMOVED_M, EndEstimate,
-                                      axis_sigma_m)
+                                      axis_distance, axis_sigma_m, final_end)
 from reconstruct.fitting.fuse_config import FuseConfig
 from reconstruct.fitting.joint_config import JointConfig
 from reconstruct.fitting.survey_points import SurveyEnd
@@ -297,11 +297,10 @@ def _estimate(post: dict, states: np.ndarray, lo: float, k: int, axis: _Axis, po
                            outlier_prob=post["outlier_prob"])
     if point is not None:
         res = float(np.linalg.norm(point.position_m - pos))
-        rel = point.position_m - axis.pa
         est.gnss_fix, est.gnss_residual_m = point.fix, res
         est.gnss_residual_sigma = res / math.sqrt(point.sigma_3d_m ** 2 + est.sigma_m ** 2)
         est.contradicted = not inlier
-        est.gnss_axis_distance_m = float(np.linalg.norm(rel - (rel @ axis.u) * axis.u))
+        est.gnss_axis_distance_m = axis_distance(point, axis.pa, axis.u)
         est.gnss_position_m, est.gnss_sigma_m = point.position_m.copy(), point.sigma_3d_m
     return est
 
@@ -323,9 +322,7 @@ def joint_after_check(ends: Sequence[dict], endpoints: Sequence[np.ndarray],
     fixed points flags them, never silently). Ends the check did not move come back unchanged."""
     out = []
     for e, point in zip(ends, survey):
-        pos = np.asarray(e["position_m"], dtype=float)
-        final = min((np.asarray(q, dtype=float) for q in endpoints), key=lambda q: float(np.linalg.norm(q - pos)))
-        shift = float(np.linalg.norm(final - pos))
+        final, shift = final_end(e, endpoints)
         if shift < UNMOVED_M:
             out.append(dict(e))
             continue
@@ -336,9 +333,7 @@ def joint_after_check(ends: Sequence[dict], endpoints: Sequence[np.ndarray],
             e.update(gnss_residual_m=res, gnss_residual_sigma=res / math.sqrt(point.sigma_3d_m ** 2 + e["sigma_m"] ** 2),
                      outlier_prob=p_out, contradicted=bool(e["contradicted"] or p_out > cfg.outlier_flag_prob))
             p0, p1 = (np.asarray(q, dtype=float) for q in endpoints)
-            u = (p1 - p0) / max(float(np.linalg.norm(p1 - p0)), 1e-9)
-            rel = point.position_m - p0
-            e["gnss_axis_distance_m"] = float(np.linalg.norm(rel - (rel @ u) * u))
+            e["gnss_axis_distance_m"] = axis_distance(point, p0, (p1 - p0) / max(float(np.linalg.norm(p1 - p0)), 1e-9))
         out.append(e)
     return out
 
