@@ -175,7 +175,7 @@ class _Placement:
         spec = _sandwiched_log(P, a, b, self.neighbours(i), cfg)
         whence = "as thick as the gap between the ground and the logs over it"
         if spec is None:  # not lying between the ground and logs over it: the survey's axis
-            spec = self.within_room(_survey_log(a, b, self.typical_d, cfg), i)
+            spec = self.within_room(_survey_log(a, b, self.typical_d, cfg, self.ids[i]), i)
             whence = f"the pile's typical {self.typical_d * 100:.1f} cm within the room left; heights surveyed"
         ab = np.array([a, b], dtype=float)
         f = CylinderFit(centre=ab.mean(axis=0), axis=(ab[1] - ab[0]) / np.linalg.norm(ab[1] - ab[0]), ends=ab,
@@ -193,7 +193,7 @@ class _Placement:
         # until it is placed (place_hidden), a hidden log is the pile's typical one on its survey axis
         self.typical_d = float(np.median([log.mean_diameter_m for log in specs if log is not None]))
         for i in hidden:
-            specs[i] = _survey_log(*endpoints[ids[i]], self.typical_d, cfg)
+            specs[i] = _survey_log(*endpoints[ids[i]], self.typical_d, cfg, ids[i])
         # a first fit this far off its GNSS axis (several sigma of RTK noise) took another surface,
         # most likely: a neighbour's (a log lying under another) or the ground beside it. Its refit
         # gets only the points no other log explains

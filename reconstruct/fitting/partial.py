@@ -16,6 +16,7 @@ import numpy as np
 
 from reconstruct.errors import FitError, LogNotSeenError
 from reconstruct.fitting.cylinder import CylinderFit
+from reconstruct.fitting.ends import MIN_LOG_LENGTH_M
 from reconstruct.fitting.fit_config import FitConfig
 from reconstruct.fitting.geometry import _along_across, _underside_z
 from reconstruct.fitting.profiles import _frame
@@ -101,10 +102,15 @@ def fit_radius_on_axis(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfi
                        coverage=float(np.mean(hist > 0)), residual_a_m=0.0, residual_b_m=0.0, inliers=sel)
 
 
-def _survey_log(end_a: Any, end_b: Any, diameter_m: float, cfg: FitConfig) -> LogSpec:
+def _survey_log(end_a: Any, end_b: Any, diameter_m: float, cfg: FitConfig, log_id: str = "?") -> LogSpec:
     """A log from its GNSS points alone, of ``diameter_m`` (the axis one radius under
-    ``top_surface`` points)."""
+    ``top_surface`` points); :class:`FitError` naming ``log_id`` when the points are closer together
+    than the shortest log the pile model holds (one of them is not at its end)."""
     a, b = np.asarray(end_a, dtype=float), np.asarray(end_b, dtype=float)
+    if float(np.linalg.norm(b - a)) < MIN_LOG_LENGTH_M:
+        raise FitError(f"log {log_id!r} is not seen in the scan, so only its GNSS points could place it, and they "
+                       f"lie {float(np.linalg.norm(b - a)):.2f} m apart: shorter than any log ({MIN_LOG_LENGTH_M} m). "
+                       f"One of them is not at its end or carries another log's id: re-measure both ends of {log_id!r}")
     if cfg.endpoint_ref == "top_surface":
         a, b = a - [0.0, 0.0, diameter_m / 2], b - [0.0, 0.0, diameter_m / 2]
     return LogSpec.from_endpoints(a, b, diameter_m)
