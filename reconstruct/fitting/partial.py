@@ -104,13 +104,14 @@ def fit_radius_on_axis(points: np.ndarray, end_a: Any, end_b: Any, cfg: FitConfi
 
 def _survey_log(end_a: Any, end_b: Any, diameter_m: float, cfg: FitConfig, log_id: str = "?") -> LogSpec:
     """A log from its GNSS points alone, of ``diameter_m`` (the axis one radius under
-    ``top_surface`` points); :class:`FitError` naming ``log_id`` when the points are closer together
-    than the shortest log the pile model holds (one of them is not at its end)."""
+    ``top_surface`` points); :class:`FitError` naming ``log_id`` when its ends (the survey points as
+    matching and end placement left them) lie closer together than the shortest log the pile model holds."""
     a, b = np.asarray(end_a, dtype=float), np.asarray(end_b, dtype=float)
     if float(np.linalg.norm(b - a)) < MIN_LOG_LENGTH_M:
-        raise FitError(f"log {log_id!r} is not seen in the scan, so only its GNSS points could place it, and they "
-                       f"lie {float(np.linalg.norm(b - a)):.2f} m apart: shorter than any log ({MIN_LOG_LENGTH_M} m). "
-                       f"One of them is not at its end or carries another log's id: re-measure both ends of {log_id!r}")
+        raise FitError(f"log {log_id!r} is not seen in the scan, and the ends its GNSS points were placed at lie "
+                       f"{float(np.linalg.norm(b - a)):.2f} m apart: shorter than any log ({MIN_LOG_LENGTH_M} m). Its "
+                       f"points do not fit the scan (one may not be at its end or carry another log's id): re-measure "
+                       f"both ends of {log_id!r}")
     if cfg.endpoint_ref == "top_surface":
         a, b = a - [0.0, 0.0, diameter_m / 2], b - [0.0, 0.0, diameter_m / 2]
     return LogSpec.from_endpoints(a, b, diameter_m)
@@ -122,8 +123,11 @@ def _sandwiched_log(P: np.ndarray, end_a: Any, end_b: Any, over: Sequence[LogSpe
     the ground (the low ``GROUND_PERCENTILE`` of the scan points within ``ground_radius_m`` of each GNSS end) and
     the lowest underside over its axis; its axis one radius above the ground, under the GNSS
     points. ``None`` when nothing lies over it or the result disagrees with the surveyed heights
-    by more than three ``gnss_sigma_m`` (then the survey's heights stand)."""
+    by more than three ``gnss_sigma_m`` (then the survey's heights stand) or when its points lie
+    closer together across the ground than the shortest log (:func:`_survey_log` then refuses them)."""
     a, b = np.asarray(end_a, dtype=float), np.asarray(end_b, dtype=float)
+    if float(np.linalg.norm(b[:2] - a[:2])) < MIN_LOG_LENGTH_M:  # no log lies that short: the survey's axis decides
+        return None
     ground = []
     for e in (a, b):
         near = np.linalg.norm(P[:, :2] - e[:2], axis=1) < ground_radius_m

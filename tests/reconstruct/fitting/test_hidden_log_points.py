@@ -18,6 +18,22 @@ def test_a_hidden_log_is_placed_on_its_survey_axis():
 
 
 def test_points_closer_than_any_log_are_refused_naming_the_log():
-    with pytest.raises(FitError, match=r"'log4' .* 0\.19 m apart: shorter than any log .* re-measure both ends"):
+    with pytest.raises(FitError, match=r"'log4' is not seen .* 0\.19 m apart: shorter than any log .* re-measure both ends of 'log4'"):
         _survey_log((0.0, 0.0, 0.5), (0.19, 0.0, 0.5), 0.3, FitConfig(), "log4")
     _survey_log((0.0, 0.0, 0.5), (MIN_LOG_LENGTH_M + 0.01, 0.0, 0.5), 0.3, FitConfig(), "log4")
+
+
+def test_a_hidden_log_too_short_to_lie_under_others_is_left_to_the_survey_axis():
+    """The sandwich (a hidden log on the ground under others) is not built for ends closer than any log:
+    it returns None and the survey's axis decides (and refuses them)."""
+    import numpy as np
+
+    from reconstruct.fitting.partial import _sandwiched_log
+
+    from synth.scene.pile import LogSpec
+
+    P = np.zeros((500, 3))
+    P[:, :2] = np.random.default_rng(0).uniform(-1, 1, (500, 2))  # ground at 0 m
+    over = [LogSpec.from_endpoints((0.0, -1.0, 0.5), (0.0, 1.0, 0.5), 0.3)]  # a log across, 0.35 m up
+    assert _sandwiched_log(P, (-0.6, 0.0, 0.175), (0.6, 0.0, 0.175), over, FitConfig()) is not None
+    assert _sandwiched_log(P, (-0.08, 0.0, 0.175), (0.08, 0.0, 0.175), over, FitConfig()) is None
