@@ -209,7 +209,8 @@ def rerank(plan, observation, ranker: Ranker, objective, k: int = 4):
     scored = [replace(g, graspability=float(pi), quality=float(objective.quality(pi, len(g.targets), g.balance)))
               for g, pi in zip(chosen, p)]
     scored.sort(key=lambda g: -g.quality)
-    rest = [replace(g, quality=0.0) for g in plan.grasps if g.targets not in {s.targets for s in scored}]
+    scored_targets = {g.targets for g in scored}
+    rest = [replace(g, quality=0.0) for g in plan.grasps if g.targets not in scored_targets]
     info = {**plan.info, "reranked": len(scored),
             "u_network": {",".join(map(str, g.targets)): g.graspability for g in chosen}}
     return replace(plan, grasps=scored + rest, info=info)

@@ -71,9 +71,14 @@ def load_examples(data: list[str | Path], ranker: RankerConfig, cfg: RankerTrain
     """Every stored trial of the data sets (grasp stores or materialised folders) as ranker examples."""
     from planner.data import is_validation_pile, list_shards, load_samples, normalise_depth, sample_arrays
 
-    sources = [(k, shard) for k, d in enumerate(data) for shard in list_shards(str(d))[0]]
+    listed = [list_shards(str(d)) for d in data]
+    sources = [(k, shard) for k, (shards, _) in enumerate(listed) for shard in shards]
     moved = {k: stored_repeats(d) for k, d in enumerate(data)} if cfg.repeats else {}
-    _, grid_d = list_shards([str(d) for d in data])  # the data sets' grids must agree
+    grid_d = listed[0][1]
+    for d, (_, g) in zip(data[1:], listed[1:]):
+        if g != grid_d:
+            raise DataError(f"data set {d} has image grid {g} but {data[0]} has {grid_d}; data sets trained "
+                            "together must share size_px, extent_m and camera height")
     grid = OrthoGrid(int(grid_d["size_px"]), float(grid_d["extent_m"]))
     cam_h = float(grid_d.get("camera_height_m", 5.0))
     if abs(grid.pixel_m / ranker.pixel_m - 1.0) > 0.005:
