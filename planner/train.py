@@ -391,17 +391,23 @@ class _Run:
         _save_state(self.state_path, self.model, self.opt, {"epoch": entry["epoch"] + 1, "step": 0}, config)
 
 
+# network fields that change only what an output means, not a weight's shape: a checkpoint with another
+# value is a valid start (its B head is re-learnt for the new target, e.g. cos_beta -> beta_10deg)
+RETARGETABLE = frozenset({"b_encoding"})
+
+
 def _init_weights(model, config: TrainConfig) -> None:
     """Start ``model`` from the weights of ``config.init_from``; a checkpoint of another network
-    configuration is a :class:`CheckpointError` naming the fields that differ."""
+    configuration (beyond :data:`RETARGETABLE` fields) is a :class:`CheckpointError` naming the fields
+    that differ."""
     from planner.checkpoint import load_checkpoint
 
     loaded, have, _ = load_checkpoint(config.init_from)
-    if have != config.model:
-        diff = [k for k, v in have.to_dict().items() if v != config.model.to_dict()[k]]
+    diff = [k for k, v in have.to_dict().items() if v != config.model.to_dict()[k] and k not in RETARGETABLE]
+    if diff:
         raise CheckpointError(f"{config.init_from} does not fit this run: its network differs in {', '.join(diff)}; "
-                              "fine-tune with the same network settings (e.g. --base-channels, --b-encoding) or "
-                              "drop --init-from")
+                              "fine-tune with the same network settings (e.g. --base-channels, --mask-injection) "
+                              "or drop --init-from")
     model.load_state_dict({k: v.to(next(model.parameters()).device) for k, v in loaded.state_dict().items()})
 
 

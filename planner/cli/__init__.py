@@ -137,7 +137,7 @@ def train_command(
                                       "grasp candidate (needs a data set made from a grasp store).",
                                       field=(DataConfig, "skip_no_candidates")),
     init_from: Path = option("--init-from", "Start from this checkpoint's weights (fine-tuning; same network "
-                             "settings).", default=None, metavar="PATH", names=["init_from"]),
+                             "settings except --b-encoding, whose head is re-learnt).", default=None, metavar="PATH", names=["init_from"]),
     as_json: bool = JSON,
 ) -> None:
     """Train the target-conditioned U-Net; re-running the same command resumes from the last checkpoint.

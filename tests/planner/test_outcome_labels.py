@@ -174,6 +174,9 @@ def test_fine_tuning_starts_from_the_checkpoint_and_refuses_one_that_does_not_fi
     assert convs and all(torch.allclose(w0[k], w1[k], atol=1e-6) for k in convs)
     from dataclasses import replace
 
-    other = replace(cfg, model=UNetConfig.tiny())
-    with pytest.raises(CheckpointError, match="does not fit this run: its network differs in b_encoding"):
+    retarget = replace(cfg, model=UNetConfig.tiny())  # another B encoding: same shapes, the B head re-learnt
+    got, _, _ = load_checkpoint(train(tmp_path / "d", tmp_path / "run3", retarget).model_path)
+    assert all(torch.allclose(w0[k], got.state_dict()[k], atol=1e-6) for k in convs)
+    other = replace(cfg, model=UNetConfig.tiny(base_channels=6))
+    with pytest.raises(CheckpointError, match="does not fit this run: its network differs in base_channels"):
         train(tmp_path / "d", tmp_path / "run2", other)
