@@ -127,9 +127,10 @@ def _pct(v: float) -> str:
     return "-" if v != v else f"{v * 100:.1f} %"
 
 
-def ranking_markdown(m: dict, what: str) -> str:
+def ranking_markdown(m: dict, what: str, score: str | None = None) -> str:
+    """The record ``m`` as a page; ``score`` names the measured score (default: from ``m["key"]``)."""
     a, c = m["auc"], m["choice"]
-    score = {"u": "U", "p": "the ranker's p"}.get(m.get("key", "u"), m.get("key", "u"))
+    score = score or {"u": "U", "p": "the ranker's p"}.get(m.get("key", "u"), m.get("key", "u"))
     lines = [f"# Ranking of {score} — {what}\n",
              f"{c['piles']} piles, {m['trials']} tried grasps (the top subsets by f1 and by f3 per pile).\n",
              f"- within-pile AUC of {score}: **{a['auc']:.3f}** ({a['pairs']} success/failure pairs on {a['piles']} piles "
@@ -162,22 +163,39 @@ def run(model: str, out_dir: str | Path, per_cell: int, top_n: int = 4, workers:
     return m
 
 
-def rescore(records_dir: str | Path, ranker: str | Path, out: str | Path | None = None) -> list[dict]:
-    """The records of ``records_dir`` with ``p``, the ranker's success probability of each tried grasp
-    on its pile's observation (the scene made again from the pile's seed); written to ``out`` (one JSON
-    list) when given."""
+def rescore(records_dir: str | Path, ranker: str | Path | None = None, out: str | Path | None = None,
+            model: str | Path | None = None) -> list[dict]:
+    """The records of ``records_dir`` with ``p``, another scorer's value of each tried grasp on its
+    pile's observation (the scene made again from the pile's seed): a ranker's success probability
+    (``ranker``) or a U-Net's U at the grasp's centre (``model``, e.g. a model trained on outcome labels
+    scoring the shipped model's grasps); written to ``out`` (one JSON list) when given."""
     from planner.evaluate import EvalConfig, eval_scene
-    from planner.ranker import load_ranker
     from synth.common.files import atomic_write_bytes
     from synth.geometry.grasp import Grasp
 
-    rk = load_ranker(ranker)
-    seed_base = json.loads((Path(records_dir) / "collect.json").read_text())["seed_base"]
+    if (ranker is None) == (model is None):
+        raise ValueError("give exactly one scorer: --ranker or --model")
+    if ranker is not None:
+        from planner.ranker import load_ranker
+
+        score = load_ranker(ranker).score
+    else:
+        from planner.inference import load_planner, u_at
+
+        pl = load_planner(model, device="cpu")
+
+        def score(obs, grasps, targets):
+            return u_at(obs, pl, grasps, targets)
+    collect_json = Path(records_dir) / "collect.json"
+    if not collect_json.is_file():
+        raise SystemExit(f"error: {records_dir} has no collect.json: give the folder `ranking run --out` wrote "
+                         "(not its records/ sub-folder)")
+    seed_base = json.loads(collect_json.read_text())["seed_base"]
     records = read_records(records_dir)
     for seed, recs in sorted(_by_pile(records).items()):
         _, obs = eval_scene((recs[0]["n_logs"], bool(recs[0]["obstacles"]), 0, seed), EvalConfig(seed_base=seed_base))
-        p = rk.score(obs, [Grasp(**{k: r["grasp"][k] for k in ("x_m", "y_m", "phi_rad", "width_m")}) for r in recs],
-                     [r["targets"] for r in recs])
+        p = score(obs, [Grasp(**{k: r["grasp"][k] for k in ("x_m", "y_m", "phi_rad", "width_m")}) for r in recs],
+                  [r["targets"] for r in recs])
         for r, pi in zip(recs, p):
             r["p"] = float(pi)
     if out is not None:
@@ -197,25 +215,29 @@ def main(argv=None) -> None:
     r.add_argument("--seed-base", type=int, default=SEED_BASE, help="first pile seed (apart from test and training)")
     s = sub.add_parser("summarise", help="measure an existing folder of trial records")
     s.add_argument("records")
-    q = sub.add_parser("rescore", help="score a folder's tried grasps with a ranker and measure its p")
+    q = sub.add_parser("rescore", help="score a folder's tried grasps with a ranker (or another U-Net's U) and "
+                                         "measure that score, p")
     q.add_argument("records")
-    q.add_argument("--ranker", required=True)
+    who = q.add_mutually_exclusive_group(required=True)
+    who.add_argument("--ranker", help="a ranker checkpoint (loggrasp train-ranker)")
+    who.add_argument("--model", dest="scorer_model", help="a U-Net checkpoint: its U at each tried grasp's centre")
     q.add_argument("--out", default=None, help="write the records with p here (JSON)")
     a = ap.parse_args(argv)
     if a.cmd == "run":
         m = run(a.model, a.out, a.per_cell, a.top_n, a.workers, a.seed_base)
-        what = a.out
+        what, score = a.out, None
     elif a.cmd == "rescore":
-        records = rescore(a.records, a.ranker, a.out)
+        records = rescore(a.records, a.ranker, a.out, model=a.scorer_model)
         m = ranking_metrics(records, key="p")
-        what = f"{a.records}, ranker {a.ranker}"
+        who = f"ranker {a.ranker}" if a.ranker else f"model {a.scorer_model}"
+        what, score = f"{a.records}, {who}", "the ranker's p" if a.ranker else "the rescoring model's U"
         for obj, wl in paired_choices(records).items():
-            print(f"- {obj}: the ranker's choice succeeds where U's fails on {wl['wins']} piles, fails where U's "
-                  f"succeeds on {wl['losses']}")
+            print(f"- {obj}: the {who}'s choice succeeds where the records' U's fails on {wl['wins']} piles, fails "
+                  f"where it succeeds on {wl['losses']}")
     else:
         m = ranking_metrics(read_records(a.records))
-        what = a.records
-    print(ranking_markdown(m, what))
+        what, score = a.records, None
+    print(ranking_markdown(m, what, score))
     if not math.isfinite(m["auc"]["auc"]):
         print("no pile had both a success and a failure among its tried grasps: the AUC is undefined")
 

@@ -19,7 +19,6 @@ The :class:`Plan` lists the best grasp of each subset, best first.
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from dataclasses import dataclass, field
@@ -415,3 +414,24 @@ def _decode(maps: np.ndarray, r: int, c: int, grid: OrthoGrid, sigma: float) -> 
     w = float(np.clip(_smoothed_at(maps[2], r, c, sigma), MIN_WIDTH_M, MAX_WIDTH_M))
     x, y = grid.pixel_to_pile(r, c)
     return Grasp(float(x), float(y), float(wrap_phi(math.atan2(sn, cs) / 2.0)), w)
+
+
+def u_at(observation, planner: Planner, grasps: list[Grasp], targets: list[tuple[int, ...]]) -> np.ndarray:
+    """The network's U (smoothed as planning smooths it) at each grasp's centre, each on its own
+    target subset's maps: how the network of ``planner`` scores grasps it did not necessarily
+    choose (e.g. another model's tried grasps, for a paired ranking comparison)."""
+    if len(grasps) != len(targets):
+        raise ObservationError(f"{len(grasps)} grasps but {len(targets)} target subsets")
+    inten, depth, inst, extent_m, cam_h = observation_arrays(observation)
+    check_grid(depth.shape[0], extent_m, planner.config)
+    grid = OrthoGrid(depth.shape[0], extent_m)
+    subsets = sorted({tuple(sorted(t)) for t in targets})
+    masks = np.stack([np.isin(inst, [i + 1 for i in s]) for s in subsets])
+    out = planner.predict(make_inputs(inten, depth, masks, planner.config.in_channels, cam_h))
+    u = _gaussian((1.0 / (1.0 + np.exp(-out[:, 3]))).astype(np.float32), planner.quality_smoothing_px)
+    row_of = {s: k for k, s in enumerate(subsets)}
+    scores = np.empty(len(grasps))
+    for j, (g, t) in enumerate(zip(grasps, targets)):
+        r, c = (int(np.clip(round(float(v)), 0, depth.shape[0] - 1)) for v in grid.pile_to_pixel(g.x_m, g.y_m))
+        scores[j] = float(u[row_of[tuple(sorted(t))], r, c])
+    return scores

@@ -13,6 +13,7 @@ from planner.inference import Objective, Planner, plan
 from planner.model import UNetConfig, build_unet, prepare_for_inference
 from planner.subsets import SubsetPolicy, all_subsets, choose_subsets, feasible_subsets
 from synth.geometry.frames import OrthoGrid
+from synth.geometry.grasp import Grasp
 from planner_helpers import bar_pile, observation
 
 TINY = UNetConfig.tiny()
@@ -201,6 +202,31 @@ def test_plan_output_format_ranking_and_decoding():
     assert (g0["x_m"], g0["y_m"]) == pytest.approx((float(x), float(y)))
     assert abs(abs(g0["phi_rad"]) - math.pi / 2) < 1e-6 and g0["width_m"] == pytest.approx(0.8)
     assert len(plan(obs, pl, top_k=2).grasps) == 2
+
+
+def test_u_at_scores_a_grasp_as_planning_scored_it():
+    """u_at (another model's grasps scored by this network) gives each planned grasp the U the plan
+    reported for it, on its own subset's maps; a grasp moved off its pixel scores differently."""
+    from planner.inference import u_at
+
+    def fn(x):  # U peaks at a pixel that depends on the subset (its mask's size)
+        out = np.zeros((len(x), 5, 32, 32), np.float32)
+        out[:, 0], out[:, 2], out[:, 3], out[:, 4] = -1.0, 0.8, -3.0, 1.0
+        for k in range(len(x)):
+            n = int(x[k, -1].sum())
+            out[k, 3, 4 + n % 24:7 + n % 24, 8:11] = 1.0 + (n % 7) / 3.0
+        return out
+
+    obs, pl = observation(3), _fixed_planner(fn, 1.0)
+    got = plan(obs, pl).grasps
+    gs, ts = [g.grasp for g in got], [g.targets for g in got]
+    assert len({round(g.graspability, 4) for g in got}) > 1
+    assert u_at(obs, pl, gs, ts) == pytest.approx([g.graspability for g in got], abs=1e-6)
+    assert u_at(obs, pl, gs[::-1], ts[::-1]) == pytest.approx([g.graspability for g in got][::-1], abs=1e-6)
+    moved = [Grasp(g.x_m + 0.8, g.y_m, g.phi_rad, g.width_m) for g in gs]
+    assert all(m < g.graspability - 0.1 for m, g in zip(u_at(obs, pl, moved, ts), got))
+    with pytest.raises(ObservationError, match="target subsets"):
+        u_at(obs, pl, gs, ts[:-1])
 
 
 def test_quality_smoothing_prefers_a_zone_over_a_spike():
