@@ -249,7 +249,7 @@ def _fingerprint(spec: PlannerSpec) -> str:
         if spec.views > 1:  # a record planned with other test-time views is made again, whatever its label
             sha += f"+views{spec.views}k{spec.view_spread_k:g}"
         if spec.ranker:  # ... and with another ranker or another number re-scored
-            sha += f"+ranker{sha256_file(Path(spec.ranker))[:16]}k{spec.rerank_k}"
+            sha += f"+ranker{sha256_file(Path(spec.ranker))[:16]}k{spec.rerank_k}u{spec.ranker_u_weight:g}"
         if spec.verify_k:  # the verifier's version too: a record of another verifier is made again
             from planner.verify import VERIFY_VERSION
 

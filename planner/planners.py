@@ -15,6 +15,7 @@ from typing import Callable, Literal
 
 import numpy as np
 
+from planner.ranker import U_WEIGHT
 from planner.subsets import SubsetPolicy
 from synth.geometry.grasp import MAX_WIDTH_M, MIN_WIDTH_M, Grasp
 
@@ -39,6 +40,7 @@ class PlannerSpec:
     ranker: str | None = None  # for "unet": a ranker checkpoint (planner.ranker) that re-scores the plan's best
     #                            rerank_k grasps by f1 and by f3 and orders them by the objective with its p
     rerank_k: int = 4  # ... grasps re-scored per objective [-]
+    ranker_u_weight: float = U_WEIGHT  # ... ordered by sigmoid(w logit U + (1 - w) logit p) with w this [-]
 
     @property
     def name(self) -> str:
@@ -50,7 +52,7 @@ class PlannerSpec:
         if self.views > 1:
             how += f"-views{self.views}" + (f"k{self.view_spread_k:g}" if self.view_spread_k else "")
         if self.ranker:
-            how += f"-ranked{self.rerank_k}"
+            how += f"-ranked{self.rerank_k}" + (f"u{self.ranker_u_weight:g}" if self.ranker_u_weight else "")
         if self.verify_k:
             copies = f"x{self.verify_copies}" if self.verify_copies else ""
             return f"unet-{self.objective}{how}-verify{self.verify_k}{copies}"
@@ -171,10 +173,12 @@ def oracle_planner(trial_preset: str = "fast", max_trials: int = 40) -> PlanFn:
 
 
 def unet_planner(model: str, objective: str, subsets: SubsetPolicy = SubsetPolicy(), views: int = 1,
-                 view_spread_k: float = 0.0, ranker: str | None = None, rerank_k: int = 4) -> PlanFn:
+                 view_spread_k: float = 0.0, ranker: str | None = None, rerank_k: int = 4,
+                 ranker_u_weight: float = U_WEIGHT) -> PlanFn:
     """The network's best grasp among the subsets ``subsets`` keeps (default: every subset), its maps
     averaged over ``views`` dihedral test-time views, re-ranked by ``ranker`` when given."""
-    plan_all = _unet_plan_all(model, objective, subsets, views, view_spread_k, ranker, rerank_k, keep=1)
+    plan_all = _unet_plan_all(model, objective, subsets, views, view_spread_k, ranker, rerank_k, keep=1,
+                              ranker_u_weight=ranker_u_weight)
 
     def plan_fn(obs, pile):
         result = plan_all(obs, pile)
@@ -185,7 +189,8 @@ def unet_planner(model: str, objective: str, subsets: SubsetPolicy = SubsetPolic
 
 
 def _unet_plan_all(model: str, objective: str, subsets: SubsetPolicy, views: int, view_spread_k: float,
-                   ranker: str | None, rerank_k: int, keep: int | None = None) -> Callable[[object, object], object]:
+                   ranker: str | None, rerank_k: int, keep: int | None = None,
+                   ranker_u_weight: float = U_WEIGHT) -> Callable[[object, object], object]:
     """``(obs, pile) -> Plan`` of every subset, best first (re-ranked by ``ranker`` when given), its
     best ``keep`` only when given (all of them go to the ranker)."""
     import torch
@@ -201,7 +206,7 @@ def _unet_plan_all(model: str, objective: str, subsets: SubsetPolicy, views: int
     def plan_all(obs, pile):
         if rk is None:
             return plan(obs, net, obj, top_k=keep, pile=pile, subsets=subsets)
-        result = rerank(plan(obs, net, obj, pile=pile, subsets=subsets), obs, rk, obj, rerank_k)
+        result = rerank(plan(obs, net, obj, pile=pile, subsets=subsets), obs, rk, obj, rerank_k, ranker_u_weight)
         return replace(result, grasps=result.grasps[:keep]) if keep else result
     return plan_all
 
@@ -237,8 +242,10 @@ def verified_planner(plan_all: Callable[[object, object], object], objective: st
 
 def verified_unet_planner(model: str, objective: str, k: int, copies: int = 0, trial_preset: str = "fast",
                           subsets: SubsetPolicy = SubsetPolicy(), views: int = 1,
-                          view_spread_k: float = 0.0, ranker: str | None = None, rerank_k: int = 4) -> PlanFn:
-    plan_all = _unet_plan_all(model, objective, subsets, views, view_spread_k, ranker, rerank_k)
+                          view_spread_k: float = 0.0, ranker: str | None = None, rerank_k: int = 4,
+                          ranker_u_weight: float = U_WEIGHT) -> PlanFn:
+    plan_all = _unet_plan_all(model, objective, subsets, views, view_spread_k, ranker, rerank_k,
+                              ranker_u_weight=ranker_u_weight)
     return verified_planner(plan_all, objective, k, copies, trial_preset)  # the plan's best k, in its order
 
 
@@ -258,8 +265,10 @@ def build_planner(spec: PlannerSpec, trial_preset: str = "fast", oracle_max_tria
             check_views(spec.views, spec.view_spread_k)
             if spec.rerank_k < 1:
                 raise ValueError(f"rerank_k must be >= 1, got {spec.rerank_k}")
+            if not 0.0 <= spec.ranker_u_weight <= 1.0:
+                raise ValueError(f"ranker_u_weight must be in [0, 1], got {spec.ranker_u_weight}")
             views = dict(views=spec.views, view_spread_k=spec.view_spread_k, ranker=spec.ranker,
-                         rerank_k=spec.rerank_k)
+                         rerank_k=spec.rerank_k, ranker_u_weight=spec.ranker_u_weight)
             _CACHE[spec] = (verified_unet_planner(spec.model, spec.objective, spec.verify_k, spec.verify_copies,
                                                   trial_preset, spec.subset_policy(), **views) if spec.verify_k
                             else unet_planner(spec.model, spec.objective, spec.subset_policy(), **views))

@@ -37,6 +37,9 @@ RANKER = option("--ranker", "A ranker checkpoint (loggrasp train-ranker) that re
                 metavar="PATH")
 RERANK_K = option("--rerank-k", "With --ranker: grasps re-scored per objective.", field=(PlannerSpec, "rerank_k"),
                   min=1, max=127)
+RANKER_U_WEIGHT = option("--ranker-u-weight", "With --ranker: the re-scored grasps are ordered by sigmoid(W logit U "
+                         "+ (1 - W) logit p), U the network's, p the ranker's; 0 = p alone.",
+                         field=(PlannerSpec, "ranker_u_weight"), min=0.0, max=1.0, metavar="W")
 VIEW_SPREAD = option("--view-spread", "Lower U by K x its spread over the views (needs --views > 1).", default=0.0,
                      names=["view_spread_k"], metavar="K")
 
@@ -272,6 +275,7 @@ def plan_command(
                                  min=0, names=["verify_workers"]),
     ranker: Path = RANKER,
     rerank_k: int = RERANK_K,
+    ranker_u_weight: float = RANKER_U_WEIGHT,
 ) -> None:
     """Plan the best multi-log grasp on a pile: every target subset scored with Q = f(U, tau, B).
 
@@ -311,7 +315,7 @@ def plan_command(
 
             from planner.ranker import rerank
 
-            result = rerank(result, obs, rk, obj, rerank_k)
+            result = rerank(result, obs, rk, obj, rerank_k, ranker_u_weight)
             result = replace(result, grasps=result.grasps[:keep])
     verification = None
     if vcfg is not None:
@@ -371,10 +375,11 @@ def _print_plan(o: Output, pile: Path, result, verification, objective: str, png
     doc = {k: v for k, v in result.to_dict().items() if k != "info"} | {"pile": str(pile)}
     if verification is not None:
         doc["verification"] = verification.to_dict()
-    if "reranked" in result.info:  # the first n grasps' U is the ranker's p; the network's U beside it
-        doc["ranker"] = {k: result.info[k] for k in ("reranked", "u_network")}
-        o.progress(f"ranker: the first {result.info['reranked']} grasps re-scored (their U is the ranker's "
-                   "success probability); the others follow with Q 0")
+    if "reranked" in result.info:  # the first n grasps' U is the blend of U and the ranker's p; both beside it
+        doc["ranker"] = {k: result.info[k] for k in ("reranked", "u_network", "p_ranker", "u_weight")}
+        o.progress(f"ranker: the first {result.info['reranked']} grasps re-scored (their U is the blend of the "
+                   f"network's U and the ranker's p, weight {result.info['u_weight']:g} on U); the others follow "
+                   "with Q 0")
     o.result("loggrasp.plan", doc)
     rows = [[str(i + 1), ",".join(map(str, g.targets)), f"{g.grasp.x_m:.3f}", f"{g.grasp.y_m:.3f}",
              f"{math.degrees(g.grasp.phi_rad):.1f}", f"{g.grasp.width_m:.3f}", f"{g.quality:.3f}",
@@ -432,6 +437,7 @@ def eval_command(
     ranker: Path = option("--ranker", "Add a U-Net row per objective (and per verified row) whose best --rerank-k "
                           "grasps by f1 and by f3 a ranker checkpoint re-scores.", default=None, metavar="PATH"),
     rerank_k: int = RERANK_K,
+    ranker_u_weight: float = RANKER_U_WEIGHT,
     field_error: str = option("--field-error", "Add a field row per planner: its chosen grasp executed with the "
                               "crane's positioning error, SIGMA_XY_M,SIGMA_PHI_DEG (e.g. 0.03,2: 3 cm per axis, 2 deg).",
                               default=None, metavar="M,DEG"),
@@ -469,7 +475,7 @@ def eval_command(
     specs += _view_specs(str(model or DEFAULT_MODEL), objectives, views, view_spread)
     if ranker is not None:
         check_input(ranker, "--ranker", "file")
-        specs += [replace(s, ranker=str(ranker), rerank_k=rerank_k) for s in specs
+        specs += [replace(s, ranker=str(ranker), rerank_k=rerank_k, ranker_u_weight=ranker_u_weight) for s in specs
                   if s.kind == "unet" and not s.label and s.views == 1]
     check_output_dir(out, "--out")
     with progress_bar() as bar:

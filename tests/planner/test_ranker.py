@@ -153,7 +153,7 @@ def test_rerank_puts_the_ranked_union_first_in_the_ranker_s_order():
     grasps = [PlannedGrasp(Grasp(0.0, 0.1 * i, math.pi / 2, w), 0.9 - 0.1 * i, 0.9 - 0.1 * i, 1.0, (i % 4,) if i < 4
                            else (0, 1 + i % 3), (0, 0)) for i, w in enumerate(widths)]
     plan = Plan(grasps, 6, 0.0)
-    out = rerank(plan, obs, _width_ranker(), Objective("f1"), k=2)
+    out = rerank(plan, obs, _width_ranker(), Objective("f1"), k=2, u_weight=0.0)
     ranked = out.grasps[:out.info["reranked"]]
     assert sorted(g.grasp.width_m for g in ranked) == sorted([0.5, 0.9])  # f1 and f3 agree on the top two here
     assert [g.grasp.width_m for g in ranked] == [0.9, 0.5]
@@ -161,6 +161,32 @@ def test_rerank_puts_the_ranked_union_first_in_the_ranker_s_order():
     assert [g.grasp.width_m for g in out.grasps[2:]] == [0.6, 1.2, 0.8, 1.0]
     assert [g.quality for g in out.grasps[2:]] == [0.0] * 4 and out.grasps[3].graspability == pytest.approx(0.6)
     assert out.info["u_network"]["0"] == pytest.approx(0.9)
+
+
+def test_the_blend_weighs_the_network_s_u_against_the_ranker_s_p():
+    """rerank's default order is the blend of U and p: a grasp the network rates far higher can stay first
+    although the ranker prefers another; at weight 0 the ranker's order wins, at 1 the network's."""
+    from planner.inference import Objective, Plan, PlannedGrasp
+    from planner.ranker import U_WEIGHT, blend
+
+    from tests.planner.planner_helpers import observation
+
+    assert blend(0.9, 0.6, 0.0) == pytest.approx(0.6) and blend(0.9, 0.6, 1.0) == pytest.approx(0.9)
+    assert blend(0.8, 0.2, 0.5) == pytest.approx(0.5)  # logits +1.39 and -1.39
+    with pytest.raises(ValueError, match="u_weight"):
+        blend(0.5, 0.5, 1.5)
+    obs = observation(4, size=128)
+    # U 0.995 on the narrow grasp, 0.6 on the wide one; the width ranker prefers the wide one a little
+    grasps = [PlannedGrasp(Grasp(0.0, 0.0, math.pi / 2, 0.5), 0.995, 0.995, 1.0, (0,), (0, 0)),
+              PlannedGrasp(Grasp(0.0, 0.3, math.pi / 2, 0.6), 0.6, 0.6, 1.0, (1,), (0, 0))]
+    order = {w: [g.grasp.width_m for g in rerank(Plan(grasps, 2, 0.0), obs, _width_ranker(), Objective("f1"),
+                                                 k=2, u_weight=w).grasps] for w in (0.0, U_WEIGHT, 1.0)}
+    assert order == {0.0: [0.6, 0.5], U_WEIGHT: [0.5, 0.6], 1.0: [0.5, 0.6]}
+    out = rerank(Plan(grasps, 2, 0.0), obs, _width_ranker(), Objective("f1"), k=2)
+    assert out.info["u_weight"] == U_WEIGHT and set(out.info["p_ranker"]) == {"0", "1"}
+    assert out.grasps[0].graspability == pytest.approx(float(blend(0.995, out.info["p_ranker"]["0"])))
+    with pytest.raises(ValueError, match="u_weight"):
+        rerank(Plan(grasps, 2, 0.0), obs, _width_ranker(), Objective("f1"), u_weight=-0.1)
 
 
 def test_examples_need_stored_trials(tmp_path):
@@ -183,12 +209,13 @@ def test_a_ranked_row_is_named_and_fingerprinted_by_its_ranker(tmp_path):
     pb = save_ranker(tmp_path / "b.safetensors", b.model, b.config)
     plain = PlannerSpec("unet", model=str(model), objective="f3")
     ra = PlannerSpec("unet", model=str(model), objective="f3", ranker=str(pa))
-    assert (plain.name, ra.name) == ("unet-f3", "unet-f3-ranked4")
+    p_only = PlannerSpec("unet", model=str(model), objective="f3", ranker=str(pa), ranker_u_weight=0.0)
+    assert (plain.name, ra.name, p_only.name) == ("unet-f3", "unet-f3-ranked4u0.75", "unet-f3-ranked4")
     prints = {_fingerprint(s) for s in (plain, ra, PlannerSpec("unet", model=str(model), objective="f3",
                                                                 ranker=str(pb)),
                                         PlannerSpec("unet", model=str(model), objective="f3", ranker=str(pa),
-                                                    rerank_k=2))}
-    assert len(prints) == 4
+                                                    rerank_k=2), p_only)}
+    assert len(prints) == 5
 
 
 def test_a_balanced_epoch_draws_each_data_set_equally():

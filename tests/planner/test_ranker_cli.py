@@ -91,7 +91,8 @@ def test_round_runs_a_pile_and_refuses_bad_flags(capsys, tmp_path, tiny_model):
 
 
 def test_plan_with_a_ranker_lists_its_probabilities(capsys, tmp_path, trials_dir):
-    """plan --ranker: the listed grasps' U are the ranker's probabilities, in the objective's order."""
+    """plan --ranker: the listed grasps' U are the blend of the network's U and the ranker's probability,
+    in the objective's order; --ranker-u-weight 0 lists the ranker's p itself."""
     assert cli(capsys, "synth", "piles", "--count", "1", "--logs", "3", "--renders", "1", "--workers", "1",
                "--out", tmp_path / "piles").code == 0
     out = tmp_path / "r.safetensors"
@@ -104,9 +105,20 @@ def test_plan_with_a_ranker_lists_its_probabilities(capsys, tmp_path, trials_dir
     n = ranked["ranker"]["reranked"]
     assert 2 <= n <= 4
     us = [g["graspability"] for g in ranked["grasps"][:n]]
-    assert [g["quality"] for g in ranked["grasps"][:n]] == sorted(us, reverse=True)  # f1: quality = p
+    assert [g["quality"] for g in ranked["grasps"][:n]] == pytest.approx(sorted(us, reverse=True))  # f1: Q = U
     assert [g["quality"] for g in ranked["grasps"][n:]] == [0.0] * (len(ranked["grasps"]) - n)
     assert set(ranked["ranker"]["u_network"].values()) <= {g["graspability"] for g in plain["grasps"]}
+    from planner.ranker import U_WEIGHT, blend
+
+    rk = ranked["ranker"]
+    key = [",".join(map(str, g["targets"])) for g in ranked["grasps"][:n]]
+    assert rk["u_weight"] == U_WEIGHT
+    assert us == pytest.approx([float(blend(rk["u_network"][k], rk["p_ranker"][k])) for k in key])
+    p_only = cli(capsys, "plan", pile, "--json", "--top", "7", "--ranker", out, "--rerank-k", "2",
+                 "--ranker-u-weight", "0").json()
+    assert [g["graspability"] for g in p_only["grasps"][:n]] == pytest.approx(
+        sorted(p_only["ranker"]["p_ranker"].values(), reverse=True))
+    fails(cli(capsys, "plan", pile, "--ranker", out, "--ranker-u-weight", "1.5"), 2, "--ranker-u-weight")
     fails(cli(capsys, "plan", pile, "--ranker", tmp_path / "missing.safetensors"), 2, "--ranker")
 
 
