@@ -13,7 +13,9 @@ surface (:func:`scan_sigma`):
   axis' shift across (c) and up (h) at its place along the log (a line: c0 + c1 tau, h0 + h1 tau, tau the
   share of the length from the middle) and by the radius are ``(sin phi, tau sin phi, cos phi, tau cos phi,
   1)``; its noise is the RMS of the cells' mean residuals (the fit's own residuals, not a fixed number), at
-  least ``sigma_cell_min_m``; the radius has a prior of ``sigma_radius_prior_m``;
+  least ``sigma_cell_min_m``, a share ``sigma_bias_share`` of it common to every cell of its angle bin along
+  the whole log (stereo's bias by the view angle: a longer log is hardly surer, a wider arc is); the radius
+  has a prior of ``sigma_radius_prior_m``;
 - what the pile check moves is the log's surface towards a contact with its radius kept: across, a flank
   (``c +- r``); up, its underside (``h - r``). A top arc alone leaves the radius - and with it the flanks and
   the underside - loose; flanks seen pin them;
