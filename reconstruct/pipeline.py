@@ -402,7 +402,13 @@ class _Matching:
         out = {}
         for k, m in self.matches.items():
             found = None if m.scan_index is None else logs_found[m.scan_index]
-            ends = tuple(None if n in self.outliers.get(k, ()) else e for n, e in enumerate(survey_ends[k]))
+            ends = survey_ends[k]
+            if found is None or not a_piece_of_a_surveyed_log(ends, found, fuse_cfg):
+                # a point the matching did not believe sets no prior axis; but not when the scan log is a piece
+                # of the log by both its points: the log is then seen in part on them (``in_part``), and an axis
+                # without one of them ran along the piece, not the log (held-out 3300102: 0.15 m between two
+                # RTK fixed points 2.4 m apart)
+                ends = tuple(None if n in self.outliers.get(k, ()) else e for n, e in enumerate(ends))
             out[k] = prior_axis(ends, found, m.reversed, fuse_cfg)
         for k, j in self.new_ids.items():
             out[k] = (logs_found[j].start_m.copy(), logs_found[j].end_m.copy(), fuse_cfg.axis_sigma_m)
@@ -499,7 +505,8 @@ def _fit(pts: np.ndarray, matching: _Matching, survey_ends: dict, logs_pile: lis
                    sigmas={k: (s, s) for k, s in lateral.items()},
                    place_ends=placer, optional=set(new_ids),
                    settle=(JointSettler(survey_ends, lateral, cfg.joint, cfg.fit.penetration_tolerance_m,
-                                        cfg.fit.roll_steps) if joint else None),
+                                        cfg.fit.roll_steps, points=pts, band_m=cfg.fit.inlier_band_m)
+                           if joint else None),
                    in_part={k for k, m in matching.matches.items() if m.scan_index is not None
                             and a_piece_of_a_surveyed_log(survey_ends[k], logs_pile[m.scan_index], placed.fuse_cfg)})
     for lf in fit.logs:  # ends where the pile check left their log, tested against the survey again

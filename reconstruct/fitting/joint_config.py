@@ -16,7 +16,7 @@ from dataclasses import dataclass, fields
 ESTIMATORS = ("rules22", "joint")
 #: raised whenever a change to the joint estimator makes different piles from the same scan (recorded in the
 #: report as ``estimator_revision`` and in bench keys)
-JOINT_REVISION = 10
+JOINT_REVISION = 11
 
 
 @dataclass(frozen=True)
@@ -92,12 +92,36 @@ class JointConfig:
     #                                   the first 10 default surveys
     # -- the pile: every log's pose correction against its evidence and the other bodies (joint_settle) --
     settle_scan_sigma_m: float = 0.02  # a placed log's ends across its axis and in height, 1 sigma, as the pile
-    #                                    sees them: the cylinder fit's RMS says millimetres, but a packed log's
-    #                                    sides are hidden by its neighbours (held-out diameter error ~1 cm
-    #                                    median on packed piles) and its height carries its radius' error; at
-    #                                    0.015 m tuning scans refused 6.7 cm moves that revision 22 took (its
-    #                                    limit, 8 cm, is refuse_sigma of this); a log seen in part or hidden
-    #                                    keeps its placement's larger sigma [m]
+    #                                    sees them, for a log NOT fitted to the scan (hidden, seen in part: at
+    #                                    least this, else its placement's larger sigma), and for every log with
+    #                                    per_log_sigma off (revision 10: at 0.015 m tuning scans refused 6.7 cm
+    #                                    moves that revision 22 took; its limit, 8 cm, is refuse_sigma of this) [m]
+    per_log_sigma: bool = True  # a log fitted to the scan gets its own sigma from the points on its surface
+    #                             (joint_scan_sigma.scan_sigma), not settle_scan_sigma_m: one number for every
+    #                             log was too sure for packed logs whose sides neighbours hide (held-out
+    #                             packed piles: diameter error ~1 cm median, most of revision 10's refusals) [-]
+    sigma_cell_along_m: float = 0.15  # a log's surface is observed in cells this long ... (stereo errors are
+    #                                   correlated over a patch: the residuals of 5 cm cells correlate 0.68 at
+    #                                   10 cm, 0.51 at 20 cm - tuning scans 1,100,000-005, 31 logs) [m]
+    sigma_cell_deg: float = 30.0  # ... and this far round its axis (cells 30 deg apart correlate 0.39, 60 deg
+    #                               apart not at all: same scans) [deg]
+    sigma_bias_share: float = 0.6  # the share of a cell's residual variance that every cell of its angle bin
+    #                                shares along the whole log (a stereo bias by the view angle, not noise: 15 cm
+    #                                cells correlate 0.6-0.7 at 0.45-1 m apart, same scans), so a longer log
+    #                                is hardly surer, a wider arc is [-]
+    sigma_cell_min_m: float = 0.003  # a cell's mean is never surer than this (the profiles' 2.5 mm grid, stereo
+    #                                  depth steps at 3 m) [m]
+    sigma_radius_prior_m: float = 0.03  # a log's radius before its surface is seen: the generator's and a
+    #                                     pile's logs span 5-20 cm radii [m]
+    sigma_shape_per_radius: float = 0.15  # the log is not round, and stereo smears a round surface: a round fit to
+    #                                       the twin's pentagonal prism (a face 1 - cos 36 deg = 19 % of the
+    #                                       radius inside the round, by its roll) or to a stem's ovality is off
+    #                                       by a share of the radius whatever the scan shows. Fitted on tuning
+    #                                       scans 1,100,000-011 (default survey, 92 ends of scan-fitted logs the
+    #                                       bodies did not move): 95 % of ends within 2 sigma of the truth at
+    #                                       0.15 (flanks 96 %, undersides 91 %); at 0.05 only 64 % / 53 % [-]
+    sigma_max_m: float = 0.08  # a scan-fitted log's sigma is at most this (a log seen in part is placed on its
+    #                            survey axis to ~4 cm; twice that: the scan's fit is then hardly evidence) [m]
     survey_loss_sigmas: float = 3.0  # a kept survey point pulls its log as a Gaussian within this many of its
     #                                  sigmas, by a bounded force past them (soft-L1: a wrong point the end
     #                                  posteriors kept does not drag a log by its distance squared) [-]
@@ -121,7 +145,7 @@ class JointConfig:
                 continue
             if not getattr(self, f.name) > 0:
                 raise ValueError(f"JointConfig.{f.name} must be > 0, got {getattr(self, f.name)}")
-        for name in ("outlier_prior", "outlier_flag_prob", "p_on_inside", "p_below_inside", "p_on_outside",
+        for name in ("outlier_prior", "outlier_flag_prob", "sigma_bias_share", "p_on_inside", "p_below_inside", "p_on_outside",
                      "p_below_outside", "p_over_inside", "p_over_outside"):
             if not getattr(self, name) < 1:
                 raise ValueError(f"JointConfig.{name} is a probability: must be in (0, 1), got {getattr(self, name)}")

@@ -5,8 +5,9 @@ what holds it where it is and from the other bodies, in place of revision 22's r
 Each log's state is its placed axis with its two ends moved across it, horizontally (``c``) and up (``h``):
 four numbers per log (a shift, a height, a small yaw and pitch). One ``scipy.optimize.least_squares`` weighs:
 
-- **the scan**: a Gaussian on each end's correction, its sigma the fit's uncertainty (``settle_scan_sigma_m``
-  for a log fitted to its points, its placement's own for one seen in part or hidden);
+- **the scan**: a Gaussian on each end's correction, its sigma the fit's uncertainty (for a log fitted to its
+  points its own, from the points on its surface: :mod:`reconstruct.fitting.joint_scan_sigma`; its
+  placement's for one seen in part or hidden);
 - **its survey points** (those its end posteriors kept): each point's offset across the moved axis, by its
   receiver's accuracy and the scan pose's, through a soft-L1 loss (a wrong point the posteriors missed pulls
   by a bounded force, not by its distance squared);
@@ -25,7 +26,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -56,11 +57,26 @@ class SurveyPull:
 @dataclass(frozen=True)
 class LogEvidence:
     """What holds a log where it was placed: the sigmas of its ends' correction across its axis and in
-    height [m] (the scan's, or its placement's) and its kept survey points."""
+    height [m] (the scan's, or its placement's), one for both ends or (butt, top), and its kept survey points."""
 
-    sigma_across_m: float
-    sigma_up_m: float
+    sigma_across_m: float | tuple[float, float]
+    sigma_up_m: float | tuple[float, float]
     pulls: tuple[SurveyPull, ...] = ()
+
+    def scales(self) -> list[float]:
+        """The sigmas of the four corrections (across at the butt, at the top, up at the butt, at the top) [m]."""
+        ca, cb = _pair(self.sigma_across_m)
+        ha, hb = _pair(self.sigma_up_m)
+        return [ca, cb, ha, hb]
+
+    def text(self) -> str:
+        """Its scan sigmas in words (the larger end's), for a refusal."""
+        return (f"+-{max(_pair(self.sigma_across_m)) * 100:.1f} cm across, "
+                f"+-{max(_pair(self.sigma_up_m)) * 100:.1f} cm up")
+
+
+def _pair(v: float | tuple[float, float]) -> tuple[float, float]:
+    return (float(v), float(v)) if np.isscalar(v) else (float(v[0]), float(v[1]))
 
 
 def survey_pull(log: LogSpec, point: np.ndarray, sigma_across_m: float, sigma_up_m: float) -> SurveyPull:
@@ -93,8 +109,7 @@ class _Problem:
         self.base = [log.endpoints_m() for log in pile.logs]
         self.across = [_across(b - a) for a, b in self.base]
         self.radii = [(log.diameter_m / 2, log.top_d_m / 2) for log in pile.logs]
-        self.scale = np.concatenate([[e.sigma_across_m, e.sigma_across_m, e.sigma_up_m, e.sigma_up_m]
-                                     for e in self.evidence])
+        self.scale = np.concatenate([e.scales() for e in self.evidence])
         self.bodies = Bodies(pile)
         self.terms: list[Term] = []
 
@@ -193,8 +208,8 @@ def _refuse(prob: _Problem, x: np.ndarray, x_free: np.ndarray, tolerance_m: floa
     others = () if term.kind != "log" else (term.j if term.i == k else term.i,)
     raise SeparationError(
         f"log {k} would have to move {move * 100:.1f} cm to clear {other}, {math.sqrt(max(extra[k], 0.0)):.1f} sigma "
-        f"of what its scan and survey points allow (limit {cfg.refuse_sigma:.0f} sigma); its fit or its GNSS end "
-        f"points are wrong", logs=(k,) + others)
+        f"of what its scan ({prob.evidence[k].text()}) and survey points allow (limit {cfg.refuse_sigma:.0f} sigma); "
+        f"its fit or its GNSS end points are wrong", logs=(k,) + others)
 
 
 def _pressing(prob: _Problem, x_free: np.ndarray, k: int) -> Term:
@@ -263,30 +278,60 @@ class JointSettler:
     kept survey points (``survey_ends``: per log id, its points in the pile frame; ``lateral``: per log id,
     its placement's sigma across [m]), :func:`settle_pile`, and each end moved to where the scan and the
     survey put it without the bodies (the pipeline then takes it to the settled log's end, its sigma grown
-    by that last move: :func:`reconstruct.fitting.joint_ends.joint_after_check`)."""
+    by that last move: :func:`reconstruct.fitting.joint_ends.joint_after_check`).
+
+    ``points``: the scan (pile frame) and ``band_m`` how near a log's surface a point is on it: with
+    ``cfg.per_log_sigma`` each log fitted to the scan gets its own sigma from the points on its surface that
+    no other log explains (:func:`reconstruct.fitting.joint_scan_sigma.scan_sigma`); without points, or with
+    it off, every such log gets ``settle_scan_sigma_m`` (revision 10). ``sigmas`` keeps each log's, by id."""
 
     def __init__(self, survey_ends: dict, lateral: dict[str, float], cfg: JointConfig, tolerance_m: float,
-                 roll_steps: int) -> None:
+                 roll_steps: int, points: np.ndarray | None = None, band_m: float = 0.015) -> None:
         self.survey_ends, self.lateral, self.cfg = survey_ends, lateral, cfg
         self.tolerance_m, self.roll_steps = tolerance_m, roll_steps
+        self.points, self.band_m = points, band_m
+        self.sigmas: dict[str, Any] = {}
 
-    def evidence(self, log: LogSpec, lf) -> LogEvidence:
+    def evidence(self, log: LogSpec, lf, own: np.ndarray | None = None) -> LogEvidence:
+        """``log``'s evidence (``lf``: its fit report; ``own``: the scan points on its surface and no other's)."""
         from reconstruct.fitting.ends import axis_sigma_m
+        from reconstruct.fitting.joint_scan_sigma import scan_sigma
 
         ends_k = self.survey_ends.get(lf.log_id, (None, None))
-        sig = max(axis_sigma_m(lf.fit, self.lateral.get(lf.log_id, 0.0), ends_k), self.cfg.settle_scan_sigma_m)
+        if lf.fit == "scan" and own is not None:
+            sig = self.sigmas[lf.log_id] = scan_sigma(own, log, self.band_m, self.cfg)
+            across, up = sig.across_m, sig.up_m
+        else:
+            across = up = max(axis_sigma_m(lf.fit, self.lateral.get(lf.log_id, 0.0), ends_k),
+                              self.cfg.settle_scan_sigma_m)
         pulls = [survey_pull(log, pt.position_m, math.hypot(pt.sigma_h_m, self.cfg.pose_sigma_m),
                              math.hypot(pt.sigma_v_m, self.cfg.pose_sigma_m))
                  for pt, e in zip(ends_k, lf.ends or (None, None))
                  if pt is not None and not (e or {}).get("contradicted")]
-        return LogEvidence(sig, sig, tuple(pulls))
+        return LogEvidence(across, up, tuple(pulls))
+
+    def own_points(self, pile: PileSpec) -> list[np.ndarray | None]:
+        """Per log, the scan points on its surface that no other log's explains (None: no points given, or
+        ``per_log_sigma`` off)."""
+        from reconstruct.fitting.geometry import _owners
+
+        if self.points is None or not self.cfg.per_log_sigma:
+            return [None] * len(pile.logs)
+        P = np.asarray(self.points, dtype=float)
+        P = P[np.all(np.isfinite(P), axis=1)]
+        owner = _owners(P, pile.logs, self.band_m)
+        return [P[owner == k] for k in range(len(pile.logs))]
 
     def __call__(self, pile: PileSpec, fits: Sequence) -> Cleared:
-        evidence = [self.evidence(log, lf) for log, lf in zip(pile.logs, fits)]
+        own = self.own_points(pile)
+        evidence = [self.evidence(log, lf, pts) for log, lf, pts in zip(pile.logs, fits, own)]
         cleared, free = settle_pile(pile, evidence, self.cfg, self.tolerance_m, self.roll_steps)
         for k, lf in enumerate(fits):
             for j, e in enumerate(lf.ends or []):
                 pos = np.asarray(e["position_m"], dtype=float)
-                near = min(free[k], key=lambda q: float(np.linalg.norm(q - pos)))
-                cleared.at_survey[(k, j)] = dict(e, position_m=[float(v) for v in near])
+                m = min((0, 1), key=lambda n: float(np.linalg.norm(free[k][n] - pos)))
+                cleared.at_survey[(k, j)] = dict(e, position_m=[float(v) for v in free[k][m]])
+                if lf.log_id in self.sigmas:  # the scan's sigma at this end (butt or top), for the report
+                    sig = self.sigmas[lf.log_id]
+                    cleared.at_survey[(k, j)]["scan_sigma_m"] = {"across": sig.across_m[m], "up": sig.up_m[m]}
         return cleared
