@@ -406,8 +406,7 @@ class _Matching:
             if found is None or not a_piece_of_a_surveyed_log(ends, found, fuse_cfg):
                 # a point the matching did not believe sets no prior axis; but not when the scan log is a piece
                 # of the log by both its points: the log is then seen in part on them (``in_part``), and an axis
-                # without one of them ran along the piece, not the log (held-out 3300102: 0.15 m between two
-                # RTK fixed points 2.4 m apart)
+                # without one of them runs along the piece, not the log (docs/reconstruction.md, joint revision 11)
                 ends = tuple(None if n in self.outliers.get(k, ()) else e for n, e in enumerate(ends))
             out[k] = prior_axis(ends, found, m.reversed, fuse_cfg)
         for k, j in self.new_ids.items():

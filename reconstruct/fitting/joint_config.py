@@ -51,10 +51,10 @@ class JointConfig:
     #                               falls short of a stretch under a crossing log) [-]
     contiguity: bool = False  # what a bin shows is a Markov chain inside the log and another past its end, not
     #                           independent bins (joint_ends.edge_log_likelihood), so a neighbour's top in line
-    #                           past a gap counts once, not once per 2 cm bin (held-out 3300010). Off: on the
-    #                           first 21 tuning scans it moved 8 of 63 worst ends by over 2 cm, 7 for the worse
-    #                           (a log seen in part, its extrapolated top over a run of 'below' bins, lost a
-    #                           correct fixed end: 1100012, 7 cm -> 115 cm); docs/reconstruction.md
+    #                           past a gap counts once, not once per 2 cm bin. Off: on the first 21 tuning
+    #                           scans it moved 8 of 63 worst ends by over 2 cm, 7 for the worse (a log seen in
+    #                           part, its extrapolated top over a run of 'below' bins, lost a correct fixed
+    #                           end); docs/reconstruction.md, joint revisions 9-10
     run_on_inside_m: float = 0.5  # a log's top, once seen, goes on this far on average before a bin shows
     #                               something else (logs are 1-4 m long; stereo drops a few bins) [m]
     run_below_inside_m: float = 0.02  # a bin under a log's top (a sag, a gap between logs across it) is
