@@ -212,9 +212,10 @@ def test_a_small_rock_against_a_log_is_still_found():
 
 
 def test_a_low_scrap_of_ground_is_not_an_obstacle():
-    # 4 cm of support above the points' threshold: a patch 0.1 m high is ground the terrain left low
+    # asked for a top 0.12 m above the ground, a patch 0.1 m high is not an obstacle (the default asks
+    # no more than the points' own threshold: see FitConfig.obstacle_min_top_m)
     low = _dome((0.0, 0.0), (0.3, 0.3), 0.105)
-    stumps, rocks, info = find_obstacles(low, _flat_terrain(), FitConfig())
+    stumps, rocks, info = find_obstacles(low, _flat_terrain(), FitConfig(obstacle_min_top_m=0.12))
     assert not stumps and not rocks, info
     stumps, rocks, info = find_obstacles(low, _flat_terrain(), FitConfig(obstacle_min_top_m=0.08))
     assert len(stumps) + len(rocks) == 1, info
