@@ -89,6 +89,26 @@ class FitConfig:
     #                                  it is unexplained log surface, not an obstacle [m]
     obstacle_merge_gap_m: float = 0.45  # clusters this close with a log footprint between them
     #                                     are one obstacle (a log lying across it hides a band) [m]
+    obstacle_join_gap_m: float = 0.06  # clusters whose top-view footprints touch or overlap within this
+    #                                    are one body [m]: the cameras look down, so a part of a body cut off
+    #                                    in height only (a stump's rim below its top, across the side wall
+    #                                    stereo does not see) is 3-D apart but not apart across the ground;
+    #                                    the DBSCAN neighbourhood (dbscan_eps_m), taken in top view
+    obstacle_max_size_m: float = 2.0  # ... unless the joined body would be wider than this [m]: no stump
+    #                                   (radius <= 0.35 m, roots <= 0.6 m) or rock (<= 1.3 m) of the twin is
+    obstacle_log_tolerance_m: float = 0.06  # obstacle points within this of a fitted log's surface (radially,
+    #                                         up to radius + this from its axis) are the log's, not obstacle
+    #                                         evidence [m]: stereo smears a log's flanks by up to ~5 cm, and a
+    #                                         log fitted 1-2 cm thin leaves its top that far above the fit
+    obstacle_log_end_reach_m: float = 0.15  # ... also this far along its axis past each placed end [m]: an end
+    #                                         placed short leaves the rest of the log there (every-end-fixed
+    #                                         worst end p95 ~4 cm, blind ends ~10 cm)
+    obstacle_min_top_m: float = 0.08  # an obstacle's top (TOP_PERCENTILE of its heights) stands at least
+    #                                   this high above the fitted ground [m]. At the points' own threshold
+    #                                   (obstacle_min_height_m), i.e. no further cut: 0.12 m removed the
+    #                                   scan-edge scraps of held-out 3300055 but missed 7-9 low true rocks
+    #                                   (and 0.10 m 5-6) on the held-out every-end-fixed scans
+    #                                   (docs/reconstruction.md, "One obstacle per body")
     stump_flat_fraction: float = 0.3  # share of points in the top 4 cm for a stump [-]
     stump_max_circle_rms: float = 0.25  # circle-fit RMS of the top over its radius, stump [-]
     stump_min_aspect: float = 1.0  # a stump's height is at least this times its radius [-]
@@ -141,9 +161,14 @@ class FitConfig:
                      "gnss_sigma_m", "log_clearance_m", "ground_window_m", "ground_band_m",
                      "obstacle_min_height_m", "dbscan_eps_m", "obstacle_min_size_m", "obstacle_voxel_m",
                      "obstacle_merge_gap_m", "obstacle_sliver_m", "obstacle_flank_height_m",
-                     "obstacle_flank_log_gap_m"):
+                     "obstacle_flank_log_gap_m", "obstacle_max_size_m", "obstacle_min_top_m"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+        if self.obstacle_join_gap_m < 0 or self.obstacle_log_tolerance_m < 0 or self.obstacle_log_end_reach_m < 0:
+            raise ValueError("obstacle_join_gap_m, obstacle_log_tolerance_m and obstacle_log_end_reach_m must be >= 0")
+        if self.obstacle_min_top_m < self.obstacle_min_height_m:
+            raise ValueError(f"obstacle_min_top_m ({self.obstacle_min_top_m} m) must not be below "
+                             f"obstacle_min_height_m ({self.obstacle_min_height_m} m)")
         if self.obstacle_flank_height_m > self.obstacle_min_height_m:
             raise ValueError(f"obstacle_flank_height_m ({self.obstacle_flank_height_m} m) must not exceed "
                              f"obstacle_min_height_m ({self.obstacle_min_height_m} m)")

@@ -1,11 +1,25 @@
 """Stumps and rocks from the scan points standing above the fitted ground (:func:`find_obstacles`).
 
-Points more than ``obstacle_min_height_m`` above the ground are clustered with open3d's DBSCAN; each
-cluster then takes in the lower points (``obstacle_flank_height_m`` and up) connected to it, so a
-half-buried rock is sized by its footprint and not only by the cap above the threshold. Cluster points
-over a log's footprint higher than its underside are the log's (stereo smear at a stack of log ends) and
-are dropped, and a stump is no taller than the lowest log underside over it. A cluster with a flat,
-circular top at least its radius high, covering the cluster, is a stump (:class:`StumpSpec`, no roots:
+One obstacle per physical body, from the points no fitted log explains, reported only with enough support:
+
+1. **Evidence**: points within ``obstacle_log_tolerance_m`` of a fitted log's surface (radially: up to its
+   radius plus that from its axis), over its length and ``obstacle_log_end_reach_m`` past each placed end,
+   are the log's (its smeared flanks, its top where it was fitted a little thin, the rest of it past an end
+   placed short), not an obstacle's (:func:`explained_by_logs`).
+2. **Clusters**: points more than ``obstacle_min_height_m`` above the ground are clustered with open3d's
+   DBSCAN; each cluster then takes in the lower points (``obstacle_flank_height_m`` and up) connected to
+   it, so a half-buried rock is sized by its footprint and not only by the cap above the threshold.
+3. **One body, one obstacle**: clusters with a log's footprint between them (a log lying across a rock
+   hides a band of it, :func:`_merge_across_logs`), and clusters whose top-view footprints touch or overlap
+   within ``obstacle_join_gap_m`` (a stump's rim below its top: apart in height, across the side wall the
+   cameras do not see, not apart over the ground; :func:`_join_touching`) are one obstacle, unless the body
+   would then hold a log's axis or be wider than ``obstacle_max_size_m``.
+4. **Support**: a cluster needs ``obstacle_min_points`` voxels, ``obstacle_min_size_m`` of horizontal extent
+   and its top ``obstacle_min_top_m`` above the ground around it (:func:`_supported`).
+
+Cluster points over a log's footprint higher than its underside are the log's (stereo smear at a stack of
+log ends) and are dropped, and a stump is no taller than the lowest log underside over it. A cluster with a
+flat, circular top at least its radius high, covering the cluster, is a stump (:class:`StumpSpec`, no roots:
 they are not visible), any other a rock (:class:`RockSpec`, the convex hull of its points extended down
 into the ground)."""
 
@@ -50,10 +64,11 @@ OUTLINE_MIN_SHARE = 0.6
 def find_obstacles(points: np.ndarray, terrain: TerrainSpec, cfg: FitConfig | None = None,
                    logs: Sequence[LogSpec] = (), flank_points: np.ndarray | None = None,
                    ) -> tuple[list[StumpSpec], list[RockSpec], list[dict]]:
-    """Stumps and rocks from points above the terrain (already without log points).
+    """Stumps and rocks from points above the terrain (see the module docstring for the steps).
 
-    ``logs``: the fitted logs; two clusters with one of them between (a log lying across a rock
-    or against a stump hides a band of it) are one obstacle (:func:`_merge_across_logs`).
+    ``logs``: the fitted logs; points they explain are no obstacle's (:func:`explained_by_logs`), and two
+    clusters with one of them between (a log lying across a rock or against a stump hides a band of it)
+    are one obstacle (:func:`_merge_across_logs`).
     ``flank_points``: lower points (``obstacle_flank_height_m`` above the ground or more) that a
     cluster takes in where they connect to it: the flanks of a half-buried rock, so that its size
     is its footprint and not only the cap above ``obstacle_min_height_m``."""
@@ -61,6 +76,11 @@ def find_obstacles(points: np.ndarray, terrain: TerrainSpec, cfg: FitConfig | No
 
     cfg = cfg or FitConfig()
     P = np.asarray(points, dtype=np.float64)
+    if logs and len(P):
+        P = P[~explained_by_logs(P, logs, cfg)]
+    if logs and flank_points is not None and len(flank_points):
+        flank_points = np.asarray(flank_points, dtype=np.float64)
+        flank_points = flank_points[~explained_by_logs(flank_points, logs, cfg)]
     if len(P) == 0:
         return [], [], []
     pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P))
@@ -71,6 +91,7 @@ def find_obstacles(points: np.ndarray, terrain: TerrainSpec, cfg: FitConfig | No
     clusters = _merge_across_logs(clusters, logs, cfg)
     if flank_points is not None and len(flank_points) and clusters:
         clusters = _grow_into_flanks(clusters, np.asarray(flank_points, dtype=np.float64), cfg)
+    clusters = _join_touching(clusters, logs, cfg)
     if logs:
         clusters = [_clip_log_smear(C, terrain, logs, cfg) for C in clusters]
         # nothing on the ground stands above a log's underside inside its footprint: points
@@ -81,13 +102,9 @@ def find_obstacles(points: np.ndarray, terrain: TerrainSpec, cfg: FitConfig | No
     info: list[dict] = []
     half = terrain.extent_m / 2
     for C in clusters:
-        if len(C) < cfg.obstacle_min_points:
+        if not _supported(C, terrain, cfg) or _log_sliver(C, logs, cfg):
             continue
         ext = C[:, :2].max(0) - C[:, :2].min(0)
-        if float(ext.max()) < cfg.obstacle_min_size_m:
-            continue
-        if _log_sliver(C, logs, cfg):
-            continue
         ground = terrain.height_at(C[:, 0], C[:, 1])
         h = C[:, 2] - ground
         top = float(np.percentile(h, TOP_PERCENTILE))
@@ -122,6 +139,82 @@ def find_obstacles(points: np.ndarray, terrain: TerrainSpec, cfg: FitConfig | No
             info.append({"kind": "rock", "position_m": list(rock.position_m), "size_m": rock.size_m(),
                          "n_points": int(len(C)), "flat_fraction": flat_frac})
     return stumps, rocks, info
+
+
+def explained_by_logs(P: np.ndarray, logs: Sequence[LogSpec], cfg: FitConfig) -> np.ndarray:
+    """Mask of the points ``P`` ((N, 3), pile frame) that a fitted log explains: within its radius (at
+    that place along a taper) plus ``obstacle_log_tolerance_m`` of its axis, anywhere from
+    ``obstacle_log_end_reach_m`` before its one placed end to as far past the other."""
+    P = np.asarray(P, dtype=np.float64).reshape(-1, 3)
+    out = np.zeros(len(P), dtype=bool)
+    reach = cfg.obstacle_log_end_reach_m
+    for log in logs:
+        p0, p1 = log.endpoints_m()
+        L = log.length_m
+        u = (p1 - p0) / L
+        rel = P - p0
+        t = rel @ u
+        along = (t >= -reach) & (t <= L + reach)
+        if not along.any():
+            continue
+        rad = np.linalg.norm(rel[along] - np.outer(t[along], u), axis=1)
+        r = log.diameter_m / 2 + (log.top_d_m - log.diameter_m) / 2 * np.clip(t[along] / L, 0.0, 1.0)
+        out[np.flatnonzero(along)[rad <= r + cfg.obstacle_log_tolerance_m]] = True
+    return out
+
+
+def _supported(C: np.ndarray, terrain: TerrainSpec, cfg: FitConfig) -> bool:
+    """Whether cluster ``C`` (voxels) has the support of an obstacle: ``obstacle_min_points`` voxels (30
+    voxels of 2 cm: 0.012 m^2 seen, a 6 cm disc), ``obstacle_min_size_m`` of horizontal extent, and its top
+    (the ``TOP_PERCENTILE`` of its heights above the fitted ground) at least ``obstacle_min_top_m``."""
+    if len(C) < cfg.obstacle_min_points:
+        return False
+    if float((C[:, :2].max(0) - C[:, :2].min(0)).max()) < cfg.obstacle_min_size_m:
+        return False
+    h = C[:, 2] - terrain.height_at(C[:, 0], C[:, 1])
+    return float(np.percentile(h, TOP_PERCENTILE)) >= cfg.obstacle_min_top_m
+
+
+def _join_touching(clusters: list[np.ndarray], logs: Sequence[LogSpec], cfg: FitConfig) -> list[np.ndarray]:
+    """Join clusters whose top-view footprints touch or overlap (nearest points at most
+    ``obstacle_join_gap_m`` apart across the ground): parts of one body that only height separates (a
+    stump's rim seen below its top across the side wall the cameras do not see; a rock's cap above its
+    shoulder). Two parts stay apart when their body would hold a log's axis (:func:`_hull_holds_a_log`: a
+    log lies between them) or be wider than ``obstacle_max_size_m`` (no obstacle is)."""
+    if len(clusters) < 2:
+        return clusters
+    from scipy.spatial import cKDTree
+
+    groups = [[C] for C in clusters]
+    axis_samples = _axis_samples(logs)
+    joined = True
+    while joined:  # until no two groups touch: each join is checked on the whole body it makes
+        joined = False
+        for i in range(len(groups)):
+            for j in range(i + 1, len(groups)):
+                A, B = np.vstack(groups[i]), np.vstack(groups[j])
+                d, _ = cKDTree(A[:, :2]).query(B[:, :2], distance_upper_bound=cfg.obstacle_join_gap_m)
+                if not np.isfinite(d).any():
+                    continue
+                union = np.vstack([A, B])
+                if float((union[:, :2].max(0) - union[:, :2].min(0)).max()) > cfg.obstacle_max_size_m:
+                    continue
+                if len(axis_samples) and _hull_holds_a_log(union, axis_samples):
+                    continue
+                groups[i] = groups[i] + groups.pop(j)
+                joined = True
+                break
+            if joined:
+                break
+    return [np.vstack(g) for g in groups]
+
+
+def _axis_samples(logs: Sequence[LogSpec]) -> np.ndarray:
+    """Points along every log's axis, ``AXIS_SAMPLE_STEP_M`` apart ((0, 3) without logs)."""
+    if not logs:
+        return np.zeros((0, 3))
+    return np.vstack([a + np.outer(np.linspace(0, 1, max(2, int(log.length_m / AXIS_SAMPLE_STEP_M))), b - a)
+                      for log in logs for a, b in [log.endpoints_m()]])
 
 
 def _grow_into_flanks(clusters: list[np.ndarray], flank: np.ndarray, cfg: FitConfig) -> list[np.ndarray]:
@@ -206,8 +299,7 @@ def _merge_across_logs(clusters: list[np.ndarray], logs: Sequence[LogSpec], cfg:
         return i
 
     trees = [cKDTree(C[:, :2]) for C in clusters]
-    axis_samples = np.vstack([a + np.outer(np.linspace(0, 1, max(2, int(log.length_m / AXIS_SAMPLE_STEP_M))), b - a)
-                              for log in logs for a, b in [log.endpoints_m()]])
+    axis_samples = _axis_samples(logs)
     for i in range(len(clusters)):
         for j in range(i + 1, len(clusters)):
             d, k = trees[i].query(clusters[j][:, :2], distance_upper_bound=cfg.obstacle_merge_gap_m)

@@ -153,3 +153,78 @@ def test_stereo_smear_at_a_log_edge_does_not_raise_the_rock_beside_it():
     r = rocks[0]
     top = max(v[2] for v in r.vertices_m) + r.position_m[2]
     assert top < 0.17, top  # the rock's own height (0.15), not the smear's (0.26)
+
+
+def _stump_seen_from_above(centre, radius, height, rim_gap=0.07):
+    """A stump's flat top at ``height`` and, apart from it in height only, the arc of its rim that
+    stereo puts ``rim_gap`` lower down the side wall (0.10-0.16 m high), just outside the top's edge:
+    3-D farther apart than the DBSCAN neighbourhood, touching it in top view."""
+    X, Y = np.meshgrid(np.arange(-radius, radius + 1e-9, 0.01), np.arange(-radius, radius + 1e-9, 0.01))
+    keep = X ** 2 + Y ** 2 < radius ** 2
+    top = np.column_stack([X[keep] + centre[0], Y[keep] + centre[1], np.full(int(keep.sum()), height)])
+    a = np.linspace(0.2, 1.6, 80)
+    rim = np.vstack([np.column_stack([centre[0] + (radius + dr) * np.cos(a), centre[1] + (radius + dr) * np.sin(a),
+                                      np.full(a.size, z)]) for dr, z in ((0.01, 0.16), (0.02, 0.13), (0.03, 0.10))])
+    return top, rim
+
+
+def test_a_stump_split_into_top_and_rim_is_one_obstacle():
+    top, rim = _stump_seen_from_above((0.0, 0.0), 0.2, 0.38)
+    stumps, rocks, info = find_obstacles(np.vstack([top, rim]), _flat_terrain(), FitConfig())
+    assert len(stumps) + len(rocks) == 1, info
+    # with the top-view join off the rim is a second, phantom obstacle: the join is what makes one body
+    stumps, rocks, info = find_obstacles(np.vstack([top, rim]), _flat_terrain(), FitConfig(obstacle_join_gap_m=0.0))
+    assert len(stumps) + len(rocks) == 2, info
+
+
+def test_two_stumps_apart_over_the_ground_stay_two():
+    a_top, a_rim = _stump_seen_from_above((0.0, 0.0), 0.2, 0.38)
+    b_top, b_rim = _stump_seen_from_above((0.6, 0.0), 0.2, 0.38)  # 0.2 m of ground between the discs
+    stumps, rocks, info = find_obstacles(np.vstack([a_top, a_rim, b_top, b_rim]), _flat_terrain(), FitConfig())
+    assert len(stumps) + len(rocks) == 2, info
+
+
+def test_scraps_on_and_past_a_fitted_log_are_not_an_obstacle():
+    # a log fitted 2 cm thin: its real top stands 2-4 cm over the fitted one, a band wide enough to
+    # pass the strip rule; and 12 cm of it past the placed end (an end placed short)
+    log = LogSpec.from_endpoints((-1.0, 0.0, 0.12), (1.0, 0.0, 0.12), 0.2)
+    X, Y = np.meshgrid(np.arange(-0.3, 0.3, 0.01), np.arange(-0.12, 0.12, 0.01))
+    on_top = np.column_stack([X.ravel(), Y.ravel(), 0.12 + np.sqrt(np.clip(0.12 ** 2 - Y.ravel() ** 2, 0, None))])
+    X, Y = np.meshgrid(np.arange(1.0, 1.12, 0.01), np.arange(-0.1, 0.1, 0.01))
+    past_end = np.column_stack([X.ravel(), Y.ravel(), 0.12 + np.sqrt(np.clip(0.1 ** 2 - Y.ravel() ** 2, 0, None))])
+    scraps = np.vstack([on_top, past_end])
+    stumps, rocks, info = find_obstacles(scraps, _flat_terrain(), FitConfig(), logs=[log])
+    assert not stumps and not rocks, info
+    # not explained by the log (tolerance and reach 0), the same points are obstacles
+    loose = FitConfig(obstacle_log_tolerance_m=0.0, obstacle_log_end_reach_m=0.0)
+    stumps, rocks, info = find_obstacles(scraps, _flat_terrain(), loose, logs=[log])
+    assert len(stumps) + len(rocks) >= 1, info
+
+
+def test_a_small_rock_against_a_log_is_still_found():
+    # the smallest rock the twin makes (0.3 m across, 0.14 m high) 2 cm from a log's side
+    log = LogSpec.from_endpoints((-1.0, 0.0, 0.1), (1.0, 0.0, 0.1), 0.2)
+    rock = _dome((0.2, 0.27), (0.15, 0.15), 0.14)
+    stumps, rocks, info = find_obstacles(rock, _flat_terrain(), FitConfig(), logs=[log])
+    assert len(stumps) + len(rocks) == 1, info
+    centre = (stumps[0].position_m if stumps else rocks[0].position_m)[:2]
+    assert abs(centre[0] - 0.2) < 0.05 and abs(centre[1] - 0.27) < 0.08, centre
+
+
+def test_a_low_scrap_of_ground_is_not_an_obstacle():
+    # asked for a top 0.12 m above the ground, a patch 0.1 m high is not an obstacle (the default asks
+    # no more than the points' own threshold: see FitConfig.obstacle_min_top_m)
+    low = _dome((0.0, 0.0), (0.3, 0.3), 0.105)
+    stumps, rocks, info = find_obstacles(low, _flat_terrain(), FitConfig(obstacle_min_top_m=0.12))
+    assert not stumps and not rocks, info
+    stumps, rocks, info = find_obstacles(low, _flat_terrain(), FitConfig(obstacle_min_top_m=0.08))
+    assert len(stumps) + len(rocks) == 1, info
+
+
+def test_obstacle_support_fields_are_checked():
+    with pytest.raises(ValueError, match="obstacle_min_top_m"):
+        FitConfig(obstacle_min_top_m=0.05)
+    with pytest.raises(ValueError, match="obstacle_join_gap_m"):
+        FitConfig(obstacle_join_gap_m=-0.01)
+    with pytest.raises(ValueError, match="obstacle_max_size_m"):
+        FitConfig(obstacle_max_size_m=0.0)
