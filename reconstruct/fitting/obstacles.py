@@ -32,7 +32,7 @@ import numpy as np
 
 from reconstruct.errors import FitError
 from reconstruct.fitting.fit_config import FitConfig
-from reconstruct.fitting.geometry import UNDER_LOG_GAP_M, _footprint_distance, _underside_z
+from reconstruct.fitting.geometry import UNDER_LOG_GAP_M, _distance_to_logs, _footprint_distance, _underside_z
 from synth.scene.pile import LogSpec, RockSpec, StumpSpec, TerrainSpec
 
 # an obstacle's top: this percentile of its points' heights over the ground [%]; its top band (for a
@@ -146,21 +146,7 @@ def explained_by_logs(P: np.ndarray, logs: Sequence[LogSpec], cfg: FitConfig) ->
     that place along a taper) plus ``obstacle_log_tolerance_m`` of its axis, anywhere from
     ``obstacle_log_end_reach_m`` before its one placed end to as far past the other."""
     P = np.asarray(P, dtype=np.float64).reshape(-1, 3)
-    out = np.zeros(len(P), dtype=bool)
-    reach = cfg.obstacle_log_end_reach_m
-    for log in logs:
-        p0, p1 = log.endpoints_m()
-        L = log.length_m
-        u = (p1 - p0) / L
-        rel = P - p0
-        t = rel @ u
-        along = (t >= -reach) & (t <= L + reach)
-        if not along.any():
-            continue
-        rad = np.linalg.norm(rel[along] - np.outer(t[along], u), axis=1)
-        r = log.diameter_m / 2 + (log.top_d_m - log.diameter_m) / 2 * np.clip(t[along] / L, 0.0, 1.0)
-        out[np.flatnonzero(along)[rad <= r + cfg.obstacle_log_tolerance_m]] = True
-    return out
+    return _distance_to_logs(P, logs, pad_m=cfg.obstacle_log_end_reach_m) <= cfg.obstacle_log_tolerance_m
 
 
 def _supported(C: np.ndarray, terrain: TerrainSpec, cfg: FitConfig) -> bool:
