@@ -228,3 +228,13 @@ def test_obstacle_support_fields_are_checked():
         FitConfig(obstacle_join_gap_m=-0.01)
     with pytest.raises(ValueError, match="obstacle_max_size_m"):
         FitConfig(obstacle_max_size_m=0.0)
+
+
+def test_a_join_wider_than_any_obstacle_is_refused():
+    """Two parts that touch in top view stay two when the body they would make is wider than
+    obstacle_max_size_m: here a 2.2 m disc top and a rim arc below it (2.26 m together)."""
+    top, rim = _stump_seen_from_above((0.0, 0.0), 1.1, 0.38)
+    stumps, rocks, info = find_obstacles(np.vstack([top, rim]), _flat_terrain(), FitConfig())
+    assert len(stumps) + len(rocks) == 2, info
+    stumps, rocks, info = find_obstacles(np.vstack([top, rim]), _flat_terrain(), FitConfig(obstacle_max_size_m=3.0))
+    assert len(stumps) + len(rocks) == 1, info
