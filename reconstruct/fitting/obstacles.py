@@ -335,7 +335,6 @@ def _circle_fit_xy(xy: np.ndarray) -> tuple[float, float, float, float]:
     r2 = sol[2] + cx * cx + cy * cy
     if r2 <= 0:
         return math.nan, math.nan, math.nan, math.nan
-    r = math.sqrt(r2)
     # the top is a filled disk, not a ring: a high percentile of the distances is the radius
     d = np.hypot(xy[:, 0] - cx, xy[:, 1] - cy)
     r_disk = float(np.percentile(d, DISC_RADIUS_PERCENTILE))
