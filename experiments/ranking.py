@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from experiments.subset_outcomes import SEED_BASE, CollectConfig, collect, read_records
+from planner.errors import PlannerError
 from synth.common.formats import VersionedJson
 
 RANKING = VersionedJson("loggrasp.ranking", "1.0", "ranking record", ValueError)
@@ -175,6 +176,10 @@ def rescore(records_dir: str | Path, ranker: str | Path | None = None, out: str 
 
     if (ranker is None) == (model is None):
         raise ValueError("give exactly one scorer: --ranker or --model")
+    collect_json = Path(records_dir) / "collect.json"
+    if not collect_json.is_file():
+        raise ValueError(f"{records_dir} has no collect.json: give the folder `ranking run --out` wrote "
+                         "(not its records/ sub-folder)")
     if ranker is not None:
         from planner.ranker import load_ranker
 
@@ -186,10 +191,6 @@ def rescore(records_dir: str | Path, ranker: str | Path | None = None, out: str 
 
         def score(obs, grasps, targets):
             return u_at(obs, pl, grasps, targets)
-    collect_json = Path(records_dir) / "collect.json"
-    if not collect_json.is_file():
-        raise SystemExit(f"error: {records_dir} has no collect.json: give the folder `ranking run --out` wrote "
-                         "(not its records/ sub-folder)")
     seed_base = json.loads(collect_json.read_text())["seed_base"]
     records = read_records(records_dir)
     for seed, recs in sorted(_by_pile(records).items()):
@@ -227,7 +228,10 @@ def main(argv=None) -> None:
         m = run(a.model, a.out, a.per_cell, a.top_n, a.workers, a.seed_base)
         what, score = a.out, None
     elif a.cmd == "rescore":
-        records = rescore(a.records, a.ranker, a.out, model=a.scorer_model)
+        try:
+            records = rescore(a.records, a.ranker, a.out, model=a.scorer_model)
+        except (ValueError, PlannerError) as exc:
+            ap.error(str(exc))
         m = ranking_metrics(records, key="p")
         who = f"ranker {a.ranker}" if a.ranker else f"model {a.scorer_model}"
         what, score = f"{a.records}, {who}", "the ranker's p" if a.ranker else "the rescoring model's U"

@@ -361,8 +361,13 @@ def plan(observation, planner: Planner, objective: Objective = Objective(), cons
     return Plan(grasps, len(chosen), time.perf_counter() - t0, rejected, info)
 
 
+def _u_maps(out: np.ndarray, planner: Planner) -> np.ndarray:
+    """U of each subset's network output ``out`` (N, 5, H, W), smoothed as planning scores it."""
+    return _gaussian((1.0 / (1.0 + np.exp(-out[:, 3]))).astype(np.float32), planner.quality_smoothing_px)
+
+
 def _select(out, chosen, grid, objective, constraints, planner) -> tuple[list[PlannedGrasp], list[dict]]:
-    u = _gaussian((1.0 / (1.0 + np.exp(-out[:, 3]))).astype(np.float32), planner.quality_smoothing_px)
+    u = _u_maps(out, planner)
     b = _gaussian(np.ascontiguousarray(decode_balance(out[:, 4], planner.config.b_encoding), dtype=np.float32),
                   planner.quality_smoothing_px)
     tau = np.array([len(s) for s in chosen], np.float32)[:, None, None]
@@ -428,7 +433,7 @@ def u_at(observation, planner: Planner, grasps: list[Grasp], targets: list[tuple
     subsets = sorted({tuple(sorted(t)) for t in targets})
     masks = np.stack([np.isin(inst, [i + 1 for i in s]) for s in subsets])
     out = planner.predict(make_inputs(inten, depth, masks, planner.config.in_channels, cam_h))
-    u = _gaussian((1.0 / (1.0 + np.exp(-out[:, 3]))).astype(np.float32), planner.quality_smoothing_px)
+    u = _u_maps(out, planner)
     row_of = {s: k for k, s in enumerate(subsets)}
     scores = np.empty(len(grasps))
     for j, (g, t) in enumerate(zip(grasps, targets)):

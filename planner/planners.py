@@ -15,7 +15,7 @@ from typing import Callable, Literal
 
 import numpy as np
 
-from planner.ranker import U_WEIGHT
+from planner.ranker import U_WEIGHT, check_u_weight
 from planner.subsets import SubsetPolicy
 from synth.geometry.grasp import MAX_WIDTH_M, MIN_WIDTH_M, Grasp
 
@@ -265,8 +265,7 @@ def build_planner(spec: PlannerSpec, trial_preset: str = "fast", oracle_max_tria
             check_views(spec.views, spec.view_spread_k)
             if spec.rerank_k < 1:
                 raise ValueError(f"rerank_k must be >= 1, got {spec.rerank_k}")
-            if not 0.0 <= spec.ranker_u_weight <= 1.0:
-                raise ValueError(f"ranker_u_weight must be in [0, 1], got {spec.ranker_u_weight}")
+            check_u_weight(spec.ranker_u_weight)
             views = dict(views=spec.views, view_spread_k=spec.view_spread_k, ranker=spec.ranker,
                          rerank_k=spec.rerank_k, ranker_u_weight=spec.ranker_u_weight)
             _CACHE[spec] = (verified_unet_planner(spec.model, spec.objective, spec.verify_k, spec.verify_copies,

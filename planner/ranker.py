@@ -199,11 +199,16 @@ class Ranker:
         return self.probabilities(crops, grasp_scalars(grasps, [len(t) for t in targets]))
 
 
+def check_u_weight(u_weight: float) -> None:
+    """Raise ValueError unless ``u_weight`` (U's share of the blend's logit) lies in [0, 1]."""
+    if not 0.0 <= u_weight <= 1.0:
+        raise ValueError(f"u_weight must be in [0, 1], got {u_weight}")
+
+
 def blend(u, p, u_weight: float = U_WEIGHT):
     """``sigmoid(u_weight logit u + (1 - u_weight) logit p)``: the network's U and the ranker's p as one
     success score (each clipped to [1e-6, 1 - 1e-6] first)."""
-    if not 0.0 <= u_weight <= 1.0:
-        raise ValueError(f"u_weight must be in [0, 1], got {u_weight}")
+    check_u_weight(u_weight)
     u, p = (np.clip(np.asarray(v, dtype=np.float64), 1e-6, 1 - 1e-6) for v in (u, p))
     z = u_weight * np.log(u / (1 - u)) + (1 - u_weight) * np.log(p / (1 - p))
     return 1.0 / (1.0 + np.exp(-z))
@@ -218,7 +223,7 @@ def rerank(plan, observation, ranker: Ranker, objective, k: int = 4, u_weight: f
     sorted by quality (the verifier's candidates)."""
     from planner.inference import Objective
 
-    blend(0.5, 0.5, u_weight)  # a weight outside [0, 1] is refused before any scoring
+    check_u_weight(u_weight)  # before any scoring
 
     f3 = Objective("f3")
     by_f1 = sorted(plan.grasps, key=lambda g: -g.graspability)[:k]

@@ -140,7 +140,8 @@ def train_command(
                                       "grasp candidate (needs a data set made from a grasp store).",
                                       field=(DataConfig, "skip_no_candidates")),
     init_from: Path = option("--init-from", "Start from this checkpoint's weights (fine-tuning; same network "
-                             "settings except --b-encoding, whose head is re-learnt).", default=None, metavar="PATH", names=["init_from"]),
+                             "settings except --b-encoding, whose head is re-learnt).", default=None,
+                             metavar="PATH", names=["init_from"]),
     as_json: bool = JSON,
 ) -> None:
     """Train the target-conditioned U-Net; re-running the same command resumes from the last checkpoint.
@@ -475,8 +476,8 @@ def eval_command(
     specs += _view_specs(str(model or DEFAULT_MODEL), objectives, views, view_spread)
     if ranker is not None:
         check_input(ranker, "--ranker", "file")
-        specs += [replace(s, ranker=str(ranker), rerank_k=rerank_k, ranker_u_weight=ranker_u_weight) for s in specs
-                  if s.kind == "unet" and not s.label and s.views == 1]
+        specs += [replace(s, ranker=str(ranker), rerank_k=rerank_k, ranker_u_weight=ranker_u_weight)
+                  for s in specs if s.kind == "unet" and not s.label and s.views == 1]
     check_output_dir(out, "--out")
     with progress_bar() as bar:
         task = bar.add_task("piles", total=len(cfg.tasks()), info="")

@@ -66,3 +66,16 @@ def test_paired_choices_count_the_piles_each_scorer_alone_gets_right():
     recs[3]["success"] = True  # pile 2: p's choice succeeds too
     assert paired_choices(recs)["f1"] == {"wins": 1, "losses": 0}
     assert within_pile_auc(recs, "p")["auc"] == 1.0
+
+
+def test_rescore_needs_one_scorer_and_a_ranking_folder(tmp_path):
+    """rescore refuses two scorers or none, and a folder without the run's collect.json (e.g. its
+    records/ sub-folder), before loading any network."""
+    from experiments.ranking import rescore
+
+    with pytest.raises(ValueError, match="exactly one scorer"):
+        rescore(tmp_path, ranker="r.safetensors", model="m.safetensors")
+    with pytest.raises(ValueError, match="exactly one scorer"):
+        rescore(tmp_path)
+    with pytest.raises(ValueError, match="no collect.json"):
+        rescore(tmp_path, model="missing.safetensors")
