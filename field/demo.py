@@ -99,13 +99,13 @@ def prepare_demo(out_dir: str | Path, link_url: str, data: Path = DEMO_DATA) -> 
                      signing_key_path=sign)
 
 
-def demo_options(setup: DemoSetup, model: str | Path | None, verify: bool = True) -> TrialOptions:
+def demo_options(setup: DemoSetup, model: str | Path | None, verify: bool = True, rerank: bool = True) -> TrialOptions:
     """The field trial's options in the demo: objective f3, the crane's default reach, verification
-    on unless ``verify`` is False."""
+    on unless ``verify`` is False, the shipped grasp ranker unless ``rerank`` is False."""
     reach = ReachEnvelope().max_reach_m
     return TrialOptions(objective="f3", model=None if model is None else str(model), allow_float=False,
                         max_pile_age_s=setup.max_pile_age_s, crane_base_tm=setup.base_tm, max_reach_m=reach,
-                        **({} if verify else {"verify_k": 0}))
+                        rerank=rerank, **({} if verify else {"verify_k": 0}))
 
 
 def run_demo(setup: DemoSetup, options: TrialOptions, confirm: Callable | None = None,

@@ -36,6 +36,7 @@ import numpy as np
 
 from field.errors import FieldError
 from field.link.messages import DEFAULT_MAX_PILE_AGE_S, GraspCommand
+from planner.ranker import U_WEIGHT, check_u_weight
 
 
 
@@ -90,6 +91,10 @@ class TrialOptions:
     model: str | None = None  # checkpoint; None = the shipped default
     views: int = 1  # dihedral views the planner averages (1, 2, 4, 8; planning time grows with it) [-]
     view_spread_k: float = 0.0  # U logit lowered by k x its spread over the views (needs views > 1) [-]
+    rerank: bool = True  # the grasp ranker re-scores the network's best grasps (planner.ranker); False = U alone
+    ranker: str | None = None  # ranker checkpoint; None = the shipped one
+    rerank_k: int = 4  # grasps re-scored per objective (the best by f1 and by f3) [-]
+    ranker_u_weight: float = U_WEIGHT  # U's share of the blend's logit with the ranker's p [-]
     allow_float: bool = False  # accept RTK float endpoints (the operator's explicit choice)
     max_pile_age_s: float = DEFAULT_MAX_PILE_AGE_S  # refuse plans on pile data older than this [s]
     crane_base_tm: tuple[float, float, float] | None = None  # SWEREF 99 TM E, N [m], ellipsoidal h [m]
@@ -115,6 +120,11 @@ class TrialOptions:
         from planner.inference import check_views
 
         check_views(self.views, self.view_spread_k)
+        if self.ranker is not None and not self.rerank:
+            raise ValueError("a ranker checkpoint is given but re-ranking is off")
+        if isinstance(self.rerank_k, bool) or not isinstance(self.rerank_k, int) or self.rerank_k < 1:
+            raise ValueError(f"rerank_k must be a whole number >= 1, got {self.rerank_k!r}")
+        check_u_weight(self.ranker_u_weight)
         if not 0 <= self.min_reach_m < self.max_reach_m:
             raise ValueError("need 0 <= min_reach_m < max_reach_m")
         if isinstance(self.verify_k, bool) or not isinstance(self.verify_k, int) or self.verify_k < 0:
@@ -302,13 +312,13 @@ def prepare_trial(scan_dir: str | Path, gnss_path: str | Path, work_dir: str | P
     say = progress or (lambda s: None)
     scan_dir, gnss_path, work = Path(scan_dir), Path(gnss_path), Path(work_dir)
     captured, age = _check_age(scan_dir, gnss_path, options, time.time() if now is None else now)
-    planner = _load_trial_planner(options)  # first: a model that cannot load stops before the reconstruction
+    planner, ranker = _load_trial_planner(options)  # first: a model that cannot load stops before the reconstruction
     result = _reconstruct_for(planner, scan_dir, gnss_path, work, options, say)
     pile, obs = result.pile, result.observation  # as written to reconstruction/ortho.npz, not read back
     if view is not None:
         view.reconstructed(result, captured)
     constraints = _constraints_for(pile, options)
-    the_plan = _plan_subsets(obs, planner, pile, constraints, options, say)
+    the_plan = _plan_subsets(obs, planner, ranker, pile, constraints, options, say)
     if view is not None:
         view.planned(the_plan, pile)
     log_fits = [log.get("fit", "scan") for log in result.report.get("logs", [])]
@@ -347,12 +357,15 @@ def _check_age(scan_dir: Path, gnss_path: Path, options: TrialOptions, now: floa
 
 
 def _load_trial_planner(options: TrialOptions):
-    from planner.checkpoint import DEFAULT_MODEL
+    """(the network, the ranker or None) the options name."""
+    from planner.checkpoint import DEFAULT_MODEL, DEFAULT_RANKER
     from planner.errors import PlannerError
     from planner.inference import load_planner
+    from planner.ranker import load_ranker
 
     try:
-        return load_planner(options.model or DEFAULT_MODEL, views=options.views, view_spread_k=options.view_spread_k)
+        net = load_planner(options.model or DEFAULT_MODEL, views=options.views, view_spread_k=options.view_spread_k)
+        return net, (load_ranker(options.ranker or DEFAULT_RANKER) if options.rerank else None)
     except PlannerError as exc:
         raise TrialAborted(f"planning failed: {exc}", kind="input") from exc
 
@@ -387,15 +400,19 @@ def _constraints_for(pile, options: TrialOptions):
                        lift_capacity_kg=options.lift_capacity_kg, wood_density_kg_m3=options.wood_density_kg_m3)
 
 
-def _plan_subsets(obs, planner, pile, constraints, options: TrialOptions, say):
-    """Every target subset through the network; refused when no grasp satisfies the constraints."""
+def _plan_subsets(obs, planner, ranker, pile, constraints, options: TrialOptions, say):
+    """Every target subset through the network, the best re-scored by ``ranker`` (when not None);
+    refused when no grasp satisfies the constraints."""
     from planner.errors import PlannerError
-    from planner.inference import Objective, plan
+    from planner.inference import Objective
+    from planner.ranker import plan_reranked
 
-    say("planning: every target subset through the network")
+    say("planning: every target subset through the network"
+        + (f", the best {options.rerank_k} by f1 and by f3 re-scored by the grasp ranker" if ranker else ""))
     try:
-        the_plan = plan(obs, planner, Objective(kind=options.objective), constraints,
-                        top_k=max(10, options.verify_k, options.operator_rank or 0), pile=pile)
+        the_plan = plan_reranked(obs, planner, Objective(kind=options.objective), ranker, constraints,
+                                 top_k=max(10, options.verify_k, options.operator_rank or 0),
+                                 rerank_k=options.rerank_k, u_weight=options.ranker_u_weight, pile=pile)
     except PlannerError as exc:
         raise TrialAborted(f"planning failed: {exc}", kind="input") from exc
     if the_plan.best is None:

@@ -175,7 +175,7 @@ class _TrialRecord:
 
     def copy_inputs(self, scan_dir: Path, gnss_path: Path, say: Callable[[str], None]) -> None:
         """The scan and survey copied into the record, with their hashes and the model's."""
-        from planner.checkpoint import DEFAULT_MODEL
+        from planner.checkpoint import DEFAULT_MODEL, DEFAULT_RANKER
 
         inputs = self.tmp / "inputs"
         say("copying the inputs into the record")
@@ -191,6 +191,9 @@ class _TrialRecord:
                                  "hashes": {str(p.relative_to(inputs)): sha256_of(p)
                                             for p in sorted(inputs.rglob("*")) if p.is_file()}}
         self.record["model"] = {"path": str(model), "sha256": sha256_of(model) if model.exists() else None}
+        if self.options.rerank:
+            ranker = Path(self.options.ranker or DEFAULT_RANKER)
+            self.record["ranker"] = {"path": str(ranker), "sha256": sha256_of(ranker) if ranker.exists() else None}
 
     def prepare(self, say: Callable[[str], None], now: float | None) -> PreparedTrial:
         """:func:`prepare_trial` on the copied inputs; its plan, verification and command recorded
@@ -370,13 +373,13 @@ def replay_record(record_dir: str | Path, work_dir: str | Path, progress=None) -
                           f"{rec.get('reason', 'no reason recorded')}); there is nothing to replay")
     stored = dict(rec["options"])
     stored.setdefault("verify_k", 0)  # a 1.0 record sent the network's best grasp, unverified
+    stored.setdefault("rerank", False)  # records before the ranker planned with U alone
     opts = TrialOptions(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in stored.items()})
-    model = rec.get("model") or {}
-    model_changed = bool(model.get("sha256")) and (not Path(model["path"]).exists()
-                                                   or sha256_of(Path(model["path"])) != model["sha256"])
-    if model_changed:
-        raise RecordError(f"the model {model['path']} differs from the one the trial used (sha256 in record.json) "
-                          "or is gone: a replay needs that checkpoint")
+    for what in ("model", "ranker"):
+        used = rec.get(what) or {}
+        if used.get("sha256") and (not Path(used["path"]).exists() or sha256_of(Path(used["path"])) != used["sha256"]):
+            raise RecordError(f"the {what} {used['path']} differs from the one the trial used (sha256 in record.json) "
+                              "or is gone: a replay needs that checkpoint")
     inputs = Path(record_dir) / "inputs"
     strip = lambda p: {k: p.get(k) for k in ("grasps", "subsets_evaluated")}  # noqa: E731 - elapsed_s differs
 

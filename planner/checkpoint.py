@@ -22,6 +22,8 @@ CHECKPOINT_FORMAT_VERSION = "1.0"
 
 #: The trained default model shipped with loggrasp (safetensors + config in its header).
 DEFAULT_MODEL = Path(__file__).resolve().parent / "weights" / "default.safetensors"
+#: The grasp ranker shipped with loggrasp (:mod:`planner.ranker`; trained as docs/results/ranker-r1 says).
+DEFAULT_RANKER = Path(__file__).resolve().parent / "weights" / "ranker.safetensors"
 
 
 def save_tensors(path: str | Path, tensors: dict, header: dict[str, Any]) -> Path:

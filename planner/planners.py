@@ -9,7 +9,7 @@ checked by :mod:`planner.verify`), the random and geometric baselines and the or
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from itertools import combinations
 from typing import Callable, Literal
 
@@ -195,8 +195,8 @@ def _unet_plan_all(model: str, objective: str, subsets: SubsetPolicy, views: int
     best ``keep`` only when given (all of them go to the ranker)."""
     import torch
 
-    from planner.inference import Objective, load_planner, plan
-    from planner.ranker import load_ranker, rerank
+    from planner.inference import Objective, load_planner
+    from planner.ranker import load_ranker, plan_reranked
 
     torch.set_num_threads(1)
     net = load_planner(model, views=views, view_spread_k=view_spread_k)
@@ -204,10 +204,8 @@ def _unet_plan_all(model: str, objective: str, subsets: SubsetPolicy, views: int
     rk = load_ranker(ranker) if ranker else None
 
     def plan_all(obs, pile):
-        if rk is None:
-            return plan(obs, net, obj, top_k=keep, pile=pile, subsets=subsets)
-        result = rerank(plan(obs, net, obj, pile=pile, subsets=subsets), obs, rk, obj, rerank_k, ranker_u_weight)
-        return replace(result, grasps=result.grasps[:keep]) if keep else result
+        return plan_reranked(obs, net, obj, rk, top_k=keep, rerank_k=rerank_k, u_weight=ranker_u_weight, pile=pile,
+                             subsets=subsets)
     return plan_all
 
 

@@ -193,7 +193,8 @@ class Ranker:
         grid = OrthoGrid(depth.shape[0], extent_m)
         if abs(grid.pixel_m / self.config.pixel_m - 1.0) > 0.005:
             raise CheckpointError(f"the ranker was trained on {100 * self.config.pixel_m:.2f} cm pixels but the "
-                                  f"observation has {100 * grid.pixel_m:.2f} cm; render at the ranker's pitch")
+                                  f"observation has {100 * grid.pixel_m:.2f} cm; render at the ranker's pitch or plan without it "
+                                  "(--no-ranker)")
         masks = np.stack([np.isin(inst, [i + 1 for i in t]) for t in targets]) if len(targets) else np.zeros((0,) + inst.shape)
         crops = grasp_crops(inten, normalise_depth(depth, cam_h), masks, grid, grasps, self.config)
         return self.probabilities(crops, grasp_scalars(grasps, [len(t) for t in targets]))
@@ -242,3 +243,18 @@ def rerank(plan, observation, ranker: Ranker, objective, k: int = 4, u_weight: f
             "u_network": {",".join(map(str, g.targets)): g.graspability for g in chosen},
             "p_ranker": {",".join(map(str, g.targets)): float(pi) for g, pi in zip(chosen, p)}, "u_weight": u_weight}
     return replace(plan, grasps=scored + rest, info=info)
+
+
+def plan_reranked(observation, planner, objective, ranker: Ranker | None, constraints=None, top_k: int | None = None,
+                  rerank_k: int = 4, u_weight: float = U_WEIGHT, **plan_kwargs):
+    """:func:`planner.inference.plan` of every subset, re-ranked by ``ranker`` (:func:`rerank`) when one
+    is given, then its best ``top_k`` (all when None). ``plan_kwargs``: ``subsets``, ``pile``."""
+    from planner.constraints import Constraints
+    from planner.inference import plan
+
+    constraints = Constraints() if constraints is None else constraints
+    if ranker is None:
+        return plan(observation, planner, objective, constraints, top_k, **plan_kwargs)
+    result = rerank(plan(observation, planner, objective, constraints, None, **plan_kwargs), observation, ranker,
+                    objective, rerank_k, u_weight)
+    return replace(result, grasps=result.grasps[:top_k]) if top_k else result

@@ -155,6 +155,22 @@ def verify_fields(verify: int, no_verify: bool, copies: int, budget: float | Non
             "operator_rank": send_rank}
 
 
+RANKER = option("--ranker", "The grasp ranker that re-scores the network's best grasps before verification "
+                "(loggrasp train-ranker); default: the shipped ranker.", default=None, metavar="PATH")
+NO_RANKER = option("--no-ranker", "Order the network's grasps by its U alone (no re-scoring).", default=False)
+
+
+def ranker_fields(ranker: Path | None, no_ranker: bool) -> dict:
+    """The ``TrialOptions`` fields of ``--ranker`` / ``--no-ranker``, checked (exit 2) before any work."""
+    from synth.common.cli import check_input
+
+    if no_ranker:
+        if ranker is not None:
+            raise CliError("--ranker and --no-ranker contradict each other: give one")
+        return {"rerank": False}
+    return {"rerank": True, "ranker": None if ranker is None else str(check_input(ranker, "--ranker", "file"))}
+
+
 def outcome_words(outcome: dict | None, targets: int | None = None) -> str:
     """A grasp outcome for people: ``SUCCESS: 4 logs held (4 targeted), balance cos β 0.999``."""
     if not outcome:

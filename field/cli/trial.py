@@ -9,9 +9,10 @@ from typing import Callable, Literal
 
 import typer
 
-from field.cli.options import (BASE_HELP, MAX_PILE_AGE, MAX_REACH, NO_VERIFY, SEND_RANK, VERIFY_BUDGET, VERIFY_COPIES,
-                                VERIFY_K, VERIFY_WORKERS, ask_yes_no, base_from_survey, check_link, link_option,
-                                outcome_words, parse_base, show_plan, trial_options, twin_url, verify_fields)
+from field.cli.options import (BASE_HELP, MAX_PILE_AGE, MAX_REACH, NO_RANKER, NO_VERIFY, RANKER, SEND_RANK,
+                                VERIFY_BUDGET, VERIFY_COPIES, VERIFY_K, VERIFY_WORKERS, ask_yes_no, base_from_survey,
+                                check_link, link_option, outcome_words, parse_base, ranker_fields, show_plan,
+                                trial_options, twin_url, verify_fields)
 from field.link.cli import INSECURE_LINK, link_security_note, secured_link
 from field.trial import TrialOptions
 from planner.cli import MODEL, OBJECTIVE_HELP, VIEW_SPREAD, VIEWS
@@ -103,6 +104,8 @@ def trial_command(
     verify_budget: float = VERIFY_BUDGET,
     verify_workers: int = VERIFY_WORKERS,
     send_rank: int = SEND_RANK,
+    ranker: Path = RANKER,
+    no_ranker: bool = NO_RANKER,
     foxglove: int = FOXGLOVE,
     insecure_link: bool = INSECURE_LINK,
     as_json: bool = JSON,
@@ -139,7 +142,8 @@ def trial_command(
     gnss = _check_trial_paths(scan, gnss, gnss_windows, model, record, allow_float)
     check_views(views, view_spread)
     opts = trial_options(objective, model, allow_float, max_pile_age, base_tm, max_reach, capacity, views, view_spread,
-                          **verify_fields(verify, no_verify, verify_copies, verify_budget, verify_workers, send_rank))
+                          **verify_fields(verify, no_verify, verify_copies, verify_budget, verify_workers, send_rank),
+                          **ranker_fields(ranker, no_ranker))
     warning = gnss_crs_warning(gnss)
     if warning:
         o.warn(warning)
@@ -313,6 +317,7 @@ def demo(
     model: Path = MODEL,
     no_verify: bool = option("--no-verify", "Send the network's best grasp without trying the best ones in the twin "
                              "on the reconstruction first.", default=False),
+    no_ranker: bool = NO_RANKER,
     foxglove: int = FOXGLOVE,
     as_json: bool = JSON,
 ) -> None:
@@ -344,7 +349,7 @@ def demo(
         show_plan(prepared)
         return True
 
-    options = demo_options(setup, model, verify=not no_verify)
+    options = demo_options(setup, model, verify=not no_verify, rerank=not no_ranker)
     rec = _run_trial(o, setup.record_dir, lambda: run_demo(setup, options, confirm=show, progress=o.progress,
                                                            foxglove_port=foxglove))
     o.progress(f"record: {setup.record_dir} (plan pictures in {setup.record_dir / 'plan'}, the trial in time for "

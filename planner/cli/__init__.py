@@ -32,14 +32,27 @@ OBJECTIVE_HELP = "f1 (graspability), f2 (+ more logs), f3 (+ balance)."
 MODEL = option("--model", "Checkpoint (.safetensors); default: the shipped model.", default=None, metavar="PATH")
 VIEWS = option("--views", "Dihedral views the planner averages: 1, 2, 4 or 8 (slower, steadier).", default=1,
                names=["views"])
-RANKER = option("--ranker", "A ranker checkpoint (loggrasp train-ranker) that re-scores the best --rerank-k grasps "
-                "by f1 and by f3 and orders them by the objective with its success probability.", default=None,
-                metavar="PATH")
-RERANK_K = option("--rerank-k", "With --ranker: grasps re-scored per objective.", field=(PlannerSpec, "rerank_k"),
+RANKER = option("--ranker", "The ranker checkpoint (loggrasp train-ranker) that re-scores the best --rerank-k grasps "
+                "by f1 and by f3 and orders them by the objective with its success probability; default: the "
+                "shipped ranker.", default=None, metavar="PATH")
+NO_RANKER = option("--no-ranker", "Order the grasps by the network's U alone (no re-scoring).", default=False)
+RERANK_K = option("--rerank-k", "Grasps the ranker re-scores per objective.", field=(PlannerSpec, "rerank_k"),
                   min=1, max=127)
-RANKER_U_WEIGHT = option("--ranker-u-weight", "With --ranker: the re-scored grasps are ordered by sigmoid(W logit U "
-                         "+ (1 - W) logit p), U the network's, p the ranker's; 0 = p alone.",
+RANKER_U_WEIGHT = option("--ranker-u-weight", "The re-scored grasps are ordered by sigmoid(W logit U + (1 - W) "
+                         "logit p), U the network's, p the ranker's; 0 = p alone.",
                          field=(PlannerSpec, "ranker_u_weight"), min=0.0, max=1.0, metavar="W")
+
+
+def load_ranker_flag(ranker: Path | None, no_ranker: bool, flag: str = "--ranker"):
+    """The ranker ``--ranker`` / ``--no-ranker`` ask for (the shipped one by default), or None."""
+    from planner.checkpoint import DEFAULT_RANKER
+    from planner.ranker import load_ranker
+
+    if no_ranker:
+        if ranker is not None:
+            raise CliError(f"{flag} and --no-ranker contradict each other: give one")
+        return None
+    return load_ranker(check_input(ranker or DEFAULT_RANKER, flag, "file"))
 VIEW_SPREAD = option("--view-spread", "Lower U by K x its spread over the views (needs --views > 1).", default=0.0,
                      names=["view_spread_k"], metavar="K")
 
@@ -275,10 +288,15 @@ def plan_command(
                                  "cores, 1 = in this process).", default=field_default(VerifyConfig, "workers"),
                                  min=0, names=["verify_workers"]),
     ranker: Path = RANKER,
+    no_ranker: bool = NO_RANKER,
     rerank_k: int = RERANK_K,
     ranker_u_weight: float = RANKER_U_WEIGHT,
 ) -> None:
     """Plan the best multi-log grasp on a pile: every target subset scored with Q = f(U, tau, B).
+
+    The shipped grasp ranker then re-scores the best grasps by f1 and by f3 (--rerank-k of each) and
+    orders them by the objective with U replaced by the blend of U and its success probability
+    (--no-ranker: U alone, the paper's planner).
 
     With --verify K the twin tries the K best grasps on the pile itself and the table shows each
     one's twin outcome, the logs it held and beta; the grasp marked * is the best that succeeded
@@ -292,32 +310,22 @@ def plan_command(
     """
     from rich.console import Console
 
-    from planner.inference import load_planner, plan
+    from planner.inference import load_planner
+    from planner.ranker import plan_reranked
 
     o = Output(as_json)
     path = model or DEFAULT_MODEL
     pile_json, spec, vcfg = _check_plan_flags(pile, path, png, views, view_spread, verify, verify_copies,
                                               verify_budget, verify_workers)
-    rk = None
-    if ranker is not None:
-        from planner.ranker import load_ranker
-
-        rk = load_ranker(check_input(ranker, "--ranker", "file"))
+    rk = load_ranker_flag(ranker, no_ranker)
     planner = load_planner(path, views=views, view_spread_k=view_spread)
     obs, spec = load_observation(pile, planner.config, warn=o.warn)
     obj = Objective(kind=objective)
     o.progress(f"planning on {pile}: {obs.n_logs} logs, up to {max_subsets} target subsets x {views} view(s)")
     with Console(stderr=True).status("planning"):
         keep = top if vcfg is None else max(top, vcfg.k)
-        result = plan(obs, planner, obj, top_k=None if rk else keep, subsets=SubsetPolicy(max_subsets=max_subsets),
-                      pile=spec)
-        if rk is not None:
-            from dataclasses import replace
-
-            from planner.ranker import rerank
-
-            result = rerank(result, obs, rk, obj, rerank_k, ranker_u_weight)
-            result = replace(result, grasps=result.grasps[:keep])
+        result = plan_reranked(obs, planner, obj, rk, top_k=keep, rerank_k=rerank_k, u_weight=ranker_u_weight,
+                               subsets=SubsetPolicy(max_subsets=max_subsets), pile=spec)
     verification = None
     if vcfg is not None:
         from planner.verify import VerificationBudgetError, verify_plan

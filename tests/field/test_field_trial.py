@@ -93,6 +93,36 @@ def test_replay_is_bit_identical(can_record, tmp_path):
     assert result["identical"], result["differences"]
 
 
+def test_the_trial_plans_with_the_shipped_ranker_and_records_it(can_record):
+    """By default the network's best grasps are re-scored by planner/weights/ranker.safetensors; the
+    record names that file and its hash, and its plan says which grasps were re-scored."""
+    from planner.checkpoint import DEFAULT_RANKER
+    from synth.common.files import sha256_file as sha256_of
+
+    rec, record, _ = can_record
+    on_disk = json.loads((rec / "record.json").read_text())
+    assert on_disk["options"]["rerank"] is True
+    assert on_disk["ranker"] == {"path": str(DEFAULT_RANKER), "sha256": sha256_of(DEFAULT_RANKER)}
+    info = on_disk["plan"]["info"]
+    assert info["reranked"] >= 1 and set(info["p_ranker"]) == set(info["u_network"])
+
+
+@pytest.mark.parametrize("what", ["model", "ranker"])
+def test_replay_refuses_a_checkpoint_that_is_not_the_recorded_one(can_record, tmp_path, what):
+    import shutil
+
+    from field.trial_record import RecordError
+
+    rec, _, _ = can_record
+    copy = tmp_path / "rec"
+    shutil.copytree(rec, copy)
+    doc = json.loads((copy / "record.json").read_text())
+    doc[what]["sha256"] = "0" * 64
+    (copy / "record.json").write_text(json.dumps(doc))
+    with pytest.raises(RecordError, match=f"the {what} .* differs from the one the trial used"):
+        replay_record(copy, tmp_path / "replay")
+
+
 def test_trial_over_zenoh_loopback(can_record, tmp_path):
     """The same command over Zenoh (controller listening on 127.0.0.1 only, no scouting); a ROS 2
     subscriber on the same loopback Zenoh network gets the sent grasp as geometry_msgs/PoseStamped

@@ -221,3 +221,12 @@ def test_bad_verification_options_are_clear_errors():
     with pytest.raises(ValueError, match="operator_rank is a plan rank"):
         options(operator_rank=0)
     assert options(verify_k=0, verify_budget_s=0.05).verify_k == 0  # off: its budget is not used
+
+
+def test_bad_ranker_options_are_clear_errors():
+    with pytest.raises(ValueError, match="re-ranking is off"):
+        options(rerank=False, ranker="r.safetensors")
+    with pytest.raises(ValueError, match="rerank_k must be a whole number >= 1"):
+        options(rerank_k=0)
+    with pytest.raises(ValueError, match="u_weight must be in"):
+        options(ranker_u_weight=1.5)

@@ -98,7 +98,8 @@ def test_plan_with_a_ranker_lists_its_probabilities(capsys, tmp_path, trials_dir
     out = tmp_path / "r.safetensors"
     assert cli(capsys, "train-ranker", "--data", trials_dir, "--out", out, "--epochs", "1").code == 0
     pile = tmp_path / "piles" / "pile_00000"
-    plain = cli(capsys, "plan", pile, "--json", "--top", "7").json()
+    plain = cli(capsys, "plan", pile, "--json", "--top", "7", "--no-ranker").json()
+    assert "ranker" not in plain
     r = cli(capsys, "plan", pile, "--json", "--top", "7", "--ranker", out, "--rerank-k", "2")
     assert r.code == 0, r.err
     ranked = r.json()
@@ -120,6 +121,21 @@ def test_plan_with_a_ranker_lists_its_probabilities(capsys, tmp_path, trials_dir
         sorted(p_only["ranker"]["p_ranker"].values(), reverse=True))
     fails(cli(capsys, "plan", pile, "--ranker", out, "--ranker-u-weight", "1.5"), 2, "--ranker-u-weight")
     fails(cli(capsys, "plan", pile, "--ranker", tmp_path / "missing.safetensors"), 2, "--ranker")
+    fails(cli(capsys, "plan", pile, "--ranker", out, "--no-ranker"), 2, "--no-ranker")
+
+
+def test_plan_uses_the_shipped_ranker_by_default(capsys, tmp_path):
+    """plan without ranker flags re-scores with planner/weights/ranker.safetensors, as --ranker naming it does."""
+    from planner.checkpoint import DEFAULT_RANKER
+
+    assert cli(capsys, "synth", "piles", "--count", "1", "--logs", "3", "--renders", "1", "--workers", "1",
+               "--seed", "7", "--out", tmp_path / "piles").code == 0
+    pile = tmp_path / "piles" / "pile_00000"
+    default = cli(capsys, "plan", pile, "--json", "--top", "7").json()
+    named = cli(capsys, "plan", pile, "--json", "--top", "7", "--ranker", DEFAULT_RANKER).json()
+    assert default["ranker"]["reranked"] >= 1
+    assert default["ranker"] == named["ranker"]
+    assert [g["targets"] for g in default["grasps"]] == [g["targets"] for g in named["grasps"]]
 
 
 def test_piles_of_two_data_sets_stay_apart(trials_dir):
