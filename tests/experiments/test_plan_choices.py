@@ -26,6 +26,7 @@ def test_same_choice_within_a_pixel_and_angle_modulo_pi():
     row = cmp["rows"][0]
     assert cmp["same"] == 1 and row["same_targets"] and row["d_phi_rad"] == pytest.approx(2e-4)
     assert row["max_du"] == pytest.approx(1e-7) and row["subsets_moved"] == 0
+    assert compare_choices(after, before)["rows"][0]["d_phi_rad"] == pytest.approx(2e-4)  # either way round
 
 
 @pytest.mark.parametrize("change", ["subset", "pixel", "angle", "width"])
