@@ -23,7 +23,8 @@ if __name__ == "__main__":
     ap.add_argument("--cache", default=None, help="folder keeping the piles' observations (npz)")
     ap.add_argument("--model", default=str(DEFAULT_MODEL), help="checkpoint (default: the shipped model)")
     ap.add_argument("--precision", default=None, help="bf16 or fp32 (default: the planner's)")
-    ap.add_argument("--batch-size", type=int, default=None, help="target masks per forward pass (default: the planner's)")
+    ap.add_argument("--batch-size", type=int, default=None,
+                    help="target masks per forward pass (default: the planner's, 16 per torch thread)")
     ap.add_argument("--threads", type=int, default=1, help="torch threads")
     a = ap.parse_args()
     torch.set_num_threads(a.threads)

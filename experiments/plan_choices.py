@@ -72,11 +72,13 @@ def record_choices(planner, tasks, objectives=("f1", "f3"), cache_dir: str | Pat
                           "grasps": [{"targets": list(g.targets), "pixel": list(g.pixel), "x_m": g.grasp.x_m,
                                       "y_m": g.grasp.y_m, "phi_rad": g.grasp.phi_rad, "width_m": g.grasp.width_m,
                                       "q": g.quality, "u": g.graspability, "b": g.balance} for g in p.grasps]})
-    return {"precision": planner.precision, "batch_size": planner.batch_size, "piles": piles}
+    from planner.runtime import masks_per_pass
+
+    return {"precision": planner.precision, "batch_size": masks_per_pass(planner.batch_size), "piles": piles}
 
 
 def write_choices(path: str | Path, rec: dict) -> None:
-    CHOICES_FORMAT.write(path, rec)
+    CHOICES_FORMAT.write(path, rec, indent=None)
 
 
 def read_choices(path: str | Path) -> dict:

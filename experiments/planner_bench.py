@@ -165,6 +165,7 @@ def plan_cost(n_logs=(4, 7), threads=(1, 2), repeats: int = 5) -> list[dict]:
     import torch
 
     from planner.inference import Objective, load_planner, plan
+    from planner.runtime import masks_per_pass
 
     obs = {n: _pile_observations(n, 1)[0][0] for n in n_logs}
     pl = load_planner(DEFAULT_MODEL, device="cpu")
@@ -181,8 +182,8 @@ def plan_cost(n_logs=(4, 7), threads=(1, 2), repeats: int = 5) -> list[dict]:
                 walls.append(p.elapsed_s)
                 cpus.append(time.process_time() - c0)
             rows.append({"logs": n, "subsets": p.subsets_evaluated, "threads": t, "precision": pl.precision,
-                         "batch": pl.batch_size, "wall_s": statistics.median(walls), "cpu_s": statistics.median(cpus),
-                         "load": load_average("")})
+                         "batch": masks_per_pass(pl.batch_size), "wall_s": statistics.median(walls),
+                         "cpu_s": statistics.median(cpus), "load": load_average("")})
     return rows
 
 

@@ -32,7 +32,7 @@ from planner.constraints import Constraints, polygon_raster
 from planner.data import make_inputs
 from planner.errors import ObservationError
 from planner.model import OUTPUT_NAMES, UNetConfig, decode_balance
-from planner.runtime import DEFAULT_BATCH_SIZE, resolve_precision
+from planner.runtime import masks_per_pass, resolve_precision
 from planner.subsets import SubsetPolicy, choose_subsets
 from synth.geometry.frames import OrthoGrid, wrap_phi
 from synth.geometry.grasp import MAX_WIDTH_M, MIN_WIDTH_M, RECT_WIDTH_M, Grasp
@@ -77,7 +77,7 @@ class Planner:
     device: Literal["cpu", "cuda"] = "cpu"  # "cpu" or "cuda"
     precision: Literal["auto", "bf16", "fp32"] = "auto"  # "auto": planner.runtime.default_precision (bf16 where
     # the CPU has bf16 dot products, else fp32); after construction the format that runs
-    batch_size: int = DEFAULT_BATCH_SIZE  # target masks per forward pass [-] (planner.runtime)
+    batch_size: int | None = None  # target masks per forward pass [-]; None: 16 per torch thread (planner.runtime)
     meta: dict = field(default_factory=dict)
     angle_smoothing_px: float = 1.0  # Gaussian sigma for C, S (and W) before decoding [px]
     quality_smoothing_px: float = 1.0  # Gaussian sigma for U and B before scoring [px]; 0 = raw
@@ -89,8 +89,8 @@ class Planner:
 
     def __post_init__(self) -> None:
         self.precision = resolve_precision(self.precision, self.device)
-        if self.batch_size < 1:
-            raise ValueError("batch_size must be >= 1")
+        if self.batch_size is not None and self.batch_size < 1:
+            raise ValueError("batch_size must be >= 1 (or None: planner.runtime.masks_per_pass)")
         if not (self.angle_smoothing_px >= 0 and self.quality_smoothing_px >= 0):
             raise ValueError("angle_smoothing_px and quality_smoothing_px must be >= 0 pixels")
         check_views(self.views, self.view_spread_k)
@@ -138,15 +138,16 @@ class Planner:
         import torch
 
         outs = []
+        bs = masks_per_pass(self.batch_size)
         with torch.inference_mode():
             net = self._net
             if net.late and len(x):
                 feats = net.encode(self._tensor(x[:1, :-1]))
-            for k in range(0, len(x), self.batch_size):
+            for k in range(0, len(x), bs):
                 if net.late:
-                    y = net.decode(feats, self._tensor(x[k : k + self.batch_size, -1:]))
+                    y = net.decode(feats, self._tensor(x[k : k + bs, -1:]))
                 else:
-                    y = net(self._tensor(x[k : k + self.batch_size]))
+                    y = net(self._tensor(x[k : k + bs]))
                 outs.append(y.float().contiguous().cpu().numpy())
         return np.concatenate(outs) if outs else np.zeros((0, 5, *x.shape[2:]), np.float32)
 
@@ -201,7 +202,7 @@ def default_device() -> str:
     return "cuda" if torch.cuda.is_available() else "cpu"
 
 
-def load_planner(path: str | Path, device: str = "auto", precision: str = "auto", batch_size: int = DEFAULT_BATCH_SIZE,
+def load_planner(path: str | Path, device: str = "auto", precision: str = "auto", batch_size: int | None = None,
                  quality_smoothing_px: float = 1.0, views: int = 1, view_spread_k: float = 0.0) -> Planner:
     """Load a checkpoint (:func:`planner.checkpoint.load_checkpoint`) as a :class:`Planner`
     (``views``, ``view_spread_k``: dihedral test-time views, see :meth:`Planner.predict`)."""

@@ -11,7 +11,7 @@ from torch import nn
 from planner.constraints import Constraints
 from planner.inference import Planner, plan
 from planner.model import UNetConfig, build_unet, fuse_conv_relu, prepare_for_inference
-from planner.runtime import default_precision, resolve_precision
+from planner.runtime import MASKS_PER_THREAD, default_precision, masks_per_pass, resolve_precision
 from planner_helpers import observation
 
 TINY = UNetConfig.tiny()
@@ -62,6 +62,20 @@ def test_inference_copy_fuses_every_block():
     assert not any(isinstance(mod, nn.ReLU) for mod in m.modules())
 
 
+def test_masks_per_pass_grow_with_the_threads():
+    threads = torch.get_num_threads()
+    try:
+        torch.set_num_threads(1)
+        assert masks_per_pass() == MASKS_PER_THREAD
+        torch.set_num_threads(2)
+        assert masks_per_pass() == 2 * MASKS_PER_THREAD
+        assert masks_per_pass(5) == 5
+    finally:
+        torch.set_num_threads(threads)
+    with pytest.raises(ValueError, match="batch_size"):
+        Planner(build_unet(TINY), TINY, batch_size=0)
+
+
 def test_batch_size_does_not_change_the_outputs():
     torch.manual_seed(0)
     m = build_unet(TINY)
@@ -69,7 +83,7 @@ def test_batch_size_does_not_change_the_outputs():
     m(torch.rand(4, 3, 32, 32))  # BatchNorm statistics away from the defaults
     obs = observation(3)
     x = np.random.default_rng(0).random((7, 3, 32, 32), dtype=np.float32)
-    outs = [Planner(m, TINY, precision="fp32", batch_size=b).predict(x) for b in (1, 3, 16)]
+    outs = [Planner(m, TINY, precision="fp32", batch_size=b).predict(x) for b in (1, 3, 16, None)]
     for o in outs[1:]:
         np.testing.assert_allclose(o, outs[0], rtol=0, atol=1e-5)
     p1, p16 = (plan(obs, Planner(m, TINY, precision="fp32", batch_size=b)) for b in (1, 16))
