@@ -156,6 +156,46 @@ def ranker_latency(n_logs=(4, 7), ks=(4, 8), repeats: int = 5) -> list[dict]:
     return rows
 
 
+def plan_cost(n_logs=(4, 7), threads=(1, 2), repeats: int = 5) -> list[dict]:
+    """Wall and CPU seconds of one plan with the shipped model as it loads by default (f3, all
+    subsets) with 1 and 2 torch threads, median of ``repeats``. The CPU seconds of the one-thread
+    run are the figure another job's load on a shared machine barely moves; a two-thread wall time
+    there measures the neighbours as much as the planner (a thread descheduled inside a parallel
+    region stalls the other one)."""
+    import torch
+
+    from planner.inference import Objective, load_planner, plan
+    from planner.runtime import masks_per_pass
+
+    obs = {n: _pile_observations(n, 1)[0][0] for n in n_logs}
+    pl = load_planner(DEFAULT_MODEL, device="cpu")
+    f3 = Objective(kind="f3")
+    rows = []
+    for t in threads:
+        torch.set_num_threads(t)
+        plan(obs[n_logs[0]], pl, f3)  # warm-up (oneDNN kernels)
+        for n in n_logs:
+            walls, cpus, p = [], [], None
+            for _ in range(repeats):
+                c0 = time.process_time()
+                p = plan(obs[n], pl, f3)
+                walls.append(p.elapsed_s)
+                cpus.append(time.process_time() - c0)
+            rows.append({"logs": n, "subsets": p.subsets_evaluated, "threads": t, "precision": pl.precision,
+                         "batch": masks_per_pass(pl.batch_size), "wall_s": statistics.median(walls),
+                         "cpu_s": statistics.median(cpus), "load": load_average("")})
+    return rows
+
+
+def cost_markdown(rows: list[dict]) -> list[str]:
+    lines = ["Planning cost, shipped model as loaded by default, f3, all subsets, median of 5 (load average at "
+             "each row: 1/5/15 min). Target: a 7-log pile (127 subsets) <= 0.5 s wall on 2 cores.", "",
+             "| logs | subsets | torch threads | precision | batch | wall s | CPU s | load |",
+             "|---|---|---|---|---|---|---|---|"]
+    return lines + [f"| {r['logs']} | {r['subsets']} | {r['threads']} | {r['precision']} | {r['batch']} | "
+                    f"{r['wall_s']:.3f} | {r['cpu_s']:.3f} | {r['load']} |" for r in rows]
+
+
 def ranker_markdown(rows: list[dict]) -> list[str]:
     lines = [f"Planning with re-ranking (`--ranker R --rerank-k K`), shipped model, f3, all subsets, 2 threads, "
              f"median of 5 ({load_average()}); K 0 = no ranker. Target: a 7-log pile (127 subsets) <= 0.5 s.", "",

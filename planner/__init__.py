@@ -3,7 +3,7 @@
 Entry points (torch is imported lazily, inside the functions):
 
 * :func:`planner.train.train` ``(data_dir, out_dir, config: TrainConfig, progress=None) -> TrainResult``
-* :func:`planner.inference.load_planner` ``(path, device="auto", precision="bf16", batch_size=32) -> Planner``
+* :func:`planner.inference.load_planner` ``(path, device="auto", precision="auto", batch_size=None) -> Planner``
 * :func:`planner.inference.plan` ``(observation, planner, objective=Objective(), constraints=Constraints(),
   top_k=None, *, subsets=SubsetPolicy(), pile=None) -> Plan`` (``Plan.to_json()``)
 * :func:`planner.checkpoint.save_checkpoint` / :func:`planner.checkpoint.load_checkpoint`

@@ -7,7 +7,8 @@ the planner
    (:mod:`planner.subsets`: all 2^n - 1, or those that fit one grapple opening);
 2. drops subsets over the lift capacity (:mod:`planner.constraints`);
 3. runs the network on all remaining target masks in batches, in inference mode
-   (channels-last + bfloat16 autocast on CPU when ``precision="bf16"``);
+   (channels-last, convolution + ReLU fused, bfloat16 where the CPU computes it natively:
+   :mod:`planner.runtime`);
 4. scores each pixel with ``Q = f(u, tau, b)`` (:class:`Objective`), masks pixels out of reach,
    takes the best pixel whose grasp rectangle avoids the keep-out zones;
 5. decodes phi = atan2(S, C) / 2 from C and S *smoothed* with a Gaussian around that pixel
@@ -31,6 +32,7 @@ from planner.constraints import Constraints, polygon_raster
 from planner.data import make_inputs
 from planner.errors import ObservationError
 from planner.model import OUTPUT_NAMES, UNetConfig, decode_balance
+from planner.runtime import masks_per_pass, resolve_precision
 from planner.subsets import SubsetPolicy, choose_subsets
 from synth.geometry.frames import OrthoGrid, wrap_phi
 from synth.geometry.grasp import MAX_WIDTH_M, MIN_WIDTH_M, RECT_WIDTH_M, Grasp
@@ -73,8 +75,9 @@ class Planner:
     model: object  # torch.nn.Module in eval mode
     config: UNetConfig
     device: Literal["cpu", "cuda"] = "cpu"  # "cpu" or "cuda"
-    precision: Literal["bf16", "fp32"] = "bf16"  # "fp32" or "bf16" (autocast; channels-last on CPU)
-    batch_size: int = 64  # target masks per forward pass [-] (64-128 use ~10-15 % less CPU than 32)
+    precision: Literal["auto", "bf16", "fp32"] = "auto"  # "auto": planner.runtime.default_precision (bf16 where
+    # the CPU has bf16 dot products, else fp32); after construction the format that runs
+    batch_size: int | None = None  # target masks per forward pass [-]; None: 16 per torch thread (planner.runtime)
     meta: dict = field(default_factory=dict)
     angle_smoothing_px: float = 1.0  # Gaussian sigma for C, S (and W) before decoding [px]
     quality_smoothing_px: float = 1.0  # Gaussian sigma for U and B before scoring [px]; 0 = raw
@@ -85,10 +88,9 @@ class Planner:
     # (a lower confidence bound: of two grasps the views rate alike on average, the one they agree on wins)
 
     def __post_init__(self) -> None:
-        if self.precision not in ("fp32", "bf16"):
-            raise ValueError(f"precision must be 'fp32' or 'bf16', got {self.precision!r}")
-        if self.batch_size < 1:
-            raise ValueError("batch_size must be >= 1")
+        self.precision = resolve_precision(self.precision, self.device)
+        if self.batch_size is not None and self.batch_size < 1:
+            raise ValueError("batch_size must be >= 1 (or None: planner.runtime.masks_per_pass)")
         if not (self.angle_smoothing_px >= 0 and self.quality_smoothing_px >= 0):
             raise ValueError("angle_smoothing_px and quality_smoothing_px must be >= 0 pixels")
         check_views(self.views, self.view_spread_k)
@@ -136,15 +138,16 @@ class Planner:
         import torch
 
         outs = []
+        bs = masks_per_pass(self.batch_size)
         with torch.inference_mode():
             net = self._net
             if net.late and len(x):
                 feats = net.encode(self._tensor(x[:1, :-1]))
-            for k in range(0, len(x), self.batch_size):
+            for k in range(0, len(x), bs):
                 if net.late:
-                    y = net.decode(feats, self._tensor(x[k : k + self.batch_size, -1:]))
+                    y = net.decode(feats, self._tensor(x[k : k + bs, -1:]))
                 else:
-                    y = net(self._tensor(x[k : k + self.batch_size]))
+                    y = net(self._tensor(x[k : k + bs]))
                 outs.append(y.float().contiguous().cpu().numpy())
         return np.concatenate(outs) if outs else np.zeros((0, 5, *x.shape[2:]), np.float32)
 
@@ -199,7 +202,7 @@ def default_device() -> str:
     return "cuda" if torch.cuda.is_available() else "cpu"
 
 
-def load_planner(path: str | Path, device: str = "auto", precision: str = "bf16", batch_size: int = 64,
+def load_planner(path: str | Path, device: str = "auto", precision: str = "auto", batch_size: int | None = None,
                  quality_smoothing_px: float = 1.0, views: int = 1, view_spread_k: float = 0.0) -> Planner:
     """Load a checkpoint (:func:`planner.checkpoint.load_checkpoint`) as a :class:`Planner`
     (``views``, ``view_spread_k``: dihedral test-time views, see :meth:`Planner.predict`)."""
@@ -298,14 +301,16 @@ def check_grid(size_px: int, extent_m: float, cfg) -> None:
                                f"{cfg.depth} poolings); render a patch of a multiple of {2 ** cfg.depth} pixels")
 
 
-def _smoothed_at(img: np.ndarray, r: int, c: int, sigma: float) -> float:
-    if sigma <= 0:
-        return float(img[r, c])
+def _smoothing_window(shape: tuple[int, int], r: int, c: int, sigma: float):
+    """The Gaussian weights of ``sigma`` [px] around pixel (r, c), cut at the image border (radius
+    ``ceil(2 sigma)``), and the window's slices: ``(w * img[win]).sum() / w.sum()`` is img smoothed
+    at (r, c)."""
     k = max(1, int(math.ceil(2 * sigma)))
-    r0, r1, c0, c1 = max(0, r - k), min(img.shape[0], r + k + 1), max(0, c - k), min(img.shape[1], c + k + 1)
-    rr, cc = np.mgrid[r0:r1, c0:c1]
-    w = np.exp(-((rr - r) ** 2 + (cc - c) ** 2) / (2 * sigma ** 2))
-    return float((w * img[r0:r1, c0:c1]).sum() / w.sum())
+    r0, r1, c0, c1 = max(0, r - k), min(shape[0], r + k + 1), max(0, c - k), min(shape[1], c + k + 1)
+    dr = (np.arange(r0, r1) - r)[:, None]
+    dc = (np.arange(c0, c1) - c)[None, :]
+    w = np.exp(-(dr ** 2 + dc ** 2) / (2 * sigma ** 2))
+    return w, (slice(r0, r1), slice(c0, c1))
 
 
 def plan(observation, planner: Planner, objective: Objective = Objective(), constraints: Constraints = Constraints(),
@@ -367,35 +372,39 @@ def _u_maps(out: np.ndarray, planner: Planner) -> np.ndarray:
 
 
 def _select(out, chosen, grid, objective, constraints, planner) -> tuple[list[PlannedGrasp], list[dict]]:
+    """Each subset's best grasp (the highest-quality pixel in reach whose rectangle misses the
+    keep-out zones; of equal pixels the first in raster order) and what the constraints did."""
     u = _u_maps(out, planner)
     b = _gaussian(np.ascontiguousarray(decode_balance(out[:, 4], planner.config.b_encoding), dtype=np.float32),
                   planner.quality_smoothing_px)
     tau = np.array([len(s) for s in chosen], np.float32)[:, None, None]
     q = objective.quality(u, tau, b)
+    n, h, w = q.shape
+    flat = q.reshape(n, h * w)
     reach = constraints.reach_ok(grid)
     keep_out = constraints.keep_out_raster(grid)
+    best_any = np.argmax(flat, axis=1)
+    if reach is not None:
+        flat = np.where(reach.ravel(), flat, -np.inf)
+    best = np.argmax(flat, axis=1)  # all subsets at once
+    n_try = min(planner.candidates_per_subset, h * w) if keep_out is not None else 1
     grasps, rejected = [], []
-    n_px = q.shape[1] * q.shape[2]
     for k, s in enumerate(chosen):
-        qk = q[k].ravel()
-        best_any = int(np.argmax(qk))
+        qk = flat[k]
         if reach is not None:
-            qk = np.where(reach.ravel(), qk, -np.inf)
-            if not np.isfinite(qk).any():
+            if not np.isfinite(qk[best[k]]):
                 rejected.append({"targets": list(s), "constraint": "reach", "action": "removed",
                                  "detail": "no pixel within reach"})
                 continue
-            if int(np.argmax(qk)) != best_any:
+            if best[k] != best_any[k]:
                 rejected.append({"targets": list(s), "constraint": "reach", "action": "moved",
                                  "detail": "best grasp out of reach; best in reach used"})
-        n_try = min(planner.candidates_per_subset if keep_out is not None else 1, n_px)
-        order = np.argpartition(-qk, n_try - 1)[:n_try] if n_try < n_px else np.arange(n_px)
-        order = order[np.argsort(-qk[order], kind="stable")]
+        order = best[k : k + 1] if n_try == 1 else _best_pixels(qk, n_try)
         picked = None
         for idx in order:
             if not np.isfinite(qk[idx]):
                 break
-            g = _decode(out[k], int(idx) // q.shape[2], int(idx) % q.shape[2], grid, planner.angle_smoothing_px)
+            g = _decode(out[k], int(idx) // w, int(idx) % w, grid, planner.angle_smoothing_px)
             if keep_out is not None and (polygon_raster(grid, g.rectangle(RECT_WIDTH_M)) & keep_out).any():
                 continue
             picked = (int(idx), g)
@@ -408,17 +417,30 @@ def _select(out, chosen, grid, objective, constraints, planner) -> tuple[list[Pl
         if keep_out is not None and idx != int(order[0]):
             rejected.append({"targets": list(s), "constraint": "keep_out", "action": "moved",
                              "detail": "best grasp overlaps a keep-out zone; next best used"})
-        r, c = idx // q.shape[2], idx % q.shape[2]
+        r, c = idx // w, idx % w
         grasps.append(PlannedGrasp(g, float(q[k, r, c]), float(u[k, r, c]), float(b[k, r, c]), tuple(s), (r, c)))
     return grasps, rejected
 
 
+def _best_pixels(qk: np.ndarray, n: int) -> np.ndarray:
+    """Indices of the ``n`` highest values of ``qk`` (< its length), best first, equal values in
+    raster order."""
+    top = np.argpartition(-qk, n - 1)[:n]
+    return top[np.lexsort((top, -qk[top]))]
+
+
 def _decode(maps: np.ndarray, r: int, c: int, grid: OrthoGrid, sigma: float) -> Grasp:
-    cs = _smoothed_at(maps[0], r, c, sigma)
-    sn = _smoothed_at(maps[1], r, c, sigma)
-    w = float(np.clip(_smoothed_at(maps[2], r, c, sigma), MIN_WIDTH_M, MAX_WIDTH_M))
+    """The grasp at pixel (r, c) of one subset's network output ``maps`` (5, H, W): C, S and W
+    smoothed there with a Gaussian of ``sigma`` [px] (0: the pixel's own values)."""
+    if sigma > 0:
+        w, win = _smoothing_window(maps.shape[1:], r, c, sigma)
+        w_sum = w.sum()
+        cs, sn, width = (float((w * maps[i][win]).sum() / w_sum) for i in range(3))
+    else:
+        cs, sn, width = (float(maps[i, r, c]) for i in range(3))
     x, y = grid.pixel_to_pile(r, c)
-    return Grasp(float(x), float(y), float(wrap_phi(math.atan2(sn, cs) / 2.0)), w)
+    return Grasp(float(x), float(y), float(wrap_phi(math.atan2(sn, cs) / 2.0)),
+                 float(np.clip(width, MIN_WIDTH_M, MAX_WIDTH_M)))
 
 
 def u_at(observation, planner: Planner, grasps: list[Grasp], targets: list[tuple[int, ...]]) -> np.ndarray:

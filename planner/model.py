@@ -172,6 +172,7 @@ def build_unet(config: UNetConfig):
 
         def finish(self, x: torch.Tensor) -> torch.Tensor:
             raw = self.head(x.to(self.head.weight.dtype)).float()  # head may stay fp32 in a bf16 body
+            raw = raw.contiguous()  # channels-last out of an inference body: the slices below become dense
             c_s = torch.tanh(raw[:, 0:2])
             w = self.w_lo + self.w_span * torch.sigmoid(raw[:, 2:3])
             u_logit = raw[:, 3:4]
@@ -213,7 +214,9 @@ def prepare_for_inference(model, precision: str = "bf16", device: str = "cpu"):
     """An inference copy of ``model``: BatchNorm folded into the convolutions, the body in
     bfloat16 (``precision="bf16"``; the 1x1 head stays fp32) and channels-last memory on the CPU.
     Folding and a pure-bf16 body remove the memory-bound BatchNorm and halve the traffic of ReLU,
-    pooling and concatenation (about a third less CPU time than fp32-weights + autocast here)."""
+    pooling and concatenation (about a third less CPU time than fp32-weights + autocast here).
+    On the CPU each convolution + ReLU then runs as one oneDNN call with the ReLU as a post-op
+    (:func:`fuse_conv_relu`): the same numbers, one pass less over every activation."""
     import copy
 
     import torch
@@ -237,4 +240,58 @@ def prepare_for_inference(model, precision: str = "bf16", device: str = "cpu"):
     m = m.to(device)
     if device == "cpu":
         m = m.to(memory_format=torch.channels_last)
+        fuse_conv_relu(m)
     return m
+
+
+def fuse_conv_relu(model) -> int:
+    """Replace, in place, every (Conv2d, ReLU) pair inside ``model``'s ``nn.Sequential`` blocks
+    (BatchNorm already folded, see :func:`prepare_for_inference`) by one module that runs the
+    convolution with the ReLU as a oneDNN post-op (``torch.ops.mkldnn._convolution_pointwise``,
+    the kernel ``torch.compile`` uses for the same pattern on the CPU). Results are those of the
+    pair (the ReLU is applied to the same accumulator before it is stored); what is saved is the
+    second pass over the activation: about 10 % of a plan's CPU time on a 2-core AMD EPYC.
+    Returns the number of pairs fused; 0 where torch has no oneDNN, or no oneDNN bf16 kernels for a
+    bf16 model (nothing changes)."""
+    import torch
+    from torch import nn
+
+    if not (torch.backends.mkldnn.is_available() and hasattr(torch.ops.mkldnn, "_convolution_pointwise")):
+        return 0
+    if (any(p.dtype == torch.bfloat16 for p in model.parameters())
+            and not torch.ops.mkldnn._is_mkldnn_bf16_supported()):
+        return 0  # oneDNN has no bf16 kernels on this CPU: torch's own (slow) bf16 convolution stays
+
+    class ConvReLU(nn.Module):
+        """relu(conv(x)) in one oneDNN call (inference only: no autograd through it)."""
+
+        def __init__(self, conv: nn.Conv2d) -> None:
+            super().__init__()
+            self.weight, self.bias = conv.weight, conv.bias
+            self.args = (list(conv.padding), list(conv.stride), list(conv.dilation), conv.groups)
+
+        def forward(self, x: torch.Tensor) -> torch.Tensor:
+            pad, stride, dil, groups = self.args
+            return torch.ops.mkldnn._convolution_pointwise(x, self.weight, self.bias, pad, stride, dil, groups,
+                                                           "relu", [], "")
+
+    n = 0
+    for mod in model.modules():
+        if not isinstance(mod, nn.Sequential):
+            continue
+        layers, out = list(mod), []
+        while layers:
+            a = layers.pop(0)
+            if (isinstance(a, nn.Conv2d) and layers and isinstance(layers[0], nn.ReLU) and a.padding_mode == "zeros"
+                    and isinstance(a.padding, tuple)):
+                layers.pop(0)
+                out.append(ConvReLU(a))
+                n += 1
+            else:
+                out.append(a)
+        if len(out) != len(mod):
+            for _ in range(len(mod)):
+                del mod[0]
+            for f in out:
+                mod.append(f)
+    return n

@@ -1,0 +1,72 @@
+"""How the planning network runs on this machine: its number format, chosen from what the CPU can
+do, and how many target masks go through it at once.
+
+Measured with the shipped 1.94 M U-Net on a 7-log pile (127 target subsets, 184 GFLOP of
+convolutions), CPU seconds per plan with one torch thread, on a 2-core AMD EPYC (Zen 4: AVX512-BF16,
+no AMX; 2026-12-06, beside other jobs at load 6-7; docs/model.md, "Planning on a CPU"):
+
+* bfloat16 with the CPU's own bf16 dot products (AVX512-BF16): 1.07 s; fp32: 2.15 s. A single
+  convolution runs at 200-238 GFLOP/s in bf16 and 97-118 in fp32 on one core;
+* bfloat16 on the same CPU with oneDNN held to AVX512-core (``ONEDNN_MAX_CPU_ISA=AVX512_CORE``: no
+  bf16 instructions, bf16 emulated by conversions): 6.5 s against fp32's 2.0 s;
+* target masks per forward pass (bf16): 4: 1.14 s, 8: 1.12 s, 16: 1.07 s, 32: 1.20 s, 64: 1.25 s.
+  A mask's first-level activations are 0.5 MB in bf16: 16 masks stay near the caches, 64 do not;
+* with two torch threads on cores other jobs also use (load 8-9), wall s per plan: 16 masks per
+  pass 3.5-7.9, 32: 2.7-3.6, 64: 3.2-3.3. A thread descheduled inside a parallel region stalls the
+  other, and smaller passes mean more regions.
+
+So bfloat16 is chosen exactly where the CPU has bf16 dot-product instructions
+(:data:`NATIVE_BF16_CPU_FEATURES`) and fp32 elsewhere, and a forward pass takes
+:data:`MASKS_PER_THREAD` masks per torch thread (:func:`masks_per_pass`): each thread's share stays
+cache-sized and the number of synchronisations does not grow with the threads.
+On a GPU bfloat16 is kept (tensor cores).
+"""
+
+from __future__ import annotations
+
+NATIVE_BF16_CPU_FEATURES = ("avx512_bf16", "amx_bf16")  # x86 features with bf16 dot products (torch's names)
+MASKS_PER_THREAD = 16  # target masks per forward pass and torch thread [-] (measured above)
+PRECISIONS = ("auto", "bf16", "fp32")  # "auto": :func:`default_precision`
+
+
+def cpu_features() -> dict:
+    """The CPU's features as torch reports them (``{"avx512_bf16": True, ...}``); empty where this
+    torch cannot say (then no bf16 is assumed)."""
+    import torch
+
+    try:
+        return dict(torch._C._cpu._get_cpu_capability())
+    except (AttributeError, RuntimeError):
+        return {}
+
+
+def cpu_has_native_bf16(features: dict | None = None) -> bool:
+    """True when the CPU (``features``, default :func:`cpu_features`) computes bf16 dot products
+    in hardware (AVX512-BF16 or AMX-BF16)."""
+    features = cpu_features() if features is None else features
+    return any(bool(features.get(f)) for f in NATIVE_BF16_CPU_FEATURES)
+
+
+def default_precision(device: str, features: dict | None = None) -> str:
+    """The planning network's number format on ``device`` ("cpu" or "cuda"): "bf16" on a GPU and on
+    a CPU with native bf16 (:func:`cpu_has_native_bf16`), else "fp32" (emulated bf16 is ~3x slower
+    than fp32, see the module doc)."""
+    if device != "cpu":
+        return "bf16"
+    return "bf16" if cpu_has_native_bf16(features) else "fp32"
+
+
+def masks_per_pass(batch_size: int | None = None) -> int:
+    """``batch_size`` itself, or :data:`MASKS_PER_THREAD` x torch's threads for None."""
+    if batch_size is not None:
+        return batch_size
+    import torch
+
+    return MASKS_PER_THREAD * max(1, torch.get_num_threads())
+
+
+def resolve_precision(precision: str, device: str) -> str:
+    """``precision`` itself, or :func:`default_precision` for "auto"; ``ValueError`` for others."""
+    if precision not in PRECISIONS:
+        raise ValueError(f"precision must be one of {list(PRECISIONS)}, got {precision!r}")
+    return default_precision(device) if precision == "auto" else precision
