@@ -214,7 +214,7 @@ def end_posterior(states: np.ndarray, lo_m: float, k: int, axis: _Axis, point: S
     sig_scan = float(math.sqrt(float(w @ (edges - edges[j_scan]) ** 2)))
     out = {"t_scan_m": float(edges[j_scan]), "sigma_scan_m": sig_scan, "outlier_prob": None,
            "seen_any": bool((states == ON).any())}
-    post = w
+    post = inlier = w  # inlier: the posterior given that the point (if kept) is right, for the along prior
     if point is not None:
         t_g, s_al, log_lat = _point_terms(point, axis, lateral_sigma_m, cfg)
         log_in = log_lat - 0.5 * ((t_g - edges) / s_al) ** 2 - 0.5 * math.log(2 * math.pi * s_al * s_al)
@@ -228,6 +228,8 @@ def end_posterior(states: np.ndarray, lo_m: float, k: int, axis: _Axis, point: S
         if p_out <= cfg.outlier_flag_prob:
             mix = w * ((1 - eps) * np.exp(log_in - shift) + eps * math.exp(log_out - shift))
             post = mix / mix.sum()
+            inlier = w * np.exp(log_in - shift)
+            inlier = inlier / inlier.sum()
         out["t_point_m"], out["sigma_point_m"] = t_g, s_al
     j = int(np.argmax(post))
     near = np.abs(edges - edges[j]) <= MODE_WINDOW_M
@@ -235,7 +237,7 @@ def end_posterior(states: np.ndarray, lo_m: float, k: int, axis: _Axis, point: S
     spread = float(math.sqrt(float(post @ (edges - t_end) ** 2)))
     out["t_m"] = t_end
     out["sigma_along_m"] = max(spread, cfg.min_end_sigma_m, step / math.sqrt(12.0))
-    out["sigma_along_in_m"], out["sigma_along_out_m"] = along_sigmas(post, edges, t_end, k, cfg)
+    out["sigma_along_in_m"], out["sigma_along_out_m"] = along_sigmas(inlier, edges, t_end, k, cfg)
     return out
 
 
@@ -244,7 +246,8 @@ def along_sigmas(post: np.ndarray, edges: np.ndarray, t_end: float, k: int, cfg:
     t; 1: end b), toward the log's middle and away from it [m]: on each side, the distance from the end
     ``t_end`` to where the posterior ``post`` (over ``edges``) falls z^2 / 2 nats under its mode, over z
     (``along_interval_sigmas``) - the Gaussian that costs what the end's own posterior costs at the refusal's
-    line. For a Gaussian posterior these are its sigma; a seen end's exponential flanks, a one-sided end (the scan
+    line. ``post`` is the posterior given that a kept survey point is right (the end was placed so: its
+    outlier component, a floor a few nats under the mode, would make every interval reach the grid's edge). For a Gaussian posterior these are its sigma; a seen end's exponential flanks, a one-sided end (the scan
     bounds it on one side only) and a second hump past a valley deeper than the line are kept as they are
     there, where a Gaussian of the posterior's whole spread would let the bodies move an end across the
     valley, through bins that show the log's top, for almost nothing. An interval that reaches the grid's
