@@ -145,9 +145,12 @@ def _top_x(log: LogSpec) -> float:
     return float(max(p[0] for p in log.endpoints_m()))
 
 
+WEAK_INWARD = AlongPrior(0.10, 0.01)  # an end whose top the scan does not see inside (under another log), the
+#                                       ground seen past it: free toward the log's middle, held outward
+
+
 def test_a_weakly_seen_end_pressed_into_a_neighbour_is_moved_back_along_its_axis():
-    # a hidden top end on a float point: +-10 cm along toward the log's middle
-    pile, ev = _t_into_a_crossing_log(AlongPrior(0.10, 0.10))
+    pile, ev = _t_into_a_crossing_log(WEAK_INWARD)
     out, _ = settle_pile(pile, ev, CFG, TOL, 12)
     a, b = out.pile.logs
     assert 1.0 - _top_x(a) > 0.06  # shortened at its weak end by most of what clearing takes
@@ -181,6 +184,29 @@ def test_an_end_pinned_along_at_both_logs_is_refused_naming_its_sigma_along():
 def _pinned_across(log: LogSpec) -> LogEvidence:
     """``_pinned`` with its ends' places along held as surely as its points hold them."""
     return replace(_pinned(log), along=(AlongPrior(FIXED_SIGMA_M, FIXED_SIGMA_M),) * 2)
+
+
+def _crossing_fits(pile: PileSpec, top_along: tuple[float, float]) -> list[LogFit]:
+    """The fits of :func:`_t_into_a_crossing_log`'s logs as the joint end placer leaves them: log 0's butt seen,
+    its top's along sigmas ``top_along`` (inward, outward); log 1 placed in part."""
+    fits = [_fit("log0", 0, pile.logs[0], False), _fit("log1", 1, pile.logs[1], False)]
+    for e, (s_in, s_out) in zip(fits[0].ends, ((0.01, 0.01), top_along)):
+        e.update(sigma_along_in_m=s_in, sigma_along_out_m=s_out)
+    for e in fits[1].ends:
+        e.update(sigma_along_in_m=PLACED_IN_PART_M, sigma_along_out_m=PLACED_IN_PART_M)
+    fits[1].fit = "partial"
+    return fits
+
+
+def test_the_settler_shortens_a_log_by_its_ends_own_along_sigmas_and_not_with_along_ends_off():
+    pile, _ = _t_into_a_crossing_log(WEAK_INWARD)
+    lateral = {"log0": 0.01, "log1": PLACED_IN_PART_M}
+    weak = JointSettler({}, lateral, CFG, TOL, 12)(pile, _crossing_fits(pile, (0.10, 0.01)))
+    assert 1.0 - _top_x(weak.pile.logs[0]) > 0.06
+    fixed = JointSettler({}, lateral, CFG, TOL, 12)(pile, _crossing_fits(pile, (FIXED_SIGMA_M, FIXED_SIGMA_M)))
+    assert 1.0 - _top_x(fixed.pile.logs[0]) < 0.01
+    off = JointSettler({}, lateral, JointConfig(along_ends=False), TOL, 12)(pile, _crossing_fits(pile, (0.10, 0.01)))
+    assert _top_x(off.pile.logs[0]) == pytest.approx(1.0, abs=1e-6)
 
 
 def test_the_along_priors_are_each_end_s_own_whichever_order_the_ends_come_in():
