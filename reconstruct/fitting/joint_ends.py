@@ -247,7 +247,8 @@ def along_sigmas(post: np.ndarray, edges: np.ndarray, t_end: float, k: int, cfg:
     ``t_end`` to where the posterior ``post`` (over ``edges``) falls z^2 / 2 nats under its mode, over z
     (``along_interval_sigmas``) - the Gaussian that costs what the end's own posterior costs at the refusal's
     line. ``post`` is the posterior given that a kept survey point is right (the end was placed so: its
-    outlier component, a floor a few nats under the mode, would make every interval reach the grid's edge). For a Gaussian posterior these are its sigma; a seen end's exponential flanks, a one-sided end (the scan
+    outlier component, a floor a few nats under the mode, would make every interval reach the grid's edge).
+    For a Gaussian posterior these are its sigma; a seen end's exponential flanks, a one-sided end (the scan
     bounds it on one side only) and a second hump past a valley deeper than the line are kept as they are
     there, where a Gaussian of the posterior's whole spread would let the bodies move an end across the
     valley, through bins that show the log's top, for almost nothing. An interval that reaches the grid's

@@ -198,17 +198,21 @@ class _Problem:
             parts += [np.maximum(d, 0.0) / self.cfg.contact_sigma_m for d in self.contact_depths(x)]
         return np.concatenate(parts)
 
+    def contact_residuals(self, term: Term, segs: Sequence[Segment]) -> np.ndarray:
+        """A contact's residuals: its depths over what it allows, in ``contact_sigma_m`` (zero when apart)."""
+        return np.maximum(self.bodies.depths(term, segs) - term.allow_m, 0.0) / self.cfg.contact_sigma_m
+
     def jacobian(self, x: np.ndarray, contacts: bool) -> np.ndarray:
         """The residuals' forward-difference Jacobian at ``x``, with scipy's own steps ('2-point'), each column
         from the rows its variable changes only: its log's evidence and the contacts that log is in (a pile's
         contacts each hold one or two of its logs, so this is a few times cheaper than every row per column)."""
         ev0 = [self.evidence_residuals(x, k) for k in range(self.n)]
         segs0 = self.segments(x)
-        ct0 = ([np.maximum(self.bodies.depths(t, segs0) - t.allow_m, 0.0) / self.cfg.contact_sigma_m for t in self.terms]
-               if contacts else [])
+        ct0 = [self.contact_residuals(t, segs0) for t in self.terms] if contacts else []
         starts = np.cumsum([0] + [len(r) for r in ev0 + ct0])
         J = np.zeros((int(starts[-1]), len(x)))
-        mine = [[m for m, t in enumerate(self.terms) if k == t.i or (t.kind == "log" and k == t.j)] for k in range(self.n)]
+        mine = [[m for m, t in enumerate(self.terms) if k in (t.i, t.j if t.kind == "log" else -1)]
+                for k in range(self.n)]
         sign = np.where(x >= 0, 1.0, -1.0)
         steps = (x + np.sqrt(np.finfo(float).eps) * sign * np.maximum(1.0, np.abs(x))) - x
         for v, h in enumerate(steps):
@@ -221,8 +225,7 @@ class _Problem:
             segs = list(segs0)
             segs[k] = self._segment(k, self.corrections(xv)[k])
             for m in mine[k]:
-                t = self.terms[m]
-                r = np.maximum(self.bodies.depths(t, segs) - t.allow_m, 0.0) / self.cfg.contact_sigma_m
+                r = self.contact_residuals(self.terms[m], segs)
                 J[starts[self.n + m]:starts[self.n + m + 1], v] = (r - ct0[m]) / h
         return J
 
@@ -418,7 +421,8 @@ class JointSettler:
                              math.hypot(pt.sigma_v_m, self.cfg.pose_sigma_m))
                  for pt, e in zip(ends_k, lf.ends or (None, None))
                  if pt is not None and not (e or {}).get("contradicted")]
-        return LogEvidence(across, up, tuple(pulls), along_priors(log, lf.ends, self.cfg) if self.cfg.along_ends else None)
+        along = along_priors(log, lf.ends, self.cfg) if self.cfg.along_ends else None
+        return LogEvidence(across, up, tuple(pulls), along)
 
     def own_points(self, pile: PileSpec) -> list[np.ndarray | None]:
         """Per log, the scan points on its surface that no other log's explains (None: no points given, or
