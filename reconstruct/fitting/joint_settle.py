@@ -362,7 +362,7 @@ def _cleared(prob: _Problem, x: np.ndarray, x_free: np.ndarray, rolls: Sequence[
         moved.append(move)
         if move >= REPORT_MOVE_M:
             extra = math.sqrt(max(prob.cost(x, k) - prob.cost(x_free, k), 0.0))
-            along = [f"its {end} {d * 1000:.1f} mm {'in' if d > 0 else 'out'} along it"
+            along = [f"its {end} {abs(d) * 1000:.1f} mm {'in' if d > 0 else 'out'} along it"
                      for end, d in zip(("butt", "top"), prob.along_moves(x, x_free, k)) if abs(d) >= REPORT_MOVE_M]
             notes.append(f"log {k} moved {move * 1000:.1f} mm ({extra:.1f} sigma of its evidence) clear of "
                          f"{_pressing(prob, x_free, k).other(k)}" + (f" ({', '.join(along)})" if along else ""))
