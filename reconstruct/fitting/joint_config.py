@@ -16,7 +16,7 @@ from dataclasses import dataclass, fields
 ESTIMATORS = ("rules22", "joint")
 #: raised whenever a change to the joint estimator makes different piles from the same scan (recorded in the
 #: report as ``estimator_revision`` and in bench keys)
-JOINT_REVISION = 11
+JOINT_REVISION = 12
 
 
 @dataclass(frozen=True)
@@ -122,6 +122,19 @@ class JointConfig:
     #                                       0.15 (flanks 96 %, undersides 91 %); at 0.05 only 64 % / 53 % [-]
     sigma_max_m: float = 0.08  # a scan-fitted log's sigma is at most this (a log seen in part is placed on its
     #                            survey axis to ~4 cm; twice that: the scan's fit is then hardly evidence) [m]
+    along_ends: bool = True  # each end's place along its log is a state of the pile estimate, held by a
+    #                          Gaussian from its own posterior (joint_ends.along_sigmas; a sigma toward the
+    #                          log's middle and one away), so a body the log runs into can shorten it where
+    #                          its end evidence is weak (a hidden end on a float point) and cannot where it is
+    #                          strong (an end the scan sees, or an RTK fixed point holds). Off: the pile moves
+    #                          logs across and up only (revision 11) [-]
+    along_interval_sigmas: float = 4.0  # an end's along prior costs what its posterior costs this many sigma
+    #                                     out on each side (its sigma there: the distance to where the posterior
+    #                                     falls this squared over 2 nats under its mode, over this): the
+    #                                     refusal's line (refuse_sigma), so a move is refused as the end's own
+    #                                     posterior would refuse it, and an end does not slide across a valley
+    #                                     between two humps (a Gaussian of the whole spread shortened logs by up
+    #                                     to 1 m at under 4 sigma: joint revisions 9-10) [-]
     survey_loss_sigmas: float = 3.0  # a kept survey point pulls its log as a Gaussian within this many of its
     #                                  sigmas, by a bounded force past them (soft-L1: a wrong point the end
     #                                  posteriors kept does not drag a log by its distance squared) [-]
@@ -135,7 +148,10 @@ class JointConfig:
     #                            refused: its fit or its points are wrong, not its noise [-]
     twin_rounds: int = 4  # the twin checks the estimate this many times at most; a contact it still finds is
     #                       allowed less overlap each time, none on the last two [-]
-    settle_max_evaluations: int = 400  # least_squares' budget per estimate (a 7-log pile converges in ~30) [-]
+    settle_max_evaluations: int = 150  # least_squares' budget per estimate: a 7-log pile converges in ~30
+    #                                    steps; one that has not by 150 is sliding a log along another it lies
+    #                                    in (a log on another's ridge: with the ends' places free it crawled
+    #                                    400 steps, ~1 min, to a refusal), ~0.15 s a step [-]
     # -- what is reported --
     weak_sigma_m: float = 0.05  # an end less certain than this is a weak estimate (warned about), as in rules22 [m]
 

@@ -43,13 +43,17 @@ MODE_WINDOW_M = 0.05  # an end is the posterior's mean within this of its mode (
 
 @dataclass
 class JointEndEstimate(EndEstimate):
-    """An end placed by the joint estimator: :class:`EndEstimate` and its survey point's posterior outlier
-    probability (None: no point)."""
+    """An end placed by the joint estimator: :class:`EndEstimate`, its survey point's posterior outlier
+    probability (None: no point) and the sigmas of the pile estimate's prior on its place along the axis,
+    toward the log's middle and away from it (:func:`along_sigmas`) [m]."""
 
     outlier_prob: float | None = None
+    sigma_along_in_m: float | None = None
+    sigma_along_out_m: float | None = None
 
     def to_dict(self) -> dict:
-        return super().to_dict() | {"outlier_prob": self.outlier_prob}
+        return super().to_dict() | {"outlier_prob": self.outlier_prob, "sigma_along_in_m": self.sigma_along_in_m,
+                                    "sigma_along_out_m": self.sigma_along_out_m}
 
 
 def bin_states(points: np.ndarray, pa: np.ndarray, u: np.ndarray, radius_m: float, lo_m: float, n_bins: int,
@@ -210,7 +214,7 @@ def end_posterior(states: np.ndarray, lo_m: float, k: int, axis: _Axis, point: S
     sig_scan = float(math.sqrt(float(w @ (edges - edges[j_scan]) ** 2)))
     out = {"t_scan_m": float(edges[j_scan]), "sigma_scan_m": sig_scan, "outlier_prob": None,
            "seen_any": bool((states == ON).any())}
-    post = w
+    post = inlier = w  # inlier: the posterior given that the point (if kept) is right, for the along prior
     if point is not None:
         t_g, s_al, log_lat = _point_terms(point, axis, lateral_sigma_m, cfg)
         log_in = log_lat - 0.5 * ((t_g - edges) / s_al) ** 2 - 0.5 * math.log(2 * math.pi * s_al * s_al)
@@ -224,6 +228,8 @@ def end_posterior(states: np.ndarray, lo_m: float, k: int, axis: _Axis, point: S
         if p_out <= cfg.outlier_flag_prob:
             mix = w * ((1 - eps) * np.exp(log_in - shift) + eps * math.exp(log_out - shift))
             post = mix / mix.sum()
+            inlier = w * np.exp(log_in - shift)
+            inlier = inlier / inlier.sum()
         out["t_point_m"], out["sigma_point_m"] = t_g, s_al
     j = int(np.argmax(post))
     near = np.abs(edges - edges[j]) <= MODE_WINDOW_M
@@ -231,7 +237,35 @@ def end_posterior(states: np.ndarray, lo_m: float, k: int, axis: _Axis, point: S
     spread = float(math.sqrt(float(post @ (edges - t_end) ** 2)))
     out["t_m"] = t_end
     out["sigma_along_m"] = max(spread, cfg.min_end_sigma_m, step / math.sqrt(12.0))
+    out["sigma_along_in_m"], out["sigma_along_out_m"] = along_sigmas(inlier, edges, t_end, k, cfg)
     return out
+
+
+def along_sigmas(post: np.ndarray, edges: np.ndarray, t_end: float, k: int, cfg: JointConfig) -> tuple[float, float]:
+    """The sigmas of the pile estimate's Gaussian prior on end ``k``'s place along the axis (0: end a, at low
+    t; 1: end b), toward the log's middle and away from it [m]: on each side, the distance from the end
+    ``t_end`` to where the posterior ``post`` (over ``edges``) falls z^2 / 2 nats under its mode, over z
+    (``along_interval_sigmas``) - the Gaussian that costs what the end's own posterior costs at the refusal's
+    line. ``post`` is the posterior given that a kept survey point is right (the end was placed so: its
+    outlier component, a floor a few nats under the mode, would make every interval reach the grid's edge).
+    For a Gaussian posterior these are its sigma; a seen end's exponential flanks, a one-sided end (the scan
+    bounds it on one side only) and a second hump past a valley deeper than the line are kept as they are
+    there, where a Gaussian of the posterior's whole spread would let the bodies move an end across the
+    valley, through bins that show the log's top, for almost nothing. An interval that reaches the grid's
+    edge is that wide at least (the grid spans the log's half and ``search_m`` past the end)."""
+    floor = cfg.min_end_sigma_m
+    with np.errstate(divide="ignore"):
+        lp = np.log(post)
+    j = int(np.argmax(lp))
+    keep = lp >= lp[j] - 0.5 * cfg.along_interval_sigmas ** 2
+    lo = hi = j
+    while lo > 0 and keep[lo - 1]:
+        lo -= 1
+    while hi < len(lp) - 1 and keep[hi + 1]:
+        hi += 1
+    below, above = max(t_end - float(edges[lo]), 0.0), max(float(edges[hi]) - t_end, 0.0)
+    inward, outward = (above, below) if k == 0 else (below, above)
+    return max(inward / cfg.along_interval_sigmas, floor), max(outward / cfg.along_interval_sigmas, floor)
 
 
 def _scan_state(states: np.ndarray, lo_m: float, k: int, t_end: float, fcfg: FuseConfig) -> str:
@@ -294,7 +328,8 @@ def _estimate(post: dict, states: np.ndarray, lo: float, k: int, axis: _Axis, po
         source = "inferred"
     est = JointEndEstimate(position_m=pos, sigma_m=float(math.sqrt(s_al ** 2 + 2 * lat ** 2)), sigma_along_m=s_al,
                            source=source, scan=_scan_state(states, lo, k, post["t_m"], fcfg),
-                           outlier_prob=post["outlier_prob"])
+                           outlier_prob=post["outlier_prob"], sigma_along_in_m=post["sigma_along_in_m"],
+                           sigma_along_out_m=post["sigma_along_out_m"])
     if point is not None:
         res = float(np.linalg.norm(point.position_m - pos))
         est.gnss_fix, est.gnss_residual_m = point.fix, res

@@ -2,12 +2,18 @@
 what holds it where it is and from the other bodies, in place of revision 22's roll → thin → move → re-test
 (:mod:`reconstruct.fitting.separation`, :mod:`reconstruct.fitting.clearance`).
 
-Each log's state is its placed axis with its two ends moved across it, horizontally (``c``) and up (``h``):
-four numbers per log (a shift, a height, a small yaw and pitch). One ``scipy.optimize.least_squares`` weighs:
+Each log's state is its placed axis with its two ends moved across it, horizontally (``c``) and up (``h``),
+and (``JointConfig.along_ends``) along it (``l``): six numbers per log (a shift, a height, a small yaw and
+pitch, and each end's place along the log, so its length). One ``scipy.optimize.least_squares`` weighs:
 
 - **the scan**: a Gaussian on each end's correction, its sigma the fit's uncertainty (for a log fitted to its
   points its own, from the points on its surface: :mod:`reconstruct.fitting.joint_scan_sigma`; its
   placement's for one seen in part or hidden);
+- **each end's place along the log**: a Gaussian about where the end model put it, one sigma toward the
+  log's middle and one away, from that end's own posterior (:func:`reconstruct.fitting.joint_ends.along_sigmas`:
+  an end the scan sees, or an RTK fixed point holds, to a centimetre or two; a hidden end on a float point by
+  that point's accuracy), so a contact shortens a log where its end evidence is weak and cannot where it is
+  strong;
 - **its survey points** (those its end posteriors kept): each point's offset across the moved axis, by its
   receiver's accuracy and the scan pose's, through a soft-L1 loss (a wrong point the posteriors missed pulls
   by a bounded force, not by its distance squared);
@@ -32,6 +38,7 @@ import numpy as np
 
 from reconstruct.errors import SeparationError
 from reconstruct.fitting.clearance import Cleared
+from reconstruct.fitting.ends import MIN_LOG_LENGTH_M
 from reconstruct.fitting.joint_config import JointConfig
 from reconstruct.fitting.joint_contact import Bodies, Segment, Term
 from reconstruct.fitting.separation import SEPARATION_MARGIN_M, best_roll
@@ -55,13 +62,29 @@ class SurveyPull:
 
 
 @dataclass(frozen=True)
+class AlongPrior:
+    """The prior on one end's place along its log, about where the end model put it: its sigma toward the
+    log's middle (the log shorter) and away from it [m]."""
+
+    inward_m: float
+    outward_m: float
+
+    @property
+    def scale_m(self) -> float:
+        """The unit of the end's along variable (the two sigmas' geometric mean) [m]."""
+        return math.sqrt(self.inward_m * self.outward_m)
+
+
+@dataclass(frozen=True)
 class LogEvidence:
     """What holds a log where it was placed: the sigmas of its ends' correction across its axis and in
-    height [m] (the scan's, or its placement's), one for both ends or (butt, top), and its kept survey points."""
+    height [m] (the scan's, or its placement's), one for both ends or (butt, top), its kept survey points and,
+    with the ends' places along the log in the estimate, their priors (butt, top)."""
 
     sigma_across_m: float | tuple[float, float]
     sigma_up_m: float | tuple[float, float]
     pulls: tuple[SurveyPull, ...] = ()
+    along: tuple[AlongPrior, AlongPrior] | None = None
 
     def scales(self) -> list[float]:
         """The sigmas of the four corrections (across at the butt, at the top, up at the butt, at the top) [m]."""
@@ -71,8 +94,12 @@ class LogEvidence:
 
     def text(self) -> str:
         """Its scan sigmas in words (the larger end's), for a refusal."""
-        return (f"+-{max(_pair(self.sigma_across_m)) * 100:.1f} cm across, "
-                f"+-{max(_pair(self.sigma_up_m)) * 100:.1f} cm up")
+        words = (f"+-{max(_pair(self.sigma_across_m)) * 100:.1f} cm across, "
+                 f"+-{max(_pair(self.sigma_up_m)) * 100:.1f} cm up")
+        if self.along is not None:
+            words += (f", its ends +-{self.along[0].inward_m * 100:.1f} / +-{self.along[1].inward_m * 100:.1f} cm "
+                      "along toward its middle")
+        return words
 
 
 def _pair(v: float | tuple[float, float]) -> tuple[float, float]:
@@ -102,14 +129,21 @@ def _robust(r: np.ndarray, scale: float) -> np.ndarray:
 
 
 class _Problem:
-    """The least-squares problem: variables are each log's four end corrections in units of their sigmas."""
+    """The least-squares problem: variables are each log's end corrections in units of their sigmas - four
+    (across and up at the butt and the top), or six with the ends' places along the log (``along``: every
+    log's evidence has them)."""
 
     def __init__(self, pile: PileSpec, evidence: Sequence[LogEvidence], cfg: JointConfig) -> None:
         self.pile, self.evidence, self.cfg = pile, list(evidence), cfg
         self.base = [log.endpoints_m() for log in pile.logs]
         self.across = [_across(b - a) for a, b in self.base]
+        self.lengths = [float(np.linalg.norm(b - a)) for a, b in self.base]
+        self.axes = [(b - a) / max(L, 1e-9) for (a, b), L in zip(self.base, self.lengths)]
         self.radii = [(log.diameter_m / 2, log.top_d_m / 2) for log in pile.logs]
-        self.scale = np.concatenate([e.scales() for e in self.evidence])
+        self.along = bool(self.evidence) and all(e.along is not None for e in self.evidence)
+        self.width = 6 if self.along else 4
+        self.scale = np.concatenate([e.scales() + ([p.scale_m for p in e.along] if self.along else [])
+                                     for e in self.evidence])
         self.bodies = Bodies(pile)
         self.terms: list[Term] = []
 
@@ -117,21 +151,41 @@ class _Problem:
     def n(self) -> int:
         return len(self.base)
 
+    def corrections(self, x: np.ndarray) -> np.ndarray:
+        """Per log (ca, cb, ha, hb, la, lb) [m]: across, up and along (toward the top) at the butt and the top."""
+        X = (x * self.scale).reshape(-1, self.width)
+        return X if self.along else np.hstack([X, np.zeros((self.n, 2))])
+
     def segments(self, x: np.ndarray) -> list[Segment]:
-        X = (x * self.scale).reshape(-1, 4)
-        out = []
-        for (a, b), n, (ra, rb), (ca, cb, ha, hb) in zip(self.base, self.across, self.radii, X):
-            out.append(Segment(a + ca * n + ha * UP, b + cb * n + hb * UP, ra, rb))
-        return out
+        C = self.corrections(x)
+        return [self._segment(k, C[k]) for k in range(self.n)]
+
+    def _segment(self, k: int, c: np.ndarray) -> Segment:
+        (a, b), n, u, (ra, rb) = self.base[k], self.across[k], self.axes[k], self.radii[k]
+        ca, cb, ha, hb, la, lb = c
+        return Segment(a + ca * n + ha * UP + la * u, b + cb * n + hb * UP + lb * u, ra, rb)
+
+    def along_residuals(self, x: np.ndarray, k: int) -> list[float]:
+        """Log ``k``'s two ends' along priors (dimensionless): a butt moved toward the top, or a top toward
+        the butt, makes the log shorter (its ``inward_m`` sigma)."""
+        if not self.along:
+            return []
+        la, lb = self.corrections(x)[k, 4:]
+        butt, top = self.evidence[k].along
+        return [la / (butt.inward_m if la > 0 else butt.outward_m), lb / (top.inward_m if lb < 0 else top.outward_m)]
 
     def evidence_residuals(self, x: np.ndarray, k: int) -> np.ndarray:
-        """Log ``k``'s scan prior and robust survey residuals at ``x`` (dimensionless)."""
-        ca, cb, ha, hb = (x * self.scale).reshape(-1, 4)[k]
-        out = list(x[4 * k:4 * k + 4])
+        """Log ``k``'s scan prior, its ends' along priors and robust survey residuals at ``x`` (dimensionless).
+        A survey point's offset across is taken where it lies along the moved log."""
+        ca, cb, ha, hb, la, lb = self.corrections(x)[k]
+        L = self.lengths[k]
+        out = list(x[self.width * k:self.width * k + 4]) + self.along_residuals(x, k)
+        prior = len(out)
         for p in self.evidence[k].pulls:
-            out.append((p.across_m - ((1 - p.s) * ca + p.s * cb)) / p.sigma_across_m)
-            out.append((p.up_m - ((1 - p.s) * ha + p.s * hb)) / p.sigma_up_m)
-        return np.concatenate([out[:4], _robust(np.asarray(out[4:], dtype=float), self.cfg.survey_loss_sigmas)])
+            s = (p.s * L - la) / max(L + lb - la, 1e-9) if self.along else p.s
+            out.append((p.across_m - ((1 - s) * ca + s * cb)) / p.sigma_across_m)
+            out.append((p.up_m - ((1 - s) * ha + s * hb)) / p.sigma_up_m)
+        return np.concatenate([out[:prior], _robust(np.asarray(out[prior:], dtype=float), self.cfg.survey_loss_sigmas)])
 
     def contact_depths(self, x: np.ndarray) -> list[np.ndarray]:
         """Per term: depths [m] over what it allows (> 0: interpenetrating beyond the prism's roll)."""
@@ -144,20 +198,60 @@ class _Problem:
             parts += [np.maximum(d, 0.0) / self.cfg.contact_sigma_m for d in self.contact_depths(x)]
         return np.concatenate(parts)
 
+    def contact_residuals(self, term: Term, segs: Sequence[Segment]) -> np.ndarray:
+        """A contact's residuals: its depths over what it allows, in ``contact_sigma_m`` (zero when apart)."""
+        return np.maximum(self.bodies.depths(term, segs) - term.allow_m, 0.0) / self.cfg.contact_sigma_m
+
+    def jacobian(self, x: np.ndarray, contacts: bool) -> np.ndarray:
+        """The residuals' forward-difference Jacobian at ``x``, with scipy's own steps ('2-point'), each column
+        from the rows its variable changes only: its log's evidence and the contacts that log is in (a pile's
+        contacts each hold one or two of its logs, so this is a few times cheaper than every row per column)."""
+        ev0 = [self.evidence_residuals(x, k) for k in range(self.n)]
+        segs0 = self.segments(x)
+        ct0 = [self.contact_residuals(t, segs0) for t in self.terms] if contacts else []
+        starts = np.cumsum([0] + [len(r) for r in ev0 + ct0])
+        J = np.zeros((int(starts[-1]), len(x)))
+        mine = [[m for m, t in enumerate(self.terms) if k in (t.i, t.j if t.kind == "log" else -1)]
+                for k in range(self.n)]
+        sign = np.where(x >= 0, 1.0, -1.0)
+        steps = (x + np.sqrt(np.finfo(float).eps) * sign * np.maximum(1.0, np.abs(x))) - x
+        for v, h in enumerate(steps):
+            k = v // self.width
+            xv = x.copy()
+            xv[v] += h
+            J[starts[k]:starts[k + 1], v] = (self.evidence_residuals(xv, k) - ev0[k]) / h
+            if not contacts:
+                continue
+            segs = list(segs0)
+            segs[k] = self._segment(k, self.corrections(xv)[k])
+            for m in mine[k]:
+                r = self.contact_residuals(self.terms[m], segs)
+                J[starts[self.n + m]:starts[self.n + m + 1], v] = (r - ct0[m]) / h
+        return J
+
     def solve(self, x0: np.ndarray, contacts: bool) -> np.ndarray:
         from scipy.optimize import least_squares
 
-        return least_squares(self.residuals, x0, args=(contacts,), method="trf", xtol=1e-10, ftol=1e-10,
-                             max_nfev=self.cfg.settle_max_evaluations).x
+        return least_squares(self.residuals, x0, jac=self.jacobian, args=(contacts,), method="trf", xtol=1e-10,
+                             ftol=1e-10, max_nfev=self.cfg.settle_max_evaluations).x
 
     def cost(self, x: np.ndarray, k: int) -> float:
         return float(np.sum(self.evidence_residuals(x, k) ** 2))
 
+    def along_moves(self, x: np.ndarray, x_free: np.ndarray, k: int) -> tuple[float, float]:
+        """How far the bodies moved log ``k``'s butt and top along it, toward its middle (+) [m]."""
+        (la, lb), (fa, fb) = self.corrections(x)[k, 4:], self.corrections(x_free)[k, 4:]
+        return float(la - fa), float(fb - lb)
+
     def moved_pile(self, x: np.ndarray, rolls: Sequence[float]) -> PileSpec:
         logs = []
-        for log, seg, roll in zip(self.pile.logs, self.segments(x), rolls):
+        for k, (log, seg, roll) in enumerate(zip(self.pile.logs, self.segments(x), rolls)):
             d = seg.b - seg.a
             L = float(np.linalg.norm(d))
+            if L < MIN_LOG_LENGTH_M:  # the bodies would shorten it to nothing: its ends' evidence is no evidence
+                raise SeparationError(f"log {k} would have to be shortened to {L:.2f} m to clear the bodies around "
+                                      f"it (a log is at least {MIN_LOG_LENGTH_M} m); its fit or its GNSS end points "
+                                      "are wrong", logs=(k,))
             logs.append(replace(log, centre_m=tuple(float(v) for v in (seg.a + seg.b) / 2), length_m=L,
                                 orientation=tuple(float(v) for v in quat_from_x_axis(d / L, roll))))
         return self.pile.with_logs(tuple(logs))
@@ -171,7 +265,7 @@ def settle_pile(pile: PileSpec, evidence: Sequence[LogEvidence], cfg: JointConfi
     (butt, top) without the bodies. Raises :class:`SeparationError` for a log the bodies move farther than
     its evidence allows, or that the twin still finds in another body."""
     prob = _Problem(pile, evidence, cfg)
-    x_free = prob.solve(np.zeros(4 * prob.n), contacts=False)
+    x_free = prob.solve(np.zeros(prob.width * prob.n), contacts=False)
     prob.terms = prob.bodies.terms(prob.segments(x_free), cfg.contact_reach_m)
     rolls = [0.0] * prob.n
     x = x_free
@@ -268,9 +362,28 @@ def _cleared(prob: _Problem, x: np.ndarray, x_free: np.ndarray, rolls: Sequence[
         moved.append(move)
         if move >= REPORT_MOVE_M:
             extra = math.sqrt(max(prob.cost(x, k) - prob.cost(x_free, k), 0.0))
+            along = [f"its {end} {abs(d) * 1000:.1f} mm {'in' if d > 0 else 'out'} along it"
+                     for end, d in zip(("butt", "top"), prob.along_moves(x, x_free, k)) if abs(d) >= REPORT_MOVE_M]
             notes.append(f"log {k} moved {move * 1000:.1f} mm ({extra:.1f} sigma of its evidence) clear of "
-                         f"{_pressing(prob, x_free, k).other(k)}")
+                         f"{_pressing(prob, x_free, k).other(k)}" + (f" ({', '.join(along)})" if along else ""))
     return Cleared(prob.moved_pile(x, rolls), [], notes, moved, {})
+
+
+def along_priors(log: LogSpec, ends: Sequence[dict] | None, cfg: JointConfig) -> tuple[AlongPrior, AlongPrior]:
+    """The priors on ``log``'s butt and top places along it, from its end estimates (``ends``, either order:
+    each is the log end it lies at): their ``sigma_along_in_m`` / ``sigma_along_out_m``
+    (:func:`reconstruct.fitting.joint_ends.along_sigmas`). An end without them (none placed) keeps its
+    place as surely as an end can be known (``min_end_sigma_m``)."""
+    floor = AlongPrior(cfg.min_end_sigma_m, cfg.min_end_sigma_m)
+    out = [floor, floor]
+    butt_top = log.endpoints_m()
+    for e in ends or ():
+        if e.get("sigma_along_in_m") is None:
+            continue
+        pos = np.asarray(e["position_m"], dtype=float)
+        m = min((0, 1), key=lambda n: float(np.linalg.norm(butt_top[n] - pos)))
+        out[m] = AlongPrior(float(e["sigma_along_in_m"]), float(e["sigma_along_out_m"]))
+    return out[0], out[1]
 
 
 class JointSettler:
@@ -308,7 +421,8 @@ class JointSettler:
                              math.hypot(pt.sigma_v_m, self.cfg.pose_sigma_m))
                  for pt, e in zip(ends_k, lf.ends or (None, None))
                  if pt is not None and not (e or {}).get("contradicted")]
-        return LogEvidence(across, up, tuple(pulls))
+        along = along_priors(log, lf.ends, self.cfg) if self.cfg.along_ends else None
+        return LogEvidence(across, up, tuple(pulls), along)
 
     def own_points(self, pile: PileSpec) -> list[np.ndarray | None]:
         """Per log, the scan points on its surface that no other log's explains (None: no points given, or

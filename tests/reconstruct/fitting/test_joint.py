@@ -10,8 +10,8 @@ import pytest
 
 from reconstruct.fitting.fuse_config import FuseConfig
 from reconstruct.fitting.joint_config import JointConfig
-from reconstruct.fitting.joint_ends import (BELOW, ON, OVER, UNSEEN, _Axis, bin_states, edge_log_likelihood,
-                                            end_posterior, outlier_probability)
+from reconstruct.fitting.joint_ends import (BELOW, ON, OVER, UNSEEN, _Axis, along_sigmas, bin_states,
+                                            edge_log_likelihood, end_posterior, outlier_probability)
 from reconstruct.fitting.joint_match import joint_match
 from reconstruct.fitting.matching import AmbiguousSurveyError
 from reconstruct.fitting.scan_logs import ScanLog
@@ -154,6 +154,38 @@ def test_contiguity_counts_a_run_where_it_starts():
     seen = np.r_[np.full(20, ON), np.full(20, BELOW)]
     ll = edge_log_likelihood(seen, CHAIN, STEP)
     assert int(np.argmax(ll)) == 20
+
+
+def test_an_ends_along_prior_is_its_posteriors_sigma_where_it_is_gaussian():
+    # a hidden end (nothing seen) on a float point: the posterior is the point's Gaussian (and the weak prior)
+    post = end_posterior(np.full(120, UNSEEN), 1.0, 1, AXIS, _end(2.1, 0.0, 0.0, fix="rtk_float"), 0.005, CFG, FCFG)
+    gauss = (post["sigma_point_m"] ** -2 + CFG.end_prior_sigma_m ** -2) ** -0.5  # the point and the weak prior
+    assert post["sigma_along_in_m"] == pytest.approx(gauss, rel=0.05)
+    assert post["sigma_along_out_m"] == pytest.approx(gauss, rel=0.05)
+    assert gauss > 0.1
+
+
+def test_an_ends_along_prior_is_tight_where_the_scan_sees_it_and_one_sided_where_a_log_hides_it():
+    # the top seen inside costs ~1 nat per 2 cm bin an end moves in (8 nats at ~16 cm: 4 cm a sigma), the
+    # ground seen past it ~1.9 nats per bin out
+    seen = end_posterior(_states_b(2.0, BELOW), 1.0, 1, AXIS, None, 0.005, CFG, FCFG)
+    assert seen["sigma_along_in_m"] < 0.05 and seen["sigma_along_out_m"] < 0.03
+    under = end_posterior(_states_b(2.0, OVER), 1.0, 1, AXIS, None, 0.005, CFG, FCFG)  # a log across past it
+    assert under["sigma_along_in_m"] < 0.05 and under["sigma_along_out_m"] > 0.1  # free outward only
+    fixed = end_posterior(_states_b(2.0, OVER), 1.0, 1, AXIS, _end(2.0, 0.0, 0.0), 0.005, CFG, FCFG)
+    assert fixed["sigma_along_in_m"] < 0.02 and fixed["sigma_along_out_m"] < 0.02  # an RTK fixed point holds it
+
+
+def test_an_ends_along_prior_does_not_reach_across_a_valley_to_a_second_hump():
+    edges = np.arange(-0.8, 0.2, 0.005)
+    post = np.exp(-0.5 * (edges / 0.02) ** 2) + 0.5 * np.exp(-0.5 * ((edges + 0.5) / 0.02) ** 2)
+    post /= post.sum()
+    spread = math.sqrt(float(post @ edges ** 2))
+    inward, outward = along_sigmas(post, edges, 0.0, 1, CFG)  # end b: inward is toward lower t
+    assert spread > 0.2
+    assert inward == pytest.approx(0.02, abs=0.003) and outward == pytest.approx(0.02, abs=0.003)
+    a_in, a_out = along_sigmas(post[::-1], -edges[::-1], 0.0, 0, CFG)  # the same seen from end a
+    assert (a_in, a_out) == pytest.approx((inward, outward), abs=1e-9)
 
 
 def test_the_estimator_and_its_parameters_are_checked():

@@ -4,6 +4,8 @@ log the bodies move farther than its evidence allows. Hand-made logs on flat gro
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -11,7 +13,8 @@ from reconstruct.errors import SeparationError
 from reconstruct.fitting.fit_config import LogFit
 from reconstruct.fitting.joint_config import JointConfig
 from reconstruct.fitting.joint_contact import ROLL_SHARE
-from reconstruct.fitting.joint_settle import JointSettler, LogEvidence, settle_pile, survey_pull
+from reconstruct.fitting.joint_settle import (AlongPrior, JointSettler, LogEvidence, _Problem, along_priors,
+                                              settle_pile, survey_pull)
 from reconstruct.fitting.survey_points import SurveyEnd
 from synth.scene.pile import LogSpec, PileSpec, RockSpec, StumpSpec, TerrainSpec
 
@@ -122,8 +125,115 @@ def test_the_settler_pulls_a_log_to_its_kept_points_and_lets_a_contradicted_one_
     assert all(abs(e["position_m"][1]) < 1e-6 for e in dropped.at_survey.values())
 
 
+# -- each end's place along its log in the estimate (JointConfig.along_ends) --
+PLACED_IN_PART_M = 0.05  # a log placed in part on its survey axis: known across to ~5 cm [m]
+
+
+def _t_into_a_crossing_log(top_along: AlongPrior) -> tuple[PileSpec, list[LogEvidence]]:
+    """Log 0 along x, its top end (x = 1 m) 14 cm into log 1, which lies across it (along y, its axis 6 cm past
+    that end): log 0 is held across by its scan (1 cm), its butt along by a seen end (1 cm); its top along
+    by ``top_along``; log 1, placed in part, is held 5 cm every way."""
+    a = _log(0.0)
+    b = LogSpec.from_endpoints((1.06, -1.0, R), (1.06, 1.0, R), 2 * R)
+    seen = AlongPrior(0.01, 0.01)
+    ev_a = LogEvidence(0.01, 0.01, (), (seen, top_along))
+    ev_b = LogEvidence(PLACED_IN_PART_M, PLACED_IN_PART_M, (), (AlongPrior(PLACED_IN_PART_M, PLACED_IN_PART_M),) * 2)
+    return PileSpec(terrain=FLAT, logs=(a, b)), [ev_a, ev_b]
+
+
+def _top_x(log: LogSpec) -> float:
+    return float(max(p[0] for p in log.endpoints_m()))
+
+
+WEAK_INWARD = AlongPrior(0.10, 0.01)  # an end whose top the scan does not see inside (under another log), the
+#                                       ground seen past it: free toward the log's middle, held outward
+
+
+def test_a_weakly_seen_end_pressed_into_a_neighbour_is_moved_back_along_its_axis():
+    pile, ev = _t_into_a_crossing_log(WEAK_INWARD)
+    out, _ = settle_pile(pile, ev, CFG, TOL, 12)
+    a, b = out.pile.logs
+    assert 1.0 - _top_x(a) > 0.06  # shortened at its weak end by most of what clearing takes
+    assert abs(_axis_y(a)) < 0.005 and abs(min(p[0] for p in a.endpoints_m()) + 1.0) < 0.005  # not across, not its butt
+    assert abs(float(np.mean([p[0] for p in b.endpoints_m()])) - 1.06) < 0.02  # the neighbour hardly gives way
+    assert _twin_accepts(out.pile)
+    assert "in along it" in " ".join(out.notes)
+    # without the ends along in the estimate the same pile moves the neighbour instead, at 2 sigma of its evidence
+    out4, _ = settle_pile(pile, [replace(e, along=None) for e in ev], CFG, TOL, 12)
+    assert _top_x(out4.pile.logs[0]) == pytest.approx(1.0, abs=1e-6)
+
+
+def test_an_rtk_fixed_end_pressed_into_a_neighbour_is_not_moved_along_its_axis():
+    # the same pile with the top end on an RTK fixed point: the neighbour, placed in part, gives way instead
+    pile, ev = _t_into_a_crossing_log(AlongPrior(FIXED_SIGMA_M, FIXED_SIGMA_M))
+    out, _ = settle_pile(pile, ev, CFG, TOL, 12)
+    a, b = out.pile.logs
+    assert 1.0 - _top_x(a) < 0.01
+    assert float(np.mean([p[0] for p in b.endpoints_m()])) - 1.06 > 0.06
+    assert _twin_accepts(out.pile)
+
+
+def test_an_end_pinned_along_at_both_logs_is_refused_naming_its_sigma_along():
+    pile, ev = _t_into_a_crossing_log(AlongPrior(FIXED_SIGMA_M, FIXED_SIGMA_M))
+    ev[1] = _pinned_across(pile.logs[1])
+    with pytest.raises(SeparationError) as err:
+        settle_pile(pile, ev, CFG, TOL, 12)
+    assert "along toward its middle" in str(err.value) and "\n" not in str(err.value)
+
+
+def _pinned_across(log: LogSpec) -> LogEvidence:
+    """``_pinned`` with its ends' places along held as surely as its points hold them."""
+    return replace(_pinned(log), along=(AlongPrior(FIXED_SIGMA_M, FIXED_SIGMA_M),) * 2)
+
+
+def _crossing_fits(pile: PileSpec, top_along: tuple[float, float]) -> list[LogFit]:
+    """The fits of :func:`_t_into_a_crossing_log`'s logs as the joint end placer leaves them: log 0's butt seen,
+    its top's along sigmas ``top_along`` (inward, outward); log 1 placed in part."""
+    fits = [_fit("log0", 0, pile.logs[0], False), _fit("log1", 1, pile.logs[1], False)]
+    for e, (s_in, s_out) in zip(fits[0].ends, ((0.01, 0.01), top_along)):
+        e.update(sigma_along_in_m=s_in, sigma_along_out_m=s_out)
+    for e in fits[1].ends:
+        e.update(sigma_along_in_m=PLACED_IN_PART_M, sigma_along_out_m=PLACED_IN_PART_M)
+    fits[1].fit = "partial"
+    return fits
+
+
+def test_the_settler_shortens_a_log_by_its_ends_own_along_sigmas_and_not_with_along_ends_off():
+    pile, _ = _t_into_a_crossing_log(WEAK_INWARD)
+    lateral = {"log0": 0.01, "log1": PLACED_IN_PART_M}
+    weak = JointSettler({}, lateral, CFG, TOL, 12)(pile, _crossing_fits(pile, (0.10, 0.01)))
+    assert 1.0 - _top_x(weak.pile.logs[0]) > 0.06
+    fixed = JointSettler({}, lateral, CFG, TOL, 12)(pile, _crossing_fits(pile, (FIXED_SIGMA_M, FIXED_SIGMA_M)))
+    assert 1.0 - _top_x(fixed.pile.logs[0]) < 0.01
+    off = JointSettler({}, lateral, JointConfig(along_ends=False), TOL, 12)(pile, _crossing_fits(pile, (0.10, 0.01)))
+    assert _top_x(off.pile.logs[0]) == pytest.approx(1.0, abs=1e-6)
+
+
+def test_the_along_priors_are_each_end_s_own_whichever_order_the_ends_come_in():
+    log = _log(0.0)
+    butt, top = log.endpoints_m()
+    ends = [{"position_m": list(top), "sigma_along_in_m": 0.2, "sigma_along_out_m": 0.03},
+            {"position_m": list(butt), "sigma_along_in_m": 0.01, "sigma_along_out_m": 0.02}]
+    assert along_priors(log, ends, CFG) == (AlongPrior(0.01, 0.02), AlongPrior(0.2, 0.03))
+    floor = AlongPrior(CFG.min_end_sigma_m, CFG.min_end_sigma_m)
+    assert along_priors(log, None, CFG) == (floor, floor)
+
+
+def test_the_settle_jacobian_is_scipys_forward_difference():
+    from scipy.optimize._numdiff import approx_derivative
+
+    pile, ev = _t_into_a_crossing_log(AlongPrior(0.10, 0.05))
+    prob = _Problem(pile, ev, CFG)
+    x = np.random.default_rng(0).normal(0.0, 1.0, 12)
+    prob.terms = prob.bodies.terms(prob.segments(x), CFG.contact_reach_m)
+    for contacts in (False, True):
+        J = prob.jacobian(x, contacts)
+        assert np.array_equal(J, approx_derivative(prob.residuals, x, method="2-point", args=(contacts,)))
+
+
 def test_the_pile_parameters_are_checked():
     for name in ("settle_scan_sigma_m", "survey_loss_sigmas", "contact_sigma_m", "contact_reach_m", "refuse_sigma",
-                 "twin_rounds", "run_on_inside_m", "run_below_inside_m", "run_outside_m", "run_on_outside_m"):
+                 "twin_rounds", "run_on_inside_m", "run_below_inside_m", "run_outside_m", "run_on_outside_m",
+                 "along_interval_sigmas"):
         with pytest.raises(ValueError, match=name):
             JointConfig(**{name: 0})
