@@ -122,12 +122,16 @@ class JointConfig:
     #                                       0.15 (flanks 96 %, undersides 91 %); at 0.05 only 64 % / 53 % [-]
     sigma_max_m: float = 0.08  # a scan-fitted log's sigma is at most this (a log seen in part is placed on its
     #                            survey axis to ~4 cm; twice that: the scan's fit is then hardly evidence) [m]
-    along_ends: bool = True  # each end's place along its log is a state of the pile estimate, held by a
+    along_ends: bool = False  # each end's place along its log a state of the pile estimate, held by a
     #                          Gaussian from its own posterior (joint_ends.along_sigmas; a sigma toward the
     #                          log's middle and one away), so a body the log runs into can shorten it where
     #                          its end evidence is weak (a hidden end on a float point) and cannot where it is
-    #                          strong (an end the scan sees, or an RTK fixed point holds). Off: the pile moves
-    #                          logs across and up only (revision 11) [-]
+    #                          strong (an end the scan sees, or an RTK fixed point holds). Off (the default):
+    #                          the pile moves logs across and up only, as in revision 11: on the held-out
+    #                          scans the end pressed into a body was mostly right and the body or the
+    #                          matching wrong, and on one (3,300,051 default) a log on the wrong ridge was
+    #                          shortened and placed 52 cm off instead of refused (docs/reconstruction.md,
+    #                          "Joint revision 12") [-]
     along_interval_sigmas: float = 4.0  # an end's along prior costs what its posterior costs this many sigma
     #                                     out on each side (its sigma there: the distance to where the posterior
     #                                     falls this squared over 2 nats under its mode, over this): the

@@ -201,11 +201,12 @@ def _crossing_fits(pile: PileSpec, top_along: tuple[float, float]) -> list[LogFi
 def test_the_settler_shortens_a_log_by_its_ends_own_along_sigmas_and_not_with_along_ends_off():
     pile, _ = _t_into_a_crossing_log(WEAK_INWARD)
     lateral = {"log0": 0.01, "log1": PLACED_IN_PART_M}
-    weak = JointSettler({}, lateral, CFG, TOL, 12)(pile, _crossing_fits(pile, (0.10, 0.01)))
+    on = JointConfig(along_ends=True)  # off by default (docs/reconstruction.md, "Joint revision 12")
+    weak = JointSettler({}, lateral, on, TOL, 12)(pile, _crossing_fits(pile, (0.10, 0.01)))
     assert 1.0 - _top_x(weak.pile.logs[0]) > 0.06
-    fixed = JointSettler({}, lateral, CFG, TOL, 12)(pile, _crossing_fits(pile, (FIXED_SIGMA_M, FIXED_SIGMA_M)))
+    fixed = JointSettler({}, lateral, on, TOL, 12)(pile, _crossing_fits(pile, (FIXED_SIGMA_M, FIXED_SIGMA_M)))
     assert 1.0 - _top_x(fixed.pile.logs[0]) < 0.01
-    off = JointSettler({}, lateral, JointConfig(along_ends=False), TOL, 12)(pile, _crossing_fits(pile, (0.10, 0.01)))
+    off = JointSettler({}, lateral, CFG, TOL, 12)(pile, _crossing_fits(pile, (0.10, 0.01)))
     assert _top_x(off.pile.logs[0]) == pytest.approx(1.0, abs=1e-6)
 
 
