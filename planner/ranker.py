@@ -254,7 +254,7 @@ def plan_reranked(observation, planner, objective, ranker: Ranker | None, constr
 
     constraints = Constraints() if constraints is None else constraints
     if ranker is None:
-        return plan(observation, planner, objective, constraints, top_k, **plan_kwargs)
-    result = rerank(plan(observation, planner, objective, constraints, None, **plan_kwargs), observation, ranker,
+        return plan(observation, planner, objective, constraints, top_k=top_k, **plan_kwargs)
+    result = rerank(plan(observation, planner, objective, constraints, top_k=None, **plan_kwargs), observation, ranker,
                     objective, rerank_k, u_weight)
     return replace(result, grasps=result.grasps[:top_k]) if top_k else result
