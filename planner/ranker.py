@@ -193,8 +193,8 @@ class Ranker:
         grid = OrthoGrid(depth.shape[0], extent_m)
         if abs(grid.pixel_m / self.config.pixel_m - 1.0) > 0.005:
             raise CheckpointError(f"the ranker was trained on {100 * self.config.pixel_m:.2f} cm pixels but the "
-                                  f"observation has {100 * grid.pixel_m:.2f} cm; render at the ranker's pitch or plan without it "
-                                  "(--no-ranker)")
+                                  f"observation has {100 * grid.pixel_m:.2f} cm; render at the ranker's pitch or "
+                                  "plan without it (--no-ranker)")
         masks = np.stack([np.isin(inst, [i + 1 for i in t]) for t in targets]) if len(targets) else np.zeros((0,) + inst.shape)
         crops = grasp_crops(inten, normalise_depth(depth, cam_h), masks, grid, grasps, self.config)
         return self.probabilities(crops, grasp_scalars(grasps, [len(t) for t in targets]))

@@ -162,13 +162,10 @@ NO_RANKER = option("--no-ranker", "Order the network's grasps by its U alone (no
 
 def ranker_fields(ranker: Path | None, no_ranker: bool) -> dict:
     """The ``TrialOptions`` fields of ``--ranker`` / ``--no-ranker``, checked (exit 2) before any work."""
-    from synth.common.cli import check_input
+    from planner.cli import check_ranker_flags
 
-    if no_ranker:
-        if ranker is not None:
-            raise CliError("--ranker and --no-ranker contradict each other: give one")
-        return {"rerank": False}
-    return {"rerank": True, "ranker": None if ranker is None else str(check_input(ranker, "--ranker", "file"))}
+    rerank, path = check_ranker_flags(ranker, no_ranker)
+    return {"rerank": rerank, "ranker": None if path is None else str(path)}
 
 
 def outcome_words(outcome: dict | None, targets: int | None = None) -> str:

@@ -42,19 +42,27 @@ RANKER_U_WEIGHT = option("--ranker-u-weight", "The re-scored grasps are ordered 
                          "logit p), U the network's, p the ranker's; 0 = p alone.",
                          field=(PlannerSpec, "ranker_u_weight"), min=0.0, max=1.0, metavar="W")
 
+VIEW_SPREAD = option("--view-spread", "Lower U by K x its spread over the views (needs --views > 1).", default=0.0,
+                     names=["view_spread_k"], metavar="K")
 
-def load_ranker_flag(ranker: Path | None, no_ranker: bool, flag: str = "--ranker"):
+
+def check_ranker_flags(ranker: Path | None, no_ranker: bool) -> tuple[bool, Path | None]:
+    """(re-rank?, the ``--ranker`` file checked, or None for the shipped one): a contradiction or a
+    missing file is a :class:`CliError` (exit 2) before any work. Shared by plan, trial and demo."""
+    if no_ranker:
+        if ranker is not None:
+            raise CliError("--ranker and --no-ranker contradict each other: give one")
+        return False, None
+    return True, None if ranker is None else check_input(ranker, "--ranker", "file")
+
+
+def load_ranker_flag(ranker: Path | None, no_ranker: bool):
     """The ranker ``--ranker`` / ``--no-ranker`` ask for (the shipped one by default), or None."""
     from planner.checkpoint import DEFAULT_RANKER
     from planner.ranker import load_ranker
 
-    if no_ranker:
-        if ranker is not None:
-            raise CliError(f"{flag} and --no-ranker contradict each other: give one")
-        return None
-    return load_ranker(check_input(ranker or DEFAULT_RANKER, flag, "file"))
-VIEW_SPREAD = option("--view-spread", "Lower U by K x its spread over the views (needs --views > 1).", default=0.0,
-                     names=["view_spread_k"], metavar="K")
+    rerank, path = check_ranker_flags(ranker, no_ranker)
+    return load_ranker(path or DEFAULT_RANKER) if rerank else None
 
 
 # -- verified planning: flags and table cells shared by plan, trial and demo ---------------------------

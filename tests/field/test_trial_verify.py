@@ -230,3 +230,13 @@ def test_bad_ranker_options_are_clear_errors():
         options(rerank_k=0)
     with pytest.raises(ValueError, match="u_weight must be in"):
         options(ranker_u_weight=1.5)
+
+
+def test_trial_refuses_ranker_flags_that_contradict_or_name_no_file(capsys, tmp_path):
+    from tests.cli_helpers import cli, fails
+
+    args = ("trial", "--scan", DEMO_DATA / "scan", "--gnss", DEMO_DATA / "gnss.csv", "--link",
+            "can://virtual/flags?insecure=1", "--record", tmp_path / "rec", "--yes")
+    fails(cli(capsys, *args, "--ranker", DEMO_DATA / "gnss.csv", "--no-ranker"), 2, "--no-ranker")
+    fails(cli(capsys, *args, "--ranker", tmp_path / "missing.safetensors"), 2, "--ranker")
+    assert not (tmp_path / "rec").exists()  # refused before any work
