@@ -107,17 +107,26 @@ def field_trial(pile, grasp: Grasp, targets, error: PositioningError, trial_cfg)
             "grasp": moved.to_dict()}
 
 
-def eval_scene(task: tuple[int, bool, int, int], cfg: EvalConfig):
-    """The settled pile and its top-down observation (one render) of test pile ``task``
-    (``EvalConfig.tasks``): a pure function of the task's seed and ``cfg``."""
-    from synth.render.ortho import OrthoRenderConfig, render_ortho
+def eval_pile(task: tuple[int, bool, int, int], cfg: EvalConfig):
+    """The settled pile of test pile ``task`` (``EvalConfig.tasks``): a pure function of the task's
+    seed and ``cfg``."""
     from synth.scene.generate import GenerationConfig, generate_pile
-    from synth.physics.world import World
 
     n_logs, with_obst, _, seed = task
     rng = np.random.default_rng([seed, 77])
     n_obst = int(rng.integers(1, cfg.max_obstacles + 1)) if with_obst else 0
     pile, _ = generate_pile(seed, GenerationConfig(n_logs=n_logs, n_obstacles=n_obst))
+    return pile
+
+
+def eval_scene(task: tuple[int, bool, int, int], cfg: EvalConfig):
+    """The settled pile and its top-down observation (one render) of test pile ``task``
+    (``EvalConfig.tasks``): a pure function of the task's seed and ``cfg``."""
+    from synth.render.ortho import OrthoRenderConfig, render_ortho
+    from synth.physics.world import World
+
+    seed = task[3]
+    pile = eval_pile(task, cfg)
     with World(pile) as world:
         obs = render_ortho(world, OrthoRenderConfig(size_px=cfg.size_px, n_renders=1), seed=seed)
     return pile, obs
