@@ -11,7 +11,7 @@ test: setup
 	.venv/bin/python -m pytest -q -p no:cacheprovider -n 2 --dist loadfile
 
 # the link soak at full size on every backend, authenticated, every transmission error class injected
-# (the default suite runs 8,000 on CAN, 2,000 on Zenoh; docs/link-safety.md "Soak")
+# (the default suite runs 4,000 on CAN, 2,000 on Zenoh; make safety-case 8,000 and 2,000; docs/link-safety.md "Soak")
 soak: setup
 	LOGGRASP_SOAK_CAN_N=100000 LOGGRASP_SOAK_ZENOH_N=20000 .venv/bin/python -m pytest -q -s -p no:cacheprovider tests/field/test_link_soak.py
 

@@ -170,8 +170,9 @@ def test_synth_dataset_and_train_a_64px_network(capsys, work, a_file):
     for logs in ("5-3", "2-12", "two"):
         fails(cli(capsys, "synth", "dataset", "--piles", "1", "--logs", logs, "--out", work / "d"), 2, "--logs")
     assert not (work / "d").exists()
+    # the paper's one-success labels (--label-repeats 0): the same samples and trials, without the repeats
     r = cli(capsys, "synth", "dataset", "--piles", "2", "--logs", "2", "--size", "64", "--renders", "1",
-            "--max-trials-per-subset", "1", "--workers", "1", "--out", work / "data", "--json")
+            "--max-trials-per-subset", "1", "--label-repeats", "0", "--workers", "1", "--out", work / "data", "--json")
     assert r.code == 0 and r.json()["summary"]["samples"] > 0
     fails(cli(capsys, "train", "--data", work / "data", "--out", a_file / "r"), 2, "--out")
     fails(cli(capsys, "train", "--data", work / "none", "--out", work / "r"), 2, "--data")

@@ -151,7 +151,9 @@ class Outages:
         self._thread.start()
 
     def _run(self) -> None:
-        while True:
+        # close() sets _stop before _kick: a kick cleared after an outage is never a stop missed (it
+        # waited out join's 5 s once per lane closed during an outage)
+        while not self._stop.is_set():
             self._kick.wait(self._rng.uniform(0.5, 1.5) * self.every_s)
             if self._stop.is_set():
                 return

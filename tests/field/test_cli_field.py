@@ -140,9 +140,9 @@ def test_trial_over_plain_twin_succeeds(twin_trial):
 
 @pytest.mark.slow
 def test_trial_with_standard_input_closed_leaves_a_record(capsys, monkeypatch, work):
-    rec = work / "t_closed"
+    rec = work / "t_closed"  # one grasp verified (not eight): the question comes after verification either way
     r = cli(capsys, "trial", "--scan", SCAN, "--gnss", GNSS, "--link", "twin://", "--record", rec,
-            "--max-pile-age", OLD, "--json", stdin="", monkeypatch=monkeypatch)
+            "--max-pile-age", OLD, "--verify", "1", "--json", stdin="", monkeypatch=monkeypatch)
     fails(r, 4, "no answer", str(rec))
     assert r.json()["final_state"] == "NOT SENT"
     saved = json.loads((rec / "record.json").read_text())
@@ -232,9 +232,9 @@ def test_crane_sim_says_why_it_rejects(capsys, work):
             line = crane.stdout.readline()
             assert line or crane.poll() is None, crane.stderr.read()
         assert "FAULT past 50 MAC failures in 10 s" in line, line
-        rec = work / "t_stale"
+        rec = work / "t_stale"  # one grasp verified (not eight): the crane judges the command, not how it was chosen
         r = cli(capsys, "trial", "--scan", SCAN, "--gnss", GNSS, "--record", rec, "--yes", "--max-pile-age", OLD,
-                "--link", url, "--insecure-link")
+                "--verify", "1", "--link", url, "--insecure-link")
         fails(r, 4, "rejected", "STALE", "crane-sim --max-pile-age", str(rec))
         record = json.loads((rec / "record.json").read_text())
         assert record["reject_reason"] == "STALE" and record["link"].endswith("insecure=1")  # the record says so

@@ -191,8 +191,10 @@ def test_float_fix_is_refused_unless_allowed(tmp_path):
     (tmp_path / "gnss.csv").write_text("\n".join(rows) + "\n")
     with pytest.raises(TrialAborted, match="float"):
         prepare_trial(DEMO_DATA / "scan", tmp_path / "gnss.csv", tmp_path / "w", options())
-    # the operator's explicit choice lets it through
-    prepared = prepare_trial(DEMO_DATA / "scan", tmp_path / "gnss.csv", tmp_path / "w2", options(allow_float=True))
+    # the operator's explicit choice lets it through (one grasp verified in the twin, not eight: what is
+    # checked here is the gate before the reconstruction)
+    prepared = prepare_trial(DEMO_DATA / "scan", tmp_path / "gnss.csv", tmp_path / "w2",
+                             options(allow_float=True, verify_k=1))
     assert prepared.command_fields["target_log_count"] >= 1
 
 
@@ -203,8 +205,8 @@ def test_out_of_reach_and_declined_are_not_sent(tmp_path):
         with pytest.raises(TrialAborted, match="reach|constraints"):
             run_trial_record(DEMO_DATA / "scan", DEMO_DATA / "gnss.csv", url, tmp_path / "far",
                              options(crane_base_tm=far))
-        with pytest.raises(TrialAborted, match="declined"):
-            run_trial_record(DEMO_DATA / "scan", DEMO_DATA / "gnss.csv", url, tmp_path / "no", options(),
+        with pytest.raises(TrialAborted, match="declined"):  # one verified grasp is enough to be asked
+            run_trial_record(DEMO_DATA / "scan", DEMO_DATA / "gnss.csv", url, tmp_path / "no", options(verify_k=1),
                              confirm=lambda prepared: False)
     assert crane.calls == 0
     assert json.loads((tmp_path / "no" / "record.json").read_text())["final_state"] == "NOT SENT"

@@ -25,9 +25,10 @@ laptop fell silent ended ABORTED within the timeout and a grace); 0 e-stops lost
 saw every e-stop the laptop confirmed, or the laptop reported the failure); every class above
 injected at least once.
 
-Counts: ``LOGGRASP_SOAK_CAN_N`` (default 8000), ``LOGGRASP_SOAK_ZENOH_N`` (default 2000) and
+Counts: ``LOGGRASP_SOAK_CAN_N`` (default 4000), ``LOGGRASP_SOAK_ZENOH_N`` (default 2000) and
 ``LOGGRASP_SOAK_LANES`` (default 16 lanes per link, the waits on lost frames overlap);
-``make soak`` runs 100,000 and 20,000 (docs/link-safety.md, "Soak"). Loopback only.
+``make safety-case`` runs 8,000 and 2,000, ``make soak`` 100,000 and 20,000 (docs/link-safety.md,
+"Soak"). Loopback only.
 """
 
 from __future__ import annotations
@@ -54,7 +55,7 @@ from field.link.signing import carriage_frames, generate_signing_key
 from tests.field.conftest import signing_key_of
 from tests.field.soak_intruder import Forger, Intruder, Outages
 
-CAN_N = int(os.environ.get("LOGGRASP_SOAK_CAN_N", "8000"))
+CAN_N = int(os.environ.get("LOGGRASP_SOAK_CAN_N", "4000"))
 ZENOH_N = int(os.environ.get("LOGGRASP_SOAK_ZENOH_N", "2000"))
 LANES = int(os.environ.get("LOGGRASP_SOAK_LANES", "16"))
 P_FAULT = {"drop": 0.006, "duplicate": 0.006, "corrupt": 0.006, "delay": 0.006, "reorder": 0.006}

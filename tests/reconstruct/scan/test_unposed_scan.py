@@ -104,7 +104,9 @@ def test_survey_of_another_pile_is_named():
 
 # -- an unposed twin scan end to end ------------------------------------------------------------
 SEED = 7
-FAST = ReconstructConfig(sfm=SfmConfig(max_image_size_px=960, max_features=2048))  # SIFT on smaller images
+# SIFT on 640 px images (the default 1280), 1,024 features each (4,096): a third of the SfM time, and on
+# this scan as close to the truth as at 960 px / 2,048 (poses 2-5 cm, 0.4-0.8 deg; log ends <= 2.4 cm)
+FAST = ReconstructConfig(sfm=SfmConfig(max_image_size_px=640, max_features=1024))
 
 
 @pytest.fixture(scope="module")
@@ -158,7 +160,7 @@ def test_unposed_scan_reconstructs_like_the_posed_one(scans):
         dR = T_true[:3, :3].T @ np.asarray(T)[:3, :3]
         pos_err = float(np.linalg.norm(np.asarray(T)[:3, 3] - T_true[:3, 3]))
         rot_err = math.degrees(math.acos(min(1.0, (np.trace(dR) - 1) / 2)))
-        assert pos_err < 0.08 and rot_err < 2.0, (k, pos_err, rot_err)  # measured 1-6 cm, 0.2-1.3 deg
+        assert pos_err < 0.08 and rot_err < 2.0, (k, pos_err, rot_err)  # measured 2-5 cm, 0.4-0.8 deg
     res_p = reconstruct(p / "scan", p / "gnss.csv", d / "out_p")
     assert res_p.report["scan_pose_source"].endswith("scan_pose.json")
     cu, cp = compare_piles(truth, res_u.pile), compare_piles(truth, res_p.pile)

@@ -283,7 +283,11 @@ def test_dead_worker_is_reported_and_the_job_resumes(tmp_path):
         for child in mp.active_children():  # the pool's processes, started by this job
             os.kill(child.pid, signal.SIGKILL)
 
-    kw = {**TINY, "max_trials_per_subset": 1, "n_renders": 1}
+    from synth.data.robust import RobustLabels
+
+    # the paper's labels (no perturbed repeats of each success): what is killed and resumed is the
+    # same job either way, at half the trials
+    kw = {**TINY, "max_trials_per_subset": 1, "n_renders": 1, "robust_labels": RobustLabels(repeats=0)}
     with pytest.raises(DatasetJobError, match="worker died"):
         build_dataset(tmp_path, n_piles=4, workers=2, progress=kill_pool_workers, **kw)
     man = verify_dataset(tmp_path)

@@ -72,6 +72,11 @@ def _pile(with_box: bool = False) -> PileSpec:
     return PileSpec(terrain=TerrainSpec(seed=3, amplitude_m=0.0), logs=logs, rocks=rocks)
 
 
+# textures for tests that compare renders with each other (not depth): a sixteenth of the default
+# texels, each pile's own textures all the same
+SMALL_TEXTURES = TextureConfig(bark_px=128, rock_px=128, ground_px=1024)
+
+
 def _small_rig(renderer: str, **kw) -> StereoRigConfig:
     base = dict(width_px=640, height_px=360, hfov_deg=30.0, height_m=3.0, renderer=renderer)
     base.update(kw)
@@ -282,7 +287,7 @@ def test_sgbm_depth_on_logs(backend):
 def test_render_is_deterministic_and_leaves_the_world_alone(backend):
     from synth.physics.world import World
 
-    rig = _small_rig(backend, width_px=320, height_px=180)
+    rig = _small_rig(backend, width_px=320, height_px=180, textures=SMALL_TEXTURES)
     with World(_pile()) as world:
         world.step(30)
         before = world.client.getVisualShapeData(world.log_ids[0])
@@ -305,7 +310,7 @@ def test_renderer_rebuilds_and_recycles_scenes_faithfully(backend):
     fresh one does — textures included."""
     from dataclasses import replace
 
-    rig = _small_rig(backend, width_px=320, height_px=180)
+    rig = _small_rig(backend, width_px=320, height_px=180, textures=SMALL_TEXTURES)
     a = _pile()
     b = replace(a, terrain=replace(a.terrain, seed=9), logs=a.logs[1:])
     fresh = render_stereo(a, rig)
