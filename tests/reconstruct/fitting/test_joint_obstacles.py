@@ -84,6 +84,11 @@ def test_an_obstacle_s_sigma_is_its_points_spread_about_its_surface_grown_where_
     assert obstacle_sigmas(pile, _stump_points(FOUND_R_M - 0.03, 0.005), CFG)[0] > 2 * tight
     few = obstacle_sigmas(pile, _stump_points(FOUND_R_M, 0.003, n=20), CFG)[0]
     assert few > 1.5 * tight  # 20 points: grown by sqrt(50 / ~18)
+    rng = np.random.default_rng(2)  # the ground round its foot (within the band of its side): not its evidence
+    ang, rad = rng.uniform(0, 2 * np.pi, 500), rng.uniform(FOUND_R_M, FOUND_R_M + 0.05, 500)
+    ground = np.column_stack([rad * np.cos(ang), STUMP_Y_M + rad * np.sin(ang), rng.normal(0, 0.003, 500)])
+    with_ground = obstacle_sigmas(pile, np.vstack([_stump_points(FOUND_R_M, 0.003), ground]), CFG)[0]
+    assert with_ground == pytest.approx(tight, abs=1e-9)
     assert obstacle_sigmas(pile, None, CFG) == [CFG.obstacle_sigma_max_m]
     assert obstacle_sigma(np.full(1000, 0.2), CFG) == CFG.obstacle_sigma_max_m
 
@@ -130,6 +135,15 @@ def test_a_stump_its_points_hold_tightly_stays_and_the_loosely_placed_log_moves_
     assert moved > 0.7 * INTO_M  # the log (placed to +-4 cm) does most of it
     assert gave < 0.3 * INTO_M
     assert _twin_accepts(out.pile)
+
+
+def test_a_fixed_end_pressed_far_into_a_stump_its_points_hold_tightly_is_refused_on_both_their_evidence():
+    # 8 cm past the roll: the log's points and the stump's take ~3 sigma each, together over 4
+    pile = PileSpec(terrain=FLAT, logs=(_log(),), stumps=(StumpSpec(position_m=(0.0, STUMP_Y_M), height_m=STUMP_H_M,
+                                                                    bottom_radius_m=0.25, top_radius_m=0.25),))
+    points = _stump_points(0.25, 0.003)
+    with pytest.raises(SeparationError, match=r"and survey points, obstacle 0's \(\+-1\.0 cm, "):
+        JointSettler(_fixed_ends(_log()), {"log1": 0.01}, CFG, TOL, 12, points=points)(pile, [_fit(_log())])
 
 
 def test_a_rock_moved_by_its_state_is_shifted_and_its_faces_drawn_in():
