@@ -19,7 +19,11 @@ pitch, and each end's place along the log, so its length). One ``scipy.optimize.
   by a bounded force, not by its distance squared);
 - **non-interpenetration**: for every pair of bodies whose round cross-sections overlap by more than the
   twin's prism allows (:mod:`reconstruct.fitting.joint_contact`), the excess depth over ``contact_sigma_m``;
-  zero when apart.
+  zero when apart;
+- **each obstacle's own evidence** (``JointConfig.obstacle_states``, joint revision 13): a stump or rock may
+  shift and shrink by a Gaussian of its own scan sigma (:mod:`reconstruct.fitting.joint_obstacles`), so a log
+  pressed into an obstacle the scan made too big shares the move with it; a log's refusal cost then counts
+  the obstacles it touches too.
 
 Without the bodies the estimate is where the scan and the survey put each log (the survey's pull across the
 axis is made here, not by the end placer). A log whose evidence costs more than ``refuse_sigma`` squared more
