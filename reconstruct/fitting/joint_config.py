@@ -146,6 +146,12 @@ class JointConfig:
     #                               and 3,300,107 a correct RTK fixed end was refused against a stump or rock
     #                               the scan makes a few centimetres too big (docs/reconstruction.md, "Joint
     #                               revision 13"). Off: revision 12's fixed obstacles [-]
+    flat_stumps: bool = True  # a stump's contact is a flat-topped cone (joint_contact.log_stump_depths). Off
+    #                           (revision 12): its axis segment with round ends, so a log lying across its
+    #                           top was its top radius (10-17 cm) into it: the twin's true logs on held-out
+    #                           3,300,014 and 3,300,047 "interpenetrate" their true stumps by 10.6 / 13.1 cm,
+    #                           and all six of their refusals were that (docs/reconstruction.md, "Joint
+    #                           revision 13") [-]
     obstacle_sigma_floor_m: float = 0.01  # an obstacle's place and surface are never surer than this: half the
     #                                       obstacle stage's 2 cm voxel, whatever its points' spread [m]
     obstacle_sigma_max_m: float = 0.05  # ... and at most this uncertain: stereo smears an edge by up to ~5 cm

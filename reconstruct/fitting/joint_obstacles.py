@@ -21,7 +21,7 @@ from typing import Sequence
 import numpy as np
 
 from reconstruct.fitting.joint_config import JointConfig
-from reconstruct.fitting.joint_contact import Bodies, Segment
+from reconstruct.fitting.joint_contact import Bodies, Segment, stump_point_distance
 from synth.scene.pile import PileSpec, RockSpec, StumpSpec
 
 #: an obstacle's three state numbers: shift in x, in y, erosion of its surface [m]
@@ -38,15 +38,6 @@ def offset_depths(bodies: Bodies, s: Segment, j: int, off: np.ndarray) -> np.nda
     return bodies.obstacle_depths(Segment(s.a - shift, s.b - shift, s.ra, s.rb), j) - off[2]
 
 
-def _stump_distance(seg: Segment, P: np.ndarray) -> np.ndarray:
-    """Each point's signed distance from a stump's side or top (a cone from ``seg.a`` to ``seg.b``) [m],
-    negative inside: the larger of the radial and the top offsets (exact inside, near the surface outside)."""
-    h = max(float(seg.b[2] - seg.a[2]), 1e-9)
-    t = np.clip((P[:, 2] - seg.a[2]) / h, 0.0, 1.0)
-    radial = np.hypot(P[:, 0] - seg.a[0], P[:, 1] - seg.a[1]) - seg.radius(t)
-    return np.maximum(radial, P[:, 2] - seg.b[2])
-
-
 def _near(P: np.ndarray, lo: np.ndarray, hi: np.ndarray, band_m: float) -> np.ndarray:
     """The points within ``band_m`` of the box ``lo``..``hi`` (top view and height)."""
     m = np.all((P >= lo - band_m) & (P <= hi + band_m), axis=1)
@@ -60,7 +51,7 @@ def obstacle_residuals(pile: PileSpec, bodies: Bodies, j: int, P: np.ndarray, ba
     if not len(P):
         return np.zeros(0)
     if j < len(pile.stumps):
-        d = _stump_distance(bodies.stumps[j], P)
+        d = stump_point_distance(bodies.stumps[j], P)
     else:
         d = bodies.rocks[j - len(pile.stumps)].signed_distance(P)
     above = P[:, 2] > pile.terrain.height_at(P[:, 0], P[:, 1]) + band_m

@@ -153,7 +153,7 @@ class _Problem:
         self.width = 6 if self.along else 4
         self.scale = np.concatenate([e.scales() + ([p.scale_m for p in e.along] if self.along else [])
                                      for e in self.evidence])
-        self.bodies = Bodies(pile)
+        self.bodies = Bodies(pile, flat_stumps=cfg.flat_stumps)
         self.obstacle_sigmas = None if obstacle_sigmas is None else np.asarray(obstacle_sigmas, dtype=float)
         if self.obstacle_sigmas is not None:
             if len(self.obstacle_sigmas) != self.bodies.n_obstacles:

@@ -10,9 +10,9 @@ import pytest
 from reconstruct.errors import SeparationError
 from reconstruct.fitting.fit_config import LogFit
 from reconstruct.fitting.joint_config import JointConfig
-from reconstruct.fitting.joint_contact import ROLL_SHARE
+from reconstruct.fitting.joint_contact import ROLL_SHARE, Bodies, Segment
 from reconstruct.fitting.joint_obstacles import moved_obstacles, obstacle_sigma, obstacle_sigmas
-from reconstruct.fitting.joint_settle import JointSettler, LogEvidence, _Problem
+from reconstruct.fitting.joint_settle import JointSettler, LogEvidence, _Problem, settle_pile
 from reconstruct.fitting.survey_points import SurveyEnd
 from synth.scene.pile import LogSpec, PileSpec, RockSpec, StumpSpec, TerrainSpec
 
@@ -144,6 +144,25 @@ def test_a_fixed_end_pressed_far_into_a_stump_its_points_hold_tightly_is_refused
     points = _stump_points(0.25, 0.003)
     with pytest.raises(SeparationError, match=r"and survey points, obstacle 0's \(\+-1\.0 cm, "):
         JointSettler(_fixed_ends(_log()), {"log1": 0.01}, CFG, TOL, 12, points=points)(pile, [_fit(_log())])
+
+
+def test_a_log_lying_across_a_stump_s_flat_top_is_not_in_it():
+    stump = StumpSpec(position_m=(0.0, 0.0), height_m=0.4, bottom_radius_m=0.17, top_radius_m=0.15)
+    on_top = LogSpec.from_endpoints((-1.0, 0.0, 0.401 + R), (1.0, 0.0, 0.401 + R), 2 * R)  # 1 mm over its top
+    pile = PileSpec(terrain=FLAT, logs=(on_top,), stumps=(stump,))
+    seg = Bodies(pile).stumps[0]
+    log_seg = Segment(*on_top.endpoints_m(), R, R)
+    assert Bodies(pile, flat_stumps=True).obstacle_depths(log_seg, 0).max() == pytest.approx(-0.001, abs=1e-6)
+    assert Bodies(pile, flat_stumps=False).obstacle_depths(log_seg, 0).max() == pytest.approx(0.15 - 0.001, abs=1e-6)
+    out, _ = settle_pile(pile, [LogEvidence(0.02, 0.02)], CFG, TOL, 12)
+    assert out.moved[0] < 1e-3 and _twin_accepts(out.pile)  # the twin agrees: nothing to move
+    with pytest.raises(SeparationError):  # the round-ended stump of revision 12 lifts it its top radius: refused
+        settle_pile(pile, [LogEvidence(0.02, 0.02)], JointConfig(flat_stumps=False), TOL, 12)
+    # past the top edge, the corner: a log whose axis is as far out as up from the edge is that times sqrt 2 from it
+    off = R / np.sqrt(2) + 0.005
+    corner = Segment(np.array([-1.0, 0.15 + off, 0.4 + off]), np.array([1.0, 0.15 + off, 0.4 + off]), R, R)
+    assert seg.b[2] == pytest.approx(0.4)
+    assert Bodies(pile, flat_stumps=True).obstacle_depths(corner, 0).max() == pytest.approx(R - np.sqrt(2) * off, abs=1e-6)
 
 
 def test_a_rock_moved_by_its_state_is_shifted_and_its_faces_drawn_in():
