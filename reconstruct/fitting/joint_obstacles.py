@@ -111,14 +111,25 @@ def _moved_stump(st: StumpSpec, off: np.ndarray) -> StumpSpec:
 
 
 def _moved_rock(rk: RockSpec, off: np.ndarray) -> RockSpec:
-    """The rock shifted and each hull vertex moved ``off[2]`` toward the rock's centre (an erosion of its
-    faces by up to that), none past the centre."""
+    """The rock shifted and its faces moved ``off[2]`` inward (its hull's planes offset: the erosion the
+    estimate's depths take, ``offset_depths``); one it would erode to nothing is drawn in toward its centre
+    instead, to a twentieth of its size."""
+    from scipy.spatial import ConvexHull, HalfspaceIntersection
+
     V = np.asarray(rk.vertices_m, dtype=float)
     c = V.mean(axis=0)
-    d = V - c
-    r = np.linalg.norm(d, axis=1)
-    k = np.clip(1.0 - float(off[2]) / np.maximum(r, 1e-9), 0.05, None)
-    V = c + d * k[:, None]
+    shrink = float(off[2])
+    try:
+        eq = ConvexHull(V).equations.copy()  # n . x + b <= 0 inside
+        eq[:, 3] += shrink
+        if np.all(eq[:, :3] @ c + eq[:, 3] < 0):
+            V = HalfspaceIntersection(eq, c).intersections
+        else:
+            raise ValueError("eroded past its centre")
+    except Exception:  # scipy's QhullError for a flat hull, or an erosion past the centre
+        d = V - c
+        k = np.clip(1.0 - shrink / np.maximum(np.linalg.norm(d, axis=1), 1e-9), 0.05, None)
+        V = c + d * k[:, None]
     pos = (rk.position_m[0] + float(off[0]), rk.position_m[1] + float(off[1]), rk.position_m[2])
     return replace(rk, position_m=pos, vertices_m=tuple(tuple(float(v) for v in row) for row in V))
 
