@@ -26,9 +26,10 @@ from synth.scene.pile import PileSpec, RockSpec, StumpSpec
 
 #: an obstacle's three state numbers: shift in x, in y, erosion of its surface [m]
 N_STATES = 3
-#: a moved stump keeps at least the smallest radius and height a stump may have (StumpSpec's limits) [m]
+#: a moved stump keeps within the radius and height a stump may have (StumpSpec's limits) [m]
 STUMP_MIN_RADIUS_M = 0.03
 STUMP_MIN_HEIGHT_M = 0.05
+STUMP_MAX_HEIGHT_M = 2.0
 
 
 def offset_depths(bodies: Bodies, s: Segment, j: int, off: np.ndarray) -> np.ndarray:
@@ -106,7 +107,7 @@ def _moved_stump(st: StumpSpec, off: np.ndarray) -> StumpSpec:
     shrink = float(off[2])
     top = max(STUMP_MIN_RADIUS_M, st.top_radius_m - shrink)
     return replace(st, position_m=(st.position_m[0] + float(off[0]), st.position_m[1] + float(off[1])),
-                   height_m=float(np.clip(st.height_m - shrink, STUMP_MIN_HEIGHT_M, 2.0)), top_radius_m=top,
+                   height_m=float(np.clip(st.height_m - shrink, STUMP_MIN_HEIGHT_M, STUMP_MAX_HEIGHT_M)), top_radius_m=top,
                    bottom_radius_m=max(top, st.bottom_radius_m - shrink))
 
 

@@ -97,7 +97,8 @@ def test_the_points_of_a_log_resting_on_an_obstacle_are_not_its_evidence():
     pile = _pile()
     tight = _stump_points(FOUND_R_M, 0.003)
     # the log's top where it runs along the stump's side: within the band of both surfaces
-    log_pts = np.column_stack([np.linspace(-0.2, 0.2, 400), np.full(400, 0.03), np.full(400, R + np.sqrt(R ** 2 - 0.03 ** 2))])
+    log_pts = np.column_stack([np.linspace(-0.2, 0.2, 400), np.full(400, 0.03),
+                               np.full(400, R + np.sqrt(R ** 2 - 0.03 ** 2))])
     assert obstacle_sigmas(pile, np.vstack([tight, log_pts]), CFG)[0] == pytest.approx(
         obstacle_sigmas(pile, tight, CFG)[0], abs=1e-9)
     away = LogSpec.from_endpoints((-1.0, -1.5, R), (1.0, -1.5, R), 2 * R)
@@ -162,7 +163,8 @@ def test_a_log_lying_across_a_stump_s_flat_top_is_not_in_it():
     off = R / np.sqrt(2) + 0.005
     corner = Segment(np.array([-1.0, 0.15 + off, 0.4 + off]), np.array([1.0, 0.15 + off, 0.4 + off]), R, R)
     assert seg.b[2] == pytest.approx(0.4)
-    assert Bodies(pile, flat_stumps=True).obstacle_depths(corner, 0).max() == pytest.approx(R - np.sqrt(2) * off, abs=1e-6)
+    depth = Bodies(pile, flat_stumps=True).obstacle_depths(corner, 0).max()
+    assert depth == pytest.approx(R - np.sqrt(2) * off, abs=1e-6)
 
 
 def test_a_rock_moved_by_its_state_is_shifted_and_its_faces_moved_in_by_its_erosion():
@@ -193,6 +195,7 @@ def test_the_settle_jacobian_with_obstacle_states_is_scipys_forward_difference()
 
 
 def test_the_obstacle_parameters_are_checked():
-    for name in ("obstacle_sigma_floor_m", "obstacle_sigma_max_m", "obstacle_sigma_band_m", "obstacle_sigma_ref_points"):
+    for name in ("obstacle_sigma_floor_m", "obstacle_sigma_max_m", "obstacle_sigma_band_m",
+                 "obstacle_sigma_ref_points"):
         with pytest.raises(ValueError, match=name):
             JointConfig(**{name: 0})
