@@ -16,7 +16,7 @@ from dataclasses import dataclass, fields
 ESTIMATORS = ("rules22", "joint")
 #: raised whenever a change to the joint estimator makes different piles from the same scan (recorded in the
 #: report as ``estimator_revision`` and in bench keys)
-JOINT_REVISION = 12
+JOINT_REVISION = 13
 
 
 @dataclass(frozen=True)
@@ -139,6 +139,32 @@ class JointConfig:
     #                                     posterior would refuse it, and an end does not slide across a valley
     #                                     between two humps (a Gaussian of the whole spread shortened logs by up
     #                                     to 1 m at under 4 sigma: joint revisions 9-10) [-]
+    obstacle_states: bool = True  # each stump and rock a state of the pile estimate (a shift in x and y and an
+    #                               erosion of its surface, each a Gaussian of its own scan sigma:
+    #                               joint_obstacles), so a contact is shared by the log's evidence and the
+    #                               obstacle's instead of taking the obstacle as exact: on held-out 3,300,014
+    #                               and 3,300,107 a correct RTK fixed end was refused against a stump or rock
+    #                               the scan makes a few centimetres too big (docs/reconstruction.md, "Joint
+    #                               revision 13"). Off: revision 12's fixed obstacles [-]
+    flat_stumps: bool = True  # a stump's contact is a flat-topped cone (joint_contact.log_stump_depths). Off
+    #                           (revision 12): its axis segment with round ends, so a log lying across its
+    #                           top was its top radius (10-17 cm) into it: the twin's true logs on held-out
+    #                           3,300,014 and 3,300,047 "interpenetrate" their true stumps by 10.6 / 13.1 cm,
+    #                           and all six of their refusals were that (docs/reconstruction.md, "Joint
+    #                           revision 13") [-]
+    obstacle_sigma_floor_m: float = 0.01  # an obstacle's place and surface are never surer than this: half the
+    #                                       obstacle stage's 2 cm voxel, whatever its points' spread [m]
+    obstacle_sigma_max_m: float = 0.05  # ... and at most this uncertain: stereo smears an edge by up to ~5 cm
+    #                                     (fitting revision 23's log tolerance), and a body the scan shows at
+    #                                     all is not off by more without looking like something else [m]
+    obstacle_sigma_band_m: float = 0.05  # the scan points within this of an obstacle's surface (and more than
+    #                                      this above the ground and from any log's surface) are its evidence;
+    #                                      the RMS of their signed distances is its sigma: its outline is drawn
+    #                                      by its outermost points, so it is off by about their spread, not by
+    #                                      the spread over sqrt(n) (the same ~5 cm smear) [m]
+    obstacle_sigma_ref_points: float = 50.0  # an obstacle carried by fewer points than this has its sigma grown
+    #                                          by sqrt(this / n): its outermost points are then fewer and
+    #                                          farther between (the obstacle stage accepts 30 voxels) [-]
     survey_loss_sigmas: float = 3.0  # a kept survey point pulls its log as a Gaussian within this many of its
     #                                  sigmas, by a bounded force past them (soft-L1: a wrong point the end
     #                                  posteriors kept does not drag a log by its distance squared) [-]

@@ -79,6 +79,28 @@ def log_log_depths(s: Segment, o: Segment) -> np.ndarray:
     return np.asarray(out)
 
 
+def stump_point_distance(st: Segment, P: np.ndarray) -> np.ndarray:
+    """Each point's signed distance [m] from a stump as a solid truncated cone with a flat top (its axis from
+    ``st.a`` up to ``st.b``), negative inside: inside, the nearer of its side and its top; beside it or over
+    it, the offset from that one; past its top edge, from the edge (exact for a cylinder)."""
+    h = max(float(st.b[2] - st.a[2]), 1e-9)
+    t = np.clip((P[:, 2] - st.a[2]) / h, 0.0, 1.0)
+    dr = np.hypot(P[:, 0] - st.a[0], P[:, 1] - st.a[1]) - st.radius(t)
+    dz = np.maximum(P[:, 2] - st.b[2], st.a[2] - P[:, 2])
+    return np.where((dr > 0) & (dz > 0), np.hypot(dr, dz), np.maximum(dr, dz))
+
+
+def log_stump_depths(s: Segment, st: Segment) -> np.ndarray:
+    """How deep log ``s``'s round surface and a flat-topped stump overlap [m] (negative: apart): at the log's
+    axis point nearest the stump's axis and at ``ROCK_SAMPLES`` along the log (a stump is tens of centimetres
+    across, a log metres long). A log resting on the top is apart from it, not its top radius into it as the
+    stump's axis segment with round ends would make it."""
+    u, _, _ = segment_closest(s.a, s.b, st.a, st.b)
+    P, t = s.points(ROCK_SAMPLES)
+    P, t = np.vstack([s.a + u * (s.b - s.a), P]), np.concatenate([[u], t])
+    return s.radius(t) - stump_point_distance(st, P)
+
+
 def stump_segment(pile: PileSpec, j: int) -> Segment:
     """Stump ``j`` as a vertical segment from its sunk foot to its top, with its radii there."""
     st = pile.stumps[j]
@@ -136,10 +158,12 @@ def rock_of(pile: PileSpec, j: int) -> Rock:
 
 
 class Bodies:
-    """The fixed bodies of a pile (obstacles, terrain) and the depth of a log into each."""
+    """The fixed bodies of a pile (obstacles, terrain) and the depth of a log into each. ``flat_stumps``: a
+    stump is a flat-topped cone (:func:`log_stump_depths`); off, its axis segment with round ends, as a log
+    (joint revision 12)."""
 
-    def __init__(self, pile: PileSpec) -> None:
-        self.pile = pile
+    def __init__(self, pile: PileSpec, flat_stumps: bool = False) -> None:
+        self.pile, self.flat_stumps = pile, flat_stumps
         self.stumps = [stump_segment(pile, j) for j in range(len(pile.stumps))]
         self.rocks = [rock_of(pile, j) for j in range(len(pile.rocks))]
 
@@ -150,7 +174,7 @@ class Bodies:
     def obstacle_depths(self, s: Segment, j: int) -> np.ndarray:
         """How deep log ``s`` and obstacle ``j`` (stumps first, then rocks: the twin's order) overlap [m]."""
         if j < len(self.stumps):
-            return log_log_depths(s, self.stumps[j])
+            return log_stump_depths(s, self.stumps[j]) if self.flat_stumps else log_log_depths(s, self.stumps[j])
         return self.rocks[j - len(self.stumps)].depths(s)
 
     def terrain_depths(self, s: Segment) -> np.ndarray:

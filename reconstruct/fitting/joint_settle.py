@@ -19,7 +19,11 @@ pitch, and each end's place along the log, so its length). One ``scipy.optimize.
   by a bounded force, not by its distance squared);
 - **non-interpenetration**: for every pair of bodies whose round cross-sections overlap by more than the
   twin's prism allows (:mod:`reconstruct.fitting.joint_contact`), the excess depth over ``contact_sigma_m``;
-  zero when apart.
+  zero when apart;
+- **each obstacle's own evidence** (``JointConfig.obstacle_states``, joint revision 13): a stump or rock may
+  shift and shrink by a Gaussian of its own scan sigma (:mod:`reconstruct.fitting.joint_obstacles`), so a log
+  pressed into an obstacle the scan made too big shares the move with it; a log's refusal cost then counts
+  the obstacles it touches too.
 
 Without the bodies the estimate is where the scan and the survey put each log (the survey's pull across the
 axis is made here, not by the end placer). A log whose evidence costs more than ``refuse_sigma`` squared more
@@ -41,6 +45,8 @@ from reconstruct.fitting.clearance import Cleared
 from reconstruct.fitting.ends import MIN_LOG_LENGTH_M
 from reconstruct.fitting.joint_config import JointConfig
 from reconstruct.fitting.joint_contact import Bodies, Segment, Term
+from reconstruct.fitting.joint_obstacles import (N_STATES, moved_obstacles, obstacle_notes, obstacle_sigmas,
+                                                 offset_depths)
 from reconstruct.fitting.separation import SEPARATION_MARGIN_M, best_roll
 from synth.scene.pile import LogSpec, PileSpec, quat_from_x_axis
 
@@ -131,9 +137,12 @@ def _robust(r: np.ndarray, scale: float) -> np.ndarray:
 class _Problem:
     """The least-squares problem: variables are each log's end corrections in units of their sigmas - four
     (across and up at the butt and the top), or six with the ends' places along the log (``along``: every
-    log's evidence has them)."""
+    log's evidence has them) - then, with ``obstacle_sigmas`` (one per obstacle, stumps first), each
+    obstacle's shift in x and y and the erosion of its surface in units of its sigma
+    (:mod:`reconstruct.fitting.joint_obstacles`)."""
 
-    def __init__(self, pile: PileSpec, evidence: Sequence[LogEvidence], cfg: JointConfig) -> None:
+    def __init__(self, pile: PileSpec, evidence: Sequence[LogEvidence], cfg: JointConfig,
+                 obstacle_sigmas: Sequence[float] | None = None) -> None:
         self.pile, self.evidence, self.cfg = pile, list(evidence), cfg
         self.base = [log.endpoints_m() for log in pile.logs]
         self.across = [_across(b - a) for a, b in self.base]
@@ -144,16 +153,31 @@ class _Problem:
         self.width = 6 if self.along else 4
         self.scale = np.concatenate([e.scales() + ([p.scale_m for p in e.along] if self.along else [])
                                      for e in self.evidence])
-        self.bodies = Bodies(pile)
+        self.bodies = Bodies(pile, flat_stumps=cfg.flat_stumps)
+        self.obstacle_sigmas = None if obstacle_sigmas is None else np.asarray(obstacle_sigmas, dtype=float)
+        if self.obstacle_sigmas is not None:
+            if len(self.obstacle_sigmas) != self.bodies.n_obstacles:
+                raise ValueError(f"{len(self.obstacle_sigmas)} obstacle sigmas for {self.bodies.n_obstacles} obstacles")
+            self.scale = np.concatenate([self.scale, np.repeat(self.obstacle_sigmas, N_STATES)])
         self.terms: list[Term] = []
 
     @property
     def n(self) -> int:
         return len(self.base)
 
+    @property
+    def n_log_vars(self) -> int:
+        return self.width * self.n
+
+    def offsets(self, x: np.ndarray) -> np.ndarray | None:
+        """Per obstacle (shift in x, in y, erosion) [m]; None without obstacle states."""
+        if self.obstacle_sigmas is None:
+            return None
+        return (x[self.n_log_vars:] * self.scale[self.n_log_vars:]).reshape(-1, N_STATES)
+
     def corrections(self, x: np.ndarray) -> np.ndarray:
         """Per log (ca, cb, ha, hb, la, lb) [m]: across, up and along (toward the top) at the butt and the top."""
-        X = (x * self.scale).reshape(-1, self.width)
+        X = (x[:self.n_log_vars] * self.scale[:self.n_log_vars]).reshape(-1, self.width)
         return X if self.along else np.hstack([X, np.zeros((self.n, 2))])
 
     def segments(self, x: np.ndarray) -> list[Segment]:
@@ -187,46 +211,64 @@ class _Problem:
             out.append((p.up_m - ((1 - s) * ha + s * hb)) / p.sigma_up_m)
         return np.concatenate([out[:prior], _robust(np.asarray(out[prior:], dtype=float), self.cfg.survey_loss_sigmas)])
 
+    def depths(self, term: Term, segs: Sequence[Segment], off: np.ndarray | None) -> np.ndarray:
+        """A contact's depths [m], its obstacle (if any) moved by its state ``off``."""
+        if off is None or term.kind != "obstacle":
+            return self.bodies.depths(term, segs)
+        return offset_depths(self.bodies, segs[term.i], term.j, off[term.j])
+
     def contact_depths(self, x: np.ndarray) -> list[np.ndarray]:
         """Per term: depths [m] over what it allows (> 0: interpenetrating beyond the prism's roll)."""
-        segs = self.segments(x)
-        return [self.bodies.depths(t, segs) - t.allow_m for t in self.terms]
+        segs, off = self.segments(x), self.offsets(x)
+        return [self.depths(t, segs, off) - t.allow_m for t in self.terms]
+
+    def obstacle_residuals(self, x: np.ndarray) -> np.ndarray:
+        """The obstacles' priors (dimensionless): their states themselves (none without obstacle states)."""
+        return np.asarray(x[self.n_log_vars:], dtype=float)
 
     def residuals(self, x: np.ndarray, contacts: bool) -> np.ndarray:
-        parts = [self.evidence_residuals(x, k) for k in range(self.n)]
+        parts = [self.evidence_residuals(x, k) for k in range(self.n)] + [self.obstacle_residuals(x)]
         if contacts:
             parts += [np.maximum(d, 0.0) / self.cfg.contact_sigma_m for d in self.contact_depths(x)]
         return np.concatenate(parts)
 
-    def contact_residuals(self, term: Term, segs: Sequence[Segment]) -> np.ndarray:
+    def contact_residuals(self, term: Term, segs: Sequence[Segment], off: np.ndarray | None = None) -> np.ndarray:
         """A contact's residuals: its depths over what it allows, in ``contact_sigma_m`` (zero when apart)."""
-        return np.maximum(self.bodies.depths(term, segs) - term.allow_m, 0.0) / self.cfg.contact_sigma_m
+        return np.maximum(self.depths(term, segs, off) - term.allow_m, 0.0) / self.cfg.contact_sigma_m
 
     def jacobian(self, x: np.ndarray, contacts: bool) -> np.ndarray:
         """The residuals' forward-difference Jacobian at ``x``, with scipy's own steps ('2-point'), each column
         from the rows its variable changes only: its log's evidence and the contacts that log is in (a pile's
         contacts each hold one or two of its logs, so this is a few times cheaper than every row per column)."""
-        ev0 = [self.evidence_residuals(x, k) for k in range(self.n)]
-        segs0 = self.segments(x)
-        ct0 = [self.contact_residuals(t, segs0) for t in self.terms] if contacts else []
+        ev0 = [self.evidence_residuals(x, k) for k in range(self.n)] + [self.obstacle_residuals(x)]
+        segs0, off0 = self.segments(x), self.offsets(x)
+        ct0 = [self.contact_residuals(t, segs0, off0) for t in self.terms] if contacts else []
         starts = np.cumsum([0] + [len(r) for r in ev0 + ct0])
         J = np.zeros((int(starts[-1]), len(x)))
         mine = [[m for m, t in enumerate(self.terms) if k in (t.i, t.j if t.kind == "log" else -1)]
                 for k in range(self.n)]
+        pressed = [[m for m, t in enumerate(self.terms) if t.kind == "obstacle" and t.j == j]
+                   for j in range(self.bodies.n_obstacles)]
         sign = np.where(x >= 0, 1.0, -1.0)
         steps = (x + np.sqrt(np.finfo(float).eps) * sign * np.maximum(1.0, np.abs(x))) - x
         for v, h in enumerate(steps):
-            k = v // self.width
             xv = x.copy()
             xv[v] += h
-            J[starts[k]:starts[k + 1], v] = (self.evidence_residuals(xv, k) - ev0[k]) / h
+            segs, off = list(segs0), off0
+            if v >= self.n_log_vars:  # an obstacle's state: its own prior and the contacts it is in
+                o = v - self.n_log_vars
+                J[starts[self.n] + o, v] = (xv[v] - x[v]) / h
+                off, rows = self.offsets(xv), pressed[o // N_STATES]
+            else:
+                k = v // self.width
+                J[starts[k]:starts[k + 1], v] = (self.evidence_residuals(xv, k) - ev0[k]) / h
+                segs[k] = self._segment(k, self.corrections(xv)[k])
+                rows = mine[k]
             if not contacts:
                 continue
-            segs = list(segs0)
-            segs[k] = self._segment(k, self.corrections(xv)[k])
-            for m in mine[k]:
-                r = self.contact_residuals(self.terms[m], segs)
-                J[starts[self.n + m]:starts[self.n + m + 1], v] = (r - ct0[m]) / h
+            for m in rows:
+                r = self.contact_residuals(self.terms[m], segs, off)
+                J[starts[self.n + 1 + m]:starts[self.n + 2 + m], v] = (r - ct0[m]) / h
         return J
 
     def solve(self, x0: np.ndarray, contacts: bool) -> np.ndarray:
@@ -236,7 +278,21 @@ class _Problem:
                              ftol=1e-10, max_nfev=self.cfg.settle_max_evaluations).x
 
     def cost(self, x: np.ndarray, k: int) -> float:
-        return float(np.sum(self.evidence_residuals(x, k) ** 2))
+        """Log ``k``'s evidence cost at ``x`` with, under obstacle states, that of each obstacle it is in
+        contact with (a contact shared by a log and an obstacle costs both their evidence)."""
+        own = float(np.sum(self.evidence_residuals(x, k) ** 2))
+        return own + sum(self.obstacle_cost(x, j) for j in self.obstacles_of(k))
+
+    def obstacles_of(self, k: int) -> list[int]:
+        """The obstacles (with states) log ``k`` has a contact term with."""
+        if self.obstacle_sigmas is None:
+            return []
+        return sorted({t.j for t in self.terms if t.kind == "obstacle" and t.i == k})
+
+    def obstacle_cost(self, x: np.ndarray, j: int) -> float:
+        """Obstacle ``j``'s prior cost at ``x`` (its state in units of its sigma, squared)."""
+        o = self.n_log_vars + N_STATES * j
+        return float(np.sum(x[o:o + N_STATES] ** 2))
 
     def along_moves(self, x: np.ndarray, x_free: np.ndarray, k: int) -> tuple[float, float]:
         """How far the bodies moved log ``k``'s butt and top along it, toward its middle (+) [m]."""
@@ -254,18 +310,23 @@ class _Problem:
                                       "are wrong", logs=(k,))
             logs.append(replace(log, centre_m=tuple(float(v) for v in (seg.a + seg.b) / 2), length_m=L,
                                 orientation=tuple(float(v) for v in quat_from_x_axis(d / L, roll))))
-        return self.pile.with_logs(tuple(logs))
+        off = self.offsets(x)
+        pile = self.pile if off is None else moved_obstacles(self.pile, off)
+        return pile.with_logs(tuple(logs))
 
 
 def settle_pile(pile: PileSpec, evidence: Sequence[LogEvidence], cfg: JointConfig, tolerance_m: float,
-                roll_steps: int) -> tuple[Cleared, list[tuple[np.ndarray, np.ndarray]]]:
+                roll_steps: int, obstacle_sigmas: Sequence[float] | None = None
+                ) -> tuple[Cleared, list[tuple[np.ndarray, np.ndarray]]]:
     """``pile``'s logs moved to the estimate of what holds each (``evidence``, per log) and the other bodies,
     checked in the twin to ``tolerance_m`` (``roll_steps`` rolls tried per touching log). Returns what was
     done (:class:`Cleared`: the pile, notes, each log's move by the bodies [m]) and each log's end centres
     (butt, top) without the bodies. Raises :class:`SeparationError` for a log the bodies move farther than
-    its evidence allows, or that the twin still finds in another body."""
-    prob = _Problem(pile, evidence, cfg)
-    x_free = prob.solve(np.zeros(prob.width * prob.n), contacts=False)
+    its evidence allows, or that the twin still finds in another body. ``obstacle_sigmas`` (one per obstacle,
+    stumps first; :func:`reconstruct.fitting.joint_obstacles.obstacle_sigmas`): each obstacle a state of the
+    estimate with that sigma (None: the obstacles are fixed bodies, revision 12)."""
+    prob = _Problem(pile, evidence, cfg, obstacle_sigmas)
+    x_free = prob.solve(np.zeros(len(prob.scale)), contacts=False)
     prob.terms = prob.bodies.terms(prob.segments(x_free), cfg.contact_reach_m)
     rolls = [0.0] * prob.n
     x = x_free
@@ -300,10 +361,13 @@ def _refuse(prob: _Problem, x: np.ndarray, x_free: np.ndarray, tolerance_m: floa
     seg, free = prob.segments(x)[k], prob.segments(x_free)[k]
     move = max(float(np.linalg.norm(seg.a - free.a)), float(np.linalg.norm(seg.b - free.b)))
     others = () if term.kind != "log" else (term.j if term.i == k else term.i,)
+    off = prob.offsets(x)
+    shared = "".join(f", obstacle {j}'s (+-{prob.obstacle_sigmas[j] * 100:.1f} cm, {off[j, 2] * 100:.1f} cm smaller, "
+                     f"{math.hypot(off[j, 0], off[j, 1]) * 100:.1f} cm moved)" for j in prob.obstacles_of(k))
     raise SeparationError(
         f"log {k} would have to move {move * 100:.1f} cm to clear {other}, {math.sqrt(max(extra[k], 0.0)):.1f} sigma "
-        f"of what its scan ({prob.evidence[k].text()}) and survey points allow (limit {cfg.refuse_sigma:.0f} sigma); "
-        f"its fit or its GNSS end points are wrong", logs=(k,) + others)
+        f"of what its scan ({prob.evidence[k].text()}) and survey points{shared} allow (limit "
+        f"{cfg.refuse_sigma:.0f} sigma); its fit or its GNSS end points are wrong", logs=(k,) + others)
 
 
 def _pressing(prob: _Problem, x_free: np.ndarray, k: int) -> Term:
@@ -366,6 +430,12 @@ def _cleared(prob: _Problem, x: np.ndarray, x_free: np.ndarray, rolls: Sequence[
                      for end, d in zip(("butt", "top"), prob.along_moves(x, x_free, k)) if abs(d) >= REPORT_MOVE_M]
             notes.append(f"log {k} moved {move * 1000:.1f} mm ({extra:.1f} sigma of its evidence) clear of "
                          f"{_pressing(prob, x_free, k).other(k)}" + (f" ({', '.join(along)})" if along else ""))
+    off = prob.offsets(x)
+    if off is not None:
+        depths = prob.contact_depths(x_free)
+        presses = [max(((depths[m].max(), t.i) for m, t in enumerate(prob.terms) if t.kind == "obstacle" and t.j == j),
+                       default=(0.0, None))[1] for j in range(len(off))]
+        notes += obstacle_notes(off, prob.obstacle_sigmas, presses)
     return Cleared(prob.moved_pile(x, rolls), [], notes, moved, {})
 
 
@@ -439,7 +509,8 @@ class JointSettler:
     def __call__(self, pile: PileSpec, fits: Sequence) -> Cleared:
         own = self.own_points(pile)
         evidence = [self.evidence(log, lf, pts) for log, lf, pts in zip(pile.logs, fits, own)]
-        cleared, free = settle_pile(pile, evidence, self.cfg, self.tolerance_m, self.roll_steps)
+        sigmas = obstacle_sigmas(pile, self.points, self.cfg) if self.cfg.obstacle_states else None
+        cleared, free = settle_pile(pile, evidence, self.cfg, self.tolerance_m, self.roll_steps, sigmas)
         for k, lf in enumerate(fits):
             for j, e in enumerate(lf.ends or []):
                 pos = np.asarray(e["position_m"], dtype=float)
