@@ -106,7 +106,7 @@ class FitConfig:
     obstacle_min_top_m: float = 0.08  # an obstacle's top (TOP_PERCENTILE of its heights) stands at least
     #                                   this high above the fitted ground [m]. At the points' own threshold
     #                                   (obstacle_min_height_m), i.e. no further cut: 0.12 m removed the
-    #                                   scan-edge scraps of held-out 3300055 but missed 7-9 low true rocks
+    #                                   scan-edge scraps of one held-out scan but missed 7-9 low true rocks
     #                                   (and 0.10 m 5-6) on the held-out every-end-fixed scans
     #                                   (docs/reconstruction.md, "One obstacle per body")
     stump_flat_fraction: float = 0.3  # share of points in the top 4 cm for a stump [-]

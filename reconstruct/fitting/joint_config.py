@@ -129,8 +129,8 @@ class JointConfig:
     #                          strong (an end the scan sees, or an RTK fixed point holds). Off (the default):
     #                          the pile moves logs across and up only, as in revision 11: on the held-out
     #                          scans the end pressed into a body was mostly right and the body or the
-    #                          matching wrong, and on one (3,300,051 default) a log on the wrong ridge was
-    #                          shortened and placed 52 cm off instead of refused (docs/reconstruction.md,
+    #                          matching wrong, and a log matched on the wrong ridge was shortened and
+    #                          placed 52 cm off instead of refused (docs/reconstruction.md,
     #                          "Joint revision 12") [-]
     along_interval_sigmas: float = 4.0  # an end's along prior costs what its posterior costs this many sigma
     #                                     out on each side (its sigma there: the distance to where the posterior
@@ -142,15 +142,14 @@ class JointConfig:
     obstacle_states: bool = True  # each stump and rock a state of the pile estimate (a shift in x and y and an
     #                               erosion of its surface, each a Gaussian of its own scan sigma:
     #                               joint_obstacles), so a contact is shared by the log's evidence and the
-    #                               obstacle's instead of taking the obstacle as exact: on held-out 3,300,014
-    #                               and 3,300,107 a correct RTK fixed end was refused against a stump or rock
-    #                               the scan makes a few centimetres too big (docs/reconstruction.md, "Joint
+    #                               obstacle's instead of taking the obstacle as exact: on held-out scans
+    #                               correct RTK fixed ends were refused against stumps or rocks the scan
+    #                               makes a few centimetres too big (docs/reconstruction.md, "Joint
     #                               revision 13"). Off: revision 12's fixed obstacles [-]
     flat_stumps: bool = True  # a stump's contact is a flat-topped cone (joint_contact.log_stump_depths). Off
     #                           (revision 12): its axis segment with round ends, so a log lying across its
-    #                           top was its top radius (10-17 cm) into it: the twin's true logs on held-out
-    #                           3,300,014 and 3,300,047 "interpenetrate" their true stumps by 10.6 / 13.1 cm,
-    #                           and all six of their refusals were that (docs/reconstruction.md, "Joint
+    #                           top was its top radius (10-17 cm) into it: true logs lying on true stumps
+    #                           "interpenetrated" them by 10-13 cm, and six held-out refusals were that (docs/reconstruction.md, "Joint
     #                           revision 13") [-]
     obstacle_sigma_floor_m: float = 0.01  # an obstacle's place and surface are never surer than this: half the
     #                                       obstacle stage's 2 cm voxel, whatever its points' spread [m]
