@@ -102,7 +102,7 @@ class JointConfig:
     #                             packed piles: diameter error ~1 cm median, most of revision 10's refusals) [-]
     sigma_cell_along_m: float = 0.15  # a log's surface is observed in cells this long ... (stereo errors are
     #                                   correlated over a patch: the residuals of 5 cm cells correlate 0.68 at
-    #                                   10 cm, 0.51 at 20 cm - tuning scans 1,100,000-005, 31 logs) [m]
+    #                                   10 cm, 0.51 at 20 cm - the first 6 tuning scans, 31 logs) [m]
     sigma_cell_deg: float = 30.0  # ... and this far round its axis (cells 30 deg apart correlate 0.39, 60 deg
     #                               apart not at all: same scans) [deg]
     sigma_bias_share: float = 0.6  # the share of a cell's residual variance that every cell of its angle bin
@@ -116,8 +116,8 @@ class JointConfig:
     sigma_shape_per_radius: float = 0.15  # the log is not round, and stereo smears a round surface: a round fit to
     #                                       the twin's pentagonal prism (a face 1 - cos 36 deg = 19 % of the
     #                                       radius inside the round, by its roll) or to a stem's ovality is off
-    #                                       by a share of the radius whatever the scan shows. Fitted on tuning
-    #                                       scans 1,100,000-011 (default survey, 92 ends of scan-fitted logs the
+    #                                       by a share of the radius whatever the scan shows. Fitted on
+    #                                       the first 12 tuning scans (default survey, 92 ends of scan-fitted logs the
     #                                       bodies did not move): 95 % of ends within 2 sigma of the truth at
     #                                       0.15 (flanks 96 %, undersides 91 %); at 0.05 only 64 % / 53 % [-]
     sigma_max_m: float = 0.08  # a scan-fitted log's sigma is at most this (a log seen in part is placed on its
