@@ -149,8 +149,8 @@ class JointConfig:
     flat_stumps: bool = True  # a stump's contact is a flat-topped cone (joint_contact.log_stump_depths). Off
     #                           (revision 12): its axis segment with round ends, so a log lying across its
     #                           top was its top radius (10-17 cm) into it: true logs lying on true stumps
-    #                           "interpenetrated" them by 10-13 cm, and six held-out refusals were that (docs/reconstruction.md, "Joint
-    #                           revision 13") [-]
+    #                           "interpenetrated" them by 10-13 cm, and six held-out refusals were that
+    #                           (docs/reconstruction.md, "Joint revision 13") [-]
     obstacle_sigma_floor_m: float = 0.01  # an obstacle's place and surface are never surer than this: half the
     #                                       obstacle stage's 2 cm voxel, whatever its points' spread [m]
     obstacle_sigma_max_m: float = 0.05  # ... and at most this uncertain: stereo smears an edge by up to ~5 cm
