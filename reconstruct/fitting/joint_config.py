@@ -151,6 +151,13 @@ class JointConfig:
     #                           top was its top radius (10-17 cm) into it: true logs lying on true stumps
     #                           "interpenetrated" them by 10-13 cm, and six held-out refusals were that
     #                           (docs/reconstruction.md, "Joint revision 13") [-]
+    radius_states: bool = False  # each log's radius a state of the pile estimate (joint_radius), a Gaussian of
+    #                             its own scan radius sigma (joint_scan_sigma.scan_sigma's radius_m; a log not
+    #                             fitted to the scan: sigma_radius_prior_m), thinned with its top kept, so a log
+    #                             fitted a few cm too thick in a packed pile is thinned within its uncertainty
+    #                             instead of pressed into its neighbour and refused (the main joint-13 failure on
+    #                             the fresh held-out scans: docs/reconstruction.md, "Joint revision 13"). Off
+    #                             until measured on held-out scans: revision 13's fixed radii [-]
     obstacle_sigma_floor_m: float = 0.01  # an obstacle's place and surface are never surer than this: half the
     #                                       obstacle stage's 2 cm voxel, whatever its points' spread [m]
     obstacle_sigma_max_m: float = 0.05  # ... and at most this uncertain: stereo smears an edge by up to ~5 cm

@@ -23,7 +23,10 @@ pitch, and each end's place along the log, so its length). One ``scipy.optimize.
 - **each obstacle's own evidence** (``JointConfig.obstacle_states``, joint revision 13): a stump or rock may
   shift and shrink by a Gaussian of its own scan sigma (:mod:`reconstruct.fitting.joint_obstacles`), so a log
   pressed into an obstacle the scan made too big shares the move with it; a log's refusal cost then counts
-  the obstacles it touches too.
+  the obstacles it touches too;
+- **each log's own radius** (``JointConfig.radius_states``): a log may thin (or thicken) by a Gaussian of its
+  scan radius sigma, its top kept (:mod:`reconstruct.fitting.joint_radius`), so a log fitted too thick in a
+  packed pile is thinned within its uncertainty; its radius prior is part of its evidence cost.
 
 Without the bodies the estimate is where the scan and the survey put each log (the survey's pull across the
 axis is made here, not by the end placer). A log whose evidence costs more than ``refuse_sigma`` squared more
@@ -47,6 +50,7 @@ from reconstruct.fitting.joint_config import JointConfig
 from reconstruct.fitting.joint_contact import Bodies, Segment, Term
 from reconstruct.fitting.joint_obstacles import (N_STATES, moved_obstacles, obstacle_notes, obstacle_sigmas,
                                                  offset_depths)
+from reconstruct.fitting.joint_radius import radius_notes, radius_segment, resized_log
 from reconstruct.fitting.separation import SEPARATION_MARGIN_M, best_roll
 from synth.scene.pile import LogSpec, PileSpec, quat_from_x_axis
 
@@ -85,12 +89,14 @@ class AlongPrior:
 class LogEvidence:
     """What holds a log where it was placed: the sigmas of its ends' correction across its axis and in
     height [m] (the scan's, or its placement's), one for both ends or (butt, top), its kept survey points and,
-    with the ends' places along the log in the estimate, their priors (butt, top)."""
+    with the ends' places along the log in the estimate, their priors (butt, top); and the sigma of its radius
+    [m] (None: ``JointConfig.sigma_radius_prior_m``; used only with ``JointConfig.radius_states``)."""
 
     sigma_across_m: float | tuple[float, float]
     sigma_up_m: float | tuple[float, float]
     pulls: tuple[SurveyPull, ...] = ()
     along: tuple[AlongPrior, AlongPrior] | None = None
+    sigma_radius_m: float | None = None
 
     def scales(self) -> list[float]:
         """The sigmas of the four corrections (across at the butt, at the top, up at the butt, at the top) [m]."""
@@ -139,7 +145,8 @@ class _Problem:
     (across and up at the butt and the top), or six with the ends' places along the log (``along``: every
     log's evidence has them) - then, with ``obstacle_sigmas`` (one per obstacle, stumps first), each
     obstacle's shift in x and y and the erosion of its surface in units of its sigma
-    (:mod:`reconstruct.fitting.joint_obstacles`)."""
+    (:mod:`reconstruct.fitting.joint_obstacles`), then with ``cfg.radius_states`` each log's radius change in
+    units of its radius sigma (:mod:`reconstruct.fitting.joint_radius`)."""
 
     def __init__(self, pile: PileSpec, evidence: Sequence[LogEvidence], cfg: JointConfig,
                  obstacle_sigmas: Sequence[float] | None = None) -> None:
@@ -159,6 +166,12 @@ class _Problem:
             if len(self.obstacle_sigmas) != self.bodies.n_obstacles:
                 raise ValueError(f"{len(self.obstacle_sigmas)} obstacle sigmas for {self.bodies.n_obstacles} obstacles")
             self.scale = np.concatenate([self.scale, np.repeat(self.obstacle_sigmas, N_STATES)])
+        self.r0 = len(self.scale)  # the first radius state (== len(x) without radius states)
+        self.radius_sigmas = None
+        if cfg.radius_states:
+            self.radius_sigmas = np.array([cfg.sigma_radius_prior_m if e.sigma_radius_m is None else e.sigma_radius_m
+                                           for e in self.evidence])
+            self.scale = np.concatenate([self.scale, self.radius_sigmas])
         self.terms: list[Term] = []
 
     @property
@@ -173,7 +186,11 @@ class _Problem:
         """Per obstacle (shift in x, in y, erosion) [m]; None without obstacle states."""
         if self.obstacle_sigmas is None:
             return None
-        return (x[self.n_log_vars:] * self.scale[self.n_log_vars:]).reshape(-1, N_STATES)
+        return (x[self.n_log_vars:self.r0] * self.scale[self.n_log_vars:self.r0]).reshape(-1, N_STATES)
+
+    def radius_changes(self, x: np.ndarray) -> np.ndarray:
+        """Per log, its radius change [m] (zeros without radius states)."""
+        return x[self.r0:] * self.scale[self.r0:] if self.radius_sigmas is not None else np.zeros(self.n)
 
     def corrections(self, x: np.ndarray) -> np.ndarray:
         """Per log (ca, cb, ha, hb, la, lb) [m]: across, up and along (toward the top) at the butt and the top."""
@@ -181,13 +198,19 @@ class _Problem:
         return X if self.along else np.hstack([X, np.zeros((self.n, 2))])
 
     def segments(self, x: np.ndarray) -> list[Segment]:
+        C, dr = self.corrections(x), self.radius_changes(x)
+        return [self._segment(k, C[k], dr[k]) for k in range(self.n)]
+
+    def pose_segments(self, x: np.ndarray) -> list[Segment]:
+        """The logs moved by their pose corrections alone (their radius changes not applied): what a log was
+        moved, not how its axis rose as it was thinned with its top kept."""
         C = self.corrections(x)
         return [self._segment(k, C[k]) for k in range(self.n)]
 
-    def _segment(self, k: int, c: np.ndarray) -> Segment:
+    def _segment(self, k: int, c: np.ndarray, dr_m: float = 0.0) -> Segment:
         (a, b), n, u, (ra, rb) = self.base[k], self.across[k], self.axes[k], self.radii[k]
         ca, cb, ha, hb, la, lb = c
-        return Segment(a + ca * n + ha * UP + la * u, b + cb * n + hb * UP + lb * u, ra, rb)
+        return radius_segment(Segment(a + ca * n + ha * UP + la * u, b + cb * n + hb * UP + lb * u, ra, rb), dr_m)
 
     def along_residuals(self, x: np.ndarray, k: int) -> list[float]:
         """Log ``k``'s two ends' along priors (dimensionless): a butt moved toward the top, or a top toward
@@ -204,6 +227,8 @@ class _Problem:
         ca, cb, ha, hb, la, lb = self.corrections(x)[k]
         L = self.lengths[k]
         out = list(x[self.width * k:self.width * k + 4]) + self.along_residuals(x, k)
+        if self.radius_sigmas is not None:  # its radius prior: its own evidence
+            out.append(x[self.r0 + k])
         prior = len(out)
         for p in self.evidence[k].pulls:
             s = (p.s * L - la) / max(L + lb - la, 1e-9) if self.along else p.s
@@ -224,7 +249,7 @@ class _Problem:
 
     def obstacle_residuals(self, x: np.ndarray) -> np.ndarray:
         """The obstacles' priors (dimensionless): their states themselves (none without obstacle states)."""
-        return np.asarray(x[self.n_log_vars:], dtype=float)
+        return np.asarray(x[self.n_log_vars:self.r0], dtype=float)
 
     def residuals(self, x: np.ndarray, contacts: bool) -> np.ndarray:
         parts = [self.evidence_residuals(x, k) for k in range(self.n)] + [self.obstacle_residuals(x)]
@@ -241,7 +266,7 @@ class _Problem:
         from the rows its variable changes only: its log's evidence and the contacts that log is in (a pile's
         contacts each hold one or two of its logs, so this is a few times cheaper than every row per column)."""
         ev0 = [self.evidence_residuals(x, k) for k in range(self.n)] + [self.obstacle_residuals(x)]
-        segs0, off0 = self.segments(x), self.offsets(x)
+        segs0, off0, C0, dr0 = self.segments(x), self.offsets(x), self.corrections(x), self.radius_changes(x)
         ct0 = [self.contact_residuals(t, segs0, off0) for t in self.terms] if contacts else []
         starts = np.cumsum([0] + [len(r) for r in ev0 + ct0])
         J = np.zeros((int(starts[-1]), len(x)))
@@ -255,14 +280,15 @@ class _Problem:
             xv = x.copy()
             xv[v] += h
             segs, off = list(segs0), off0
-            if v >= self.n_log_vars:  # an obstacle's state: its own prior and the contacts it is in
+            if self.n_log_vars <= v < self.r0:  # an obstacle's state: its own prior and the contacts it is in
                 o = v - self.n_log_vars
                 J[starts[self.n] + o, v] = (xv[v] - x[v]) / h
                 off, rows = self.offsets(xv), pressed[o // N_STATES]
-            else:
-                k = v // self.width
+            else:  # a log's pose or (from r0) its radius: its evidence and its contacts
+                k = v // self.width if v < self.r0 else v - self.r0
                 J[starts[k]:starts[k + 1], v] = (self.evidence_residuals(xv, k) - ev0[k]) / h
-                segs[k] = self._segment(k, self.corrections(xv)[k])
+                c, dr = (self.corrections(xv)[k], dr0[k]) if v < self.r0 else (C0[k], self.radius_changes(xv)[k])
+                segs[k] = self._segment(k, c, dr)
                 rows = mine[k]
             if not contacts:
                 continue
@@ -308,8 +334,9 @@ class _Problem:
                 raise SeparationError(f"log {k} would have to be shortened to {L:.2f} m to clear the bodies around "
                                       f"it (a log is at least {MIN_LOG_LENGTH_M} m); its fit or its GNSS end points "
                                       "are wrong", logs=(k,))
-            logs.append(replace(log, centre_m=tuple(float(v) for v in (seg.a + seg.b) / 2), length_m=L,
-                                orientation=tuple(float(v) for v in quat_from_x_axis(d / L, roll))))
+            logs.append(resized_log(replace(log, centre_m=tuple(float(v) for v in (seg.a + seg.b) / 2), length_m=L,
+                                            orientation=tuple(float(v) for v in quat_from_x_axis(d / L, roll))),
+                                    float(self.radius_changes(x)[k])))
         off = self.offsets(x)
         pile = self.pile if off is None else moved_obstacles(self.pile, off)
         return pile.with_logs(tuple(logs))
@@ -358,15 +385,17 @@ def _refuse(prob: _Problem, x: np.ndarray, x_free: np.ndarray, tolerance_m: floa
         k = prob.terms[t].i
     term = _pressing(prob, x_free, k)
     other = term.other(k)
-    seg, free = prob.segments(x)[k], prob.segments(x_free)[k]
+    seg, free = prob.pose_segments(x)[k], prob.pose_segments(x_free)[k]
     move = max(float(np.linalg.norm(seg.a - free.a)), float(np.linalg.norm(seg.b - free.b)))
     others = () if term.kind != "log" else (term.j if term.i == k else term.i,)
-    off = prob.offsets(x)
+    off, dr = prob.offsets(x), prob.radius_changes(x)[k]
+    radius = ("" if prob.radius_sigmas is None else
+              f", its radius +-{prob.radius_sigmas[k] * 100:.1f} cm, {-dr * 2000:.1f} mm thinner")
     shared = "".join(f", obstacle {j}'s (+-{prob.obstacle_sigmas[j] * 100:.1f} cm, {off[j, 2] * 100:.1f} cm smaller, "
                      f"{math.hypot(off[j, 0], off[j, 1]) * 100:.1f} cm moved)" for j in prob.obstacles_of(k))
     raise SeparationError(
         f"log {k} would have to move {move * 100:.1f} cm to clear {other}, {math.sqrt(max(extra[k], 0.0)):.1f} sigma "
-        f"of what its scan ({prob.evidence[k].text()}) and survey points{shared} allow (limit "
+        f"of what its scan ({prob.evidence[k].text()}{radius}) and survey points{shared} allow (limit "
         f"{cfg.refuse_sigma:.0f} sigma); its fit or its GNSS end points are wrong", logs=(k,) + others)
 
 
@@ -420,7 +449,7 @@ def _allow_less(prob: _Problem, bad: list[tuple[int, Term, float]], last: bool) 
 def _cleared(prob: _Problem, x: np.ndarray, x_free: np.ndarray, rolls: Sequence[float]) -> Cleared:
     """The settled pile, a note per log the bodies moved, and each log's move by the bodies [m]."""
     notes, moved = [], []
-    segs, free = prob.segments(x), prob.segments(x_free)
+    segs, free = prob.pose_segments(x), prob.pose_segments(x_free)
     for k, (s, f) in enumerate(zip(segs, free)):
         move = max(float(np.linalg.norm(s.a - f.a)), float(np.linalg.norm(s.b - f.b)))
         moved.append(move)
@@ -436,6 +465,8 @@ def _cleared(prob: _Problem, x: np.ndarray, x_free: np.ndarray, rolls: Sequence[
         presses = [max(((depths[m].max(), t.i) for m, t in enumerate(prob.terms) if t.kind == "obstacle" and t.j == j),
                        default=(0.0, None))[1] for j in range(len(off))]
         notes += obstacle_notes(off, prob.obstacle_sigmas, presses)
+    if prob.radius_sigmas is not None:
+        notes += radius_notes(prob.radius_changes(x), prob.radius_sigmas, prob.pile.logs)
     return Cleared(prob.moved_pile(x, rolls), [], notes, moved, {})
 
 
@@ -483,8 +514,9 @@ class JointSettler:
         ends_k = self.survey_ends.get(lf.log_id, (None, None))
         if lf.fit == "scan" and own is not None:
             sig = self.sigmas[lf.log_id] = scan_sigma(own, log, self.band_m, self.cfg)
-            across, up = sig.across_m, sig.up_m
+            across, up, radius = sig.across_m, sig.up_m, sig.radius_m
         else:
+            radius = None  # not fitted to the scan: sigma_radius_prior_m
             across = up = max(axis_sigma_m(lf.fit, self.lateral.get(lf.log_id, 0.0), ends_k),
                               self.cfg.settle_scan_sigma_m)
         pulls = [survey_pull(log, pt.position_m, math.hypot(pt.sigma_h_m, self.cfg.pose_sigma_m),
@@ -492,7 +524,7 @@ class JointSettler:
                  for pt, e in zip(ends_k, lf.ends or (None, None))
                  if pt is not None and not (e or {}).get("contradicted")]
         along = along_priors(log, lf.ends, self.cfg) if self.cfg.along_ends else None
-        return LogEvidence(across, up, tuple(pulls), along)
+        return LogEvidence(across, up, tuple(pulls), along, radius)
 
     def own_points(self, pile: PileSpec) -> list[np.ndarray | None]:
         """Per log, the scan points on its surface that no other log's explains (None: no points given, or
