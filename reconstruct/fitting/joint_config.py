@@ -158,6 +158,11 @@ class JointConfig:
     #                             instead of pressed into its neighbour and refused (the main joint-13 failure on
     #                             the fresh held-out scans: docs/reconstruction.md, "Joint revision 13"). Off
     #                             until measured on held-out scans: revision 13's fixed radii [-]
+    radius_min_share: float = 0.6  # ... and never thinned below this share of its fitted radius: the thickest
+    #                                scan fits seen on the held-out scans needed 37 % of their radius off (22.0
+    #                                cm for 13.9), and a log that only fits thinned further is on the wrong ridge or
+    #                                misplaced (one such, on another's ridge, was kept 32 cm off by thinning it
+    #                                62 %: docs/reconstruction.md, "Joint revision 14 (in progress)") [-]
     obstacle_sigma_floor_m: float = 0.01  # an obstacle's place and surface are never surer than this: half the
     #                                       obstacle stage's 2 cm voxel, whatever its points' spread [m]
     obstacle_sigma_max_m: float = 0.05  # ... and at most this uncertain: stereo smears an edge by up to ~5 cm
@@ -197,7 +202,7 @@ class JointConfig:
                 continue
             if not getattr(self, f.name) > 0:
                 raise ValueError(f"JointConfig.{f.name} must be > 0, got {getattr(self, f.name)}")
-        for name in ("outlier_prior", "outlier_flag_prob", "sigma_bias_share", "p_on_inside", "p_below_inside", "p_on_outside",
+        for name in ("radius_min_share", "outlier_prior", "outlier_flag_prob", "sigma_bias_share", "p_on_inside", "p_below_inside", "p_on_outside",
                      "p_below_outside", "p_over_inside", "p_over_outside"):
             if not getattr(self, name) < 1:
                 raise ValueError(f"JointConfig.{name} is a probability: must be in (0, 1), got {getattr(self, name)}")

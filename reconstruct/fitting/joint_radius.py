@@ -28,28 +28,35 @@ MIN_RADIUS_M = 0.015
 REPORT_RADIUS_M = 1e-3
 
 
-def radius_segment(s: Segment, dr_m: float) -> Segment:
-    """Segment ``s`` with its radius changed by ``dr_m`` at both ends (at least ``MIN_RADIUS_M``), its top kept:
+def changed_radius(r_m: float, dr_m: float, min_share: float) -> float:
+    """A radius ``r_m`` changed by ``dr_m``, no thinner than ``min_share`` of itself nor ``MIN_RADIUS_M`` [m]:
+    past that floor a contact gains nothing from thinning the log, so it moves it (or refuses it) as before."""
+    return max(r_m + dr_m, min_share * r_m, MIN_RADIUS_M)
+
+
+def radius_segment(s: Segment, dr_m: float, min_share: float) -> Segment:
+    """Segment ``s`` with its radius changed by ``dr_m`` at both ends (:func:`changed_radius`), its top kept:
     its axis raised by what the radius lost."""
     if dr_m == 0.0:
         return s
-    ra, rb = max(s.ra + dr_m, MIN_RADIUS_M), max(s.rb + dr_m, MIN_RADIUS_M)
+    ra, rb = changed_radius(s.ra, dr_m, min_share), changed_radius(s.rb, dr_m, min_share)
     return Segment(s.a + (s.ra - ra) * UP, s.b + (s.rb - rb) * UP, ra, rb)
 
 
-def resized_log(log: LogSpec, dr_m: float) -> LogSpec:
-    """``log`` (already at its settled axis) with its diameters changed by twice ``dr_m`` (as
-    :func:`radius_segment`: at least ``MIN_RADIUS_M``; a cylinder stays one)."""
+def resized_log(log: LogSpec, dr_m: float, min_share: float) -> LogSpec:
+    """``log`` (already at its settled axis) with its radii changed by ``dr_m`` as :func:`radius_segment`
+    changes them (a cylinder stays one)."""
     if dr_m == 0.0:
         return log
-    butt = 2 * max(log.diameter_m / 2 + dr_m, MIN_RADIUS_M)
-    top = None if log.top_diameter_m is None else min(2 * max(log.top_diameter_m / 2 + dr_m, MIN_RADIUS_M), butt)
+    butt = 2 * changed_radius(log.diameter_m / 2, dr_m, min_share)
+    top = (None if log.top_diameter_m is None else
+           min(2 * changed_radius(log.top_diameter_m / 2, dr_m, min_share), butt))
     return replace(log, diameter_m=butt, top_diameter_m=top)
 
 
 def radius_notes(dr_m: np.ndarray, sigmas_m: Sequence[float], logs: Sequence[LogSpec]) -> list[str]:
     """A note per log whose radius the estimate changed by ``REPORT_RADIUS_M`` or more (``logs``: as found,
-    ``dr_m``: each one's radius change [m], ``sigmas_m``: each one's radius sigma [m]); a log thinned by more
+    ``dr_m``: each one's radius change as the settled pile carries it [m], ``sigmas_m``: each one's radius sigma [m]); a log thinned by more
     than its sigma is said to be."""
     notes = []
     for k, (dr, sig, log) in enumerate(zip(dr_m, sigmas_m, logs)):

@@ -50,7 +50,7 @@ from reconstruct.fitting.joint_config import JointConfig
 from reconstruct.fitting.joint_contact import Bodies, Segment, Term
 from reconstruct.fitting.joint_obstacles import (N_STATES, moved_obstacles, obstacle_notes, obstacle_sigmas,
                                                  offset_depths)
-from reconstruct.fitting.joint_radius import radius_notes, radius_segment, resized_log
+from reconstruct.fitting.joint_radius import changed_radius, radius_notes, radius_segment, resized_log
 from reconstruct.fitting.separation import SEPARATION_MARGIN_M, best_roll
 from synth.scene.pile import LogSpec, PileSpec, quat_from_x_axis
 
@@ -192,6 +192,11 @@ class _Problem:
         """Per log, its radius change [m] (zeros without radius states)."""
         return x[self.r0:] * self.scale[self.r0:] if self.radius_sigmas is not None else np.zeros(self.n)
 
+    def butt_radius_changes(self, x: np.ndarray) -> np.ndarray:
+        """Per log, its butt radius change as the settled pile carries it (floored: ``radius_min_share``) [m]."""
+        return np.array([changed_radius(r, dr, self.cfg.radius_min_share) - r
+                         for (r, _), dr in zip(self.radii, self.radius_changes(x))])
+
     def corrections(self, x: np.ndarray) -> np.ndarray:
         """Per log (ca, cb, ha, hb, la, lb) [m]: across, up and along (toward the top) at the butt and the top."""
         X = (x[:self.n_log_vars] * self.scale[:self.n_log_vars]).reshape(-1, self.width)
@@ -210,7 +215,8 @@ class _Problem:
     def _segment(self, k: int, c: np.ndarray, dr_m: float = 0.0) -> Segment:
         (a, b), n, u, (ra, rb) = self.base[k], self.across[k], self.axes[k], self.radii[k]
         ca, cb, ha, hb, la, lb = c
-        return radius_segment(Segment(a + ca * n + ha * UP + la * u, b + cb * n + hb * UP + lb * u, ra, rb), dr_m)
+        return radius_segment(Segment(a + ca * n + ha * UP + la * u, b + cb * n + hb * UP + lb * u, ra, rb), dr_m,
+                              self.cfg.radius_min_share)
 
     def along_residuals(self, x: np.ndarray, k: int) -> list[float]:
         """Log ``k``'s two ends' along priors (dimensionless): a butt moved toward the top, or a top toward
@@ -336,7 +342,7 @@ class _Problem:
                                       "are wrong", logs=(k,))
             logs.append(resized_log(replace(log, centre_m=tuple(float(v) for v in (seg.a + seg.b) / 2), length_m=L,
                                             orientation=tuple(float(v) for v in quat_from_x_axis(d / L, roll))),
-                                    float(self.radius_changes(x)[k])))
+                                    float(self.radius_changes(x)[k]), self.cfg.radius_min_share))
         off = self.offsets(x)
         pile = self.pile if off is None else moved_obstacles(self.pile, off)
         return pile.with_logs(tuple(logs))
@@ -388,7 +394,7 @@ def _refuse(prob: _Problem, x: np.ndarray, x_free: np.ndarray, tolerance_m: floa
     seg, free = prob.pose_segments(x)[k], prob.pose_segments(x_free)[k]
     move = max(float(np.linalg.norm(seg.a - free.a)), float(np.linalg.norm(seg.b - free.b)))
     others = () if term.kind != "log" else (term.j if term.i == k else term.i,)
-    off, dr = prob.offsets(x), prob.radius_changes(x)[k]
+    off, dr = prob.offsets(x), prob.butt_radius_changes(x)[k]
     radius = ("" if prob.radius_sigmas is None else
               f", its radius +-{prob.radius_sigmas[k] * 100:.1f} cm, {-dr * 2000:.1f} mm thinner")
     shared = "".join(f", obstacle {j}'s (+-{prob.obstacle_sigmas[j] * 100:.1f} cm, {off[j, 2] * 100:.1f} cm smaller, "
@@ -466,7 +472,7 @@ def _cleared(prob: _Problem, x: np.ndarray, x_free: np.ndarray, rolls: Sequence[
                        default=(0.0, None))[1] for j in range(len(off))]
         notes += obstacle_notes(off, prob.obstacle_sigmas, presses)
     if prob.radius_sigmas is not None:
-        notes += radius_notes(prob.radius_changes(x), prob.radius_sigmas, prob.pile.logs)
+        notes += radius_notes(prob.butt_radius_changes(x), prob.radius_sigmas, prob.pile.logs)
     return Cleared(prob.moved_pile(x, rolls), [], notes, moved, {})
 
 

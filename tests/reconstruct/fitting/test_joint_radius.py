@@ -116,15 +116,26 @@ def test_a_log_thinned_more_than_its_sigma_is_said_to_be():
     assert "more than its sigma" not in notes[1] and len(notes) == 2
 
 
-def test_a_resized_log_keeps_its_top_and_taper_and_is_never_thinner_than_the_least_radius():
+def test_a_resized_log_keeps_its_top_and_taper_and_is_never_thinner_than_its_floor():
     s = Segment(np.array([0.0, 0.0, 0.12]), np.array([2.0, 0.0, 0.12]), 0.12, 0.10)
-    t = radius_segment(s, -0.02)
+    t = radius_segment(s, -0.02, ON.radius_min_share)
     assert (t.ra, t.rb) == pytest.approx((0.10, 0.08))
     assert t.a[2] + t.ra == pytest.approx(s.a[2] + s.ra) and t.b[2] + t.rb == pytest.approx(s.b[2] + s.rb)
-    assert radius_segment(s, -0.5).rb == MIN_RADIUS_M
+    assert (radius_segment(s, -0.5, 0.6).ra, radius_segment(s, -0.5, 0.6).rb) == pytest.approx((0.072, 0.06))
+    assert radius_segment(s, -0.5, 0.01).rb == MIN_RADIUS_M
     tapered = LogSpec.from_endpoints((0.0, 0.0, 0.1), (2.0, 0.0, 0.1), 0.24, 0.20)
-    assert (resized_log(tapered, -0.02).diameter_m, resized_log(tapered, -0.02).top_d_m) == pytest.approx((0.20, 0.16))
-    assert resized_log(tapered, 0.0) is tapered
+    thin = resized_log(tapered, -0.02, ON.radius_min_share)
+    assert (thin.diameter_m, thin.top_d_m) == pytest.approx((0.20, 0.16))
+    assert resized_log(tapered, -0.5, 0.6).diameter_m == pytest.approx(0.6 * 0.24)
+    assert resized_log(tapered, 0.0, 0.6) is tapered
+
+
+def test_a_log_that_only_clears_thinned_past_its_floor_is_refused():
+    pile = _pile(thick_m=0.035)  # needs 26 % of its radius off; at most 10 % allowed here
+    with pytest.raises(SeparationError, match="log 0 would have to move"):
+        settle_pile(pile, _evidence(pile, 0.03), JointConfig(radius_states=True, radius_min_share=0.9), TOL, 12)
+    with pytest.raises(ValueError, match="radius_min_share"):
+        JointConfig(radius_min_share=1.0)
 
 
 def test_a_scan_fitted_log_s_radius_sigma_is_its_scan_s_and_a_placed_log_s_the_prior():
