@@ -311,9 +311,17 @@ class _Problem:
 
     def cost(self, x: np.ndarray, k: int) -> float:
         """Log ``k``'s evidence cost at ``x`` with, under obstacle states, that of each obstacle it is in
-        contact with (a contact shared by a log and an obstacle costs both their evidence)."""
+        contact with (a contact shared by a log and an obstacle costs both their evidence) and, under radius
+        states, the radius prior of each log it is in contact with (a neighbour thinned to clear it)."""
         own = float(np.sum(self.evidence_residuals(x, k) ** 2))
-        return own + sum(self.obstacle_cost(x, j) for j in self.obstacles_of(k))
+        shared = sum(float(x[self.r0 + j]) ** 2 for j in self.logs_of(k))
+        return own + sum(self.obstacle_cost(x, j) for j in self.obstacles_of(k)) + shared
+
+    def logs_of(self, k: int) -> list[int]:
+        """The other logs log ``k`` has a contact term with, under radius states (none without)."""
+        if self.radius_sigmas is None:
+            return []
+        return sorted({t.j if t.i == k else t.i for t in self.terms if t.kind == "log" and k in (t.i, t.j)})
 
     def obstacles_of(self, k: int) -> list[int]:
         """The obstacles (with states) log ``k`` has a contact term with."""

@@ -169,3 +169,16 @@ def test_the_settle_jacobian_with_radius_states_is_scipys_forward_difference():
         J = prob.jacobian(x, contacts)
         assert np.abs(J[:, -2:]).sum() > 0
         assert np.array_equal(J, approx_derivative(prob.residuals, x, method="2-point", args=(contacts,)))
+
+
+def test_a_log_s_refusal_cost_counts_the_radius_prior_of_each_neighbour_it_touches():
+    pile = _pile()
+    far = PileSpec(terrain=FLAT, logs=(pile.logs[0], _log(1.0, R)))
+    for p, shared in ((pile, True), (far, False)):
+        prob = _Problem(p, _evidence(p, LOOSE_M), ON)
+        x = np.zeros(len(prob.scale))
+        prob.terms = prob.bodies.terms(prob.segments(x), ON.contact_reach_m)
+        own = float(np.sum(prob.evidence_residuals(x, 0) ** 2))
+        x[-1] = 2.0  # log 1 thinned (or thickened) 2 sigma
+        assert prob.cost(x, 0) == pytest.approx(own + (4.0 if shared else 0.0))
+        assert prob.cost(x, 1) == pytest.approx(4.0)  # its own prior
