@@ -158,11 +158,12 @@ class JointConfig:
     #                             instead of pressed into its neighbour and refused (the main joint-13 failure on
     #                             the fresh held-out scans: docs/reconstruction.md, "Joint revision 13"). Off
     #                             until measured on held-out scans: revision 13's fixed radii [-]
-    radius_min_share: float = 0.6  # ... and never thinned below this share of its fitted radius: the thickest
-    #                                scan fits seen on the held-out scans needed 37 % of their radius off (22.0
-    #                                cm for 13.9), and a log that only fits thinned further is on the wrong ridge or
-    #                                misplaced (one such, on another's ridge, was kept 32 cm off by thinning it
-    #                                62 %: docs/reconstruction.md, "Joint revision 14 (in progress)") [-]
+    radius_min_share: float = 0.75  # ... and never thinned below this share of its fitted radius: past it a
+    #                                 contact moves or refuses the log as before. On the fresh held-out scans
+    #                                 the logs thinned and placed right needed at most 19 % off; the one that
+    #                                 needed 40 % lay on another's ridge 31 cm off, and was kept at 0.6, refused
+    #                                 at 0.75 (docs/reconstruction.md, "Joint revision 14 (in progress)": chosen
+    #                                 on those scans, so still to be judged on others) [-]
     obstacle_sigma_floor_m: float = 0.01  # an obstacle's place and surface are never surer than this: half the
     #                                       obstacle stage's 2 cm voxel, whatever its points' spread [m]
     obstacle_sigma_max_m: float = 0.05  # ... and at most this uncertain: stereo smears an edge by up to ~5 cm
