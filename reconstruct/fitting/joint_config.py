@@ -203,7 +203,8 @@ class JointConfig:
                 continue
             if not getattr(self, f.name) > 0:
                 raise ValueError(f"JointConfig.{f.name} must be > 0, got {getattr(self, f.name)}")
-        for name in ("radius_min_share", "outlier_prior", "outlier_flag_prob", "sigma_bias_share", "p_on_inside", "p_below_inside", "p_on_outside",
+        for name in ("radius_min_share",
+                     "outlier_prior", "outlier_flag_prob", "sigma_bias_share", "p_on_inside", "p_below_inside", "p_on_outside",
                      "p_below_outside", "p_over_inside", "p_over_outside"):
             if not getattr(self, name) < 1:
                 raise ValueError(f"JointConfig.{name} is a probability: must be in (0, 1), got {getattr(self, name)}")

@@ -7,9 +7,10 @@ farther than its evidence allows and refusing it.
 A log's state is one number, the change of its radius (the same at the butt and the top, so its taper is
 kept), in units of its sigma. The log is thinned (or thickened) with its top kept: the scan sees a log's top
 arc best, so a thinner log has its axis raised by what its radius lost (:func:`radius_segment`), as revision
-22's thinning does (:mod:`reconstruct.fitting.separation`). The settled pile carries the changed diameters
-(:func:`resized_log`), so the twin checks what the estimate says, and a note names each log thinned, saying
-where that is more than its sigma (:func:`radius_notes`)."""
+22's thinning does (:mod:`reconstruct.fitting.separation`), and never below ``radius_min_share`` of its
+fitted radius (:func:`changed_radius`): a log that clears only thinner is moved or refused. The settled pile
+carries the changed diameters (:func:`resized_log`), so the twin checks what the estimate says, and a note
+names each log thinned, saying where that is more than its sigma (:func:`radius_notes`)."""
 
 from __future__ import annotations
 
@@ -56,8 +57,8 @@ def resized_log(log: LogSpec, dr_m: float, min_share: float) -> LogSpec:
 
 def radius_notes(dr_m: np.ndarray, sigmas_m: Sequence[float], logs: Sequence[LogSpec]) -> list[str]:
     """A note per log whose radius the estimate changed by ``REPORT_RADIUS_M`` or more (``logs``: as found,
-    ``dr_m``: each one's radius change as the settled pile carries it [m], ``sigmas_m``: each one's radius sigma [m]); a log thinned by more
-    than its sigma is said to be."""
+    ``dr_m``: each one's radius change as the settled pile carries it [m], ``sigmas_m``: each one's radius
+    sigma [m]); a log thinned by more than its sigma is said to be."""
     notes = []
     for k, (dr, sig, log) in enumerate(zip(dr_m, sigmas_m, logs)):
         if abs(dr) < REPORT_RADIUS_M:
