@@ -203,11 +203,13 @@ class JointConfig:
                 continue
             if not getattr(self, f.name) > 0:
                 raise ValueError(f"JointConfig.{f.name} must be > 0, got {getattr(self, f.name)}")
-        for name in ("radius_min_share",
-                     "outlier_prior", "outlier_flag_prob", "sigma_bias_share", "p_on_inside", "p_below_inside", "p_on_outside",
-                     "p_below_outside", "p_over_inside", "p_over_outside"):
+        for name in ("outlier_prior", "outlier_flag_prob", "sigma_bias_share", "p_on_inside", "p_below_inside",
+                     "p_on_outside", "p_below_outside", "p_over_inside", "p_over_outside"):
             if not getattr(self, name) < 1:
                 raise ValueError(f"JointConfig.{name} is a probability: must be in (0, 1), got {getattr(self, name)}")
+        if not self.radius_min_share < 1:
+            raise ValueError(f"JointConfig.radius_min_share is a share of the fitted radius: must be in (0, 1), "
+                             f"got {self.radius_min_share}")
         if (self.p_on_inside + self.p_below_inside + self.p_over_inside > 1
                 or self.p_on_outside + self.p_below_outside + self.p_over_outside > 1):
             raise ValueError("JointConfig: p_on_* + p_below_* + p_over_* must not exceed 1 (a bin may also be unseen)")

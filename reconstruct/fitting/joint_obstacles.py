@@ -107,7 +107,8 @@ def _moved_stump(st: StumpSpec, off: np.ndarray) -> StumpSpec:
     shrink = float(off[2])
     top = max(STUMP_MIN_RADIUS_M, st.top_radius_m - shrink)
     return replace(st, position_m=(st.position_m[0] + float(off[0]), st.position_m[1] + float(off[1])),
-                   height_m=float(np.clip(st.height_m - shrink, STUMP_MIN_HEIGHT_M, STUMP_MAX_HEIGHT_M)), top_radius_m=top,
+                   height_m=float(np.clip(st.height_m - shrink, STUMP_MIN_HEIGHT_M, STUMP_MAX_HEIGHT_M)),
+                   top_radius_m=top,
                    bottom_radius_m=max(top, st.bottom_radius_m - shrink))
 
 
@@ -115,7 +116,7 @@ def _moved_rock(rk: RockSpec, off: np.ndarray) -> RockSpec:
     """The rock shifted and its faces moved ``off[2]`` inward (its hull's planes offset: the erosion the
     estimate's depths take, ``offset_depths``); one it would erode to nothing is drawn in toward its centre
     instead, to a twentieth of its size."""
-    from scipy.spatial import ConvexHull, HalfspaceIntersection
+    from scipy.spatial import ConvexHull, HalfspaceIntersection, QhullError
 
     V = np.asarray(rk.vertices_m, dtype=float)
     c = V.mean(axis=0)
@@ -123,14 +124,14 @@ def _moved_rock(rk: RockSpec, off: np.ndarray) -> RockSpec:
     try:
         eq = ConvexHull(V).equations.copy()  # n . x + b <= 0 inside
         eq[:, 3] += shrink
-        if np.all(eq[:, :3] @ c + eq[:, 3] < 0):
-            V = HalfspaceIntersection(eq, c).intersections
-        else:
-            raise ValueError("eroded past its centre")
-    except Exception:  # scipy's QhullError for a flat hull, or an erosion past the centre
+        eroded = HalfspaceIntersection(eq, c).intersections if np.all(eq[:, :3] @ c + eq[:, 3] < 0) else None
+    except QhullError:  # a flat hull
+        eroded = None
+    if eroded is None:  # a flat hull, or eroded past its centre
         d = V - c
         k = np.clip(1.0 - shrink / np.maximum(np.linalg.norm(d, axis=1), 1e-9), 0.05, None)
-        V = c + d * k[:, None]
+        eroded = c + d * k[:, None]
+    V = eroded
     pos = (rk.position_m[0] + float(off[0]), rk.position_m[1] + float(off[1]), rk.position_m[2])
     return replace(rk, position_m=pos, vertices_m=tuple(tuple(float(v) for v in row) for row in V))
 

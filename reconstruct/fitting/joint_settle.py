@@ -341,6 +341,7 @@ class _Problem:
 
     def moved_pile(self, x: np.ndarray, rolls: Sequence[float]) -> PileSpec:
         logs = []
+        dr = self.radius_changes(x)
         for k, (log, seg, roll) in enumerate(zip(self.pile.logs, self.segments(x), rolls)):
             d = seg.b - seg.a
             L = float(np.linalg.norm(d))
@@ -350,7 +351,7 @@ class _Problem:
                                       "are wrong", logs=(k,))
             logs.append(resized_log(replace(log, centre_m=tuple(float(v) for v in (seg.a + seg.b) / 2), length_m=L,
                                             orientation=tuple(float(v) for v in quat_from_x_axis(d / L, roll))),
-                                    float(self.radius_changes(x)[k]), self.cfg.radius_min_share))
+                                    float(dr[k]), self.cfg.radius_min_share))
         off = self.offsets(x)
         pile = self.pile if off is None else moved_obstacles(self.pile, off)
         return pile.with_logs(tuple(logs))
