@@ -61,13 +61,13 @@ def select(rows: list[dict], successes: int, others: bool, seed: int) -> list[tu
     return nc + [("success", r) for r in ok[:successes]] + rest
 
 
-def rerun(folder: Path, picked: list[tuple[str, dict]], trial_cfg, progress=print) -> list[dict]:
-    """Each picked choice tried again on its regenerated pile with ``trial_cfg``."""
+def rerun(conf: dict, picked: list[tuple[str, dict]], trial_cfg, progress=print) -> list[dict]:
+    """Each picked choice tried again on its regenerated pile (``conf``: the eval's configuration, its
+    eval.json's "config") with ``trial_cfg``."""
     from planner.evaluate import EvalConfig, eval_pile
     from synth.geometry.grasp import Grasp
     from synth.physics.trial import run_trial
 
-    conf = json.loads(Path(folder, "eval.json").read_text())["config"]
     ecfg = EvalConfig(max_obstacles=int(conf["max_obstacles"]))
     piles, out = {}, []
     for i, (tag, r) in enumerate(picked):
@@ -114,7 +114,7 @@ def main(argv: list[str] | None = None) -> None:
         picked = select(choices(a.folder), a.successes, a.others, a.seed)
     except (OSError, KeyError, ValueError) as e:
         ap.error(str(e))
-    rows = rerun(a.folder, picked, cfg)
+    rows = rerun(conf, picked, cfg)
     from synth.common.files import atomic_write_bytes
 
     atomic_write_bytes(a.out, json.dumps({"folder": str(a.folder), "overrides": overrides, "successes": a.successes,
