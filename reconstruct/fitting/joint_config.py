@@ -16,7 +16,7 @@ from dataclasses import dataclass, fields
 ESTIMATORS = ("rules22", "joint")
 #: raised whenever a change to the joint estimator makes different piles from the same scan (recorded in the
 #: report as ``estimator_revision`` and in bench keys)
-JOINT_REVISION = 13
+JOINT_REVISION = 14
 
 
 @dataclass(frozen=True)
@@ -196,6 +196,20 @@ class JointConfig:
     #                                    400 steps, ~1 min, to a refusal), ~0.15 s a step [-]
     # -- what is reported --
     weak_sigma_m: float = 0.05  # an end less certain than this is a weak estimate (warned about), as in rules22 [m]
+    # -- the matching's pose: the scan's offset from the survey a state of the assignment (joint_pose) --
+    match_pose_offset: bool = True  # the scan pose's error is one offset shared by every survey point: the
+    #                                 assignment is made at the likeliest offset under its prior (FuseConfig
+    #                                 pose_sigma_m per axis). Off (revision 13): each point scored alone with
+    #                                 pose_sigma_m (1 cm, the registered pose's) while matching runs on the pose
+    #                                 before registration, 1.5-11.5 cm off on held-out scans: in packed piles
+    #                                 every point then lay between two ridges and logs took neighbours' ridges
+    #                                 (docs/reconstruction.md, "Joint revision 14: the scan's offset in the
+    #                                 matching") [-]
+    match_pose_reach_sigmas: float = 3.0  # the offset is looked for this many prior sigmas out (12 cm at 4 cm:
+    #                                       past it the prior costs over 4.5 nats, a third of hiding a log) [-]
+    match_pose_step_m: float = 0.02  # ... on a grid this fine, then refined from its best points: a fifth of the
+    #                                  closest ridges' spacing (two 5 cm logs side by side, 10 cm), so the
+    #                                  grid lands in every offset's basin [m]
 
     def __post_init__(self) -> None:
         for f in fields(self):

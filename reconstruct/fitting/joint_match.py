@@ -18,7 +18,7 @@ points cannot be placed: its point is reported as an outlier and the log is left
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -26,6 +26,7 @@ from scipy.optimize import linear_sum_assignment
 
 from reconstruct.fitting.fuse_config import FuseConfig
 from reconstruct.fitting.joint_config import JointConfig
+from reconstruct.fitting.joint_pose import pose_offset, shifted
 from reconstruct.fitting.matching import Match, _ambiguity
 from reconstruct.fitting.scan_logs import ScanLog
 from reconstruct.fitting.survey_points import SurveyEnd
@@ -45,6 +46,8 @@ class JointMatching:
     cost_nats: float
     outliers: dict[str, set[int]]  # per matched log, its points (0: a, 1: b) likelier outliers than its ends
     ambiguous: list[str]  # one line per surveyed log another assignment, making another pile, explains as well
+    pose_offset_m: np.ndarray = field(default_factory=lambda: np.zeros(3))  # (3,) the scan's offset from the
+    #   survey the assignment was made at (site frame; added to the survey points) [m]
 
 
 def point_cost(e: SurveyEnd, log: ScanLog, at_start: bool, cfg: JointConfig, fcfg: FuseConfig,
@@ -121,22 +124,35 @@ def _solve(cost: np.ndarray, hidden: np.ndarray, missed: np.ndarray) -> tuple[fl
     return float(big[rows, cols].sum()), pick
 
 
+def _costs(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]], scan_logs: Sequence[ScanLog],
+           cfg: JointConfig, fcfg: FuseConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Every surveyed log's cost on every scan log, and whether its end a lies at the scan log's end."""
+    ids = list(survey)
+    cost = np.full((len(ids), len(scan_logs)), math.inf)
+    rev = np.zeros(cost.shape, bool)
+    for i, k in enumerate(ids):
+        for j, log in enumerate(scan_logs):
+            cost[i, j], rev[i, j] = pair_cost(survey[k], log, cfg, fcfg)
+    return cost, rev
+
+
 def joint_match(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]], scan_logs: Sequence[ScanLog],
                 cfg: JointConfig | None = None, fcfg: FuseConfig | None = None) -> JointMatching:
     """Match every surveyed log to at most one scan log by one assignment (see the module docstring)."""
     cfg, fcfg = cfg or JointConfig(), fcfg or FuseConfig()
     ids = list(survey)
     n, m = len(ids), len(scan_logs)
-    cost = np.full((n, m), math.inf)
-    rev = np.zeros((n, m), bool)
-    for i, k in enumerate(ids):
-        for j, log in enumerate(scan_logs):
-            cost[i, j], rev[i, j] = pair_cost(survey[k], log, cfg, fcfg)
     # a log of two points may be hidden under others; one of one point cannot be placed: it is left out, its
     # point an outlier
     hidden = np.array([cfg.hidden_cost if sum(e is not None for e in survey[k]) >= 2 else
                        sum(outlier_cost(e, cfg, fcfg) for e in survey[k] if e is not None) for k in ids])
     missed = np.array([cfg.missed_nats_per_m * log.seen_m for log in scan_logs])
+    offset = np.zeros(3)
+    if cfg.match_pose_offset and n and m:
+        offset = pose_offset(lambda d: _solve(*_costs(shifted(survey, d), scan_logs, cfg, fcfg)[:1], hidden,
+                                              missed)[0], fcfg.pose_sigma_m, cfg)
+        survey = shifted(survey, offset)
+    cost, rev = _costs(survey, scan_logs, cfg, fcfg)
     best, pick = _solve(cost, hidden, missed)
     taken = frozenset(j for j in pick if j is not None)
 
@@ -172,4 +188,5 @@ def joint_match(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]],
         if j is not None:
             outliers[k] = {n for n, e in enumerate(survey[k]) if e is not None and point_cost(
                 e, scan_logs[j], (n == 0) != rev[i, j], cfg, fcfg, outlier_prob=True) > cfg.outlier_flag_prob}
-    return JointMatching(matches, [j for j in range(m) if j not in taken], dropped, best, outliers, ambiguous)
+    return JointMatching(matches, [j for j in range(m) if j not in taken], dropped, best, outliers, ambiguous,
+                         offset)
