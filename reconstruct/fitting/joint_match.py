@@ -66,16 +66,32 @@ def point_cost(e: SurveyEnd, log: ScanLog, at_start: bool, cfg: JointConfig, fcf
     lat = float((q[:2] - p0[:2]) @ np.array([-u[1], u[0]])) / sh
     z_axis = p0[2] + (p1[2] - p0[2]) * float(np.clip(t / L, 0.0, 1.0))
     vert = (float(q[2]) - float(z_axis)) / sv
-    # a log's end is at or past the visible ridge's end: a point well inside the ridge is off its end
+    # a log's end is at or past the visible ridge's end: a point well inside the ridge is off its end, or the
+    # ridge runs on past it onto something in line
     inside = max(0.0, t) if at_start else max(0.0, L - t)
-    inside = max(0.0, min(inside, L) - cfg.ridge_overrun_m) / sh
+    inside = max(0.0, min(inside, L) - cfg.ridge_overrun_m)
     # past the ridge's end the log runs on unseen (under others) to the point: the farther, the less likely
     beyond = max(0.0, -t) if at_start else max(0.0, t - L)
-    chi2 = min(lat * lat + vert * vert + inside * inside
+    chi2 = min(lat * lat + vert * vert + 2.0 * run_on_nats(inside, sh, cfg)
                + 2.0 * cfg.unseen_nats_per_m * max(0.0, beyond - cfg.ridge_overrun_m), CHI2_CAP)
     eps = cfg.outlier_prior
     z_in, z_out = (1 - eps) * math.exp(-0.5 * chi2), eps * math.exp(-_kappa(sh, sv, cfg))
     return float(z_out / (z_in + z_out)) if outlier_prob else float(-math.log(z_in + z_out))
+
+
+def run_on_nats(inside_m: float, sigma_m: float, cfg: JointConfig) -> float:
+    """-log-likelihood [nats] of the scan's ridge running ``inside_m`` past a log's end (beyond
+    ``ridge_overrun_m``), relative to a ridge ending at it: the ridge ends at the log's end (a Gaussian of the
+    point's ``sigma_m``), or, with prior ``ridge_run_on_prior``, runs on onto something in line for an
+    exponential distance of mean ``ridge_run_on_mean_m``. Without run-ons, the Gaussian alone (revision 13)."""
+    gauss = 0.5 * (inside_m / sigma_m) ** 2
+    if not cfg.ridge_run_on:
+        return gauss
+    q, lam = cfg.ridge_run_on_prior, cfg.ridge_run_on_mean_m
+    ratio = q / (1.0 - q) * math.sqrt(2.0 * math.pi) * sigma_m / lam  # run-on density over the Gaussian's peak
+    run_on = -math.log(ratio) + inside_m / lam
+    lo = min(gauss, run_on)
+    return lo - math.log1p(math.exp(-abs(gauss - run_on)))
 
 
 def _kappa(sh: float, sv: float, cfg: JointConfig) -> float:
