@@ -203,10 +203,14 @@ class JointConfig:
     #                                 pose_sigma_m (1 cm, the registered pose's) while matching runs on the pose
     #                                 before registration, 1.5-11.5 cm off on held-out scans: in packed piles
     #                                 every point then lay between two ridges and logs took neighbours' ridges
-    #                                 (docs/reconstruction.md, "Joint revision 14: the scan's offset in the
-    #                                 matching") [-]
+    #                                 (docs/reconstruction.md, "Joint revision 14: the scan's offset a state of
+    #                                 the matching") [-]
     match_pose_reach_sigmas: float = 3.0  # the offset is looked for this many prior sigmas out (12 cm at 4 cm:
     #                                       past it the prior costs over 4.5 nats, a third of hiding a log) [-]
+    match_pose_step_m: float = 0.02  # ... on a grid this fine, then refined from its best points: a fifth of the
+    #                                  closest ridges' spacing (two 5 cm logs side by side, 10 cm), so the
+    #                                  grid lands in every offset's basin [m]
+    # -- the matching's ridges: a ridge may run on past its log's end (joint_match.run_on_nats) --
     ridge_run_on: bool = True  # a scan ridge may run on past its log's end onto something in line (a
     #                            neighbour's top, a crossing log's flank): the matching scores a point inside a
     #                            ridge by a mixture of the ridge ending at it and the ridge running on
@@ -220,9 +224,6 @@ class JointConfig:
     ridge_run_on_mean_m: float = 0.33  # ... and how far past ridge_overrun_m on average (an exponential of this
     #                                    mean: the same 44 ends' mean; their whole run past the end: median
     #                                    36 cm, 95 % within 77 cm) [m]
-    match_pose_step_m: float = 0.02  # ... on a grid this fine, then refined from its best points: a fifth of the
-    #                                  closest ridges' spacing (two 5 cm logs side by side, 10 cm), so the
-    #                                  grid lands in every offset's basin [m]
 
     def __post_init__(self) -> None:
         for f in fields(self):

@@ -5,8 +5,13 @@ costs for a surveyed log the scan shows nothing of (hidden) and a scan log no su
 A pair's cost is the negative log-likelihood of the surveyed log's points on the scan log's axis, each point a
 Gaussian (its accuracy, the scan pose's and the axis's) mixed with an outlier component
 (:class:`~reconstruct.fitting.joint_config.JointConfig` ``outlier_prior``, ``outlier_spread_m``), so a wrong
-point costs a bounded amount instead of being gated by a rule. Its zero is a perfect point: the costs of the
-hidden and missed choices are in the same units (nats).
+point costs a bounded amount instead of being gated by a rule. A point inside the ridge (the ridge running on
+past it) costs a mixture of the ridge ending there and the ridge running on onto something in line
+(:func:`run_on_nats`). Its zero is a perfect point: the costs of the hidden and missed choices are in the same
+units (nats).
+
+The scan pose's error is one offset shared by every point: the assignment is made at the likeliest offset under
+its prior (:mod:`reconstruct.fitting.joint_pose`), reported as ``pose_offset_m``.
 
 An assignment that makes a different pile (a scan log kept or dropped, a surveyed log hidden instead of seen)
 within ``ambiguity_nats`` of the best is a warning naming the log and the points to re-measure (the likelier
