@@ -134,8 +134,8 @@ def radius_misfit(points: np.ndarray, log: LogSpec, band_m: float, cfg: JointCon
     is right both are its points' noise (the wider adds little); where it is too thick its own points lie inside,
     past the band."""
     t, _, res, _, L = _radial(points, log)
-    wide, near = _inside_depth_m(t, res, L, cfg.radius_sigma_band_m), _inside_depth_m(t, res, L, band_m)
-    return math.sqrt(max(wide ** 2 - near ** 2, 0.0))
+    wide, inner = _inside_depth_m(t, res, L, cfg.radius_sigma_band_m), _inside_depth_m(t, res, L, band_m)
+    return math.sqrt(max(wide ** 2 - inner ** 2, 0.0))
 
 
 def scan_sigma(points: np.ndarray, log: LogSpec, band_m: float, cfg: JointConfig,

@@ -110,6 +110,12 @@ def test_the_heldout_set_has_other_seeds_and_other_shapes():
     assert shapes == ["packed", "loose", "dropped"] * 2
     assert pile_shape({"seed0": 1_100_000}, 1_100_007) == "dropped"  # a tuning record: one shape
     assert survey_set_key("heldout", estimator="joint")["estimator"] == "joint"
+    # JointConfig options away from their defaults are the record's key too, and only the joint estimator's
+    key = survey_set_key("heldout", estimator="joint", joint_options={"radius_states": True})
+    assert key["joint_options"] == {"radius_states": True}
+    assert "joint_options" not in survey_set_key("heldout", estimator="joint")
+    with pytest.raises(ValueError, match="radius_states.*--survey-estimator joint"):
+        survey_set_key("heldout", joint_options={"radius_states": True})
     with pytest.raises(ValueError, match="tuning set's seeds"):
         survey_set_key("heldout", 1_100_050)
     # the final set (the ship decision) has seeds of its own, and no other set may take them or the held-out's
