@@ -138,6 +138,12 @@ def test_a_heldout_record_says_so(tmp_path):
     assert rec["set"] == "heldout"
     text = "\n".join(survey_markdown(rec))
     assert "the heldout set" in text and "packed 1, loose 1 piles" in text
+    assert "estimator" not in text
+    options = {"radius_states": True}
+    key = {**KEY, "seed0": 3_300_000} | survey_set_key("heldout", estimator="joint", joint_options=options)
+    _write(tmp_path / "joint", [_scan(3_300_000, {"fixed": _ok(_log(1, 0.1))}, key=key)])
+    text = "\n".join(survey_markdown(read_survey_records(tmp_path / "joint")))
+    assert "estimator joint, radius_states True)" in text
 
 
 def test_a_loose_shape_scatters_the_pile():
