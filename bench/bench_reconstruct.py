@@ -50,6 +50,9 @@ if __name__ == "__main__":
                          "says which")
     ap.add_argument("--survey-estimator", default="rules22", choices=("rules22", "joint"),
                     help="ReconstructConfig.estimator the survey-conditions bench reconstructs with")
+    ap.add_argument("--survey-radius-states", action="store_true",
+                    help="with --survey-estimator joint: JointConfig.radius_states on (each log's radius a state of "
+                         "the pile estimate); the record's key says so")
     ap.add_argument("--survey-seed", type=int, default=None,
                     help="first seed of the survey-conditions bench (default: the --survey-set's)")
     ap.add_argument("--survey-work", type=Path, default=None,
@@ -103,12 +106,13 @@ if __name__ == "__main__":
         out = args.survey_out or Path(f"docs/results/survey-conditions{tail}")
         work = args.survey_work or Path(f"runs/survey-work{tail}")
         try:
-            survey_set_key(args.survey_set, args.survey_seed, args.survey_estimator)
+            joint_options = {"radius_states": True} if args.survey_radius_states else None
+            survey_set_key(args.survey_set, args.survey_seed, args.survey_estimator, joint_options)
         except ValueError as exc:
             raise SystemExit(str(exc)) from None
         rec = (read_survey_records(out) if args.survey_report else
                survey_bench(args.survey_scans, args.survey_seed, work, out, shard=shard,
-                            survey_set=args.survey_set, estimator=args.survey_estimator,
+                            survey_set=args.survey_set, estimator=args.survey_estimator, joint_options=joint_options,
                             progress=lambda s: print(s, file=sys.stderr, flush=True)))
         fig = survey_figure(rec, args.figure) if args.figure is not None else None
         print("\n".join(survey_markdown(rec, fig)))

@@ -49,10 +49,16 @@ SET_SEED_RANGES = {"tuning": (1_100_000, 1_200_000), "heldout": (3_300_000, 3_40
 TUNING_SEED_RANGE = SET_SEED_RANGES["tuning"]
 
 
-def survey_set_key(survey_set: str, seed0: int | None = None, estimator: str = "rules22") -> dict:
+def survey_set_key(survey_set: str, seed0: int | None = None, estimator: str = "rules22",
+                   joint_options: dict | None = None) -> dict:
     """The part of a survey-conditions record's key that says which set (and estimator) it measured; the
     tuning set with revision 22 adds nothing (its records from before the held-out set resume as they
-    are). A held-out or final run whose seeds start inside another set's (:data:`SET_SEED_RANGES`) is a ValueError."""
+    are). A held-out or final run whose seeds start inside another set's (:data:`SET_SEED_RANGES`) is a ValueError.
+    ``joint_options``: ``JointConfig`` fields set away from their defaults (the joint estimator only; recorded
+    as ``joint_options``, so such a run neither resumes nor is taken for one with the defaults)."""
+    if joint_options and estimator != "joint":
+        raise ValueError(f"JointConfig options ({', '.join(sorted(joint_options))}) need --survey-estimator joint, "
+                         f"got {estimator!r}")
     if survey_set not in SURVEY_SETS:
         raise ValueError(f"--survey-set must be one of {', '.join(SURVEY_SETS)}, got {survey_set!r}")
     seed0 = SURVEY_SETS[survey_set]["seed0"] if seed0 is None else int(seed0)
@@ -67,6 +73,8 @@ def survey_set_key(survey_set: str, seed0: int | None = None, estimator: str = "
         from reconstruct.fitting.joint_config import JOINT_REVISION
 
         key.update(estimator=estimator, estimator_revision=JOINT_REVISION)
+    if joint_options:
+        key.update(joint_options=dict(sorted(joint_options.items())))
     return key
 
 
@@ -78,7 +86,7 @@ def pile_shape(key: dict, seed: int) -> str:
 
 def survey_bench(n_scans: int, seed0: int | None, work_dir: Path, out: Path, logs=(3, 7), obstacles=(0, 3),
                  progress=print, shard: tuple[int, int] = (0, 1), survey_set: str = "tuning",
-                 estimator: str = "rules22") -> dict:
+                 estimator: str = "rules22", joint_options: dict | None = None) -> dict:
     """Reconstruction under the three survey conditions (:data:`SURVEY_CONDITIONS`) on ``n_scans``
     fresh twin scans (``loggrasp synth scan`` piles, seeds ``seed0``...): the stereo cloud of each scan
     is matched once and reconstructed with each survey; every log is measured against the truth (worst
@@ -90,14 +98,15 @@ def survey_bench(n_scans: int, seed0: int | None, work_dir: Path, out: Path, log
     stereo cloud (not needed to resume). ``shard`` (k, n): this process does the scans whose
     ``seed - seed0`` is k modulo n, so n processes with the same settings share one ``out``.
     ``survey_set``: "tuning", "heldout" or "final" (:data:`SURVEY_SETS`: its first seed when ``seed0`` is None,
-    its pile shapes); ``estimator``: ``ReconstructConfig.estimator``. Both go into the record's key."""
+    its pile shapes); ``estimator``: ``ReconstructConfig.estimator``; ``joint_options``: ``JointConfig`` fields
+    set away from their defaults (:func:`survey_set_key`). All go into the record's key."""
     import json
     import os
 
     from reconstruct.fitting.fit import FIT_REVISION
     from synth.common.files import atomic_write_bytes
 
-    set_key = survey_set_key(survey_set, seed0, estimator)
+    set_key = survey_set_key(survey_set, seed0, estimator, joint_options)
     seed0 = SURVEY_SETS[survey_set]["seed0"] if seed0 is None else int(seed0)
     key = {"seed0": seed0, "logs": list(logs), "obstacles": list(obstacles), "fit_revision": FIT_REVISION} | set_key
     records = out / "scans"
@@ -119,7 +128,7 @@ def survey_bench(n_scans: int, seed0: int | None, work_dir: Path, out: Path, log
                "stereo_wall_s": stereo[0], "stereo_cpu_s": stereo[1], "scan_make_s": make_s,
                "load": os.getloadavg()[0], "conditions": {}}
         for cond, gnss in surveys.items():
-            row["conditions"][cond] = _condition_entry(root, cond, gnss, cloud, truth, estimator)
+            row["conditions"][cond] = _condition_entry(root, cond, gnss, cloud, truth, estimator, joint_options)
         atomic_write_bytes(path, json.dumps(row, indent=1).encode())
         errs = {c: e.get("error", "")[:80] for c, e in row["conditions"].items() if "error" in e}
         worst = {c: max((lg["worst_end_m"] for lg in e.get("logs", [])), default=float("nan"))
@@ -174,9 +183,13 @@ def _stereo_cloud(root: Path):
     return cloud, stereo
 
 
-def _condition_entry(root: Path, cond: str, gnss: Path, cloud, truth, estimator: str = "rules22") -> dict:
+def _condition_entry(root: Path, cond: str, gnss: Path, cloud, truth, estimator: str = "rules22",
+                     joint_options: dict | None = None) -> dict:
     """One survey condition of a scan: the reconstruction's error (or its refusal), every log
-    against the truth with its ends' sources, and what the report flagged."""
+    against the truth with its ends' sources, and what the report flagged (``joint_options``:
+    :func:`survey_set_key`'s; the reconstruction kept in a folder named after them)."""
+    from dataclasses import replace
+
     from reconstruct.compare import compare_piles
     from reconstruct.errors import ReconstructError
     from reconstruct.config import ReconstructConfig
@@ -185,9 +198,12 @@ def _condition_entry(root: Path, cond: str, gnss: Path, cloud, truth, estimator:
     entry: dict = {}
     t0, c0 = time.perf_counter(), time.process_time()
     try:
-        out = root / (f"recon_{cond}" if estimator == "rules22" else f"recon_{cond}_{estimator}")
-        res = reconstruct(root / "scan", gnss, out, ReconstructConfig(allow_float=True, **_estimator_kw(estimator)),
-                          cloud=cloud)
+        name = f"recon_{cond}" if estimator == "rules22" else f"recon_{cond}_{estimator}"
+        config = ReconstructConfig(allow_float=True, **_estimator_kw(estimator))
+        if joint_options:
+            name += "".join(f"-{k}" for k in sorted(joint_options))
+            config = replace(config, joint=replace(config.joint, **joint_options))
+        res = reconstruct(root / "scan", gnss, root / name, config, cloud=cloud)
     except ReconstructError as exc:
         entry["error"] = f"{type(exc).__name__}: {exc}"
         return entry
@@ -367,7 +383,8 @@ def survey_markdown(rec: dict, figure: Path | None = None) -> list[str]:
         f"{rec['key']['logs'][0]}-{rec['key']['logs'][1]} logs, {rec['key']['obstacles'][0]}-{rec['key']['obstacles'][1]} "
         "obstacles, 2x2 pairs at 3 m), each reconstructed with three surveys of its pile "
         f"(fitting revision {rec['key']['fit_revision']}"
-        f"{', estimator ' + rec['key']['estimator'] if 'estimator' in rec['key'] else ''}). "
+        f"{', estimator ' + rec['key']['estimator'] if 'estimator' in rec['key'] else ''}"
+        + "".join(f", {k} {v}" for k, v in rec["key"].get("joint_options", {}).items()) + "). "
         "Per log: worst end error (the farther of its two ends from the truth), absolute mean-diameter error, mask IoU (128 px). Targets (issue 18): <= 1 % failures, "
         "worst end <= 3 cm median and <= 8 cm p95, diameter <= 1 cm median, <= 15 s per 4-pair scan. "
         f"{max(r.get('processes', 1) for r in rec['scans'])} bench process(es) on {rec['scans'][0].get('cpus', '?')} cores; "

@@ -164,6 +164,16 @@ class JointConfig:
     #                                 needed 40 % lay on another's ridge 31 cm off, and was kept at 0.6, refused
     #                                 at 0.75 (docs/reconstruction.md, "Joint revision 14 (in progress)": chosen
     #                                 on those scans, so still to be judged on others) [-]
+    radius_sigma_band_m: float = 0.05  # ... and its radius sigma carries the fit's misfit: the RMS depth of the
+    #                                    points inside its fitted surface within this (no other log's) beyond
+    #                                    that within the fit's inlier band (joint_scan_sigma.radius_misfit).
+    #                                    The inlier band (1.5 cm) keeps only the points that agree with the fit,
+    #                                    so a radius 4 cm too big left a third of its true log's points out and
+    #                                    its sigma blind to them. Wider than the radius errors the states are
+    #                                    for (up to 4 cm on the fresh held-out scans); at 5 cm the two logs
+    #                                    whose radii were 3-4 cm too big stood out (misfit 1.3-1.4 cm, the others
+    #                                    at most 0.8), at 8 cm a correct log's reached 1.1 (docs/
+    #                                    reconstruction.md, "Joint revision 14 (in progress)") [m]
     obstacle_sigma_floor_m: float = 0.01  # an obstacle's place and surface are never surer than this: half the
     #                                       obstacle stage's 2 cm voxel, whatever its points' spread [m]
     obstacle_sigma_max_m: float = 0.05  # ... and at most this uncertain: stereo smears an edge by up to ~5 cm

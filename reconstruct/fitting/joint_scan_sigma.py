@@ -21,7 +21,13 @@ surface (:func:`scan_sigma`):
   the underside - loose; flanks seen pin them;
 - the log is not round: the twin's pentagonal prism (and a real stem's ovality) puts the round fit's axis off
   by a share of the radius whatever the scan shows (``sigma_shape_per_radius``), added in quadrature; the
-  result is at most ``sigma_max_m``.
+  result is at most ``sigma_max_m``;
+- with the radius a state of the pile estimate (``JointConfig.radius_states``) the radius sigma also carries
+  what the cells cannot see, the fit's misfit (:func:`radius_misfit`): nothing is seen inside a solid log, so
+  the points inside its fitted surface are its surface's noise where the fit is right; a fit too thick (or off
+  across) leaves the log's own points inside its surface, deeper than ``band_m``, where the cells do not look.
+  The part of their RMS depth within ``radius_sigma_band_m`` beyond their RMS depth within ``band_m`` is added
+  to the radius sigma in quadrature.
 """
 
 from __future__ import annotations
@@ -50,10 +56,12 @@ class ScanSigma:
     cells: int
     arc_deg: tuple[float, float]
     cell_noise_m: float
+    radius_misfit_m: float = 0.0  # what radius_m carries of the fit's misfit (radius_misfit) [m]
 
     def to_dict(self) -> dict:
         return {"across_m": list(self.across_m), "up_m": list(self.up_m), "radius_m": self.radius_m,
-                "cells": self.cells, "arc_deg": list(self.arc_deg), "cell_noise_m": self.cell_noise_m}
+                "cells": self.cells, "arc_deg": list(self.arc_deg), "cell_noise_m": self.cell_noise_m,
+                "radius_misfit_m": self.radius_misfit_m}
 
 
 def _frame(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -64,20 +72,26 @@ def _frame(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return n, (w if w[2] >= 0 else -w)
 
 
+def _radial(points: np.ndarray, log: LogSpec) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
+    """Each point's place along ``log`` from its butt [m], its offset from the axis (perpendicular) [m], its
+    radial residual from the log's (tapered) round surface [m], and the log's axis and length [m]."""
+    butt, top = log.endpoints_m()
+    L = float(np.linalg.norm(top - butt))
+    u = (top - butt) / L
+    rel = np.asarray(points, dtype=float).reshape(-1, 3) - butt
+    t = rel @ u
+    perp = rel - np.outer(t, u)
+    r = log.diameter_m / 2 + (log.top_d_m - log.diameter_m) / 2 * np.clip(t / L, 0.0, 1.0)
+    return t, perp, np.linalg.norm(perp, axis=1) - r, u, L
+
+
 def surface_cells(points: np.ndarray, log: LogSpec, band_m: float, cfg: JointConfig
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The cells of ``log``'s surface that ``points`` (its own, pile frame) show: per cell its mean angle from
     the top (+ toward the across vector) [rad], its mean place along the log (-0.5 butt .. 0.5 top) [-], its
     mean radial residual [m] and its angle bin (cells of one bin share the stereo's bias along the log)."""
-    butt, top = log.endpoints_m()
-    L = float(np.linalg.norm(top - butt))
-    u = (top - butt) / L
+    t, perp, res, u, L = _radial(points, log)
     n, w = _frame(u)
-    rel = np.asarray(points, dtype=float).reshape(-1, 3) - butt
-    t = rel @ u
-    perp = rel - np.outer(t, u)
-    r = log.diameter_m / 2 + (log.top_d_m - log.diameter_m) / 2 * np.clip(t / L, 0.0, 1.0)
-    res = np.linalg.norm(perp, axis=1) - r
     on = (t >= 0) & (t <= L) & (np.abs(res) <= band_m)
     if not on.any():
         return np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0, np.int64)
@@ -106,9 +120,30 @@ def _information(A: np.ndarray, group: np.ndarray, noise_m: float, cfg: JointCon
     return (A.T @ A - (S.T * (1.0 / (a / c + n_g))) @ S) / a
 
 
-def scan_sigma(points: np.ndarray, log: LogSpec, band_m: float, cfg: JointConfig) -> ScanSigma:
+def _inside_depth_m(t: np.ndarray, res: np.ndarray, L: float, within_m: float) -> float:
+    """The RMS depth of the points inside a log's surface by at most ``within_m`` and within its length [m]
+    (0 without such points)."""
+    d = res[(t >= 0) & (t <= L) & (res < 0) & (res >= -within_m)]
+    return float(np.sqrt(np.mean(d ** 2))) if d.size else 0.0
+
+
+def radius_misfit(points: np.ndarray, log: LogSpec, band_m: float, cfg: JointConfig) -> float:
+    """What the cells of :func:`surface_cells` cannot see of ``log``'s fit [m]: the RMS depth of the points inside
+    its surface within ``cfg.radius_sigma_band_m`` beyond that within ``band_m`` (in quadrature; ``points``: the
+    scan near it that no other log's surface claims, pile frame). Nothing is seen inside a solid log: where the fit
+    is right both are its points' noise (the wider adds little); where it is too thick its own points lie inside,
+    past the band."""
+    t, _, res, _, L = _radial(points, log)
+    wide, inner = _inside_depth_m(t, res, L, cfg.radius_sigma_band_m), _inside_depth_m(t, res, L, band_m)
+    return math.sqrt(max(wide ** 2 - inner ** 2, 0.0))
+
+
+def scan_sigma(points: np.ndarray, log: LogSpec, band_m: float, cfg: JointConfig,
+               near: np.ndarray | None = None) -> ScanSigma:
     """``log``'s scan sigmas from the points on its surface (``points``: those no other log explains, pile
-    frame; ``band_m``: how near its surface a point is on it). See the module's text for the model."""
+    frame; ``band_m``: how near its surface a point is on it). See the module's text for the model. ``near``:
+    the scan near the log that no other log's surface claims (within ``band_m``); given, the radius sigma
+    carries the fit's misfit (:func:`radius_misfit`)."""
     phi, tau, res, group = surface_cells(points, log, band_m, cfg)
     noise = max(float(np.sqrt(np.mean(res ** 2))) if res.size else 0.0, cfg.sigma_cell_min_m)
     A = np.column_stack([np.sin(phi), tau * np.sin(phi), np.cos(phi), tau * np.cos(phi), np.ones_like(phi)])
@@ -127,4 +162,8 @@ def scan_sigma(points: np.ndarray, log: LogSpec, band_m: float, cfg: JointConfig
         across.append(max(flank))
         up.append(sd(np.array([0.0, 0.0, 1.0, s, -1.0])))  # the underside, h - r
     arc = (float(np.degrees(-phi.min())) if phi.size else 0.0, float(np.degrees(phi.max())) if phi.size else 0.0)
-    return ScanSigma((across[0], across[1]), (up[0], up[1]), sd(np.eye(_N_PARAMS)[4]), int(phi.size), arc, noise)
+    radius = sd(np.eye(_N_PARAMS)[4])
+    misfit = 0.0 if near is None else radius_misfit(near, log, band_m, cfg)
+    if misfit > 0.0:
+        radius = math.hypot(radius, misfit)
+    return ScanSigma((across[0], across[1]), (up[0], up[1]), radius, int(phi.size), arc, noise, misfit)

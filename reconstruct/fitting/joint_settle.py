@@ -521,14 +521,17 @@ class JointSettler:
         self.points, self.band_m = points, band_m
         self.sigmas: dict[str, Any] = {}
 
-    def evidence(self, log: LogSpec, lf, own: np.ndarray | None = None) -> LogEvidence:
-        """``log``'s evidence (``lf``: its fit report; ``own``: the scan points on its surface and no other's)."""
+    def evidence(self, log: LogSpec, lf, own: np.ndarray | None = None, near: np.ndarray | None = None
+                 ) -> LogEvidence:
+        """``log``'s evidence (``lf``: its fit report; ``own``: the scan points on its surface and no other's;
+        ``near``: with radius states, the scan points no other log's surface claims, for its radius sigma's
+        misfit: :func:`reconstruct.fitting.joint_scan_sigma.radius_misfit`)."""
         from reconstruct.fitting.ends import axis_sigma_m
         from reconstruct.fitting.joint_scan_sigma import scan_sigma
 
         ends_k = self.survey_ends.get(lf.log_id, (None, None))
         if lf.fit == "scan" and own is not None:
-            sig = self.sigmas[lf.log_id] = scan_sigma(own, log, self.band_m, self.cfg)
+            sig = self.sigmas[lf.log_id] = scan_sigma(own, log, self.band_m, self.cfg, near)
             across, up, radius = sig.across_m, sig.up_m, sig.radius_m
         else:
             radius = None  # not fitted to the scan: sigma_radius_prior_m
@@ -541,21 +544,26 @@ class JointSettler:
         along = along_priors(log, lf.ends, self.cfg) if self.cfg.along_ends else None
         return LogEvidence(across, up, tuple(pulls), along, radius)
 
-    def own_points(self, pile: PileSpec) -> list[np.ndarray | None]:
-        """Per log, the scan points on its surface that no other log's explains (None: no points given, or
-        ``per_log_sigma`` off)."""
+    def own_points(self, pile: PileSpec) -> tuple[list[np.ndarray | None], list[np.ndarray | None]]:
+        """Per log, the scan points on its surface that no other log's explains, and (with ``radius_states``)
+        those and the points on no log's surface, for its radius sigma's misfit (None: no points given,
+        ``per_log_sigma`` off, or radius states off)."""
         from reconstruct.fitting.geometry import _owners
 
+        none: list[np.ndarray | None] = [None] * len(pile.logs)
         if self.points is None or not self.cfg.per_log_sigma:
-            return [None] * len(pile.logs)
+            return none, none
         P = np.asarray(self.points, dtype=float)
         P = P[np.all(np.isfinite(P), axis=1)]
         owner = _owners(P, pile.logs, self.band_m)
-        return [P[owner == k] for k in range(len(pile.logs))]
+        own: list[np.ndarray | None] = [P[owner == k] for k in range(len(pile.logs))]
+        if not self.cfg.radius_states:
+            return own, none
+        return own, [P[(owner == k) | (owner < 0)] for k in range(len(pile.logs))]
 
     def __call__(self, pile: PileSpec, fits: Sequence) -> Cleared:
-        own = self.own_points(pile)
-        evidence = [self.evidence(log, lf, pts) for log, lf, pts in zip(pile.logs, fits, own)]
+        own, near = self.own_points(pile)
+        evidence = [self.evidence(log, lf, pts, nr) for log, lf, pts, nr in zip(pile.logs, fits, own, near)]
         sigmas = obstacle_sigmas(pile, self.points, self.cfg) if self.cfg.obstacle_states else None
         cleared, free = settle_pile(pile, evidence, self.cfg, self.tolerance_m, self.roll_steps, sigmas)
         for k, lf in enumerate(fits):

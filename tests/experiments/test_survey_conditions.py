@@ -110,6 +110,12 @@ def test_the_heldout_set_has_other_seeds_and_other_shapes():
     assert shapes == ["packed", "loose", "dropped"] * 2
     assert pile_shape({"seed0": 1_100_000}, 1_100_007) == "dropped"  # a tuning record: one shape
     assert survey_set_key("heldout", estimator="joint")["estimator"] == "joint"
+    # JointConfig options away from their defaults are the record's key too, and only the joint estimator's
+    key = survey_set_key("heldout", estimator="joint", joint_options={"radius_states": True})
+    assert key["joint_options"] == {"radius_states": True}
+    assert "joint_options" not in survey_set_key("heldout", estimator="joint")
+    with pytest.raises(ValueError, match="radius_states.*--survey-estimator joint"):
+        survey_set_key("heldout", joint_options={"radius_states": True})
     with pytest.raises(ValueError, match="tuning set's seeds"):
         survey_set_key("heldout", 1_100_050)
     # the final set (the ship decision) has seeds of its own, and no other set may take them or the held-out's
@@ -132,6 +138,12 @@ def test_a_heldout_record_says_so(tmp_path):
     assert rec["set"] == "heldout"
     text = "\n".join(survey_markdown(rec))
     assert "the heldout set" in text and "packed 1, loose 1 piles" in text
+    assert "estimator" not in text
+    options = {"radius_states": True}
+    key = {**KEY, "seed0": 3_300_000} | survey_set_key("heldout", estimator="joint", joint_options=options)
+    _write(tmp_path / "joint", [_scan(3_300_000, {"fixed": _ok(_log(1, 0.1))}, key=key)])
+    text = "\n".join(survey_markdown(read_survey_records(tmp_path / "joint")))
+    assert "estimator joint, radius_states True)" in text
 
 
 def test_a_loose_shape_scatters_the_pile():

@@ -4,13 +4,16 @@ sigma. Hand-made logs and points on their surfaces; the twin checks each settled
 
 from __future__ import annotations
 
+import math
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from reconstruct.errors import SeparationError
 from reconstruct.fitting.fit_config import LogFit
 from reconstruct.fitting.joint_config import JointConfig
-from reconstruct.fitting.joint_scan_sigma import scan_sigma
+from reconstruct.fitting.joint_scan_sigma import radius_misfit, scan_sigma
 from reconstruct.fitting.joint_settle import JointSettler
 from synth.scene.pile import LogSpec, PileSpec, TerrainSpec
 
@@ -122,3 +125,60 @@ def test_the_per_log_sigma_parameters_are_checked():
                  "sigma_shape_per_radius", "sigma_max_m"):
         with pytest.raises(ValueError, match=name):
             JointConfig(**{name: 0})
+
+
+def _fitted(y: float, thick_m: float) -> LogSpec:
+    """Log ``_log(y)`` as a fit ``thick_m`` too thick in radius would put it: its seen top kept, its axis lower."""
+    return LogSpec.from_endpoints((-1.0, y, R - thick_m), (1.0, y, R - thick_m), 2 * (R + thick_m))
+
+
+def test_a_fit_too_thick_leaves_its_own_points_inside_its_surface_and_its_radius_sigma_says_so():
+    true = _log(0.0)
+    seen = _surface(true, -90, 90)  # the top and both flanks of a log lying alone
+    right = scan_sigma(seen, true, BAND, CFG, near=seen)
+    assert right.radius_misfit_m < 0.001  # fitted right: its points as deep inside within the band as past it
+    assert right.radius_m == pytest.approx(scan_sigma(seen, true, BAND, CFG).radius_m, rel=0.01)
+    thick = _fitted(0.0, 0.04)  # fitted 8 cm too thick (3300153's log: 22 cm for 14): its flanks 4 cm inside
+    blind = scan_sigma(seen, thick, BAND, CFG)  # the inlier band's cells alone: the flanks left out
+    told = scan_sigma(seen, thick, BAND, CFG, near=seen)
+    assert told.radius_misfit_m > 0.01
+    assert told.radius_m == pytest.approx(math.hypot(blind.radius_m, told.radius_misfit_m))
+    assert told.radius_m > blind.radius_m + 0.003
+    assert (told.across_m, told.up_m, told.cell_noise_m) == (blind.across_m, blind.up_m, blind.cell_noise_m)
+
+
+def test_the_radius_misfit_counts_only_points_inside_the_log_within_its_band_and_length():
+    true = _log(0.0)
+    seen = _surface(true, -90, 90)
+    outside = np.array([[0.5, 0.0, 2 * R + 0.03]])  # a branch 3 cm over its top ...
+    past = np.array([[1.3, 0.0, 2 * R - 0.02]])  # ... a point 2 cm inside its round extended past its top end
+    deep = np.array([[0.0, 0.0, R]])  # on its axis: 10 cm inside, past radius_sigma_band_m
+    extra = np.repeat(np.vstack([outside, past, deep]), 400, axis=0)
+    assert radius_misfit(np.vstack([seen, extra]), true, BAND, CFG) < 0.001
+    thick = _fitted(0.0, 0.04)
+    assert radius_misfit(seen, thick, BAND, CFG) > 0.01
+    assert radius_misfit(seen, thick, BAND, replace(CFG, radius_sigma_band_m=BAND)) == 0.0  # no wider: blind
+    with pytest.raises(ValueError, match="radius_sigma_band_m"):
+        JointConfig(radius_sigma_band_m=0.0)
+
+
+def test_the_settle_gives_a_log_s_radius_sigma_its_misfit_only_with_radius_states_and_not_a_neighbour_s_points():
+    thick, neighbour = _fitted(0.0, 0.04), _log(0.2)  # two true logs touching; log 0 fitted 8 cm too thick
+    pile = PileSpec(terrain=FLAT, logs=(thick, neighbour))
+    fits = [_fit("log1", 0, thick), _fit("log2", 1, neighbour)]
+    mine = _surface(_log(0.0), -90, 60)  # its flank toward the neighbour partly hidden
+    seen = np.vstack([mine, _surface(neighbour, -90, 90, seed=1)])  # the neighbour's flank 2 cm inside the fit
+    off = JointSettler({}, {}, CFG, TOL, 12, points=seen, band_m=BAND)
+    own, near = off.own_points(pile)
+    assert near == [None, None]
+    off.evidence(thick, fits[0], own[0])
+    assert off.sigmas["log1"].radius_misfit_m == 0.0  # revision 13: its radius sigma as the band's cells say
+    on = JointSettler({}, {}, replace(CFG, radius_states=True), TOL, 12, points=seen, band_m=BAND)
+    own, near = on.own_points(pile)
+    ev = on.evidence(thick, fits[0], own[0], near[0])
+    assert on.sigmas["log1"].radius_misfit_m > 0.01 and ev.sigma_radius_m == on.sigmas["log1"].radius_m
+    # the neighbour's surface is the neighbour's: its points inside the thick fit say nothing of it
+    assert on.sigmas["log1"].radius_misfit_m == pytest.approx(radius_misfit(mine, thick, BAND, CFG), rel=0.02)
+    assert radius_misfit(seen, thick, BAND, CFG) > 1.1 * radius_misfit(mine, thick, BAND, CFG)
+    on.evidence(neighbour, fits[1], own[1], near[1])
+    assert on.sigmas["log2"].radius_misfit_m < 0.002
