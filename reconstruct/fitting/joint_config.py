@@ -16,7 +16,7 @@ from dataclasses import dataclass, fields
 ESTIMATORS = ("rules22", "joint")
 #: raised whenever a change to the joint estimator makes different piles from the same scan (recorded in the
 #: report as ``estimator_revision`` and in bench keys)
-JOINT_REVISION = 13
+JOINT_REVISION = 14
 
 
 @dataclass(frozen=True)
@@ -206,6 +206,34 @@ class JointConfig:
     #                                    400 steps, ~1 min, to a refusal), ~0.15 s a step [-]
     # -- what is reported --
     weak_sigma_m: float = 0.05  # an end less certain than this is a weak estimate (warned about), as in rules22 [m]
+    # -- the matching's pose: the scan's offset from the survey a state of the assignment (joint_pose) --
+    match_pose_offset: bool = True  # the scan pose's error is one offset shared by every survey point: the
+    #                                 assignment is made at the likeliest offset under its prior (FuseConfig
+    #                                 pose_sigma_m per axis). Off (revision 13): each point scored alone with
+    #                                 pose_sigma_m (1 cm, the registered pose's) while matching runs on the pose
+    #                                 before registration, 1.5-11.5 cm off on held-out scans: in packed piles
+    #                                 every point then lay between two ridges and logs took neighbours' ridges
+    #                                 (docs/reconstruction.md, "Joint revision 14: the scan's offset a state of
+    #                                 the matching") [-]
+    match_pose_reach_sigmas: float = 3.0  # the offset is looked for this many prior sigmas out (12 cm at 4 cm:
+    #                                       past it the prior costs over 4.5 nats, a third of hiding a log) [-]
+    match_pose_step_m: float = 0.02  # ... on a grid this fine, then refined from its best points: a fifth of the
+    #                                  closest ridges' spacing (two 5 cm logs side by side, 10 cm), so the
+    #                                  grid lands in every offset's basin [m]
+    # -- the matching's ridges: a ridge may run on past its log's end (joint_match.run_on_nats) --
+    ridge_run_on: bool = True  # a scan ridge may run on past its log's end onto something in line (a
+    #                            neighbour's top, a crossing log's flank): the matching scores a point inside a
+    #                            ridge by a mixture of the ridge ending at it and the ridge running on
+    #                            (joint_match.run_on_nats). Off (revision 13): a Gaussian of the point's sigma
+    #                            alone, so a ridge 20-40 cm past both fixed points of its log made both points
+    #                            outliers and the log hidden [-]
+    ridge_run_on_prior: float = 0.06  # the share of log ends whose ridge runs on past them by more than
+    #                                   ridge_overrun_m: 44 of 760 ridge ends on the first 84 held-out scans
+    #                                   (all-fixed survey, the truth's axes; the rest end short of the log's end,
+    #                                   median 6 cm) [-]
+    ridge_run_on_mean_m: float = 0.33  # ... and how far past ridge_overrun_m on average (an exponential of this
+    #                                    mean: the same 44 ends' mean; their whole run past the end: median
+    #                                    36 cm, 95 % within 77 cm) [m]
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -213,7 +241,8 @@ class JointConfig:
                 continue
             if not getattr(self, f.name) > 0:
                 raise ValueError(f"JointConfig.{f.name} must be > 0, got {getattr(self, f.name)}")
-        for name in ("outlier_prior", "outlier_flag_prob", "sigma_bias_share", "p_on_inside", "p_below_inside",
+        for name in ("outlier_prior", "outlier_flag_prob", "ridge_run_on_prior", "sigma_bias_share", "p_on_inside",
+                     "p_below_inside",
                      "p_on_outside", "p_below_outside", "p_over_inside", "p_over_outside"):
             if not getattr(self, name) < 1:
                 raise ValueError(f"JointConfig.{name} is a probability: must be in (0, 1), got {getattr(self, name)}")

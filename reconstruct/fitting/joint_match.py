@@ -5,8 +5,13 @@ costs for a surveyed log the scan shows nothing of (hidden) and a scan log no su
 A pair's cost is the negative log-likelihood of the surveyed log's points on the scan log's axis, each point a
 Gaussian (its accuracy, the scan pose's and the axis's) mixed with an outlier component
 (:class:`~reconstruct.fitting.joint_config.JointConfig` ``outlier_prior``, ``outlier_spread_m``), so a wrong
-point costs a bounded amount instead of being gated by a rule. Its zero is a perfect point: the costs of the
-hidden and missed choices are in the same units (nats).
+point costs a bounded amount instead of being gated by a rule. A point inside the ridge (the ridge running on
+past it) costs a mixture of the ridge ending there and the ridge running on onto something in line
+(:func:`run_on_nats`). Its zero is a perfect point: the costs of the hidden and missed choices are in the same
+units (nats).
+
+The scan pose's error is one offset shared by every point: the assignment is made at the likeliest offset under
+its prior (:mod:`reconstruct.fitting.joint_pose`), reported as ``pose_offset_m``.
 
 An assignment that makes a different pile (a scan log kept or dropped, a surveyed log hidden instead of seen)
 within ``ambiguity_nats`` of the best is a warning naming the log and the points to re-measure (the likelier
@@ -18,7 +23,7 @@ points cannot be placed: its point is reported as an outlier and the log is left
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -26,6 +31,7 @@ from scipy.optimize import linear_sum_assignment
 
 from reconstruct.fitting.fuse_config import FuseConfig
 from reconstruct.fitting.joint_config import JointConfig
+from reconstruct.fitting.joint_pose import pose_offset, shifted
 from reconstruct.fitting.matching import Match, _ambiguity
 from reconstruct.fitting.scan_logs import ScanLog
 from reconstruct.fitting.survey_points import SurveyEnd
@@ -45,6 +51,8 @@ class JointMatching:
     cost_nats: float
     outliers: dict[str, set[int]]  # per matched log, its points (0: a, 1: b) likelier outliers than its ends
     ambiguous: list[str]  # one line per surveyed log another assignment, making another pile, explains as well
+    pose_offset_m: np.ndarray = field(default_factory=lambda: np.zeros(3))  # (3,) the scan's offset from the
+    #   survey the assignment was made at (site frame; added to the survey points) [m]
 
 
 def point_cost(e: SurveyEnd, log: ScanLog, at_start: bool, cfg: JointConfig, fcfg: FuseConfig,
@@ -63,16 +71,32 @@ def point_cost(e: SurveyEnd, log: ScanLog, at_start: bool, cfg: JointConfig, fcf
     lat = float((q[:2] - p0[:2]) @ np.array([-u[1], u[0]])) / sh
     z_axis = p0[2] + (p1[2] - p0[2]) * float(np.clip(t / L, 0.0, 1.0))
     vert = (float(q[2]) - float(z_axis)) / sv
-    # a log's end is at or past the visible ridge's end: a point well inside the ridge is off its end
+    # a log's end is at or past the visible ridge's end: a point well inside the ridge is off its end, or the
+    # ridge runs on past it onto something in line
     inside = max(0.0, t) if at_start else max(0.0, L - t)
-    inside = max(0.0, min(inside, L) - cfg.ridge_overrun_m) / sh
+    inside = max(0.0, min(inside, L) - cfg.ridge_overrun_m)
     # past the ridge's end the log runs on unseen (under others) to the point: the farther, the less likely
     beyond = max(0.0, -t) if at_start else max(0.0, t - L)
-    chi2 = min(lat * lat + vert * vert + inside * inside
+    chi2 = min(lat * lat + vert * vert + 2.0 * run_on_nats(inside, sh, cfg)
                + 2.0 * cfg.unseen_nats_per_m * max(0.0, beyond - cfg.ridge_overrun_m), CHI2_CAP)
     eps = cfg.outlier_prior
     z_in, z_out = (1 - eps) * math.exp(-0.5 * chi2), eps * math.exp(-_kappa(sh, sv, cfg))
     return float(z_out / (z_in + z_out)) if outlier_prob else float(-math.log(z_in + z_out))
+
+
+def run_on_nats(inside_m: float, sigma_m: float, cfg: JointConfig) -> float:
+    """-log-likelihood [nats] of the scan's ridge running ``inside_m`` past a log's end (beyond
+    ``ridge_overrun_m``), relative to a ridge ending at it: the ridge ends at the log's end (a Gaussian of the
+    point's ``sigma_m``), or, with prior ``ridge_run_on_prior``, runs on onto something in line for an
+    exponential distance of mean ``ridge_run_on_mean_m``. Without run-ons, the Gaussian alone (revision 13)."""
+    gauss = 0.5 * (inside_m / sigma_m) ** 2
+    if not cfg.ridge_run_on:
+        return gauss
+    q, lam = cfg.ridge_run_on_prior, cfg.ridge_run_on_mean_m
+    ratio = q / (1.0 - q) * math.sqrt(2.0 * math.pi) * sigma_m / lam  # run-on density over the Gaussian's peak
+    run_on = -math.log(ratio) + inside_m / lam
+    lo = min(gauss, run_on)
+    return lo - math.log1p(math.exp(-abs(gauss - run_on)))
 
 
 def _kappa(sh: float, sv: float, cfg: JointConfig) -> float:
@@ -121,22 +145,35 @@ def _solve(cost: np.ndarray, hidden: np.ndarray, missed: np.ndarray) -> tuple[fl
     return float(big[rows, cols].sum()), pick
 
 
+def _costs(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]], scan_logs: Sequence[ScanLog],
+           cfg: JointConfig, fcfg: FuseConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Every surveyed log's cost on every scan log, and whether its end a lies at the scan log's end."""
+    ids = list(survey)
+    cost = np.full((len(ids), len(scan_logs)), math.inf)
+    rev = np.zeros(cost.shape, bool)
+    for i, k in enumerate(ids):
+        for j, log in enumerate(scan_logs):
+            cost[i, j], rev[i, j] = pair_cost(survey[k], log, cfg, fcfg)
+    return cost, rev
+
+
 def joint_match(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]], scan_logs: Sequence[ScanLog],
                 cfg: JointConfig | None = None, fcfg: FuseConfig | None = None) -> JointMatching:
     """Match every surveyed log to at most one scan log by one assignment (see the module docstring)."""
     cfg, fcfg = cfg or JointConfig(), fcfg or FuseConfig()
     ids = list(survey)
     n, m = len(ids), len(scan_logs)
-    cost = np.full((n, m), math.inf)
-    rev = np.zeros((n, m), bool)
-    for i, k in enumerate(ids):
-        for j, log in enumerate(scan_logs):
-            cost[i, j], rev[i, j] = pair_cost(survey[k], log, cfg, fcfg)
     # a log of two points may be hidden under others; one of one point cannot be placed: it is left out, its
     # point an outlier
     hidden = np.array([cfg.hidden_cost if sum(e is not None for e in survey[k]) >= 2 else
                        sum(outlier_cost(e, cfg, fcfg) for e in survey[k] if e is not None) for k in ids])
     missed = np.array([cfg.missed_nats_per_m * log.seen_m for log in scan_logs])
+    offset = np.zeros(3)
+    if cfg.match_pose_offset and n and m:
+        offset = pose_offset(lambda d: _solve(*_costs(shifted(survey, d), scan_logs, cfg, fcfg)[:1], hidden,
+                                              missed)[0], fcfg.pose_sigma_m, cfg)
+        survey = shifted(survey, offset)
+    cost, rev = _costs(survey, scan_logs, cfg, fcfg)
     best, pick = _solve(cost, hidden, missed)
     taken = frozenset(j for j in pick if j is not None)
 
@@ -172,4 +209,5 @@ def joint_match(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]],
         if j is not None:
             outliers[k] = {n for n, e in enumerate(survey[k]) if e is not None and point_cost(
                 e, scan_logs[j], (n == 0) != rev[i, j], cfg, fcfg, outlier_prob=True) > cfg.outlier_flag_prob}
-    return JointMatching(matches, [j for j in range(m) if j not in taken], dropped, best, outliers, ambiguous)
+    return JointMatching(matches, [j for j in range(m) if j not in taken], dropped, best, outliers, ambiguous,
+                         offset)

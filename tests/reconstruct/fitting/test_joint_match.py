@@ -1,0 +1,118 @@
+"""The joint matching's shared scan offset (reconstruct.fitting.joint_pose) and a ridge that runs on past its
+log's end (joint_match.run_on_nats): logs between two ridges, a hidden log, a missed log, a merged ridge."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from reconstruct.fitting.fuse_config import FuseConfig
+from reconstruct.fitting.joint_config import JointConfig
+from reconstruct.fitting.joint_match import joint_match, point_cost, run_on_nats
+from reconstruct.fitting.joint_pose import pose_offset
+from reconstruct.fitting.scan_logs import ScanLog
+from reconstruct.fitting.survey_points import SurveyEnd
+
+CFG, FCFG = JointConfig(), FuseConfig()
+OFF = replace(CFG, match_pose_offset=False)
+SPACING_M = 0.18  # a packed pile's logs side by side (two 9 cm radii)
+SHIFT_M = 0.11  # the scan pose's error across them before registration: past half the spacing
+
+
+def _ridge(y: float, x0: float = 0.0, x1: float = 2.5, z: float = 0.09) -> ScanLog:
+    return ScanLog(np.array([x0, y, z]), np.array([x1, y, z]), 0.09, abs(x1 - x0), 20.0)
+
+
+def _fixed(x: float, y: float, z: float = 0.09) -> SurveyEnd:
+    return SurveyEnd(np.array([x, y, z]), 0.015 / math.sqrt(2), 0.025, "rtk_fixed")
+
+
+def _packed(n: int, shift_m: float) -> tuple[dict, list[ScanLog]]:
+    """``n`` logs side by side, each on its own ridge; the survey (every point RTK fixed) off the scan by
+    ``shift_m`` across them, as a scan pose that far off puts it."""
+    ridges = [_ridge(k * SPACING_M) for k in range(n)]
+    survey = {f"log{k}": (_fixed(0.0, k * SPACING_M + shift_m), _fixed(2.5, k * SPACING_M + shift_m))
+              for k in range(n)}
+    return survey, ridges
+
+
+def test_logs_whose_points_lie_between_two_ridges_each_take_their_own_when_the_offset_is_shared():
+    survey, ridges = _packed(3, SHIFT_M)
+    m = joint_match(survey, ridges, CFG, FCFG)
+    assert {k: m.matches[k].scan_index for k in survey} == {"log0": 0, "log1": 1, "log2": 2}
+    assert m.pose_offset_m[1] == pytest.approx(-SHIFT_M, abs=0.01) and m.unmatched == []
+    assert all(not o for o in m.outliers.values())
+    # each point scored alone, the logs slip one ridge over: the first ridge is left over, the last log hidden
+    alone = joint_match(survey, ridges, OFF, FCFG)
+    assert [alone.matches[k].scan_index for k in survey] != [0, 1, 2]
+
+
+def test_the_offset_is_shared_so_it_cannot_put_a_hidden_log_on_another_logs_ridge():
+    # log0 and log1 sit on their ridges; log2's fixed points lie 11 cm beside log1's ridge with no ridge of its
+    # own (hidden under others): moving the survey onto it would move the other two off theirs
+    ridges = [_ridge(0.0), _ridge(SPACING_M)]
+    survey = {"log0": (_fixed(0.0, 0.0), _fixed(2.5, 0.0)),
+              "log1": (_fixed(0.0, SPACING_M), _fixed(2.5, SPACING_M)),
+              "log2": (_fixed(0.0, SPACING_M + SHIFT_M), _fixed(2.5, SPACING_M + SHIFT_M))}
+    m = joint_match(survey, ridges, CFG, FCFG)
+    assert {k: m.matches[k].scan_index for k in survey} == {"log0": 0, "log1": 1, "log2": None}
+    assert np.linalg.norm(m.pose_offset_m) < 0.02
+
+
+def test_a_long_ridge_no_surveyed_log_explains_is_left_over_not_taken_by_moving_the_survey():
+    # one surveyed log on its ridge and a long ridge 30 cm beside it that the survey missed
+    ridges = [_ridge(0.0), _ridge(0.30)]
+    survey = {"log0": (_fixed(0.0, 0.0), _fixed(2.5, 0.0))}
+    m = joint_match(survey, ridges, CFG, FCFG)
+    assert m.matches["log0"].scan_index == 0 and m.unmatched == [1]
+    assert np.linalg.norm(m.pose_offset_m) < 0.02
+
+
+def test_the_offset_is_the_assignments_minimum_pulled_toward_zero_by_its_prior():
+    # a Gaussian cost about 6 cm across (sigma 3 cm) and the prior's 4 cm: the posterior mode is the weighted mean
+    m_m, s_m, prior_m = np.array([0.0, 0.06, 0.0]), 0.03, FCFG.pose_sigma_m
+
+    def cost_at(d):
+        return 0.5 * float((d - m_m) @ (d - m_m)) / s_m ** 2
+
+    d = pose_offset(cost_at, prior_m, CFG)
+    assert d == pytest.approx(m_m * prior_m ** 2 / (prior_m ** 2 + s_m ** 2), abs=2e-3)
+    assert np.allclose(pose_offset(lambda d: 5.0, prior_m, CFG), 0.0, atol=1e-3)  # nothing to say: the prior's 0
+
+
+def test_a_log_whose_ridge_runs_on_past_both_its_points_takes_that_ridge():
+    # the scan's ridge merges the log with what lies in line: it runs 35 cm past each of its RTK fixed points
+    ridges = [_ridge(0.0, -0.45, 2.95), _ridge(0.6)]
+    survey = {"log0": (_fixed(0.0, 0.0), _fixed(2.5, 0.0)), "log1": (_fixed(0.0, 0.6), _fixed(2.5, 0.6))}
+    m = joint_match(survey, ridges, CFG, FCFG)
+    assert m.matches["log0"].scan_index == 0 and m.outliers["log0"] == set()
+    gauss_only = joint_match(survey, ridges, replace(CFG, ridge_run_on=False), FCFG)
+    assert gauss_only.matches["log0"].scan_index is None  # both points outliers on it: hidden
+
+
+def test_a_ridge_running_on_costs_a_gaussian_near_the_end_and_a_bounded_rate_past_it():
+    s = 0.025
+    assert run_on_nats(0.0, s, CFG) == pytest.approx(0.0, abs=0.02)
+    assert run_on_nats(0.01, s, CFG) == pytest.approx(0.5 * (0.01 / s) ** 2, abs=0.02)
+    far, farther = run_on_nats(0.3, s, CFG), run_on_nats(0.5, s, CFG)
+    assert farther - far == pytest.approx(0.2 / CFG.ridge_run_on_mean_m, rel=1e-3)
+    assert far < 0.5 * (0.3 / s) ** 2 / 10
+    assert run_on_nats(0.3, s, replace(CFG, ridge_run_on=False)) == pytest.approx(0.5 * (0.3 / s) ** 2)
+    # a point 30 cm inside a ridge is no outlier of it; 30 cm across it is
+    ridge = _ridge(0.0)
+    assert point_cost(_fixed(0.3, 0.0), ridge, True, CFG, FCFG, outlier_prob=True) < CFG.outlier_flag_prob
+    assert point_cost(_fixed(0.0, 0.3), ridge, True, CFG, FCFG, outlier_prob=True) > CFG.outlier_flag_prob
+
+
+def test_the_matchings_new_parameters_are_checked():
+    with pytest.raises(ValueError, match="ridge_run_on_prior"):
+        JointConfig(ridge_run_on_prior=1.0)
+    with pytest.raises(ValueError, match="ridge_run_on_mean_m"):
+        JointConfig(ridge_run_on_mean_m=0.0)
+    with pytest.raises(ValueError, match="match_pose_step_m"):
+        JointConfig(match_pose_step_m=-0.02)
+    with pytest.raises(ValueError, match="match_pose_reach_sigmas"):
+        JointConfig(match_pose_reach_sigmas=0.0)
