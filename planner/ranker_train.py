@@ -45,6 +45,11 @@ class RankerTrainConfig:
     balance_data: bool = True  # each --data set gives an equal share of every epoch's examples (drawn with
     # replacement): an on-policy round, a few hundred of the network's own choices, is not drowned by a
     # store's tens of thousands of Algorithm 1 trials, whose grasps the planner never proposes [-]
+    pairwise_weight: float = 0.0  # weight of the within-pile pairwise term (RankNet) beside the BCE: a batch holds
+    # whole piles, and each pair of one pile's examples whose success values differ adds the softplus of its
+    # score difference taken the wrong way, weighted by the label difference. BCE alone rewards telling piles
+    # and subsets apart (a 6-target rock-pile grasp fails more often than a single log); what the planner needs
+    # is the order within one pile, the within-pile AUC. 0: BCE alone, batches across piles [-]
 
     def __post_init__(self) -> None:
         if self.epochs < 1 or self.batch_size < 1 or self.renders < 1 or self.num_threads < 1:
@@ -53,6 +58,8 @@ class RankerTrainConfig:
             raise ValueError(f"lr must be > 0 and weight_decay >= 0, got {self.lr}, {self.weight_decay}")
         if not 0.0 < self.val_fraction < 1.0:
             raise ValueError(f"val_fraction must be in (0, 1), got {self.val_fraction}")
+        if not (math.isfinite(self.pairwise_weight) and self.pairwise_weight >= 0):
+            raise ValueError(f"pairwise_weight must be a finite number >= 0, got {self.pairwise_weight}")
 
 
 @dataclass
@@ -165,6 +172,28 @@ def _epoch_order(ex: Examples, train_idx: np.ndarray, balance: bool, rng: np.ran
     return rng.permutation(np.concatenate([rng.choice(train_idx[source == k], share) for k in sets]))
 
 
+def _group_by_pile(order: np.ndarray, piles: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """``order`` rearranged so that each pile's examples are contiguous, the piles in a random order and each
+    pile's examples in their order in ``order`` (batches cut from it then hold whole piles, bar the edges)."""
+    names, inverse = np.unique(piles[order], return_inverse=True)
+    key = rng.permutation(len(names))[inverse]
+    return order[np.argsort(key, kind="stable")]
+
+
+def pairwise_loss(logits, labels, pile_index):
+    """The within-pile pairwise (RankNet) loss of one batch: over every pair (i, j) of one pile with
+    ``labels[i] > labels[j]``, the mean of ``softplus(logits[j] - logits[i])`` weighted by ``labels[i] -
+    labels[j]``; 0 (with a gradient) when the batch has no such pair. Tensors (B,), ``pile_index`` integer."""
+    import torch
+
+    diff = labels[:, None] - labels[None, :]
+    w = torch.where((pile_index[:, None] == pile_index[None, :]) & (diff > 0), diff, torch.zeros_like(diff))
+    total = w.sum()
+    if not float(total) > 0:
+        return logits.sum() * 0.0
+    return (w * torch.nn.functional.softplus(logits[None, :] - logits[:, None])).sum() / total
+
+
 def _predict(model, ex: Examples, sel: np.ndarray, batch: int) -> np.ndarray:
     import torch
 
@@ -216,12 +245,17 @@ def fit(ex: Examples, cfg: RankerTrainConfig, ranker: RankerConfig = RankerConfi
     for epoch in range(cfg.epochs):
         model.train()
         order = _epoch_order(ex, train_idx, cfg.balance_data, rng)
+        if cfg.pairwise_weight > 0:
+            order = _group_by_pile(order, ex.piles, rng)
         total = 0.0
         for i in range(0, len(order), cfg.batch_size):
             j = np.sort(order[i:i + cfg.batch_size])
             x = _augment(torch.from_numpy(ex.crops[j].astype(np.float32)), rng)
-            loss = torch.nn.functional.binary_cross_entropy_with_logits(
-                model(x, torch.from_numpy(ex.scalars[j])), torch.from_numpy(ex.labels[j]))
+            logits, y = model(x, torch.from_numpy(ex.scalars[j])), torch.from_numpy(ex.labels[j])
+            loss = torch.nn.functional.binary_cross_entropy_with_logits(logits, y)
+            if cfg.pairwise_weight > 0:
+                pile_index = torch.from_numpy(np.unique(ex.piles[j], return_inverse=True)[1].reshape(-1))
+                loss = loss + cfg.pairwise_weight * pairwise_loss(logits, y, pile_index)
             opt.zero_grad()
             loss.backward()
             opt.step()

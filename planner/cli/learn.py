@@ -85,6 +85,9 @@ def train_ranker_command(
                               "example of its own, labelled by its outcome).", default=False, names=["repeats"]),
     no_balance: bool = option("--no-balance", "Pool the --data sets' examples (default: each set an equal share of "
                               "every epoch).", default=False, names=["balance_data"]),
+    pairwise_weight: float = option("--pairwise-weight", "Weight of the within-pile pairwise (RankNet) term beside "
+                                    "the BCE; batches then hold whole piles (0: BCE alone).",
+                                    field=(RankerTrainConfig, "pairwise_weight"), min=0.0),
     as_json: bool = JSON,
 ) -> None:
     """Train the grasp ranker that re-scores the network's best grasps (plan/eval --ranker).
@@ -99,7 +102,8 @@ def train_ranker_command(
         check_input(d, "--data", "dir")
     check_output_file(out, "--out", ".safetensors")
     cfg = RankerTrainConfig(epochs=epochs, batch_size=batch_size, lr=lr, renders=renders, seed=seed,
-                            num_threads=threads, balance_data=not no_balance, repeats=not no_repeats)
+                            num_threads=threads, balance_data=not no_balance, repeats=not no_repeats,
+                            pairwise_weight=pairwise_weight)
     log = train_ranker(list(data), out, cfg, RankerConfig(crop_px=crop_px), progress=o.progress)
     f = log["final"]
     o.say(f"ranker: {out}; validation: within-pile AUC {f['val_auc']:.3f} on {f['val_auc_piles']} piles, "

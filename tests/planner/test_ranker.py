@@ -10,7 +10,8 @@ import pytest
 from planner.errors import CheckpointError, DataError, TrainingError
 from planner.ranker import (RankerConfig, build_ranker, claw_footprint, grasp_crops, grasp_scalars, load_ranker,
                             rerank, save_ranker, Ranker)
-from planner.ranker_train import Examples, RankerTrainConfig, fit, load_examples, within_pile_auc
+from planner.ranker_train import (Examples, RankerTrainConfig, _group_by_pile, fit, load_examples, pairwise_loss,
+                                  within_pile_auc)
 from synth.geometry.frames import OrthoGrid
 from synth.geometry.grasp import Grasp
 
@@ -91,6 +92,58 @@ def test_fit_learns_what_the_crops_show():
     ex = _rule_examples(1200)
     _, history = fit(ex, RankerTrainConfig(epochs=4, batch_size=32, lr=3e-3), RankerConfig(crop_px=16, channels=8))
     assert history[-1]["val_auc"] > 0.95 and history[-1]["val_auc_piles"] == 8
+
+
+def test_pairwise_loss_counts_only_one_pile_s_pairs_that_differ_weighted_by_the_difference():
+    import torch
+
+    logits = torch.tensor([2.0, 0.0, -1.0, 3.0, 0.5], requires_grad=True)
+    labels = torch.tensor([1.0, 0.0, 0.5, 0.0, 1.0])
+    piles = torch.tensor([0, 0, 0, 1, 2])  # pile 1 and 2 have one example each: no pairs there
+    sp = torch.nn.functional.softplus
+    # pile 0's pairs (better, worse, weight): (0, 1, 1), (0, 2, 0.5), (2, 1, 0.5)
+    want = (1.0 * sp(torch.tensor(0.0 - 2.0)) + 0.5 * sp(torch.tensor(-1.0 - 2.0))
+            + 0.5 * sp(torch.tensor(0.0 - -1.0))) / 2.0
+    got = pairwise_loss(logits, labels, piles)
+    assert float(got) == pytest.approx(float(want), rel=1e-6)
+    got.backward()
+    assert logits.grad[3] == 0 and logits.grad[4] == 0  # another pile's examples pull nothing
+    assert logits.grad[0] < 0 < logits.grad[1]  # the success is pushed up, the failure down
+
+
+def test_pairwise_loss_grows_when_a_pile_is_ordered_the_wrong_way_and_is_zero_without_pairs():
+    import torch
+
+    labels, piles = torch.tensor([1.0, 0.0]), torch.tensor([0, 0])
+    right = pairwise_loss(torch.tensor([1.0, -1.0]), labels, piles)
+    wrong = pairwise_loss(torch.tensor([-1.0, 1.0]), labels, piles)
+    assert float(wrong) > float(right) > 0
+    x = torch.tensor([1.0, -1.0], requires_grad=True)
+    none = pairwise_loss(x, torch.tensor([1.0, 1.0]), piles)  # equal labels: no pair
+    none.backward()
+    assert float(none) == 0.0 and x.grad is not None
+
+
+def test_grouped_batches_hold_each_pile_together_and_keep_every_example():
+    piles = np.array([f"0/p{i % 7}" for i in range(70)])
+    order = np.random.default_rng(1).permutation(70)
+    grouped = _group_by_pile(order, piles, np.random.default_rng(2))
+    assert sorted(grouped) == sorted(order)
+    runs = [p for k, p in enumerate(piles[grouped]) if k == 0 or p != piles[grouped][k - 1]]
+    assert len(runs) == 7  # each pile one contiguous run
+
+
+def test_fit_with_the_pairwise_term_learns_what_the_crops_show():
+    ex = _rule_examples(1200)
+    _, history = fit(ex, RankerTrainConfig(epochs=4, batch_size=32, lr=3e-3, pairwise_weight=1.0),
+                     RankerConfig(crop_px=16, channels=8))
+    assert history[-1]["val_auc"] > 0.95
+
+
+@pytest.mark.parametrize("weight", [-0.1, float("nan"), float("inf")])
+def test_a_pairwise_weight_that_is_not_a_finite_non_negative_number_is_refused(weight):
+    with pytest.raises(ValueError, match="pairwise_weight"):
+        RankerTrainConfig(pairwise_weight=weight)
 
 
 def test_fit_needs_both_sides_of_the_split():
