@@ -34,6 +34,8 @@ It lives in :mod:`reconstruct` (not :mod:`synth`) because the GNSS CSV format is
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import io
 import json
 import math
@@ -42,7 +44,7 @@ import shutil
 import tempfile
 from dataclasses import replace
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
@@ -50,7 +52,11 @@ from synth.geometry.frames import make_T, rot_z
 from synth.common.files import apply_umask, atomic_write_bytes
 from synth.scene.pile import Georeference, PileSpec, write_pile
 
-SCAN_FORMAT_VERSION = "1.0"
+if TYPE_CHECKING:
+    from reconstruct.scan.plan import ScanPlan, ScanPlanConfig
+
+#: 1.1: scan.json has ``plan`` (None: the grid was given, not planned from the survey)
+SCAN_FORMAT_VERSION = "1.1"
 DEFAULT_SITE = (64.1, 20.0, 250.0)  # near Umeå inland: lat [deg], lon [deg], ellipsoidal h [m]
 
 
@@ -64,16 +70,47 @@ def georeference_pile(pile: PileSpec, site: tuple[float, float, float], rng: np.
                                              T_site_pile=tuple(tuple(float(v) for v in row) for row in T)))
 
 
+def plan_twin_scan(pile: PileSpec, survey, cfg: "ScanPlanConfig") -> "ScanPlan":
+    """The scan plan (:func:`reconstruct.scan.plan.plan_scan`) of a georeferenced twin pile from a survey
+    of it (a :class:`reconstruct.survey.gnss.GnssSurvey`): its points in the pile frame, heights above the
+    pile's terrain, each point's horizontal sigma its reported accuracy, the rig along the surveyed logs."""
+    from reconstruct.fitting.survey_points import point_accuracy
+    from reconstruct.scan.plan import plan_scan, survey_yaw
+
+    ends = survey.ends_site(pile.georef)
+    T_pile_site = np.linalg.inv(pile.georef.matrix())
+    pts, sig, pairs = [], [], []
+    for log_id, pair in ends.items():
+        in_pile = []
+        for end, p in zip("ab", pair):
+            if p is None:
+                in_pile.append(None)
+                continue
+            q = T_pile_site[:3, :3] @ np.asarray(p, dtype=float) + T_pile_site[:3, 3]
+            q[2] -= pile.terrain.height_at(q[0], q[1])
+            pts.append(q)
+            sig.append(point_accuracy(survey.point(log_id, end))[0])
+            in_pile.append(q)
+        pairs.append(tuple(in_pile))
+    return plan_scan(np.array(pts), np.array(sig), survey_yaw(pairs), cfg)
+
+
 def _rig_over_pile(pile: PileSpec, height_m: float, hfov_deg: float,
-                   image_size: tuple[int, int] = (1280, 720)):
+                   image_size: tuple[int, int] = (1280, 720), planned: "ScanPlan | None" = None):
+    """The rig of the grid's centre: over the true ends' centre, the long image side along the logs' mean
+    direction; ``planned``: over the plan's centre, along its direction."""
     from synth.render.stereo import StereoRigConfig
 
-    ends = np.array([e for log in pile.logs for e in log.endpoints_m()])
-    centre = ends.mean(axis=0)
-    # long image side along the logs' mean direction
-    axes = np.array([log.axis()[:2] for log in pile.logs])
-    axes *= np.sign(axes @ axes[0])[:, None]
-    yaw = math.degrees(math.atan2(axes[:, 1].mean(), axes[:, 0].mean()))
+    if planned is not None:
+        centre = np.array([*planned.centre_xy, 0.0])
+        yaw = math.degrees(planned.yaw_rad)
+    else:
+        ends = np.array([e for log in pile.logs for e in log.endpoints_m()])
+        centre = ends.mean(axis=0)
+        # long image side along the logs' mean direction
+        axes = np.array([log.axis()[:2] for log in pile.logs])
+        axes *= np.sign(axes @ axes[0])[:, None]
+        yaw = math.degrees(math.atan2(axes[:, 1].mean(), axes[:, 0].mean()))
     return StereoRigConfig(width_px=int(image_size[0]), height_px=int(image_size[1]), height_m=height_m,
                            hfov_deg=hfov_deg,
                            target_m=(float(centre[0]), float(centre[1]), float(pile.terrain.height_at(*centre[:2]))),
@@ -135,6 +172,7 @@ def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5
                    n_float: int = 2, height_m: float = 3.0, hfov_deg: float = 50.0,
                    n_unsurveyed: int = 0, pile_spread_m: float | None = None, yaw_spread_rad: float | None = None,
                    grid: tuple[int, int] = (2, 2), spacing_m: tuple[float, float] = (1.4, 1.0),
+                   plan: "ScanPlanConfig | None" = None,
                    pose_error_m: float = 0.03, pose_error_deg: float = 0.5,
                    unposed: bool = False, handheld: bool | None = None,
                    image_size: tuple[int, int] = (1280, 720), jitter_m: float = 0.15,
@@ -150,6 +188,12 @@ def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5
     error depend on ``seed`` only. ``n_float``: survey points with an RTK float fix;
     ``n_unsurveyed``: logs left out of the survey (among those the scan shows most of,
     :func:`visible_logs`; the other points are as without it).
+
+    ``plan``: size the grid from the survey (:func:`reconstruct.scan.plan.plan_scan`) instead of ``grid``
+    and ``spacing_m``: the smallest grid covering every surveyed end (the default survey of every log,
+    drawn before the scan from the same stream: the written survey when ``n_unsurveyed`` is 0), centred on
+    the survey and turned along its logs; ``plan.height_m`` / ``plan.hfov_deg`` replace ``height_m`` /
+    ``hfov_deg``. ``scan.json`` records the plan. Without it the rig is aimed at the true ends' centre.
 
     Written into a temporary sibling folder and renamed into place (never half-written)."""
     from reconstruct.survey.gnss import pile_endpoints_site, simulate_survey, write_gnss_csv
@@ -176,7 +220,17 @@ def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5
         write_pile(pile, tmp / "truth" / "pile.json")
         from reconstruct.registration import ScanPose, write_scan_pose
 
-        rig0 = _rig_over_pile(pile, height_m, hfov_deg, image_size)
+        # the scan pose error is drawn before the survey (the order of the seed's stream): drawn here so a
+        # plan can see the survey before the pairs are rendered; rendering draws from no stream
+        err_yaw = math.radians(rng.normal(0, pose_error_deg))
+        err_t = np.array([*rng.normal(0, pose_error_m, 2), rng.normal(0, pose_error_m / 2)])
+        planned = None
+        if plan is not None:
+            planned = plan_twin_scan(pile, simulate_survey(pile_endpoints_site(pile), pile.georef, copy.deepcopy(rng),
+                                                           n_float=n_float), plan)
+            height_m, hfov_deg, grid, spacing_m = plan.height_m, plan.hfov_deg, planned.grid, planned.spacing_m
+            say(f"scan plan from the survey: {planned.describe()}")
+        rig0 = _rig_over_pile(pile, height_m, hfov_deg, image_size, planned)
         moving = unposed if handheld is None else bool(handheld)
         # the rig's motion has its own stream: pile, survey and pose error do not depend on it
         jitter = (np.random.default_rng(np.random.SeedSequence([int(seed), 0x5CA7, 1])),
@@ -188,8 +242,6 @@ def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5
              "frame": "pile (truth/pile.json)", "T_pile_cam": poses}, indent=1).encode())
         # the scan frame is the pile frame (the calibration's T_pile_cam); the crane knows where its
         # camera is only to a few centimetres / a fraction of a degree: perturb the true pose
-        err_yaw = math.radians(rng.normal(0, pose_error_deg))
-        err_t = np.array([*rng.normal(0, pose_error_m, 2), rng.normal(0, pose_error_m / 2)])
         T_site_scan = make_T(rot_z(err_yaw), err_t) @ pile.georef.matrix()
         if not unposed:
             write_scan_pose(ScanPose(site[0], site[1], site[2], tuple(tuple(float(v) for v in r) for r in T_site_scan)),
@@ -203,6 +255,7 @@ def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5
                 "n_float": n_float, "unsurveyed": list(omit), "rig": rig0.to_dict(), "pairs": nx * ny, "spacing_m": list(spacing_m),
                 "pose_error": {"sigma_m": pose_error_m, "sigma_deg": pose_error_deg},
                 "image_size": list(image_size), "unposed": bool(unposed), "handheld": bool(moving),
+                "plan": None if planned is None else planned.to_dict() | {"config": dataclasses.asdict(plan)},
                 "jitter": ({"m": jitter_m, "height_m": jitter_height_m, "yaw_deg": jitter_yaw_deg,
                             "tilt_deg": jitter_tilt_deg} if moving else None)}
         atomic_write_bytes(tmp / "scan.json", json.dumps(info, indent=1, default=str).encode())
