@@ -192,8 +192,8 @@ def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5
     ``plan``: size the grid from the survey (:func:`reconstruct.scan.plan.plan_scan`) instead of ``grid``
     and ``spacing_m``: the smallest grid covering every surveyed end (the default survey of every log,
     drawn before the scan from the same stream: the written survey when ``n_unsurveyed`` is 0), centred on
-    the survey and turned along its logs; ``plan.height_m`` / ``plan.hfov_deg`` replace ``height_m`` /
-    ``hfov_deg``. ``scan.json`` records the plan. Without it the rig is aimed at the true ends' centre.
+    the survey and turned along its logs; ``plan.height_m`` / ``plan.hfov_deg`` / its image size replace
+    ``height_m`` / ``hfov_deg`` / ``image_size``. ``scan.json`` records the plan. Without it the rig is aimed at the true ends' centre.
 
     Written into a temporary sibling folder and renamed into place (never half-written)."""
     from reconstruct.survey.gnss import pile_endpoints_site, simulate_survey, write_gnss_csv
@@ -229,6 +229,7 @@ def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5
             planned = plan_twin_scan(pile, simulate_survey(pile_endpoints_site(pile), pile.georef, copy.deepcopy(rng),
                                                            n_float=n_float), plan)
             height_m, hfov_deg, grid, spacing_m = plan.height_m, plan.hfov_deg, planned.grid, planned.spacing_m
+            image_size = (plan.width_px, plan.height_px)
             say(f"scan plan from the survey: {planned.describe()}")
         rig0 = _rig_over_pile(pile, height_m, hfov_deg, image_size, planned)
         moving = unposed if handheld is None else bool(handheld)
