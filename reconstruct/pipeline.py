@@ -61,6 +61,7 @@ import numpy as np
 
 from reconstruct.config import ReconstructConfig, logs_direction, patch_extent
 from reconstruct.errors import FitError, ReconstructError, RegistrationError, ScanError
+from reconstruct.scan.plan import covering_plan_hint
 from reconstruct.fitting.ends import axis_sigma_m
 from reconstruct.fitting.fit import PileFit, fit_log, fit_pile, log_spec_from_fit
 from reconstruct.fitting.joint_config import JOINT_REVISION
@@ -163,37 +164,6 @@ def _check_coverage(points_xy: np.ndarray, endpoints: dict[str, tuple[Any, Any]]
             "scanned area. Check the log id and the scan pose, or scan the whole pile" + covering_plan_hint(endpoints)
         )
     return out
-
-
-def covering_plan_hint(endpoints: dict[str, tuple[Any, Any]]) -> str:
-    """``: <plan> covers every surveyed end ...``: the scan plan (:func:`reconstruct.scan.plan.plan_scan`, its
-    default camera) that would cover the surveyed ends (:class:`~reconstruct.fitting.fuse.SurveyEnd` or points,
-    site frame), heights taken above the lowest end; empty when no plan covers them (the refusal stands alone)."""
-    from reconstruct.errors import ScanPlanError
-    from reconstruct.scan.plan import ScanPlanConfig, plan_scan, survey_yaw
-
-    pts, sig, pairs = [], [], []
-    for ends in endpoints.values():
-        pair = []
-        for e in ends:
-            p = None if e is None else np.asarray(e.position_m if isinstance(e, SurveyEnd) else e, dtype=float)
-            if p is not None:
-                pts.append(p)
-                sig.append(math.sqrt(2.0) * e.sigma_h_m if isinstance(e, SurveyEnd) else 0.0)
-            pair.append(p)
-        pairs.append(tuple(pair))
-    if not pts:
-        return ""
-    xyz = np.array(pts)
-    xyz[:, 2] -= xyz[:, 2].min()
-    cfg = ScanPlanConfig()
-    try:
-        plan = plan_scan(xyz, np.array(sig), survey_yaw(pairs), cfg)
-    except ScanPlanError:
-        return ""
-    return (f": {plan.describe().replace('centred at', 'centred at site E, N')} covers every surveyed end with "
-            f"{cfg.margin_m:g} m and {cfg.n_sigma:g} sigma to spare (reconstruct.scan.plan; in the twin: "
-            "loggrasp synth scan --pairs auto)")
 
 
 # -- the pipeline -----------------------------------------------------------------------------

@@ -209,3 +209,33 @@ def plan_scan(points_xyz, sigma_h_m, yaw_rad: float, cfg: ScanPlanConfig | None 
     centre_xy = np.array(centre) @ probe.axes()
     return ScanPlan((grid[0], grid[1]), (float(centre_xy[0]), float(centre_xy[1])), float(yaw_rad),
                     (cfg.spacing_along_m, cfg.spacing_across_m), cfg.height_m, cfg.margin_m)
+
+
+def covering_plan_hint(endpoints: dict) -> str:
+    """``: <plan> covers every surveyed end ...``: the scan plan (default camera) that would cover the
+    surveyed ends, ``{log_id: (end_a, end_b)}`` in the site frame (each a point, an object with
+    ``position_m`` and a per-axis ``sigma_h_m`` such as :class:`reconstruct.fitting.fuse.SurveyEnd`, or None),
+    heights taken above the lowest end; empty when no plan covers them (the refusal stands alone). For a
+    refusal's message: a point outside the scan names the scan that would see it."""
+    pts, sig, pairs = [], [], []
+    for ends in endpoints.values():
+        pair = []
+        for e in ends:
+            p = None if e is None else np.asarray(getattr(e, "position_m", e), dtype=float)
+            if p is not None:
+                pts.append(p)
+                sig.append(math.sqrt(2.0) * float(getattr(e, "sigma_h_m", 0.0)))
+            pair.append(p)
+        pairs.append(tuple(pair))
+    if not pts:
+        return ""
+    xyz = np.array(pts)
+    xyz[:, 2] -= xyz[:, 2].min()
+    cfg = ScanPlanConfig()
+    try:
+        plan = plan_scan(xyz, np.array(sig), survey_yaw(pairs), cfg)
+    except ScanPlanError:
+        return ""
+    return (f": {plan.describe().replace('centred at', 'centred at site E, N')} covers every surveyed end with "
+            f"{cfg.margin_m:g} m and {cfg.n_sigma:g} sigma to spare (reconstruct.scan.plan; in the twin: "
+            "loggrasp synth scan --pairs auto)")

@@ -9,8 +9,8 @@ import pytest
 
 from reconstruct.errors import RegistrationError
 from reconstruct.fitting.fuse import SurveyEnd
-from reconstruct.pipeline import _check_coverage, covering_plan_hint
-from reconstruct.scan.plan import ScanPlan, ScanPlanConfig
+from reconstruct.pipeline import _check_coverage
+from reconstruct.scan.plan import ScanPlan, ScanPlanConfig, covering_plan_hint
 
 
 def fixed(x, y, z=100.2) -> SurveyEnd:
