@@ -95,6 +95,28 @@ def plan_twin_scan(pile: PileSpec, survey, cfg: "ScanPlanConfig") -> "ScanPlan":
     return plan_scan(np.array(pts), np.array(sig), survey_yaw(pairs), cfg)
 
 
+#: a planned pair is rendered when at least this share of its ground footprint lies on the twin's terrain
+#: patch: beyond it the twin renders nothing to match (the field has ground there), and a pair with less
+#: depth than StereoConfig.min_valid_fraction (0.3) of its pixels is refused; half leaves room for the
+#: disparity band and the border [-]
+TWIN_MIN_GROUND_SHARE = 0.5
+
+
+def pairs_beyond_terrain(pile: PileSpec, planned: "ScanPlan", cfg: "ScanPlanConfig", n: int = 11) -> frozenset[int]:
+    """Grid indices of a plan's pairs whose ground footprint (``n`` x ``n`` samples) lies less than
+    :data:`TWIN_MIN_GROUND_SHARE` on the pile's terrain patch (a square of ``extent_m`` about the origin)."""
+    lo_a, hi_a, lo_c, hi_c = cfg.footprint_slopes()
+    a, c = np.meshgrid(np.linspace(lo_a, hi_a, n) * cfg.height_m, np.linspace(lo_c, hi_c, n) * cfg.height_m)
+    offsets = np.column_stack([a.ravel(), c.ravel()]) @ planned.axes()
+    half = pile.terrain.extent_m / 2
+    out = set()
+    for k, xy in enumerate(planned.pair_positions()):
+        on = (np.abs(xy + offsets) <= half).all(axis=1).mean()
+        if on < TWIN_MIN_GROUND_SHARE:
+            out.add(k)
+    return frozenset(out)
+
+
 def _rig_over_pile(pile: PileSpec, height_m: float, hfov_deg: float,
                    image_size: tuple[int, int] = (1280, 720), planned: "ScanPlan | None" = None):
     """The rig of the grid's centre: over the true ends' centre, the long image side along the logs' mean
@@ -236,8 +258,10 @@ def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5
         # the rig's motion has its own stream: pile, survey and pose error do not depend on it
         jitter = (np.random.default_rng(np.random.SeedSequence([int(seed), 0x5CA7, 1])),
                   jitter_m, jitter_height_m, jitter_yaw_deg, jitter_tilt_deg) if moving else None
-        poses = _render_pairs(tmp, pile, rig0, grid, spacing_m, jitter, unposed, say)
-        nx, ny = grid
+        beyond = frozenset() if planned is None else pairs_beyond_terrain(pile, planned, plan)
+        if beyond:
+            say(f"{len(beyond)} planned pair(s) over no terrain (the twin's {pile.terrain.extent_m:g} m patch) not rendered")
+        poses = _render_pairs(tmp, pile, rig0, grid, spacing_m, jitter, unposed, say, beyond)
         atomic_write_bytes(tmp / "truth" / "poses.json", json.dumps(
             {"format": "loggrasp.twin-scan-poses", "format_version": SCAN_FORMAT_VERSION,
              "frame": "pile (truth/pile.json)", "T_pile_cam": poses}, indent=1).encode())
@@ -253,10 +277,11 @@ def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5
         write_gnss_csv(survey, tmp / "gnss.csv")
         info = {"format": "loggrasp.twin-scan", "format_version": SCAN_FORMAT_VERSION, "seed": seed,
                 "n_logs": n_logs, "n_obstacles": n_obst, "packed": packed, "spread": spread, "site": list(site),
-                "n_float": n_float, "unsurveyed": list(omit), "rig": rig0.to_dict(), "pairs": nx * ny, "spacing_m": list(spacing_m),
+                "n_float": n_float, "unsurveyed": list(omit), "rig": rig0.to_dict(), "pairs": len(poses), "spacing_m": list(spacing_m),
                 "pose_error": {"sigma_m": pose_error_m, "sigma_deg": pose_error_deg},
                 "image_size": list(image_size), "unposed": bool(unposed), "handheld": bool(moving),
-                "plan": None if planned is None else planned.to_dict() | {"config": dataclasses.asdict(plan)},
+                "plan": None if planned is None else planned.to_dict() | {"config": dataclasses.asdict(plan),
+                                                                          "beyond_terrain": sorted(beyond)},
                 "jitter": ({"m": jitter_m, "height_m": jitter_height_m, "yaw_deg": jitter_yaw_deg,
                             "tilt_deg": jitter_tilt_deg} if moving else None)}
         atomic_write_bytes(tmp / "scan.json", json.dumps(info, indent=1, default=str).encode())
@@ -270,11 +295,11 @@ def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5
 
 
 def _render_pairs(tmp: Path, pile, rig0, grid: tuple[int, int], spacing_m: tuple[float, float], jitter,
-                  unposed: bool, say: Callable[[str], None]) -> dict[str, list]:
+                  unposed: bool, say: Callable[[str], None], skip: frozenset[int] = frozenset()) -> dict[str, list]:
     """Render the grid of stereo pairs over the pile into ``tmp/scan`` (their true depth and
     instance maps into ``tmp/truth``); ``jitter``: (rng, m, height m, yaw deg, tilt deg) of a rig
-    that moves between pairs, or None for a straight-down grid. Returns each pair's true
-    ``T_pile_cam``."""
+    that moves between pairs, or None for a straight-down grid; ``skip``: grid indices (along first)
+    not rendered, the others numbered on. Returns each pair's true ``T_pile_cam``."""
     import datetime as dt
 
     from synth.render.stereo import StereoRenderer
@@ -285,16 +310,19 @@ def _render_pairs(tmp: Path, pile, rig0, grid: tuple[int, int], spacing_m: tuple
     nx, ny = grid
     centre = np.asarray(rig0.target_m[:2])
     poses = {}
+    n_render = nx * ny - len(skip)
     with StereoRenderer(rig0.renderer) as renderer:
         for iy in range(ny):
             for ix in range(nx):
-                k = iy * nx + ix
+                if iy * nx + ix in skip:
+                    continue
+                k = len(poses)
                 xy = centre + along * (ix - (nx - 1) / 2) * spacing_m[0] + across * (iy - (ny - 1) / 2) * spacing_m[1]
                 rig = replace(rig0, target_m=(float(xy[0]), float(xy[1]), float(pile.terrain.height_at(*xy))))
                 if jitter is not None:
                     T = _handheld_pose(rig, *jitter)
                     rig = replace(rig, T_pile_cam=tuple(tuple(float(v) for v in r) for r in T))
-                say(f"rendering stereo pair {k + 1} of {nx * ny}")
+                say(f"rendering stereo pair {k + 1} of {n_render}")
                 pair = renderer.render(pile, rig)
                 pair.meta.update({"camera": "ZED 2 (twin)", "captured_utc": captured})
                 pair_dir = pair.save(tmp / "scan" / f"pair_{k:03d}")
