@@ -65,3 +65,18 @@ def test_the_written_survey_is_the_one_planned(loose_scan):
                            read_gnss_csv(loose_scan / "gnss.csv", allow_float=True), SMALL)
     assert list(again.grid) == info["plan"]["grid"]
     assert np.allclose(again.centre_xy, info["plan"]["centre_xy_m"], atol=1e-3)
+
+
+def test_pairs_over_no_terrain_are_left_out():
+    """A planned pair with less than half its ground footprint on the twin's terrain patch is not rendered
+    (the twin draws nothing beyond it to match); a grid over the patch keeps every pair."""
+    from reconstruct.scan.twin_scan import pairs_beyond_terrain
+    from synth.scene.pile import LogSpec, PileSpec, TerrainSpec
+
+    pile = PileSpec(terrain=TerrainSpec(extent_m=5.0), logs=(LogSpec.from_endpoints((-1, 0, 0.1), (1, 0, 0.1), 0.2),))
+    over = ScanPlan((2, 2), (0.0, 0.0), 0.0, (1.4, 1.0), 3.0, 0.3)
+    assert pairs_beyond_terrain(pile, over, ScanPlanConfig()) == frozenset()
+    # 4 pairs along, 1 m right of the patch's centre: the last pair sees 1.96-4.49 m along, 21 % of it on the
+    # patch (edge 2.5 m); the one before it 0.56-3.09 m, 77 %
+    wide = ScanPlan((4, 1), (1.0, 0.0), 0.0, (1.4, 1.0), 3.0, 0.3)
+    assert pairs_beyond_terrain(pile, wide, ScanPlanConfig()) == frozenset({3})
