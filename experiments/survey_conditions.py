@@ -133,20 +133,23 @@ def survey_bench(n_scans: int, seed0: int | None, work_dir: Path, out: Path, log
     seed0 = SURVEY_SETS[survey_set]["seed0"] if seed0 is None else int(seed0)
     key = ({"seed0": seed0, "logs": list(logs), "obstacles": list(obstacles), "fit_revision": FIT_REVISION} | set_key
            | survey_pairs_key(pairs))
-    records = out / "scans"
-    records.mkdir(parents=True, exist_ok=True)
-    work_dir.mkdir(parents=True, exist_ok=True)
     k_shard, n_shard = shard
     seeds = [s for s in range(seed0 + k_shard, seed0 + n_scans, n_shard)]
     if only_seeds:
         outside = [s for s in only_seeds if s not in seeds]
         if outside:
-            raise SurveyBenchInputError(f"--survey-only-seeds {outside} lie outside this run's seeds ({_seed_ranges({'scans': [{'seed': s} for s in seeds]})})")
+            span = _seed_ranges({"scans": [{"seed": s} for s in seeds]})
+            raise SurveyBenchInputError(f"--survey-only-seeds {outside} lie outside this run's seeds ({span})")
         seeds = list(only_seeds)
+    records = out / "scans"
+    records.mkdir(parents=True, exist_ok=True)
+    work_dir.mkdir(parents=True, exist_ok=True)
     for seed in seeds:
         path = records / f"{seed}.json"
         shape = pile_shape(key, seed)
-        if (path.exists() and json.loads(path.read_text()).get("key") == key) or (only_shapes and shape not in only_shapes):
+        if only_shapes and shape not in only_shapes:
+            continue
+        if path.exists() and json.loads(path.read_text()).get("key") == key:
             continue
         root = work_dir / f"scan_{seed}"
         surveys, make_s, truth = _scan_and_surveys(root, seed, logs, obstacles, PILE_SHAPES[shape] | _plan_kw(pairs))

@@ -170,7 +170,8 @@ def test_synth_scan_pairs_auto_bad_input(capsys, work):
 
 @pytest.mark.slow
 def test_synth_scan_pairs_auto(capsys, work):
-    """A tiny real run: the pairs planned from the survey (a compact 2-log pile: the 2x2 grid), the plan in scan.json."""
+    """A tiny real run: the pairs planned from the survey (a compact 2-log pile: the 2x2 grid), the plan in
+    scan.json."""
     r = cli(capsys, "synth", "scan", "--seed", "1", "--logs", "2", "--obstacles", "0", "--pairs", "auto",
             "--float-fixes", "0", "--out", work / "auto", "--json")
     assert r.code == 0, r.err

@@ -215,7 +215,8 @@ def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5
     and ``spacing_m``: the smallest grid covering every surveyed end (the default survey of every log,
     drawn before the scan from the same stream: the written survey when ``n_unsurveyed`` is 0), centred on
     the survey and turned along its logs; ``plan.height_m`` / ``plan.hfov_deg`` / its image size replace
-    ``height_m`` / ``hfov_deg`` / ``image_size``. ``scan.json`` records the plan. Without it the rig is aimed at the true ends' centre.
+    ``height_m`` / ``hfov_deg`` / ``image_size``. ``scan.json`` records the plan. Without it the rig is aimed
+    at the true ends' centre.
 
     Written into a temporary sibling folder and renamed into place (never half-written)."""
     from reconstruct.survey.gnss import pile_endpoints_site, simulate_survey, write_gnss_csv
@@ -260,7 +261,8 @@ def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5
                   jitter_m, jitter_height_m, jitter_yaw_deg, jitter_tilt_deg) if moving else None
         beyond = frozenset() if planned is None else pairs_beyond_terrain(pile, planned, plan)
         if beyond:
-            say(f"{len(beyond)} planned pair(s) over no terrain (the twin's {pile.terrain.extent_m:g} m patch) not rendered")
+            say(f"{len(beyond)} planned pair(s) over no terrain (the twin's {pile.terrain.extent_m:g} m patch) "
+                "not rendered")
         poses = _render_pairs(tmp, pile, rig0, grid, spacing_m, jitter, unposed, say, beyond)
         atomic_write_bytes(tmp / "truth" / "poses.json", json.dumps(
             {"format": "loggrasp.twin-scan-poses", "format_version": SCAN_FORMAT_VERSION,
@@ -277,7 +279,8 @@ def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5
         write_gnss_csv(survey, tmp / "gnss.csv")
         info = {"format": "loggrasp.twin-scan", "format_version": SCAN_FORMAT_VERSION, "seed": seed,
                 "n_logs": n_logs, "n_obstacles": n_obst, "packed": packed, "spread": spread, "site": list(site),
-                "n_float": n_float, "unsurveyed": list(omit), "rig": rig0.to_dict(), "pairs": len(poses), "spacing_m": list(spacing_m),
+                "n_float": n_float, "unsurveyed": list(omit), "rig": rig0.to_dict(), "pairs": len(poses),
+                "spacing_m": list(spacing_m),
                 "pose_error": {"sigma_m": pose_error_m, "sigma_deg": pose_error_deg},
                 "image_size": list(image_size), "unposed": bool(unposed), "handheld": bool(moving),
                 "plan": None if planned is None else planned.to_dict() | {"config": dataclasses.asdict(plan),

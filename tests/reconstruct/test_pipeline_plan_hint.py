@@ -26,7 +26,8 @@ def test_a_point_outside_the_scan_names_the_plan_that_covers_it():
         _check_coverage(g, ends, 1.0)
     msg = str(exc.value)
     assert "'log1' end 'b'" in msg and "\n" not in msg
-    m = re.search(r": (\d)x(\d) pairs .* centred at site E, N \((-?[\d.]+), (-?[\d.]+)\) m, along (-?\d+) deg covers", msg)
+    m = re.search(r": (\d)x(\d) pairs .* centred at site E, N \((-?[\d.]+), (-?[\d.]+)\) m, "
+                  r"along (-?\d+) deg covers", msg)
     assert m, msg
     grid = (int(m.group(1)), int(m.group(2)))
     assert grid[0] * grid[1] > 4
