@@ -6,6 +6,7 @@
     .venv/bin/python bench/bench_reconstruct.py --real-only --real-piles 24 --model PATH
     .venv/bin/python bench/bench_reconstruct.py --survey-scans 200 --survey-out DIR [--survey-shard K/N]
     .venv/bin/python bench/bench_reconstruct.py --survey-scans 200 --survey-set heldout --survey-out DIR
+    .venv/bin/python bench/bench_reconstruct.py --survey-scans 114 --survey-set heldout --survey-pairs auto --survey-only-shapes loose --survey-out DIR
     .venv/bin/python bench/bench_reconstruct.py --survey-rescore DIR --survey-work WORK
 """
 
@@ -17,7 +18,7 @@ from pathlib import Path
 
 from experiments.reconstruct_bench import markdown, real_test, real_test_markdown
 from experiments.survey_conditions import (compare_markdown, read_survey_records, survey_bench, survey_figure,
-                                           survey_markdown, survey_set_key)
+                                           survey_markdown, survey_pairs_key, survey_set_key, SurveyBenchInputError)
 
 __all__ = ["markdown"]
 
@@ -53,6 +54,14 @@ if __name__ == "__main__":
     ap.add_argument("--survey-radius-states", action="store_true",
                     help="with --survey-estimator joint: JointConfig.radius_states on (each log's radius a state of "
                          "the pile estimate); the record's key says so")
+    ap.add_argument("--survey-pairs", default="2x2", choices=("2x2", "auto"),
+                    help="the survey-conditions scans' stereo pairs: 2x2 (the twin's fixed grid, every record before "
+                         "it) or auto (the smallest grid covering each scan's surveyed ends, "
+                         "reconstruct.scan.plan; in the record's key)")
+    ap.add_argument("--survey-only-shapes", nargs="+", default=(), choices=("dropped", "packed", "loose"),
+                    help="do only the survey scans of these pile shapes (e.g. re-scan the loose piles)")
+    ap.add_argument("--survey-only-seeds", nargs="+", type=int, default=(),
+                    help="do only these survey seeds, in this order (within the run's seeds)")
     ap.add_argument("--survey-seed", type=int, default=None,
                     help="first seed of the survey-conditions bench (default: the --survey-set's)")
     ap.add_argument("--survey-work", type=Path, default=None,
@@ -108,12 +117,18 @@ if __name__ == "__main__":
         try:
             joint_options = {"radius_states": True} if args.survey_radius_states else None
             survey_set_key(args.survey_set, args.survey_seed, args.survey_estimator, joint_options)
+            survey_pairs_key(args.survey_pairs)
         except ValueError as exc:
             raise SystemExit(str(exc)) from None
-        rec = (read_survey_records(out) if args.survey_report else
-               survey_bench(args.survey_scans, args.survey_seed, work, out, shard=shard,
-                            survey_set=args.survey_set, estimator=args.survey_estimator, joint_options=joint_options,
-                            progress=lambda s: print(s, file=sys.stderr, flush=True)))
+        try:
+            rec = (read_survey_records(out) if args.survey_report else
+                   survey_bench(args.survey_scans, args.survey_seed, work, out, shard=shard,
+                                survey_set=args.survey_set, estimator=args.survey_estimator,
+                                joint_options=joint_options, pairs=args.survey_pairs,
+                                only_shapes=tuple(args.survey_only_shapes), only_seeds=tuple(args.survey_only_seeds),
+                                progress=lambda s: print(s, file=sys.stderr, flush=True)))
+        except SurveyBenchInputError as exc:
+            raise SystemExit(str(exc)) from None
         fig = survey_figure(rec, args.figure) if args.figure is not None else None
         print("\n".join(survey_markdown(rec, fig)))
         raise SystemExit(0)

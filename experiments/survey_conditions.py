@@ -78,6 +78,33 @@ def survey_set_key(survey_set: str, seed0: int | None = None, estimator: str = "
     return key
 
 
+class SurveyBenchInputError(ValueError):
+    """A survey-conditions run asked for something its settings do not allow (e.g. a seed outside its range)."""
+
+
+def survey_pairs_key(pairs: str) -> dict:
+    """The part of a record's key that says how its scans' pairs were laid out: nothing for the twin's
+    fixed 2x2 grid (every record before the planned scans resumes as it is), ``pairs: auto`` and the plan's
+    config for a grid planned from the survey; anything else is a ValueError."""
+    import dataclasses
+    import json
+
+    from reconstruct.scan.plan import ScanPlanConfig
+
+    if pairs == "2x2":
+        return {}
+    if pairs == "auto":
+        return {"pairs": "auto", "plan": json.loads(json.dumps(dataclasses.asdict(ScanPlanConfig())))}
+    raise ValueError(f"--survey-pairs must be 2x2 or auto, got {pairs!r}")
+
+
+def _plan_kw(pairs: str) -> dict:
+    """``make_twin_scan`` keywords of a ``pairs`` setting (:func:`survey_pairs_key`)."""
+    from reconstruct.scan.plan import ScanPlanConfig
+
+    return {"plan": ScanPlanConfig()} if pairs == "auto" else {}
+
+
 def pile_shape(key: dict, seed: int) -> str:
     """The pile shape of ``seed`` in a record of ``key``: the set's shapes in turn."""
     shapes = key.get("shapes", ["dropped"])
@@ -86,7 +113,8 @@ def pile_shape(key: dict, seed: int) -> str:
 
 def survey_bench(n_scans: int, seed0: int | None, work_dir: Path, out: Path, logs=(3, 7), obstacles=(0, 3),
                  progress=print, shard: tuple[int, int] = (0, 1), survey_set: str = "tuning",
-                 estimator: str = "rules22", joint_options: dict | None = None) -> dict:
+                 estimator: str = "rules22", joint_options: dict | None = None, pairs: str = "2x2",
+                 only_shapes: tuple[str, ...] = (), only_seeds: tuple[int, ...] = ()) -> dict:
     """Reconstruction under the three survey conditions (:data:`SURVEY_CONDITIONS`) on ``n_scans``
     fresh twin scans (``loggrasp synth scan`` piles, seeds ``seed0``...): the stereo cloud of each scan
     is matched once and reconstructed with each survey; every log is measured against the truth (worst
@@ -99,7 +127,11 @@ def survey_bench(n_scans: int, seed0: int | None, work_dir: Path, out: Path, log
     ``seed - seed0`` is k modulo n, so n processes with the same settings share one ``out``.
     ``survey_set``: "tuning", "heldout" or "final" (:data:`SURVEY_SETS`: its first seed when ``seed0`` is None,
     its pile shapes); ``estimator``: ``ReconstructConfig.estimator``; ``joint_options``: ``JointConfig`` fields
-    set away from their defaults (:func:`survey_set_key`). All go into the record's key."""
+    set away from their defaults (:func:`survey_set_key`). All go into the record's key.
+    ``pairs``: "2x2" (the twin's fixed grid, every record before it) or "auto" (the grid planned from each
+    scan's survey, :func:`reconstruct.scan.plan.plan_scan` with its default config, in the key).
+    ``only_shapes`` / ``only_seeds``: do only the scans of these pile shapes / these seeds (in this order;
+    each must lie in the run's range): a re-scan of some piles, not a new record key."""
     import json
     import os
 
@@ -108,18 +140,28 @@ def survey_bench(n_scans: int, seed0: int | None, work_dir: Path, out: Path, log
 
     set_key = survey_set_key(survey_set, seed0, estimator, joint_options)
     seed0 = SURVEY_SETS[survey_set]["seed0"] if seed0 is None else int(seed0)
-    key = {"seed0": seed0, "logs": list(logs), "obstacles": list(obstacles), "fit_revision": FIT_REVISION} | set_key
+    key = ({"seed0": seed0, "logs": list(logs), "obstacles": list(obstacles), "fit_revision": FIT_REVISION} | set_key
+           | survey_pairs_key(pairs))
+    k_shard, n_shard = shard
+    seeds = [s for s in range(seed0 + k_shard, seed0 + n_scans, n_shard)]
+    if only_seeds:
+        outside = [s for s in only_seeds if s not in seeds]
+        if outside:
+            span = _seed_ranges({"scans": [{"seed": s} for s in seeds]})
+            raise SurveyBenchInputError(f"--survey-only-seeds {outside} lie outside this run's seeds ({span})")
+        seeds = list(only_seeds)
     records = out / "scans"
     records.mkdir(parents=True, exist_ok=True)
     work_dir.mkdir(parents=True, exist_ok=True)
-    k_shard, n_shard = shard
-    for seed in range(seed0 + k_shard, seed0 + n_scans, n_shard):
+    for seed in seeds:
         path = records / f"{seed}.json"
+        shape = pile_shape(key, seed)
+        if only_shapes and shape not in only_shapes:
+            continue
         if path.exists() and json.loads(path.read_text()).get("key") == key:
             continue
         root = work_dir / f"scan_{seed}"
-        shape = pile_shape(key, seed)
-        surveys, make_s, truth = _scan_and_surveys(root, seed, logs, obstacles, PILE_SHAPES[shape])
+        surveys, make_s, truth = _scan_and_surveys(root, seed, logs, obstacles, PILE_SHAPES[shape] | _plan_kw(pairs))
         cloud, stereo = _stereo_cloud(root)
         row = {"format": SURVEY_BENCH_FORMAT, "format_version": SURVEY_BENCH_VERSION, "key": key,
                "seed": seed, "set": survey_set, "shape": shape, "n_logs": truth.n_logs, "n_obstacles": len(truth.stumps) + len(truth.rocks),
@@ -381,7 +423,7 @@ def survey_markdown(rec: dict, figure: Path | None = None) -> list[str]:
         f"{n} fresh twin scans (`loggrasp synth scan` piles, seeds {_seed_ranges(rec)}, "
         f"{_shapes_text(rec)}"
         f"{rec['key']['logs'][0]}-{rec['key']['logs'][1]} logs, {rec['key']['obstacles'][0]}-{rec['key']['obstacles'][1]} "
-        "obstacles, 2x2 pairs at 3 m), each reconstructed with three surveys of its pile "
+        f"obstacles, {_pairs_text(rec)} at 3 m), each reconstructed with three surveys of its pile "
         f"(fitting revision {rec['key']['fit_revision']}"
         f"{', estimator ' + rec['key']['estimator'] if 'estimator' in rec['key'] else ''}"
         + "".join(f", {k} {v}" for k, v in rec["key"].get("joint_options", {}).items()) + "). "
@@ -442,6 +484,14 @@ def survey_markdown(rec: dict, figure: Path | None = None) -> list[str]:
     if figure is not None:
         lines += ["", f"![error distributions per survey condition]({figure})"]
     return lines
+
+
+def _pairs_text(rec: dict) -> str:
+    """How the record's scans laid out their pairs, e.g. ``2x2 pairs`` or ``pairs planned from the survey (9-18)``."""
+    if rec["key"].get("pairs") != "auto":
+        return "2x2 pairs"
+    n = [r["n_pairs"] for r in rec["scans"]]
+    return f"pairs planned from the survey ({min(n)}-{max(n)})" if n else "pairs planned from the survey"
 
 
 def _shapes_text(rec: dict) -> str:

@@ -63,8 +63,10 @@ def scan_command(
                            names=["height_m"]),
     hfov: float = option("--hfov", "Horizontal field of view.", default=50.0, unit="deg", min=10.0, max=170.0,
                          names=["hfov_deg"]),
-    pairs: str = option("--pairs", "Grid of stereo pairs over the pile, NXxNY (along x, across; 1..4 each).",
-                        default="2x2", metavar="NXxNY"),
+    pairs: str = option("--pairs", "Grid of stereo pairs over the pile, NXxNY (along x, across; 1..4 each), or "
+                        "auto: the smallest grid (at least 2x2) whose footprint covers every surveyed log end plus "
+                        "ScanPlanConfig.margin_m (0.3 m) and 2 sigma of the point, planned from the survey "
+                        "(reconstruct.scan.plan).", default="2x2", metavar="NXxNY|auto"),
     unposed: bool = option("--unposed", "No camera poses: calibrations without T_pile_cam, no scan_pose.json, the rig "
                            "moved by hand between pairs (truth/poses.json keeps them).", default=False),
     handheld: bool = typer.Option(None, "--handheld/--grid", help="Move the rig between pairs like a handheld or "
@@ -78,6 +80,7 @@ def scan_command(
     Example: loggrasp synth scan --seed 3 --logs 3-5 --site 64.1,20.0 --out scans/s3
     Unposed (SfM + GNSS georegistration): loggrasp synth scan --seed 3 --unposed --out scans/s3u
     Degraded survey: loggrasp synth scan --seed 3 --float-fixes 4 --unsurveyed-logs 1 --out scans/s3d
+    Pairs planned from the survey (a loose pile): loggrasp synth scan --seed 3 --pairs auto --out scans/s3a
     """
     from reconstruct.scan.twin_scan import DEFAULT_SITE, make_twin_scan
     from synth.geometry.geodesy import check_geodetic
@@ -87,24 +90,41 @@ def scan_command(
     parts = parse_site(site)
     check_geodetic(parts[0], parts[1], "--site")
     site_t = (parts[0], parts[1], parts[2] if len(parts) == 3 else DEFAULT_SITE[2])
-    try:
-        grid = tuple(int(v) for v in pairs.lower().split("x"))
-    except ValueError:
-        grid = ()
-    if len(grid) != 2 or min(grid) < 1 or max(grid) > 4:
-        raise CliError(f"--pairs must look like 2x2 (1..4 each), got {pairs!r}")
+    grid, plan = parse_pairs(pairs), None
+    if grid is None:
+        from reconstruct.scan.plan import ScanPlanConfig
+
+        try:
+            plan = ScanPlanConfig(height_m=height, hfov_deg=hfov)
+        except ValueError as exc:
+            raise CliError(f"--pairs auto with --height {height} --hfov {hfov}: {exc}") from exc
+        grid = (2, 2)
     log_range, obst_range = parse_range(logs, "--logs"), parse_range(obstacles, "--obstacles")
     if log_range[0] < 1:
         raise CliError("--logs must start at 1 or more")
     check_output_dir(out, "--out")
     path = make_twin_scan(out, seed, log_range, obst_range, packed=packed, site=site_t, n_float=float_fixes,
-                          height_m=height, hfov_deg=hfov, grid=grid, unposed=unposed, handheld=handheld,
+                          height_m=height, hfov_deg=hfov, grid=grid, plan=plan, unposed=unposed, handheld=handheld,
                           n_unsurveyed=unsurveyed,
                           progress=o.progress)
     nxt = next_step(path, float_fixes)
     o.say(f"scan written to {path} (the truth apart in {path / 'truth'}); next: {nxt}")
     o.result("loggrasp.synth-scan", {"out": str(path), "scan": str(path / "scan"), "gnss": str(path / "gnss.csv"),
                                      "truth": str(path / "truth" / "pile.json"), "next": nxt})
+
+
+def parse_pairs(text: str) -> tuple[int, int] | None:
+    """``--pairs``: ``NXxNY`` (1..4 each) -> the grid; ``auto`` -> None (planned from the survey); a
+    :class:`CliError` naming the flag otherwise."""
+    if text.strip().lower() == "auto":
+        return None
+    try:
+        grid = tuple(int(v) for v in text.lower().split("x"))
+    except ValueError:
+        grid = ()
+    if len(grid) != 2 or min(grid) < 1 or max(grid) > 4:
+        raise CliError(f"--pairs must look like 2x2 (1..4 each) or be auto, got {text!r}")
+    return grid[0], grid[1]
 
 
 def next_step(scan_out: Path, n_float: int) -> str:

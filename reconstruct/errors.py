@@ -52,6 +52,11 @@ class CalibrationError(ScanError):
     no section for the images' resolution, or two calibrations of one pair disagree."""
 
 
+class ScanPlanError(ReconstructError):
+    """No scan plan covers the surveyed end points: no points, non-finite ones, an end too near the
+    camera, or ends spread wider than the largest grid planned (a point far off)."""
+
+
 class FitError(ReconstructError):
     """The scan does not support a model: a log with (almost) no scan points around its GNSS
     axis (outside the scanned area, or wrong endpoints), or a fit that failed."""

@@ -61,6 +61,7 @@ import numpy as np
 
 from reconstruct.config import ReconstructConfig, logs_direction, patch_extent
 from reconstruct.errors import FitError, ReconstructError, RegistrationError, ScanError
+from reconstruct.scan.plan import covering_plan_hint
 from reconstruct.fitting.ends import axis_sigma_m
 from reconstruct.fitting.fit import PileFit, fit_log, fit_pile, log_spec_from_fit
 from reconstruct.fitting.joint_config import JOINT_REVISION
@@ -160,7 +161,7 @@ def _check_coverage(points_xy: np.ndarray, endpoints: dict[str, tuple[Any, Any]]
         raise RegistrationError(
             f"GNSS point of log {log_id!r} end {end!r} (site E {p[0]:.2f} m, N {p[1]:.2f} m) is {dist:.2f} m "
             f"from the nearest scan point (limit {limit_m} m); {len(worst)} end point(s) lie outside the "
-            "scanned area. Check the log id and the scan pose, or scan the whole pile"
+            "scanned area. Check the log id and the scan pose, or scan the whole pile" + covering_plan_hint(endpoints)
         )
     return out
 

@@ -159,6 +159,27 @@ def test_synth_scan_bad_site_and_paths(capsys, work, a_file):
     assert not (work / "s").exists()
 
 
+def test_synth_scan_pairs_auto_bad_input(capsys, work):
+    """--pairs takes NXxNY or auto; auto with a camera so low its planned pairs would leave gaps is bad input."""
+    assert "auto" in cli(capsys, "synth", "scan", "--help").out
+    fails(cli(capsys, "synth", "scan", "--pairs", "autox", "--out", work / "s"), 2, "--pairs", "auto")
+    fails(cli(capsys, "synth", "scan", "--pairs", "auto", "--height", "0.6", "--out", work / "s"), 2, "--pairs auto",
+          "gaps")
+    assert not (work / "s").exists()
+
+
+@pytest.mark.slow
+def test_synth_scan_pairs_auto(capsys, work):
+    """A tiny real run: the pairs planned from the survey (a compact 2-log pile: the 2x2 grid), the plan in
+    scan.json."""
+    r = cli(capsys, "synth", "scan", "--seed", "1", "--logs", "2", "--obstacles", "0", "--pairs", "auto",
+            "--float-fixes", "0", "--out", work / "auto", "--json")
+    assert r.code == 0, r.err
+    info = json.loads((work / "auto" / "scan.json").read_text())
+    assert info["plan"]["grid"] == [2, 2] and info["pairs"] == 4 and "scan plan from the survey: 2x2 pairs" in r.err
+    assert len(list((work / "auto" / "scan").glob("pair_*"))) == 4
+
+
 @pytest.mark.slow
 def test_synth_dataset_and_train_a_64px_network(capsys, work, a_file):
     """A 64 px data set trains from the command line (the network takes the data set's size), either

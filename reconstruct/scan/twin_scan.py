@@ -34,6 +34,8 @@ It lives in :mod:`reconstruct` (not :mod:`synth`) because the GNSS CSV format is
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import io
 import json
 import math
@@ -42,7 +44,7 @@ import shutil
 import tempfile
 from dataclasses import replace
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
@@ -50,7 +52,11 @@ from synth.geometry.frames import make_T, rot_z
 from synth.common.files import apply_umask, atomic_write_bytes
 from synth.scene.pile import Georeference, PileSpec, write_pile
 
-SCAN_FORMAT_VERSION = "1.0"
+if TYPE_CHECKING:
+    from reconstruct.scan.plan import ScanPlan, ScanPlanConfig
+
+#: 1.1: scan.json has ``plan`` (None: the grid was given, not planned from the survey)
+SCAN_FORMAT_VERSION = "1.1"
 DEFAULT_SITE = (64.1, 20.0, 250.0)  # near Umeå inland: lat [deg], lon [deg], ellipsoidal h [m]
 
 
@@ -64,16 +70,69 @@ def georeference_pile(pile: PileSpec, site: tuple[float, float, float], rng: np.
                                              T_site_pile=tuple(tuple(float(v) for v in row) for row in T)))
 
 
+def plan_twin_scan(pile: PileSpec, survey, cfg: "ScanPlanConfig") -> "ScanPlan":
+    """The scan plan (:func:`reconstruct.scan.plan.plan_scan`) of a georeferenced twin pile from a survey
+    of it (a :class:`reconstruct.survey.gnss.GnssSurvey`): its points in the pile frame, heights above the
+    pile's terrain, each point's horizontal sigma its reported accuracy, the rig along the surveyed logs."""
+    from reconstruct.fitting.survey_points import point_accuracy
+    from reconstruct.scan.plan import plan_scan, survey_yaw
+
+    ends = survey.ends_site(pile.georef)
+    T_pile_site = np.linalg.inv(pile.georef.matrix())
+    pts, sig, pairs = [], [], []
+    for log_id, pair in ends.items():
+        in_pile = []
+        for end, p in zip("ab", pair):
+            if p is None:
+                in_pile.append(None)
+                continue
+            q = T_pile_site[:3, :3] @ np.asarray(p, dtype=float) + T_pile_site[:3, 3]
+            q[2] -= pile.terrain.height_at(q[0], q[1])
+            pts.append(q)
+            sig.append(point_accuracy(survey.point(log_id, end))[0])
+            in_pile.append(q)
+        pairs.append(tuple(in_pile))
+    return plan_scan(np.array(pts), np.array(sig), survey_yaw(pairs), cfg)
+
+
+#: a planned pair is rendered when at least this share of its ground footprint lies on the twin's terrain
+#: patch: beyond it the twin renders nothing to match (the field has ground there), and a pair with less
+#: depth than StereoConfig.min_valid_fraction (0.3) of its pixels is refused; half leaves room for the
+#: disparity band and the border [-]
+TWIN_MIN_GROUND_SHARE = 0.5
+
+
+def pairs_beyond_terrain(pile: PileSpec, planned: "ScanPlan", cfg: "ScanPlanConfig", n: int = 11) -> frozenset[int]:
+    """Grid indices of a plan's pairs whose ground footprint (``n`` x ``n`` samples) lies less than
+    :data:`TWIN_MIN_GROUND_SHARE` on the pile's terrain patch (a square of ``extent_m`` about the origin)."""
+    lo_a, hi_a, lo_c, hi_c = cfg.footprint_slopes()
+    a, c = np.meshgrid(np.linspace(lo_a, hi_a, n) * cfg.height_m, np.linspace(lo_c, hi_c, n) * cfg.height_m)
+    offsets = np.column_stack([a.ravel(), c.ravel()]) @ planned.axes()
+    half = pile.terrain.extent_m / 2
+    out = set()
+    for k, xy in enumerate(planned.pair_positions()):
+        on = (np.abs(xy + offsets) <= half).all(axis=1).mean()
+        if on < TWIN_MIN_GROUND_SHARE:
+            out.add(k)
+    return frozenset(out)
+
+
 def _rig_over_pile(pile: PileSpec, height_m: float, hfov_deg: float,
-                   image_size: tuple[int, int] = (1280, 720)):
+                   image_size: tuple[int, int] = (1280, 720), planned: "ScanPlan | None" = None):
+    """The rig of the grid's centre: over the true ends' centre, the long image side along the logs' mean
+    direction; ``planned``: over the plan's centre, along its direction."""
     from synth.render.stereo import StereoRigConfig
 
-    ends = np.array([e for log in pile.logs for e in log.endpoints_m()])
-    centre = ends.mean(axis=0)
-    # long image side along the logs' mean direction
-    axes = np.array([log.axis()[:2] for log in pile.logs])
-    axes *= np.sign(axes @ axes[0])[:, None]
-    yaw = math.degrees(math.atan2(axes[:, 1].mean(), axes[:, 0].mean()))
+    if planned is not None:
+        centre = np.array([*planned.centre_xy, 0.0])
+        yaw = math.degrees(planned.yaw_rad)
+    else:
+        ends = np.array([e for log in pile.logs for e in log.endpoints_m()])
+        centre = ends.mean(axis=0)
+        # long image side along the logs' mean direction
+        axes = np.array([log.axis()[:2] for log in pile.logs])
+        axes *= np.sign(axes @ axes[0])[:, None]
+        yaw = math.degrees(math.atan2(axes[:, 1].mean(), axes[:, 0].mean()))
     return StereoRigConfig(width_px=int(image_size[0]), height_px=int(image_size[1]), height_m=height_m,
                            hfov_deg=hfov_deg,
                            target_m=(float(centre[0]), float(centre[1]), float(pile.terrain.height_at(*centre[:2]))),
@@ -135,6 +194,7 @@ def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5
                    n_float: int = 2, height_m: float = 3.0, hfov_deg: float = 50.0,
                    n_unsurveyed: int = 0, pile_spread_m: float | None = None, yaw_spread_rad: float | None = None,
                    grid: tuple[int, int] = (2, 2), spacing_m: tuple[float, float] = (1.4, 1.0),
+                   plan: "ScanPlanConfig | None" = None,
                    pose_error_m: float = 0.03, pose_error_deg: float = 0.5,
                    unposed: bool = False, handheld: bool | None = None,
                    image_size: tuple[int, int] = (1280, 720), jitter_m: float = 0.15,
@@ -150,6 +210,13 @@ def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5
     error depend on ``seed`` only. ``n_float``: survey points with an RTK float fix;
     ``n_unsurveyed``: logs left out of the survey (among those the scan shows most of,
     :func:`visible_logs`; the other points are as without it).
+
+    ``plan``: size the grid from the survey (:func:`reconstruct.scan.plan.plan_scan`) instead of ``grid``
+    and ``spacing_m``: the smallest grid covering every surveyed end (the default survey of every log,
+    drawn before the scan from the same stream: the written survey when ``n_unsurveyed`` is 0), centred on
+    the survey and turned along its logs; ``plan.height_m`` / ``plan.hfov_deg`` / its image size replace
+    ``height_m`` / ``hfov_deg`` / ``image_size``. ``scan.json`` records the plan. Without it the rig is aimed
+    at the true ends' centre.
 
     Written into a temporary sibling folder and renamed into place (never half-written)."""
     from reconstruct.survey.gnss import pile_endpoints_site, simulate_survey, write_gnss_csv
@@ -176,20 +243,32 @@ def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5
         write_pile(pile, tmp / "truth" / "pile.json")
         from reconstruct.registration import ScanPose, write_scan_pose
 
-        rig0 = _rig_over_pile(pile, height_m, hfov_deg, image_size)
+        # the scan pose error is drawn before the survey (the order of the seed's stream): drawn here so a
+        # plan can see the survey before the pairs are rendered; rendering draws from no stream
+        err_yaw = math.radians(rng.normal(0, pose_error_deg))
+        err_t = np.array([*rng.normal(0, pose_error_m, 2), rng.normal(0, pose_error_m / 2)])
+        planned = None
+        if plan is not None:
+            planned = plan_twin_scan(pile, simulate_survey(pile_endpoints_site(pile), pile.georef, copy.deepcopy(rng),
+                                                           n_float=n_float), plan)
+            height_m, hfov_deg, grid, spacing_m = plan.height_m, plan.hfov_deg, planned.grid, planned.spacing_m
+            image_size = (plan.width_px, plan.height_px)
+            say(f"scan plan from the survey: {planned.describe()}")
+        rig0 = _rig_over_pile(pile, height_m, hfov_deg, image_size, planned)
         moving = unposed if handheld is None else bool(handheld)
         # the rig's motion has its own stream: pile, survey and pose error do not depend on it
         jitter = (np.random.default_rng(np.random.SeedSequence([int(seed), 0x5CA7, 1])),
                   jitter_m, jitter_height_m, jitter_yaw_deg, jitter_tilt_deg) if moving else None
-        poses = _render_pairs(tmp, pile, rig0, grid, spacing_m, jitter, unposed, say)
-        nx, ny = grid
+        beyond = frozenset() if planned is None else pairs_beyond_terrain(pile, planned, plan)
+        if beyond:
+            say(f"{len(beyond)} planned pair(s) over no terrain (the twin's {pile.terrain.extent_m:g} m patch) "
+                "not rendered")
+        poses = _render_pairs(tmp, pile, rig0, grid, spacing_m, jitter, unposed, say, beyond)
         atomic_write_bytes(tmp / "truth" / "poses.json", json.dumps(
             {"format": "loggrasp.twin-scan-poses", "format_version": SCAN_FORMAT_VERSION,
              "frame": "pile (truth/pile.json)", "T_pile_cam": poses}, indent=1).encode())
         # the scan frame is the pile frame (the calibration's T_pile_cam); the crane knows where its
         # camera is only to a few centimetres / a fraction of a degree: perturb the true pose
-        err_yaw = math.radians(rng.normal(0, pose_error_deg))
-        err_t = np.array([*rng.normal(0, pose_error_m, 2), rng.normal(0, pose_error_m / 2)])
         T_site_scan = make_T(rot_z(err_yaw), err_t) @ pile.georef.matrix()
         if not unposed:
             write_scan_pose(ScanPose(site[0], site[1], site[2], tuple(tuple(float(v) for v in r) for r in T_site_scan)),
@@ -200,9 +279,12 @@ def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5
         write_gnss_csv(survey, tmp / "gnss.csv")
         info = {"format": "loggrasp.twin-scan", "format_version": SCAN_FORMAT_VERSION, "seed": seed,
                 "n_logs": n_logs, "n_obstacles": n_obst, "packed": packed, "spread": spread, "site": list(site),
-                "n_float": n_float, "unsurveyed": list(omit), "rig": rig0.to_dict(), "pairs": nx * ny, "spacing_m": list(spacing_m),
+                "n_float": n_float, "unsurveyed": list(omit), "rig": rig0.to_dict(), "pairs": len(poses),
+                "spacing_m": list(spacing_m),
                 "pose_error": {"sigma_m": pose_error_m, "sigma_deg": pose_error_deg},
                 "image_size": list(image_size), "unposed": bool(unposed), "handheld": bool(moving),
+                "plan": None if planned is None else planned.to_dict() | {"config": dataclasses.asdict(plan),
+                                                                          "beyond_terrain": sorted(beyond)},
                 "jitter": ({"m": jitter_m, "height_m": jitter_height_m, "yaw_deg": jitter_yaw_deg,
                             "tilt_deg": jitter_tilt_deg} if moving else None)}
         atomic_write_bytes(tmp / "scan.json", json.dumps(info, indent=1, default=str).encode())
@@ -216,11 +298,11 @@ def make_twin_scan(out_dir: str | Path, seed: int, logs: tuple[int, int] = (3, 5
 
 
 def _render_pairs(tmp: Path, pile, rig0, grid: tuple[int, int], spacing_m: tuple[float, float], jitter,
-                  unposed: bool, say: Callable[[str], None]) -> dict[str, list]:
+                  unposed: bool, say: Callable[[str], None], skip: frozenset[int] = frozenset()) -> dict[str, list]:
     """Render the grid of stereo pairs over the pile into ``tmp/scan`` (their true depth and
     instance maps into ``tmp/truth``); ``jitter``: (rng, m, height m, yaw deg, tilt deg) of a rig
-    that moves between pairs, or None for a straight-down grid. Returns each pair's true
-    ``T_pile_cam``."""
+    that moves between pairs, or None for a straight-down grid; ``skip``: grid indices (along first)
+    not rendered, the others numbered on. Returns each pair's true ``T_pile_cam``."""
     import datetime as dt
 
     from synth.render.stereo import StereoRenderer
@@ -231,16 +313,19 @@ def _render_pairs(tmp: Path, pile, rig0, grid: tuple[int, int], spacing_m: tuple
     nx, ny = grid
     centre = np.asarray(rig0.target_m[:2])
     poses = {}
+    n_render = nx * ny - len(skip)
     with StereoRenderer(rig0.renderer) as renderer:
         for iy in range(ny):
             for ix in range(nx):
-                k = iy * nx + ix
+                if iy * nx + ix in skip:
+                    continue
+                k = len(poses)
                 xy = centre + along * (ix - (nx - 1) / 2) * spacing_m[0] + across * (iy - (ny - 1) / 2) * spacing_m[1]
                 rig = replace(rig0, target_m=(float(xy[0]), float(xy[1]), float(pile.terrain.height_at(*xy))))
                 if jitter is not None:
                     T = _handheld_pose(rig, *jitter)
                     rig = replace(rig, T_pile_cam=tuple(tuple(float(v) for v in r) for r in T))
-                say(f"rendering stereo pair {k + 1} of {nx * ny}")
+                say(f"rendering stereo pair {k + 1} of {n_render}")
                 pair = renderer.render(pile, rig)
                 pair.meta.update({"camera": "ZED 2 (twin)", "captured_utc": captured})
                 pair_dir = pair.save(tmp / "scan" / f"pair_{k:03d}")

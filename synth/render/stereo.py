@@ -470,6 +470,16 @@ class Matched:
     d_min: int  # smallest disparity searched [px]
 
 
+def disparity_range(f_baseline_px_m: float, z_min_m: float, z_max_m: float) -> tuple[int, int]:
+    """(smallest disparity, number of disparities) [px] the matcher searches for depths ``z_min_m`` ..
+    ``z_max_m`` of a pair with focal length x baseline ``f_baseline_px_m``: OpenCV's numDisparities is a
+    multiple of 16. The left image's first ``d_min + n_disp`` columns get no depth (the right camera does
+    not see them at every searched depth): a scan plan's footprint leaves them out."""
+    d_min = max(0, int(math.floor(f_baseline_px_m / z_max_m)) - 1)
+    n_disp = int(math.ceil((f_baseline_px_m / z_min_m - d_min + 1) / 16.0)) * 16
+    return d_min, n_disp
+
+
 def rectify_and_match(left: np.ndarray, right: np.ndarray, calib: StereoCalibration, cfg) -> Matched:
     """Rectify a pair (``cv2.stereoRectify`` + ``initUndistortRectifyMap``) and match it with
     OpenCV's 3-way semi-global matcher, searching the disparities of depths ``cfg.z_min_m`` ..
@@ -488,9 +498,7 @@ def rectify_and_match(left: np.ndarray, right: np.ndarray, calib: StereoCalibrat
     left_r = cv2.remap(left, *m1, cv2.INTER_LINEAR)
     gl = cv2.cvtColor(left_r, cv2.COLOR_RGB2GRAY)
     gr = cv2.cvtColor(cv2.remap(right, *m2, cv2.INTER_LINEAR), cv2.COLOR_RGB2GRAY)
-    fb = abs(P2[0, 3])  # f * baseline [px m]
-    d_min = max(0, int(math.floor(fb / cfg.z_max_m)) - 1)
-    n_disp = int(math.ceil((fb / cfg.z_min_m - d_min + 1) / 16.0)) * 16
+    d_min, n_disp = disparity_range(abs(P2[0, 3]), cfg.z_min_m, cfg.z_max_m)
     bs = cfg.block_size
     matcher = cv2.StereoSGBM_create(
         minDisparity=d_min, numDisparities=n_disp, blockSize=bs, P1=8 * bs * bs, P2=32 * bs * bs,

@@ -182,3 +182,17 @@ def test_estimators_are_compared_on_the_scans_they_share(tmp_path):
     assert s["fixed"]["joint"]["silent_over_8cm"] == 0  # its end is weak: warned about
     assert s["degraded"]["rules22"]["blind_logs"] == 1 and s["degraded"]["rules22"]["blind_within_2sigma"] == 1
     assert "| degraded | rules22 | 1 | 0 (0.0 %) | 30.0 |" in "\n".join(compare_markdown(recs))
+
+
+def test_survey_pairs_key():
+    """2x2 adds nothing to a record's key (the records before planned scans resume); auto names the plan's
+    config, equal to itself after a JSON round trip (a resumed run finds its records); anything else is refused."""
+    import json
+
+    from experiments.survey_conditions import survey_pairs_key
+
+    assert survey_pairs_key("2x2") == {}
+    key = survey_pairs_key("auto")
+    assert key["pairs"] == "auto" and key["plan"]["margin_m"] > 0 and json.loads(json.dumps(key)) == key
+    with pytest.raises(ValueError, match="--survey-pairs"):
+        survey_pairs_key("3x3")
