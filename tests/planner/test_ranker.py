@@ -10,7 +10,7 @@ import pytest
 from planner.errors import CheckpointError, DataError, TrainingError
 from planner.ranker import (RankerConfig, build_ranker, claw_footprint, grasp_crops, grasp_scalars, load_ranker,
                             rerank, save_ranker, Ranker)
-from planner.ranker_train import (Examples, RankerTrainConfig, _group_by_pile, fit, load_examples, pairwise_loss,
+from planner.ranker_train import (Examples, RankerTrainConfig, _pile_runs, fit, load_examples, pairwise_loss,
                                   within_pile_auc)
 from synth.geometry.frames import OrthoGrid
 from synth.geometry.grasp import Grasp
@@ -124,13 +124,20 @@ def test_pairwise_loss_grows_when_a_pile_is_ordered_the_wrong_way_and_is_zero_wi
     assert float(none) == 0.0 and x.grad is not None
 
 
-def test_grouped_batches_hold_each_pile_together_and_keep_every_example():
-    piles = np.array([f"0/p{i % 7}" for i in range(70)])
-    order = np.random.default_rng(1).permutation(70)
-    grouped = _group_by_pile(order, piles, np.random.default_rng(2))
-    assert sorted(grouped) == sorted(order)
-    runs = [p for k, p in enumerate(piles[grouped]) if k == 0 or p != piles[grouped][k - 1]]
-    assert len(runs) == 7  # each pile one contiguous run
+def test_runs_of_one_pile_keep_every_example_and_mix_the_piles():
+    piles = np.array([f"0/p{i % 7}" for i in range(56)])  # 8 examples per pile: two runs of 4
+    order = np.random.default_rng(1).permutation(56)
+    ran = _pile_runs(order, piles, 4, np.random.default_rng(2))
+    assert sorted(ran) == sorted(order)
+    names = piles[ran]
+    starts = [k for k in range(56) if k == 0 or names[k] != names[k - 1]]
+    lengths = set(np.diff(starts + [56]).tolist())
+    assert lengths <= {4, 8}  # runs of 4 (two of a pile may meet)
+    assert len(starts) > 7  # not whole piles one after another
+    for p in np.unique(piles):  # a run takes 4 of its pile's examples as they come in order
+        mine = [i for i in order if piles[i] == p]
+        runs = [list(ran[k:k + 4]) for k in range(0, 56, 4) if piles[ran[k]] == p]
+        assert sorted(runs) == sorted([mine[:4], mine[4:]])
 
 
 def test_fit_with_the_pairwise_term_learns_what_the_crops_show():
@@ -144,6 +151,11 @@ def test_fit_with_the_pairwise_term_learns_what_the_crops_show():
 def test_a_pairwise_weight_that_is_not_a_finite_non_negative_number_is_refused(weight):
     with pytest.raises(ValueError, match="pairwise_weight"):
         RankerTrainConfig(pairwise_weight=weight)
+
+
+def test_a_pile_run_shorter_than_a_pair_is_refused():
+    with pytest.raises(ValueError, match="pile_chunk"):
+        RankerTrainConfig(pile_chunk=1)
 
 
 def test_fit_needs_both_sides_of_the_split():
