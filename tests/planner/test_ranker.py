@@ -121,7 +121,7 @@ def test_pairwise_loss_grows_when_a_pile_is_ordered_the_wrong_way_and_is_zero_wi
     x = torch.tensor([1.0, -1.0], requires_grad=True)
     none = pairwise_loss(x, torch.tensor([1.0, 1.0]), piles)  # equal labels: no pair
     none.backward()
-    assert float(none) == 0.0 and x.grad is not None
+    assert float(none.detach()) == 0.0 and x.grad is not None
 
 
 def test_runs_of_one_pile_keep_every_example_and_mix_the_piles():
