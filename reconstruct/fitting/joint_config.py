@@ -162,7 +162,7 @@ class JointConfig:
     #                                 contact moves or refuses the log as before. On the fresh held-out scans
     #                                 the logs thinned and placed right needed at most 19 % off; the one that
     #                                 needed 40 % lay on another's ridge 31 cm off, and was kept at 0.6, refused
-    #                                 at 0.75 (docs/reconstruction.md, "Joint revision 14 (in progress)": chosen
+    #                                 at 0.75 (docs/reconstruction.md, "Radius states (opt-in, joint revisions 13-14)": chosen
     #                                 on those scans, so still to be judged on others) [-]
     radius_sigma_band_m: float = 0.05  # ... and its radius sigma carries the fit's misfit: the RMS depth of the
     #                                    points inside its fitted surface within this (no other log's) beyond
@@ -173,7 +173,7 @@ class JointConfig:
     #                                    for (up to 4 cm on the fresh held-out scans); at 5 cm the two logs
     #                                    whose radii were 3-4 cm too big stood out (misfit 1.3-1.4 cm, the others
     #                                    at most 0.8), at 8 cm a correct log's reached 1.1 (docs/
-    #                                    reconstruction.md, "Joint revision 14 (in progress)") [m]
+    #                                    reconstruction.md, "Radius states (opt-in, joint revisions 13-14)") [m]
     obstacle_sigma_floor_m: float = 0.01  # an obstacle's place and surface are never surer than this: half the
     #                                       obstacle stage's 2 cm voxel, whatever its points' spread [m]
     obstacle_sigma_max_m: float = 0.05  # ... and at most this uncertain: stereo smears an edge by up to ~5 cm
