@@ -162,8 +162,9 @@ class JointConfig:
     #                                 contact moves or refuses the log as before. On the fresh held-out scans
     #                                 the logs thinned and placed right needed at most 19 % off; the one that
     #                                 needed 40 % lay on another's ridge 31 cm off, and was kept at 0.6, refused
-    #                                 at 0.75 (docs/reconstruction.md, "Radius states (opt-in, joint revisions 13-14)": chosen
-    #                                 on those scans, so still to be judged on others) [-]
+    #                                 at 0.75 (docs/reconstruction.md, "Radius states (opt-in, joint
+    #                                 revisions 13-14)": chosen on those scans, so still to be judged on
+    #                                 others) [-]
     radius_sigma_band_m: float = 0.05  # ... and its radius sigma carries the fit's misfit: the RMS depth of the
     #                                    points inside its fitted surface within this (no other log's) beyond
     #                                    that within the fit's inlier band (joint_scan_sigma.radius_misfit).
