@@ -180,8 +180,20 @@ def test_synth_scan_pairs_auto(capsys, work):
     assert len(list((work / "auto" / "scan").glob("pair_*"))) == 4
 
 
+SMALL_DATA = ["synth", "dataset", "--piles", "2", "--logs", "2", "--size", "64", "--renders", "1",
+              "--max-trials-per-subset", "1", "--label-repeats", "0", "--workers", "1"]
+
+
+@pytest.fixture(scope="module")
+def small_data(work) -> Path:
+    """A 64 px data set of two 2-log piles with the paper's one-success labels (--label-repeats 0),
+    made once per module: re-running the command on it returns at once."""
+    assert run(SMALL_DATA + ["--out", str(work / "data")]) == 0
+    return work / "data"
+
+
 @pytest.mark.slow
-def test_synth_dataset_and_train_a_64px_network(capsys, work, a_file):
+def test_synth_dataset_and_train_a_64px_network(capsys, work, a_file, small_data):
     """A 64 px data set trains from the command line (the network takes the data set's size), either
     mask injection."""
     from planner.checkpoint import load_checkpoint
@@ -192,8 +204,7 @@ def test_synth_dataset_and_train_a_64px_network(capsys, work, a_file):
         fails(cli(capsys, "synth", "dataset", "--piles", "1", "--logs", logs, "--out", work / "d"), 2, "--logs")
     assert not (work / "d").exists()
     # the paper's one-success labels (--label-repeats 0): the same samples and trials, without the repeats
-    r = cli(capsys, "synth", "dataset", "--piles", "2", "--logs", "2", "--size", "64", "--renders", "1",
-            "--max-trials-per-subset", "1", "--label-repeats", "0", "--workers", "1", "--out", work / "data", "--json")
+    r = cli(capsys, *SMALL_DATA, "--out", small_data, "--json")
     assert r.code == 0 and r.json()["summary"]["samples"] > 0
     fails(cli(capsys, "train", "--data", work / "data", "--out", a_file / "r"), 2, "--out")
     fails(cli(capsys, "train", "--data", work / "none", "--out", work / "r"), 2, "--data")
@@ -208,9 +219,9 @@ def test_synth_dataset_and_train_a_64px_network(capsys, work, a_file):
           "--mask-injection")
 
 
-def test_train_outcome_labels_and_the_beta_map(capsys, work, tmp_path):
-    """``--labels outcome`` trains on every trial of a data set made by `synth dataset` (after the test
-    above); a data set without trials, or with --skip-no-candidates, is a one-line error."""
+def test_train_outcome_labels_and_the_beta_map(capsys, work, tmp_path, small_data):
+    """``--labels outcome`` trains on every trial of a data set made by `synth dataset`; a data set without
+    trials, or with --skip-no-candidates, is a one-line error."""
     import dataclasses
 
     from planner.checkpoint import load_checkpoint
