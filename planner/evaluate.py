@@ -35,6 +35,7 @@ from typing import Callable, Literal
 
 import numpy as np
 
+from planner.inference import SIGMA_B
 from planner.planners import PlanFn, PlannerSpec, build_planner
 from synth.geometry.grasp import Grasp
 from synth.physics.perturb import PositioningError
@@ -255,6 +256,8 @@ def _fingerprint(spec: PlannerSpec) -> str:
 
     try:
         sha = sha256_file(Path(spec.model))
+        if spec.objective == "f3" and spec.sigma_b != SIGMA_B:  # ... and with another balance tolerance
+            sha += f"+sb{spec.sigma_b:g}"
         if spec.views > 1:  # a record planned with other test-time views is made again, whatever its label
             sha += f"+views{spec.views}k{spec.view_spread_k:g}"
         if spec.ranker:  # ... and with another ranker or another number re-scored

@@ -40,6 +40,7 @@ from synth.geometry.grasp import MAX_WIDTH_M, MIN_WIDTH_M, RECT_WIDTH_M, Grasp
 PLAN_FORMAT_NAME = "loggrasp.plan"  # plan.json, ``loggrasp plan --json``
 PLAN_FORMAT_VERSION = "1.0"
 OBSTACLE_CODE_BASE = 1000  # instance codes >= this are obstacles (synth.render.ortho)
+SIGMA_B = 0.25  # the paper's f3 balance tolerance [cos beta]
 
 
 @dataclass(frozen=True)
@@ -49,7 +50,7 @@ class Objective:
     kind: Literal["f1", "f2", "f3"] = "f1"  # "f1": u; "f2": u tau^mu; "f3": u tau^mu exp(-(b - b_opt)^2 / sigma_b^2)
     mu: float = 1.0 / 3.0  # exponent on the number of target logs [-]
     b_opt: float = 1.0  # optimal balance cos(beta) [-]
-    sigma_b: float = 0.25  # balance tolerance [-]
+    sigma_b: float = SIGMA_B  # balance tolerance [cos beta]
 
     def __post_init__(self) -> None:
         if self.kind not in ("f1", "f2", "f3"):

@@ -86,7 +86,7 @@ def test_readme_command_list_matches_help():
             cmd = cmd.commands[words[0]]
             path.append(words.pop(0))
         flags = {o for p in cmd.params for o in (*p.opts, *p.secondary_opts)}
-        named = set(re.findall(r"(?<![\w-])--[a-z][a-z-]*", line))
+        named = set(re.findall(r"(?<![\w-])--[a-z][a-z0-9-]*", line))
         assert named <= flags, f"README: `loggrasp {' '.join(path)}` has no {sorted(named - flags)}"
         listed.setdefault(" ".join(path), set()).update(named)
     every = {" ".join(p) for p in COMMANDS if p != ["synth"]}
@@ -397,7 +397,8 @@ def test_eval_bad_input(capsys, work, a_file):
                       (["--view-spread", "2"], "--view-spread needs --views"),
                       (["--views", "8", "--view-spread", "-1"], "--view-spread must be >= 0"),
                       (["--field-error", "3cm"], "--field-error: positioning error '3cm' must be"),
-                      (["--field-error", "0.03,90"], "--field-error: positioning error")):
+                      (["--field-error", "0.03,90"], "--field-error: positioning error"),
+                      (["--f3-sigma-b", "0"], "--f3-sigma-b 0: f3's balance tolerance must be > 0")):
         fails(cli(capsys, "eval", *bad, "--out", work / "e2"), 2, flag)
     fails(cli(capsys, "eval", "--out", a_file / "e"), 2, "--out", str(a_file))
     assert not (work / "e2").exists()

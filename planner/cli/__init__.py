@@ -455,6 +455,9 @@ def eval_command(
                           "grasps by f1 and by f3 a ranker checkpoint re-scores.", default=None, metavar="PATH"),
     rerank_k: int = RERANK_K,
     ranker_u_weight: float = RANKER_U_WEIGHT,
+    f3_sigma_b: float = option("--f3-sigma-b", "f3's balance tolerance sigma_b in Q = u tau^mu exp(-(b - 1)^2 / "
+                               "sigma_b^2), b = cos(beta); rows with another value than the paper's 0.25 are named "
+                               "unet-f3-sbS.", default=0.25, metavar="S"),
     field_error: str = option("--field-error", "Add a field row per planner: its chosen grasp executed with the "
                               "crane's positioning error, SIGMA_XY_M,SIGMA_PHI_DEG (e.g. 0.03,2: 3 cm per axis, 2 deg).",
                               default=None, metavar="M,DEG"),
@@ -490,6 +493,9 @@ def eval_command(
                      field_error=error)
     specs = _eval_specs(str(model or DEFAULT_MODEL), objectives, baselines, extra_model, verify, verify_copies)
     specs += _view_specs(str(model or DEFAULT_MODEL), objectives, views, view_spread)
+    if not f3_sigma_b > 0:
+        raise CliError(f"--f3-sigma-b {f3_sigma_b:g}: f3's balance tolerance must be > 0 (the paper's is 0.25)")
+    specs = [replace(s, sigma_b=f3_sigma_b) if s.kind == "unet" and s.objective == "f3" else s for s in specs]
     if ranker is not None:
         check_input(ranker, "--ranker", "file")
         specs += [replace(s, ranker=str(ranker), rerank_k=rerank_k, ranker_u_weight=ranker_u_weight)

@@ -237,6 +237,46 @@ def test_a_row_with_test_time_views_plans_with_them_and_keeps_its_own_records(tm
         build_planner(PlannerSpec("unet", model=str(ckpt), views=3))
 
 
+def test_an_f3_row_with_another_balance_tolerance_plans_with_it_and_keeps_its_own_records(tmp_path, monkeypatch):
+    """``sigma_b`` rows score f3's Q with their balance tolerance (the objective the planner is called
+    with carries it), are named ``unet-f3-sbS`` and fingerprinted apart; f1 ignores it; 0 is refused."""
+    from dataclasses import replace
+
+    import planner.inference as inference
+    from planner.evaluate import _fingerprint
+    from planner.planners import build_planner
+
+    cfg = EvalConfig(logs=(2,), obstacles=(False,), per_cell=1)
+    ckpt = _tiny_checkpoint(tmp_path / "m.safetensors", cfg)
+    seen = []
+    real_plan = inference.plan
+
+    def spy(obs, net, objective, *a, **k):
+        seen.append((objective.kind, objective.sigma_b))
+        return real_plan(obs, net, objective, *a, **k)
+
+    monkeypatch.setattr(inference, "plan", spy)
+    plain = PlannerSpec("unet", model=str(ckpt), objective="f3")
+    harsh = PlannerSpec("unet", model=str(ckpt), objective="f3", sigma_b=0.05)
+    assert harsh.name == "unet-f3-sb0.05" and PlannerSpec("unet", model="m", sigma_b=0.05).name == "unet-f1"
+    tables = run_evaluation([plain, harsh], cfg, tmp_path / "e", workers=1)
+    assert set(tables["planners"]) == {"unet-f3", "unet-f3-sb0.05"}
+    assert sorted(seen) == [("f3", 0.05), ("f3", 0.25)], seen
+    assert len({_fingerprint(plain), _fingerprint(harsh), _fingerprint(replace(harsh, sigma_b=0.1))}) == 3
+    with pytest.raises(ValueError, match="sigma_b"):
+        build_planner(PlannerSpec("unet", model=str(ckpt), objective="f3", sigma_b=0.0))
+
+
+def test_a_smaller_balance_tolerance_prefers_the_better_balanced_pixel():
+    """f3's Q: a pixel of U 0.97 at beta 20 deg beats one of U 0.90 at beta 5 deg under the paper's
+    sigma_b 0.25, and loses under 0.05."""
+    from planner.inference import Objective
+
+    u, b = [0.97, 0.90], [math.cos(math.radians(20)), math.cos(math.radians(5))]
+    assert Objective("f3").quality(u, 1.0, b).argmax() == 0
+    assert Objective("f3", sigma_b=0.05).quality(u, 1.0, b).argmax() == 1
+
+
 def test_field_row_executes_each_choice_moved_by_one_shared_draw(tmp_path):
     """With a field error every planner's chosen grasp is tried again moved by the same draw of the
     positioning error on a pile (paired), the table gets a '(field)' row per planner stating the
