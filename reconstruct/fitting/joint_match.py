@@ -85,24 +85,24 @@ def point_cost(e: SurveyEnd, log: ScanLog, at_start: bool, cfg: JointConfig, fcf
     return float(z_out / (z_in + z_out)) if outlier_prob else float(-math.log(z_in + z_out))
 
 
-def coverage_nats(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, rev: bool,
-                  raster: HeightRaster | None, cfg: JointConfig) -> float:
+def coverage_nats(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, raster: HeightRaster | None,
+                  cfg: JointConfig) -> float:
     """What the open ground under the surveyed log placed on ``log``'s ridge costs [nats]: the log laid along the
-    ridge's axis from one of its points' places on it (end a at the ridge's start unless ``rev``), its surveyed
-    length long, whichever of its two points it is laid from shows less open ground past the ridge's ends
-    (beyond ``ridge_overrun_m``), at ``coverage_nats_per_m``. A point far off the ridge (an outlier) still says
-    the log is that long: a log on a short scrap runs on over what the scan sees there."""
+    ridge's axis from one of its points' places on it toward the other's, its surveyed length long, whichever of
+    its two points it is laid from shows less open ground past the ridge's ends (beyond ``ridge_overrun_m``), at
+    ``coverage_nats_per_m``. A point far off the ridge (an outlier) still says the log is that long: a log on a
+    short scrap runs on over what the scan sees there."""
     if raster is None or not cfg.ridge_coverage or ends[0] is None or ends[1] is None:
         return 0.0
     p0 = log.start_m[:2]
     L = max(log.length_m, 1e-6)
     u = (log.end_m[:2] - p0) / L
     length = float(np.linalg.norm(ends[1].position_m[:2] - ends[0].position_m[:2]))
+    t = [float((e.position_m[:2] - p0) @ u) for e in ends]
     best = math.inf
-    for n, e in enumerate(ends):
-        t = float((e.position_m[:2] - p0) @ u)
-        toward_end = (n == 0) != rev  # this point is at the ridge's start: the log runs toward its end
-        lo, hi = (t, t + length) if toward_end else (t - length, t)
+    for n in (0, 1):
+        toward = t[1 - n] - t[n] if t[1 - n] != t[n] else 0.5 * L - t[n]  # toward the other point (its middle)
+        lo, hi = (t[n], t[n] + length) if toward >= 0 else (t[n] - length, t[n])
         open_m = (open_length_m(log, lo, min(hi, -cfg.ridge_overrun_m), raster, cfg)
                   + open_length_m(log, max(lo, L + cfg.ridge_overrun_m), hi, raster, cfg))
         best = min(best, open_m)
@@ -150,10 +150,12 @@ def pair_cost(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, cfg
         pts = [(e, (k == 0) != rev) for k, e in enumerate(ends) if e is not None]
         if all(point_cost(e, log, s, cfg, fcfg, outlier_prob=True) > cfg.outlier_flag_prob for e, s in pts):
             continue  # every point of it an outlier: this is not its log
-        c = sum(point_cost(e, log, s, cfg, fcfg) for e, s in pts) + coverage_nats(ends, log, rev, raster, cfg)
+        c = sum(point_cost(e, log, s, cfg, fcfg) for e, s in pts)
         if c < best[0]:
             best = (c, rev)
-    return best[0] + _radius_nats(log, radius_sigma_m, cfg), best[1]
+    if math.isinf(best[0]):
+        return best
+    return best[0] + coverage_nats(ends, log, raster, cfg) + _radius_nats(log, radius_sigma_m, cfg), best[1]
 
 
 def _radius_nats(log: ScanLog, radius_sigma_m: float | None, cfg: JointConfig) -> float:

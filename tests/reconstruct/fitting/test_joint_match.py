@@ -175,23 +175,23 @@ def test_a_ridges_chunks_are_fitted_with_the_profile_of_the_whole_run():
 
 
 def test_a_log_on_a_short_scrap_is_dearer_than_hidden_where_the_scan_sees_open_ground_along_it():
-    # the log's fixed point a lies on a 30 cm scrap; its point b 2.5 m on, in line, lies on nothing the scan
+    # the log's fixed point a lies on a 30 cm scrap; its point b 3 m on, in line, lies on nothing the scan
     # found (an outlier of the scrap): over open ground that is no log; under a log across (seen high) it may be
     scrap = ScanLog(np.array([0.0, 0.0, 0.09]), np.array([0.3, 0.0, 0.09]), 0.09, 0.3, 20.0)
-    survey = {"log0": (_fixed(0.0, 0.0), _fixed(2.5, 0.0))}
+    survey = {"log0": (_fixed(0.0, 0.0), _fixed(3.0, 0.0))}
     open_ground = RidgeEvidence((0.005,), HeightRaster.of(_ground_and_top(0.0, 0.3, 0.0, 0.18), CFG.coverage_cell_m))
     m = joint_match(survey, [scrap], CFG, FCFG, open_ground)
     assert m.matches["log0"].scan_index is None
     assert joint_match(survey, [scrap], replace(CFG, ridge_coverage=False), FCFG, open_ground
                        ).matches["log0"].scan_index == 0
-    covered = RidgeEvidence((0.005,), HeightRaster.of(_ground_and_top(0.0, 2.6, 0.0, 0.3), CFG.coverage_cell_m))
+    covered = RidgeEvidence((0.005,), HeightRaster.of(_ground_and_top(0.0, 3.1, 0.0, 0.3), CFG.coverage_cell_m))
     assert joint_match(survey, [scrap], CFG, FCFG, covered).matches["log0"].scan_index == 0
     # the open length is the stretch past the scrap's end (beyond the overrun) to b
     raster = open_ground.raster
-    assert open_length_m(scrap, 0.3 + CFG.ridge_overrun_m, 2.5, raster, CFG) == pytest.approx(
-        2.1, abs=2 * CFG.coverage_cell_m)
-    assert coverage_nats(survey["log0"], scrap, False, raster, CFG) == pytest.approx(
-        CFG.coverage_nats_per_m * open_length_m(scrap, 0.3 + CFG.ridge_overrun_m, 2.5, raster, CFG))
+    assert open_length_m(scrap, 0.3 + CFG.ridge_overrun_m, 3.0, raster, CFG) == pytest.approx(
+        2.6, abs=2 * CFG.coverage_cell_m)
+    assert coverage_nats(survey["log0"], scrap, raster, CFG) == pytest.approx(
+        CFG.coverage_nats_per_m * open_length_m(scrap, 0.3 + CFG.ridge_overrun_m, 3.0, raster, CFG))
 
 
 def test_the_ridge_terms_parameters_are_checked():
