@@ -265,10 +265,10 @@ class JointConfig:
     #                                bins, so a stereo hole in one does not read as open [m]
     open_drop_m: float = 0.03  # the scan sees "below the axis" where the highest point of a cell is this far
     #                            under it (stereo depth noise ~1 cm at 3 m, a log's taper over a cell) [m]
-    coverage_nats_per_m: float = 5.0  # what a metre of open ground costs a log laid along a ridge: the slope of the
+    coverage_nats_per_m: float = 7.0  # what a metre of open ground costs a log laid along a ridge: the slope of the
     #                                   log-likelihood ratio of its open length, an exponential fitted to the
-    #                                   true pairs' (10 of 385 show any, mean 13 cm) against one fitted to the
-    #                                   other pairs' (61 of 113 within 30 nats, mean 38 cm): 1/0.13 - 1/0.38 per m.
+    #                                   true pairs' (13 of 385 show any, mean 11 cm) against one fitted to the
+    #                                   other pairs' (73 of 111 within 30 nats, mean 54 cm): 1/0.11 - 1/0.54 per m.
     #                                   Tuning seeds 3,300,000-083, all-fixed survey (docs/reconstruction.md,
     #                                   "Joint revision 15") [1/m]
 
