@@ -269,7 +269,7 @@ class JointConfig:
     #                                   log-likelihood ratio of its open length, an exponential fitted to the
     #                                   true pairs' (13 of 385 show any, mean 11 cm) against one fitted to the
     #                                   other pairs' (73 of 111 within 30 nats, mean 54 cm): 1/0.11 - 1/0.54 per m.
-    #                                   Tuning seeds 3,300,000-083, all-fixed survey (docs/reconstruction.md,
+    #                                   The first 84 held-out scans, all-fixed survey (docs/reconstruction.md,
     #                                   "Joint revision 15") [1/m]
 
     def __post_init__(self) -> None:

@@ -13,6 +13,10 @@ units (nats).
 The scan pose's error is one offset shared by every point: the assignment is made at the likeliest offset under
 its prior (:mod:`reconstruct.fitting.joint_pose`), reported as ``pose_offset_m``.
 
+With the scan's own evidence about its ridges (:mod:`reconstruct.fitting.joint_ridge`, joint revision 15): a
+ridge whose radius, within its own sigma, no log has is dearer to take and cheaper to leave unexplained, and a
+pair pays for the open ground the surveyed log would lie over, laid along the ridge (:func:`coverage_nats`).
+
 An assignment that makes a different pile (a scan log kept or dropped, a surveyed log hidden instead of seen)
 within ``ambiguity_nats`` of the best is a warning naming the log and the points to re-measure (the likelier
 pile is placed), or with ``ambiguity_is_error`` an :class:`~reconstruct.fitting.matching.AmbiguousSurveyError`;
