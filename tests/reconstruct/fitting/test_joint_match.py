@@ -192,6 +192,12 @@ def test_a_log_on_a_short_scrap_is_dearer_than_hidden_where_the_scan_sees_open_g
         2.6, abs=2 * CFG.coverage_cell_m)
     assert coverage_nats(survey["log0"], scrap, raster, CFG) == pytest.approx(
         CFG.coverage_nats_per_m * open_length_m(scrap, 0.3 + CFG.ridge_overrun_m, 3.0, raster, CFG))
+    # b 2.5 m across the scrap: laid from a the log runs 2.1 m on over open ground; laid from b (its place on the
+    # scrap's line 15 cm in) back toward a, off the scan's edge at -1 m after 0.9 m of it: the cheaper counts
+    across = (_fixed(0.0, 0.0), _fixed(0.15, 2.5))
+    from_b = open_length_m(scrap, 0.15 - math.hypot(0.15, 2.5), -CFG.ridge_overrun_m, raster, CFG)
+    assert from_b == pytest.approx(0.9, abs=2 * CFG.coverage_cell_m)
+    assert coverage_nats(across, scrap, raster, CFG) == pytest.approx(CFG.coverage_nats_per_m * from_b)
 
 
 def test_the_ridge_terms_parameters_are_checked():
