@@ -67,6 +67,7 @@ from reconstruct.fitting.fit import PileFit, fit_log, fit_pile, log_spec_from_fi
 from reconstruct.fitting.joint_config import JOINT_REVISION
 from reconstruct.fitting.joint_ends import JointEndPlacer, dropped_point_lines, joint_after_check
 from reconstruct.fitting.joint_match import joint_match
+from reconstruct.fitting.joint_ridge import ridge_evidence
 from reconstruct.fitting.joint_settle import JointSettler
 from reconstruct.fitting.fuse import (
     FuseConfig, SurveyEnd, a_piece_of_a_surveyed_log, absorb_pieces, after_pile_check, find_scan_logs, match_survey,
@@ -419,7 +420,7 @@ def _match_logs(pts_site: np.ndarray, survey_site: dict, fuse_cfg: FuseConfig, c
     scan_logs = find_scan_logs(pts_site, fuse_cfg)
     dropped, outliers, ambiguous = {}, {}, []
     if cfg.estimator == "joint":
-        jm = joint_match(survey_site, scan_logs, cfg.joint, fuse_cfg)
+        jm = joint_match(survey_site, scan_logs, cfg.joint, fuse_cfg, ridge_evidence(pts_site, scan_logs, cfg.joint))
         matches, unmatched, dropped, outliers, ambiguous = jm.matches, jm.unmatched, jm.dropped, jm.outliers, jm.ambiguous
     else:
         matches, unmatched = match_survey(survey_site, scan_logs, fuse_cfg)

@@ -16,7 +16,7 @@ from dataclasses import dataclass, fields
 ESTIMATORS = ("rules22", "joint")
 #: raised whenever a change to the joint estimator makes different piles from the same scan (recorded in the
 #: report as ``estimator_revision`` and in bench keys)
-JOINT_REVISION = 14
+JOINT_REVISION = 15
 
 
 @dataclass(frozen=True)
@@ -235,6 +235,42 @@ class JointConfig:
     ridge_run_on_mean_m: float = 0.33  # ... and how far past ridge_overrun_m on average (an exponential of this
     #                                    mean: the same 44 ends' mean; their whole run past the end: median
     #                                    36 cm, 95 % within 77 cm) [m]
+    # -- the matching's ridges: their radius and the ground past them (joint_ridge; joint revision 15) --
+    ridge_radius_evidence: bool = True  # a ridge's radius, within its own sigma, is evidence whether it is one log:
+    #                                     taking it as a log costs joint_ridge.not_one_log_nats and leaving it
+    #                                     unexplained costs that much less. Off (revision 14): a 3 cm "radius"
+    #                                     ridge was as good a partner as any (docs/reconstruction.md, "Joint
+    #                                     revision 15") [-]
+    ridge_chunk_m: float = 0.5  # a ridge's radius is fitted again on chunks this long (thousands of points at
+    #                             stereo density); their RMS about the whole run's radius is its sigma: on the
+    #                             tuning seeds' 385 ridges on true logs, 77 % of radius errors within 1 sigma,
+    #                             97 % within 2 [m]
+    ridge_radius_sigma_floor_m: float = 0.005  # ... never surer than this: two profile grid steps (2.5 mm) [m]
+    ridge_radius_sigma_prior_m: float = 0.03  # ... and this where fewer than two chunks explain a circle: the
+    #                                           radius's sigma the matching used before (FuseConfig radius_sigma_m) [m]
+    log_radius_min_m: float = 0.05  # one log's radius lies between this ... (the field's and the generator's
+    #                                 logs: 5-20 cm radii, sigma_radius_prior_m's comment) [m]
+    log_radius_max_m: float = 0.20  # ... and this [m]
+    other_radius_span_m: float = 0.45  # a ridge that is not one log (a scrap, a flank, two logs together) has a
+    #                                    profile radius anywhere in the profile search's span
+    #                                    (scan_logs.PROFILE_MAX_RADIUS_M) [m]
+    not_one_log_max_nats: float = 10.0  # the radius's evidence is bounded at this (the profile's search can be
+    #                                     wrong however tight its chunks agree: as sure as an outlier point) [-]
+    ridge_coverage: bool = True  # a log matched to a ridge lies along its axis for its surveyed length: where the
+    #                              scan sees below that axis past the ridge's ends, no log is there
+    #                              (joint_match.coverage_nats, joint_ridge.open_length_m), each metre costing
+    #                              coverage_nats_per_m. Off (revision 14): a log on a 10 cm scrap with its far
+    #                              point an outlier paid nothing for the 2 m of open ground it would lie over [-]
+    coverage_cell_m: float = 0.04  # the height raster's cell for that test: two of the scan-log raster's 2 cm
+    #                                bins, so a stereo hole in one does not read as open [m]
+    open_drop_m: float = 0.03  # the scan sees "below the axis" where the highest point of a cell is this far
+    #                            under it (stereo depth noise ~1 cm at 3 m, a log's taper over a cell) [m]
+    coverage_nats_per_m: float = 7.0  # what a metre of open ground costs a log laid along a ridge: the slope of the
+    #                                   log-likelihood ratio of its open length, an exponential fitted to the
+    #                                   true pairs' (13 of 385 show any, mean 11 cm) against one fitted to the
+    #                                   other pairs' (73 of 111 within 30 nats, mean 54 cm): 1/0.11 - 1/0.54 per m.
+    #                                   The first 84 held-out scans, all-fixed survey (docs/reconstruction.md,
+    #                                   "Joint revision 15") [1/m]
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -247,6 +283,9 @@ class JointConfig:
                      "p_on_outside", "p_below_outside", "p_over_inside", "p_over_outside"):
             if not getattr(self, name) < 1:
                 raise ValueError(f"JointConfig.{name} is a probability: must be in (0, 1), got {getattr(self, name)}")
+        if not self.log_radius_min_m < self.log_radius_max_m < self.other_radius_span_m:
+            raise ValueError(f"JointConfig: log_radius_min_m < log_radius_max_m < other_radius_span_m must hold, got "
+                             f"{self.log_radius_min_m}, {self.log_radius_max_m}, {self.other_radius_span_m}")
         if not self.radius_min_share < 1:
             raise ValueError(f"JointConfig.radius_min_share is a share of the fitted radius: must be in (0, 1), "
                              f"got {self.radius_min_share}")

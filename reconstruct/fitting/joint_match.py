@@ -13,6 +13,10 @@ units (nats).
 The scan pose's error is one offset shared by every point: the assignment is made at the likeliest offset under
 its prior (:mod:`reconstruct.fitting.joint_pose`), reported as ``pose_offset_m``.
 
+With the scan's own evidence about its ridges (:mod:`reconstruct.fitting.joint_ridge`, joint revision 15): a
+ridge whose radius, within its own sigma, no log has is dearer to take and cheaper to leave unexplained, and a
+pair pays for the open ground the surveyed log would lie over, laid along the ridge (:func:`coverage_nats`).
+
 An assignment that makes a different pile (a scan log kept or dropped, a surveyed log hidden instead of seen)
 within ``ambiguity_nats`` of the best is a warning naming the log and the points to re-measure (the likelier
 pile is placed), or with ``ambiguity_is_error`` an :class:`~reconstruct.fitting.matching.AmbiguousSurveyError`;
@@ -32,6 +36,7 @@ from scipy.optimize import linear_sum_assignment
 from reconstruct.fitting.fuse_config import FuseConfig
 from reconstruct.fitting.joint_config import JointConfig
 from reconstruct.fitting.joint_pose import pose_offset, shifted
+from reconstruct.fitting.joint_ridge import HeightRaster, RidgeEvidence, not_one_log_nats, open_length_m
 from reconstruct.fitting.matching import Match, _ambiguity
 from reconstruct.fitting.scan_logs import ScanLog
 from reconstruct.fitting.survey_points import SurveyEnd
@@ -84,6 +89,30 @@ def point_cost(e: SurveyEnd, log: ScanLog, at_start: bool, cfg: JointConfig, fcf
     return float(z_out / (z_in + z_out)) if outlier_prob else float(-math.log(z_in + z_out))
 
 
+def coverage_nats(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, raster: HeightRaster | None,
+                  cfg: JointConfig) -> float:
+    """What the open ground under the surveyed log placed on ``log``'s ridge costs [nats]: the log laid along the
+    ridge's axis from one of its points' places on it toward the other's, its surveyed length long, whichever of
+    its two points it is laid from shows less open ground past the ridge's ends (beyond ``ridge_overrun_m``), at
+    ``coverage_nats_per_m``. A point far off the ridge (an outlier) still says the log is that long: a log on a
+    short scrap runs on over what the scan sees there."""
+    if raster is None or not cfg.ridge_coverage or ends[0] is None or ends[1] is None:
+        return 0.0
+    p0 = log.start_m[:2]
+    L = max(log.length_m, 1e-6)
+    u = (log.end_m[:2] - p0) / L
+    length = float(np.linalg.norm(ends[1].position_m[:2] - ends[0].position_m[:2]))
+    t = [float((e.position_m[:2] - p0) @ u) for e in ends]
+    best = math.inf
+    for n in (0, 1):
+        toward = t[1 - n] - t[n] if t[1 - n] != t[n] else 0.5 * L - t[n]  # toward the other point (its middle)
+        lo, hi = (t[n], t[n] + length) if toward >= 0 else (t[n] - length, t[n])
+        open_m = (open_length_m(log, lo, min(hi, -cfg.ridge_overrun_m), raster, cfg)
+                  + open_length_m(log, max(lo, L + cfg.ridge_overrun_m), hi, raster, cfg))
+        best = min(best, open_m)
+    return cfg.coverage_nats_per_m * best
+
+
 def run_on_nats(inside_m: float, sigma_m: float, cfg: JointConfig) -> float:
     """-log-likelihood [nats] of the scan's ridge running ``inside_m`` past a log's end (beyond
     ``ridge_overrun_m``), relative to a ridge ending at it: the ridge ends at the log's end (a Gaussian of the
@@ -114,9 +143,12 @@ def outlier_cost(e: SurveyEnd, cfg: JointConfig, fcfg: FuseConfig) -> float:
 
 
 def pair_cost(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, cfg: JointConfig,
-              fcfg: FuseConfig) -> tuple[float, bool]:
+              fcfg: FuseConfig, radius_sigma_m: float | None = None,
+              raster: HeightRaster | None = None) -> tuple[float, bool]:
     """A surveyed log's cost on a scan log (both orientations; the cheaper) and whether its end a lies at the
-    scan log's end."""
+    scan log's end; with ``radius_sigma_m`` (the scan log's radius sigma), plus what its radius says against its
+    being one log (:func:`~reconstruct.fitting.joint_ridge.not_one_log_nats`); with ``raster``, plus the open
+    ground the log would lie over (:func:`coverage_nats`)."""
     best = (math.inf, False)
     for rev in (False, True):
         pts = [(e, (k == 0) != rev) for k, e in enumerate(ends) if e is not None]
@@ -125,7 +157,16 @@ def pair_cost(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, cfg
         c = sum(point_cost(e, log, s, cfg, fcfg) for e, s in pts)
         if c < best[0]:
             best = (c, rev)
-    return best
+    if math.isinf(best[0]):
+        return best
+    return best[0] + coverage_nats(ends, log, raster, cfg) + _radius_nats(log, radius_sigma_m, cfg), best[1]
+
+
+def _radius_nats(log: ScanLog, radius_sigma_m: float | None, cfg: JointConfig) -> float:
+    """What the scan log's radius says against its being one log [nats] (0 without its sigma or the term)."""
+    if radius_sigma_m is None or not cfg.ridge_radius_evidence:
+        return 0.0
+    return not_one_log_nats(log.radius_m, radius_sigma_m, cfg)
 
 
 def _solve(cost: np.ndarray, hidden: np.ndarray, missed: np.ndarray) -> tuple[float, list[int | None]]:
@@ -146,20 +187,32 @@ def _solve(cost: np.ndarray, hidden: np.ndarray, missed: np.ndarray) -> tuple[fl
 
 
 def _costs(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]], scan_logs: Sequence[ScanLog],
-           cfg: JointConfig, fcfg: FuseConfig) -> tuple[np.ndarray, np.ndarray]:
+           cfg: JointConfig, fcfg: FuseConfig, evidence: RidgeEvidence | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Every surveyed log's cost on every scan log, and whether its end a lies at the scan log's end."""
     ids = list(survey)
     cost = np.full((len(ids), len(scan_logs)), math.inf)
     rev = np.zeros(cost.shape, bool)
+    raster = None if evidence is None else evidence.raster
     for i, k in enumerate(ids):
         for j, log in enumerate(scan_logs):
-            cost[i, j], rev[i, j] = pair_cost(survey[k], log, cfg, fcfg)
+            sig = None if evidence is None else evidence.radius_sigma_m[j]
+            cost[i, j], rev[i, j] = pair_cost(survey[k], log, cfg, fcfg, sig, raster)
     return cost, rev
 
 
+def missed_costs(scan_logs: Sequence[ScanLog], cfg: JointConfig, evidence: RidgeEvidence | None = None) -> np.ndarray:
+    """What leaving each scan log unexplained costs: ``missed_nats_per_m`` per metre seen, less what its radius
+    says against its being one log (a scrap or a flank need no surveyed log), at least 0 [nats]."""
+    return np.array([max(0.0, cfg.missed_nats_per_m * log.seen_m - _radius_nats(
+        log, None if evidence is None else evidence.radius_sigma_m[j], cfg)) for j, log in enumerate(scan_logs)])
+
+
 def joint_match(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]], scan_logs: Sequence[ScanLog],
-                cfg: JointConfig | None = None, fcfg: FuseConfig | None = None) -> JointMatching:
-    """Match every surveyed log to at most one scan log by one assignment (see the module docstring)."""
+                cfg: JointConfig | None = None, fcfg: FuseConfig | None = None,
+                evidence: RidgeEvidence | None = None) -> JointMatching:
+    """Match every surveyed log to at most one scan log by one assignment (see the module docstring); with
+    ``evidence`` (:func:`~reconstruct.fitting.joint_ridge.ridge_evidence`), the ridges' radii and the open ground
+    past them are in the costs."""
     cfg, fcfg = cfg or JointConfig(), fcfg or FuseConfig()
     ids = list(survey)
     n, m = len(ids), len(scan_logs)
@@ -167,13 +220,13 @@ def joint_match(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]],
     # point an outlier
     hidden = np.array([cfg.hidden_cost if sum(e is not None for e in survey[k]) >= 2 else
                        sum(outlier_cost(e, cfg, fcfg) for e in survey[k] if e is not None) for k in ids])
-    missed = np.array([cfg.missed_nats_per_m * log.seen_m for log in scan_logs])
+    missed = missed_costs(scan_logs, cfg, evidence)
     offset = np.zeros(3)
     if cfg.match_pose_offset and n and m:
-        offset = pose_offset(lambda d: _solve(*_costs(shifted(survey, d), scan_logs, cfg, fcfg)[:1], hidden,
+        offset = pose_offset(lambda d: _solve(*_costs(shifted(survey, d), scan_logs, cfg, fcfg, evidence)[:1], hidden,
                                               missed)[0], fcfg.pose_sigma_m, cfg)
         survey = shifted(survey, offset)
-    cost, rev = _costs(survey, scan_logs, cfg, fcfg)
+    cost, rev = _costs(survey, scan_logs, cfg, fcfg, evidence)
     best, pick = _solve(cost, hidden, missed)
     taken = frozenset(j for j in pick if j is not None)
 
