@@ -16,7 +16,8 @@ pile, resumable), and from those trials:
 Piles come from seeds ``seed_base`` on (default 930,000,000, subset-outcomes' piles; 940,000,000 for
 fresh ones — both apart from every test and training pile).
 ``run`` writes ``ranking.json`` (format ``loggrasp.ranking``) and ``ranking.md`` beside the records;
-``summarise`` computes the same from an existing folder of records (e.g. docs/results/subset-outcomes)::
+``summarise`` computes the same from an existing folder of records (e.g. docs/results/subset-outcomes);
+each also says whether the B head predicts the successful grasps' tilt (:func:`balance_agreement`)::
 
     .venv/bin/python -m experiments.ranking run --model M --out docs/results/ranking-v3 --per-cell 4 --workers 2
     .venv/bin/python -m experiments.ranking summarise docs/results/subset-outcomes
@@ -124,6 +125,29 @@ def ranking_metrics(records: list[dict], key: str = "u") -> dict:
             "calibration": calibration(records, key=key), "choice": choices(records, key)}
 
 
+def balance_agreement(records: list[dict], key: str = "b") -> dict:
+    """Does the B head predict the tilt? Over the successful grasps with a measured cos(beta): the
+    predicted tilt (``key``, a cos(beta)) against the twin's, in degrees: means, mean absolute error and
+    Spearman's rank correlation (f3 can only prefer better-balanced grasps where it is well above 0)."""
+    from scipy.stats import spearmanr
+
+    pairs = [(r[key], r["cos_beta"]) for r in records if r.get("success") and r.get("cos_beta") is not None
+             and r.get(key) is not None]
+    if len(pairs) < 3:
+        return {"n": len(pairs), "pred_mean_deg": math.nan, "true_mean_deg": math.nan, "mae_deg": math.nan,
+                "spearman": math.nan}
+    pred, true = (np.degrees(np.arccos(np.clip(np.array(v, float), -1.0, 1.0))) for v in zip(*pairs))
+    rho = spearmanr(pred, true)[0] if np.ptp(pred) > 0 and np.ptp(true) > 0 else math.nan
+    return {"n": len(pairs), "pred_mean_deg": float(pred.mean()), "true_mean_deg": float(true.mean()),
+            "mae_deg": float(np.abs(pred - true).mean()), "spearman": float(rho)}
+
+
+def balance_markdown(a: dict, who: str) -> str:
+    return (f"- balance, {who}: over {a['n']} successful grasps predicted beta {a['pred_mean_deg']:.1f} deg against "
+            f"the twin's {a['true_mean_deg']:.1f} deg, mean absolute error {a['mae_deg']:.1f} deg, Spearman "
+            f"{a['spearman']:.3f}")
+
+
 def _pct(v: float) -> str:
     return "-" if v != v else f"{v * 100:.1f} %"
 
@@ -185,12 +209,13 @@ def rescore(records_dir: str | Path, ranker: str | Path | None = None, out: str 
 
         score = load_ranker(ranker).score
     else:
-        from planner.inference import load_planner, u_at
+        from planner.inference import load_planner, maps_at
 
         pl = load_planner(model, device="cpu")
 
         def score(obs, grasps, targets):
-            return u_at(obs, pl, grasps, targets)
+            u, b = maps_at(obs, pl, grasps, targets)
+            return [(ui, bi) for ui, bi in zip(u, b)]
     seed_base = json.loads(collect_json.read_text())["seed_base"]
     records = read_records(records_dir)
     for seed, recs in sorted(_by_pile(records).items()):
@@ -198,7 +223,10 @@ def rescore(records_dir: str | Path, ranker: str | Path | None = None, out: str 
         p = score(obs, [Grasp(**{k: r["grasp"][k] for k in ("x_m", "y_m", "phi_rad", "width_m")}) for r in recs],
                   [r["targets"] for r in recs])
         for r, pi in zip(recs, p):
-            r["p"] = float(pi)
+            if model is None:
+                r["p"] = float(pi)
+            else:  # the rescoring model's U, and its balance cos(beta) as b_p
+                r["p"], r["b_p"] = float(pi[0]), float(pi[1])
     if out is not None:
         atomic_write_bytes(Path(out), json.dumps(records).encode())
     return records
@@ -242,6 +270,10 @@ def main(argv=None) -> None:
         m = ranking_metrics(read_records(a.records))
         what, score = a.records, None
     print(ranking_markdown(m, what, score))
+    recs = records if a.cmd == "rescore" else read_records(a.records if a.cmd != "run" else a.out)
+    print(balance_markdown(balance_agreement(recs), "the records' own B"))
+    if a.cmd == "rescore" and a.scorer_model:
+        print(balance_markdown(balance_agreement(recs, key="b_p"), "the rescoring model's B"))
     if not math.isfinite(m["auc"]["auc"]):
         print("no pile had both a success and a failure among its tried grasps: the AUC is undefined")
 

@@ -448,6 +448,13 @@ def u_at(observation, planner: Planner, grasps: list[Grasp], targets: list[tuple
     """The network's U (smoothed as planning smooths it) at each grasp's centre, each on its own
     target subset's maps: how the network of ``planner`` scores grasps it did not necessarily
     choose (e.g. another model's tried grasps, for a paired ranking comparison)."""
+    return maps_at(observation, planner, grasps, targets)[0]
+
+
+def maps_at(observation, planner: Planner, grasps: list[Grasp],
+            targets: list[tuple[int, ...]]) -> tuple[np.ndarray, np.ndarray]:
+    """(U, b) at each grasp's centre on its own target subset's maps, both smoothed as planning
+    smooths them; b is the balance cos(beta) whatever the network's B encoding."""
     if len(grasps) != len(targets):
         raise ObservationError(f"{len(grasps)} grasps but {len(targets)} target subsets")
     inten, depth, inst, extent_m, cam_h = observation_arrays(observation)
@@ -457,9 +464,11 @@ def u_at(observation, planner: Planner, grasps: list[Grasp], targets: list[tuple
     masks = np.stack([np.isin(inst, [i + 1 for i in s]) for s in subsets])
     out = planner.predict(make_inputs(inten, depth, masks, planner.config.in_channels, cam_h))
     u = _u_maps(out, planner)
+    b = _gaussian(np.ascontiguousarray(decode_balance(out[:, 4], planner.config.b_encoding), dtype=np.float32),
+                  planner.quality_smoothing_px)
     row_of = {s: k for k, s in enumerate(subsets)}
-    scores = np.empty(len(grasps))
+    at = np.empty((2, len(grasps)))
     for j, (g, t) in enumerate(zip(grasps, targets)):
         r, c = (int(np.clip(round(float(v)), 0, depth.shape[0] - 1)) for v in grid.pile_to_pixel(g.x_m, g.y_m))
-        scores[j] = float(u[row_of[tuple(sorted(t))], r, c])
-    return scores
+        at[:, j] = u[row_of[tuple(sorted(t))], r, c], b[row_of[tuple(sorted(t))], r, c]
+    return at[0], at[1]

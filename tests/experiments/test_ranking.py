@@ -79,3 +79,21 @@ def test_rescore_needs_one_scorer_and_a_ranking_folder(tmp_path):
         rescore(tmp_path)
     with pytest.raises(ValueError, match="no collect.json"):
         rescore(tmp_path, model="missing.safetensors")
+
+
+def test_balance_agreement_compares_predicted_and_measured_tilt_of_successes_only():
+    """Predicted beta against the twin's over successful grasps: a monotone prediction ranks 1.0 and its
+    error is the mean gap in degrees; failures (no tilt) and records without a prediction are left out."""
+    import math
+
+    from experiments.ranking import balance_agreement
+
+    c = lambda deg: math.cos(math.radians(deg))  # noqa: E731
+    recs = [{"success": True, "cos_beta": c(t), "b": c(p)} for t, p in ((4, 6), (8, 10), (12, 14), (20, 22))]
+    recs += [{"success": False, "cos_beta": None, "b": c(30)}, {"success": True, "cos_beta": c(5), "b": None}]
+    a = balance_agreement(recs)
+    assert a["n"] == 4 and a["spearman"] == pytest.approx(1.0)
+    assert a["mae_deg"] == pytest.approx(2.0, abs=1e-6) and a["true_mean_deg"] == pytest.approx(11.0, abs=1e-6)
+    flipped = [dict(r, b=c(30 - math.degrees(math.acos(r["b"])))) for r in recs[:4]]
+    assert balance_agreement(flipped)["spearman"] == pytest.approx(-1.0)
+    assert math.isnan(balance_agreement(recs[:2])["spearman"])

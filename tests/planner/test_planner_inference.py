@@ -229,6 +229,29 @@ def test_u_at_scores_a_grasp_as_planning_scored_it():
         u_at(obs, pl, gs, ts[:-1])
 
 
+def test_maps_at_gives_each_grasp_the_balance_the_plan_reported():
+    """maps_at's b is the plan's balance of each planned grasp (its own subset's B map, smoothed as
+    planning smooths it), and its U is u_at's."""
+    from planner.inference import maps_at, u_at
+
+    def fn(x):  # U peaks at a subset-dependent pixel; B differs per subset and across the image
+        out = np.zeros((len(x), 5, 32, 32), np.float32)
+        out[:, 0], out[:, 2], out[:, 3] = -1.0, 0.8, -3.0
+        for k in range(len(x)):
+            n = int(x[k, -1].sum())
+            out[k, 3, 4 + n % 24:7 + n % 24, 8:11] = 1.0 + (n % 7) / 3.0
+            out[k, 4] = 0.9 + 0.1 * np.linspace(0, 1, 32)[None, :] * (n % 5) / 4
+        return out
+
+    obs, pl = observation(3), _fixed_planner(fn, 1.0)
+    got = plan(obs, pl).grasps
+    gs, ts = [g.grasp for g in got], [g.targets for g in got]
+    u, b = maps_at(obs, pl, gs, ts)
+    assert len({round(g.balance, 4) for g in got}) > 1
+    assert b == pytest.approx([g.balance for g in got], abs=1e-6)
+    assert u == pytest.approx(u_at(obs, pl, gs, ts), abs=1e-9)
+
+
 def test_quality_smoothing_prefers_a_zone_over_a_spike():
     def fn(x):
         out = np.zeros((len(x), 5, 32, 32), np.float32)
