@@ -28,6 +28,7 @@ from typing import Literal
 
 import numpy as np
 
+from planner.balance import HangModel
 from planner.constraints import Constraints, polygon_raster
 from planner.data import make_inputs
 from planner.errors import ObservationError
@@ -41,6 +42,7 @@ PLAN_FORMAT_NAME = "loggrasp.plan"  # plan.json, ``loggrasp plan --json``
 PLAN_FORMAT_VERSION = "1.0"
 OBSTACLE_CODE_BASE = 1000  # instance codes >= this are obstacles (synth.render.ortho)
 SIGMA_B = 0.25  # the paper's f3 balance tolerance [cos beta]
+BALANCE_SOURCES = ("network", "hang")  # what f3's b is (Objective.balance)
 
 
 @dataclass(frozen=True)
@@ -51,10 +53,15 @@ class Objective:
     mu: float = 1.0 / 3.0  # exponent on the number of target logs [-]
     b_opt: float = 1.0  # optimal balance cos(beta) [-]
     sigma_b: float = SIGMA_B  # balance tolerance [cos beta]
+    balance: Literal["network", "hang"] = "network"  # f3's b: the network's B map (the paper's) or the tilt the
+    #                                                  load will hang with (planner.balance.HangModel)
+    hang: HangModel = HangModel()  # ... with balance "hang"
 
     def __post_init__(self) -> None:
         if self.kind not in ("f1", "f2", "f3"):
             raise ValueError(f"objective kind must be 'f1', 'f2' or 'f3', got {self.kind!r}")
+        if self.balance not in BALANCE_SOURCES:
+            raise ValueError(f"objective balance must be one of {BALANCE_SOURCES}, got {self.balance!r}")
         if self.mu < 0 or not self.sigma_b > 0:
             raise ValueError("need mu >= 0 and sigma_b > 0")
 
@@ -359,7 +366,11 @@ def plan(observation, planner: Planner, objective: Objective = Objective(), cons
         subset_masks = np.stack([np.any([masks[i] for i in s], axis=0) for s in chosen])
         x = make_inputs(inten, depth, subset_masks, cfg.in_channels, cam_h)
         out = planner.predict(x)
-        grasps, more = _select(out, chosen, grid, objective, constraints, planner)
+        b_maps = None
+        if objective.kind == "f3" and objective.balance == "hang":
+            masses = constraints.log_masses_kg(visible, grid.pixel_m, pile)
+            b_maps = objective.hang.cos_beta_maps(subset_masks, grid.pixel_m, [sum(masses[i] for i in s) for s in chosen])
+        grasps, more = _select(out, chosen, grid, objective, constraints, planner, b_maps)
         rejected += more
     grasps.sort(key=lambda g: -g.quality)
     if top_k is not None:
@@ -372,12 +383,15 @@ def _u_maps(out: np.ndarray, planner: Planner) -> np.ndarray:
     return _gaussian((1.0 / (1.0 + np.exp(-out[:, 3]))).astype(np.float32), planner.quality_smoothing_px)
 
 
-def _select(out, chosen, grid, objective, constraints, planner) -> tuple[list[PlannedGrasp], list[dict]]:
+def _select(out, chosen, grid, objective, constraints, planner,
+            b_maps: np.ndarray | None = None) -> tuple[list[PlannedGrasp], list[dict]]:
     """Each subset's best grasp (the highest-quality pixel in reach whose rectangle misses the
-    keep-out zones; of equal pixels the first in raster order) and what the constraints did."""
+    keep-out zones; of equal pixels the first in raster order) and what the constraints did; the
+    balance is ``b_maps`` where given, else the network's B map."""
     u = _u_maps(out, planner)
-    b = _gaussian(np.ascontiguousarray(decode_balance(out[:, 4], planner.config.b_encoding), dtype=np.float32),
-                  planner.quality_smoothing_px)
+    b = b_maps if b_maps is not None else _gaussian(
+        np.ascontiguousarray(decode_balance(out[:, 4], planner.config.b_encoding), dtype=np.float32),
+        planner.quality_smoothing_px)
     tau = np.array([len(s) for s in chosen], np.float32)[:, None, None]
     q = objective.quality(u, tau, b)
     n, h, w = q.shape

@@ -15,7 +15,7 @@ from typing import Callable, Literal
 
 import numpy as np
 
-from planner.inference import SIGMA_B
+from planner.inference import BALANCE_SOURCES, SIGMA_B
 from planner.ranker import U_WEIGHT, check_u_weight
 from planner.subsets import SubsetPolicy
 from synth.geometry.grasp import MAX_WIDTH_M, MIN_WIDTH_M, Grasp
@@ -43,6 +43,7 @@ class PlannerSpec:
     rerank_k: int = 4  # ... grasps re-scored per objective [-]
     ranker_u_weight: float = U_WEIGHT  # ... ordered by sigmoid(w logit U + (1 - w) logit p) with w this [-]
     sigma_b: float = SIGMA_B  # for "unet" with f3: the balance tolerance of Q (planner.inference.Objective) [cos beta]
+    balance: str = "network"  # for "unet" with f3: what b is, "network" (its B map) or "hang" (planner.balance)
 
     @property
     def name(self) -> str:
@@ -51,6 +52,8 @@ class PlannerSpec:
         if self.kind != "unet":
             return self.kind
         how = f"-cap{self.max_subsets}" if self.max_subsets else ""
+        if self.objective == "f3" and self.balance != "network":
+            how += f"-{self.balance}"
         if self.objective == "f3" and self.sigma_b != SIGMA_B:
             how += f"-sb{self.sigma_b:g}"
         if self.views > 1:
@@ -178,12 +181,12 @@ def oracle_planner(trial_preset: str = "fast", max_trials: int = 40) -> PlanFn:
 
 def unet_planner(model: str, objective: str, subsets: SubsetPolicy = SubsetPolicy(), views: int = 1,
                  view_spread_k: float = 0.0, ranker: str | None = None, rerank_k: int = 4,
-                 ranker_u_weight: float = U_WEIGHT, sigma_b: float = SIGMA_B) -> PlanFn:
+                 ranker_u_weight: float = U_WEIGHT, sigma_b: float = SIGMA_B, balance: str = "network") -> PlanFn:
     """The network's best grasp among the subsets ``subsets`` keeps (default: every subset), its maps
     averaged over ``views`` dihedral test-time views, re-ranked by ``ranker`` when given; f3 with the
-    balance tolerance ``sigma_b``."""
+    balance tolerance ``sigma_b`` and the ``balance`` source."""
     plan_all = _unet_plan_all(model, objective, subsets, views, view_spread_k, ranker, rerank_k, keep=1,
-                              ranker_u_weight=ranker_u_weight, sigma_b=sigma_b)
+                              ranker_u_weight=ranker_u_weight, sigma_b=sigma_b, balance=balance)
 
     def plan_fn(obs, pile):
         result = plan_all(obs, pile)
@@ -195,7 +198,8 @@ def unet_planner(model: str, objective: str, subsets: SubsetPolicy = SubsetPolic
 
 def _unet_plan_all(model: str, objective: str, subsets: SubsetPolicy, views: int, view_spread_k: float,
                    ranker: str | None, rerank_k: int, keep: int | None = None,
-                   ranker_u_weight: float = U_WEIGHT, sigma_b: float = SIGMA_B) -> Callable[[object, object], object]:
+                   ranker_u_weight: float = U_WEIGHT, sigma_b: float = SIGMA_B,
+                   balance: str = "network") -> Callable[[object, object], object]:
     """``(obs, pile) -> Plan`` of every subset, best first (re-ranked by ``ranker`` when given), its
     best ``keep`` only when given (all of them go to the ranker)."""
     import torch
@@ -205,7 +209,7 @@ def _unet_plan_all(model: str, objective: str, subsets: SubsetPolicy, views: int
 
     torch.set_num_threads(1)
     net = load_planner(model, views=views, view_spread_k=view_spread_k)
-    obj = Objective(kind=objective, sigma_b=sigma_b)
+    obj = Objective(kind=objective, sigma_b=sigma_b, balance=balance)
     rk = load_ranker(ranker) if ranker else None
 
     def plan_all(obs, pile):
@@ -215,7 +219,8 @@ def _unet_plan_all(model: str, objective: str, subsets: SubsetPolicy, views: int
 
 
 def verified_planner(plan_all: Callable[[object, object], object], objective: str, k: int, copies: int = 0,
-                     trial_preset: str = "fast", trial_fn=None, sigma_b: float = SIGMA_B) -> PlanFn:
+                     trial_preset: str = "fast", trial_fn=None, sigma_b: float = SIGMA_B,
+                     balance: str = "network") -> PlanFn:
     """``plan_all(obs, pile) -> planner.inference.Plan`` (every subset's best grasp) checked by the
     verifier: its ``k`` best grasps are tried on a perturbed copy of the test pile (copy 1 of
     :func:`planner.pile_copies.perturb_pile` with the default sigmas, seeded by the pile's seed) and, with
@@ -227,7 +232,7 @@ def verified_planner(plan_all: Callable[[object, object], object], objective: st
     from planner.verify import Verifier, VerifyConfig
     from synth.physics.trial import TrialConfig
 
-    obj = Objective(kind=objective, sigma_b=sigma_b)
+    obj = Objective(kind=objective, sigma_b=sigma_b, balance=balance)
     trial = TrialConfig.preset(trial_preset)
 
     def plan_fn(obs, pile):
@@ -246,10 +251,11 @@ def verified_planner(plan_all: Callable[[object, object], object], objective: st
 def verified_unet_planner(model: str, objective: str, k: int, copies: int = 0, trial_preset: str = "fast",
                           subsets: SubsetPolicy = SubsetPolicy(), views: int = 1,
                           view_spread_k: float = 0.0, ranker: str | None = None, rerank_k: int = 4,
-                          ranker_u_weight: float = U_WEIGHT, sigma_b: float = SIGMA_B) -> PlanFn:
+                          ranker_u_weight: float = U_WEIGHT, sigma_b: float = SIGMA_B, balance: str = "network") -> PlanFn:
     plan_all = _unet_plan_all(model, objective, subsets, views, view_spread_k, ranker, rerank_k,
-                              ranker_u_weight=ranker_u_weight, sigma_b=sigma_b)
-    return verified_planner(plan_all, objective, k, copies, trial_preset, sigma_b=sigma_b)  # its best k, in order
+                              ranker_u_weight=ranker_u_weight, sigma_b=sigma_b, balance=balance)
+    return verified_planner(plan_all, objective, k, copies, trial_preset, sigma_b=sigma_b,
+                            balance=balance)  # the plan's best k, in its order
 
 
 _CACHE: dict[PlannerSpec, PlanFn] = {}
@@ -271,8 +277,11 @@ def build_planner(spec: PlannerSpec, trial_preset: str = "fast", oracle_max_tria
             check_u_weight(spec.ranker_u_weight)
             if not spec.sigma_b > 0:
                 raise ValueError(f"sigma_b (f3's balance tolerance) must be > 0, got {spec.sigma_b}")
+            if spec.balance not in BALANCE_SOURCES:
+                raise ValueError(f"balance must be one of {BALANCE_SOURCES}, got {spec.balance!r}")
             views = dict(views=spec.views, view_spread_k=spec.view_spread_k, ranker=spec.ranker,
-                         rerank_k=spec.rerank_k, ranker_u_weight=spec.ranker_u_weight, sigma_b=spec.sigma_b)
+                         rerank_k=spec.rerank_k, ranker_u_weight=spec.ranker_u_weight, sigma_b=spec.sigma_b,
+                         balance=spec.balance)
             _CACHE[spec] = (verified_unet_planner(spec.model, spec.objective, spec.verify_k, spec.verify_copies,
                                                   trial_preset, spec.subset_policy(), **views) if spec.verify_k
                             else unet_planner(spec.model, spec.objective, spec.subset_policy(), **views))

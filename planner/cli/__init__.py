@@ -458,6 +458,10 @@ def eval_command(
     f3_sigma_b: float = option("--f3-sigma-b", "f3's balance tolerance sigma_b in Q = u tau^mu exp(-(b - 1)^2 / "
                                "sigma_b^2), b = cos(beta); rows with another value than the paper's 0.25 are named "
                                "unet-f3-sbS.", default=0.25, metavar="S"),
+    f3_balance: Literal["network", "hang"] = option("--f3-balance", "What f3's b is: network (the B map, the paper's) "
+                                                    "or hang (the tilt the load will hang with, from its mask and "
+                                                    "mass: planner.balance); hang rows are named unet-f3-hang.",
+                                                    default="network", metavar="network|hang"),
     field_error: str = option("--field-error", "Add a field row per planner: its chosen grasp executed with the "
                               "crane's positioning error, SIGMA_XY_M,SIGMA_PHI_DEG (e.g. 0.03,2: 3 cm per axis, 2 deg).",
                               default=None, metavar="M,DEG"),
@@ -495,7 +499,8 @@ def eval_command(
     specs += _view_specs(str(model or DEFAULT_MODEL), objectives, views, view_spread)
     if not f3_sigma_b > 0:
         raise CliError(f"--f3-sigma-b {f3_sigma_b:g}: f3's balance tolerance must be > 0 (the paper's is 0.25)")
-    specs = [replace(s, sigma_b=f3_sigma_b) if s.kind == "unet" and s.objective == "f3" else s for s in specs]
+    specs = [replace(s, sigma_b=f3_sigma_b, balance=f3_balance) if s.kind == "unet" and s.objective == "f3" else s
+             for s in specs]
     if ranker is not None:
         check_input(ranker, "--ranker", "file")
         specs += [replace(s, ranker=str(ranker), rerank_k=rerank_k, ranker_u_weight=ranker_u_weight)
