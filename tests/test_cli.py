@@ -398,7 +398,8 @@ def test_eval_bad_input(capsys, work, a_file):
                       (["--views", "8", "--view-spread", "-1"], "--view-spread must be >= 0"),
                       (["--field-error", "3cm"], "--field-error: positioning error '3cm' must be"),
                       (["--field-error", "0.03,90"], "--field-error: positioning error"),
-                      (["--f3-sigma-b", "0"], "--f3-sigma-b 0: f3's balance tolerance must be > 0")):
+                      (["--f3-sigma-b", "0"], "--f3-sigma-b 0: f3's balance tolerance must be > 0"),
+                      (["--f3-balance", "guess"], "--f3-balance")):
         fails(cli(capsys, "eval", *bad, "--out", work / "e2"), 2, flag)
     fails(cli(capsys, "eval", "--out", a_file / "e"), 2, "--out", str(a_file))
     assert not (work / "e2").exists()

@@ -237,9 +237,10 @@ def test_a_row_with_test_time_views_plans_with_them_and_keeps_its_own_records(tm
         build_planner(PlannerSpec("unet", model=str(ckpt), views=3))
 
 
-def test_an_f3_row_with_another_balance_tolerance_plans_with_it_and_keeps_its_own_records(tmp_path, monkeypatch):
-    """``sigma_b`` rows score f3's Q with their balance tolerance (the objective the planner is called
-    with carries it), are named ``unet-f3-sbS`` and fingerprinted apart; f1 ignores it; 0 is refused."""
+def test_an_f3_row_with_another_balance_tolerance_or_source_plans_with_it_and_keeps_its_own_records(tmp_path, monkeypatch):
+    """``sigma_b`` and ``balance`` rows score f3's Q with their balance tolerance and source (the
+    objective the planner is called with carries them), are named ``unet-f3-sbS`` / ``unet-f3-hang``
+    and fingerprinted apart; f1 ignores them; a tolerance of 0 or an unknown source is refused."""
     from dataclasses import replace
 
     import planner.inference as inference
@@ -252,19 +253,24 @@ def test_an_f3_row_with_another_balance_tolerance_plans_with_it_and_keeps_its_ow
     real_plan = inference.plan
 
     def spy(obs, net, objective, *a, **k):
-        seen.append((objective.kind, objective.sigma_b))
+        seen.append((objective.kind, objective.sigma_b, objective.balance))
         return real_plan(obs, net, objective, *a, **k)
 
     monkeypatch.setattr(inference, "plan", spy)
     plain = PlannerSpec("unet", model=str(ckpt), objective="f3")
     harsh = PlannerSpec("unet", model=str(ckpt), objective="f3", sigma_b=0.05)
+    hang = PlannerSpec("unet", model=str(ckpt), objective="f3", balance="hang")
     assert harsh.name == "unet-f3-sb0.05" and PlannerSpec("unet", model="m", sigma_b=0.05).name == "unet-f1"
-    tables = run_evaluation([plain, harsh], cfg, tmp_path / "e", workers=1)
-    assert set(tables["planners"]) == {"unet-f3", "unet-f3-sb0.05"}
-    assert sorted(seen) == [("f3", 0.05), ("f3", 0.25)], seen
-    assert len({_fingerprint(plain), _fingerprint(harsh), _fingerprint(replace(harsh, sigma_b=0.1))}) == 3
+    tables = run_evaluation([plain, harsh, hang], cfg, tmp_path / "e", workers=1)
+    assert set(tables["planners"]) == {"unet-f3", "unet-f3-sb0.05", "unet-f3-hang"}
+    assert sorted(seen) == [("f3", 0.05, "network"), ("f3", 0.25, "hang"), ("f3", 0.25, "network")], seen
+    assert len({_fingerprint(plain), _fingerprint(harsh), _fingerprint(replace(harsh, sigma_b=0.1)),
+                _fingerprint(replace(harsh, balance="hang"))}) == 4
+    assert replace(harsh, balance="hang").name == "unet-f3-hang-sb0.05"
     with pytest.raises(ValueError, match="sigma_b"):
         build_planner(PlannerSpec("unet", model=str(ckpt), objective="f3", sigma_b=0.0))
+    with pytest.raises(ValueError, match="balance must be one of"):
+        build_planner(PlannerSpec("unet", model=str(ckpt), objective="f3", balance="guess"))
 
 
 def test_a_smaller_balance_tolerance_prefers_the_better_balanced_pixel():

@@ -252,6 +252,29 @@ def test_maps_at_gives_each_grasp_the_balance_the_plan_reported():
     assert u == pytest.approx(u_at(obs, pl, gs, ts), abs=1e-9)
 
 
+def test_f3_with_the_hang_model_prefers_the_grasp_over_the_load_s_centre():
+    """Objective(balance="hang"): with U and the B map flat, f3 grasps each subset where its load hangs
+    level (the mask's centroid) and reports that balance; the network's flat B leaves the first pixel."""
+    from planner.balance import HangModel
+
+    def fn(x):
+        out = np.zeros((len(x), 5, 32, 32), np.float32)
+        out[:, 0], out[:, 2], out[:, 3], out[:, 4] = -1.0, 0.8, 2.0, 1.0
+        return out
+
+    obs, pl = observation(3), _fixed_planner(fn, 0.0)
+    hang = plan(obs, pl, Objective("f3", balance="hang", sigma_b=0.05)).grasps
+    flat = plan(obs, pl, Objective("f3")).grasps
+    for g in hang:
+        rr, cc = np.nonzero(np.isin(obs.instance, [i + 1 for i in g.targets]))
+        assert math.hypot(g.pixel[0] - rr.mean(), g.pixel[1] - cc.mean()) < 1.0, (g.targets, g.pixel)
+        assert g.balance == pytest.approx(1.0, abs=1e-3)
+    assert {g.pixel for g in flat} == {(0, 0)} and all(g.balance == 1.0 for g in flat)
+    with pytest.raises(ValueError, match="balance"):
+        Objective("f3", balance="guess")
+    assert HangModel().lever_m(100.0) > HangModel().lever_m(200.0)
+
+
 def test_quality_smoothing_prefers_a_zone_over_a_spike():
     def fn(x):
         out = np.zeros((len(x), 5, 32, 32), np.float32)
