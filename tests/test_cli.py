@@ -258,6 +258,26 @@ def test_plan_json_png_and_table(capsys, work, pile_dir):
     assert "…" not in r.out
 
 
+def test_plan_f3_balance_flags_reach_the_objective(capsys, pile_dir, monkeypatch):
+    """--f3-balance hang --f3-sigma-b 0.05: the plan is scored with that objective (and its grasps carry
+    the hang model's balance, not the network's); the defaults are the paper's."""
+    import planner.ranker as ranker
+
+    seen, real = [], ranker.plan_reranked
+
+    def spy(obs, planner, objective, *a, **k):
+        seen.append((objective.balance, objective.sigma_b))
+        return real(obs, planner, objective, *a, **k)
+
+    monkeypatch.setattr(ranker, "plan_reranked", spy)
+    hang = cli(capsys, "plan", pile_dir, "--objective", "f3", "--f3-balance", "hang", "--f3-sigma-b", "0.05",
+               "--no-ranker", "--json").json()
+    net = cli(capsys, "plan", pile_dir, "--objective", "f3", "--no-ranker", "--json").json()
+    assert seen == [("hang", 0.05), ("network", 0.25)]
+    assert [g["balance"] for g in hang["grasps"]] != [g["balance"] for g in net["grasps"]]
+    fails(cli(capsys, "plan", pile_dir, "--f3-sigma-b", "-1"), 2, "--f3-sigma-b -1: f3's balance tolerance")
+
+
 def test_plan_bad_input(capsys, work, pile_dir, a_file):
     fails(cli(capsys, "plan", pile_dir, "--top", "-2"), 2, "--top")
     fails(cli(capsys, "plan", pile_dir, "--top", "0"), 2, "--top")

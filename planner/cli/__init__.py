@@ -42,6 +42,19 @@ RANKER_U_WEIGHT = option("--ranker-u-weight", "The re-scored grasps are ordered 
                          "logit p), U the network's, p the ranker's; 0 = p alone.",
                          field=(PlannerSpec, "ranker_u_weight"), min=0.0, max=1.0, metavar="W")
 
+F3_SIGMA_B = option("--f3-sigma-b", "f3's balance tolerance sigma_b in Q = u tau^mu exp(-(b - 1)^2 / sigma_b^2), b = "
+                    "cos(beta); eval rows with another value than the paper's 0.25 are named unet-f3-sbS.",
+                    default=0.25, metavar="S")
+F3_BALANCE = option("--f3-balance", "What f3's b is: network (the B map, the paper's) or hang (the tilt the load "
+                    "will hang with, from its mask and mass: planner.balance); eval's hang rows are named unet-f3-hang.",
+                    default="network", metavar="network|hang")
+
+
+def check_f3_sigma_b(sigma_b: float) -> None:
+    if not sigma_b > 0:
+        raise CliError(f"--f3-sigma-b {sigma_b:g}: f3's balance tolerance must be > 0 (the paper's is 0.25)")
+
+
 VIEW_SPREAD = option("--view-spread", "Lower U by K x its spread over the views (needs --views > 1).", default=0.0,
                      names=["view_spread_k"], metavar="K")
 
@@ -299,6 +312,8 @@ def plan_command(
     no_ranker: bool = NO_RANKER,
     rerank_k: int = RERANK_K,
     ranker_u_weight: float = RANKER_U_WEIGHT,
+    f3_sigma_b: float = F3_SIGMA_B,
+    f3_balance: Literal["network", "hang"] = F3_BALANCE,
 ) -> None:
     """Plan the best multi-log grasp on a pile: every target subset scored with Q = f(U, tau, B).
 
@@ -325,10 +340,11 @@ def plan_command(
     path = model or DEFAULT_MODEL
     pile_json, spec, vcfg = _check_plan_flags(pile, path, png, views, view_spread, verify, verify_copies,
                                               verify_budget, verify_workers)
+    check_f3_sigma_b(f3_sigma_b)
     rk = load_ranker_flag(ranker, no_ranker)
     planner = load_planner(path, views=views, view_spread_k=view_spread)
     obs, spec = load_observation(pile, planner.config, warn=o.warn)
-    obj = Objective(kind=objective)
+    obj = Objective(kind=objective, sigma_b=f3_sigma_b, balance=f3_balance)
     o.progress(f"planning on {pile}: {obs.n_logs} logs, up to {max_subsets} target subsets x {views} view(s)")
     with Console(stderr=True).status("planning"):
         keep = top if vcfg is None else max(top, vcfg.k)
@@ -455,13 +471,8 @@ def eval_command(
                           "grasps by f1 and by f3 a ranker checkpoint re-scores.", default=None, metavar="PATH"),
     rerank_k: int = RERANK_K,
     ranker_u_weight: float = RANKER_U_WEIGHT,
-    f3_sigma_b: float = option("--f3-sigma-b", "f3's balance tolerance sigma_b in Q = u tau^mu exp(-(b - 1)^2 / "
-                               "sigma_b^2), b = cos(beta); rows with another value than the paper's 0.25 are named "
-                               "unet-f3-sbS.", default=0.25, metavar="S"),
-    f3_balance: Literal["network", "hang"] = option("--f3-balance", "What f3's b is: network (the B map, the paper's) "
-                                                    "or hang (the tilt the load will hang with, from its mask and "
-                                                    "mass: planner.balance); hang rows are named unet-f3-hang.",
-                                                    default="network", metavar="network|hang"),
+    f3_sigma_b: float = F3_SIGMA_B,
+    f3_balance: Literal["network", "hang"] = F3_BALANCE,
     field_error: str = option("--field-error", "Add a field row per planner: its chosen grasp executed with the "
                               "crane's positioning error, SIGMA_XY_M,SIGMA_PHI_DEG (e.g. 0.03,2: 3 cm per axis, 2 deg).",
                               default=None, metavar="M,DEG"),
@@ -497,8 +508,7 @@ def eval_command(
                      field_error=error)
     specs = _eval_specs(str(model or DEFAULT_MODEL), objectives, baselines, extra_model, verify, verify_copies)
     specs += _view_specs(str(model or DEFAULT_MODEL), objectives, views, view_spread)
-    if not f3_sigma_b > 0:
-        raise CliError(f"--f3-sigma-b {f3_sigma_b:g}: f3's balance tolerance must be > 0 (the paper's is 0.25)")
+    check_f3_sigma_b(f3_sigma_b)
     specs = [replace(s, sigma_b=f3_sigma_b, balance=f3_balance) if s.kind == "unet" and s.objective == "f3" else s
              for s in specs]
     if ranker is not None:
