@@ -12,9 +12,9 @@ heavier load tilts more for the same offset. ``d`` is taken from the image: the 
 grasp centre to the centroid of the target union's mask (the part of each log seen from above;
 each pixel weighs the same). Both parameters are fitted to the twin's tilt of 294 successful grasps
 on held-out piles (seeds 940,000,000+, the tried grasps of docs/results/ranking-v3model-rev4); on
-199 successful grasps of other piles (seeds 970,000,000+) the model's tilt is within 1.9 deg of the
-twin's on average, rank correlation 0.93, where the network's B map is within 5.4 deg, rank
-correlation 0.19 (docs/results/README.md, "aft4").
+393 successful grasps of other piles (seeds 970,000,000+) the model's tilt is within 2.1 deg of the
+twin's on average, rank correlation 0.92 (``python -m experiments.hang_fit``), where the network's B
+map is within 5.4-5.7 deg, rank correlation 0.19 (docs/results/README.md, "aft4").
 """
 
 from __future__ import annotations

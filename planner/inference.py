@@ -369,7 +369,8 @@ def plan(observation, planner: Planner, objective: Objective = Objective(), cons
         b_maps = None
         if objective.kind == "f3" and objective.balance == "hang":
             masses = constraints.log_masses_kg(visible, grid.pixel_m, pile)
-            b_maps = objective.hang.cos_beta_maps(subset_masks, grid.pixel_m, [sum(masses[i] for i in s) for s in chosen])
+            loads_kg = [sum(masses[i] for i in s) for s in chosen]
+            b_maps = objective.hang.cos_beta_maps(subset_masks, grid.pixel_m, loads_kg)
         grasps, more = _select(out, chosen, grid, objective, constraints, planner, b_maps)
         rejected += more
     grasps.sort(key=lambda g: -g.quality)

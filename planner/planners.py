@@ -251,7 +251,8 @@ def verified_planner(plan_all: Callable[[object, object], object], objective: st
 def verified_unet_planner(model: str, objective: str, k: int, copies: int = 0, trial_preset: str = "fast",
                           subsets: SubsetPolicy = SubsetPolicy(), views: int = 1,
                           view_spread_k: float = 0.0, ranker: str | None = None, rerank_k: int = 4,
-                          ranker_u_weight: float = U_WEIGHT, sigma_b: float = SIGMA_B, balance: str = "network") -> PlanFn:
+                          ranker_u_weight: float = U_WEIGHT, sigma_b: float = SIGMA_B,
+                          balance: str = "network") -> PlanFn:
     plan_all = _unet_plan_all(model, objective, subsets, views, view_spread_k, ranker, rerank_k,
                               ranker_u_weight=ranker_u_weight, sigma_b=sigma_b, balance=balance)
     return verified_planner(plan_all, objective, k, copies, trial_preset, sigma_b=sigma_b,

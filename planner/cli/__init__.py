@@ -46,7 +46,8 @@ F3_SIGMA_B = option("--f3-sigma-b", "f3's balance tolerance sigma_b in Q = u tau
                     "cos(beta); eval rows with another value than the paper's 0.25 are named unet-f3-sbS.",
                     default=0.25, metavar="S")
 F3_BALANCE = option("--f3-balance", "What f3's b is: network (the B map, the paper's) or hang (the tilt the load "
-                    "will hang with, from its mask and mass: planner.balance); eval's hang rows are named unet-f3-hang.",
+                    "will hang with, from its mask and mass: planner.balance); eval's hang rows are named "
+                    "unet-f3-hang.",
                     default="network", metavar="network|hang")
 
 
