@@ -216,7 +216,8 @@ def blend(u, p, u_weight: float = U_WEIGHT):
 
 
 def rerank(plan, observation, ranker: Ranker, objective, k: int = 4, u_weight: float = U_WEIGHT):
-    """``plan`` with the union of its best ``k`` grasps by f1 and by f3 scored by ``ranker`` and put
+    """``plan`` with the union of its best ``k`` grasps by f1 and by f3 (``objective`` itself when it is an
+    f3: its tolerance and balance source) scored by ``ranker`` and put
     first, ordered by ``objective`` with U replaced by :func:`blend` of U and the ranker's probability
     (``quality`` and ``graspability`` of those grasps become the blend's; U stays in
     ``info["u_network"]``, p in ``info["p_ranker"]``). The grasps the ranker did not score follow in
@@ -226,7 +227,7 @@ def rerank(plan, observation, ranker: Ranker, objective, k: int = 4, u_weight: f
 
     check_u_weight(u_weight)  # before any scoring
 
-    f3 = Objective("f3")
+    f3 = objective if objective.kind == "f3" else Objective("f3")  # f3's own tolerance and balance source
     by_f1 = sorted(plan.grasps, key=lambda g: -g.graspability)[:k]
     by_f3 = sorted(plan.grasps, key=lambda g: -float(f3.quality(g.graspability, len(g.targets), g.balance)))[:k]
     chosen = list({g.targets: g for g in by_f1 + by_f3}.values())

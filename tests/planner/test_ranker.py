@@ -228,6 +228,22 @@ def test_rerank_puts_the_ranked_union_first_in_the_ranker_s_order():
     assert out.info["u_network"]["0"] == pytest.approx(0.9)
 
 
+def test_the_f3_half_of_the_union_is_chosen_by_the_objective_s_own_f3():
+    """An f3 objective with a harsher balance tolerance picks its own best grasp into the re-scored union:
+    a level grasp of U 0.85 joins the tilted one of U 0.95 (the paper's tolerance would not take it)."""
+    from planner.inference import Objective, Plan, PlannedGrasp
+
+    from tests.planner.planner_helpers import observation
+
+    obs = observation(4, size=128)
+    tilted = PlannedGrasp(Grasp(0.0, 0.0, math.pi / 2, 0.5), 0.95, 0.95, math.cos(math.radians(20)), (0,), (0, 0))
+    level = PlannedGrasp(Grasp(0.0, 0.3, math.pi / 2, 0.6), 0.85, 0.85, math.cos(math.radians(3)), (1,), (0, 0))
+    plan = Plan([tilted, level], 2, 0.0)
+    assert rerank(plan, obs, _width_ranker(), Objective("f3"), k=1).info["reranked"] == 1
+    out = rerank(plan, obs, _width_ranker(), Objective("f3", sigma_b=0.05), k=1)
+    assert out.info["reranked"] == 2 and out.grasps[0].targets == (1,)
+
+
 def test_the_blend_weighs_the_network_s_u_against_the_ranker_s_p():
     """rerank's default order is the blend of U and p: a grasp the network rates far higher can stay first
     although the ranker prefers another; at weight 0 the ranker's order wins, at 1 the network's."""
