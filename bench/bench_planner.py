@@ -3,15 +3,16 @@
 subset pre-selection).
 
     .venv/bin/python bench/bench_planner.py [--pruning-only --model M --piles 20] [--views-only] [--ranker-only]
-        [--cost-only [--threads 1,2]]
+        [--balance-only] [--cost-only [--threads 1,2]]
 """
 
 from __future__ import annotations
 
 import os
 
-from experiments.planner_bench import (cost_markdown, markdown, plan_cost, pruning_markdown, pruning_quality,
-                                       ranker_latency, ranker_markdown, views_latency, views_markdown)
+from experiments.planner_bench import (balance_latency, balance_markdown, cost_markdown, markdown, plan_cost,
+                                       pruning_markdown, pruning_quality, ranker_latency, ranker_markdown,
+                                       views_latency, views_markdown)
 
 __all__ = ["markdown"]
 
@@ -28,12 +29,16 @@ if __name__ == "__main__":
     ap.add_argument("--cached-only", action="store_true", help="tabulate the piles in --cache, compute nothing")
     ap.add_argument("--views-only", action="store_true", help="only the planning time with averaged test-time views")
     ap.add_argument("--ranker-only", action="store_true", help="only the planning time with re-ranking by a ranker")
+    ap.add_argument("--balance-only", action="store_true",
+                    help="only the planning time with f3's balance from the B map and from the hang model")
     ap.add_argument("--cost-only", action="store_true",
                     help="only the wall and CPU seconds of a plan with 1 and 2 torch threads (shared machines)")
     ap.add_argument("--threads", default="1,2", help="torch threads for --cost-only, comma-separated")
     args = ap.parse_args()
     if args.cost_only:
         print("\n".join(cost_markdown(plan_cost(threads=tuple(int(t) for t in args.threads.split(","))))))
+    elif args.balance_only:
+        print("\n".join(balance_markdown(balance_latency())))
     elif args.ranker_only:
         print("\n".join(ranker_markdown(ranker_latency())))
     elif args.views_only:

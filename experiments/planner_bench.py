@@ -156,6 +156,33 @@ def ranker_latency(n_logs=(4, 7), ks=(4, 8), repeats: int = 5) -> list[dict]:
     return rows
 
 
+def balance_latency(n_logs=(4, 7), repeats: int = 5) -> list[dict]:
+    """Planning time of the shipped model (f3, all subsets, 2 threads) with f3's b from the network's B map
+    and from the hang model (:mod:`planner.balance`: one distance raster per subset)."""
+    import torch
+
+    from planner.inference import Objective, load_planner, plan
+
+    torch.set_num_threads(2)
+    pl = load_planner(DEFAULT_MODEL, device="cpu")
+    obs = {n: _pile_observations(n, 1)[0][0] for n in n_logs}
+    plan(obs[n_logs[0]], pl)  # warm-up
+    rows = []
+    for n in n_logs:
+        for balance in ("network", "hang"):
+            f3 = Objective(kind="f3", balance=balance, sigma_b=0.05 if balance == "hang" else 0.25)
+            walls = [plan(obs[n], pl, f3).elapsed_s for _ in range(repeats)]
+            rows.append({"logs": n, "balance": balance, "wall_s": statistics.median(walls)})
+    return rows
+
+
+def balance_markdown(rows: list[dict]) -> list[str]:
+    lines = [f"Planning with f3's balance from the B map or the hang model (`--f3-balance hang`), shipped model, "
+             f"all subsets, 2 threads, median of 5 ({load_average()}). Target: a 7-log pile (127 subsets) <= 0.5 s.",
+             "", "| logs | f3's balance | wall s |", "|---|---|---|"]
+    return lines + [f"| {r['logs']} | {r['balance']} | {r['wall_s']:.3f} |" for r in rows]
+
+
 def plan_cost(n_logs=(4, 7), threads=(1, 2), repeats: int = 5) -> list[dict]:
     """Wall and CPU seconds of one plan with the shipped model as it loads by default (f3, all
     subsets) with 1 and 2 torch threads, median of ``repeats``. The CPU seconds of the one-thread
