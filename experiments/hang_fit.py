@@ -45,7 +45,8 @@ def samples(records: list[dict], seed_base: int) -> np.ndarray:
     """(n, 4): offset d [m], load mass [kg], the twin's beta [deg], the network's beta [deg] (NaN if absent)."""
     from planner.constraints import Constraints
     from planner.evaluate import EvalConfig, eval_scene
-    from planner.inference import OrthoGrid, observation_arrays
+    from planner.inference import observation_arrays
+    from synth.geometry.frames import OrthoGrid
 
     density = Constraints().wood_density_kg_m3
     by_seed: dict[int, list[dict]] = {}
