@@ -384,15 +384,19 @@ def _u_maps(out: np.ndarray, planner: Planner) -> np.ndarray:
     return _gaussian((1.0 / (1.0 + np.exp(-out[:, 3]))).astype(np.float32), planner.quality_smoothing_px)
 
 
+def _b_maps(out: np.ndarray, planner: Planner) -> np.ndarray:
+    """The network's balance cos(beta) of each subset's output, smoothed as planning scores it."""
+    return _gaussian(np.ascontiguousarray(decode_balance(out[:, 4], planner.config.b_encoding), dtype=np.float32),
+                     planner.quality_smoothing_px)
+
+
 def _select(out, chosen, grid, objective, constraints, planner,
             b_maps: np.ndarray | None = None) -> tuple[list[PlannedGrasp], list[dict]]:
     """Each subset's best grasp (the highest-quality pixel in reach whose rectangle misses the
     keep-out zones; of equal pixels the first in raster order) and what the constraints did; the
     balance is ``b_maps`` where given, else the network's B map."""
     u = _u_maps(out, planner)
-    b = b_maps if b_maps is not None else _gaussian(
-        np.ascontiguousarray(decode_balance(out[:, 4], planner.config.b_encoding), dtype=np.float32),
-        planner.quality_smoothing_px)
+    b = b_maps if b_maps is not None else _b_maps(out, planner)
     tau = np.array([len(s) for s in chosen], np.float32)[:, None, None]
     q = objective.quality(u, tau, b)
     n, h, w = q.shape
@@ -479,8 +483,7 @@ def maps_at(observation, planner: Planner, grasps: list[Grasp],
     masks = np.stack([np.isin(inst, [i + 1 for i in s]) for s in subsets])
     out = planner.predict(make_inputs(inten, depth, masks, planner.config.in_channels, cam_h))
     u = _u_maps(out, planner)
-    b = _gaussian(np.ascontiguousarray(decode_balance(out[:, 4], planner.config.b_encoding), dtype=np.float32),
-                  planner.quality_smoothing_px)
+    b = _b_maps(out, planner)
     row_of = {s: k for k, s in enumerate(subsets)}
     at = np.empty((2, len(grasps)))
     for j, (g, t) in enumerate(zip(grasps, targets)):
