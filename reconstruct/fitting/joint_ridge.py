@@ -23,7 +23,8 @@ from typing import Sequence
 import numpy as np
 
 from reconstruct.fitting.joint_config import JointConfig
-from reconstruct.fitting.scan_logs import PROFILE_HALF_WIDTH_M, PROFILE_MAX_POINTS, ScanLog, _profile_radius
+from reconstruct.fitting.scan_logs import (PROFILE_HALF_WIDTH_M, PROFILE_MAX_POINTS, ScanLog, _height_raster,
+                                           _profile_radius)
 
 
 @dataclass(frozen=True)
@@ -36,14 +37,9 @@ class HeightRaster:
 
     @classmethod
     def of(cls, points_m: np.ndarray, cell_m: float) -> "HeightRaster":
-        P = np.asarray(points_m, dtype=float)
-        lo = P[:, :2].min(0) - cell_m
-        nx, ny = (np.ceil((P[:, :2].max(0) + cell_m - lo) / cell_m).astype(np.int64) + 1)
-        top = np.full((ny, nx), -np.inf)
-        np.maximum.at(top, (((P[:, 1] - lo[1]) / cell_m).astype(np.int64),
-                            ((P[:, 0] - lo[0]) / cell_m).astype(np.int64)), P[:, 2])
-        top[~np.isfinite(top)] = np.nan
-        return cls(top, lo, float(cell_m))
+        """The raster the scan-log search makes (:func:`~reconstruct.fitting.scan_logs._height_raster`)."""
+        top, have, lo = _height_raster(np.asarray(points_m, dtype=float), cell_m)
+        return cls(np.where(have, top, np.nan), lo, float(cell_m))
 
     def highest(self, xy_m: np.ndarray) -> np.ndarray:
         """The highest scan point in the cell of each (x, y) row [m]; NaN where none, or off the raster."""
