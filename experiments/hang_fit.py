@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from planner.balance import HangModel
+from planner.balance import HangModel, tilt_deg
 
 
 def read_successes(folder: str | Path) -> tuple[list[dict], int]:
@@ -64,8 +64,8 @@ def samples(records: list[dict], seed_base: int) -> np.ndarray:
             gr, gc = grid.pile_to_pixel(r["grasp"]["x_m"], r["grasp"]["y_m"])
             d = grid.pixel_m * math.hypot(rr.mean() - gr, cc.mean() - gc)
             mass = sum(pile.logs[i].volume_m3() for i in r["targets"]) * density
-            net = math.degrees(math.acos(min(1.0, r["b"]))) if r.get("b") is not None else math.nan
-            rows.append((d, mass, math.degrees(math.acos(min(1.0, r["cos_beta"]))), net))
+            net = tilt_deg(r["b"]) if r.get("b") is not None else math.nan
+            rows.append((d, mass, tilt_deg(r["cos_beta"]), net))
     return np.array(rows, float).reshape(-1, 4)
 
 
