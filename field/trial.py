@@ -36,6 +36,7 @@ import numpy as np
 
 from field.errors import FieldError
 from field.link.messages import DEFAULT_MAX_PILE_AGE_S, GraspCommand
+from planner.inference import PRODUCT_F3_BALANCE, Objective, f3_sigma_b
 from planner.ranker import U_WEIGHT, check_u_weight
 
 
@@ -88,6 +89,9 @@ REJECT_EXPLANATIONS = {
 @dataclass(frozen=True)
 class TrialOptions:
     objective: Literal["f1", "f2", "f3"] = "f3"
+    f3_balance: Literal["network", "hang"] = PRODUCT_F3_BALANCE  # f3's b: the tilt the load will hang with
+    #                                                             (planner.balance) or the network's B map
+    f3_sigma_b: float | None = None  # f3's balance tolerance [cos beta]; None = the source's (0.05 hang, 0.25 network)
     model: str | None = None  # checkpoint; None = the shipped default
     views: int = 1  # dihedral views the planner averages (1, 2, 4, 8; planning time grows with it) [-]
     view_spread_k: float = 0.0  # U logit lowered by k x its spread over the views (needs views > 1) [-]
@@ -115,6 +119,7 @@ class TrialOptions:
     def __post_init__(self) -> None:
         if self.objective not in ("f1", "f2", "f3"):
             raise ValueError(f"objective must be f1, f2 or f3, got {self.objective!r}")
+        f3_sigma_b(self.f3_balance, self.f3_sigma_b)  # a ValueError naming balance / sigma_b
         if not self.max_pile_age_s > 0:
             raise ValueError("max_pile_age_s must be > 0")
         from planner.inference import check_views
@@ -133,6 +138,11 @@ class TrialOptions:
             raise ValueError(f"operator_rank is a plan rank (1 = the best), got {self.operator_rank!r}")
         if self.verify_k:
             self.verify_config()  # its own checks: a budget too small for one trial, copies, workers
+
+    def objective_spec(self) -> Objective:
+        """The planning objective: its kind, with f3's balance source and tolerance."""
+        return Objective(kind=self.objective, sigma_b=f3_sigma_b(self.f3_balance, self.f3_sigma_b),
+                         balance=self.f3_balance)
 
     def verify_config(self, fits: tuple[str, ...] | list[str] = (), end_sigmas_m=None):
         """The :class:`planner.verify.VerifyConfig` of these options; ``fits``: how the
@@ -265,12 +275,11 @@ def verify_trial_plan(the_plan, pile, options: TrialOptions, fits=(), recorded: 
     ran out before one candidate was checked (with the trials that did run)."""
     from dataclasses import replace
 
-    from planner.inference import Objective
     from planner.verify import (VerificationBudgetError, VerificationError, choose, measured_quality,
                                 verify_plan)
 
     say = say or (lambda s: None)
-    objective = Objective(kind=options.objective)
+    objective = options.objective_spec()
     ok = len(fits) == pile.n_logs
     cfg = options.verify_config(tuple(fits) if ok else (),
                                 tuple(end_sigmas_m) if ok and end_sigmas_m is not None else None)
@@ -404,13 +413,12 @@ def _plan_subsets(obs, planner, ranker, pile, constraints, options: TrialOptions
     """Every target subset through the network, the best re-scored by ``ranker`` (when not None);
     refused when no grasp satisfies the constraints."""
     from planner.errors import PlannerError
-    from planner.inference import Objective
     from planner.ranker import plan_reranked
 
     say("planning: every target subset through the network"
         + (f", the best {options.rerank_k} by f1 and by f3 re-scored by the grasp ranker" if ranker else ""))
     try:
-        the_plan = plan_reranked(obs, planner, Objective(kind=options.objective), ranker, constraints,
+        the_plan = plan_reranked(obs, planner, options.objective_spec(), ranker, constraints,
                                  top_k=max(10, options.verify_k, options.operator_rank or 0),
                                  rerank_k=options.rerank_k, u_weight=options.ranker_u_weight, pile=pile)
     except PlannerError as exc:
@@ -449,13 +457,12 @@ def _write_plan_outputs(plan_dir: Path, obs, the_plan, pile, best, verification,
                         options: TrialOptions) -> None:
     """plan.json, the pictures, the GeoJSON pair and verification.json a person checks before sending."""
     from field.geo import draw_grasp_map, write_geojson_pair
-    from planner.inference import Objective
     from planner.pictures import draw_plan
     from synth.common.files import atomic_write_bytes, dumps_json
 
     plan_dir.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(plan_dir / "plan.json", the_plan.to_json().encode())
-    draw_plan(obs, the_plan, plan_dir / "plan.png", pile=pile, objective=Objective(kind=options.objective),
+    draw_plan(obs, the_plan, plan_dir / "plan.png", pile=pile, objective=options.objective_spec(),
               constraints=constraints)
     write_geojson_pair(pile, plan_dir, grasp=best.grasp, plan_extra={"target_logs": list(best.targets)})
     draw_grasp_map(pile, best.grasp, plan_dir / "grasp_map.png", target_logs=best.targets)

@@ -340,6 +340,16 @@ def changed_inputs(record_dir: str | Path, rec: dict | None = None) -> list[str]
     return out
 
 
+def recorded_options(stored: dict) -> TrialOptions:
+    """The :class:`TrialOptions` a record's ``options`` name; a setting older records lack is what
+    the trial did then, not today's default."""
+    stored = dict(stored)
+    stored.setdefault("verify_k", 0)  # a 1.0 record sent the network's best grasp, unverified
+    stored.setdefault("rerank", False)  # records before the ranker planned with U alone
+    stored.setdefault("f3_balance", "network")  # records before the hang model scored f3 on the B map
+    return TrialOptions(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in stored.items()})
+
+
 def replay_record(record_dir: str | Path, work_dir: str | Path, progress=None) -> dict:
     """Re-run reconstruction, planning and verification from a record's inputs; compare with what
     was sent and with every verification trial the record stores.
@@ -371,10 +381,7 @@ def replay_record(record_dir: str | Path, work_dir: str | Path, progress=None) -
     if sent is None and not refused:
         raise RecordError(f"{record_dir}: the trial never got to a command ({rec.get('final_state')}: "
                           f"{rec.get('reason', 'no reason recorded')}); there is nothing to replay")
-    stored = dict(rec["options"])
-    stored.setdefault("verify_k", 0)  # a 1.0 record sent the network's best grasp, unverified
-    stored.setdefault("rerank", False)  # records before the ranker planned with U alone
-    opts = TrialOptions(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in stored.items()})
+    opts = recorded_options(rec["options"])
     for what in ("model", "ranker"):
         used = rec.get(what) or {}
         if used.get("sha256") and (not Path(used["path"]).exists() or sha256_of(Path(used["path"])) != used["sha256"]):

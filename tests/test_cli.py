@@ -259,8 +259,9 @@ def test_plan_json_png_and_table(capsys, work, pile_dir):
 
 
 def test_plan_f3_balance_flags_reach_the_objective(capsys, pile_dir, monkeypatch):
-    """--f3-balance hang --f3-sigma-b 0.05: the plan is scored with that objective (and its grasps carry
-    the hang model's balance, not the network's); the defaults are the paper's."""
+    """plan's f3 is the product's by default (the hang model, sigma_b 0.05); --f3-balance network
+    gives the paper's (sigma_b 0.25 unless --f3-sigma-b); the plan is scored with that objective and
+    its grasps carry that balance."""
     import planner.ranker as ranker
 
     seen, real = [], ranker.plan_reranked
@@ -270,10 +271,10 @@ def test_plan_f3_balance_flags_reach_the_objective(capsys, pile_dir, monkeypatch
         return real(obs, planner, objective, *a, **k)
 
     monkeypatch.setattr(ranker, "plan_reranked", spy)
-    hang = cli(capsys, "plan", pile_dir, "--objective", "f3", "--f3-balance", "hang", "--f3-sigma-b", "0.05",
-               "--no-ranker", "--json").json()
-    net = cli(capsys, "plan", pile_dir, "--objective", "f3", "--no-ranker", "--json").json()
-    assert seen == [("hang", 0.05), ("network", 0.25)]
+    hang = cli(capsys, "plan", pile_dir, "--objective", "f3", "--no-ranker", "--json").json()
+    net = cli(capsys, "plan", pile_dir, "--objective", "f3", "--f3-balance", "network", "--no-ranker", "--json").json()
+    cli(capsys, "plan", pile_dir, "--objective", "f3", "--f3-balance", "network", "--f3-sigma-b", "0.1", "--no-ranker")
+    assert seen == [("hang", 0.05), ("network", 0.25), ("network", 0.1)]
     assert [g["balance"] for g in hang["grasps"]] != [g["balance"] for g in net["grasps"]]
     fails(cli(capsys, "plan", pile_dir, "--f3-sigma-b", "-1"), 2, "--f3-sigma-b -1: f3's balance tolerance")
 

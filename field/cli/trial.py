@@ -15,7 +15,8 @@ from field.cli.options import (BASE_HELP, MAX_PILE_AGE, MAX_REACH, NO_RANKER, NO
                                 trial_options, twin_url, verify_fields)
 from field.link.cli import INSECURE_LINK, link_security_note, secured_link
 from field.trial import TrialOptions
-from planner.cli import MODEL, OBJECTIVE_HELP, VIEW_SPREAD, VIEWS
+from planner.inference import PRODUCT_F3_BALANCE
+from planner.cli import F3_SIGMA_B, MODEL, f3_objective, OBJECTIVE_HELP, VIEW_SPREAD, VIEWS, f3_balance_option
 from reconstruct.cli import gnss_crs_warning
 from reconstruct.survey.cli import GNSS_HELP, GNSS_WINDOWS_HELP, gnss_source
 from synth.cli import JSON
@@ -27,6 +28,7 @@ from synth.common.cli import (EXIT_INPUT, EXIT_INTERRUPTED, EXIT_LINK, EXIT_REPL
 FOXGLOVE = option("--foxglove", "Also serve the trial live to Foxglove (WebSocket, 127.0.0.1) on this port while it "
                   "runs; the record's trial.mcap is written either way.", default=None, metavar="PORT",
                   min=1, max=65535, names=["foxglove_port"])
+F3_BALANCE_TRIAL = f3_balance_option(PRODUCT_F3_BALANCE)
 _TRIAL_CODES = {"input": EXIT_INPUT, "link": EXIT_LINK, "refused": EXIT_TRIAL, "declined": EXIT_TRIAL,
                 "interrupted": EXIT_INTERRUPTED}
 
@@ -88,6 +90,8 @@ def trial_command(
     record: Path = option("--record", "Trial record folder to create (must not exist).", default=..., metavar="DIR"),
     objective: Literal["f1", "f2", "f3"] = option("--objective", OBJECTIVE_HELP, field=(TrialOptions, "objective"),
                                                   metavar="f1|f2|f3"),
+    f3_balance: Literal["network", "hang"] = F3_BALANCE_TRIAL,
+    f3_sigma_b: float = F3_SIGMA_B,
     model: Path = MODEL,
     views: int = VIEWS,
     view_spread: float = VIEW_SPREAD,
@@ -141,7 +145,9 @@ def trial_command(
     base_tm = parse_base(base)
     gnss = _check_trial_paths(scan, gnss, gnss_windows, model, record, allow_float)
     check_views(views, view_spread)
+    f3_objective(objective, f3_balance, f3_sigma_b)  # a bad --f3-sigma-b named before any work
     opts = trial_options(objective, model, allow_float, max_pile_age, base_tm, max_reach, capacity, views, view_spread,
+                          f3_balance=f3_balance, f3_sigma_b=f3_sigma_b,
                           **verify_fields(verify, no_verify, verify_copies, verify_budget, verify_workers, send_rank),
                           **ranker_fields(ranker, no_ranker))
     warning = gnss_crs_warning(gnss)

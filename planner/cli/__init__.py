@@ -7,14 +7,14 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import typer
 
 from planner.data import DataConfig
 from planner.evaluate import EvalConfig, PlannerSpec
 from planner.checkpoint import DEFAULT_MODEL
-from planner.inference import Objective
+from planner.inference import PRODUCT_F3_BALANCE, Objective, f3_sigma_b
 from planner.loss import LossWeights
 from planner.model import UNetConfig
 from planner.subsets import SubsetPolicy
@@ -43,17 +43,22 @@ RANKER_U_WEIGHT = option("--ranker-u-weight", "The re-scored grasps are ordered 
                          field=(PlannerSpec, "ranker_u_weight"), min=0.0, max=1.0, metavar="W")
 
 F3_SIGMA_B = option("--f3-sigma-b", "f3's balance tolerance sigma_b in Q = u tau^mu exp(-(b - 1)^2 / sigma_b^2), b = "
-                    "cos(beta); eval rows with another value than the paper's 0.25 are named unet-f3-sbS.",
-                    default=0.25, metavar="S")
-F3_BALANCE = option("--f3-balance", "What f3's b is: network (the B map, the paper's) or hang (the tilt the load "
-                    "will hang with, from its mask and mass: planner.balance); eval's hang rows are named "
-                    "unet-f3-hang.",
-                    default="network", metavar="network|hang")
+                    "cos(beta); default: 0.25 with --f3-balance network (the paper's), 0.05 with hang; eval rows "
+                    "with another value than 0.25 are named unet-f3-...-sbS.", default=None, metavar="S")
 
 
-def check_f3_sigma_b(sigma_b: float) -> None:
-    if not sigma_b > 0:
-        raise CliError(f"--f3-sigma-b {sigma_b:g}: f3's balance tolerance must be > 0 (the paper's is 0.25)")
+def f3_balance_option(default: str, note: str = "") -> Any:
+    return option("--f3-balance", "What f3's b is: network (the B map, the paper's) or hang (the tilt the load "
+                  "will hang with, from its mask and mass: planner.balance; it keeps f3's grasps level at no "
+                  f"cost in success, docs/model.md).{note}", default=default, metavar="network|hang")
+
+
+def f3_objective(kind: str, balance: str, sigma_b: float | None) -> Objective:
+    """The objective the f3 flags name; a bad tolerance is a :class:`CliError` naming --f3-sigma-b."""
+    try:
+        return Objective(kind=kind, sigma_b=f3_sigma_b(balance, sigma_b), balance=balance)
+    except ValueError as exc:
+        raise CliError(f"--f3-sigma-b {sigma_b:g}: f3's balance tolerance must be > 0 (the paper's is 0.25)") from exc
 
 
 VIEW_SPREAD = option("--view-spread", "Lower U by K x its spread over the views (needs --views > 1).", default=0.0,
@@ -314,7 +319,7 @@ def plan_command(
     rerank_k: int = RERANK_K,
     ranker_u_weight: float = RANKER_U_WEIGHT,
     f3_sigma_b: float = F3_SIGMA_B,
-    f3_balance: Literal["network", "hang"] = F3_BALANCE,
+    f3_balance: Literal["network", "hang"] = f3_balance_option(PRODUCT_F3_BALANCE),
 ) -> None:
     """Plan the best multi-log grasp on a pile: every target subset scored with Q = f(U, tau, B).
 
@@ -341,11 +346,10 @@ def plan_command(
     path = model or DEFAULT_MODEL
     pile_json, spec, vcfg = _check_plan_flags(pile, path, png, views, view_spread, verify, verify_copies,
                                               verify_budget, verify_workers)
-    check_f3_sigma_b(f3_sigma_b)
+    obj = f3_objective(objective, f3_balance, f3_sigma_b)
     rk = load_ranker_flag(ranker, no_ranker)
     planner = load_planner(path, views=views, view_spread_k=view_spread)
     obs, spec = load_observation(pile, planner.config, warn=o.warn)
-    obj = Objective(kind=objective, sigma_b=f3_sigma_b, balance=f3_balance)
     o.progress(f"planning on {pile}: {obs.n_logs} logs, up to {max_subsets} target subsets x {views} view(s)")
     with Console(stderr=True).status("planning"):
         keep = top if vcfg is None else max(top, vcfg.k)
@@ -473,7 +477,8 @@ def eval_command(
     rerank_k: int = RERANK_K,
     ranker_u_weight: float = RANKER_U_WEIGHT,
     f3_sigma_b: float = F3_SIGMA_B,
-    f3_balance: Literal["network", "hang"] = F3_BALANCE,
+    f3_balance: Literal["network", "hang"] = f3_balance_option("network", " Eval's default is the paper's; hang rows "
+                                                               "are named unet-f3-hang."),
     field_error: str = option("--field-error", "Add a field row per planner: its chosen grasp executed with the "
                               "crane's positioning error, SIGMA_XY_M,SIGMA_PHI_DEG (e.g. 0.03,2: 3 cm per axis, 2 deg).",
                               default=None, metavar="M,DEG"),
@@ -509,8 +514,8 @@ def eval_command(
                      field_error=error)
     specs = _eval_specs(str(model or DEFAULT_MODEL), objectives, baselines, extra_model, verify, verify_copies)
     specs += _view_specs(str(model or DEFAULT_MODEL), objectives, views, view_spread)
-    check_f3_sigma_b(f3_sigma_b)
-    specs = [replace(s, sigma_b=f3_sigma_b, balance=f3_balance) if s.kind == "unet" and s.objective == "f3" else s
+    f3 = f3_objective("f3", f3_balance, f3_sigma_b)
+    specs = [replace(s, sigma_b=f3.sigma_b, balance=f3.balance) if s.kind == "unet" and s.objective == "f3" else s
              for s in specs]
     if ranker is not None:
         check_input(ranker, "--ranker", "file")

@@ -198,7 +198,8 @@ def test_a_verification_cut_short_chooses_among_what_it_checked_and_replays_so(m
     v = record["verification"]
     assert 3 in record["plan"]["grasps"][0]["targets"]  # the precondition
     assert v["timed_out"] and v["chosen_rank"] == 0 and record["chosen_rank"] == 1
-    assert [c["status"] for c in v["candidates"]] == ["checked", "not_checked", "not_checked", "not_checked"]
+    status = [c["status"] for c in v["candidates"]]
+    assert status[0] == "checked" and "not_checked" in status[1:] and set(status[1:]) <= {"not_checked", "pruned"}
     assert all(c["trials"] == [] for c in v["candidates"][1:])
     assert "1 of 4 candidates checked before the time budget ran out" in seen[0].summary_lines()[0]
     result = replay_record(tmp_path / "r", tmp_path / "w")

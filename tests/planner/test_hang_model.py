@@ -37,3 +37,12 @@ def test_bad_parameters_and_inputs_are_refused():
         HangModel().lever_m(0.0)
     with pytest.raises(ValueError, match="load masses"):
         HangModel().cos_beta_maps(np.zeros((2, 4, 4), bool), 0.1, [1.0])
+
+
+def test_f3_tolerance_defaults_to_the_one_chosen_for_its_balance_source():
+    from planner.inference import HANG_SIGMA_B, SIGMA_B, f3_sigma_b
+
+    assert (f3_sigma_b("hang"), f3_sigma_b("network"), f3_sigma_b("hang", 0.2)) == (HANG_SIGMA_B, SIGMA_B, 0.2)
+    for bad in ((("hang", 0.0)), ("network", -1.0), ("guess", None)):
+        with pytest.raises(ValueError, match="sigma_b|balance"):
+            f3_sigma_b(*bad)

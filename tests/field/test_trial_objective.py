@@ -1,0 +1,51 @@
+"""The field trial's planning objective: f3 on the hang model by default, the paper's B map on
+request, and a record made before the hang model replayed with what it used then."""
+
+from __future__ import annotations
+
+import pytest
+
+from field.trial import TrialOptions
+from field.trial_record import recorded_options
+from planner.inference import HANG_SIGMA_B, SIGMA_B
+from tests.cli_helpers import GNSS, SCAN, cli, fails
+
+
+def test_the_trial_scores_f3_on_the_hang_model_by_default():
+    obj = TrialOptions().objective_spec()
+    assert (obj.kind, obj.balance, obj.sigma_b) == ("f3", "hang", HANG_SIGMA_B)
+    net = TrialOptions(f3_balance="network").objective_spec()
+    assert (net.balance, net.sigma_b) == ("network", SIGMA_B)
+    assert TrialOptions(f3_sigma_b=0.1).objective_spec().sigma_b == 0.1
+    assert TrialOptions(objective="f1").objective_spec().kind == "f1"
+
+
+@pytest.mark.parametrize("bad", [dict(f3_sigma_b=0.0), dict(f3_sigma_b=-0.05), dict(f3_balance="guess")])
+def test_a_bad_f3_setting_is_refused_when_the_options_are_made(bad):
+    with pytest.raises(ValueError, match="sigma_b|balance"):
+        TrialOptions(**bad)
+
+
+def test_a_record_from_before_the_hang_model_replays_with_the_b_map():
+    old = {"objective": "f3", "verify_k": 8, "rerank": True}
+    assert recorded_options(old).objective_spec().balance == "network"
+    assert recorded_options({**old, "f3_balance": "hang"}).objective_spec().balance == "hang"
+    assert recorded_options({"objective": "f3"}).verify_k == 0  # a 1.0 record: unverified
+
+
+def test_the_trial_flags_reach_the_options(capsys, work, monkeypatch):
+    import field.trial_record as trial_record
+
+    seen = []
+
+    def stop(scan, gnss, link, record, opts, **kw):
+        seen.append(opts)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(trial_record, "run_trial_record", stop)
+    for extra in ([], ["--f3-balance", "network", "--f3-sigma-b", "0.2"]):
+        cli(capsys, "trial", "--scan", SCAN, "--gnss", GNSS, "--link", "twin://", "--record",
+            work / f"t{len(seen)}", "--yes", *extra)
+    assert [(o.f3_balance, o.objective_spec().sigma_b) for o in seen] == [("hang", HANG_SIGMA_B), ("network", 0.2)]
+    fails(cli(capsys, "trial", "--scan", SCAN, "--gnss", GNSS, "--link", "twin://", "--record", work / "t9",
+              "--f3-sigma-b", "0"), 2, "--f3-sigma-b 0")
