@@ -275,6 +275,7 @@ def test_plan_f3_balance_flags_reach_the_objective(capsys, pile_dir, monkeypatch
     net = cli(capsys, "plan", pile_dir, "--objective", "f3", "--f3-balance", "network", "--no-ranker", "--json").json()
     cli(capsys, "plan", pile_dir, "--objective", "f3", "--f3-balance", "network", "--f3-sigma-b", "0.1", "--no-ranker")
     assert seen == [("hang", 0.05), ("network", 0.25), ("network", 0.1)]
+    assert hang["objective"] == {"kind": "f3", "balance": "hang", "sigma_b": 0.05}  # the file says what f3 meant
     assert [g["balance"] for g in hang["grasps"]] != [g["balance"] for g in net["grasps"]]
     fails(cli(capsys, "plan", pile_dir, "--f3-sigma-b", "-1"), 2, "--f3-sigma-b -1: f3's balance tolerance")
 

@@ -370,7 +370,7 @@ def plan_command(
         from planner.pictures import draw_plan
 
         draw_plan(obs, result, png, pile=spec, objective=obj, top=top)
-    _print_plan(o, pile, result, verification, objective, png)
+    _print_plan(o, pile, result, verification, obj, png)
 
 
 def _check_plan_flags(pile: Path, model: Path, png: Path | None, views: int, view_spread: float, verify: int | None,
@@ -407,10 +407,12 @@ def _check_plan_flags(pile: Path, model: Path, png: Path | None, views: int, vie
     return pile_json, spec, vcfg
 
 
-def _print_plan(o: Output, pile: Path, result, verification, objective: str, png: Path | None) -> None:
+def _print_plan(o: Output, pile: Path, result, verification, objective: Objective, png: Path | None) -> None:
     """The plan as JSON, its table, the constraints' removals and the verification's verdict
     (exit 4 when no checked grasp succeeded)."""
-    doc = {k: v for k, v in result.to_dict().items() if k != "info"} | {"pile": str(pile)}
+    how = {"balance": objective.balance, "sigma_b": objective.sigma_b} if objective.kind == "f3" else {}
+    doc = {k: v for k, v in result.to_dict().items() if k != "info"} | {"pile": str(pile),
+                                                                         "objective": {"kind": objective.kind, **how}}
     if verification is not None:
         doc["verification"] = verification.to_dict()
     if "reranked" in result.info:  # the first n grasps' U is the blend of U and the ranker's p; both beside it
@@ -424,7 +426,10 @@ def _print_plan(o: Output, pile: Path, result, verification, objective: str, png
              f"{g.graspability:.3f}", f"{g.balance:.3f}"]
             + ([] if verification is None else twin_cells(verification, i)) for i, g in enumerate(result.grasps)]
     o.table(f"plan for {pile}: {result.subsets_evaluated} target subsets in {result.elapsed_s:.2f} s, "
-            f"objective {objective} (Q = quality, U = graspability, B = balance; pile frame"
+            f"objective {objective.kind}"
+            + (f", b from the {'hang model' if objective.balance == 'hang' else 'B map'}, sigma_b "
+               f"{objective.sigma_b:g}" if how else "")
+            + " (Q = quality, U = graspability, B = balance; pile frame"
             + ("; twin: outcome on the pile, * = chosen" if verification is not None else "") + ")",
             ["rank", "targets", "x m", "y m", "phi deg", "width m", "Q", "U", "B"]
             + ([] if verification is None else TWIN_COLUMNS), rows)
