@@ -43,8 +43,9 @@ def score_formula(objective: Any) -> str:
     mu_txt = "1/3" if abs(mu - 1 / 3) < 1e-9 else f"{mu:g}"
     if kind == "f2":
         return f"Q = U · τ^{mu_txt}   (objective f2)"
+    source = ", B from the hang model" if getattr(objective, "balance", "network") == "hang" else ""
     return (f"Q = U · τ^{mu_txt} · exp(−(B − {getattr(objective, 'b_opt', 1.0):g})² / "
-            f"{getattr(objective, 'sigma_b', 0.25):g}²)   (objective f3)")
+            f"{getattr(objective, 'sigma_b', 0.25):g}²)   (objective f3{source})")
 
 
 # -- frames ---------------------------------------------------------------------------------------

@@ -46,3 +46,13 @@ def test_f3_tolerance_defaults_to_the_one_chosen_for_its_balance_source():
     for bad in ((("hang", 0.0)), ("network", -1.0), ("guess", None)):
         with pytest.raises(ValueError, match="sigma_b|balance"):
             f3_sigma_b(*bad)
+
+
+def test_the_plan_picture_says_which_balance_f3_scores():
+    from planner.inference import Objective
+    from planner.pictures import score_formula
+
+    assert score_formula(Objective("f3")).endswith("0.25²)   (objective f3)")
+    hang = score_formula(Objective("f3", balance="hang", sigma_b=0.05))
+    assert "/ 0.05²)" in hang and hang.endswith("(objective f3, B from the hang model)")
+    assert score_formula(Objective("f1", balance="hang")) == "Q = U   (objective f1)"
