@@ -8,20 +8,27 @@ swing until their joint centre of mass lies under the pivot. A load gripped a ho
 
 (moments about the pivot, small swing): ``h_load`` is how far the load's centre of mass hangs below
 the pivot and ``M_grapple`` the grapple's own mass times its centre of mass's drop below it; a
-heavier load tilts more for the same offset. ``d`` is taken from the image: the distance from the
-grasp centre to the centroid of the target union's mask (the part of each log seen from above;
-each pixel weighs the same). Both parameters are fitted to the twin's tilt of 294 successful grasps
-on held-out piles (seeds 940,000,000+, the tried grasps of docs/results/ranking-v3model-rev4); on
-393 successful grasps of other piles (seeds 970,000,000+) the model's tilt is within 2.1 deg of the
-twin's on average, rank correlation 0.92 (``python -m experiments.hang_fit``), where the network's B
-map is within 5.4-5.7 deg, rank correlation 0.19 (docs/results/README.md, "aft4").
+heavier load tilts more for the same offset.
+
+``d`` is taken from the image, along the load: the distance from the grasp centre to the centroid of
+the target union's mask (the part of each log seen from above; each pixel weighs the same), measured
+along the mask's principal axis (``offset="along_axis"``, the default). Across the logs the claws gather
+the load to the grapple's middle as they close, so an offset across them does not tilt the load; it is
+U's business (collisions, whether the claws close). The first version measured the whole distance
+(``offset="radial"``): on the first 564 piles of a 1,200-pile evaluation f3 scored with it chose grasps
+pulled sideways onto the union's centroid, between and beside its logs, and collided three to ten
+times as often as f3 on the network's B map (docs/results/README.md, "eval-*-1200").
+
+The two parameters are fitted to the twin's tilt of successful grasps on held-out piles (seeds
+940,000,000+, the tried grasps of docs/results/ranking-v3model-rev4) and checked on other piles (seeds
+970,000,000+): ``python -m experiments.hang_fit`` (docs/model.md, "The balance f3 scores").
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Literal, Sequence
 
 import numpy as np
 
@@ -34,11 +41,20 @@ class HangModel:
     #                            fitted, see the module docstring) [m]
     grapple_moment_kg_m: float = 110.0  # the grapple's mass times its centre of mass's drop below the pivot
     #                                     (fitted with load_drop_m, loads at 900 kg/m^3) [kg m]
+    offset: Literal["along_axis", "radial"] = "along_axis"  # which part of the grasp's offset from the
+    #                                     load's centroid tilts it (module docstring)
 
     def __post_init__(self) -> None:
         if not (self.load_drop_m > 0 and self.grapple_moment_kg_m >= 0):
             raise ValueError(f"HangModel needs load_drop_m > 0 and grapple_moment_kg_m >= 0, got "
                              f"{self.load_drop_m}, {self.grapple_moment_kg_m}")
+        if self.offset not in ("along_axis", "radial"):
+            raise ValueError(f"HangModel offset must be 'along_axis' or 'radial', got {self.offset!r}")
+
+    @property
+    def tag(self) -> str:
+        """What an evaluation's fingerprint records of it: its offset and parameters."""
+        return f"{self.offset}-{self.load_drop_m:g}m-{self.grapple_moment_kg_m:g}kgm"
 
     def lever_m(self, load_kg: float) -> float:
         """The offset that tilts the grapple by 45 deg for a load of ``load_kg`` [m]."""
@@ -51,6 +67,16 @@ class HangModel:
         lever = self.lever_m(load_kg)
         return lever / np.sqrt(lever ** 2 + np.square(offset_m))
 
+    def offsets_m(self, mask: np.ndarray, pixel_m: float, rows, cols) -> np.ndarray:
+        """The tilting offset [m] of grasp centres at pixel ``(rows, cols)`` (broadcast) from the load
+        whose top-down mask is ``mask`` (H, W; non-empty)."""
+        rr, cc = np.nonzero(mask)
+        dr, dc = np.asarray(rows, np.float32) - rr.mean(), np.asarray(cols, np.float32) - cc.mean()
+        if self.offset == "radial":
+            return np.float32(pixel_m) * np.hypot(dr, dc)
+        ar, ac = principal_axis(rr, cc)
+        return np.float32(pixel_m) * np.abs(dr * ar + dc * ac)
+
     def cos_beta_maps(self, subset_masks: np.ndarray, pixel_m: float, load_kg: Sequence[float]) -> np.ndarray:
         """(N, H, W) float32: cos(beta) of a grasp centred on each pixel, for each subset's mask (N, H, W)
         and load mass; 1 everywhere for an empty mask."""
@@ -60,11 +86,19 @@ class HangModel:
         rows, cols = np.arange(h, dtype=np.float32)[:, None], np.arange(w, dtype=np.float32)[None, :]
         out = np.ones((n, h, w), np.float32)
         for k in range(n):
-            rr, cc = np.nonzero(subset_masks[k])
-            if len(rr):
-                offset = np.float32(pixel_m) * np.hypot(rows - rr.mean(), cols - cc.mean())
-                out[k] = self.cos_beta(offset, float(load_kg[k]))
+            if subset_masks[k].any():
+                out[k] = self.cos_beta(self.offsets_m(subset_masks[k], pixel_m, rows, cols), float(load_kg[k]))
         return out
+
+
+def principal_axis(rr: np.ndarray, cc: np.ndarray) -> tuple[float, float]:
+    """Unit (row, col) direction of the largest spread of the pixels ``(rr, cc)``: along the logs of a
+    load (a round blob gives some direction; its offsets then hardly matter)."""
+    if len(rr) < 2:
+        return 1.0, 0.0
+    cov = np.cov(np.stack([rr, cc]).astype(np.float64))
+    vals, vecs = np.linalg.eigh(cov)
+    return float(vecs[0, -1]), float(vecs[1, -1])
 
 
 def tilt_deg(cos_beta: float) -> float:

@@ -258,8 +258,10 @@ def _fingerprint(spec: PlannerSpec) -> str:
         sha = sha256_file(Path(spec.model))
         if spec.objective == "f3" and spec.sigma_b != SIGMA_B:  # ... and with another balance tolerance
             sha += f"+sb{spec.sigma_b:g}"
-        if spec.objective == "f3" and spec.balance != "network":  # ... or another balance source
-            sha += f"+{spec.balance}"
+        if spec.objective == "f3" and spec.balance == "hang":  # ... or the hang model (its offset and parameters)
+            from planner.balance import HangModel
+
+            sha += f"+hang-{HangModel().tag}"
         if spec.views > 1:  # a record planned with other test-time views is made again, whatever its label
             sha += f"+views{spec.views}k{spec.view_spread_k:g}"
         if spec.ranker:  # ... and with another ranker or another number re-scored

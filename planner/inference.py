@@ -45,7 +45,7 @@ SIGMA_B = 0.25  # the paper's f3 balance tolerance [cos beta]
 HANG_SIGMA_B = 0.05  # f3's tolerance on the hang model's b [cos beta]: chosen on seeds 950,000,000+
 #                      (docs/results/aft4/tune-950), held out on 970,000,000+ (docs/model.md)
 BALANCE_SOURCES = ("network", "hang")  # what f3's b is (Objective.balance)
-PRODUCT_F3_BALANCE = "hang"  # f3's b in plan and the field trial; eval keeps the paper's "network"
+PRODUCT_F3_BALANCE = "network"  # f3's b in plan and the field trial (docs/model.md, "The balance f3 scores")
 
 
 def f3_sigma_b(balance: str, sigma_b: float | None = None) -> float:

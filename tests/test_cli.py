@@ -259,10 +259,12 @@ def test_plan_json_png_and_table(capsys, work, pile_dir):
 
 
 def test_plan_f3_balance_flags_reach_the_objective(capsys, pile_dir, monkeypatch):
-    """plan's f3 is the product's by default (the hang model, sigma_b 0.05); --f3-balance network
-    gives the paper's (sigma_b 0.25 unless --f3-sigma-b); the plan is scored with that objective and
-    its grasps carry that balance."""
+    """plan's f3 is the product's by default (planner.inference.PRODUCT_F3_BALANCE with its own sigma_b);
+    --f3-balance hang gives the hang model (sigma_b 0.05), network the paper's B map (0.25), unless
+    --f3-sigma-b; the plan is scored with that objective, its grasps carry that balance and the plan
+    file names it."""
     import planner.ranker as ranker
+    from planner.inference import PRODUCT_F3_BALANCE, f3_sigma_b
 
     seen, real = [], ranker.plan_reranked
 
@@ -271,12 +273,14 @@ def test_plan_f3_balance_flags_reach_the_objective(capsys, pile_dir, monkeypatch
         return real(obs, planner, objective, *a, **k)
 
     monkeypatch.setattr(ranker, "plan_reranked", spy)
-    hang = cli(capsys, "plan", pile_dir, "--objective", "f3", "--no-ranker", "--json").json()
+    cli(capsys, "plan", pile_dir, "--objective", "f3", "--no-ranker")
+    hang = cli(capsys, "plan", pile_dir, "--objective", "f3", "--f3-balance", "hang", "--no-ranker", "--json").json()
     net = cli(capsys, "plan", pile_dir, "--objective", "f3", "--f3-balance", "network", "--no-ranker", "--json").json()
     cli(capsys, "plan", pile_dir, "--objective", "f3", "--f3-balance", "network", "--f3-sigma-b", "0.1", "--no-ranker")
-    assert seen == [("hang", 0.05), ("network", 0.25), ("network", 0.1)]
-    assert hang["objective"] == {"kind": "f3", "balance": "hang", "sigma_b": 0.05}  # the file says what f3 meant
+    assert seen == [(PRODUCT_F3_BALANCE, f3_sigma_b(PRODUCT_F3_BALANCE)), ("hang", 0.05), ("network", 0.25),
+                    ("network", 0.1)]
     assert [g["balance"] for g in hang["grasps"]] != [g["balance"] for g in net["grasps"]]
+    assert hang["objective"] == {"kind": "f3", "balance": "hang", "sigma_b": 0.05}  # the file says what f3 meant
     fails(cli(capsys, "plan", pile_dir, "--f3-sigma-b", "-1"), 2, "--f3-sigma-b -1: f3's balance tolerance")
 
 

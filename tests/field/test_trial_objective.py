@@ -1,5 +1,6 @@
-"""The field trial's planning objective: f3 on the hang model by default, the paper's B map on
-request, and a record made before the hang model replayed with what it used then."""
+"""The field trial's planning objective: f3 on the product's balance source by default
+(planner.inference.PRODUCT_F3_BALANCE), the other on request, and a record made before the hang
+model replayed with what it used then."""
 
 from __future__ import annotations
 
@@ -7,13 +8,15 @@ import pytest
 
 from field.trial import TrialOptions
 from field.trial_record import recorded_options
-from planner.inference import HANG_SIGMA_B, SIGMA_B
+from planner.inference import HANG_SIGMA_B, PRODUCT_F3_BALANCE, SIGMA_B, f3_sigma_b
 from tests.cli_helpers import GNSS, SCAN, cli, fails
 
 
-def test_the_trial_scores_f3_on_the_hang_model_by_default():
+def test_the_trial_scores_f3_on_the_products_balance_by_default():
     obj = TrialOptions().objective_spec()
-    assert (obj.kind, obj.balance, obj.sigma_b) == ("f3", "hang", HANG_SIGMA_B)
+    assert (obj.kind, obj.balance, obj.sigma_b) == ("f3", PRODUCT_F3_BALANCE, f3_sigma_b(PRODUCT_F3_BALANCE))
+    hang = TrialOptions(f3_balance="hang").objective_spec()
+    assert (hang.balance, hang.sigma_b) == ("hang", HANG_SIGMA_B)
     net = TrialOptions(f3_balance="network").objective_spec()
     assert (net.balance, net.sigma_b) == ("network", SIGMA_B)
     assert TrialOptions(f3_sigma_b=0.1).objective_spec().sigma_b == 0.1
@@ -43,9 +46,10 @@ def test_the_trial_flags_reach_the_options(capsys, work, monkeypatch):
         raise KeyboardInterrupt
 
     monkeypatch.setattr(trial_record, "run_trial_record", stop)
-    for extra in ([], ["--f3-balance", "network", "--f3-sigma-b", "0.2"]):
+    for extra in ([], ["--f3-balance", "hang"], ["--f3-balance", "network", "--f3-sigma-b", "0.2"]):
         cli(capsys, "trial", "--scan", SCAN, "--gnss", GNSS, "--link", "twin://", "--record",
             work / f"t{len(seen)}", "--yes", *extra)
-    assert [(o.f3_balance, o.objective_spec().sigma_b) for o in seen] == [("hang", HANG_SIGMA_B), ("network", 0.2)]
+    assert [(o.f3_balance, o.objective_spec().sigma_b) for o in seen] == [
+        (PRODUCT_F3_BALANCE, f3_sigma_b(PRODUCT_F3_BALANCE)), ("hang", HANG_SIGMA_B), ("network", 0.2)]
     fails(cli(capsys, "trial", "--scan", SCAN, "--gnss", GNSS, "--link", "twin://", "--record", work / "t9",
               "--f3-sigma-b", "0"), 2, "--f3-sigma-b 0")
