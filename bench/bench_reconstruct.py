@@ -17,8 +17,9 @@ import sys
 from pathlib import Path
 
 from experiments.reconstruct_bench import markdown, real_test, real_test_markdown
-from experiments.survey_conditions import (compare_markdown, read_survey_records, survey_bench, survey_figure,
-                                           survey_markdown, survey_pairs_key, survey_set_key, SurveyBenchInputError)
+from experiments.survey_conditions import (read_survey_records, survey_bench, survey_pairs_key, survey_set_key,
+                                           SurveyBenchInputError)
+from experiments.survey_report import compare_markdown, survey_figure, survey_markdown
 
 __all__ = ["markdown"]
 

@@ -209,3 +209,16 @@ def test_versioned_json_is_checked_in_one_place():
                 bad.append(rel)
     assert not bad, (f"{bad} check format_version by hand; declare a synth.common.formats.VersionedJson and use "
                      "its read / check")
+
+
+#: how long a module may grow (STYLE.md: one concern each, at most 600 lines)
+MAX_MODULE_LINES = 600
+
+
+def test_every_module_is_at_most_600_lines():
+    """A module past 600 lines holds more than one concern: split it by concern (e.g.
+    experiments.survey_conditions runs the bench, experiments.survey_report reports it)."""
+    roots = [ROOT / p for p in (*PACKAGES, "bench", "scripts", "tests")]
+    long = {str(f.relative_to(ROOT)): n for r in roots for f in r.rglob("*.py")
+            if (n := len(f.read_text().splitlines())) > MAX_MODULE_LINES}
+    assert not long, f"modules over {MAX_MODULE_LINES} lines: {long}"

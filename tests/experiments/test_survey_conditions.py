@@ -4,8 +4,8 @@ import json
 
 import pytest
 
-from experiments.survey_conditions import (SURVEY_CONDITIONS, _seed_ranges, read_survey_records, survey_markdown,
-                                           survey_summary)
+from experiments.survey_conditions import SURVEY_CONDITIONS, read_survey_records
+from experiments.survey_report import seed_ranges, survey_markdown, survey_summary
 
 KEY = {"seed0": 10, "logs": [3, 7], "obstacles": [0, 3], "fit_revision": 11}
 
@@ -66,8 +66,8 @@ def test_records_of_other_settings_are_left_out(tmp_path):
 
 
 def test_seed_ranges_show_the_gaps():
-    assert _seed_ranges({"scans": [{"seed": s} for s in (5, 3, 4, 9, 11, 10)]}) == "3..5, 9..11"
-    assert _seed_ranges({"scans": []}) == "-"
+    assert seed_ranges({"scans": [{"seed": s} for s in (5, 3, 4, 9, 11, 10)]}) == "3..5, 9..11"
+    assert seed_ranges({"scans": []}) == "-"
 
 
 def test_a_cloud_fingerprint_tells_two_scans_apart():
@@ -162,7 +162,7 @@ def test_a_loose_shape_scatters_the_pile():
 
 
 def test_estimators_are_compared_on_the_scans_they_share(tmp_path):
-    from experiments.survey_conditions import compare_markdown, compare_summary
+    from experiments.survey_report import compare_markdown, compare_summary
 
     blind = _log(30, 0.5, sources=("float", "scan"), scan=("open", "seen"), sigma_cm=(20, 1.5))
     a = [{**_scan(10, {"fixed": _ok(_log(1, 0.2)), "degraded": _ok(blind)}), "cloud_sha256": "x"},

@@ -10,8 +10,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from experiments.survey_conditions import (cloud_fingerprint, compare_markdown, compare_summary, read_survey_records,
-                                           survey_markdown, survey_summary)
+from experiments.survey_conditions import cloud_fingerprint, read_survey_records
+from experiments.survey_report import compare_markdown, compare_summary, survey_markdown, survey_summary
 from experiments.survey_rescore import RescoreError, rescore_obstacles
 from synth.scene.pile import LogSpec, PileSpec, StumpSpec, TerrainSpec, write_pile
 
