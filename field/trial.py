@@ -89,8 +89,8 @@ REJECT_EXPLANATIONS = {
 @dataclass(frozen=True)
 class TrialOptions:
     objective: Literal["f1", "f2", "f3"] = "f3"
-    f3_balance: Literal["network", "hang"] = PRODUCT_F3_BALANCE  # f3's b: the tilt the load will hang with
-    #                                                             (planner.balance) or the network's B map
+    f3_balance: Literal["network", "hang"] = PRODUCT_F3_BALANCE  # f3's b: the network's B map or the tilt the
+    #                                                             load will hang with (planner.balance)
     f3_sigma_b: float | None = None  # f3's balance tolerance [cos beta]; None = the source's (0.05 hang, 0.25 network)
     model: str | None = None  # checkpoint; None = the shipped default
     views: int = 1  # dihedral views the planner averages (1, 2, 4, 8; planning time grows with it) [-]

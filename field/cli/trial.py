@@ -15,8 +15,8 @@ from field.cli.options import (BASE_HELP, MAX_PILE_AGE, MAX_REACH, NO_RANKER, NO
                                 trial_options, twin_url, verify_fields)
 from field.link.cli import INSECURE_LINK, link_security_note, secured_link
 from field.trial import TrialOptions
+from planner.cli import F3_SIGMA_B, MODEL, OBJECTIVE_HELP, VIEW_SPREAD, VIEWS, f3_balance_option, f3_objective
 from planner.inference import PRODUCT_F3_BALANCE
-from planner.cli import F3_SIGMA_B, MODEL, f3_objective, OBJECTIVE_HELP, VIEW_SPREAD, VIEWS, f3_balance_option
 from reconstruct.cli import gnss_crs_warning
 from reconstruct.survey.cli import GNSS_HELP, GNSS_WINDOWS_HELP, gnss_source
 from synth.cli import JSON

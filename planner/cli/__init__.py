@@ -49,8 +49,8 @@ F3_SIGMA_B = option("--f3-sigma-b", "f3's balance tolerance sigma_b in Q = u tau
 
 def f3_balance_option(default: str, note: str = "") -> Any:
     return option("--f3-balance", "What f3's b is: network (the B map, the paper's) or hang (the tilt the load "
-                  "will hang with, from its mask and mass: planner.balance; it keeps f3's grasps level at no "
-                  f"cost in success, docs/model.md).{note}", default=default, metavar="network|hang")
+                  "will hang with, from its mask and mass: planner.balance; it keeps f3's loads level, "
+                  f"docs/model.md).{note}", default=default, metavar="network|hang")
 
 
 def f3_objective(kind: str, balance: str, sigma_b: float | None) -> Objective:
