@@ -68,6 +68,11 @@ def test_a_ridge_that_is_not_straight_predicts_its_axis_less_surely():
     assert straight.height.scatter_m == pytest.approx(CFG.ridge_line_sigma_floor_m)
     assert hump.height.scatter_m > 0.08
     assert hump.height_var_m2(2.15) > 0.08 ** 2 > 10 * straight.height_var_m2(2.15)
+    # a vaguer prediction explains less: a point right on the hump's line costs more than one on the straight's
+    on_hump = point_cost(_fixed(0.0, 0.0, 0.09 + hump.height_m(0.0)), ridge, True, CFG, FCFG, line=hump, unseen=False)
+    on_straight = point_cost(_fixed(0.0, 0.0, 0.09 + straight.height_m(0.0)), ridge, True, CFG, FCFG, line=straight,
+                             unseen=False)
+    assert on_hump > on_straight + 0.5
 
 
 def test_a_fixed_end_past_a_short_tilted_ridge_is_no_outlier_against_its_chunk_line():
@@ -82,6 +87,10 @@ def test_a_fixed_end_past_a_short_tilted_ridge_is_no_outlier_against_its_chunk_l
     assert point_cost(a, ridge, True, CFG, FCFG, outlier_prob=True, line=no_shift) > CFG.outlier_flag_prob
     off = replace(CFG, ridge_chunk_line=False)
     assert point_cost(a, ridge, True, off, FCFG, outlier_prob=True, line=line) == pytest.approx(alone)
+    # the same 6 cm off the line is a weaker test 1.17 m past the ridge's start than at it (its direction unsure)
+    far, near = _fixed(-1.17, line.lateral_m(-1.17) + 0.06), _fixed(0.0, line.lateral_m(0.0) + 0.06)
+    assert (point_cost(far, ridge, True, CFG, FCFG, line=line, unseen=False)
+            < point_cost(near, ridge, True, CFG, FCFG, line=line, unseen=False) - 0.2)
 
 
 def test_a_log_laid_on_a_scrap_pays_for_its_unseen_run_though_its_far_point_is_an_outlier():
