@@ -189,7 +189,8 @@ def run_on_evidence_nats(e: SurveyEnd, other: SurveyEnd, log: ScanLog, at_start:
         f = (c.t_m - te) / (to - te)
         r_lat = c.lateral_m - (le + (lo - le) * f)
         r_z = float(p0[2] + (p1[2] - p0[2]) * c.t_m / L) + c.height_m - (ze + (zo - ze) * f)
-        gauss = math.exp(-0.5 * min(r_lat * r_lat / sh2 + r_z * r_z / sv2, CHI2_CAP)) / (2 * math.pi * math.sqrt(sh2 * sv2))
+        chi2 = min(r_lat * r_lat / sh2 + r_z * r_z / sv2, CHI2_CAP)
+        gauss = math.exp(-0.5 * chi2) / (2 * math.pi * math.sqrt(sh2 * sv2))
         total += math.log(uniform) - math.log((1 - eps) * gauss + eps * uniform)
     return total
 

@@ -1,6 +1,6 @@
-"""What the scan itself says about a ridge, for the joint matching (issue 37, step 2; joint revision 15).
+"""What the scan itself says about a ridge, for the joint matching (issue 37, step 2; joint revisions 15-16).
 
-Two pieces of evidence the assignment's costs lacked (docs/reconstruction.md, "Joint revision 15"):
+Evidence the assignment's costs lacked (docs/reconstruction.md, "Joint revision 15", "Joint revision 16"):
 
 - **The ridge's radius.** A ridge's radius comes from one cross-section profile of its whole run
   (:func:`reconstruct.fitting.scan_logs.profile_radius`). The same profile fitted on chunks of the run
@@ -15,11 +15,13 @@ Two pieces of evidence the assignment's costs lacked (docs/reconstruction.md, "J
 - **Where the ridge's axis runs** (joint revision 16). The whole run's axis is one straight line: the principal
   direction of its ridge pixels, its height a robust line through their tops. The chunks' profile circles say
   where the axis is chunk by chunk; the Bayesian line through their centres (:class:`RidgeLine`, across and in
-  height, about the whole run's axis, which is its prior) corrects the run's direction (a short ridge's pixels tilt it by a
-  few degrees: 10 cm at a fixed end a metre past it) and, through its residuals, says how straight the ridge
-  is: a ridge that is one log over part of its run and something else over the rest predicts its axis badly,
-  and a point measured against it is a weaker test. A survey point is measured against that line, its
-  prediction's variance (:meth:`RidgeLine.lateral_var_m2`, :meth:`RidgeLine.height_var_m2`) added to its own.
+  height, about the whole run's axis, which is its prior) corrects the run's direction (a short ridge's pixels
+  tilt it by a few degrees: 10 cm at a fixed end a metre past it) and, through its residuals, says how straight
+  the ridge is: a ridge that is one log over part of its run and something else over the rest predicts its
+  axis badly, and a point measured against it is a weaker test. A survey point is measured against that line,
+  its prediction's variance (:meth:`RidgeLine.lateral_var_m2`, :meth:`RidgeLine.height_var_m2`) added to its
+  own. The chunks past a point inside the ridge also say whether the ridge runs on as the log or as something
+  else (:func:`reconstruct.fitting.joint_match.run_on_evidence_nats`).
 """
 
 from __future__ import annotations
@@ -222,8 +224,8 @@ def ridge_evidence(points_m: np.ndarray, scan_logs: Sequence[ScanLog], cfg: Join
     """The scan's evidence about its ridges (see the module docstring), for the terms ``cfg`` switches on
     (``fcfg``: the axis sigmas of the chunk lines' prior)."""
     P = np.asarray(points_m, dtype=float)
-    chunks = [chunk_profiles(P, log, cfg) if cfg.ridge_radius_evidence or cfg.ridge_chunk_line or cfg.run_on_chunks else []
-              for log in scan_logs]
+    chunked = cfg.ridge_radius_evidence or cfg.ridge_chunk_line or cfg.run_on_chunks
+    chunks = [chunk_profiles(P, log, cfg) if chunked else [] for log in scan_logs]
     sig = tuple(radius_sigma([c.radius_m for c in ch], log.radius_m, cfg) if cfg.ridge_radius_evidence else
                 cfg.ridge_radius_sigma_prior_m for ch, log in zip(chunks, scan_logs))
     lines = tuple(ridge_line(ch, log, cfg, fcfg) for ch, log in zip(chunks, scan_logs)) if cfg.ridge_chunk_line else ()
