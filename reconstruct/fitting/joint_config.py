@@ -282,16 +282,19 @@ class JointConfig:
     #                                 no residual to say how straight the ridge is) [-]
     ridge_line_sigma_floor_m: float = 0.005  # ... the chunk centres' scatter about their line taken as at least
     #                                          this: two profile grid steps (2.5 mm), as ridge_radius_sigma_floor_m [m]
-    laid_unseen: bool = True  # a two-point log's run past its ridge's ends, unseen, is paid by the log laid along
-    #                           the ridge (joint_match.laid_nats, unseen_nats_per_m a metre, as its open ground
-    #                           is), outside its points' outlier mixture: a log on a 10 cm scrap with its far
-    #                           point an outlier pays for the 2 m of it the scan does not show. Off (revision 15):
-    #                           each point paid for the run to it, nothing once it was an outlier [-]
-    run_on_chunks: bool = True  # a point inside a ridge (the ridge running on past it) is tested against the
-    #                             ridge's chunks past it (joint_match.run_on_evidence_nats): chunks off the
-    #                             line through the log's two points are something else in line (the point is
-    #                             the log's end), chunks on it are the log running on (the point is wrong).
-    #                             Off (revision 15): only the run-on's length said which [-]
+    laid_unseen: bool = True  # a two-point log's run past its ridge's ends that none of its points reaches is
+    #                           paid by the log laid along the ridge (joint_match.laid_nats, unseen_nats_per_m a
+    #                           metre, as its open ground is), outside its points' outlier mixture: a log on a
+    #                           10 cm scrap with its far point an outlier pays for the 2 m of it the scan does not
+    #                           show. Off (revision 15): each point paid for the run to it, nothing once it was an
+    #                           outlier [-]
+    run_on_chunks: bool = False  # a point inside a ridge (the ridge running on past it) is tested against the
+    #                              ridge's chunks past it (joint_match.run_on_evidence_nats): chunks off the
+    #                              line through the log's two points are something else in line (the point is
+    #                              the log's end), chunks on it the log running on (the point is wrong). Off by
+    #                              default: on the fresh set's 3300116 it keeps the fixed end in the matching but
+    #                              the end model still moves it, and with the chunk line it refused a degraded
+    #                              scan revision 15 placed (docs/reconstruction.md, "Joint revision 16") [-]
     ridge_direction_sigma_m: float = 0.02  # the line's prior: the whole run's direction is right within this over
     #                                        its seen length (the run's axis within FuseConfig axis_sigma_m across,
     #                                        radius_sigma_m in height). On the tuning seeds' 385 ridges on true

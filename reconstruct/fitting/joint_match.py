@@ -41,7 +41,7 @@ from reconstruct.fitting.joint_pose import pose_offset, shifted
 from reconstruct.fitting.joint_ridge import (ChunkProfile, HeightRaster, RidgeEvidence, RidgeLine, not_one_log_nats,
                                              open_length_m)
 from reconstruct.fitting.matching import Match, _ambiguity
-from reconstruct.fitting.scan_logs import PROFILE_CENTRE_TOLERANCE_M, ScanLog
+from reconstruct.fitting.scan_logs import PROFILE_CENTRE_TOLERANCE_M, PROFILE_PRIOR_DEPTH_M, ScanLog
 from reconstruct.fitting.survey_points import SurveyEnd
 
 IMPOSSIBLE = 1e9  # the assignment's cost of a pair that cannot be chosen [nats]
@@ -64,14 +64,12 @@ class JointMatching:
 
 
 def point_cost(e: SurveyEnd, log: ScanLog, at_start: bool, cfg: JointConfig, fcfg: FuseConfig,
-               outlier_prob: bool = False, line: RidgeLine | None = None, unseen: bool = True,
-               run_on_evidence: float = 0.0) -> float:
+               outlier_prob: bool = False, line: RidgeLine | None = None, run_on_evidence: float = 0.0) -> float:
     """-log of a survey point's likelihood as end ``at_start`` (else end) of ``log``, relative to a perfect point:
     the robust mixture of its Gaussian (across the axis, vertically, and inside the seen ridge) and the outlier
     (``outlier_prob``: the posterior probability of the outlier component instead). With ``line`` (the ridge's
     chunk line, :class:`~reconstruct.fitting.joint_ridge.RidgeLine`), across and vertically against that line,
     its prediction's variance added (and its density's lower peak paid: a vaguer prediction explains less).
-    ``unseen`` False: the log's unseen run past the ridge's end is not this point's to pay (:func:`laid_nats`);
     ``run_on_evidence``: what the ridge's chunks past the point say for its running on onto something else
     [nats] (:func:`run_on_evidence_nats`), taken off the run-on's cost (never below a ridge ending there)."""
     p0, p1 = log.start_m, log.end_m
@@ -99,7 +97,7 @@ def point_cost(e: SurveyEnd, log: ScanLog, at_start: bool, cfg: JointConfig, fcf
     inside = max(0.0, t) if at_start else max(0.0, L - t)
     inside = max(0.0, min(inside, L) - cfg.ridge_overrun_m)
     # past the ridge's end the log runs on unseen (under others) to the point: the farther, the less likely
-    beyond = (max(0.0, -t) if at_start else max(0.0, t - L)) if unseen else 0.0
+    beyond = max(0.0, -t) if at_start else max(0.0, t - L)
     run_on = max(0.0, run_on_nats(inside, sh, cfg) - run_on_evidence) if inside > 0 else 0.0
     chi2 = min(lat * lat + vert * vert + spread + 2.0 * run_on
                + 2.0 * cfg.unseen_nats_per_m * max(0.0, beyond - cfg.ridge_overrun_m), CHI2_CAP)
@@ -128,12 +126,14 @@ def laid_nats(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, ras
     """What the surveyed log placed on ``log``'s ridge costs along its length [nats], whichever of its two
     layings (:func:`_layings`) is cheaper: the open ground under it past the ridge's ends (beyond
     ``ridge_overrun_m``), ``coverage_nats_per_m`` a metre, and (with ``laid_unseen``) the rest of its run past
-    them, unseen, ``unseen_nats_per_m`` a metre. Both are outside the points' outlier mixture: a point far off
-    the ridge (an outlier) still says the log is that long, so a log on a short scrap pays for the length the
-    scan does not show it (open ground, or nothing). 0 for a log of one point."""
+    them that no point of it reaches, ``unseen_nats_per_m`` a metre (a point past the ridge's end pays for the
+    run to it in its own cost, :func:`point_cost`). Both are outside the points' outlier mixture: a point far
+    off the ridge (an outlier) still says the log is that long, so a log on a short scrap pays for the length
+    the scan does not show it (open ground, or nothing). 0 for a log of one point."""
     if ends[0] is None or ends[1] is None or not (cfg.laid_unseen or (cfg.ridge_coverage and raster is not None)):
         return 0.0
     L, over = max(log.length_m, 1e-6), cfg.ridge_overrun_m
+    reached = _points_past_m(ends, log, over) if cfg.laid_unseen else 0.0
     best = math.inf
     for lo, hi in _layings(ends, log):
         open_m = 0.0
@@ -143,9 +143,19 @@ def laid_nats(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, ras
         cost = cfg.coverage_nats_per_m * open_m
         if cfg.laid_unseen:
             past = max(0.0, min(hi, -over) - lo) + max(0.0, hi - max(lo, L + over))
-            cost += cfg.unseen_nats_per_m * max(0.0, past - open_m)
+            cost += cfg.unseen_nats_per_m * max(0.0, past - open_m - reached)
         best = min(best, cost)
     return best
+
+
+def _points_past_m(ends: tuple[SurveyEnd, SurveyEnd], log: ScanLog, overrun_m: float) -> float:
+    """How far past the ridge's ends (beyond ``overrun_m``) the log's points lie, together [m]: the run they
+    pay for themselves."""
+    p0 = log.start_m[:2]
+    L = max(log.length_m, 1e-6)
+    u = (log.end_m[:2] - p0) / L
+    t = [float((e.position_m[:2] - p0) @ u) for e in ends]
+    return sum(max(0.0, -x - overrun_m) + max(0.0, x - L - overrun_m) for x in t)
 
 
 def coverage_nats(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, raster: HeightRaster | None,
@@ -154,19 +164,16 @@ def coverage_nats(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog,
     return laid_nats(ends, log, raster, replace(cfg, laid_unseen=False))
 
 
-def _laid(ends: tuple[SurveyEnd | None, SurveyEnd | None], cfg: JointConfig) -> bool:
-    """Whether the log's run past the ridge is paid by the laid log (:func:`laid_nats`), not by its points."""
-    return cfg.laid_unseen and ends[0] is not None and ends[1] is not None
-
-
 def run_on_evidence_nats(e: SurveyEnd, other: SurveyEnd, log: ScanLog, at_start: bool,
                          chunks: Sequence[ChunkProfile], cfg: JointConfig, fcfg: FuseConfig) -> float:
     """What the ridge's chunks past survey point ``e`` (end ``at_start`` of ``log``; more than
     ``ridge_overrun_m`` past it, inside the ridge) say for the ridge running on onto something else rather than
     the log running on [nats]: per chunk, the log-likelihood ratio of its circle's centre anywhere in the
-    profile's centre search (uniform) against its lying on the line through the log's two points (a Gaussian of
-    ``e``'s sigmas, mixed with ``outlier_prior`` of the uniform: a chunk fitted astray), summed. Positive where
-    the chunks leave the log's line, negative where they follow it."""
+    profile's centre search (uniform over its window) against its lying on the line through the log's two points
+    (a Gaussian of ``e``'s sigmas, the search window's share of it renormalised - a log's circle is only found
+    inside the window - mixed with ``outlier_prior`` of the uniform: a chunk fitted astray), summed. Positive
+    where the chunks leave the log's line, negative where they follow it, about 0 where the points' sigmas are
+    wider than the window (float points draw no line a chunk can test)."""
     if not cfg.run_on_chunks or not chunks:
         return 0.0
     p0, p1 = log.start_m, log.end_m
@@ -178,21 +185,31 @@ def run_on_evidence_nats(e: SurveyEnd, other: SurveyEnd, log: ScanLog, at_start:
     if abs(to - te) < cfg.ridge_overrun_m:
         return 0.0
     ze, zo = float(e.position_m[2]), float(other.position_m[2])
-    sh2 = e.sigma_h_m ** 2 + cfg.pose_sigma_m ** 2 + fcfg.axis_sigma_m ** 2 + cfg.ridge_line_sigma_floor_m ** 2
-    sv2 = e.sigma_v_m ** 2 + cfg.pose_sigma_m ** 2 + fcfg.radius_sigma_m ** 2 + cfg.ridge_line_sigma_floor_m ** 2
-    uniform = 1.0 / (2.0 * PROFILE_CENTRE_TOLERANCE_M) ** 2
+    floor2 = cfg.ridge_line_sigma_floor_m ** 2
+    s_lat = math.sqrt(e.sigma_h_m ** 2 + cfg.pose_sigma_m ** 2 + fcfg.axis_sigma_m ** 2 + floor2)
+    s_z = math.sqrt(e.sigma_v_m ** 2 + cfg.pose_sigma_m ** 2 + fcfg.radius_sigma_m ** 2 + floor2)
+    tol = PROFILE_CENTRE_TOLERANCE_M
+    h_mid = log.radius_m - PROFILE_PRIOR_DEPTH_M  # the search window's middle in height about the run's axis
+    log_uniform = -2.0 * math.log(2.0 * tol)
     eps = cfg.outlier_prior
     total = 0.0
     for c in chunks:
         if (c.t_m > te - cfg.ridge_overrun_m) if at_start else (c.t_m < te + cfg.ridge_overrun_m):
             continue
         f = (c.t_m - te) / (to - te)
-        r_lat = c.lateral_m - (le + (lo - le) * f)
-        r_z = float(p0[2] + (p1[2] - p0[2]) * c.t_m / L) + c.height_m - (ze + (zo - ze) * f)
-        chi2 = min(r_lat * r_lat / sh2 + r_z * r_z / sv2, CHI2_CAP)
-        gauss = math.exp(-0.5 * chi2) / (2 * math.pi * math.sqrt(sh2 * sv2))
-        total += math.log(uniform) - math.log((1 - eps) * gauss + eps * uniform)
+        mu_lat = le + (lo - le) * f
+        mu_h = ze + (zo - ze) * f - float(p0[2] + (p1[2] - p0[2]) * c.t_m / L)
+        share = _window_share(mu_lat, s_lat, -tol, tol) * _window_share(mu_h, s_z, h_mid - tol, h_mid + tol)
+        chi2 = min(((c.lateral_m - mu_lat) / s_lat) ** 2 + ((c.height_m - mu_h) / s_z) ** 2, CHI2_CAP)
+        gauss = math.exp(-0.5 * chi2) / (2 * math.pi * s_lat * s_z * max(share, 1e-12))
+        total += log_uniform - math.log((1 - eps) * gauss + eps * math.exp(log_uniform))
     return total
+
+
+def _window_share(mu_m: float, sigma_m: float, lo_m: float, hi_m: float) -> float:
+    """The share of a Gaussian (``mu_m``, ``sigma_m``) between ``lo_m`` and ``hi_m``."""
+    k = 1.0 / (sigma_m * math.sqrt(2.0))
+    return 0.5 * (math.erf((hi_m - mu_m) * k) - math.erf((lo_m - mu_m) * k))
 
 
 def run_on_nats(inside_m: float, sigma_m: float, cfg: JointConfig) -> float:
@@ -228,8 +245,9 @@ def point_costs(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, r
                 fcfg: FuseConfig, outlier_prob: bool = False, line: RidgeLine | None = None,
                 chunks: Sequence[ChunkProfile] = ()) -> dict[int, float]:
     """Each surveyed point's :func:`point_cost` on ``log`` (its end a at the scan log's end with ``rev``), by
-    its index (0: a, 1: b), with the log's other terms decided as :func:`pair_cost` decides them."""
-    laid = _laid(ends, cfg)
+    its index (0: a, 1: b), with the log's other terms decided as :func:`pair_cost` decides them. The chunks'
+    evidence past a point (:func:`run_on_evidence_nats`) tests them against the line through the log's two
+    points: it counts as much as the other point is not an outlier there (an outlying point draws no line)."""
     out = {}
     for k, e in enumerate(ends):
         if e is None:
@@ -237,7 +255,9 @@ def point_costs(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, r
         at_start = (k == 0) != rev
         other = ends[1 - k]
         ev = 0.0 if other is None else run_on_evidence_nats(e, other, log, at_start, chunks, cfg, fcfg)
-        out[k] = point_cost(e, log, at_start, cfg, fcfg, outlier_prob, line, not laid, ev)
+        if ev:  # the log's line is through the other point only as far as that point is believed on this ridge
+            ev *= 1.0 - point_cost(other, log, not at_start, cfg, fcfg, True, line)
+        out[k] = point_cost(e, log, at_start, cfg, fcfg, outlier_prob, line, ev)
     return out
 
 

@@ -19,6 +19,7 @@ from reconstruct.fitting.scan_logs import PROFILE_CENTRE_TOLERANCE_M, ScanLog
 from reconstruct.fitting.survey_points import SurveyEnd
 
 CFG, FCFG = JointConfig(), FuseConfig()
+RUN_ON = replace(CFG, run_on_chunks=True)  # the chunks' run-on evidence is opt-in
 R_M = 0.09  # the ridges' radius [m]
 
 
@@ -69,9 +70,8 @@ def test_a_ridge_that_is_not_straight_predicts_its_axis_less_surely():
     assert hump.height.scatter_m > 0.08
     assert hump.height_var_m2(2.15) > 0.08 ** 2 > 10 * straight.height_var_m2(2.15)
     # a vaguer prediction explains less: a point right on the hump's line costs more than one on the straight's
-    on_hump = point_cost(_fixed(0.0, 0.0, 0.09 + hump.height_m(0.0)), ridge, True, CFG, FCFG, line=hump, unseen=False)
-    on_straight = point_cost(_fixed(0.0, 0.0, 0.09 + straight.height_m(0.0)), ridge, True, CFG, FCFG, line=straight,
-                             unseen=False)
+    on_hump = point_cost(_fixed(0.0, 0.0, 0.09 + hump.height_m(0.0)), ridge, True, CFG, FCFG, line=hump)
+    on_straight = point_cost(_fixed(0.0, 0.0, 0.09 + straight.height_m(0.0)), ridge, True, CFG, FCFG, line=straight)
     assert on_hump > on_straight + 0.5
 
 
@@ -87,10 +87,11 @@ def test_a_fixed_end_past_a_short_tilted_ridge_is_no_outlier_against_its_chunk_l
     assert point_cost(a, ridge, True, CFG, FCFG, outlier_prob=True, line=no_shift) > CFG.outlier_flag_prob
     off = replace(CFG, ridge_chunk_line=False)
     assert point_cost(a, ridge, True, off, FCFG, outlier_prob=True, line=line) == pytest.approx(alone)
-    # the same 6 cm off the line is a weaker test 1.17 m past the ridge's start than at it (its direction unsure)
-    far, near = _fixed(-1.17, line.lateral_m(-1.17) + 0.06), _fixed(0.0, line.lateral_m(0.0) + 0.06)
-    assert (point_cost(far, ridge, True, CFG, FCFG, line=line, unseen=False)
-            < point_cost(near, ridge, True, CFG, FCFG, line=line, unseen=False) - 0.2)
+    # 6 cm off the line 1.17 m past the ridge's start is a weaker test than the line's mean alone makes it (the
+    # line's direction is unsure there)
+    far = _fixed(-1.17, line.lateral_m(-1.17) + 0.06)
+    sure = replace(line, lateral=replace(line.lateral, cov=((0.0, 0.0), (0.0, 0.0)), scatter_m=0.0))
+    assert point_cost(far, ridge, True, CFG, FCFG, line=line) < point_cost(far, ridge, True, CFG, FCFG, line=sure) - 0.3
 
 
 def test_a_log_laid_on_a_scrap_pays_for_its_unseen_run_though_its_far_point_is_an_outlier():
@@ -101,13 +102,17 @@ def test_a_log_laid_on_a_scrap_pays_for_its_unseen_run_though_its_far_point_is_a
     assert laid == pytest.approx(CFG.unseen_nats_per_m * (math.hypot(0.5, 3.0) - 1.05 - CFG.ridge_overrun_m), rel=0.02)
     assert laid_nats(ends, scrap, None, replace(CFG, laid_unseen=False)) == 0.0
     assert laid_nats((ends[0], None), scrap, None, CFG) == 0.0
-    # on its own ridge (1.5 m, its fixed end a 0.6 m before it, b 0.9 m after) the log pays for both runs
+    # on its own ridge (1.5 m, its fixed end a 0.6 m before it, b 0.9 m after) its points reach both runs and pay
+    # for them themselves: the laid log adds nothing
     own = _ridge(0.0, 1.5, y=1.0)
     on_own = (_fixed(-0.6, 1.0), _fixed(2.4, 1.0))
-    assert laid_nats(on_own, own, None, CFG) == pytest.approx(CFG.unseen_nats_per_m * (0.5 + 0.8), rel=0.02)
-    # the points then do not pay for it again
-    assert point_cost(on_own[0], own, True, CFG, FCFG, unseen=False) < 0.5
-    assert point_cost(on_own[0], own, True, CFG, FCFG) > 2.0
+    assert laid_nats(on_own, own, None, CFG) == pytest.approx(0.0, abs=1e-6)
+    assert point_cost(on_own[0], own, True, CFG, FCFG) > CFG.unseen_nats_per_m * 0.5 - 0.1
+    # a point that stops short of where the laid log runs leaves the rest to it: b 1.4 m across the ridge's end,
+    # the log laid from a its surveyed length runs 0.32 m past the ridge's other end, which no point reaches
+    short = (_fixed(-0.6, 1.0), _float(1.5, 2.4))
+    beyond_m = math.hypot(2.1, 1.4) - 0.6 - 1.5 - CFG.ridge_overrun_m
+    assert laid_nats(short, own, None, CFG) == pytest.approx(CFG.unseen_nats_per_m * beyond_m, rel=0.02)
 
 
 def test_a_log_takes_its_own_short_ridge_not_a_scrap_its_float_point_calls_wrong():
@@ -137,12 +142,12 @@ def test_chunks_past_a_point_off_the_logs_line_say_the_ridge_runs_on_onto_someth
     on_log = [ChunkProfile(t, 0.0, -0.18 + slope * t, R_M) for t in (0.25, 0.75, 1.25, 1.75)]
     past_off = [ChunkProfile(t, 0.0, h, R_M) for t, h in ((2.63, -0.08), (3.11, -0.15))]
     past_on = [ChunkProfile(t, 0.0, -0.18 + slope * t, R_M) for t in (2.63, 3.11)]
-    off = run_on_evidence_nats(a, b, ridge, False, on_log + past_off, CFG, FCFG)
-    on = run_on_evidence_nats(a, b, ridge, False, on_log + past_on, CFG, FCFG)
+    off = run_on_evidence_nats(a, b, ridge, False, on_log + past_off, RUN_ON, FCFG)
+    on = run_on_evidence_nats(a, b, ridge, False, on_log + past_on, RUN_ON, FCFG)
     assert off == pytest.approx(-2 * math.log(CFG.outlier_prior), rel=0.05)  # each chunk as sure as a wrong point
     assert on < -2.0
     # the chunks on the log's own side of the point say nothing about its running on
-    assert run_on_evidence_nats(a, b, ridge, False, on_log, CFG, FCFG) == 0.0
+    assert run_on_evidence_nats(a, b, ridge, False, on_log, RUN_ON, FCFG) == 0.0
     # end a, 1.2 m inside the ridge: an outlier by the run-on's length alone, not where the ridge leaves its line
     alone = point_cost(a, ridge, False, CFG, FCFG, outlier_prob=True)
     assert alone > CFG.outlier_flag_prob
@@ -151,8 +156,10 @@ def test_chunks_past_a_point_off_the_logs_line_say_the_ridge_runs_on_onto_someth
     # never cheaper than a ridge ending at the point
     assert point_cost(a, ridge, False, CFG, FCFG, run_on_evidence=100.0) >= point_cost(
         _fixed(3.35, 0.0, 0.09 + 0.16), ridge, False, CFG, FCFG) - 1e-9
-    assert run_on_evidence_nats(a, b, ridge, False, on_log + past_off, replace(CFG, run_on_chunks=False),
-                                FCFG) == 0.0
+    assert run_on_evidence_nats(a, b, ridge, False, on_log + past_off, CFG, FCFG) == 0.0  # off by default
+    # float points (20 cm across, 50 up) draw no line the 30 cm search window can test: the chunks say little
+    fa, fb = SurveyEnd(a.position_m, 0.2, 0.5, "rtk_float"), SurveyEnd(b.position_m, 0.2, 0.5, "rtk_float")
+    assert abs(run_on_evidence_nats(fa, fb, ridge, False, on_log + past_on, RUN_ON, FCFG)) < 1.0
 
 
 def test_revision_16s_parameters_are_checked():
