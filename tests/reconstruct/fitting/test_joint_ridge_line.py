@@ -13,7 +13,7 @@ import pytest
 
 from reconstruct.fitting.fuse_config import FuseConfig
 from reconstruct.fitting.joint_config import JointConfig
-from reconstruct.fitting.joint_match import joint_match, laid_nats, point_cost, run_on_evidence_nats
+from reconstruct.fitting.joint_match import joint_match, laid_nats, point_cost, point_costs, run_on_evidence_nats
 from reconstruct.fitting.joint_ridge import ChunkProfile, RidgeEvidence, ridge_line, usable_chunks
 from reconstruct.fitting.scan_logs import PROFILE_CENTRE_TOLERANCE_M, ScanLog
 from reconstruct.fitting.survey_points import SurveyEnd
@@ -160,6 +160,20 @@ def test_chunks_past_a_point_off_the_logs_line_say_the_ridge_runs_on_onto_someth
     # float points (20 cm across, 50 up) draw no line the 30 cm search window can test: the chunks say little
     fa, fb = SurveyEnd(a.position_m, 0.2, 0.5, "rtk_float"), SurveyEnd(b.position_m, 0.2, 0.5, "rtk_float")
     assert abs(run_on_evidence_nats(fa, fb, ridge, False, on_log + past_on, RUN_ON, FCFG)) < 1.0
+
+
+def test_an_outlying_other_point_draws_no_line_for_the_chunks_to_test():
+    # a flat log on the first 2.15 m of a 3.35 m ridge, the ridge past its end a 12-14 cm lower
+    ridge = _ridge(0.0, 3.35)
+    a, b = _fixed(2.15, 0.0), _fixed(0.0, 0.0)
+    chunks = [ChunkProfile(t, 0.0, h, R_M) for t, h in ((2.63, -0.12), (3.11, -0.14))]
+    believed = point_costs((a, b), ridge, True, RUN_ON, FCFG, chunks=chunks)
+    assert believed[0] < point_costs((a, b), ridge, True, CFG, FCFG, chunks=chunks)[0] - 2.0
+    # b 1.2 m under the ridge: an outlier on it, so the line through it says nothing about the ridge past a
+    wrong_b = _fixed(0.0, 0.0, 0.09 - 1.2)
+    assert point_cost(wrong_b, ridge, True, CFG, FCFG, outlier_prob=True) > 0.99
+    assert point_costs((a, wrong_b), ridge, True, RUN_ON, FCFG, chunks=chunks)[0] == pytest.approx(
+        point_costs((a, wrong_b), ridge, True, CFG, FCFG, chunks=chunks)[0], abs=0.05)
 
 
 def test_revision_16s_parameters_are_checked():
