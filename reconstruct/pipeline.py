@@ -420,7 +420,8 @@ def _match_logs(pts_site: np.ndarray, survey_site: dict, fuse_cfg: FuseConfig, c
     scan_logs = find_scan_logs(pts_site, fuse_cfg)
     dropped, outliers, ambiguous = {}, {}, []
     if cfg.estimator == "joint":
-        jm = joint_match(survey_site, scan_logs, cfg.joint, fuse_cfg, ridge_evidence(pts_site, scan_logs, cfg.joint))
+        evidence = ridge_evidence(pts_site, scan_logs, cfg.joint, fuse_cfg)
+        jm = joint_match(survey_site, scan_logs, cfg.joint, fuse_cfg, evidence)
         matches, unmatched, dropped, outliers, ambiguous = jm.matches, jm.unmatched, jm.dropped, jm.outliers, jm.ambiguous
     else:
         matches, unmatched = match_survey(survey_site, scan_logs, fuse_cfg)

@@ -16,7 +16,7 @@ from dataclasses import dataclass, fields
 ESTIMATORS = ("rules22", "joint")
 #: raised whenever a change to the joint estimator makes different piles from the same scan (recorded in the
 #: report as ``estimator_revision`` and in bench keys)
-JOINT_REVISION = 15
+JOINT_REVISION = 16
 
 
 @dataclass(frozen=True)
@@ -271,6 +271,35 @@ class JointConfig:
     #                                   other pairs' (73 of 111 within 30 nats, mean 54 cm): 1/0.11 - 1/0.54 per m.
     #                                   The first 84 held-out scans, all-fixed survey (docs/reconstruction.md,
     #                                   "Joint revision 15") [1/m]
+    # -- the matching's ridges: where their axis runs (joint_ridge.RidgeLine; joint revision 16) --
+    ridge_chunk_line: bool = True  # a survey point is measured against the line through the ridge's chunk
+    #                                profile circles' centres (across and in height), that line's prediction
+    #                                variance added to the point's own: a short ridge's direction corrected, a
+    #                                ridge that is not straight (one log, then something else in line) a weaker
+    #                                test. Off (revision 15): against the whole run's straight axis, as sure at
+    #                                a metre past its end as on it (docs/reconstruction.md, "Joint revision 16") [-]
+    ridge_line_min_chunks: int = 3  # ... with at least this many chunks explaining a circle (two make a line with
+    #                                 no residual to say how straight the ridge is) [-]
+    ridge_line_sigma_floor_m: float = 0.005  # ... the chunk centres' scatter about their line taken as at least
+    #                                          this: two profile grid steps (2.5 mm), as ridge_radius_sigma_floor_m [m]
+    laid_unseen: bool = True  # a two-point log's run past its ridge's ends that none of its points reaches is
+    #                           paid by the log laid along the ridge (joint_match.laid_nats, unseen_nats_per_m a
+    #                           metre, as its open ground is), outside its points' outlier mixture: a log on a
+    #                           10 cm scrap with its far point an outlier pays for the 2 m of it the scan does not
+    #                           show. Off (revision 15): each point paid for the run to it, nothing once it was an
+    #                           outlier [-]
+    run_on_chunks: bool = False  # a point inside a ridge (the ridge running on past it) is tested against the
+    #                              ridge's chunks past it (joint_match.run_on_evidence_nats): chunks off the
+    #                              line through the log's two points are something else in line (the point is
+    #                              the log's end), chunks on it the log running on (the point is wrong). Off by
+    #                              default: on the fresh set's 3300116 it keeps the fixed end in the matching but
+    #                              the end model still moves it, and with the chunk line it refused a degraded
+    #                              scan revision 15 placed (docs/reconstruction.md, "Joint revision 16") [-]
+    ridge_direction_sigma_m: float = 0.02  # the line's prior: the whole run's direction is right within this over
+    #                                        its seen length (the run's axis within FuseConfig axis_sigma_m across,
+    #                                        radius_sigma_m in height). On the tuning seeds' 385 ridges on true
+    #                                        logs (all-fixed survey) the direction error times the seen length has
+    #                                        an RMS of 1.3-2.6 cm in each band of seen length [m]
 
     def __post_init__(self) -> None:
         for f in fields(self):

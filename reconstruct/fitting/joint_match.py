@@ -16,6 +16,8 @@ its prior (:mod:`reconstruct.fitting.joint_pose`), reported as ``pose_offset_m``
 With the scan's own evidence about its ridges (:mod:`reconstruct.fitting.joint_ridge`, joint revision 15): a
 ridge whose radius, within its own sigma, no log has is dearer to take and cheaper to leave unexplained, and a
 pair pays for the open ground the surveyed log would lie over, laid along the ridge (:func:`coverage_nats`).
+A point is measured against the line through the ridge's chunk profiles (joint revision 16), as sure as that
+line predicts the axis where the point lies.
 
 An assignment that makes a different pile (a scan log kept or dropped, a surveyed log hidden instead of seen)
 within ``ambiguity_nats`` of the best is a warning naming the log and the points to re-measure (the likelier
@@ -27,7 +29,7 @@ points cannot be placed: its point is reported as an outlier and the log is left
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -36,9 +38,10 @@ from scipy.optimize import linear_sum_assignment
 from reconstruct.fitting.fuse_config import FuseConfig
 from reconstruct.fitting.joint_config import JointConfig
 from reconstruct.fitting.joint_pose import pose_offset, shifted
-from reconstruct.fitting.joint_ridge import HeightRaster, RidgeEvidence, not_one_log_nats, open_length_m
+from reconstruct.fitting.joint_ridge import (ChunkProfile, HeightRaster, RidgeEvidence, RidgeLine, not_one_log_nats,
+                                             open_length_m)
 from reconstruct.fitting.matching import Match, _ambiguity
-from reconstruct.fitting.scan_logs import ScanLog
+from reconstruct.fitting.scan_logs import PROFILE_CENTRE_TOLERANCE_M, PROFILE_PRIOR_DEPTH_M, ScanLog
 from reconstruct.fitting.survey_points import SurveyEnd
 
 IMPOSSIBLE = 1e9  # the assignment's cost of a pair that cannot be chosen [nats]
@@ -61,10 +64,14 @@ class JointMatching:
 
 
 def point_cost(e: SurveyEnd, log: ScanLog, at_start: bool, cfg: JointConfig, fcfg: FuseConfig,
-               outlier_prob: bool = False) -> float:
+               outlier_prob: bool = False, line: RidgeLine | None = None, run_on_evidence: float = 0.0) -> float:
     """-log of a survey point's likelihood as end ``at_start`` (else end) of ``log``, relative to a perfect point:
     the robust mixture of its Gaussian (across the axis, vertically, and inside the seen ridge) and the outlier
-    (``outlier_prob``: the posterior probability of the outlier component instead)."""
+    (``outlier_prob``: the posterior probability of the outlier component instead). With ``line`` (the ridge's
+    chunk line, :class:`~reconstruct.fitting.joint_ridge.RidgeLine`), across and vertically against that line,
+    its prediction's variance added (and its density's lower peak paid: a vaguer prediction explains less).
+    ``run_on_evidence``: what the ridge's chunks past the point say for its running on onto something else
+    [nats] (:func:`run_on_evidence_nats`), taken off the run-on's cost (never below a ridge ending there)."""
     p0, p1 = log.start_m, log.end_m
     d = p1[:2] - p0[:2]
     L = max(float(np.linalg.norm(d)), 1e-6)
@@ -73,44 +80,136 @@ def point_cost(e: SurveyEnd, log: ScanLog, at_start: bool, cfg: JointConfig, fcf
     t = float((q[:2] - p0[:2]) @ u)
     sh = math.sqrt(e.sigma_h_m ** 2 + cfg.pose_sigma_m ** 2 + fcfg.axis_sigma_m ** 2)
     sv = math.sqrt(e.sigma_v_m ** 2 + cfg.pose_sigma_m ** 2 + fcfg.radius_sigma_m ** 2)
-    lat = float((q[:2] - p0[:2]) @ np.array([-u[1], u[0]])) / sh
-    z_axis = p0[2] + (p1[2] - p0[2]) * float(np.clip(t / L, 0.0, 1.0))
-    vert = (float(q[2]) - float(z_axis)) / sv
+    lat_m = float((q[:2] - p0[:2]) @ np.array([-u[1], u[0]]))
+    frac = float(np.clip(t / L, 0.0, 1.0))  # past the ridge's ends its height is the end's
+    tc = L * frac
+    vert_m = float(q[2]) - float(p0[2] + (p1[2] - p0[2]) * frac)
+    sh_lat, sv_line, spread = sh, sv, 0.0
+    if line is not None and cfg.ridge_chunk_line:
+        lat_m -= line.lateral_m(t)
+        vert_m -= line.height_m(tc)
+        sh_lat = math.sqrt(sh * sh + line.lateral_var_m2(t))
+        sv_line = math.sqrt(sv * sv + line.height_var_m2(tc))
+        spread = 2.0 * (math.log(sh_lat / sh) + math.log(sv_line / sv))
+    lat, vert = lat_m / sh_lat, vert_m / sv_line
     # a log's end is at or past the visible ridge's end: a point well inside the ridge is off its end, or the
     # ridge runs on past it onto something in line
     inside = max(0.0, t) if at_start else max(0.0, L - t)
     inside = max(0.0, min(inside, L) - cfg.ridge_overrun_m)
     # past the ridge's end the log runs on unseen (under others) to the point: the farther, the less likely
     beyond = max(0.0, -t) if at_start else max(0.0, t - L)
-    chi2 = min(lat * lat + vert * vert + 2.0 * run_on_nats(inside, sh, cfg)
+    run_on = max(0.0, run_on_nats(inside, sh, cfg) - run_on_evidence) if inside > 0 else 0.0
+    chi2 = min(lat * lat + vert * vert + spread + 2.0 * run_on
                + 2.0 * cfg.unseen_nats_per_m * max(0.0, beyond - cfg.ridge_overrun_m), CHI2_CAP)
     eps = cfg.outlier_prior
     z_in, z_out = (1 - eps) * math.exp(-0.5 * chi2), eps * math.exp(-_kappa(sh, sv, cfg))
     return float(z_out / (z_in + z_out)) if outlier_prob else float(-math.log(z_in + z_out))
 
 
-def coverage_nats(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, raster: HeightRaster | None,
-                  cfg: JointConfig) -> float:
-    """What the open ground under the surveyed log placed on ``log``'s ridge costs [nats]: the log laid along the
-    ridge's axis from one of its points' places on it toward the other's, its surveyed length long, whichever of
-    its two points it is laid from shows less open ground past the ridge's ends (beyond ``ridge_overrun_m``), at
-    ``coverage_nats_per_m``. A point far off the ridge (an outlier) still says the log is that long: a log on a
-    short scrap runs on over what the scan sees there."""
-    if raster is None or not cfg.ridge_coverage or ends[0] is None or ends[1] is None:
-        return 0.0
+def _layings(ends: tuple[SurveyEnd, SurveyEnd], log: ScanLog) -> list[tuple[float, float]]:
+    """The surveyed log laid along the ridge's axis, its surveyed length long, from each of its points' places on
+    it toward the other's (its middle where they coincide): the two (from, to) spans along the axis [m]."""
     p0 = log.start_m[:2]
     L = max(log.length_m, 1e-6)
     u = (log.end_m[:2] - p0) / L
     length = float(np.linalg.norm(ends[1].position_m[:2] - ends[0].position_m[:2]))
     t = [float((e.position_m[:2] - p0) @ u) for e in ends]
-    best = math.inf
+    out = []
     for n in (0, 1):
         toward = t[1 - n] - t[n] if t[1 - n] != t[n] else 0.5 * L - t[n]  # toward the other point (its middle)
-        lo, hi = (t[n], t[n] + length) if toward >= 0 else (t[n] - length, t[n])
-        open_m = (open_length_m(log, lo, min(hi, -cfg.ridge_overrun_m), raster, cfg)
-                  + open_length_m(log, max(lo, L + cfg.ridge_overrun_m), hi, raster, cfg))
-        best = min(best, open_m)
-    return cfg.coverage_nats_per_m * best
+        out.append((t[n], t[n] + length) if toward >= 0 else (t[n] - length, t[n]))
+    return out
+
+
+def laid_nats(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, raster: HeightRaster | None,
+              cfg: JointConfig) -> float:
+    """What the surveyed log placed on ``log``'s ridge costs along its length [nats], whichever of its two
+    layings (:func:`_layings`) is cheaper: the open ground under it past the ridge's ends (beyond
+    ``ridge_overrun_m``), ``coverage_nats_per_m`` a metre, and (with ``laid_unseen``) the rest of its run past
+    them that no point of it reaches, ``unseen_nats_per_m`` a metre (a point past the ridge's end pays for the
+    run to it in its own cost, :func:`point_cost`). Both are outside the points' outlier mixture: a point far
+    off the ridge (an outlier) still says the log is that long, so a log on a short scrap pays for the length
+    the scan does not show it (open ground, or nothing). 0 for a log of one point."""
+    if ends[0] is None or ends[1] is None or not (cfg.laid_unseen or (cfg.ridge_coverage and raster is not None)):
+        return 0.0
+    L, over = max(log.length_m, 1e-6), cfg.ridge_overrun_m
+    reached = _points_past_m(ends, log, over) if cfg.laid_unseen else 0.0
+    best = math.inf
+    for lo, hi in _layings(ends, log):
+        open_m = 0.0
+        if cfg.ridge_coverage and raster is not None:
+            open_m = (open_length_m(log, lo, min(hi, -over), raster, cfg)
+                      + open_length_m(log, max(lo, L + over), hi, raster, cfg))
+        cost = cfg.coverage_nats_per_m * open_m
+        if cfg.laid_unseen:
+            past = max(0.0, min(hi, -over) - lo) + max(0.0, hi - max(lo, L + over))
+            cost += cfg.unseen_nats_per_m * max(0.0, past - open_m - reached)
+        best = min(best, cost)
+    return best
+
+
+def _points_past_m(ends: tuple[SurveyEnd, SurveyEnd], log: ScanLog, overrun_m: float) -> float:
+    """How far past the ridge's ends (beyond ``overrun_m``) the log's points lie, together [m]: the run they
+    pay for themselves."""
+    p0 = log.start_m[:2]
+    L = max(log.length_m, 1e-6)
+    u = (log.end_m[:2] - p0) / L
+    t = [float((e.position_m[:2] - p0) @ u) for e in ends]
+    return sum(max(0.0, -x - overrun_m) + max(0.0, x - L - overrun_m) for x in t)
+
+
+def coverage_nats(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, raster: HeightRaster | None,
+                  cfg: JointConfig) -> float:
+    """The open ground alone (:func:`laid_nats` without the unseen run) [nats]."""
+    return laid_nats(ends, log, raster, replace(cfg, laid_unseen=False))
+
+
+def run_on_evidence_nats(e: SurveyEnd, other: SurveyEnd, log: ScanLog, at_start: bool,
+                         chunks: Sequence[ChunkProfile], cfg: JointConfig, fcfg: FuseConfig) -> float:
+    """What the ridge's chunks past survey point ``e`` (end ``at_start`` of ``log``; more than
+    ``ridge_overrun_m`` past it, inside the ridge) say for the ridge running on onto something else rather than
+    the log running on [nats]: per chunk, the log-likelihood ratio of its circle's centre anywhere in the
+    profile's centre search (uniform over its window) against its lying on the line through the log's two points
+    (a Gaussian of ``e``'s sigmas, the search window's share of it renormalised - a log's circle is only found
+    inside the window - mixed with ``outlier_prior`` of the uniform: a chunk fitted astray), summed. Positive
+    where the chunks leave the log's line, negative where they follow it, about 0 where the points' sigmas are
+    wider than the window (float points draw no line a chunk can test)."""
+    if not cfg.run_on_chunks or not chunks:
+        return 0.0
+    p0, p1 = log.start_m, log.end_m
+    L = max(log.length_m, 1e-6)
+    u = (p1[:2] - p0[:2]) / L
+    nrm = np.array([-u[1], u[0]])
+    (te, le), (to, lo) = [(float((q.position_m[:2] - p0[:2]) @ u), float((q.position_m[:2] - p0[:2]) @ nrm))
+                          for q in (e, other)]
+    if abs(to - te) < cfg.ridge_overrun_m:
+        return 0.0
+    ze, zo = float(e.position_m[2]), float(other.position_m[2])
+    floor2 = cfg.ridge_line_sigma_floor_m ** 2
+    s_lat = math.sqrt(e.sigma_h_m ** 2 + cfg.pose_sigma_m ** 2 + fcfg.axis_sigma_m ** 2 + floor2)
+    s_z = math.sqrt(e.sigma_v_m ** 2 + cfg.pose_sigma_m ** 2 + fcfg.radius_sigma_m ** 2 + floor2)
+    tol = PROFILE_CENTRE_TOLERANCE_M
+    h_mid = log.radius_m - PROFILE_PRIOR_DEPTH_M  # the search window's middle in height about the run's axis
+    log_uniform = -2.0 * math.log(2.0 * tol)
+    eps = cfg.outlier_prior
+    total = 0.0
+    for c in chunks:
+        if (c.t_m > te - cfg.ridge_overrun_m) if at_start else (c.t_m < te + cfg.ridge_overrun_m):
+            continue
+        f = (c.t_m - te) / (to - te)
+        mu_lat = le + (lo - le) * f
+        mu_h = ze + (zo - ze) * f - float(p0[2] + (p1[2] - p0[2]) * c.t_m / L)
+        share = _window_share(mu_lat, s_lat, -tol, tol) * _window_share(mu_h, s_z, h_mid - tol, h_mid + tol)
+        chi2 = min(((c.lateral_m - mu_lat) / s_lat) ** 2 + ((c.height_m - mu_h) / s_z) ** 2, CHI2_CAP)
+        gauss = math.exp(-0.5 * chi2) / (2 * math.pi * s_lat * s_z * max(share, 1e-12))
+        total += log_uniform - math.log((1 - eps) * gauss + eps * math.exp(log_uniform))
+    return total
+
+
+def _window_share(mu_m: float, sigma_m: float, lo_m: float, hi_m: float) -> float:
+    """The share of a Gaussian (``mu_m``, ``sigma_m``) between ``lo_m`` and ``hi_m``."""
+    k = 1.0 / (sigma_m * math.sqrt(2.0))
+    return 0.5 * (math.erf((hi_m - mu_m) * k) - math.erf((lo_m - mu_m) * k))
 
 
 def run_on_nats(inside_m: float, sigma_m: float, cfg: JointConfig) -> float:
@@ -142,24 +241,45 @@ def outlier_cost(e: SurveyEnd, cfg: JointConfig, fcfg: FuseConfig) -> float:
     return -math.log(cfg.outlier_prior) + _kappa(sh, sv, cfg)
 
 
+def point_costs(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, rev: bool, cfg: JointConfig,
+                fcfg: FuseConfig, outlier_prob: bool = False, line: RidgeLine | None = None,
+                chunks: Sequence[ChunkProfile] = ()) -> dict[int, float]:
+    """Each surveyed point's :func:`point_cost` on ``log`` (its end a at the scan log's end with ``rev``), by
+    its index (0: a, 1: b), with the log's other terms decided as :func:`pair_cost` decides them. The chunks'
+    evidence past a point (:func:`run_on_evidence_nats`) tests them against the line through the log's two
+    points: it counts as much as the other point is not an outlier there (an outlying point draws no line)."""
+    out = {}
+    for k, e in enumerate(ends):
+        if e is None:
+            continue
+        at_start = (k == 0) != rev
+        other = ends[1 - k]
+        ev = 0.0 if other is None else run_on_evidence_nats(e, other, log, at_start, chunks, cfg, fcfg)
+        if ev:  # the log's line is through the other point only as far as that point is believed on this ridge
+            ev *= 1.0 - point_cost(other, log, not at_start, cfg, fcfg, True, line)
+        out[k] = point_cost(e, log, at_start, cfg, fcfg, outlier_prob, line, ev)
+    return out
+
+
 def pair_cost(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, cfg: JointConfig,
               fcfg: FuseConfig, radius_sigma_m: float | None = None,
-              raster: HeightRaster | None = None) -> tuple[float, bool]:
+              raster: HeightRaster | None = None, line: RidgeLine | None = None,
+              chunks: Sequence[ChunkProfile] = ()) -> tuple[float, bool]:
     """A surveyed log's cost on a scan log (both orientations; the cheaper) and whether its end a lies at the
     scan log's end; with ``radius_sigma_m`` (the scan log's radius sigma), plus what its radius says against its
     being one log (:func:`~reconstruct.fitting.joint_ridge.not_one_log_nats`); with ``raster``, plus the open
-    ground the log would lie over (:func:`coverage_nats`)."""
+    ground the log would lie over (:func:`laid_nats`, with its unseen run); with ``line`` and ``chunks``, its
+    points against the ridge's chunk line and the chunks past them (:func:`point_cost`)."""
     best = (math.inf, False)
     for rev in (False, True):
-        pts = [(e, (k == 0) != rev) for k, e in enumerate(ends) if e is not None]
-        if all(point_cost(e, log, s, cfg, fcfg, outlier_prob=True) > cfg.outlier_flag_prob for e, s in pts):
+        if all(p > cfg.outlier_flag_prob for p in point_costs(ends, log, rev, cfg, fcfg, True, line, chunks).values()):
             continue  # every point of it an outlier: this is not its log
-        c = sum(point_cost(e, log, s, cfg, fcfg) for e, s in pts)
+        c = sum(point_costs(ends, log, rev, cfg, fcfg, False, line, chunks).values())
         if c < best[0]:
             best = (c, rev)
     if math.isinf(best[0]):
         return best
-    return best[0] + coverage_nats(ends, log, raster, cfg) + _radius_nats(log, radius_sigma_m, cfg), best[1]
+    return best[0] + laid_nats(ends, log, raster, cfg) + _radius_nats(log, radius_sigma_m, cfg), best[1]
 
 
 def _radius_nats(log: ScanLog, radius_sigma_m: float | None, cfg: JointConfig) -> float:
@@ -195,8 +315,11 @@ def _costs(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]], scan
     raster = None if evidence is None else evidence.raster
     for i, k in enumerate(ids):
         for j, log in enumerate(scan_logs):
-            sig = None if evidence is None else evidence.radius_sigma_m[j]
-            cost[i, j], rev[i, j] = pair_cost(survey[k], log, cfg, fcfg, sig, raster)
+            if evidence is None:
+                cost[i, j], rev[i, j] = pair_cost(survey[k], log, cfg, fcfg)
+            else:
+                cost[i, j], rev[i, j] = pair_cost(survey[k], log, cfg, fcfg, evidence.radius_sigma_m[j], raster,
+                                                  evidence.line(j), evidence.chunks_of(j))
     return cost, rev
 
 
@@ -260,7 +383,8 @@ def joint_match(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]],
         matches[k] = Match(k, j, bool(rev[i, j]) if j is not None else False,
                            float(cost[i, j]) if j is not None else math.nan, alternatives.get(k, ""))
         if j is not None:
-            outliers[k] = {n for n, e in enumerate(survey[k]) if e is not None and point_cost(
-                e, scan_logs[j], (n == 0) != rev[i, j], cfg, fcfg, outlier_prob=True) > cfg.outlier_flag_prob}
+            line, chunks = (None, ()) if evidence is None else (evidence.line(j), evidence.chunks_of(j))
+            p_out = point_costs(survey[k], scan_logs[j], bool(rev[i, j]), cfg, fcfg, True, line, chunks)
+            outliers[k] = {n for n, p in p_out.items() if p > cfg.outlier_flag_prob}
     return JointMatching(matches, [j for j in range(m) if j not in taken], dropped, best, outliers, ambiguous,
                          offset)

@@ -324,7 +324,7 @@ def _scan_log_from_run(P: np.ndarray, c: np.ndarray, u: np.ndarray, t0: float, t
     if len(near) > PROFILE_MAX_POINTS:  # a profile needs a few thousand points at most
         near = near[np.linspace(0, len(near) - 1, PROFILE_MAX_POINTS).astype(np.int64)]
     dz = P[near, 2] - (coef[0] + coef[1] * t[near])
-    radius = _profile_radius(s[near], dz)
+    radius = profile_radius(s[near], dz)
     if radius is None:
         return None
     a2, b2 = c + u * t0, c + u * t1
@@ -332,17 +332,24 @@ def _scan_log_from_run(P: np.ndarray, c: np.ndarray, u: np.ndarray, t0: float, t
     return ScanLog(np.array([a2[0], a2[1], z0]), np.array([b2[0], b2[1], z1]), radius, seen, strength)
 
 
-def _profile_radius(s: np.ndarray, dz: np.ndarray) -> float | None:
-    """Radius [m] of the log whose cross-section (``s`` across [m], ``dz`` height below the ridge's top
-    line [m]) the scan shows: :func:`reconstruct.fitting.profiles._profile_circle`'s search for the upper
-    half-circle that best explains the visible profile, its centre within ``PROFILE_CENTRE_TOLERANCE_M`` of one
-    ``PROFILE_PRIOR_DEPTH_M`` under the top. ``None`` when the profile explains no circle."""
+def profile_circle(s: np.ndarray, dz: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """The half-circle (centre (across, height) [m] in the profile's frame, radius [m]) of the log whose
+    cross-section (``s`` across [m], ``dz`` height below the ridge's top line [m]) the scan shows:
+    :func:`reconstruct.fitting.profiles._profile_circle`'s search for the upper half-circle that best explains the
+    visible profile, its centre within ``PROFILE_CENTRE_TOLERANCE_M`` of one ``PROFILE_PRIOR_DEPTH_M`` under the
+    top. ``None`` when the profile explains no circle."""
     if len(s) < PROFILE_MIN_POINTS:
         return None
     try:
-        _, r, n_on = _profile_circle(np.column_stack([s, dz]), np.array([0.0, -PROFILE_PRIOR_DEPTH_M]),
-                                     FitConfig(axis_tolerance_m=PROFILE_CENTRE_TOLERANCE_M,
-                                               max_radius_m=PROFILE_MAX_RADIUS_M))
+        centre, r, n_on = _profile_circle(np.column_stack([s, dz]), np.array([0.0, -PROFILE_PRIOR_DEPTH_M]),
+                                          FitConfig(axis_tolerance_m=PROFILE_CENTRE_TOLERANCE_M,
+                                                    max_radius_m=PROFILE_MAX_RADIUS_M))
     except FitError:
         return None
-    return float(r) if n_on >= PROFILE_MIN_BINS_ON else None
+    return (centre, float(r)) if n_on >= PROFILE_MIN_BINS_ON else None
+
+
+def profile_radius(s: np.ndarray, dz: np.ndarray) -> float | None:
+    """The radius [m] of :func:`profile_circle` (``None`` when the profile explains no circle)."""
+    fit = profile_circle(s, dz)
+    return None if fit is None else fit[1]
