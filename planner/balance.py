@@ -15,9 +15,8 @@ the target union's mask (the part of each log seen from above; each pixel weighs
 along the mask's principal axis (``offset="along_axis"``, the default). Across the logs the claws gather
 the load to the grapple's middle as they close, so an offset across them does not tilt the load; it is
 U's business (collisions, whether the claws close). The first version measured the whole distance
-(``offset="radial"``): on the first 564 piles of a 1,200-pile evaluation f3 scored with it chose grasps
-pulled sideways onto the union's centroid, between and beside its logs, and collided three to ten
-times as often as f3 on the network's B map (docs/results/README.md, "eval-*-1200").
+(``offset="radial"``); both fit the twin's tilts equally well, and on 328 held-out piles f3 chose the
+same grasp with either on 239 and succeeded as often (docs/results/README.md, "eval-*-1200").
 
 The two parameters are fitted to the twin's tilt of successful grasps on held-out piles (seeds
 940,000,000+, the tried grasps of docs/results/ranking-v3model-rev4) and checked on other piles (seeds
