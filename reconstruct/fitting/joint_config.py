@@ -292,7 +292,7 @@ class JointConfig:
     #                              ridge's chunks past it (joint_match.run_on_evidence_nats): chunks off the
     #                              line through the log's two points are something else in line (the point is
     #                              the log's end), chunks on it the log running on (the point is wrong). Off by
-    #                              default: on the fresh set's 3300116 it keeps the fixed end in the matching but
+    #                              default: on a fresh held-out scan it kept a fixed end in the matching but
     #                              the end model still moves it, and with the chunk line it refused a degraded
     #                              scan revision 15 placed (docs/reconstruction.md, "Joint revision 16") [-]
     ridge_direction_sigma_m: float = 0.02  # the line's prior: the whole run's direction is right within this over
