@@ -96,7 +96,7 @@ def principal_axis(rr: np.ndarray, cc: np.ndarray) -> tuple[float, float]:
     if len(rr) < 2:
         return 1.0, 0.0
     cov = np.cov(np.stack([rr, cc]).astype(np.float64))
-    vals, vecs = np.linalg.eigh(cov)
+    _, vecs = np.linalg.eigh(cov)  # eigenvalues ascending
     return float(vecs[0, -1]), float(vecs[1, -1])
 
 
