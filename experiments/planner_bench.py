@@ -161,7 +161,7 @@ def balance_latency(n_logs=(4, 7), repeats: int = 5) -> list[dict]:
     and from the hang model (:mod:`planner.balance`: one distance raster per subset)."""
     import torch
 
-    from planner.inference import Objective, load_planner, plan
+    from planner.inference import Objective, f3_sigma_b, load_planner, plan
 
     torch.set_num_threads(2)
     pl = load_planner(DEFAULT_MODEL, device="cpu")
@@ -170,7 +170,7 @@ def balance_latency(n_logs=(4, 7), repeats: int = 5) -> list[dict]:
     rows = []
     for n in n_logs:
         for balance in ("network", "hang"):
-            f3 = Objective(kind="f3", balance=balance, sigma_b=0.05 if balance == "hang" else 0.25)
+            f3 = Objective(kind="f3", balance=balance, sigma_b=f3_sigma_b(balance))
             walls = [plan(obs[n], pl, f3).elapsed_s for _ in range(repeats)]
             rows.append({"logs": n, "balance": balance, "wall_s": statistics.median(walls)})
     return rows

@@ -119,7 +119,7 @@ class TrialOptions:
     def __post_init__(self) -> None:
         if self.objective not in ("f1", "f2", "f3"):
             raise ValueError(f"objective must be f1, f2 or f3, got {self.objective!r}")
-        f3_sigma_b(self.f3_balance, self.f3_sigma_b)  # a ValueError naming balance / sigma_b
+        self.objective_spec()  # a ValueError naming f3's balance or sigma_b
         if not self.max_pile_age_s > 0:
             raise ValueError("max_pile_age_s must be > 0")
         from planner.inference import check_views

@@ -73,12 +73,12 @@ def test_bad_parameters_and_inputs_are_refused():
 
 
 def test_f3_tolerance_defaults_to_the_one_chosen_for_its_balance_source():
-    from planner.inference import HANG_SIGMA_B, SIGMA_B, f3_sigma_b
+    from planner.inference import HANG_SIGMA_B, SIGMA_B, Objective, f3_sigma_b
 
     assert (f3_sigma_b("hang"), f3_sigma_b("network"), f3_sigma_b("hang", 0.2)) == (HANG_SIGMA_B, SIGMA_B, 0.2)
-    for bad in ((("hang", 0.0)), ("network", -1.0), ("guess", None)):
+    for balance, sigma_b in (("hang", 0.0), ("network", -1.0), ("guess", None)):
         with pytest.raises(ValueError, match="sigma_b|balance"):
-            f3_sigma_b(*bad)
+            Objective("f3", balance=balance, sigma_b=f3_sigma_b(balance, sigma_b))
 
 
 def test_the_plan_picture_says_which_balance_f3_scores():
