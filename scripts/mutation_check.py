@@ -159,6 +159,13 @@ MUTATIONS: tuple[Mutation, ...] = (
       "field/trial_record.py", "                self.view.can_traffic(traffic, secured=",
       "                0 and self.view.can_traffic(traffic, secured=",
       ("tests/field/test_field_trial.py::test_trial_mcap_reads_back_with_an_independent_reader",)),
+    M("zenoh-token-not-rechecked", "a laptop token's undeclaration is not re-checked (a stale one strands a live laptop)",
+      "field/link/zenoh_backend.py", 'name="zenoh-laptop-recheck").start()', 'name="zenoh-laptop-recheck")',
+      ("tests/field/test_link_zenoh.py::test_a_stale_token_undeclaration_aborts_but_does_not_strand_a_live_laptop",)),
+    M("zenoh-recheck-ignores-newer-event", "a token re-check's answer revives a laptop whose token went again since",
+      "field/link/zenoh_backend.py", "if live and not self._closed and self._laptop_events.get(peer) == event:",
+      "if live and not self._closed:",
+      ("tests/field/test_link_zenoh.py::test_a_token_event_newer_than_the_recheck_wins_over_its_answer",)),
     # issue 39: each safety-case cell fails when its measure is removed; the records' hash chain
     M("e2e-crc-unchecked", "frames are decoded without their E2E CRC check (corruption cells)",
       "field/link/codec.py", "    if not e2e_p05_check(data, data_id(kind)):\n", "    if False:\n",

@@ -315,6 +315,8 @@ class ZenohLink(CraneLink):
 class ZenohControllerTransport:
     """Crane side over Zenoh: queryables for commands and status, liveliness, publications."""
 
+    recheck_timeout_s = 1.0  # how long a laptop token's re-check waits for the network's answer [s]
+
     def __init__(self, target: ZenohTarget, heartbeat_period_s: float = 0.05):
         self.target = target
         self.keys = ZenohKeys(target.prefix)
@@ -325,6 +327,8 @@ class ZenohControllerTransport:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._closed = False
+        self._laptop_lock = threading.Lock()
+        self._laptop_events: dict[str, int] = {}  # token events seen per laptop peer [-]
 
     @classmethod
     def from_url(cls, url: LinkURL, *, heartbeat_period_s: float = 0.05) -> "ZenohControllerTransport":
@@ -365,12 +369,37 @@ class ZenohControllerTransport:
         self.controller.on_frame("StatusRequest", _payload(query), lambda kind, data: query.reply(query.key_expr, data))
 
     def _on_laptop(self, sample: Any) -> None:
-        """A laptop's liveliness token came or went: ``alive/laptop/<zid>`` is peer ``zenoh:<zid>``."""
-        peer = f"zenoh:{str(sample.key_expr).rsplit('/', 1)[-1]}"
-        if sample.kind == self._zenoh.SampleKind.PUT:
-            self.controller.peer_present(peer)
-        else:
+        """A laptop's liveliness token came or went: ``alive/laptop/<zid>`` is peer ``zenoh:<zid>``. A
+        token gone aborts that laptop's grasp at once, then :meth:`_recheck_laptop` asks whether it is
+        really gone."""
+        key = str(sample.key_expr)
+        peer = f"zenoh:{key.rsplit('/', 1)[-1]}"
+        with self._laptop_lock:
+            event = self._laptop_events[peer] = self._laptop_events.get(peer, 0) + 1
+            if sample.kind == self._zenoh.SampleKind.PUT:
+                self.controller.peer_present(peer)
+                return
             self.controller.peer_gone(peer)
+        threading.Thread(target=self._recheck_laptop, args=(key, peer, event), daemon=True,
+                         name="zenoh-laptop-recheck").start()
+
+    def _recheck_laptop(self, key: str, peer: str, event: int) -> None:
+        """After laptop ``peer``'s token was undeclared: if the network still holds it (a resumed
+        transport's undeclaration delivered after the same token's re-declaration), the laptop is
+        present again, so that a live laptop is not refused as unsupervised until it reconnects. Its
+        aborted grasp stays aborted; a token event newer than ``event`` wins over this answer."""
+        if self._closed:
+            return
+        try:
+            replies = self._session.liveliness().get(key, timeout=self.recheck_timeout_s)
+            live = any(r.ok is not None and str(r.ok.key_expr) == key for r in replies)
+        except Exception as exc:  # a closing session: the undeclaration stands (the safe side)
+            log.warning("zenoh liveliness re-check of %s failed: %s: %s", key, type(exc).__name__, exc)
+            return
+        with self._laptop_lock:
+            if live and not self._closed and self._laptop_events.get(peer) == event:
+                log.warning("laptop %s: its liveliness token was undeclared but is live; supervised again", peer)
+                self.controller.peer_present(peer)
 
     def _heartbeat_loop(self) -> None:
         """Put the crane's heartbeat each period. A failed put is not fatal (the laptop's own

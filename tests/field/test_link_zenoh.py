@@ -242,6 +242,68 @@ def _command_accepted_within(link, make_cmd, timeout_s: float):
     return None, refused
 
 
+@pytest.mark.safety_case(error="loss", link="zenoh",
+                         measure="liveliness token of the commanding laptop, re-checked when it goes",
+                         reaction="the grasp aborts at once; a laptop whose token is still live is supervised again")
+def test_a_stale_token_undeclaration_aborts_but_does_not_strand_a_live_laptop(port, tmp_path, make_cmd):
+    """An undeclaration delivered after the same token's re-declaration (a resumed transport) must abort
+    the laptop's grasp as any token loss does, but not leave that live laptop refused UNSUPERVISED until
+    it reconnects: the controller asks the network whether the token still exists."""
+    from types import SimpleNamespace
+
+    import zenoh
+
+    from field.controller import CraneController, FixedOutcomeExecutor, controller_config_from_dict
+    from field.link import OutcomeClass
+    from field.link.base import LinkURL
+    from field.link.zenoh_backend import ZenohControllerTransport
+    from tests.field.conftest import RIG_CONFIG, RIG_EXECUTOR
+
+    url = f"zenoh://127.0.0.1:{port}/crane-s"
+    executor = FixedOutcomeExecutor(delay_s=RIG_EXECUTOR["delay_s"], delay_by_target_logs={9: 1.5},
+                                    log_path=str(tmp_path / "executed.jsonl"))
+    controller = CraneController(controller_config_from_dict({**RIG_CONFIG, "no_journal": True}), executor)
+    transport = ZenohControllerTransport.from_url(LinkURL.parse(url))
+    transport.start(controller)
+    controller.start()
+    try:
+        with open_link(url, FAST) as link:
+            slow = make_cmd(link.new_command_id(), logs=9)  # 1.5 s
+            link.send_grasp(slow, timeout_s=2.0)
+            (key,) = [str(r.ok.key_expr) for r in transport._session.liveliness().get(
+                f"{transport.keys.alive_laptop}/**", timeout=2.0) if r.ok is not None]
+            transport._on_laptop(SimpleNamespace(key_expr=key, kind=zenoh.SampleKind.DELETE))
+            assert link.wait_outcome(slow.command_id, 3.0).outcome_class is OutcomeClass.ABORTED
+            accepted, refused = _command_accepted_within(link, make_cmd, 5.0)
+            assert accepted is not None, f"a live laptop stayed unsupervised after a stale undeclaration ({refused})"
+            link.wait_outcome(accepted.command_id, 3.0)
+    finally:
+        controller.close()
+        transport.close()
+    assert read_execution_log(tmp_path / "executed.jsonl") == [slow.command_id, accepted.command_id]
+
+
+def test_a_token_event_newer_than_the_recheck_wins_over_its_answer():
+    """The re-check's "still live" answer must not revive a laptop whose token went again (or came back
+    and went) while the network was asked: only the latest token event's re-check may restore it."""
+    from types import SimpleNamespace
+
+    from field.link.zenoh_backend import ZenohControllerTransport, ZenohTarget
+
+    key = "loggrasp/crane/alive/laptop/abc"
+    reply = SimpleNamespace(ok=SimpleNamespace(key_expr=key))
+    session = SimpleNamespace(liveliness=lambda: SimpleNamespace(get=lambda k, timeout: [reply]))
+    revived: list[str] = []
+    transport = ZenohControllerTransport(ZenohTarget(crane="x", endpoint="tcp/127.0.0.1:1", config_path=None,
+                                                     prefix="loggrasp/x", lease_ms=1000))
+    transport._session, transport.controller = session, SimpleNamespace(peer_present=revived.append)
+    transport._laptop_events["zenoh:abc"] = 2
+    transport._recheck_laptop(key, "zenoh:abc", 1)
+    assert revived == []
+    transport._recheck_laptop(key, "zenoh:abc", 2)
+    assert revived == ["zenoh:abc"]
+
+
 def test_zenoh_crane_heartbeat_failures_are_logged_with_their_cause_not_swallowed(caplog):
     """A heartbeat put that fails is not fatal to the crane side, but it must not vanish: the first
     failure of a run is logged with its exception, the recovery says how many puts were lost."""
