@@ -85,6 +85,10 @@ def test_a_log_laid_on_a_scrap_pays_its_unseen_run_as_its_lengths_sigma_allows()
     expected = unseen_run_nats(unseen_m, math.hypot(FIXED_SIGMA_M, FLOAT_SIGMA_M), RATE)
     assert laid_nats(one_float, scrap, None, CFG) == pytest.approx(expected, rel=0.02)
     assert laid_nats(two_float, scrap, None, CFG) < laid_nats(one_float, scrap, None, CFG) < RATE * unseen_m - 0.3
+    # the two points' sigmas combine in quadrature (independent errors): 25 cm for two float points, not 35
+    two_float_sigma = math.hypot(FLOAT_SIGMA_M, FLOAT_SIGMA_M)
+    assert laid_nats(two_float, scrap, None, CFG) == pytest.approx(unseen_run_nats(unseen_m, two_float_sigma, RATE),
+                                                                   rel=0.01)
     # still far dearer than nothing: a vague length does not let a log lie on a scrap for free
     assert laid_nats(two_float, scrap, None, CFG) > 0.7 * RATE * unseen_m
 
