@@ -16,7 +16,7 @@ from dataclasses import dataclass, fields
 ESTIMATORS = ("rules22", "joint")
 #: raised whenever a change to the joint estimator makes different piles from the same scan (recorded in the
 #: report as ``estimator_revision`` and in bench keys)
-JOINT_REVISION = 16
+JOINT_REVISION = 17
 
 
 @dataclass(frozen=True)
@@ -300,6 +300,14 @@ class JointConfig:
     #                                        radius_sigma_m in height). On the tuning seeds' 385 ridges on true
     #                                        logs (all-fixed survey) the direction error times the seen length has
     #                                        an RMS of 1.3-2.6 cm in each band of seen length [m]
+    # -- the laid log's unseen run with its length's sigma (joint_match.unseen_run_nats; joint revision 17) --
+    laid_length_sigma: bool = True  # the unseen run laid_unseen charges is priced over the surveyed length's
+    #                                 error (the two points' sigmas along the ridge's axis, combined): the
+    #                                 charge marginalised over the true length, relative to a run of 0. An RTK
+    #                                 fixed length (1.5 cm) is charged as before, a float one (25 cm a point)
+    #                                 less. Off (revision 16): the length as exact - a float log laid along its
+    #                                 own ridge paid for metres its points' error alone explains
+    #                                 (docs/reconstruction.md, "Joint revision 17") [-]
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -312,6 +320,9 @@ class JointConfig:
                      "p_on_outside", "p_below_outside", "p_over_inside", "p_over_outside"):
             if not getattr(self, name) < 1:
                 raise ValueError(f"JointConfig.{name} is a probability: must be in (0, 1), got {getattr(self, name)}")
+        if not isinstance(self.laid_length_sigma, bool):
+            raise ValueError(f"JointConfig.laid_length_sigma is a switch: must be True or False, got "
+                             f"{self.laid_length_sigma!r}")
         if not self.log_radius_min_m < self.log_radius_max_m < self.other_radius_span_m:
             raise ValueError(f"JointConfig: log_radius_min_m < log_radius_max_m < other_radius_span_m must hold, got "
                              f"{self.log_radius_min_m}, {self.log_radius_max_m}, {self.other_radius_span_m}")

@@ -34,6 +34,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
+from scipy.special import log_ndtr
 
 from reconstruct.fitting.fuse_config import FuseConfig
 from reconstruct.fitting.joint_config import JointConfig
@@ -127,13 +128,15 @@ def laid_nats(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, ras
     layings (:func:`_layings`) is cheaper: the open ground under it past the ridge's ends (beyond
     ``ridge_overrun_m``), ``coverage_nats_per_m`` a metre, and (with ``laid_unseen``) the rest of its run past
     them that no point of it reaches, ``unseen_nats_per_m`` a metre (a point past the ridge's end pays for the
-    run to it in its own cost, :func:`point_cost`). Both are outside the points' outlier mixture: a point far
+    run to it in its own cost, :func:`point_cost`), with ``laid_length_sigma`` priced over the surveyed
+    length's error (:func:`unseen_run_nats`). Both are outside the points' outlier mixture: a point far
     off the ridge (an outlier) still says the log is that long, so a log on a short scrap pays for the length
     the scan does not show it (open ground, or nothing). 0 for a log of one point."""
     if ends[0] is None or ends[1] is None or not (cfg.laid_unseen or (cfg.ridge_coverage and raster is not None)):
         return 0.0
     L, over = max(log.length_m, 1e-6), cfg.ridge_overrun_m
     reached = _points_past_m(ends, log, over) if cfg.laid_unseen else 0.0
+    sigma_m = _length_sigma_m(ends, log, cfg) if cfg.laid_unseen else 0.0
     best = math.inf
     for lo, hi in _layings(ends, log):
         open_m = 0.0
@@ -143,9 +146,41 @@ def laid_nats(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, ras
         cost = cfg.coverage_nats_per_m * open_m
         if cfg.laid_unseen:
             past = max(0.0, min(hi, -over) - lo) + max(0.0, hi - max(lo, L + over))
-            cost += cfg.unseen_nats_per_m * max(0.0, past - open_m - reached)
+            cost += unseen_run_nats(past - open_m - reached, sigma_m, cfg.unseen_nats_per_m)
         best = min(best, cost)
     return best
+
+
+def _length_sigma_m(ends: tuple[SurveyEnd, SurveyEnd], log: ScanLog, cfg: JointConfig) -> float:
+    """The surveyed length's 1 sigma along ``log``'s axis [m] (``laid_length_sigma``; else 0, the length as
+    exact): the two points' sigmas along it combined. The scan pose's error is shared by both points and
+    cancels in their distance."""
+    if not cfg.laid_length_sigma:
+        return 0.0
+    d = log.end_m[:2] - log.start_m[:2]
+    u = np.array([d[0], d[1], 0.0]) / max(float(np.linalg.norm(d)), 1e-6)
+    return math.hypot(ends[0].sigma_along(u), ends[1].sigma_along(u))
+
+
+def unseen_run_nats(unseen_m: float, sigma_m: float, rate_per_m: float) -> float:
+    """What a laid log's unseen run of ``unseen_m`` costs at ``rate_per_m`` [nats] when the log's length is
+    uncertain by ``sigma_m`` (its true length the surveyed one less e, e ~ N(0, sigma_m^2)): -log E[exp(-rate *
+    max(0, unseen_m - e))], relative to a run of 0 (a pair whose points reach its laid ends, where an error in
+    the length moves the points with it and no run is unseen whatever it is). In closed form,
+    E[...] = P(e >= x) + exp(-rate x + rate^2 sigma^2 / 2) Phi((x - rate sigma^2) / sigma). Exactly
+    ``rate_per_m * unseen_m`` at ``sigma_m`` 0, never more, 0 for no run, and as the length grows vague it
+    tends to 0 (the log may as well be shorter)."""
+    if unseen_m <= 0.0:
+        return 0.0
+    if sigma_m <= 0.0:
+        return rate_per_m * unseen_m
+
+    def log_mean(x: float) -> float:
+        """log E[exp(-rate max(0, x - e))]."""
+        return float(np.logaddexp(log_ndtr(-x / sigma_m), -rate_per_m * x + 0.5 * (rate_per_m * sigma_m) ** 2
+                                  + log_ndtr((x - rate_per_m * sigma_m ** 2) / sigma_m)))
+
+    return max(0.0, log_mean(0.0) - log_mean(unseen_m))
 
 
 def _points_past_m(ends: tuple[SurveyEnd, SurveyEnd], log: ScanLog, overrun_m: float) -> float:

@@ -97,7 +97,9 @@ def test_a_fixed_end_past_a_short_tilted_ridge_is_no_outlier_against_its_chunk_l
 def test_a_log_laid_on_a_scrap_pays_for_its_unseen_run_though_its_far_point_is_an_outlier():
     scrap = _ridge(0.0, 1.05, seen=0.10)
     ends = (_fixed(0.0, 0.0), _float(0.5, 3.0))  # b 3 m across the scrap: the log is 3 m long
-    laid = laid_nats(ends, scrap, None, CFG)
+    exact = replace(CFG, laid_length_sigma=False)  # the surveyed length as exact (revision 16; with its sigma:
+    #                                                 test_joint_laid_sigma)
+    laid = laid_nats(ends, scrap, None, exact)
     # laid from a along the scrap toward b's place on it, its surveyed length: all but 1.05 + 0.10 m past the scrap
     assert laid == pytest.approx(CFG.unseen_nats_per_m * (math.hypot(0.5, 3.0) - 1.05 - CFG.ridge_overrun_m), rel=0.02)
     assert laid_nats(ends, scrap, None, replace(CFG, laid_unseen=False)) == 0.0
@@ -106,13 +108,13 @@ def test_a_log_laid_on_a_scrap_pays_for_its_unseen_run_though_its_far_point_is_a
     # for them themselves: the laid log adds nothing
     own = _ridge(0.0, 1.5, y=1.0)
     on_own = (_fixed(-0.6, 1.0), _fixed(2.4, 1.0))
-    assert laid_nats(on_own, own, None, CFG) == pytest.approx(0.0, abs=1e-6)
+    assert laid_nats(on_own, own, None, exact) == pytest.approx(0.0, abs=1e-6)
     assert point_cost(on_own[0], own, True, CFG, FCFG) > CFG.unseen_nats_per_m * 0.5 - 0.1
     # a point that stops short of where the laid log runs leaves the rest to it: b 1.4 m across the ridge's end,
     # the log laid from a its surveyed length runs 0.32 m past the ridge's other end, which no point reaches
     short = (_fixed(-0.6, 1.0), _float(1.5, 2.4))
     beyond_m = math.hypot(2.1, 1.4) - 0.6 - 1.5 - CFG.ridge_overrun_m
-    assert laid_nats(short, own, None, CFG) == pytest.approx(CFG.unseen_nats_per_m * beyond_m, rel=0.02)
+    assert laid_nats(short, own, None, exact) == pytest.approx(CFG.unseen_nats_per_m * beyond_m, rel=0.02)
 
 
 def test_a_log_takes_its_own_short_ridge_not_a_scrap_its_float_point_calls_wrong():
