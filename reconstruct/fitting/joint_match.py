@@ -154,34 +154,32 @@ def _span(a: float, b: float, lo: float, hi: float) -> tuple[float, float]:
 
 
 def _layings(ends: tuple[SurveyEnd, SurveyEnd], log: ScanLog, cfg: JointConfig) -> list[_Laying]:
-    """The surveyed log laid in :func:`laid_direction`, its surveyed length long, from each of its points' places
-    on the ridge's axis toward the other point (the ridge's middle where that is square to it): two layings. Along
-    the ridge's axis (revision 17) ``s`` is the distance along the axis from the ridge's start."""
+    """The surveyed log laid in :func:`laid_direction` through the ridge's middle (the ridge is where the scan
+    sees it), its surveyed length long, from each of its points' places on that line toward the other's (the
+    ridge's middle where they coincide): two layings. Along the ridge's axis (revision 17) ``s`` is the distance
+    along the axis from the ridge's start."""
     p0 = log.start_m[:2]
     L = max(log.length_m, 1e-6)
     u = (log.end_m[:2] - p0) / L
     w = laid_direction(ends, log, cfg)
     c, sn = float(w @ u), float(w @ np.array([-u[1], u[0]]))
-    length = float(np.linalg.norm(ends[1].position_m[:2] - ends[0].position_m[:2]))
-    t = [float((e.position_m[:2] - p0) @ u) for e in ends]
+    origin = p0 + 0.5 * L * (u - w)  # the laid line's s = 0: the ridge's middle at s = L / 2
     slope = (float(log.end_m[2]) - float(log.start_m[2])) / L  # the ridge's rise per metre along its axis
+    z0 = float(log.start_m[2]) + slope * 0.5 * L * (1.0 - c)
+    line = log if w is u else ScanLog(np.array([origin[0], origin[1], z0]),
+                                      np.array([origin[0] + w[0], origin[1] + w[1], z0 + slope * c]),
+                                      log.radius_m, log.seen_m, log.strength_per_m)
+    # the ridge's footprint on the laid line: its span past ridge_overrun_m along the axis, its radius across
+    along = _span(0.5 * L * (1.0 - c), c, -cfg.ridge_overrun_m, L + cfg.ridge_overrun_m)
+    across = _span(-0.5 * L * sn, sn, -log.radius_m, log.radius_m)
+    on_lo, on_hi = max(along[0], across[0]), min(along[1], across[1])
+    length = float(np.linalg.norm(ends[1].position_m[:2] - ends[0].position_m[:2]))
+    t = [float((e.position_m[:2] - origin) @ w) for e in ends]
     out = []
     for n in (0, 1):
-        origin = p0 + t[n] * (u - w)  # the laid line's s = 0, so that the point's place on the axis is at s = t[n]
-        z0 = float(log.start_m[2]) + slope * t[n] * (1.0 - c)
-        line = log if w is u else ScanLog(np.array([origin[0], origin[1], z0]),
-                                          np.array([origin[0] + w[0], origin[1] + w[1], z0 + slope * c]),
-                                          log.radius_m, log.seen_m, log.strength_per_m)
-        toward = float((ends[1 - n].position_m[:2] - p0) @ w) - t[n] * c  # along w, from the point's place
-        if toward == 0.0:
-            toward = (0.5 * L - t[n]) * c
+        toward = t[1 - n] - t[n] if t[1 - n] != t[n] else 0.5 * L - t[n]  # toward the other point (the middle)
         lo, hi = (t[n], t[n] + length) if toward >= 0 else (t[n] - length, t[n])
-        along = _span(t[n] * (1.0 - c), c, -cfg.ridge_overrun_m, L + cfg.ridge_overrun_m)
-        across = _span(-sn * t[n], sn, -log.radius_m, log.radius_m)
-        on_lo, on_hi = max(along[0], across[0]), min(along[1], across[1])
-        if not on_lo < on_hi:
-            on_lo = on_hi = hi
-        out.append(_Laying(line, lo, hi, on_lo, on_hi))
+        out.append(_Laying(line, lo, hi, on_lo, on_hi) if on_lo < on_hi else _Laying(line, lo, hi, hi, hi))
     return out
 
 
