@@ -136,7 +136,7 @@ def laid_direction(ends: tuple[SurveyEnd, SurveyEnd], log: ScanLog, cfg: JointCo
 class _Laying:
     """The surveyed log laid on a ridge: along the line ``origin + s * w`` (2-D, ``s`` in metres, the ridge's
     height carried along it), from ``lo`` to ``hi``, the ridge's footprint (its span past ``ridge_overrun_m``,
-    its radius across) covering it from ``on_lo`` to ``on_hi`` (equal to ``hi`` where it covers none)."""
+    its radius across) covering it from ``on_lo`` to ``on_hi``."""
 
     line: ScanLog
     lo: float
@@ -170,6 +170,7 @@ def _layings(ends: tuple[SurveyEnd, SurveyEnd], log: ScanLog, cfg: JointConfig) 
                                       np.array([origin[0] + w[0], origin[1] + w[1], z0 + slope * c]),
                                       log.radius_m, log.seen_m, log.strength_per_m)
     # the ridge's footprint on the laid line: its span past ridge_overrun_m along the axis, its radius across
+    # (both hold the ridge's middle, s = L / 2, that the line runs through: never empty)
     along = _span(0.5 * L * (1.0 - c), c, -cfg.ridge_overrun_m, L + cfg.ridge_overrun_m)
     across = _span(-0.5 * L * sn, sn, -log.radius_m, log.radius_m)
     on_lo, on_hi = max(along[0], across[0]), min(along[1], across[1])
@@ -179,7 +180,7 @@ def _layings(ends: tuple[SurveyEnd, SurveyEnd], log: ScanLog, cfg: JointConfig) 
     for n in (0, 1):
         toward = t[1 - n] - t[n] if t[1 - n] != t[n] else 0.5 * L - t[n]  # toward the other point (the middle)
         lo, hi = (t[n], t[n] + length) if toward >= 0 else (t[n] - length, t[n])
-        out.append(_Laying(line, lo, hi, on_lo, on_hi) if on_lo < on_hi else _Laying(line, lo, hi, hi, hi))
+        out.append(_Laying(line, lo, hi, on_lo, on_hi))
     return out
 
 

@@ -114,3 +114,14 @@ def test_the_switch_lays_the_log_along_the_ridge_as_revision_17_and_is_checked()
     for bad in (1, 0, "yes", None):
         with pytest.raises(ValueError, match="laid_survey_direction"):
             JointConfig(laid_survey_direction=bad)
+
+
+def test_the_turned_log_is_laid_through_the_ridge_not_through_a_points_place_off_it():
+    ridge = _ridge(0.0, 0.5, seen=0.3)
+    # b 1 m before the ridge's start, a 1 m past its end, 20 cm across: the survey's line runs 4.6 deg off the
+    # ridge's axis and over the ridge; each point pays for its own run to the ridge, the laid log for nothing more
+    ends = (_point(-1.0, -0.05, FIXED_SIGMA_M), _point(1.5, 0.15, FIXED_SIGMA_M))
+    w = laid_direction(ends, ridge, CFG)
+    assert _angle(w) == pytest.approx(math.atan2(0.2, 2.5), abs=0.002)
+    assert laid_nats(ends, ridge, None, EXACT) < 0.05
+    assert laid_nats(ends, ridge, None, ALONG_RIDGE) < 0.05
