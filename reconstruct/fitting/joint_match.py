@@ -15,9 +15,10 @@ its prior (:mod:`reconstruct.fitting.joint_pose`), reported as ``pose_offset_m``
 
 With the scan's own evidence about its ridges (:mod:`reconstruct.fitting.joint_ridge`, joint revision 15): a
 ridge whose radius, within its own sigma, no log has is dearer to take and cheaper to leave unexplained, and a
-pair pays for the open ground the surveyed log would lie over, laid along the ridge (:func:`coverage_nats`).
+pair pays for the open ground the surveyed log would lie over, laid on the ridge (:func:`coverage_nats`).
 A point is measured against the line through the ridge's chunk profiles (joint revision 16), as sure as that
-line predicts the axis where the point lies.
+line predicts the axis where the point lies. The log is laid in the direction the ridge's axis and its survey
+points' line support, each by its sigma (:func:`laid_direction`, joint revision 18).
 
 An assignment that makes a different pile (a scan log kept or dropped, a surveyed log hidden instead of seen)
 within ``ambiguity_nats`` of the best is a warning naming the log and the points to re-measure (the likelier
