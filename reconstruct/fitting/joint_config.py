@@ -16,7 +16,7 @@ from dataclasses import dataclass, fields
 ESTIMATORS = ("rules22", "joint")
 #: raised whenever a change to the joint estimator makes different piles from the same scan (recorded in the
 #: report as ``estimator_revision`` and in bench keys)
-JOINT_REVISION = 17
+JOINT_REVISION = 18
 
 
 @dataclass(frozen=True)
@@ -308,6 +308,14 @@ class JointConfig:
     #                                 less. Off (revision 16): the length as exact - a float log laid along its
     #                                 own ridge paid for metres its points' error alone explains
     #                                 (docs/reconstruction.md, "Joint revision 17") [-]
+    # -- the direction the laid log is laid in (joint_match.laid_direction; joint revision 18) --
+    laid_survey_direction: bool = True  # the log laid_nats lays runs in the inverse-variance weighted direction
+    #                                     of the ridge's axis (ridge_direction_sigma_m over its seen length) and
+    #                                     the line through its two survey points (their sigmas across it over
+    #                                     their distance): a 10 cm scrap across a log's two RTK fixed points says
+    #                                     nothing of which way it runs, a long ridge more than two float points.
+    #                                     Off (revision 17): along the ridge's axis whatever its seen length
+    #                                     (docs/reconstruction.md, "Joint revision 18") [-]
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -320,9 +328,10 @@ class JointConfig:
                      "p_on_outside", "p_below_outside", "p_over_inside", "p_over_outside"):
             if not getattr(self, name) < 1:
                 raise ValueError(f"JointConfig.{name} is a probability: must be in (0, 1), got {getattr(self, name)}")
-        if not isinstance(self.laid_length_sigma, bool):
-            raise ValueError(f"JointConfig.laid_length_sigma is a switch: must be True or False, got "
-                             f"{self.laid_length_sigma!r}")
+        for name in ("laid_length_sigma", "laid_survey_direction"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"JointConfig.{name} is a switch: must be True or False, got "
+                                 f"{getattr(self, name)!r}")
         if not self.log_radius_min_m < self.log_radius_max_m < self.other_radius_span_m:
             raise ValueError(f"JointConfig: log_radius_min_m < log_radius_max_m < other_radius_span_m must hold, got "
                              f"{self.log_radius_min_m}, {self.log_radius_max_m}, {self.other_radius_span_m}")

@@ -15,9 +15,10 @@ its prior (:mod:`reconstruct.fitting.joint_pose`), reported as ``pose_offset_m``
 
 With the scan's own evidence about its ridges (:mod:`reconstruct.fitting.joint_ridge`, joint revision 15): a
 ridge whose radius, within its own sigma, no log has is dearer to take and cheaper to leave unexplained, and a
-pair pays for the open ground the surveyed log would lie over, laid along the ridge (:func:`coverage_nats`).
+pair pays for the open ground the surveyed log would lie over, laid on the ridge (:func:`coverage_nats`).
 A point is measured against the line through the ridge's chunk profiles (joint revision 16), as sure as that
-line predicts the axis where the point lies.
+line predicts the axis where the point lies. The log is laid in the direction the ridge's axis and its survey
+points' line support, each by its sigma (:func:`laid_direction`, joint revision 18).
 
 An assignment that makes a different pile (a scan log kept or dropped, a surveyed log hidden instead of seen)
 within ``ambiguity_nats`` of the best is a warning naming the log and the points to re-measure (the likelier
@@ -107,45 +108,107 @@ def point_cost(e: SurveyEnd, log: ScanLog, at_start: bool, cfg: JointConfig, fcf
     return float(z_out / (z_in + z_out)) if outlier_prob else float(-math.log(z_in + z_out))
 
 
-def _layings(ends: tuple[SurveyEnd, SurveyEnd], log: ScanLog) -> list[tuple[float, float]]:
-    """The surveyed log laid along the ridge's axis, its surveyed length long, from each of its points' places on
-    it toward the other's (its middle where they coincide): the two (from, to) spans along the axis [m]."""
+def laid_direction(ends: tuple[SurveyEnd, SurveyEnd], log: ScanLog, cfg: JointConfig) -> np.ndarray:
+    """The unit 2-D direction the surveyed log is laid in on ``log``'s ridge (within 90 deg of its axis): with
+    ``laid_survey_direction`` the inverse-variance weighted angle of the ridge's axis (``ridge_direction_sigma_m``
+    over its seen length: a ridge seen over nothing says nothing) and the line through the two survey points
+    (their sigmas across that line, in quadrature, over their distance; the scan pose's offset is shared and
+    cancels); else the ridge's axis itself."""
+    p0 = log.start_m[:2]
+    u = (log.end_m[:2] - p0) / max(log.length_m, 1e-6)
+    d = ends[1].position_m[:2] - ends[0].position_m[:2]
+    dist_m = float(np.linalg.norm(d))
+    if not cfg.laid_survey_direction or dist_m <= 0.0:
+        return u
+    s = d / dist_m if float(d @ u) >= 0.0 else -d / dist_m
+    across = np.array([-s[1], s[0], 0.0])
+    var_survey = ends[0].sigma_along(across) ** 2 + ends[1].sigma_along(across) ** 2  # [m^2] over dist_m^2
+    var_ridge = (cfg.ridge_direction_sigma_m / log.seen_m) ** 2 if log.seen_m > 0.0 else math.inf  # [rad^2]
+    # the survey's share: 1 / var_survey_rad over the sum of both inverse variances
+    share = 1.0 if math.isinf(var_ridge) else dist_m ** 2 * var_ridge / (dist_m ** 2 * var_ridge + var_survey)
+    theta = share * math.atan2(u[0] * s[1] - u[1] * s[0], float(u @ s))
+    if theta == 0.0:
+        return u
+    c, sn = math.cos(theta), math.sin(theta)
+    return np.array([c * u[0] - sn * u[1], sn * u[0] + c * u[1]])
+
+
+@dataclass(frozen=True)
+class _Laying:
+    """The surveyed log laid on a ridge: along the line ``origin + s * w`` (2-D, ``s`` in metres, the ridge's
+    height carried along it), from ``lo`` to ``hi``, the ridge's footprint (its span past ``ridge_overrun_m``,
+    its radius across) covering it from ``on_lo`` to ``on_hi``."""
+
+    line: ScanLog
+    lo: float
+    hi: float
+    on_lo: float
+    on_hi: float
+
+
+def _span(a: float, b: float, lo: float, hi: float) -> tuple[float, float]:
+    """The s where ``a + b s`` lies in [lo, hi] (empty: lo > hi)."""
+    if abs(b) < 1e-12:
+        return (-math.inf, math.inf) if lo <= a <= hi else (math.inf, -math.inf)
+    s0, s1 = (lo - a) / b, (hi - a) / b
+    return min(s0, s1), max(s0, s1)
+
+
+def _layings(ends: tuple[SurveyEnd, SurveyEnd], log: ScanLog, cfg: JointConfig) -> list[_Laying]:
+    """The surveyed log laid in :func:`laid_direction` through the ridge's middle (the ridge is where the scan
+    sees it), its surveyed length long, from each of its points' places on that line toward the other's (the
+    ridge's middle where they coincide): two layings. Along the ridge's axis (revision 17) ``s`` is the distance
+    along the axis from the ridge's start."""
     p0 = log.start_m[:2]
     L = max(log.length_m, 1e-6)
     u = (log.end_m[:2] - p0) / L
+    w = laid_direction(ends, log, cfg)
+    c, sn = float(w @ u), float(w @ np.array([-u[1], u[0]]))
+    origin = p0 + 0.5 * L * (u - w)  # the laid line's s = 0: the ridge's middle at s = L / 2
+    slope = (float(log.end_m[2]) - float(log.start_m[2])) / L  # the ridge's rise per metre along its axis
+    z0 = float(log.start_m[2]) + slope * 0.5 * L * (1.0 - c)
+    line = log if w is u else ScanLog(np.array([origin[0], origin[1], z0]),
+                                      np.array([origin[0] + w[0], origin[1] + w[1], z0 + slope * c]),
+                                      log.radius_m, log.seen_m, log.strength_per_m)
+    # the ridge's footprint on the laid line: its span past ridge_overrun_m along the axis, its radius across
+    # (both hold the ridge's middle, s = L / 2, that the line runs through: never empty)
+    along = _span(0.5 * L * (1.0 - c), c, -cfg.ridge_overrun_m, L + cfg.ridge_overrun_m)
+    across = _span(-0.5 * L * sn, sn, -log.radius_m, log.radius_m)
+    on_lo, on_hi = max(along[0], across[0]), min(along[1], across[1])
     length = float(np.linalg.norm(ends[1].position_m[:2] - ends[0].position_m[:2]))
-    t = [float((e.position_m[:2] - p0) @ u) for e in ends]
+    t = [float((e.position_m[:2] - origin) @ w) for e in ends]
     out = []
     for n in (0, 1):
-        toward = t[1 - n] - t[n] if t[1 - n] != t[n] else 0.5 * L - t[n]  # toward the other point (its middle)
-        out.append((t[n], t[n] + length) if toward >= 0 else (t[n] - length, t[n]))
+        toward = t[1 - n] - t[n] if t[1 - n] != t[n] else 0.5 * L - t[n]  # toward the other point (the middle)
+        lo, hi = (t[n], t[n] + length) if toward >= 0 else (t[n] - length, t[n])
+        out.append(_Laying(line, lo, hi, on_lo, on_hi))
     return out
 
 
 def laid_nats(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, raster: HeightRaster | None,
               cfg: JointConfig) -> float:
     """What the surveyed log placed on ``log``'s ridge costs along its length [nats], whichever of its two
-    layings (:func:`_layings`) is cheaper: the open ground under it past the ridge's ends (beyond
-    ``ridge_overrun_m``), ``coverage_nats_per_m`` a metre, and (with ``laid_unseen``) the rest of its run past
-    them that no point of it reaches, ``unseen_nats_per_m`` a metre (a point past the ridge's end pays for the
+    layings (:func:`_layings`, in :func:`laid_direction`) is cheaper: the open ground under it off the ridge's
+    footprint, ``coverage_nats_per_m`` a metre, and (with ``laid_unseen``) the rest of its run off it that no
+    point of it reaches, ``unseen_nats_per_m`` a metre (a point past the ridge's end pays for the
     run to it in its own cost, :func:`point_cost`), with ``laid_length_sigma`` priced over the surveyed
     length's error (:func:`unseen_run_nats`). Both are outside the points' outlier mixture: a point far
     off the ridge (an outlier) still says the log is that long, so a log on a short scrap pays for the length
     the scan does not show it (open ground, or nothing). 0 for a log of one point."""
     if ends[0] is None or ends[1] is None or not (cfg.laid_unseen or (cfg.ridge_coverage and raster is not None)):
         return 0.0
-    L, over = max(log.length_m, 1e-6), cfg.ridge_overrun_m
-    reached = _points_past_m(ends, log, over) if cfg.laid_unseen else 0.0
+    reached = _points_past_m(ends, log, cfg.ridge_overrun_m) if cfg.laid_unseen else 0.0
     sigma_m = _length_sigma_m(ends, log, cfg) if cfg.laid_unseen else 0.0
     best = math.inf
-    for lo, hi in _layings(ends, log):
+    for lay in _layings(ends, log, cfg):
+        lo, hi = lay.lo, lay.hi
         open_m = 0.0
         if cfg.ridge_coverage and raster is not None:
-            open_m = (open_length_m(log, lo, min(hi, -over), raster, cfg)
-                      + open_length_m(log, max(lo, L + over), hi, raster, cfg))
+            open_m = (open_length_m(lay.line, lo, min(hi, lay.on_lo), raster, cfg)
+                      + open_length_m(lay.line, max(lo, lay.on_hi), hi, raster, cfg))
         cost = cfg.coverage_nats_per_m * open_m
         if cfg.laid_unseen:
-            past = max(0.0, min(hi, -over) - lo) + max(0.0, hi - max(lo, L + over))
+            past = max(0.0, min(hi, lay.on_lo) - lo) + max(0.0, hi - max(lo, lay.on_hi))
             cost += unseen_run_nats(past - open_m - reached, sigma_m, cfg.unseen_nats_per_m)
         best = min(best, cost)
     return best

@@ -15,7 +15,8 @@ from reconstruct.fitting.joint_match import laid_nats, unseen_run_nats
 from reconstruct.fitting.scan_logs import ScanLog
 from reconstruct.fitting.survey_points import SurveyEnd
 
-CFG = JointConfig()
+CFG = JointConfig(laid_survey_direction=False)  # laid along the ridge's axis, as revision 17 (revision 18's own tests:
+#                                                test_joint_laid_direction.py)
 EXACT = replace(CFG, laid_length_sigma=False)  # revision 16: the surveyed length as exact
 RATE = CFG.unseen_nats_per_m
 R_M = 0.09  # the ridges' radius [m]

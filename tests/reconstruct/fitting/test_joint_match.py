@@ -197,7 +197,8 @@ def test_a_log_on_a_short_scrap_is_dearer_than_hidden_where_the_scan_sees_open_g
     across = (_fixed(0.0, 0.0), _fixed(0.15, 2.5))
     from_b = open_length_m(scrap, 0.15 - math.hypot(0.15, 2.5), -CFG.ridge_overrun_m, raster, CFG)
     assert from_b == pytest.approx(0.9, abs=2 * CFG.coverage_cell_m)
-    assert coverage_nats(across, scrap, raster, CFG) == pytest.approx(CFG.coverage_nats_per_m * from_b)
+    along_scrap = replace(CFG, laid_survey_direction=False)  # laid along the scrap's axis, as revision 17
+    assert coverage_nats(across, scrap, raster, along_scrap) == pytest.approx(CFG.coverage_nats_per_m * from_b)
 
 
 def test_the_ridge_terms_parameters_are_checked():

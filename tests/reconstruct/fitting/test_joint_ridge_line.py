@@ -97,8 +97,9 @@ def test_a_fixed_end_past_a_short_tilted_ridge_is_no_outlier_against_its_chunk_l
 def test_a_log_laid_on_a_scrap_pays_for_its_unseen_run_though_its_far_point_is_an_outlier():
     scrap = _ridge(0.0, 1.05, seen=0.10)
     ends = (_fixed(0.0, 0.0), _float(0.5, 3.0))  # b 3 m across the scrap: the log is 3 m long
-    exact = replace(CFG, laid_length_sigma=False)  # the surveyed length as exact (revision 16; with its sigma:
-    #                                                 test_joint_laid_sigma)
+    exact = replace(CFG, laid_length_sigma=False, laid_survey_direction=False)  # the surveyed length as exact and
+    #   the log laid along the scrap (revision 16; with the length's sigma: test_joint_laid_sigma; in the points'
+    #   direction: test_joint_laid_direction)
     laid = laid_nats(ends, scrap, None, exact)
     # laid from a along the scrap toward b's place on it, its surveyed length: all but 1.05 + 0.10 m past the scrap
     assert laid == pytest.approx(CFG.unseen_nats_per_m * (math.hypot(0.5, 3.0) - 1.05 - CFG.ridge_overrun_m), rel=0.02)
