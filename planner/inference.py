@@ -95,8 +95,9 @@ class Planner:
     model: object  # torch.nn.Module in eval mode
     config: UNetConfig
     device: Literal["cpu", "cuda"] = "cpu"  # "cpu" or "cuda"
-    precision: Literal["auto", "bf16", "fp32"] = "auto"  # "auto": planner.runtime.default_precision (bf16 where
-    # the CPU has bf16 dot products, else fp32); after construction the format that runs
+    precision: Literal["auto", "bf16", "fp32", "int8"] = "auto"  # "auto": planner.runtime.default_precision (bf16
+    # where the CPU has bf16 dot products, else fp32); "int8" (opt-in, CPU): planner.int8 with int8_calibration;
+    # after construction the format that runs
     batch_size: int | None = None  # target masks per forward pass [-]; None: 16 per torch thread (planner.runtime)
     meta: dict = field(default_factory=dict)
     angle_smoothing_px: float = 1.0  # Gaussian sigma for C, S (and W) before decoding [px]
@@ -106,6 +107,7 @@ class Planner:
     views: int = 1  # dihedral views averaged at test time: 1 (none), 2 (+ mirror), 4 (quarter turns) or 8 (both) [-]
     view_spread_k: float = 0.0  # U logit lowered by k x its standard deviation over the views [-]
     # (a lower confidence bound: of two grasps the views rate alike on average, the one they agree on wins)
+    int8_calibration: object = None  # planner.int8.Int8Calibration of these weights; needed by precision "int8"
 
     def __post_init__(self) -> None:
         self.precision = resolve_precision(self.precision, self.device)
@@ -114,6 +116,14 @@ class Planner:
         if not (self.angle_smoothing_px >= 0 and self.quality_smoothing_px >= 0):
             raise ValueError("angle_smoothing_px and quality_smoothing_px must be >= 0 pixels")
         check_views(self.views, self.view_spread_k)
+        if self.precision == "int8":
+            from planner.int8 import build_int8
+
+            if self.int8_calibration is None:
+                raise ValueError("precision 'int8' needs the weights' int8 calibration (int8_calibration; "
+                                 "load_planner reads it beside the checkpoint, planner.int8.calibration_path)")
+            self._net = build_int8(self.model, self.int8_calibration, masks_per_pass(self.batch_size))
+            return
         from planner.model import prepare_for_inference
 
         self._net = prepare_for_inference(self.model, self.precision, self.device)
@@ -122,7 +132,7 @@ class Planner:
     def dtype(self):
         import torch
 
-        return torch.bfloat16 if self.precision == "bf16" else torch.float32
+        return torch.bfloat16 if self.precision == "bf16" else torch.float32  # int8: quantized inside the net
 
     def _tensor(self, a: np.ndarray):
         import torch
@@ -225,12 +235,21 @@ def default_device() -> str:
 def load_planner(path: str | Path, device: str = "auto", precision: str = "auto", batch_size: int | None = None,
                  quality_smoothing_px: float = 1.0, views: int = 1, view_spread_k: float = 0.0) -> Planner:
     """Load a checkpoint (:func:`planner.checkpoint.load_checkpoint`) as a :class:`Planner`
-    (``views``, ``view_spread_k``: dihedral test-time views, see :meth:`Planner.predict`)."""
+    (``views``, ``view_spread_k``: dihedral test-time views, see :meth:`Planner.predict`). With
+    ``precision="int8"`` its calibration is read from beside it (:func:`planner.int8.calibration_path`)."""
     from planner.checkpoint import load_checkpoint
 
     model, config, meta = load_checkpoint(path)
-    return Planner(model, config, default_device() if device == "auto" else device, precision, batch_size, meta,
-                   quality_smoothing_px=quality_smoothing_px, views=views, view_spread_k=view_spread_k)
+    device = default_device() if device == "auto" else device
+    cal = None
+    if precision == "int8":
+        from planner.int8 import calibration_path, read_calibration
+
+        resolve_precision(precision, device)  # the one-line ValueError before any file is read
+        cal = read_calibration(calibration_path(path))
+        cal.check(model, str(path))
+    return Planner(model, config, device, precision, batch_size, meta, quality_smoothing_px=quality_smoothing_px,
+                   views=views, view_spread_k=view_spread_k, int8_calibration=cal)
 
 
 def _gaussian(maps: np.ndarray, sigma_px: float) -> np.ndarray:

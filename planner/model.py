@@ -217,22 +217,11 @@ def prepare_for_inference(model, precision: str = "bf16", device: str = "cpu"):
     pooling and concatenation (about a third less CPU time than fp32-weights + autocast here).
     On the CPU each convolution + ReLU then runs as one oneDNN call with the ReLU as a post-op
     (:func:`fuse_conv_relu`): the same numbers, one pass less over every activation."""
-    import copy
-
     import torch
-    from torch import nn
-    from torch.nn.utils.fusion import fuse_conv_bn_eval
 
     if precision not in ("fp32", "bf16"):
         raise ValueError(f"precision must be 'fp32' or 'bf16', got {precision!r}")
-    m = copy.deepcopy(model).eval().cpu()
-    for mod in m.modules():
-        if isinstance(mod, nn.Sequential) and len(mod) == 6 and isinstance(mod[1], nn.BatchNorm2d):
-            fused = [fuse_conv_bn_eval(mod[0], mod[1]), mod[2], fuse_conv_bn_eval(mod[3], mod[4]), mod[5]]
-            for _ in range(6):
-                del mod[0]
-            for f in fused:
-                mod.append(f)
+    m = fold_batch_norm(model)
     head = m.head
     if precision == "bf16":
         m = m.to(torch.bfloat16)
@@ -241,6 +230,25 @@ def prepare_for_inference(model, precision: str = "bf16", device: str = "cpu"):
     if device == "cpu":
         m = m.to(memory_format=torch.channels_last)
         fuse_conv_relu(m)
+    return m
+
+
+def fold_batch_norm(model):
+    """An fp32 eval copy of ``model`` on the CPU with every BatchNorm folded into the convolution
+    before it: each block becomes (Conv2d, ReLU, Conv2d, ReLU)."""
+    import copy
+
+    from torch import nn
+    from torch.nn.utils.fusion import fuse_conv_bn_eval
+
+    m = copy.deepcopy(model).eval().cpu().float()
+    for mod in m.modules():
+        if isinstance(mod, nn.Sequential) and len(mod) == 6 and isinstance(mod[1], nn.BatchNorm2d):
+            fused = [fuse_conv_bn_eval(mod[0], mod[1]), mod[2], fuse_conv_bn_eval(mod[3], mod[4]), mod[5]]
+            for _ in range(6):
+                del mod[0]
+            for f in fused:
+                mod.append(f)
     return m
 
 

@@ -26,7 +26,8 @@ from __future__ import annotations
 
 NATIVE_BF16_CPU_FEATURES = ("avx512_bf16", "amx_bf16")  # x86 features with bf16 dot products (torch's names)
 MASKS_PER_THREAD = 16  # target masks per forward pass and torch thread [-] (measured above)
-PRECISIONS = ("auto", "bf16", "fp32")  # "auto": :func:`default_precision`
+PRECISIONS = ("auto", "bf16", "fp32", "int8")  # "auto": :func:`default_precision`; "int8": opt-in, CPU only
+#                                                (planner.int8: oneDNN uint8 x int8 convolutions, calibrated)
 
 
 def cpu_features() -> dict:
@@ -65,8 +66,21 @@ def masks_per_pass(batch_size: int | None = None) -> int:
     return MASKS_PER_THREAD * max(1, torch.get_num_threads())
 
 
+def int8_kernels_available() -> bool:
+    """True when this torch has oneDNN's int8 convolution (``torch.ops.onednn.qconv2d_pointwise``,
+    what :mod:`planner.int8` runs)."""
+    import torch
+
+    return (torch.backends.mkldnn.is_available() and "onednn" in torch.backends.quantized.supported_engines
+            and hasattr(torch.ops.onednn, "qconv2d_pointwise") and hasattr(torch.ops.onednn, "qconv_prepack"))
+
+
 def resolve_precision(precision: str, device: str) -> str:
-    """``precision`` itself, or :func:`default_precision` for "auto"; ``ValueError`` for others."""
+    """``precision`` itself, or :func:`default_precision` for "auto"; ``ValueError`` for others and
+    for "int8" where it cannot run (not on the CPU, or no oneDNN int8 kernels)."""
     if precision not in PRECISIONS:
         raise ValueError(f"precision must be one of {list(PRECISIONS)}, got {precision!r}")
+    if precision == "int8" and (device != "cpu" or not int8_kernels_available()):
+        why = "it runs on the CPU only" if device != "cpu" else "this torch has no oneDNN int8 convolution"
+        raise ValueError(f"precision 'int8' cannot run on {device!r}: {why}; use 'bf16' or 'fp32'")
     return default_precision(device) if precision == "auto" else precision
