@@ -3,7 +3,7 @@
 subset pre-selection).
 
     .venv/bin/python bench/bench_planner.py [--pruning-only --model M --piles 20] [--views-only] [--ranker-only]
-        [--balance-only] [--cost-only [--threads 1,2]]
+        [--balance-only] [--cost-only [--threads 1,2] [--precisions bf16,int8 [--rounds 3]]]
 """
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ from __future__ import annotations
 import os
 
 from experiments.planner_bench import (balance_latency, balance_markdown, cost_markdown, markdown, plan_cost,
-                                       pruning_markdown, pruning_quality, ranker_latency, ranker_markdown,
-                                       views_latency, views_markdown)
+                                       precision_cost, precision_markdown, pruning_markdown, pruning_quality,
+                                       ranker_latency, ranker_markdown, views_latency, views_markdown)
 
 __all__ = ["markdown"]
 
@@ -34,8 +34,14 @@ if __name__ == "__main__":
     ap.add_argument("--cost-only", action="store_true",
                     help="only the wall and CPU seconds of a plan with 1 and 2 torch threads (shared machines)")
     ap.add_argument("--threads", default="1,2", help="torch threads for --cost-only, comma-separated")
+    ap.add_argument("--precisions", default=None,
+                    help="with --cost-only: one-thread CPU s of a 7-log plan in these precisions, alternating "
+                         "(e.g. bf16,int8)")
+    ap.add_argument("--rounds", type=int, default=3, help="rounds for --precisions")
     args = ap.parse_args()
-    if args.cost_only:
+    if args.cost_only and args.precisions:
+        print("\n".join(precision_markdown(precision_cost(tuple(args.precisions.split(",")), rounds=args.rounds))))
+    elif args.cost_only:
         print("\n".join(cost_markdown(plan_cost(threads=tuple(int(t) for t in args.threads.split(","))))))
     elif args.balance_only:
         print("\n".join(balance_markdown(balance_latency())))

@@ -1,7 +1,7 @@
 """The planner's chosen grasps on a fixed set of piles, before and after a speed change
 (:mod:`experiments.plan_choices`): record them with one version of the code, then compare.
 
-    .venv/bin/python bench/plan_choices.py --out before.json [--cache DIR] [--precision bf16] [--batch-size 16]
+    .venv/bin/python bench/plan_choices.py --out before.json [--cache DIR] [--precision bf16|fp32|int8] [--batch-size 16]
     .venv/bin/python bench/plan_choices.py --out after.json --against before.json [--cache DIR]
 """
 
@@ -22,7 +22,7 @@ if __name__ == "__main__":
     ap.add_argument("--against", default=None, help="an earlier record: print the comparison (Markdown)")
     ap.add_argument("--cache", default=None, help="folder keeping the piles' observations (npz)")
     ap.add_argument("--model", default=str(DEFAULT_MODEL), help="checkpoint (default: the shipped model)")
-    ap.add_argument("--precision", default=None, help="bf16 or fp32 (default: the planner's)")
+    ap.add_argument("--precision", default=None, help="bf16, fp32 or int8 (default: the planner's)")
     ap.add_argument("--batch-size", type=int, default=None,
                     help="target masks per forward pass (default: the planner's, 16 per torch thread)")
     ap.add_argument("--threads", type=int, default=1, help="torch threads")

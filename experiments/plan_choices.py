@@ -97,7 +97,7 @@ def compare_choices(before: dict, after: dict) -> dict:
     pixel moved by more than :data:`PIXEL_TOL_PX`."""
     key = lambda p: (p["seed"], p["objective"])  # noqa: E731
     b_of = {key(p): p for p in before["piles"]}
-    rows = []
+    rows, all_du = [], []
     for pa in after["piles"]:
         pb = b_of.get(key(pa))
         if pb is None:
@@ -108,6 +108,7 @@ def compare_choices(before: dict, after: dict) -> dict:
         moved = 0
         for g in pa["grasps"]:
             o = sub_b[tuple(g["targets"])]
+            all_du.append(abs(g["u"] - o["u"]))
             du, dq = max(du, abs(g["u"] - o["u"])), max(dq, abs(g["q"] - o["q"]))
             moved += math.dist(g["pixel"], o["pixel"]) > PIXEL_TOL_PX
         d_px = math.dist(ga["pixel"], gb["pixel"])
@@ -120,7 +121,9 @@ def compare_choices(before: dict, after: dict) -> dict:
                                     and d_w <= WIDTH_TOL_M),
                      "max_du": du, "max_dq": dq, "subsets_moved": moved})
     return {"rows": rows, "same": sum(r["same_grasp"] for r in rows), "n": len(rows),
+            "same_targets": sum(r["same_targets"] for r in rows),
             "max_du": max((r["max_du"] for r in rows), default=0.0),
+            "median_du": float(np.median(all_du)) if all_du else 0.0,
             "subsets_moved": sum(r["subsets_moved"] for r in rows),
             "subsets": sum(r["subsets"] for r in rows)}
 
@@ -129,8 +132,9 @@ def choices_markdown(cmp: dict, before: dict, after: dict) -> list[str]:
     lines = [f"Chosen grasps before ({before['precision']}, batch {before['batch_size']}) and after "
              f"({after['precision']}, batch {after['batch_size']}): {cmp['same']}/{cmp['n']} (pile, objective) "
              f"pairs choose the same subset and grasp (within {PIXEL_TOL_PX:g} px, {ANGLE_TOL_RAD:g} rad, "
-             f"{WIDTH_TOL_M:g} m); over all {cmp['subsets']} subsets' best grasps, {cmp['subsets_moved']} moved "
-             f"by more than {PIXEL_TOL_PX:g} px and the largest |du| is {cmp['max_du']:.2g}.", "",
+             f"{WIDTH_TOL_M:g} m) and {cmp['same_targets']}/{cmp['n']} the same subset; over all {cmp['subsets']} "
+             f"subsets' best grasps, {cmp['subsets_moved']} moved by more than {PIXEL_TOL_PX:g} px and |du| is "
+             f"{cmp['median_du']:.2g} at the median, {cmp['max_du']:.2g} at most.", "",
              "| seed | logs | obstacles | objective | subsets | same subset | d pixel | d phi rad | max abs du |",
              "|---|---|---|---|---|---|---|---|---|"]
     return lines + [f"| {r['seed']} | {r['logs']} | {'yes' if r['obstacles'] else 'no'} | {r['objective']} | "

@@ -22,6 +22,7 @@ from pathlib import Path
 
 from experiments.measure import load_average
 from planner.checkpoint import DEFAULT_MODEL
+from planner.runtime import int8_kernels_available
 
 ROOT = Path(__file__).resolve().parents[1]  # the repository (for model paths in the tables)
 
@@ -212,6 +213,43 @@ def plan_cost(n_logs=(4, 7), threads=(1, 2), repeats: int = 5) -> list[dict]:
                          "batch": masks_per_pass(pl.batch_size), "wall_s": statistics.median(walls),
                          "cpu_s": statistics.median(cpus), "load": load_average("")})
     return rows
+
+
+def precision_cost(precisions=("bf16", "int8"), n_logs: int = 7, rounds: int = 3, repeats: int = 3) -> list[dict]:
+    """One-thread CPU seconds of an f3 plan (all subsets) of one ``n_logs`` pile with the shipped model
+    in each of ``precisions``, the precisions alternating within each of ``rounds`` (each round's
+    figure the median of ``repeats`` plans): the comparison other jobs on a shared machine move
+    least. Returns one row per precision: median, min and max over the rounds."""
+    import torch
+
+    from planner.inference import Objective, load_planner, plan
+
+    torch.set_num_threads(1)
+    obs = _pile_observations(n_logs, 1)[0][0]
+    planners = {p: load_planner(DEFAULT_MODEL, device="cpu", precision=p) for p in precisions}
+    f3 = Objective(kind="f3")
+    subsets = {p: plan(obs, pl, f3).subsets_evaluated for p, pl in planners.items()}  # warm-up
+    per_round: dict[str, list[float]] = {p: [] for p in precisions}
+    for _ in range(rounds):
+        for p, pl in planners.items():
+            cpus = []
+            for _ in range(repeats):
+                c0 = time.process_time()
+                plan(obs, pl, f3)
+                cpus.append(time.process_time() - c0)
+            per_round[p].append(statistics.median(cpus))
+    return [{"precision": p, "logs": n_logs, "subsets": subsets[p], "rounds": rounds, "repeats": repeats,
+             "cpu_s": statistics.median(v), "cpu_min_s": min(v), "cpu_max_s": max(v), "load": load_average("")}
+            for p, v in per_round.items()]
+
+
+def precision_markdown(rows: list[dict]) -> list[str]:
+    lines = ["Planning cost by precision (`--cost-only --precisions`): shipped model, f3, all subsets, one torch "
+             "thread, CPU s per plan; the precisions alternate, median (min-max) over the rounds of each round's "
+             "median. Target: a 7-log pile (127 subsets) <= 0.5 s wall on 2 cores.", "",
+             "| precision | logs | subsets | rounds x plans | CPU s | load |", "|---|---|---|---|---|---|"]
+    return lines + [f"| {r['precision']} | {r['logs']} | {r['subsets']} | {r['rounds']} x {r['repeats']} | "
+                    f"{r['cpu_s']:.3f} ({r['cpu_min_s']:.3f}-{r['cpu_max_s']:.3f}) | {r['load']} |" for r in rows]
 
 
 def cost_markdown(rows: list[dict]) -> list[str]:
@@ -430,6 +468,8 @@ def markdown(repeats: int = 3) -> str:
     parts += [f"| {r['model']} | {r['injection']} | {r['logs']} | {r['subsets']} | {r['selection']}"
               f"{fit_note(r)} | "
               f"{r['wall_s']:.2f} | {r['cpu_s']:.2f} |" for r in lat]
+    if int8_kernels_available():
+        parts += [""] + precision_markdown(precision_cost())
     parts += [""] + views_markdown(views_latency())
     parts += [""] + ranker_markdown(ranker_latency())
     parts += [""] + pruning_markdown(pruning_quality(

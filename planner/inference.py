@@ -33,7 +33,7 @@ from planner.constraints import Constraints, polygon_raster
 from planner.data import make_inputs
 from planner.errors import ObservationError
 from planner.model import OUTPUT_NAMES, UNetConfig, decode_balance
-from planner.runtime import masks_per_pass, resolve_precision
+from planner.runtime import INT8_PRECISIONS, masks_per_pass, resolve_precision
 from planner.subsets import SubsetPolicy, choose_subsets
 from synth.geometry.frames import OrthoGrid, wrap_phi
 from synth.geometry.grasp import MAX_WIDTH_M, MIN_WIDTH_M, RECT_WIDTH_M, Grasp
@@ -95,9 +95,9 @@ class Planner:
     model: object  # torch.nn.Module in eval mode
     config: UNetConfig
     device: Literal["cpu", "cuda"] = "cpu"  # "cpu" or "cuda"
-    precision: Literal["auto", "bf16", "fp32", "int8"] = "auto"  # "auto": planner.runtime.default_precision (bf16
-    # where the CPU has bf16 dot products, else fp32); "int8" (opt-in, CPU): planner.int8 with int8_calibration;
-    # after construction the format that runs
+    precision: Literal["auto", "bf16", "fp32", "int8", "int8-bf16-top"] = "auto"  # "auto":
+    # planner.runtime.default_precision (bf16 where the CPU has bf16 dot products, else fp32); "int8" and
+    # "int8-bf16-top" (opt-in, CPU): planner.int8 with int8_calibration; after construction the format that runs
     batch_size: int | None = None  # target masks per forward pass [-]; None: 16 per torch thread (planner.runtime)
     meta: dict = field(default_factory=dict)
     angle_smoothing_px: float = 1.0  # Gaussian sigma for C, S (and W) before decoding [px]
@@ -116,13 +116,14 @@ class Planner:
         if not (self.angle_smoothing_px >= 0 and self.quality_smoothing_px >= 0):
             raise ValueError("angle_smoothing_px and quality_smoothing_px must be >= 0 pixels")
         check_views(self.views, self.view_spread_k)
-        if self.precision == "int8":
+        if self.precision in INT8_PRECISIONS:
             from planner.int8 import build_int8
 
             if self.int8_calibration is None:
-                raise ValueError("precision 'int8' needs the weights' int8 calibration (int8_calibration; "
+                raise ValueError(f"precision {self.precision!r} needs the weights' int8 calibration (int8_calibration; "
                                  "load_planner reads it beside the checkpoint, planner.int8.calibration_path)")
-            self._net = build_int8(self.model, self.int8_calibration, masks_per_pass(self.batch_size))
+            self._net = build_int8(self.model, self.int8_calibration, masks_per_pass(self.batch_size),
+                                   float_top=self.precision == "int8-bf16-top")
             return
         from planner.model import prepare_for_inference
 
@@ -236,13 +237,13 @@ def load_planner(path: str | Path, device: str = "auto", precision: str = "auto"
                  quality_smoothing_px: float = 1.0, views: int = 1, view_spread_k: float = 0.0) -> Planner:
     """Load a checkpoint (:func:`planner.checkpoint.load_checkpoint`) as a :class:`Planner`
     (``views``, ``view_spread_k``: dihedral test-time views, see :meth:`Planner.predict`). With
-    ``precision="int8"`` its calibration is read from beside it (:func:`planner.int8.calibration_path`)."""
+    an int8 ``precision`` its calibration is read from beside it (:func:`planner.int8.calibration_path`)."""
     from planner.checkpoint import load_checkpoint
 
     model, config, meta = load_checkpoint(path)
     device = default_device() if device == "auto" else device
     cal = None
-    if precision == "int8":
+    if precision in INT8_PRECISIONS:
         from planner.int8 import calibration_path, read_calibration
 
         resolve_precision(precision, device)  # the one-line ValueError before any file is read

@@ -16,9 +16,13 @@ bias and the ReLU applied to the fp32 accumulator, the result requantized to uin
 * **Input** (intensity, height, mask): one uint8 tensor with one zero point and a scale per channel,
   folded into the first convolution's weights (padding stays a true zero).
 * **Transposed convolutions** (2x2, stride 2) run as the equivalent 1x1 int8 convolution to 4x the
-  channels followed by a pixel shuffle; **max pooling** on uint8 is exact.
+  channels, put in place by the copy that concatenates; **max pooling** on uint8 is exact.
 * **Kept in float**: the last decoder convolution writes fp32 (no requantization) and the 1x1 head
   and its activations (cos 2phi, sin 2phi, width, U, B) run in fp32, as in the bf16 path.
+  Precision ``"int8-bf16-top"`` (``float_top``) also keeps the full-resolution level in bf16 (the
+  encoder's first block and the decoder's last, about a quarter of the operations): there the
+  activations' ranges are widest against their detail, and quantizing them doubled the error of
+  the U logit (docs/model.md, "int8").
 
 Only ``mask_injection = "input"`` networks are supported (the shipped one).
 """
@@ -210,7 +214,8 @@ def input_qparams(ranges) -> tuple[np.ndarray, int]:
 
 class _QConv:
     """One convolution as a oneDNN int8 call: uint8 in (``x_scale``, ``x_zp``), int8 weights per
-    output channel, fp32 bias, optional ReLU, out as uint8 (``out``: (scale, zp)) or fp32 (None).
+    output channel, fp32 bias, optional ReLU, out as uint8 (``out``: (scale, zp)) or as float
+    (``out``: a torch dtype, fp32 or bf16).
     The weights are packed for inputs of ``x_shape`` (N, C, H, W); other shapes give the same
     numbers, but oneDNN may pick a slower kernel (a 1x1 convolution at 8 x 8 px packed without the
     shape took 6.6 ms a pass instead of 0.7)."""
@@ -232,8 +237,8 @@ class _QConv:
     def __call__(self, x):
         import torch
 
-        o_scale, o_zp, o_dtype = (1.0, 0, torch.float32) if self.out is None else (float(self.out[0]),
-                                                                                  int(self.out[1]), None)
+        o_scale, o_zp, o_dtype = ((1.0, 0, self.out) if isinstance(self.out, torch.dtype) else
+                                  (float(self.out[0]), int(self.out[1]), None))
         return torch.ops.onednn.qconv2d_pointwise(x, self.x_scale, self.x_zp, self.packed, self.w_scale, self.w_zp,
                                                   self.bias, [1, 1], self.pad, [1, 1], 1, o_scale, o_zp, o_dtype,
                                                   "relu" if self.relu else "none", [], "")
@@ -249,19 +254,58 @@ def _pool_u8(x):
 
 def _up_as_1x1(up):
     """A 2x2 stride-2 ConvTranspose2d as the weight and bias of a 1x1 convolution to 4x the
-    channels, whose pixel shuffle (factor 2) is the transposed convolution's output."""
+    channels, output channel ``(2 a + b) cout + c`` holding output channel c at the sub-pixel
+    (a, b) (:func:`_unshuffle_cat` puts them in place)."""
     w = up.weight.detach().float()  # (cin, cout, 2, 2)
     cin, cout = w.shape[:2]
-    w1 = w.permute(1, 2, 3, 0).reshape(cout * 4, cin, 1, 1).contiguous()
-    b1 = None if up.bias is None else up.bias.detach().float().repeat_interleave(4)
+    w1 = w.permute(2, 3, 1, 0).reshape(4 * cout, cin, 1, 1).contiguous()
+    b1 = None if up.bias is None else up.bias.detach().float().repeat(4)
     return w1, b1
 
 
-def build_int8(model, cal: Int8Calibration, batch_size: int = 16):
+def _unshuffle_cat(u, skip):
+    """The transposed convolution's output from its 1x1 form ``u`` (N, 4C, h, w), concatenated
+    with ``skip`` (N, Cs, 2h, 2w) along the channels: (N, C + Cs, 2h, 2w) channels-last, written
+    with one copy of each (both channels-last uint8)."""
+    import torch
+
+    n, c4, h, w = u.shape
+    c, cs = c4 // 4, skip.shape[1]
+    out = torch.empty((n, 2 * h, 2 * w, c + cs), dtype=u.dtype)  # NHWC storage
+    sub = out.view(n, h, 2, w, 2, c + cs)  # (n, i, a, j, b, channel): pixel (2i + a, 2j + b)
+    u_sub = u.permute(0, 2, 3, 1).view(n, h, w, 2, 2, c)  # (n, i, j, a, b, channel)
+    for a in range(2):
+        for b in range(2):  # four copies of contiguous channel runs: faster than one 6-d strided copy
+            sub[:, :, a, :, b, :c].copy_(u_sub[:, :, :, a, b])
+    out[..., c:].copy_(skip.permute(0, 2, 3, 1))
+    return out.permute(0, 3, 1, 2)
+
+
+class _FConv:
+    """A convolution + ReLU in float (bf16 where oneDNN has bf16 kernels, else fp32) as one oneDNN
+    call, for the levels kept out of int8 (:func:`build_int8`'s ``float_top``)."""
+
+    def __init__(self, weight, bias, dtype) -> None:
+        import torch
+
+        self.weight = weight.detach().to(dtype).contiguous(memory_format=torch.channels_last)
+        self.bias = None if bias is None else bias.detach().to(dtype)
+        self.pad = [weight.shape[-1] // 2] * 2
+
+    def __call__(self, x):
+        import torch
+
+        return torch.ops.mkldnn._convolution_pointwise(x, self.weight, self.bias, self.pad, [1, 1], [1, 1], 1,
+                                                       "relu", [], "")
+
+
+def build_int8(model, cal: Int8Calibration, batch_size: int = 16, float_top: bool = False):
     """The int8 inference network of ``model`` (an fp32 :func:`planner.model.build_unet` network)
     with calibration ``cal`` (checked against its weights). Its ``forward`` takes the fp32 input
     (N, C, H, W) and returns the fp32 outputs of :meth:`UNet.finish`. Its kernels are chosen for
-    ``batch_size`` inputs of the network's ``size_px`` (:class:`_QConv`)."""
+    ``batch_size`` inputs of the network's ``size_px`` (:class:`_QConv`). With ``float_top`` the
+    full-resolution level (the encoder's first block, the decoder's last; about a quarter of the
+    operations) runs in bf16: the transposed convolution into it stays int8 with a bf16 output."""
     import torch
     from torch import nn
 
@@ -278,14 +322,15 @@ def build_int8(model, cal: Int8Calibration, batch_size: int = 16):
     if missing:
         raise CheckpointError(f"the int8 calibration lacks the ranges of {missing[:3]}; calibrate it again")
     q = {k: act_qparams(*v) for k, v in cal.ranges.items()}
-    # a skip and the transposed convolution's output share their concatenation's codes
+    pool0 = q["down0.b"]  # with float_top: the pooled first level's own codes
     depth = len(down) - 1
-    for j in range(depth):
-        lo = min(cal.ranges[f"up{j}"][0], cal.ranges[f"down{depth - 1 - j}.b"][0])
+    for j in range(depth - int(float_top)):  # a skip and the transposed convolution's output share the
+        lo = min(cal.ranges[f"up{j}"][0], cal.ranges[f"down{depth - 1 - j}.b"][0])  # concatenation's codes
         hi = max(cal.ranges[f"up{j}"][1], cal.ranges[f"down{depth - 1 - j}.b"][1])
         q[f"up{j}"] = q[f"down{depth - 1 - j}.b"] = act_qparams(lo, hi)
     in_scales, in_zp = input_qparams(cal.input_ranges)
     side = model.config.size_px
+    fdt = torch.bfloat16 if torch.ops.mkldnn._is_mkldnn_bf16_supported() else torch.float32
 
     def shape(conv, level: int) -> list[int]:
         return [batch_size, conv.weight.shape[1], side >> level, side >> level]
@@ -297,11 +342,14 @@ def build_int8(model, cal: Int8Calibration, batch_size: int = 16):
             super().__init__()
             self.config = model.config
             self.float_net = folded  # its head and finish() run in fp32
+            self.float_top = float_top
             self.in_inv_scale = torch.from_numpy(1.0 / in_scales).view(1, -1, 1, 1)
             self.in_zp = in_zp
+            self.pool0_inv_scale = 1.0 / pool0[0]
             a0, b0 = down[0]
             w0 = a0.weight.detach().float() * torch.from_numpy(in_scales).view(1, -1, 1, 1)
-            self.down = [(_QConv(w0, a0.bias, 1.0, in_zp, q["down0.a"], True, shape(a0, 0)),
+            self.down = [(_FConv(a0.weight, a0.bias, fdt), _FConv(b0.weight, b0.bias, fdt)) if float_top else
+                         (_QConv(w0, a0.bias, 1.0, in_zp, q["down0.a"], True, shape(a0, 0)),
                           _QConv(b0.weight, b0.bias, *q["down0.a"], q["down0.b"], True, shape(b0, 0)))]
             for i, (a, b) in enumerate(down[1:], start=1):
                 self.down.append((_QConv(a.weight, a.bias, *q[f"down{i - 1}.b"], q[f"down{i}.a"], True, shape(a, i)),
@@ -310,29 +358,41 @@ def build_int8(model, cal: Int8Calibration, batch_size: int = 16):
             prev = q[f"down{depth}.b"]
             for j, (up, (a, b)) in enumerate(zip(folded.up, dec)):
                 w1, b1 = _up_as_1x1(up)
-                level = depth - 1 - j
-                self.up.append(_QConv(w1, b1, *prev, q[f"up{j}"], False, [batch_size, w1.shape[1], side >> (level + 1),
-                                                                          side >> (level + 1)]))
-                last = j == depth - 1
+                level, last = depth - 1 - j, j == depth - 1
+                lower = [batch_size, w1.shape[1], side >> (level + 1), side >> (level + 1)]
+                if last and float_top:
+                    self.up.append(_QConv(w1, b1, *prev, fdt, False, lower))
+                    self.dec.append((_FConv(a.weight, a.bias, fdt), _FConv(b.weight, b.bias, fdt)))
+                    break
+                self.up.append(_QConv(w1, b1, *prev, q[f"up{j}"], False, lower))
                 self.dec.append((_QConv(a.weight, a.bias, *q[f"up{j}"], q[f"dec{j}.a"], True, shape(a, level)),
-                                 _QConv(b.weight, b.bias, *q[f"dec{j}.a"], None if last else q[f"dec{j}.b"], True,
-                                        shape(b, level))))
-                prev = None if last else q[f"dec{j}.b"]
+                                 _QConv(b.weight, b.bias, *q[f"dec{j}.a"], torch.float32 if last else q[f"dec{j}.b"],
+                                        True, shape(b, level))))
+                prev = q[f"dec{j}.b"] if not last else None
 
         def quantize_input(self, x):
             y = torch.round(x.float() * self.in_inv_scale).add_(self.in_zp).clamp_(0, UINT8_MAX)
             return y.to(torch.uint8).contiguous(memory_format=torch.channels_last)
 
+        def pool_top(self, x):
+            """The bf16 first level pooled into the second level's uint8 codes."""
+            y = torch.max_pool2d(x, 2).float().mul_(self.pool0_inv_scale).round_().clamp_(0, UINT8_MAX)
+            return y.to(torch.uint8).contiguous(memory_format=torch.channels_last)
+
         def forward(self, x):
-            x = self.quantize_input(x)
+            if self.float_top:
+                x = x.to(fdt).contiguous(memory_format=torch.channels_last)
+            else:
+                x = self.quantize_input(x)
             feats = []
             for i, (a, b) in enumerate(self.down):
-                x = b(a(x if i == 0 else _pool_u8(x)))
+                if i:
+                    x = self.pool_top(x) if i == 1 and self.float_top else _pool_u8(x)
+                x = b(a(x))
                 feats.append(x)
             x = feats.pop()
             for up, (a, b) in zip(self.up, self.dec):
-                u = torch.pixel_shuffle(up(x), 2)
-                x = b(a(torch.cat([u, feats.pop()], dim=1)))
+                x = b(a(_unshuffle_cat(up(x), feats.pop())))
             return self.float_net.finish(x)
 
     return Int8UNet().eval()

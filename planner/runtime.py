@@ -26,8 +26,9 @@ from __future__ import annotations
 
 NATIVE_BF16_CPU_FEATURES = ("avx512_bf16", "amx_bf16")  # x86 features with bf16 dot products (torch's names)
 MASKS_PER_THREAD = 16  # target masks per forward pass and torch thread [-] (measured above)
-PRECISIONS = ("auto", "bf16", "fp32", "int8")  # "auto": :func:`default_precision`; "int8": opt-in, CPU only
-#                                                (planner.int8: oneDNN uint8 x int8 convolutions, calibrated)
+INT8_PRECISIONS = ("int8", "int8-bf16-top")  # opt-in, CPU only (planner.int8: oneDNN uint8 x int8 convolutions,
+#                                               calibrated); "int8-bf16-top": the full-resolution level in bf16
+PRECISIONS = ("auto", "bf16", "fp32", *INT8_PRECISIONS)  # "auto": :func:`default_precision` (never int8)
 
 
 def cpu_features() -> dict:
@@ -77,10 +78,10 @@ def int8_kernels_available() -> bool:
 
 def resolve_precision(precision: str, device: str) -> str:
     """``precision`` itself, or :func:`default_precision` for "auto"; ``ValueError`` for others and
-    for "int8" where it cannot run (not on the CPU, or no oneDNN int8 kernels)."""
+    for the int8 ones where they cannot run (not on the CPU, or no oneDNN int8 kernels)."""
     if precision not in PRECISIONS:
         raise ValueError(f"precision must be one of {list(PRECISIONS)}, got {precision!r}")
-    if precision == "int8" and (device != "cpu" or not int8_kernels_available()):
+    if precision in INT8_PRECISIONS and (device != "cpu" or not int8_kernels_available()):
         why = "it runs on the CPU only" if device != "cpu" else "this torch has no oneDNN int8 convolution"
-        raise ValueError(f"precision 'int8' cannot run on {device!r}: {why}; use 'bf16' or 'fp32'")
+        raise ValueError(f"precision {precision!r} cannot run on {device!r}: {why}; use 'bf16' or 'fp32'")
     return default_precision(device) if precision == "auto" else precision
