@@ -140,7 +140,7 @@ def test_shipped_model_plans_a_small_pile_in_int8_as_in_bf16(int8):
     obs = observation(4, size=128, seed=3)
     plans = {"bf16": load_planner(DEFAULT_MODEL, device="cpu", precision="bf16"),
              "int8": load_planner(DEFAULT_MODEL, device="cpu", precision=int8)}
-    assert plans["int8"].precision == int8
+    assert plans["int8"].precision == int8 and plans["int8"]._net.float_top == (int8 == "int8-bf16-top")
     for kind in ("f1", "f3"):
         got = {p: plan(obs, pl, Objective(kind)) for p, pl in plans.items()}
         assert got["int8"].best.targets == got["bf16"].best.targets, kind
