@@ -20,7 +20,7 @@ bias and the ReLU applied to the fp32 accumulator, the result requantized to uin
 * **Kept in float**: the last decoder convolution writes fp32 (no requantization) and the 1x1 head
   and its activations (cos 2phi, sin 2phi, width, U, B) run in fp32, as in the bf16 path.
   Precision ``"int8-bf16-top"`` (``float_top``) also keeps the full-resolution level in bf16 (the
-  encoder's first block and the decoder's last, about a quarter of the operations): there the
+  encoder's first block and the decoder's last, 21 % of the operations): there the
   activations' ranges are widest against their detail, and quantizing them doubled the error of
   the U logit (docs/model.md, "int8").
 
@@ -304,8 +304,8 @@ def build_int8(model, cal: Int8Calibration, batch_size: int = 16, float_top: boo
     with calibration ``cal`` (checked against its weights). Its ``forward`` takes the fp32 input
     (N, C, H, W) and returns the fp32 outputs of :meth:`UNet.finish`. Its kernels are chosen for
     ``batch_size`` inputs of the network's ``size_px`` (:class:`_QConv`). With ``float_top`` the
-    full-resolution level (the encoder's first block, the decoder's last; about a quarter of the
-    operations) runs in bf16: the transposed convolution into it stays int8 with a bf16 output."""
+    full-resolution level (the encoder's first block, the decoder's last; 21 % of the operations)
+    runs in bf16: the transposed convolution into it stays int8 with a bf16 output."""
     import torch
     from torch import nn
 
