@@ -120,9 +120,15 @@ def test_int8_is_refused_in_one_line_where_it_cannot_run(monkeypatch):
 
 
 @needs_int8
-def test_int8_needs_a_calibration():
+def test_int8_needs_a_calibration_and_an_input_mask_network():
     with pytest.raises(ValueError, match="int8 calibration"):
         Planner(build_unet(TINY), TINY, precision="int8")
+    late = UNetConfig.tiny(mask_injection="decoder")
+    with pytest.raises(ValueError, match="mask_injection='input'"):
+        calibrate(build_unet(late), [_inputs(2, 0)])
+    cal = calibrate(_tiny_model(), [_inputs(2, 0)])
+    with pytest.raises(ValueError, match="mask_injection='input'"):
+        Planner(build_unet(late), late, precision="int8", int8_calibration=cal)
 
 
 def test_calibration_file_is_versioned_and_tied_to_its_weights(tmp_path):
