@@ -224,20 +224,24 @@ def precision_cost(precisions=("bf16", "int8"), n_logs: int = 7, rounds: int = 3
 
     from planner.inference import Objective, load_planner, plan
 
+    threads = torch.get_num_threads()
     torch.set_num_threads(1)
-    obs = _pile_observations(n_logs, 1)[0][0]
-    planners = {p: load_planner(DEFAULT_MODEL, device="cpu", precision=p) for p in precisions}
-    f3 = Objective(kind="f3")
-    subsets = {p: plan(obs, pl, f3).subsets_evaluated for p, pl in planners.items()}  # warm-up
-    per_round: dict[str, list[float]] = {p: [] for p in precisions}
-    for _ in range(rounds):
-        for p, pl in planners.items():
-            cpus = []
-            for _ in range(repeats):
-                c0 = time.process_time()
-                plan(obs, pl, f3)
-                cpus.append(time.process_time() - c0)
-            per_round[p].append(statistics.median(cpus))
+    try:
+        obs = _pile_observations(n_logs, 1)[0][0]
+        planners = {p: load_planner(DEFAULT_MODEL, device="cpu", precision=p) for p in precisions}
+        f3 = Objective(kind="f3")
+        subsets = {p: plan(obs, pl, f3).subsets_evaluated for p, pl in planners.items()}  # warm-up
+        per_round: dict[str, list[float]] = {p: [] for p in precisions}
+        for _ in range(rounds):
+            for p, pl in planners.items():
+                cpus = []
+                for _ in range(repeats):
+                    c0 = time.process_time()
+                    plan(obs, pl, f3)
+                    cpus.append(time.process_time() - c0)
+                per_round[p].append(statistics.median(cpus))
+    finally:
+        torch.set_num_threads(threads)
     return [{"precision": p, "logs": n_logs, "subsets": subsets[p], "rounds": rounds, "repeats": repeats,
              "cpu_s": statistics.median(v), "cpu_min_s": min(v), "cpu_max_s": max(v), "load": load_average("")}
             for p, v in per_round.items()]
