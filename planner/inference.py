@@ -107,7 +107,7 @@ class Planner:
     views: int = 1  # dihedral views averaged at test time: 1 (none), 2 (+ mirror), 4 (quarter turns) or 8 (both) [-]
     view_spread_k: float = 0.0  # U logit lowered by k x its standard deviation over the views [-]
     # (a lower confidence bound: of two grasps the views rate alike on average, the one they agree on wins)
-    int8_calibration: object = None  # planner.int8.Int8Calibration of these weights; needed by precision "int8"
+    int8_calibration: object = None  # planner.int8.Int8Calibration of these weights; needed by the int8 precisions
 
     def __post_init__(self) -> None:
         self.precision = resolve_precision(self.precision, self.device)
