@@ -28,10 +28,11 @@ def _cpu_s(fn, reps: int) -> float:
     return statistics.median(times)
 
 
-def conv_gops(shapes=SHAPES, batch: int = BATCH) -> list[dict]:
+def conv_gops(shapes=SHAPES, batch: int = BATCH, work: float = WORK_PER_RUN) -> list[dict]:
     """GOP/s of a 3x3 convolution + ReLU per (cin, cout, side) and format: bf16 and fp32 (oneDNN
     with the ReLU as post-op), int8 through ``quantized::conv2d_relu`` with each quantized engine,
-    and int8 through ``onednn::qconv2d_pointwise`` (what :mod:`planner.int8` runs)."""
+    and int8 through ``onednn::qconv2d_pointwise`` (what :mod:`planner.int8` runs); each timed run
+    does about ``work`` operations."""
     import torch
 
     torch.set_num_threads(1)
@@ -41,7 +42,7 @@ def conv_gops(shapes=SHAPES, batch: int = BATCH) -> list[dict]:
         x = torch.rand(batch, cin, side, side).contiguous(memory_format=cl)
         w, b = torch.randn(cout, cin, 3, 3) * 0.1, torch.randn(cout) * 0.1
         ops = 2 * batch * cout * cin * 9 * side * side
-        reps = max(1, int(WORK_PER_RUN / ops))
+        reps = max(1, int(work / ops))
         fns = {}
         for name, dt in (("bf16", torch.bfloat16), ("fp32", torch.float32)):
             xd, wd, bd = x.to(dt), w.to(dt).contiguous(memory_format=cl), b.to(dt)
