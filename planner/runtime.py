@@ -11,7 +11,7 @@ no AMX; 2026-12-06, beside other jobs at load 6-7; docs/model.md, "Planning on a
   bf16 instructions, bf16 emulated by conversions): 6.5 s against fp32's 2.0 s;
 * int8 (opt-in, :mod:`planner.int8`; oneDNN uint8 x int8 with AVX512-VNNI, 2026-12-07, load 4-5): 0.635 s
   against bf16's 1.100 in the same run; with the full-resolution level in bf16 ("int8-bf16-top") 0.768 s.
-  Not the default: it changes some plans (docs/model.md, "int8");
+  Not the default: it changes plans in detail, not their twin success (docs/model.md, "int8");
 * target masks per forward pass (bf16): 4: 1.14 s, 8: 1.12 s, 16: 1.07 s, 32: 1.20 s, 64: 1.25 s.
   A mask's first-level activations are 0.5 MB in bf16: 16 masks stay near the caches, 64 do not;
 * with two torch threads on cores other jobs also use (load 8-9), wall s per plan: 16 masks per
