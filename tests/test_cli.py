@@ -284,6 +284,16 @@ def test_plan_f3_balance_flags_reach_the_objective(capsys, pile_dir, monkeypatch
     fails(cli(capsys, "plan", pile_dir, "--f3-sigma-b", "-1"), 2, "--f3-sigma-b -1: f3's balance tolerance")
 
 
+def test_plan_precision_int8_is_opt_in_and_refused_where_it_cannot_run(capsys, pile_dir, monkeypatch):
+    import planner.runtime as runtime
+
+    d = cli(capsys, "plan", pile_dir, "--objective", "f3", "--precision", "int8", "--no-ranker", "--json").json()
+    assert d["grasps"][0]["targets"]
+    monkeypatch.setattr(runtime, "int8_kernels_available", lambda: False)
+    fails(cli(capsys, "plan", pile_dir, "--precision", "int8"), 2, "--precision int8", "use 'bf16' or 'fp32'")
+    cli(capsys, "plan", pile_dir, "--no-ranker")  # auto never needs them
+
+
 def test_plan_bad_input(capsys, work, pile_dir, a_file):
     fails(cli(capsys, "plan", pile_dir, "--top", "-2"), 2, "--top")
     fails(cli(capsys, "plan", pile_dir, "--top", "0"), 2, "--top")

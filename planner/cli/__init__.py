@@ -61,6 +61,10 @@ def f3_objective(kind: str, balance: str, sigma_b: float | None) -> Objective:
         raise CliError(f"--f3-sigma-b {sigma_b:g}: f3's balance tolerance must be > 0 (the paper's is 0.25)") from exc
 
 
+PRECISION = option("--precision", "The network's number format: auto (bf16 where the CPU has bf16 dot products, "
+                   "else fp32), bf16, fp32, or the opt-in int8 / int8-bf16-top (CPU only, oneDNN int8 kernels, the "
+                   "model's int8 calibration beside it; docs/model.md, int8).", default="auto",
+                   metavar="auto|bf16|fp32|int8|int8-bf16-top")
 VIEW_SPREAD = option("--view-spread", "Lower U by K x its spread over the views (needs --views > 1).", default=0.0,
                      names=["view_spread_k"], metavar="K")
 
@@ -320,6 +324,7 @@ def plan_command(
     ranker_u_weight: float = RANKER_U_WEIGHT,
     f3_sigma_b: float = F3_SIGMA_B,
     f3_balance: Literal["network", "hang"] = f3_balance_option(PRODUCT_F3_BALANCE),
+    precision: Literal["auto", "bf16", "fp32", "int8", "int8-bf16-top"] = PRECISION,
 ) -> None:
     """Plan the best multi-log grasp on a pile: every target subset scored with Q = f(U, tau, B).
 
@@ -336,6 +341,7 @@ def plan_command(
     Example: loggrasp plan piles/pile_00000 --objective f3 --json
     Example: loggrasp plan recon/s3 --objective f3 --png plan.png
     Example: loggrasp plan piles/pile_00000 --objective f3 --verify 8 --verify-budget 20
+    Example: loggrasp plan piles/pile_00000 --objective f3 --precision int8
     """
     from rich.console import Console
 
@@ -348,7 +354,10 @@ def plan_command(
                                               verify_budget, verify_workers)
     obj = f3_objective(objective, f3_balance, f3_sigma_b)
     rk = load_ranker_flag(ranker, no_ranker)
-    planner = load_planner(path, views=views, view_spread_k=view_spread)
+    try:
+        planner = load_planner(path, precision=precision, views=views, view_spread_k=view_spread)
+    except ValueError as exc:  # an int8 precision where it cannot run
+        raise CliError(f"--precision {precision}: {exc}") from exc
     obs, spec = load_observation(pile, planner.config, warn=o.warn)
     o.progress(f"planning on {pile}: {obs.n_logs} logs, up to {max_subsets} target subsets x {views} view(s)")
     with Console(stderr=True).status("planning"):
