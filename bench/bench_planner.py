@@ -35,12 +35,14 @@ if __name__ == "__main__":
                     help="only the wall and CPU seconds of a plan with 1 and 2 torch threads (shared machines)")
     ap.add_argument("--threads", default="1,2", help="torch threads for --cost-only, comma-separated")
     ap.add_argument("--precisions", default=None,
-                    help="with --cost-only: one-thread CPU s of a 7-log plan in these precisions, alternating "
-                         "(e.g. bf16,int8)")
+                    help="with --cost-only: CPU and wall s of a 7-log plan in these precisions, alternating "
+                         "(e.g. bf16,int8), once per --threads count")
     ap.add_argument("--rounds", type=int, default=3, help="rounds for --precisions")
     args = ap.parse_args()
     if args.cost_only and args.precisions:
-        print("\n".join(precision_markdown(precision_cost(tuple(args.precisions.split(",")), rounds=args.rounds))))
+        rows = [r for t in args.threads.split(",")
+                for r in precision_cost(tuple(args.precisions.split(",")), rounds=args.rounds, threads=int(t))]
+        print("\n".join(precision_markdown(rows)))
     elif args.cost_only:
         print("\n".join(cost_markdown(plan_cost(threads=tuple(int(t) for t in args.threads.split(","))))))
     elif args.balance_only:
