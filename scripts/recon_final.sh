@@ -84,7 +84,7 @@ bench_step() {  # estimator n work out
   local before after t
   before="$(count "$JOB_WT/$4")"
   t="$(mktemp)"
-  if ! { TIMEFORMAT='%R %U %S'; time nice -n 10 "$PY" bench/bench_reconstruct.py --survey-set final \
+  if ! { TIMEFORMAT='%R %U %S'; time "$PY" bench/bench_reconstruct.py --survey-set final \
       --survey-scans "$2" --survey-estimator "$1" --survey-work "$3" --survey-out "$4" \
       >>"$WORK/bench-sealed.log" 2>&1; } 2>"$t"; then
     note "$1 to $2 scans: the bench failed (its output: $WORK/bench-sealed.log); the job stops"
@@ -98,6 +98,7 @@ bench_step() {  # estimator n work out
 loop() {  # runs in the job's worktree, started by `start`
   exec 9>"$WORK/job.lock"
   flock -n 9 || die "another recon-final job holds $WORK/job.lock"
+  echo "$$" >"$PIDFILE"
   export OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 PYTHONPATH="$JOB_WT"
   local rev n
   rev="$("$PY" -c 'from reconstruct.fitting.joint_config import JOINT_REVISION; print(JOINT_REVISION)')"
@@ -120,9 +121,8 @@ start() {
   [ -d "$JOB_WT" ] || git -C "$ROOT" worktree add --detach "$JOB_WT" HEAD >/dev/null
   [ -f "$JOB_WT/scripts/recon_final.sh" ] || die "$JOB_WT has no scripts/recon_final.sh (an older commit?)"
   (cd "$JOB_WT" && WORK="$WORK" RUNS="$RUNS" TARGET="$TARGET" STEP="$STEP" PY="$PY" \
-    nohup setsid nice -n 10 bash scripts/recon_final.sh _loop >>"$LOG" 2>&1 </dev/null &
-   echo $! >"$PIDFILE")
-  sleep 1
+    nohup setsid -f nice -n 10 bash scripts/recon_final.sh _loop >>"$LOG" 2>&1 </dev/null)
+  for _ in 1 2 3 4 5 6 7 8 9 10; do running && break; sleep 1; done
   running || die "the job did not start; see $LOG"
   echo "recon-final: started in $JOB_WT at $(git -C "$JOB_WT" rev-parse --short HEAD) (pid $(cat "$PIDFILE"), log $LOG)"
 }
