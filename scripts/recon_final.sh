@@ -104,7 +104,8 @@ loop() {  # runs in the job's worktree, started by `start`
   rev="$("$PY" -c 'from reconstruct.fitting.joint_config import JOINT_REVISION; print(JOINT_REVISION)')"
   [ "$rev" = "$JOINT_REVISION" ] || { note "JOINT_REVISION is $rev, not $JOINT_REVISION: the job stops"; exit 1; }
   note "job $$ at $(git -C "$JOB_WT" rev-parse --short HEAD): to $TARGET scans in steps of $STEP, load $(cut -d' ' -f1-3 /proc/loadavg)"
-  n=0
+  n=$(( $(count "$JOB_WT/$R22") < $(count "$JOB_WT/$RJ") ? $(count "$JOB_WT/$R22") : $(count "$JOB_WT/$RJ") ))
+  n=$(( n / STEP * STEP ))  # a resumed job starts at the last step both records had finished
   while [ "$n" -lt "$TARGET" ]; do
     n=$((n + STEP)); [ "$n" -gt "$TARGET" ] && n="$TARGET"
     bench_step rules22 "$n" "$W22" "$R22"
@@ -118,7 +119,7 @@ loop() {  # runs in the job's worktree, started by `start`
 start() {
   mkdir -p "$RUNS" "$W22" "$WJ"
   running && { echo "recon-final: already running (pid $(cat "$PIDFILE"))"; return; }
-  [ -d "$JOB_WT" ] || git -C "$ROOT" worktree add --detach "$JOB_WT" HEAD >/dev/null
+  [ -d "$JOB_WT" ] || git -C "$ROOT" worktree add --quiet --detach "$JOB_WT" HEAD
   [ -f "$JOB_WT/scripts/recon_final.sh" ] || die "$JOB_WT has no scripts/recon_final.sh (an older commit?)"
   (cd "$JOB_WT" && WORK="$WORK" RUNS="$RUNS" TARGET="$TARGET" STEP="$STEP" PY="$PY" \
     nohup setsid -f nice -n 10 bash scripts/recon_final.sh _loop >>"$LOG" 2>&1 </dev/null)
@@ -130,6 +131,7 @@ start() {
 stop() {
   running || die "no recon-final job runs (pid file $PIDFILE)"
   kill -- "-$(cat "$PIDFILE")"
+  note "job $(cat "$PIDFILE") stopped (scripts/recon_final.sh stop)"
   echo "recon-final: stopped job $(cat "$PIDFILE")"
 }
 
