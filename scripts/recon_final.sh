@@ -38,6 +38,7 @@ W22="$WORK/work-r22"
 WJ="$WORK/work-joint18"
 
 die() { echo "error: $*" >&2; exit 1; }
+need_py() { [ -x "$PY" ] || die "no Python at $PY (set PY to the project's interpreter)"; }
 note() { echo "$(date -u +%FT%TZ) $*" >>"$LOG"; }
 count() { { find "$1/scans" -maxdepth 1 -name '[0-9]*.json' 2>/dev/null || true; } | wc -l; }
 
@@ -117,6 +118,7 @@ loop() {  # runs in the job's worktree, started by `start`
 }
 
 start() {
+  need_py
   mkdir -p "$RUNS" "$W22" "$WJ"
   running && { echo "recon-final: already running (pid $(cat "$PIDFILE"))"; return; }
   [ -d "$JOB_WT" ] || git -C "$ROOT" worktree add --quiet --detach "$JOB_WT" HEAD
@@ -137,6 +139,7 @@ stop() {
 
 sync_records() {
   local rec src
+  need_py
   for rec in "$R22" "$RJ"; do
     [ "$(count "$JOB_WT/$rec")" -gt 0 ] || die "no finished scan record in $JOB_WT/$rec/scans to sync (run: $0 start)"
   done
