@@ -262,6 +262,13 @@ def _fingerprint(spec: PlannerSpec) -> str:
             from planner.balance import HangModel
 
             sha += f"+hang-{HangModel().tag}"
+        if spec.precision != "auto":  # ... in another number format (int8: and its calibration)
+            from planner.int8 import calibration_path
+            from planner.runtime import INT8_PRECISIONS
+
+            sha += f"+{spec.precision}"
+            if spec.precision in INT8_PRECISIONS:
+                sha += f"-{sha256_file(calibration_path(Path(spec.model)))[:16]}"
         if spec.views > 1:  # a record planned with other test-time views is made again, whatever its label
             sha += f"+views{spec.views}k{spec.view_spread_k:g}"
         if spec.ranker:  # ... and with another ranker or another number re-scored

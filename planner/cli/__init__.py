@@ -496,6 +496,7 @@ def eval_command(
     field_error: str = option("--field-error", "Add a field row per planner: its chosen grasp executed with the "
                               "crane's positioning error, SIGMA_XY_M,SIGMA_PHI_DEG (e.g. 0.03,2: 3 cm per axis, 2 deg).",
                               default=None, metavar="M,DEG"),
+    precision: Literal["auto", "bf16", "fp32", "int8", "int8-bf16-top"] = PRECISION,
     as_json: bool = option("--json", "Print results.json (format loggrasp.eval-results) on standard output.",
                            default=False),
 ) -> None:
@@ -508,6 +509,7 @@ def eval_command(
     import json
     from dataclasses import replace
 
+    from planner.cli.eval_specs import base_specs, view_specs, with_precision
     from planner.evaluate import run_evaluation
     from synth.common.ranges import parse_range
 
@@ -526,8 +528,8 @@ def eval_command(
             raise CliError(f"--field-error: {exc}") from exc
     cfg = EvalConfig(logs=tuple(range(lo, hi + 1)), obstacles=obs, per_cell=per_cell, trial=trial, seed_base=seed_base,
                      field_error=error)
-    specs = _eval_specs(str(model or DEFAULT_MODEL), objectives, baselines, extra_model, verify, verify_copies)
-    specs += _view_specs(str(model or DEFAULT_MODEL), objectives, views, view_spread)
+    specs = base_specs(str(model or DEFAULT_MODEL), objectives, baselines, extra_model, verify, verify_copies)
+    specs += view_specs(str(model or DEFAULT_MODEL), objectives, views, view_spread)
     f3 = f3_objective("f3", f3_balance, f3_sigma_b)
     specs = [replace(s, sigma_b=f3.sigma_b, balance=f3.balance) if s.kind == "unet" and s.objective == "f3" else s
              for s in specs]
@@ -535,6 +537,7 @@ def eval_command(
         check_input(ranker, "--ranker", "file")
         specs += [replace(s, ranker=str(ranker), rerank_k=rerank_k, ranker_u_weight=ranker_u_weight)
                   for s in specs if s.kind == "unet" and not s.label and s.views == 1]
+    specs = with_precision(specs, precision)
     check_output_dir(out, "--out")
     with progress_bar() as bar:
         task = bar.add_task("piles", total=len(cfg.tasks()), info="")
@@ -547,52 +550,3 @@ def eval_command(
     o.say(f"results: {Path(out) / 'results.md'}, {Path(out) / 'results.json'}; examples: {Path(out) / 'examples.png'}")
 
 
-def _view_specs(model: str, objectives: str, views: int | None, view_spread: float) -> list[PlannerSpec]:
-    """eval's rows with test-time views (``--views``): the U-Net per objective, named ``unet-f1-views8``
-    (``...k2`` with ``--view-spread 2``)."""
-    if views is None:
-        if view_spread:
-            raise CliError("--view-spread needs --views V")
-        return []
-    if views == 1:
-        raise CliError("--views 1 is the plain row that --objectives gives already: add 2, 4 or 8 views")
-    from planner.inference import check_views
-
-    check_views(views, view_spread)  # a ValueError naming views / view_spread_k, reported with the flags
-    return [PlannerSpec("unet", model=model, objective=x, views=views, view_spread_k=view_spread)
-            for x in _csv(objectives)]
-
-
-def _csv(text: str) -> list[str]:
-    return [x.strip() for x in text.split(",") if x.strip()]
-
-
-def _eval_specs(model: str, objectives: str, baselines: str, extra_model: list[str], verify: int | None,
-                verify_copies: int) -> list[PlannerSpec]:
-    """eval's planner rows: the U-Net per objective (and verified, with --verify), each --extra-model
-    (f1), then the baselines; every model file checked."""
-    objs = _csv(objectives)
-    if any(x not in ("f1", "f2", "f3") for x in objs):
-        raise CliError(f"--objectives must be a comma-separated list of f1, f2, f3, got {objectives!r}")
-    specs = [PlannerSpec("unet", model=model, objective=x) for x in objs]
-    check_verify_flags(verify, None)
-    if verify is not None:
-        specs += [PlannerSpec("unet", model=model, objective=x, verify_k=verify, verify_copies=verify_copies)
-                  for x in objs]
-    elif verify_copies:
-        raise CliError("--verify-copies needs --verify K")
-    for item in extra_model:
-        label, _, p = item.partition("=")
-        if not p or not label:
-            raise CliError(f"--extra-model must be LABEL=PATH, got {item!r}")
-        specs.append(PlannerSpec("unet", model=p, objective="f1", label=label))
-    names = _csv(baselines)
-    if any(b not in ("random", "geometric", "oracle") for b in names):
-        raise CliError(f"--baselines must be a comma-separated list of random, geometric, oracle, got {baselines!r}")
-    specs += [PlannerSpec(b) for b in names]
-    if not specs:
-        raise CliError("nothing to evaluate: give --objectives, --baselines or --extra-model")
-    for s in specs:
-        if s.kind == "unet":
-            check_input(s.model, "--model" if s.label == "" else "--extra-model", "file")
-    return specs

@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import math
 import time
+from pathlib import Path
 
 import pytest
 
@@ -70,6 +71,42 @@ def slow_and_log3_holds_one(pile, grasp, targets, cfg):
 
 def twin(monkeypatch, fn) -> None:
     monkeypatch.setattr(planner.verify, "run_trial", fn)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def reconstruct_once(tmp_path_factory):
+    """The bundled scan is reconstructed once for this module (the reconstruction is deterministic, and
+    what these tests check starts after it): later calls with the same inputs and configuration get a
+    copy of the first one's folder. The reconstruction's own replay is checked for real in
+    test_field_trial.py."""
+    import copy
+    import shutil
+    from dataclasses import replace
+
+    import reconstruct.pipeline as pipeline
+
+    real, memo, mp = pipeline.reconstruct, {}, pytest.MonkeyPatch()
+
+    def once(scan_dir, gnss_path, out_dir, config=None, **kw):
+        files = sorted(f for f in Path(scan_dir).rglob("*") if f.is_file())
+        key = (tuple((str(f.relative_to(scan_dir)), f.read_bytes()) for f in files), Path(gnss_path).read_bytes(),
+               repr(config))
+        if key not in memo:
+            result = real(scan_dir, gnss_path, out_dir, config, **kw)
+            memo[key] = moved(result, shutil.copytree(result.out_dir, tmp_path_factory.mktemp("reconstruction")
+                                                      / "kept"))
+            return result
+        out_dir = Path(out_dir)
+        shutil.copytree(memo[key].out_dir, out_dir, dirs_exist_ok=True)
+        return moved(memo[key], out_dir)
+
+    def moved(result, out_dir: Path):
+        return replace(result, report=copy.deepcopy(result.report), out_dir=out_dir,
+                       files={k: out_dir / Path(v).relative_to(result.out_dir) for k, v in result.files.items()})
+
+    mp.setattr(pipeline, "reconstruct", once)
+    yield
+    mp.undo()
 
 
 # -- the verified grasp is sent ------------------------------------------------------------------------

@@ -7,6 +7,7 @@ import pytest
 
 from planner.evaluate import EvalConfig, evaluate_pile, run_evaluation
 from planner.planners import PlannerSpec, geometric_planner
+from planner.runtime import default_precision, int8_kernels_available
 from synth.scene.generate import GenerationConfig, generate_pile
 from synth.geometry.grasp import Grasp
 from synth.render.ortho import OrthoRenderConfig, render_ortho
@@ -235,6 +236,50 @@ def test_a_row_with_test_time_views_plans_with_them_and_keeps_its_own_records(tm
                 _fingerprint(replace(viewed, views=4))}) == 4
     with pytest.raises(ValueError, match="views must be one of"):
         build_planner(PlannerSpec("unet", model=str(ckpt), views=3))
+
+
+@pytest.mark.skipif(not int8_kernels_available(), reason="this torch has no oneDNN int8 kernels")
+def test_an_int8_row_plans_with_the_int8_network_and_keeps_its_own_records(tmp_path, monkeypatch):
+    """``precision`` rows plan with the network in that number format, are named ``unet-f1-int8`` and
+    fingerprinted apart, with the calibration's own hash: a recalibrated model's int8 records are made
+    again; "auto" keeps the names and records rows had before the field existed."""
+    from dataclasses import replace
+
+    import numpy as np
+    import torch
+
+    import planner.inference as inference
+    from planner.checkpoint import load_checkpoint
+    from planner.evaluate import _fingerprint
+    from planner.int8 import calibrate, calibration_path, write_calibration
+
+    cfg = EvalConfig(logs=(2,), obstacles=(False,), per_cell=1)
+    ckpt = _tiny_checkpoint(tmp_path / "m.safetensors", cfg)
+    model = load_checkpoint(ckpt)[0]
+    rng = np.random.default_rng(0)
+    x = np.zeros((4, 3, cfg.size_px, cfg.size_px), np.float32)
+    x[:, 0], x[:, 1], x[:, 2] = rng.random(x.shape[2:]), rng.random(x.shape[2:]) * 0.5, rng.random(x[:, 2].shape) > 0.7
+    with torch.no_grad():
+        write_calibration(calibration_path(ckpt), calibrate(model, [x]))
+    seen = []
+    real_plan = inference.plan
+
+    def spy(obs, net, *a, **k):
+        seen.append(net.precision)
+        return real_plan(obs, net, *a, **k)
+
+    monkeypatch.setattr(inference, "plan", spy)
+    plain = PlannerSpec("unet", model=str(ckpt), objective="f1")
+    int8 = replace(plain, precision="int8")
+    assert int8.name == "unet-f1-int8" and plain.name == "unet-f1"
+    tables = run_evaluation([plain, int8], cfg, tmp_path / "e", workers=1)
+    assert set(tables["planners"]) == {"unet-f1", "unet-f1-int8"}
+    assert sorted(seen) == sorted([default_precision("cpu"), "int8"])
+    before = _fingerprint(int8)
+    assert len({_fingerprint(plain), before, _fingerprint(replace(plain, precision="fp32"))}) == 3
+    with torch.no_grad():
+        write_calibration(calibration_path(ckpt), calibrate(model, [x[:2]]))
+    assert _fingerprint(int8) != before and _fingerprint(int8).startswith(_fingerprint(plain) + "+int8-")
 
 
 def test_an_f3_row_with_another_balance_tolerance_or_source_plans_with_it_and_keeps_its_own_records(tmp_path, monkeypatch):
