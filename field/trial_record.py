@@ -190,7 +190,8 @@ class _TrialRecord:
         self.record["inputs"] = {"scan": str(scan_dir), "gnss": str(gnss_path),
                                  "hashes": {str(p.relative_to(inputs)): sha256_of(p)
                                             for p in sorted(inputs.rglob("*")) if p.is_file()}}
-        self.record["model"] = {"path": str(model), "sha256": sha256_of(model) if model.exists() else None}
+        self.record["model"] = {"path": str(model), "sha256": sha256_of(model) if model.exists() else None,
+                                "precision": _precision_of(model, self.options.precision)}
         if self.options.rerank:
             ranker = Path(self.options.ranker or DEFAULT_RANKER)
             self.record["ranker"] = {"path": str(ranker), "sha256": sha256_of(ranker) if ranker.exists() else None}
@@ -340,10 +341,29 @@ def changed_inputs(record_dir: str | Path, rec: dict | None = None) -> list[str]
     return out
 
 
-def recorded_options(stored: dict) -> TrialOptions:
+def _precision_of(model: Path, precision: str) -> str | None:
+    """The number format the trial's network runs in (what "auto" resolves to on this machine); None
+    where it cannot run (the planner's load then says why)."""
+    from planner.inference import checkpoint_precision, default_device
+
+    try:
+        return checkpoint_precision(model, default_device(), precision)
+    except ValueError:
+        return None
+
+
+def recorded_options(stored: dict, precision: str | None = None) -> TrialOptions:
     """The :class:`TrialOptions` a record's ``options`` name; a setting older records lack is what
-    the trial did then, not today's default."""
+    the trial did then, not today's default. ``precision``: the number format the trial's network ran
+    in (the record's ``model``); records without one ran in the float format "auto" meant then."""
     stored = dict(stored)
+    if precision is not None:
+        stored["precision"] = precision
+    elif stored.get("precision", "auto") == "auto":  # before "auto" could pick int8: bf16 or fp32 by the CPU
+        from planner.inference import default_device
+        from planner.runtime import default_precision
+
+        stored["precision"] = default_precision(default_device())
     stored.setdefault("verify_k", 0)  # a 1.0 record sent the network's best grasp, unverified
     stored.setdefault("rerank", False)  # records before the ranker planned with U alone
     stored.setdefault("f3_balance", "network")  # records before the hang model scored f3 on the B map
@@ -381,7 +401,7 @@ def replay_record(record_dir: str | Path, work_dir: str | Path, progress=None) -
     if sent is None and not refused:
         raise RecordError(f"{record_dir}: the trial never got to a command ({rec.get('final_state')}: "
                           f"{rec.get('reason', 'no reason recorded')}); there is nothing to replay")
-    opts = recorded_options(rec["options"])
+    opts = recorded_options(rec["options"], (rec.get("model") or {}).get("precision"))
     for what in ("model", "ranker"):
         used = rec.get(what) or {}
         if used.get("sha256") and (not Path(used["path"]).exists() or sha256_of(Path(used["path"])) != used["sha256"]):

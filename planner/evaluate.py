@@ -248,6 +248,20 @@ def run_evaluation(specs: list[PlannerSpec], cfg: EvalConfig, out_dir: str | Pat
     return tables
 
 
+def _precision_tag(spec: PlannerSpec) -> str:
+    """The fingerprint's number format: '' where "auto" runs in a float format (the records made before
+    the format was recorded), else the format, and an int8 calibration's hash."""
+    from planner.inference import checkpoint_precision
+    from planner.int8 import calibration_path
+    from planner.runtime import INT8_PRECISIONS
+    from synth.common.files import sha256_file
+
+    runs = checkpoint_precision(spec.model, "cpu", spec.precision)
+    if spec.precision == "auto" and runs not in INT8_PRECISIONS:
+        return ""
+    return f"+{runs}" + (f"-{sha256_file(calibration_path(spec.model))[:16]}" if runs in INT8_PRECISIONS else "")
+
+
 def _fingerprint(spec: PlannerSpec) -> str:
     """What a record must match to be reused: the checkpoint's sha256 for a U-Net, '' otherwise."""
     if spec.kind != "unet" or not spec.model:
@@ -262,13 +276,7 @@ def _fingerprint(spec: PlannerSpec) -> str:
             from planner.balance import HangModel
 
             sha += f"+hang-{HangModel().tag}"
-        if spec.precision != "auto":  # ... in another number format (int8: and its calibration)
-            from planner.int8 import calibration_path
-            from planner.runtime import INT8_PRECISIONS
-
-            sha += f"+{spec.precision}"
-            if spec.precision in INT8_PRECISIONS:
-                sha += f"-{sha256_file(calibration_path(Path(spec.model)))[:16]}"
+        sha += _precision_tag(spec)
         if spec.views > 1:  # a record planned with other test-time views is made again, whatever its label
             sha += f"+views{spec.views}k{spec.view_spread_k:g}"
         if spec.ranker:  # ... and with another ranker or another number re-scored

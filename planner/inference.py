@@ -96,8 +96,9 @@ class Planner:
     config: UNetConfig
     device: Literal["cpu", "cuda"] = "cpu"  # "cpu" or "cuda"
     precision: Literal["auto", "bf16", "fp32", "int8", "int8-bf16-top"] = "auto"  # "auto":
-    # planner.runtime.default_precision (bf16 where the CPU has bf16 dot products, else fp32); "int8" and
-    # "int8-bf16-top" (opt-in, CPU): planner.int8 with int8_calibration; after construction the format that runs
+    # planner.runtime.default_precision without a calibration (bf16 where the CPU has bf16 dot products, else
+    # fp32; load_planner's "auto" picks int8 where the checkpoint has one); "int8" and "int8-bf16-top" (CPU):
+    # planner.int8 with int8_calibration; after construction the format that runs
     batch_size: int | None = None  # target masks per forward pass [-]; None: 16 per torch thread (planner.runtime)
     meta: dict = field(default_factory=dict)
     angle_smoothing_px: float = 1.0  # Gaussian sigma for C, S (and W) before decoding [px]
@@ -240,17 +241,27 @@ def load_planner(path: str | Path, device: str = "auto", precision: str = "auto"
     an int8 ``precision`` its calibration is read from beside it (:func:`planner.int8.calibration_path`)."""
     from planner.checkpoint import load_checkpoint
 
-    model, config, meta = load_checkpoint(path)
     device = default_device() if device == "auto" else device
+    precision = checkpoint_precision(path, device, precision)  # a one-line ValueError before any file is read
+    model, config, meta = load_checkpoint(path)
     cal = None
     if precision in INT8_PRECISIONS:
         from planner.int8 import calibration_path, read_calibration
 
-        resolve_precision(precision, device)  # the one-line ValueError before any file is read
         cal = read_calibration(calibration_path(path))
         cal.check(model, str(path))
     return Planner(model, config, device, precision, batch_size, meta, quality_smoothing_px=quality_smoothing_px,
                    views=views, view_spread_k=view_spread_k, int8_calibration=cal)
+
+
+def checkpoint_precision(path: str | Path, device: str, precision: str = "auto") -> str:
+    """The number format the checkpoint at ``path`` runs in on ``device`` ("cpu" or "cuda"):
+    ``precision`` itself, or for "auto" :func:`planner.runtime.default_precision`, int8 where an int8
+    calibration lies beside the checkpoint (:func:`planner.int8.calibration_path`); a ``ValueError``
+    where it cannot run."""
+    from planner.int8 import calibration_path
+
+    return resolve_precision(precision, device, int8_calibrated=calibration_path(path).is_file())
 
 
 def _gaussian(maps: np.ndarray, sigma_px: float) -> np.ndarray:

@@ -436,6 +436,7 @@ def test_eval_bad_input(capsys, work, a_file):
                       (["--field-error", "0.03,90"], "--field-error: positioning error"),
                       (["--f3-sigma-b", "0"], "--f3-sigma-b 0: f3's balance tolerance must be > 0"),
                       (["--f3-balance", "guess"], "--f3-balance"), (["--precision", "int4"], "--precision"),
+                      (["--ranked-only"], "--ranked-only needs --ranker"),
                       (["--precision", "int8", "--model", a_file], "has no int8 calibration beside it")):
         fails(cli(capsys, "eval", *bad, "--out", work / "e2"), 2, flag)
     fails(cli(capsys, "eval", "--out", a_file / "e"), 2, "--out", str(a_file))

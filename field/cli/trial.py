@@ -15,7 +15,8 @@ from field.cli.options import (BASE_HELP, MAX_PILE_AGE, MAX_REACH, NO_RANKER, NO
                                 trial_options, twin_url, verify_fields)
 from field.link.cli import INSECURE_LINK, link_security_note, secured_link
 from field.trial import TrialOptions
-from planner.cli import F3_SIGMA_B, MODEL, OBJECTIVE_HELP, VIEW_SPREAD, VIEWS, f3_balance_option, f3_objective
+from planner.cli import (F3_SIGMA_B, MODEL, OBJECTIVE_HELP, PRECISION, VIEW_SPREAD, VIEWS, f3_balance_option,
+                         f3_objective)
 from planner.inference import PRODUCT_F3_BALANCE
 from reconstruct.cli import gnss_crs_warning
 from reconstruct.survey.cli import GNSS_HELP, GNSS_WINDOWS_HELP, gnss_source
@@ -95,6 +96,7 @@ def trial_command(
     model: Path = MODEL,
     views: int = VIEWS,
     view_spread: float = VIEW_SPREAD,
+    precision: Literal["auto", "bf16", "fp32", "int8", "int8-bf16-top"] = PRECISION,
     yes: bool = option("--yes", "Do not ask for confirmation before sending.", default=False),
     allow_float: bool = option("--allow-float", "Accept RTK float endpoints.", field=(TrialOptions, "allow_float")),
     max_pile_age: float = MAX_PILE_AGE,
@@ -147,7 +149,7 @@ def trial_command(
     check_views(views, view_spread)
     f3_objective(objective, f3_balance, f3_sigma_b)  # a bad --f3-sigma-b named before any work
     opts = trial_options(objective, model, allow_float, max_pile_age, base_tm, max_reach, capacity, views, view_spread,
-                          f3_balance=f3_balance, f3_sigma_b=f3_sigma_b,
+                          f3_balance=f3_balance, f3_sigma_b=f3_sigma_b, precision=precision,
                           **verify_fields(verify, no_verify, verify_copies, verify_budget, verify_workers, send_rank),
                           **ranker_fields(ranker, no_ranker))
     warning = gnss_crs_warning(gnss)

@@ -61,9 +61,10 @@ def f3_objective(kind: str, balance: str, sigma_b: float | None) -> Objective:
         raise CliError(f"--f3-sigma-b {sigma_b:g}: f3's balance tolerance must be > 0 (the paper's is 0.25)") from exc
 
 
-PRECISION = option("--precision", "The network's number format: auto (bf16 where the CPU has bf16 dot products, "
-                   "else fp32), bf16, fp32, or the opt-in int8 / int8-bf16-top (CPU only, oneDNN int8 kernels, the "
-                   "model's int8 calibration beside it; docs/model.md, int8).", default="auto",
+PRECISION = option("--precision", "The network's number format: auto (int8 where the CPU has int8 dot products "
+                   "and the model an int8 calibration beside it, else bf16 where the CPU has bf16 dot products, "
+                   "else fp32), bf16, fp32, int8 or int8-bf16-top (CPU only, oneDNN int8 kernels, the calibration "
+                   "beside the model; docs/model.md, int8).", default="auto",
                    metavar="auto|bf16|fp32|int8|int8-bf16-top")
 VIEW_SPREAD = option("--view-spread", "Lower U by K x its spread over the views (needs --views > 1).", default=0.0,
                      names=["view_spread_k"], metavar="K")
@@ -488,6 +489,8 @@ def eval_command(
                                 default=0.0, metavar="K"),
     ranker: Path = option("--ranker", "Add a U-Net row per objective (and per verified row) whose best --rerank-k "
                           "grasps by f1 and by f3 a ranker checkpoint re-scores.", default=None, metavar="PATH"),
+    ranked_only: bool = option("--ranked-only", "With --ranker: only the re-ranked rows (the product's planner), "
+                               "not the U-Net rows they re-rank.", default=False),
     rerank_k: int = RERANK_K,
     ranker_u_weight: float = RANKER_U_WEIGHT,
     f3_sigma_b: float = F3_SIGMA_B,
@@ -509,7 +512,7 @@ def eval_command(
     import json
     from dataclasses import replace
 
-    from planner.cli.eval_specs import base_specs, view_specs, with_precision
+    from planner.cli.eval_specs import base_specs, view_specs, with_precision, with_ranker
     from planner.evaluate import run_evaluation
     from synth.common.ranges import parse_range
 
@@ -533,10 +536,7 @@ def eval_command(
     f3 = f3_objective("f3", f3_balance, f3_sigma_b)
     specs = [replace(s, sigma_b=f3.sigma_b, balance=f3.balance) if s.kind == "unet" and s.objective == "f3" else s
              for s in specs]
-    if ranker is not None:
-        check_input(ranker, "--ranker", "file")
-        specs += [replace(s, ranker=str(ranker), rerank_k=rerank_k, ranker_u_weight=ranker_u_weight)
-                  for s in specs if s.kind == "unet" and not s.label and s.views == 1]
+    specs = with_ranker(specs, ranker, rerank_k, ranker_u_weight, ranked_only)
     specs = with_precision(specs, precision)
     check_output_dir(out, "--out")
     with progress_bar() as bar:

@@ -3,6 +3,8 @@ number format), each --extra-model and the baselines, every model file checked."
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from planner.evaluate import PlannerSpec
 from synth.common.cli import CliError, check_input
 
@@ -66,7 +68,6 @@ def with_precision(specs: list[PlannerSpec], precision: str) -> list[PlannerSpec
     if precision == "auto":
         return specs
     from dataclasses import replace
-    from pathlib import Path
 
     from planner.int8 import calibration_path
     from planner.runtime import INT8_PRECISIONS, resolve_precision
@@ -81,3 +82,20 @@ def with_precision(specs: list[PlannerSpec], precision: str) -> list[PlannerSpec
             raise CliError(f"--precision {precision}: {s.model} has no int8 calibration beside it "
                            f"({Path(calibration_path(s.model)).name}; python -m experiments.int8_calibration)")
     return out
+
+
+def with_ranker(specs: list[PlannerSpec], ranker: Path | None, rerank_k: int, u_weight: float,
+                ranked_only: bool) -> list[PlannerSpec]:
+    """``specs`` and, with a ``ranker`` (``--ranker``), a re-ranked copy of each plain U-Net row (not the
+    --extra-model ones, nor those with views); ``ranked_only`` (``--ranked-only``): the copies in place of
+    the rows they re-rank."""
+    from dataclasses import replace
+
+    if ranker is None:
+        if ranked_only:
+            raise CliError("--ranked-only needs --ranker PATH")
+        return specs
+    check_input(ranker, "--ranker", "file")
+    plain = [s for s in specs if s.kind == "unet" and not s.label and s.views == 1]
+    ranked = [replace(s, ranker=str(ranker), rerank_k=rerank_k, ranker_u_weight=u_weight) for s in plain]
+    return [s for s in specs if not (ranked_only and s in plain)] + ranked

@@ -88,7 +88,14 @@ def test_trial_mcap_reads_back_with_an_independent_reader(can_record):
 
 
 def test_replay_is_bit_identical(can_record, tmp_path):
+    """... in the number format the trial's network ran in, which the record names ("auto" as this
+    machine resolved it: int8 on a CPU with int8 dot products)."""
+    from planner.checkpoint import DEFAULT_MODEL
+    from planner.inference import checkpoint_precision
+
     rec, record, _ = can_record
+    assert record["model"]["precision"] == checkpoint_precision(DEFAULT_MODEL, "cpu") and \
+        record["options"]["precision"] == "auto"
     result = replay_record(rec, tmp_path / "replay")
     assert result["identical"], result["differences"]
 

@@ -148,7 +148,7 @@ def keyed_pair(key):
     """A CAN pair with the same key on both ends, and a rogue node without it."""
     made = []
 
-    def make(delay_s: float = 0.05, laptop_key=None):
+    def make(delay_s: float = 0.05, laptop_key=None, connect_timeout_s: float = LINK.connect_timeout_s):
         channel = f"secoc-{uuid.uuid4().hex[:8]}"
         ex = FixedOutcomeExecutor(delay_s=delay_s)
         ctl = CraneController(ControllerConfig(secoc_key_path=str(key), signing_key_path=str(signing_key_of(key)),
@@ -158,7 +158,8 @@ def keyed_pair(key):
         ctl.start()
         rogue = can.Bus(interface="virtual", channel=channel, fd=True)
         made.append((ctl, tr, rogue))
-        cfg = replace(LINK, secoc_key_path=str(laptop_key or key), crane_key_path=f"{signing_key_of(key)}.pub")
+        cfg = replace(LINK, secoc_key_path=str(laptop_key or key), crane_key_path=f"{signing_key_of(key)}.pub",
+                      connect_timeout_s=connect_timeout_s)
         link = CanLink(config=cfg, bus=can.Bus(interface="virtual", channel=channel, fd=True))
         made.append((link,))
         return link, ctl, ex, rogue
@@ -258,7 +259,7 @@ def test_a_link_without_a_key_is_refused_unless_the_operator_opts_out():
                                  "key",
                          reaction="a crane with another key is not reached: the link refuses to open")
 def test_a_crane_with_another_key_is_not_reached(keyed_pair, tmp_path):
-    link, *_ = keyed_pair(laptop_key=generate_key_file(tmp_path / "wrong.key"))
+    link, *_ = keyed_pair(laptop_key=generate_key_file(tmp_path / "wrong.key"), connect_timeout_s=2.0)
     with pytest.raises(LinkError, match="SecOC key"):
         link._await_controller()
 

@@ -36,6 +36,20 @@ def test_a_record_from_before_the_hang_model_replays_with_the_b_map():
     assert recorded_options({"objective": "f3"}).verify_k == 0  # a 1.0 record: unverified
 
 
+def test_a_record_replays_in_the_number_format_its_trial_ran_in():
+    """The record's model says the format the network ran in ("auto" resolved): a replay runs in it, on
+    any machine; a record from before int8 could be chosen ran in the float format "auto" meant then."""
+    from planner.inference import default_device
+    from planner.runtime import default_precision
+
+    assert recorded_options({"objective": "f3", "precision": "auto"}, "int8").precision == "int8"
+    assert recorded_options({"objective": "f3"}, "bf16").precision == "bf16"
+    assert recorded_options({"objective": "f3"}).precision == default_precision(default_device())
+    assert recorded_options({"objective": "f3", "precision": "fp32"}).precision == "fp32"
+    with pytest.raises(ValueError, match="precision must be one of"):
+        TrialOptions(precision="int4")
+
+
 def test_the_trial_flags_reach_the_options(capsys, work, monkeypatch):
     import field.trial_record as trial_record
 
@@ -46,10 +60,28 @@ def test_the_trial_flags_reach_the_options(capsys, work, monkeypatch):
         raise KeyboardInterrupt
 
     monkeypatch.setattr(trial_record, "run_trial_record", stop)
-    for extra in ([], ["--f3-balance", "hang"], ["--f3-balance", "network", "--f3-sigma-b", "0.2"]):
+    for extra in ([], ["--f3-balance", "hang"], ["--f3-balance", "network", "--f3-sigma-b", "0.2", "--precision", "fp32"]):
         cli(capsys, "trial", "--scan", SCAN, "--gnss", GNSS, "--link", "twin://", "--record",
             work / f"t{len(seen)}", "--yes", *extra)
     assert [(o.f3_balance, o.objective_spec().sigma_b) for o in seen] == [
         (PRODUCT_F3_BALANCE, f3_sigma_b(PRODUCT_F3_BALANCE)), ("hang", HANG_SIGMA_B), ("network", 0.2)]
+    assert [o.precision for o in seen] == ["auto", "auto", "fp32"]
     fails(cli(capsys, "trial", "--scan", SCAN, "--gnss", GNSS, "--link", "twin://", "--record", work / "t9",
               "--f3-sigma-b", "0"), 2, "--f3-sigma-b 0")
+
+
+def test_the_trial_plans_in_the_precision_its_options_name(tmp_path):
+    import shutil
+
+    from field.trial import TrialAborted, _load_trial_planner
+    from planner.checkpoint import DEFAULT_MODEL
+    from planner.runtime import int8_kernels_available
+
+    bare = shutil.copy(DEFAULT_MODEL, tmp_path / "bare.safetensors")  # no int8 calibration beside it
+    assert _load_trial_planner(TrialOptions(precision="fp32", rerank=False))[0].precision == "fp32"
+    if int8_kernels_available():
+        assert _load_trial_planner(TrialOptions(precision="int8", rerank=False))[0].precision == "int8"
+    with pytest.raises(TrialAborted, match="planning failed: ") as info:
+        _load_trial_planner(TrialOptions(precision="int8" if int8_kernels_available() else "bf16", rerank=False,
+                                         model=str(bare) if int8_kernels_available() else str(tmp_path / "none")))
+    assert info.value.kind == "input"

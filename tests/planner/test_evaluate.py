@@ -7,7 +7,8 @@ import pytest
 
 from planner.evaluate import EvalConfig, evaluate_pile, run_evaluation
 from planner.planners import PlannerSpec, geometric_planner
-from planner.runtime import default_precision, int8_kernels_available
+from planner.inference import checkpoint_precision
+from planner.runtime import cpu_has_native_int8, default_precision, int8_kernels_available
 from synth.scene.generate import GenerationConfig, generate_pile
 from synth.geometry.grasp import Grasp
 from synth.render.ortho import OrthoRenderConfig, render_ortho
@@ -242,7 +243,9 @@ def test_a_row_with_test_time_views_plans_with_them_and_keeps_its_own_records(tm
 def test_an_int8_row_plans_with_the_int8_network_and_keeps_its_own_records(tmp_path, monkeypatch):
     """``precision`` rows plan with the network in that number format, are named ``unet-f1-int8`` and
     fingerprinted apart, with the calibration's own hash: a recalibrated model's int8 records are made
-    again; "auto" keeps the names and records rows had before the field existed."""
+    again. "auto" keeps the name it had; it runs, and is fingerprinted, as load_planner resolves it: int8
+    where the CPU has int8 dot products and the model a calibration, else the float format of the records
+    made before the field existed."""
     from dataclasses import replace
 
     import numpy as np
@@ -270,16 +273,21 @@ def test_an_int8_row_plans_with_the_int8_network_and_keeps_its_own_records(tmp_p
 
     monkeypatch.setattr(inference, "plan", spy)
     plain = PlannerSpec("unet", model=str(ckpt), objective="f1")
-    int8 = replace(plain, precision="int8")
-    assert int8.name == "unet-f1-int8" and plain.name == "unet-f1"
-    tables = run_evaluation([plain, int8], cfg, tmp_path / "e", workers=1)
-    assert set(tables["planners"]) == {"unet-f1", "unet-f1-int8"}
-    assert sorted(seen) == sorted([default_precision("cpu"), "int8"])
+    int8, fp32 = replace(plain, precision="int8"), replace(plain, precision="fp32")
+    assert int8.name == "unet-f1-int8" and plain.name == "unet-f1" and fp32.name == "unet-f1-fp32"
+    tables = run_evaluation([plain, int8, fp32], cfg, tmp_path / "e", workers=1)
+    assert set(tables["planners"]) == {"unet-f1", "unet-f1-int8", "unet-f1-fp32"}
+    auto = checkpoint_precision(ckpt, "cpu")  # int8 where this CPU has int8 dot products: it is calibrated
+    assert auto == ("int8" if cpu_has_native_int8() else default_precision("cpu"))
+    assert sorted(seen) == sorted([auto, "int8", "fp32"])
     before = _fingerprint(int8)
-    assert len({_fingerprint(plain), before, _fingerprint(replace(plain, precision="fp32"))}) == 3
+    assert _fingerprint(fp32) not in (before, _fingerprint(plain))
+    assert (_fingerprint(plain) == before) == (auto == "int8")  # "auto" in int8 is int8's records' kind
     with torch.no_grad():
         write_calibration(calibration_path(ckpt), calibrate(model, [x[:2]]))
-    assert _fingerprint(int8) != before and _fingerprint(int8).startswith(_fingerprint(plain) + "+int8-")
+    assert _fingerprint(int8) != before and _fingerprint(int8).startswith(_fingerprint(fp32).split("+")[0] + "+int8-")
+    calibration_path(ckpt).unlink()  # no calibration: "auto" is the float format, its records those made before
+    assert "+" not in _fingerprint(plain) and checkpoint_precision(ckpt, "cpu") == default_precision("cpu")
 
 
 def test_an_f3_row_with_another_balance_tolerance_or_source_plans_with_it_and_keeps_its_own_records(tmp_path, monkeypatch):

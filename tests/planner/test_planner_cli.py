@@ -34,3 +34,34 @@ def test_a_resumed_training_shows_the_epochs_already_done(monkeypatch, tmp_path)
     lines = [ln for ln in r.stderr.splitlines() if ln.startswith("training:")]
     assert lines[0].startswith("training: 3/16, step 1"), lines
     assert lines[1].startswith("training: 4/16, train 0.0600 val 0.0500"), lines
+
+
+def test_eval_rows_with_a_ranker_and_in_another_precision(tmp_path):
+    """eval's rows: --ranker adds a re-ranked copy of each plain U-Net row (not --extra-model or views
+    rows), --ranked-only keeps only the copies; --precision applies to every U-Net row, never to a
+    baseline, and is refused in one line for a model without its int8 calibration."""
+    import pytest
+
+    from planner.checkpoint import DEFAULT_MODEL
+    from planner.cli.eval_specs import base_specs, view_specs, with_precision, with_ranker
+    from synth.common.cli import CliError
+
+    rk = tmp_path / "r.safetensors"
+    rk.write_bytes(b"x")
+    specs = base_specs(str(DEFAULT_MODEL), "f1,f3", "random", [f"other={DEFAULT_MODEL}"], None, 0)
+    specs += view_specs(str(DEFAULT_MODEL), "f1", 4, 0.0)
+    names = [s.name for s in with_ranker(specs, rk, 4, 0.0, False)]
+    assert names == ["unet-f1", "unet-f3", "other", "random", "unet-f1-views4", "unet-f1-ranked4", "unet-f3-ranked4"]
+    names = [s.name for s in with_ranker(specs, rk, 4, 0.0, True)]
+    assert names == ["other", "random", "unet-f1-views4", "unet-f1-ranked4", "unet-f3-ranked4"]
+    assert with_ranker(specs, None, 4, 0.0, False) == specs
+    with pytest.raises(CliError, match="--ranked-only needs --ranker"):
+        with_ranker(specs, None, 4, 0.0, True)
+    int8 = with_precision(with_ranker(specs, rk, 4, 0.0, True), "int8")
+    assert [s.name for s in int8] == ["other", "random", "unet-f1-int8-views4", "unet-f1-int8-ranked4",
+                                      "unet-f3-int8-ranked4"]  # a labelled row keeps its label
+    assert {s.precision for s in int8 if s.kind == "unet"} == {"int8"} and int8[1].precision == "auto"
+    bare = tmp_path / "bare.safetensors"
+    bare.write_bytes(Path(DEFAULT_MODEL).read_bytes())
+    with pytest.raises(CliError, match="--precision int8: .*bare.safetensors has no int8 calibration beside it"):
+        with_precision(base_specs(str(bare), "f1", "", [], None, 0), "int8")

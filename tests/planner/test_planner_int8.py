@@ -116,7 +116,8 @@ def test_int8_is_refused_in_one_line_where_it_cannot_run(monkeypatch):
     assert "\n" not in str(exc.value)
     with pytest.raises(ValueError, match="no oneDNN int8"):
         load_planner(DEFAULT_MODEL, device="cpu", precision="int8")
-    assert runtime.resolve_precision("auto", "cpu") in ("bf16", "fp32")  # "auto" never picks int8
+    assert runtime.resolve_precision("auto", "cpu") in ("bf16", "fp32")  # no calibration: never int8
+    assert load_planner(DEFAULT_MODEL, device="cpu").precision in ("bf16", "fp32")  # "auto": the float format
 
 
 @needs_int8
@@ -200,3 +201,23 @@ def test_int8_outputs_do_not_depend_on_threads_or_packing():
     finally:
         torch.set_num_threads(threads)
     torch.testing.assert_close(outs[0], outs[1], rtol=0, atol=1e-4)
+
+
+@needs_int8
+def test_the_shipped_model_plans_in_int8_by_default_where_the_cpu_has_int8_dot_products(tmp_path):
+    """"auto" picks int8 for a checkpoint with a calibration beside it on a CPU with int8 dot products
+    (AVX512-VNNI here), the float format for the same weights without one; a calibration of other
+    weights is a one-line error, not a silent fallback."""
+    import shutil
+
+    from planner.int8 import calibration_path
+
+    net = load_planner(DEFAULT_MODEL, device="cpu")
+    assert net.precision == ("int8" if runtime.cpu_has_native_int8() else runtime.default_precision("cpu"))
+    bare = shutil.copy(DEFAULT_MODEL, tmp_path / "bare.safetensors")
+    assert load_planner(bare, device="cpu").precision in ("bf16", "fp32")
+    m = _tiny_model()
+    write_calibration(calibration_path(bare), calibrate(m, [_inputs(2, 0)]))
+    if runtime.cpu_has_native_int8():
+        with pytest.raises(CheckpointError, match="calibrate it again"):
+            load_planner(bare, device="cpu")

@@ -28,6 +28,23 @@ def test_precision_is_bf16_only_where_the_cpu_has_bf16_dot_products():
     assert default_precision("cuda", {}) == "bf16"
 
 
+def test_precision_is_int8_only_with_int8_dot_products_a_calibration_and_the_kernels(monkeypatch):
+    import planner.runtime as runtime
+
+    monkeypatch.setattr(runtime, "int8_kernels_available", lambda: True)
+    epyc = {"avx512_bf16": True, "avx512_vnni": True}  # this AMD EPYC (Zen 4)
+    assert default_precision("cpu", epyc, int8_calibrated=True) == "int8"
+    assert default_precision("cpu", {"avx_vnni": True}, int8_calibrated=True) == "int8"
+    assert default_precision("cpu", {"amx_int8": True, "amx_bf16": True}, int8_calibrated=True) == "int8"
+    assert default_precision("cpu", epyc) == "bf16"  # weights without a calibration
+    assert default_precision("cpu", {"avx512_bf16": True, "avx512_f": True}, int8_calibrated=True) == "bf16"
+    assert default_precision("cpu", {"avx2": True}, int8_calibrated=True) == "fp32"  # int8 emulated: no gain
+    assert default_precision("cuda", epyc, int8_calibrated=True) == "bf16"
+    assert resolve_precision("auto", "cpu", int8_calibrated=True) == default_precision("cpu", None, True)
+    monkeypatch.setattr(runtime, "int8_kernels_available", lambda: False)  # a torch without them
+    assert default_precision("cpu", epyc, int8_calibrated=True) == "bf16"
+
+
 def test_planner_resolves_auto_precision_and_refuses_others():
     torch.manual_seed(0)
     m = build_unet(TINY)
