@@ -185,72 +185,57 @@ def balance_markdown(rows: list[dict]) -> list[str]:
 
 
 def plan_cost(n_logs=(4, 7), threads=(1, 2), repeats: int = 5) -> list[dict]:
-    """Wall and CPU seconds of one plan with the shipped model as it loads by default (f3, all
-    subsets) with 1 and 2 torch threads, median of ``repeats``. The CPU seconds of the one-thread
-    run are the figure another job's load on a shared machine barely moves; a two-thread wall time
-    there measures the neighbours as much as the planner (a thread descheduled inside a parallel
-    region stalls the other one)."""
+    """Wall and CPU seconds of one plan with the shipped model as it loads by default ("auto"; f3, all
+    subsets) with 1 and 2 torch threads, median of ``repeats`` (:func:`precision_cost`). The CPU
+    seconds of the one-thread run are the figure another job's load on a shared machine barely
+    moves; a two-thread wall time there measures the neighbours as much as the planner (a thread
+    descheduled inside a parallel region stalls the other one)."""
+    return [r for t in threads for r in precision_cost(("auto",), n_logs, rounds=1, repeats=repeats, threads=t)]
+
+
+def precision_cost(precisions=("bf16", "int8"), n_logs: int | tuple[int, ...] = 7, rounds: int = 3,
+                   repeats: int = 3, threads: int = 1) -> list[dict]:
+    """CPU and wall seconds of an f3 plan (all subsets) of one pile of each of ``n_logs`` logs with the
+    shipped model in each of ``precisions`` on ``threads`` torch threads, the precisions alternating
+    within each of ``rounds`` (each round's figure the median of ``repeats`` plans). One thread's CPU
+    seconds are the comparison other jobs on a shared machine move least; two threads' wall seconds are
+    the target's figure, meaningful on idle cores only. Returns one row per precision and pile size:
+    median, min and max over the rounds; ``precision`` is the format that ran ("auto" resolved)."""
     import torch
 
     from planner.inference import Objective, load_planner, plan
     from planner.runtime import masks_per_pass
 
-    obs = {n: _pile_observations(n, 1)[0][0] for n in n_logs}
-    pl = load_planner(DEFAULT_MODEL, device="cpu")
-    f3 = Objective(kind="f3")
-    rows = []
-    for t in threads:
-        torch.set_num_threads(t)
-        plan(obs[n_logs[0]], pl, f3)  # warm-up (oneDNN kernels)
-        for n in n_logs:
-            walls, cpus, p = [], [], None
-            for _ in range(repeats):
-                c0 = time.process_time()
-                p = plan(obs[n], pl, f3)
-                walls.append(p.elapsed_s)
-                cpus.append(time.process_time() - c0)
-            rows.append({"logs": n, "subsets": p.subsets_evaluated, "threads": t, "precision": pl.precision,
-                         "batch": masks_per_pass(pl.batch_size), "wall_s": statistics.median(walls),
-                         "cpu_s": statistics.median(cpus), "load": load_average("")})
-    return rows
-
-
-def precision_cost(precisions=("bf16", "int8"), n_logs: int = 7, rounds: int = 3, repeats: int = 3,
-                   threads: int = 1) -> list[dict]:
-    """CPU and wall seconds of an f3 plan (all subsets) of one ``n_logs`` pile with the shipped model
-    in each of ``precisions`` on ``threads`` torch threads, the precisions alternating within each of
-    ``rounds`` (each round's figure the median of ``repeats`` plans). One thread's CPU seconds are the
-    comparison other jobs on a shared machine move least; two threads' wall seconds are the target's
-    figure, meaningful on idle cores only. Returns one row per precision: median, min and max over the
-    rounds."""
-    import torch
-
-    from planner.inference import Objective, load_planner, plan
-
+    sizes = (n_logs,) if isinstance(n_logs, int) else tuple(n_logs)
     before = torch.get_num_threads()
     torch.set_num_threads(threads)
     try:
-        obs = _pile_observations(n_logs, 1)[0][0]
+        obs = {n: _pile_observations(n, 1)[0][0] for n in sizes}
         planners = {p: load_planner(DEFAULT_MODEL, device="cpu", precision=p) for p in precisions}
         f3 = Objective(kind="f3")
-        subsets = {p: plan(obs, pl, f3).subsets_evaluated for p, pl in planners.items()}  # warm-up
-        per_round: dict[str, list[float]] = {p: [] for p in precisions}
-        wall_round: dict[str, list[float]] = {p: [] for p in precisions}
+        for pl in planners.values():
+            plan(obs[sizes[0]], pl, f3)  # warm-up (oneDNN kernels)
+        subsets = {n: plan(obs[n], planners[precisions[0]], f3).subsets_evaluated for n in sizes}
+        batch = {p: masks_per_pass(pl.batch_size) for p, pl in planners.items()}  # at these threads
+        cpu: dict = {(p, n): [] for p in precisions for n in sizes}
+        wall: dict = {(p, n): [] for p in precisions for n in sizes}
         for _ in range(rounds):
-            for p, pl in planners.items():
-                cpus, walls = [], []
-                for _ in range(repeats):
-                    c0 = time.process_time()
-                    walls.append(plan(obs, pl, f3).elapsed_s)
-                    cpus.append(time.process_time() - c0)
-                per_round[p].append(statistics.median(cpus))
-                wall_round[p].append(statistics.median(walls))
+            for n in sizes:
+                for p, pl in planners.items():
+                    cpus, walls = [], []
+                    for _ in range(repeats):
+                        c0 = time.process_time()
+                        walls.append(plan(obs[n], pl, f3).elapsed_s)
+                        cpus.append(time.process_time() - c0)
+                    cpu[p, n].append(statistics.median(cpus))
+                    wall[p, n].append(statistics.median(walls))
     finally:
         torch.set_num_threads(before)
-    return [{"precision": p, "logs": n_logs, "subsets": subsets[p], "rounds": rounds, "repeats": repeats,
-             "threads": threads, "cpu_s": statistics.median(v), "cpu_min_s": min(v), "cpu_max_s": max(v),
-             "wall_s": statistics.median(wall_round[p]), "wall_min_s": min(wall_round[p]),
-             "wall_max_s": max(wall_round[p]), "load": load_average("")} for p, v in per_round.items()]
+    return [{"precision": planners[p].precision, "logs": n, "subsets": subsets[n], "rounds": rounds,
+             "repeats": repeats, "threads": threads, "batch": batch[p],
+             "cpu_s": statistics.median(v), "cpu_min_s": min(v), "cpu_max_s": max(v),
+             "wall_s": statistics.median(wall[p, n]), "wall_min_s": min(wall[p, n]), "wall_max_s": max(wall[p, n]),
+             "load": load_average("")} for (p, n), v in cpu.items()]
 
 
 def precision_markdown(rows: list[dict]) -> list[str]:
