@@ -18,7 +18,7 @@ from reconstruct.fitting.joint_contact import Segment
 from reconstruct.fitting.joint_settle import JointSettler, LogEvidence, _Problem, settle_pile, survey_pull
 from synth.scene.pile import LogSpec, PileSpec, StumpSpec, TerrainSpec
 
-OFF = JointConfig()
+OFF = JointConfig(radius_states=False)
 ON = JointConfig(radius_states=True)
 R = 0.1  # the logs' true radius [m]
 THICK_M = 0.02  # log 0 fitted 4 cm too thick: its radius 2 cm too big, its seen top where it truly is [m]

@@ -17,7 +17,7 @@ from reconstruct.fitting.joint_scan_sigma import radius_misfit, scan_sigma
 from reconstruct.fitting.joint_settle import JointSettler
 from synth.scene.pile import LogSpec, PileSpec, TerrainSpec
 
-CFG = JointConfig()
+CFG = JointConfig(radius_states=False)  # the per-log sigmas with fixed radii (radius states: test_joint_radius)
 R = 0.1  # the logs' radius [m]
 BAND = 0.015  # how near its surface a point is on a log (FitConfig.inlier_band_m) [m]
 TOL = 0.01  # the twin's tolerance [m]
