@@ -309,14 +309,13 @@ class JointConfig:
     #                                 less. Off (revision 16): the length as exact - a float log laid along its
     #                                 own ridge paid for metres its points' error alone explains
     #                                 (docs/reconstruction.md, "Joint revision 17") [-]
-    # -- what a bin past the seen top says (joint_sight; joint revision 19) --
-    sight_lines: bool = True  # a point under a log's top is evidence that the log ends before it only if every
-    #                           camera's sight line to it would cross the log (joint_sight.seen_past): a camera
-    #                           beside a raised log sees the ground under it where its view of the top is cut
-    #                           off. Off (revision 18): every such point read 'below', so 10-15 bins of ground
-    #                           under a raised log before the scan's edge threw out correct RTK fixed points
-    #                           50-95 cm on along its axis (docs/reconstruction.md, "The final set read scan by
-    #                           scan") [-]
+    # -- what a bin past the seen top says (joint_view; joint revision 19) --
+    view_test: bool = True  # a bin along a log reads 'below' or 'over' (evidence that the log ends before it) only
+    #                        where the log's top there lies inside both images of some stereo pair
+    #                        (joint_view.in_view): a raised log running out of the pairs' views shows them the
+    #                        ground under it before its top leaves the images. Off (revision 18): 10-15 such
+    #                        bins of ground threw out correct RTK fixed points 50-95 cm on along the axis
+    #                        (docs/reconstruction.md, "The final set read scan by scan") [-]
     # -- the direction the laid log is laid in (joint_match.laid_direction; joint revision 18) --
     laid_survey_direction: bool = True  # the log laid_nats lays runs in the inverse-variance weighted direction
     #                                     of the ridge's axis (ridge_direction_sigma_m over its seen length) and
@@ -337,7 +336,7 @@ class JointConfig:
                      "p_on_outside", "p_below_outside", "p_over_inside", "p_over_outside"):
             if not getattr(self, name) < 1:
                 raise ValueError(f"JointConfig.{name} is a probability: must be in (0, 1), got {getattr(self, name)}")
-        for name in ("laid_length_sigma", "laid_survey_direction", "sight_lines"):
+        for name in ("laid_length_sigma", "laid_survey_direction", "view_test"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"JointConfig.{name} is a switch: must be True or False, got "
                                  f"{getattr(self, name)!r}")
