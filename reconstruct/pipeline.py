@@ -66,6 +66,7 @@ from reconstruct.fitting.ends import axis_sigma_m
 from reconstruct.fitting.fit import PileFit, fit_log, fit_pile, log_spec_from_fit
 from reconstruct.fitting.joint_config import JOINT_REVISION
 from reconstruct.fitting.joint_ends import JointEndPlacer, dropped_point_lines, joint_after_check
+from reconstruct.fitting.joint_view import scan_views
 from reconstruct.fitting.joint_match import joint_match
 from reconstruct.fitting.joint_ridge import ridge_evidence
 from reconstruct.fitting.joint_settle import JointSettler
@@ -277,8 +278,11 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
     T_site_scan_refined = frame.T_site_pile @ T_corr @ frame.T_pile_site @ T_site_scan  # site <- pile <- scan
     logs_pile = [s.moved(T_corr) for s in logs_pile]
     in_patch = np.all(np.abs(pts[:, :2]) < frame.extent / 2, axis=1)
+    views = (scan_views(scan_dir, T_corr @ frame.T_pile_site @ T_site_scan)  # the pairs' cameras, as pts
+             if cfg.estimator == "joint" and pair_pose_source in ("given", "calibration") else None)
     fit, fusion = _fit(pts[in_patch], matching, survey_ends, logs_pile, first_pass, frame, placed, cfg, say,
-                       notes=f"reconstructed from {scan_dir} and {gnss_path}", georef=frame.georef(placed.pose))
+                       notes=f"reconstructed from {scan_dir} and {gnss_path}", georef=frame.georef(placed.pose),
+                       views=views)
     clock.lap("fit_s")
     say(f"writing {out_dir}")
     obs, files = _write_outputs(fit, frame.render_px, cfg, out_dir, pts[in_patch], cloud.colours[in_patch])
@@ -492,15 +496,16 @@ def _refine(pts_near: np.ndarray, matching: _Matching, survey_ends: dict, logs_p
 
 def _fit(pts: np.ndarray, matching: _Matching, survey_ends: dict, logs_pile: list, first_pass: dict,
          frame: _PileFrame, placed: _Placed, cfg: ReconstructConfig, say: Callable[[str], None], notes: str,
-         georef: Georeference) -> tuple[PileFit, dict]:
+         georef: Georeference, views: list | None = None) -> tuple[PileFit, dict]:
     """The pile fitted on the patch's points (pile frame): new logs kept where the scan shows one,
-    every log's ends placed (:class:`_EndPlacer`), terrain and obstacles; and the fusion report."""
+    every log's ends placed (:class:`_EndPlacer`), terrain and obstacles; and the fusion report
+    (``views``: the scan's pairs in the pile frame, for the joint end model, :mod:`joint_view`)."""
     priors = matching.priors(survey_ends, logs_pile, placed.fuse_cfg)
     new_ids = dict(matching.new_ids)
     dropped_new = _fit_new_logs(pts, new_ids, priors, first_pass, cfg, placed.fuse_cfg)
     lateral = {k: s for k, (_, _, s) in priors.items()}
     joint = cfg.estimator == "joint"
-    placer = (JointEndPlacer(survey_ends, lateral, cfg.joint, placed.fuse_cfg) if joint
+    placer = (JointEndPlacer(survey_ends, lateral, cfg.joint, placed.fuse_cfg, views=views) if joint
               else _EndPlacer(survey_ends, lateral, placed.fuse_cfg))
     fit = fit_pile(pts, {k: (a, b) for k, (a, b, _) in priors.items()}, frame.extent, cfg.fit, progress=say,
                    georef=georef, notes=notes, first_pass=first_pass,

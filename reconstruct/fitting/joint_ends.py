@@ -31,6 +31,7 @@ from reconstruct.fitting.ends import (MIN_BIN_POINTS, MIN_LOG_LENGTH_M, TOP_BAND
                                       axis_distance, axis_sigma_m, final_end)
 from reconstruct.fitting.fuse_config import FuseConfig
 from reconstruct.fitting.joint_config import JointConfig
+from reconstruct.fitting.joint_view import in_view
 from reconstruct.fitting.survey_points import SurveyEnd
 
 UNSEEN, ON, BELOW, OVER = 0, 1, 2, 3  # what a bin along the axis shows
@@ -39,6 +40,8 @@ EXTRAPOLATION_SIGMAS = 2.0  # a bin past the fitted axis is on or below its top 
 LENGTH_MARGIN_M = 1e-3  # ends closer than the shortest log plus this keep the fit's (LogSpec's own length
 #                         differs from the ends' distance in the last digits: a log spec refuses it) [m]
 MODE_WINDOW_M = 0.05  # an end is the posterior's mean within this of its mode (a mode alone snaps to the grid) [m]
+VIEW_MARGIN_PX = 8.0  # a log's top this close to an image's edge is taken as out of view: stereo matches no
+#                       point there (the block matcher's window, about this wide) [px]
 
 
 @dataclass
@@ -57,14 +60,18 @@ class JointEndEstimate(EndEstimate):
 
 
 def bin_states(points: np.ndarray, pa: np.ndarray, u: np.ndarray, radius_m: float, lo_m: float, n_bins: int,
-               fcfg: FuseConfig, on_mask: np.ndarray | None = None, fitted_m: float | None = None) -> np.ndarray:
+               fcfg: FuseConfig, on_mask: np.ndarray | None = None, fitted_m: float | None = None,
+               views: list | None = None) -> np.ndarray:
     """What each bin of ``fcfg.end_bin_m`` along the axis ``pa + t u`` (t from ``lo_m``) shows
     (:data:`ON`, :data:`BELOW`, :data:`OVER` or :data:`UNSEEN`), from the scan ``points`` within half a
     radius of the axis's vertical plane; ``on_mask``: which points may show this log's top (those near
     another log only show where the scan sees below it). ``fitted_m``: the axis was fitted over t in
     [0, fitted_m]; past that its height is less sure (``extrapolation_sigma_per_m``), and a bin is on the top
     or below it only beyond twice that uncertainty (a log fitted over 60 cm and extended 2 m has its top
-    there to +-8 cm: its own top read as 'below' threw out correct fixed points)."""
+    there to +-8 cm: its own top read as 'below' threw out correct fixed points). ``views`` (the scan's pairs,
+    :mod:`reconstruct.fitting.joint_view`): a bin whose top no pair has inside both its images reads
+    'below' or 'over' no more (the ground seen under a raised log past the images' edge is no evidence that
+    the log ends there); None: every bin as its points say."""
     P = np.asarray(points, dtype=np.float64)
     rel = P - pa
     t = rel @ u
@@ -88,6 +95,9 @@ def bin_states(points: np.ndarray, pa: np.ndarray, u: np.ndarray, radius_m: floa
     seen = np.bincount(k, minlength=n_bins) >= MIN_BIN_POINTS
     below = ~on & seen & (top < -max(fcfg.below_min_m, fcfg.below_radius_share * r) - slack)
     over = ~on & ~below & seen & (top > fcfg.on_band_m)
+    if views is not None:  # what the scan could not have seen of the top says nothing of where the log ends
+        visible = in_view(views, pa + np.outer(c, u) + r * up, VIEW_MARGIN_PX)
+        below, over = below & visible, over & visible
     return np.select([on, below, over], [ON, BELOW, OVER], UNSEEN)
 
 
@@ -284,10 +294,12 @@ def _scan_state(states: np.ndarray, lo_m: float, k: int, t_end: float, fcfg: Fus
 
 def place_joint_ends(points: np.ndarray, spec: Any, how: str, survey: tuple[SurveyEnd | None, SurveyEnd | None],
                      swapped: bool, lateral_sigma_m: float, cfg: JointConfig, fcfg: FuseConfig,
-                     on_mask: np.ndarray | None = None) -> tuple[Any, tuple[JointEndEstimate, JointEndEstimate]]:
+                     on_mask: np.ndarray | None = None, views: list | None = None
+                     ) -> tuple[Any, tuple[JointEndEstimate, JointEndEstimate]]:
     """A fitted log (``spec``, placed ``how``: "scan", "partial" or "hidden") with both ends at their
     posterior modes (:func:`end_posterior`), and the two estimates in survey order (end a, end b;
-    ``swapped``: end b is the butt): :func:`reconstruct.fitting.ends.place_log_ends`'s contract."""
+    ``swapped``: end b is the butt): :func:`reconstruct.fitting.ends.place_log_ends`'s contract.
+    ``views``: the scan's pairs, with ``cfg.view_test`` (:func:`bin_states`)."""
     from synth.scene.pile import LogSpec
 
     butt, top = spec.endpoints_m()
@@ -299,7 +311,8 @@ def place_joint_ends(points: np.ndarray, spec: Any, how: str, survey: tuple[Surv
     for k, point in enumerate(survey):
         lo, n = _grid(axis, k, point, cfg, fcfg)
         states = (np.zeros(n, np.int64) if how == "hidden" else
-                  bin_states(points, axis.pa, axis.u, r, lo, n, fcfg, on_mask=on_mask, fitted_m=L))
+                  bin_states(points, axis.pa, axis.u, r, lo, n, fcfg, on_mask=on_mask, fitted_m=L,
+                             views=views if cfg.view_test else None))
         post = end_posterior(states, lo, k, axis, point, lateral_sigma_m, cfg, fcfg)
         ests.append(_estimate(post, states, lo, k, axis, point, lateral_sigma_m, cfg, fcfg))
     a, b = ests
@@ -378,8 +391,10 @@ class JointEndPlacer:
     sure across as how it was fitted (a scan-fitted axis to millimetres, a log seen in part to centimetres,
     a hidden one to its points)."""
 
-    def __init__(self, survey_ends: dict, lateral: dict[str, float], cfg: JointConfig, fcfg: FuseConfig) -> None:
+    def __init__(self, survey_ends: dict, lateral: dict[str, float], cfg: JointConfig, fcfg: FuseConfig,
+                 views: list | None = None) -> None:
         self.survey_ends, self.lateral, self.cfg, self.fcfg = survey_ends, lateral, cfg, fcfg
+        self.views = views  # the scan's pairs in the pile frame (joint_view.scan_views; None: not known)
 
     def __call__(self, log_id: str, spec, how: str, points: np.ndarray, swapped: bool, on_mask: np.ndarray):
         from reconstruct.errors import FitError
@@ -387,7 +402,8 @@ class JointEndPlacer:
         ends_k = self.survey_ends.get(log_id, (None, None))
         sig = axis_sigma_m(how, self.lateral[log_id], ends_k)
         try:
-            return place_joint_ends(points, spec, how, ends_k, swapped, sig, self.cfg, self.fcfg, on_mask=on_mask)
+            return place_joint_ends(points, spec, how, ends_k, swapped, sig, self.cfg, self.fcfg, on_mask=on_mask,
+                                    views=self.views)
         except FitError as exc:
             raise FitError(f"log {log_id!r}: {exc}") from exc
 

@@ -16,7 +16,7 @@ from reconstruct.fitting.joint_settle import JointSettler, LogEvidence, _Problem
 from reconstruct.fitting.survey_points import SurveyEnd
 from synth.scene.pile import LogSpec, PileSpec, RockSpec, StumpSpec, TerrainSpec
 
-CFG = JointConfig()
+CFG = JointConfig(radius_states=False)  # obstacle states with fixed radii (radius states: test_joint_radius)
 R = 0.1  # the log's radius [m]
 TOL = 0.01  # the twin's tolerance [m]
 FLAT = TerrainSpec(extent_m=4.0, resolution=16, heights_m=tuple(tuple(0.0 for _ in range(16)) for _ in range(16)))
@@ -121,7 +121,7 @@ def test_a_fixed_end_pressed_into_a_stump_found_too_big_is_kept_and_the_stump_gi
     assert any(n.startswith("obstacle 0 shrunk") for n in out.notes)
     assert _twin_accepts(out.pile)
     with pytest.raises(SeparationError, match="clear stump 0|clear obstacle 0"):  # fixed bodies: revision 12 refuses
-        JointSettler(_fixed_ends(_log()), {"log1": 0.01}, JointConfig(obstacle_states=False), TOL, 12,
+        JointSettler(_fixed_ends(_log()), {"log1": 0.01}, JointConfig(obstacle_states=False, radius_states=False), TOL, 12,
                      points=points)(pile, [_fit(_log())])
 
 

@@ -18,7 +18,7 @@ from reconstruct.fitting.joint_contact import Segment
 from reconstruct.fitting.joint_settle import JointSettler, LogEvidence, _Problem, settle_pile, survey_pull
 from synth.scene.pile import LogSpec, PileSpec, StumpSpec, TerrainSpec
 
-OFF = JointConfig()
+OFF = JointConfig(radius_states=False)
 ON = JointConfig(radius_states=True)
 R = 0.1  # the logs' true radius [m]
 THICK_M = 0.02  # log 0 fitted 4 cm too thick: its radius 2 cm too big, its seen top where it truly is [m]
@@ -76,6 +76,13 @@ def test_a_log_fitted_too_thick_against_its_neighbour_is_thinned_within_its_sigm
     assert _twin_accepts(out.pile)
     with pytest.raises(SeparationError, match="log 0 would have to move"):  # revision 13's fixed radii
         settle_pile(pile, _evidence(pile, LOOSE_M), OFF, TOL, 12)
+
+
+def test_the_default_estimator_thins_it_from_revision_19():
+    pile = _pile()
+    out, _ = settle_pile(pile, _evidence(pile, LOOSE_M), JointConfig(), TOL, 12)
+    assert 0.01 < (pile.logs[0].diameter_m - out.pile.logs[0].diameter_m) / 2 < LOOSE_M
+    assert any(n.startswith("log 0 thinned") for n in out.notes)
 
 
 def test_a_pinned_log_whose_radius_its_scan_holds_tightly_is_refused_as_before():

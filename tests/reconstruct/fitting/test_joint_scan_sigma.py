@@ -17,7 +17,7 @@ from reconstruct.fitting.joint_scan_sigma import radius_misfit, scan_sigma
 from reconstruct.fitting.joint_settle import JointSettler
 from synth.scene.pile import LogSpec, PileSpec, TerrainSpec
 
-CFG = JointConfig()
+CFG = JointConfig(radius_states=False)  # the per-log sigmas with fixed radii (radius states: test_joint_radius)
 R = 0.1  # the logs' radius [m]
 BAND = 0.015  # how near its surface a point is on a log (FitConfig.inlier_band_m) [m]
 TOL = 0.01  # the twin's tolerance [m]
@@ -114,7 +114,7 @@ def test_the_refusal_is_judged_against_each_logs_own_sigma():
 def test_without_per_log_sigma_every_scan_log_has_the_one_configured_sigma():
     pile, fits = _two_logs_overlapping(0.04)
     tops = np.vstack([_surface(lg, -20, 20, seed=k) for k, lg in enumerate(pile.logs)])
-    settler = JointSettler({}, {}, JointConfig(per_log_sigma=False), TOL, 12, points=tops, band_m=BAND)
+    settler = JointSettler({}, {}, replace(CFG, per_log_sigma=False), TOL, 12, points=tops, band_m=BAND)
     with pytest.raises(SeparationError, match=r"\+-2\.0 cm across"):  # revision 10's 2 cm: 6 cm each is refused
         settler(pile, fits)
     assert settler.sigmas == {}

@@ -18,7 +18,7 @@ from reconstruct.fitting.joint_settle import (AlongPrior, JointSettler, LogEvide
 from reconstruct.fitting.survey_points import SurveyEnd
 from synth.scene.pile import LogSpec, PileSpec, RockSpec, StumpSpec, TerrainSpec
 
-CFG = JointConfig()
+CFG = JointConfig(radius_states=False)  # the pose settle with fixed radii (radius states: test_joint_radius)
 R = 0.1  # the logs' radius [m]
 TOL = 0.01  # the twin's tolerance [m]
 FIXED_SIGMA_M = 0.0106  # an RTK fixed point's sigma per axis with the scan pose's [m]
