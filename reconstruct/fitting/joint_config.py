@@ -16,7 +16,7 @@ from dataclasses import dataclass, fields
 ESTIMATORS = ("rules22", "joint")
 #: raised whenever a change to the joint estimator makes different piles from the same scan (recorded in the
 #: report as ``estimator_revision`` and in bench keys)
-JOINT_REVISION = 19
+JOINT_REVISION = 18
 
 
 @dataclass(frozen=True)
@@ -151,14 +151,14 @@ class JointConfig:
     #                           top was its top radius (10-17 cm) into it: true logs lying on true stumps
     #                           "interpenetrated" them by 10-13 cm, and six held-out refusals were that
     #                           (docs/reconstruction.md, "Joint revision 13") [-]
-    radius_states: bool = True  # each log's radius a state of the pile estimate (joint_radius), a Gaussian of
-    #                            its own scan radius sigma (joint_scan_sigma.scan_sigma's radius_m; a log not
-    #                            fitted to the scan: sigma_radius_prior_m), thinned with its top kept, so a log
-    #                            fitted a few cm too thick in a packed pile is thinned within its uncertainty
-    #                            instead of pressed into its neighbour and refused: the largest class of
-    #                            joint-18 refusals on the final set, 17 SeparationErrors between logs fitted
-    #                            2-5 cm too thick (docs/reconstruction.md, "The final set read scan by scan").
-    #                            On from revision 19; off: revisions 13-18's fixed radii [-]
+    radius_states: bool = False  # each log's radius a state of the pile estimate (joint_radius), a Gaussian of
+    #                             its own scan radius sigma (joint_scan_sigma.scan_sigma's radius_m; a log not
+    #                             fitted to the scan: sigma_radius_prior_m), thinned with its top kept, so a log
+    #                             fitted a few cm too thick in a packed pile is thinned within its uncertainty
+    #                             instead of pressed into its neighbour and refused (the largest class of joint-18
+    #                             refusals on the final set: docs/reconstruction.md, "The final set read scan by
+    #                             scan"). On in the tried revision 19, which did not beat revision 18 on new seeds
+    #                             (half the scans it rescued came out wrong): off, revisions 13-18's fixed radii [-]
     radius_min_share: float = 0.75  # ... and never thinned below this share of its fitted radius: past it a
     #                                 contact moves or refuses the log as before. On the fresh held-out scans
     #                                 the logs thinned and placed right needed at most 19 % off; the one that
@@ -310,12 +310,13 @@ class JointConfig:
     #                                 own ridge paid for metres its points' error alone explains
     #                                 (docs/reconstruction.md, "Joint revision 17") [-]
     # -- what a bin past the seen top says (joint_view; joint revision 19) --
-    view_test: bool = True  # a bin along a log reads 'below' or 'over' (evidence that the log ends before it) only
-    #                        where the log's top there lies inside both images of some stereo pair
-    #                        (joint_view.in_view): a raised log running out of the pairs' views shows them the
-    #                        ground under it before its top leaves the images. Off (revision 18): 10-15 such
-    #                        bins of ground threw out correct RTK fixed points 50-95 cm on along the axis
-    #                        (docs/reconstruction.md, "The final set read scan by scan") [-]
+    view_test: bool = False  # a bin along a log reads 'below' or 'over' (evidence that the log ends before it)
+    #                         only where the log's top there lies inside both images of some stereo pair
+    #                         (joint_view.in_view): a raised log running out of the pairs' views shows them the
+    #                         ground under it before its top leaves the images (10-15 such bins of ground threw
+    #                         out correct RTK fixed points 50-95 cm on along the axis: docs/reconstruction.md,
+    #                         "The final set read scan by scan"). On in the tried revision 19, which did not beat
+    #                         revision 18 on new seeds: off, revision 18's bins [-]
     # -- the direction the laid log is laid in (joint_match.laid_direction; joint revision 18) --
     laid_survey_direction: bool = True  # the log laid_nats lays runs in the inverse-variance weighted direction
     #                                     of the ridge's axis (ridge_direction_sigma_m over its seen length) and

@@ -1,5 +1,6 @@
-"""The pipeline hands the joint end model the scan's pairs (reconstruct.fitting.joint_view, joint revision 19):
-in the pile frame, each looking at the pile. The demo scan, reconstructed once with the joint estimator."""
+"""The pipeline hands the joint end model the scan's pairs (reconstruct.fitting.joint_view; what
+JointConfig.view_test, off by default, reads): in the pile frame, each looking at the pile. The demo scan,
+reconstructed once with the joint estimator."""
 
 from __future__ import annotations
 

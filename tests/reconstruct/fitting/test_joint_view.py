@@ -18,7 +18,7 @@ from reconstruct.fitting.survey_points import SurveyEnd
 from synth.geometry.calibration import StereoCalibration, write_calibration_yaml
 from synth.scene.pile import LogSpec
 
-CFG, FCFG = JointConfig(), FuseConfig()
+CFG, FCFG = JointConfig(view_test=True), FuseConfig()
 R = 0.1  # the log's radius [m]
 Z = 0.6  # its axis's height: a log lying on others, 60 cm over the ground [m]
 TRUE_END_M = 1.0  # the log runs along x from -1.0 to this [m]
@@ -120,8 +120,10 @@ def test_scan_views_reads_each_pair_s_cameras_into_the_frame_asked_for(tmp_path)
     assert views[0].sees(np.array([[9.5, 0.0, 0.0]]), 0.0)[0]
 
 
-def test_revision_19_turns_the_view_test_and_radius_states_on():
-    assert JOINT_REVISION == 19
-    assert JointConfig().view_test is True and JointConfig().radius_states is True
+def test_the_tried_revision_19_stays_off_revision_18_is_the_joint_estimator():
+    """Revision 19 (the view test and radius states on) did not beat revision 18 on new seeds by the rule
+    written before they ran (docs/reconstruction.md): both are switches, off by default."""
+    assert JOINT_REVISION == 18
+    assert JointConfig().view_test is False and JointConfig().radius_states is False
     with pytest.raises(ValueError, match="view_test"):
         JointConfig(view_test=1)
