@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from reconstruct.errors import ReconstructError, RegistrationError
+from reconstruct.fitting.ends import MIN_LOG_LENGTH_M
 from reconstruct.fitting.fit import CylinderFit, fit_log, log_spec_from_fit, natural_key, points_on_no_other_log
 from reconstruct.fitting.fuse import scan_end_interval, seen_end
 from synth.common.formats import VersionedJson
@@ -158,10 +159,17 @@ def _fit_around_priors(points: np.ndarray, priors: dict, cfg: "ReconstructConfig
     for log_id in sorted(priors, key=natural_key):
         a, b = priors[log_id]
         try:
-            fits[log_id] = fit_log(points, a, b, cfg.fit, log_id=log_id, rng=rng,
-                                   sigma_a_m=cfg.registration_prior_sigma_m, sigma_b_m=cfg.registration_prior_sigma_m)
+            f = fit_log(points, a, b, cfg.fit, log_id=log_id, rng=rng,
+                        sigma_a_m=cfg.registration_prior_sigma_m, sigma_b_m=cfg.registration_prior_sigma_m)
         except ReconstructError as exc:
             failures[log_id] = str(exc)
+            continue
+        seen_m = float(np.linalg.norm(f.ends[1] - f.ends[0]))
+        if seen_m < MIN_LOG_LENGTH_M:  # a piece shorter than any log: no axis to register to, nor a log spec
+            failures[log_id] = (f"the scan shows {seen_m:.2f} m of it, less than the shortest log "
+                                f"({MIN_LOG_LENGTH_M} m)")
+        else:
+            fits[log_id] = f
     if not fits:
         raise RegistrationError("no log could be fitted to the scan around its GNSS axis: "
                                 + "; ".join(failures.values()))

@@ -50,6 +50,28 @@ def test_refinement_recovers_a_small_pose_error(crossed):
         refine_registration(apply_T(wrong, pts), ends, ReconstructConfig(max_correction_m=0.01))
 
 
+def test_a_log_the_scan_shows_less_of_than_the_shortest_log_is_not_registered_to(crossed, monkeypatch):
+    """A fit shorter than any log (0.15 m of a log the scan hardly shows) is no axis to register to and no
+    log spec: it is reported among the logs not fitted, and the others register, instead of a crash."""
+    import reconstruct.registration as registration
+
+    pts = sample_top_view_points(crossed, 300, 0.002, np.random.default_rng(0))
+    ends = {f"log{i}": log.endpoints_m() for i, log in enumerate(crossed.logs)}
+    real = registration.fit_log
+
+    def a_scrap_of_log1(points, a, b, cfg, log_id=None, **kw):
+        f = real(points, a, b, cfg, log_id=log_id, **kw)
+        if log_id != "log1":
+            return f
+        u = (f.ends[1] - f.ends[0]) / np.linalg.norm(f.ends[1] - f.ends[0])
+        return f.with_ends(np.stack([f.centre - 0.075 * u, f.centre + 0.075 * u]))
+
+    monkeypatch.setattr(registration, "fit_log", a_scrap_of_log1)
+    T, rep, fitted = refine_registration(pts, ends, ReconstructConfig())
+    assert sorted(fitted) == ["log0", "log2"] and rep["logs_used"] == ["log0", "log2"]
+    assert "shows 0.15 m of it, less than the shortest log" in rep["logs_not_fitted"]["log1"]
+
+
 # -- the ground plane ---------------------------------------------------------------------------
 def _ground_and_clutter(seed: int = 0):
     rng = np.random.default_rng(seed)
