@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
-# The committed stores' rebuild (issue 35) as long background jobs that outlive a session:
+# The committed stores' rebuild (issue 35) and the on-policy rounds (issue 36) as long background jobs
+# that outlive a session:
 #
-#   scripts/store_jobs.sh start   # a detached worktree per store at HEAD (kept if it exists), each job
+#   scripts/store_jobs.sh start   # a detached worktree per job at HEAD (kept if it exists), each job
 #                                 # resumed there at nice 10 with one worker; logs in $RUNS
 #   scripts/store_jobs.sh sync    # the chunks finished so far copied into this checkout with the store
 #                                 # record they belong to (a snapshot taken first), checked by the
@@ -9,8 +10,9 @@
 #                                 # docs/dataset.md
 #   scripts/store_jobs.sh status  # piles done per store, and whether its job runs
 #
-# The worktrees' commit only needs the same trial revision as the store: a job refuses other
-# parameters or another revision itself. Environment: WT_ROOT (default /work), RUNS (default /work/runs).
+# A round is a grasp store too (planner.onpolicy), synced the same way. The worktrees' commit only needs
+# the same trial revision as the store (and, for a round, the same model): a job refuses other
+# parameters, another revision or another model itself. Environment: WT_ROOT (default /work), RUNS (default /work/runs).
 set -euo pipefail
 
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
@@ -18,24 +20,27 @@ WT_ROOT="${WT_ROOT:-/work}"
 RUNS="${RUNS:-/work/runs}"
 PY="$ROOT/.venv/bin/python"
 
-# name | worktree | the job's arguments (docs/dataset.md gives each store's command and reason)
+# name | worktree | the store's folder | the loggrasp command (docs/dataset.md gives each store's command and
+# reason, docs/results/README.md each round's)
 JOBS=(
-  "paper-v4|$WT_ROOT/wt-store-v4b|--piles 604 --logs 4 --obstacles-fraction 0.33 --seed 0"
-  "mixed-v4|$WT_ROOT/wt-mixed-v4|--piles 300 --logs 2-7 --max-subsets 15 --obstacles-fraction 0.5 --seed 1"
+  "paper-v4|$WT_ROOT/wt-store-v4b|data/paper-v4|synth dataset --store --piles 604 --logs 4 --obstacles-fraction 0.33 --seed 0"
+  "mixed-v4|$WT_ROOT/wt-mixed-v4|data/mixed-v4|synth dataset --store --piles 300 --logs 2-7 --max-subsets 15 --obstacles-fraction 0.5 --seed 1"
+  "round-r2|$WT_ROOT/wt-round2|data/rounds/r2|round --round 2 --piles 240"
 )
 
-piles() { "$PY" -c "import json,sys; print(json.load(open(sys.argv[1]))['summary']['piles'])" "$1"; }
+# a data store counts piles; a round's store one pile per chunk
+piles() { "$PY" -c "import json,sys; s=json.load(open(sys.argv[1]))['summary']; print(s.get('piles', s['chunks_done']))" "$1"; }
 
-running() { pgrep -f -- "synth dataset --store .*--out data/$1( |$)" >/dev/null; }
+running() { pgrep -f -- "field.cli .*--out $1( |$)" >/dev/null; }
 
 start() {
   mkdir -p "$RUNS"
   for job in "${JOBS[@]}"; do
-    IFS='|' read -r name wt args <<<"$job"
-    if running "$name"; then echo "$name: already running"; continue; fi
+    IFS='|' read -r name wt out args <<<"$job"
+    if running "$out"; then echo "$name: already running"; continue; fi
     [ -d "$wt" ] || git -C "$ROOT" worktree add --detach "$wt" HEAD >/dev/null
     # shellcheck disable=SC2086  # args is a word list
-    (cd "$wt" && nohup nice -n 10 "$PY" -m field.cli synth dataset --store $args --out "data/$name" --workers 1 \
+    (cd "$wt" && nohup nice -n 10 "$PY" -m field.cli $args --out "$out" --workers 1 \
       >>"$RUNS/store-$name.log" 2>&1 &)
     echo "$name: started in $wt (log $RUNS/store-$name.log)"
   done
@@ -43,12 +48,13 @@ start() {
 
 sync_stores() {
   for job in "${JOBS[@]}"; do
-    IFS='|' read -r name wt _ <<<"$job"
-    src="$wt/data/$name"
+    IFS='|' read -r name wt out _ <<<"$job"
+    src="$wt/$out"
     [ -f "$src/store.json" ] || { echo "error: no store at $src (run: $0 start)" >&2; exit 1; }
     snap="$(mktemp)"
     cp "$src/store.json" "$snap"  # the record first, then exactly the chunks it lists
-    "$PY" - "$snap" "$src" "$ROOT/data/$name" <<'PYEOF'
+    mkdir -p "$ROOT/$out/chunks"
+    "$PY" - "$snap" "$src" "$ROOT/$out" <<'PYEOF'
 import json, shutil, sys
 from pathlib import Path
 snap, src, dst = sys.argv[1], Path(sys.argv[2]), Path(sys.argv[3])
@@ -56,18 +62,18 @@ for chunk in json.load(open(snap))["chunks"]:
     if not (dst / chunk["file"]).exists():
         shutil.copy2(src / chunk["file"], dst / chunk["file"])
 PYEOF
-    cp "$snap" "$ROOT/data/$name/store.json" && rm -f "$snap"
-    echo "$name: $(piles "$ROOT/data/$name/store.json") piles"
+    cp "$snap" "$ROOT/$out/store.json" && rm -f "$snap"
+    echo "$name: $(piles "$ROOT/$out/store.json") piles"
   done
   (cd "$ROOT" && "$PY" -m pytest -q -p no:cacheprovider tests/synth/data/test_datastore.py | tail -1)
 }
 
 status() {
   for job in "${JOBS[@]}"; do
-    IFS='|' read -r name wt _ <<<"$job"
-    done_here="$(piles "$ROOT/data/$name/store.json")"
-    there="-"; [ -f "$wt/data/$name/store.json" ] && there="$(piles "$wt/data/$name/store.json")"
-    state="stopped"; running "$name" && state="running"
+    IFS='|' read -r name wt out _ <<<"$job"
+    done_here="-"; [ -f "$ROOT/$out/store.json" ] && done_here="$(piles "$ROOT/$out/store.json")"
+    there="-"; [ -f "$wt/$out/store.json" ] && there="$(piles "$wt/$out/store.json")"
+    state="stopped"; running "$out" && state="running"
     echo "$name: $done_here piles here, $there in $wt ($state)"
   done
 }
