@@ -11,6 +11,12 @@
   buried logs — set a capacity margin accordingly.
 * **Keep-out zones**: polygons in the pile frame (people, a machine, a ditch); a grasp whose
   rectangle (opening x 0.20 m) overlaps a zone is skipped and the next-best pixel is tried.
+* **Obstacles under the claws** (``clear_obstacles``): closing, the claws sweep the rectangle between
+  them, from where the tips touch down at the opening's ends to the bowl under the logs, so a rock or
+  stump that shows in that rectangle stops them (in the twin: COLLISION). A grasp whose rectangle covers
+  a pixel the observation shows as an obstacle (its instance codes from ``OBSTACLE_CODE_BASE`` on: the
+  render of the twin's pile or of a reconstructed one) is skipped like one in a keep-out zone. What lies
+  hidden under a log cannot be seen, and is not checked.
 """
 
 from __future__ import annotations
@@ -32,6 +38,7 @@ class Constraints:
     wood_density_kg_m3: float = 900.0  # fresh conifer roundwood, ~800-1000 [kg/m^3]
     assumed_diameter_m: float = 0.16  # log diameter used when the pile is unknown [m]
     keep_out_zones: tuple[tuple[tuple[float, float], ...], ...] = ()  # polygons, (x, y) vertices [m]
+    clear_obstacles: bool = False  # skip grasps whose claws' rectangle covers an obstacle the observation shows
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.min_reach_m <= self.max_reach_m:
@@ -42,6 +49,8 @@ class Constraints:
             raise ValueError("wood_density_kg_m3 and assumed_diameter_m must be > 0")
         if self.crane_base_xy_m is not None and len(self.crane_base_xy_m) != 2:
             raise ValueError("crane_base_xy_m must be (x, y) in metres")
+        if not isinstance(self.clear_obstacles, bool):
+            raise ValueError(f"clear_obstacles is a switch: must be True or False, got {self.clear_obstacles!r}")
         for z in self.keep_out_zones:
             if len(z) < 3 or any(len(p) != 2 for p in z):
                 raise ValueError(f"a keep-out zone needs >= 3 (x, y) vertices, got {z!r}")

@@ -277,6 +277,8 @@ def _fingerprint(spec: PlannerSpec) -> str:
 
             sha += f"+hang-{HangModel().tag}"
         sha += _precision_tag(spec)
+        if spec.clear_obstacles:  # ... and one planned clear of the obstacles the observation shows
+            sha += "+clear"
         if spec.views > 1:  # a record planned with other test-time views is made again, whatever its label
             sha += f"+views{spec.views}k{spec.view_spread_k:g}"
         if spec.ranker:  # ... and with another ranker or another number re-scored

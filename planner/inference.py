@@ -414,7 +414,9 @@ def plan(observation, planner: Planner, objective: Objective = Objective(), cons
             masses = constraints.log_masses_kg(visible, grid.pixel_m, pile)
             loads_kg = [sum(masses[i] for i in s) for s in chosen]
             b_maps = objective.hang.cos_beta_maps(subset_masks, grid.pixel_m, loads_kg)
-        grasps, more = _select(out, chosen, grid, objective, constraints, planner, b_maps)
+        obstacles = (inst >= OBSTACLE_CODE_BASE) if constraints.clear_obstacles else None
+        grasps, more = _select(out, chosen, grid, objective, constraints, planner, b_maps,
+                               obstacles if obstacles is not None and obstacles.any() else None)
         rejected += more
     grasps.sort(key=lambda g: -g.quality)
     if top_k is not None:
@@ -433,11 +435,11 @@ def _b_maps(out: np.ndarray, planner: Planner) -> np.ndarray:
                      planner.quality_smoothing_px)
 
 
-def _select(out, chosen, grid, objective, constraints, planner,
-            b_maps: np.ndarray | None = None) -> tuple[list[PlannedGrasp], list[dict]]:
+def _select(out, chosen, grid, objective, constraints, planner, b_maps: np.ndarray | None = None,
+            obstacles: np.ndarray | None = None) -> tuple[list[PlannedGrasp], list[dict]]:
     """Each subset's best grasp (the highest-quality pixel in reach whose rectangle misses the
-    keep-out zones; of equal pixels the first in raster order) and what the constraints did; the
-    balance is ``b_maps`` where given, else the network's B map."""
+    keep-out zones and the ``obstacles`` pixels; of equal pixels the first in raster order) and what the
+    constraints did; the balance is ``b_maps`` where given, else the network's B map."""
     u = _u_maps(out, planner)
     b = b_maps if b_maps is not None else _b_maps(out, planner)
     tau = np.array([len(s) for s in chosen], np.float32)[:, None, None]
@@ -445,12 +447,13 @@ def _select(out, chosen, grid, objective, constraints, planner,
     n, h, w = q.shape
     flat = q.reshape(n, h * w)
     reach = constraints.reach_ok(grid)
-    keep_out = constraints.keep_out_raster(grid)
+    blocks = [(name, r) for name, r in (("keep_out", constraints.keep_out_raster(grid)), ("obstacle", obstacles))
+              if r is not None]
     best_any = np.argmax(flat, axis=1)
     if reach is not None:
         flat = np.where(reach.ravel(), flat, -np.inf)
     best = np.argmax(flat, axis=1)  # all subsets at once
-    n_try = min(planner.candidates_per_subset, h * w) if keep_out is not None else 1
+    n_try = min(planner.candidates_per_subset, h * w) if blocks else 1
     grasps, rejected = [], []
     for k, s in enumerate(chosen):
         qk = flat[k]
@@ -463,26 +466,39 @@ def _select(out, chosen, grid, objective, constraints, planner,
                 rejected.append({"targets": list(s), "constraint": "reach", "action": "moved",
                                  "detail": "best grasp out of reach; best in reach used"})
         order = best[k : k + 1] if n_try == 1 else _best_pixels(qk, n_try)
-        picked = None
+        picked, first_block = None, None
         for idx in order:
             if not np.isfinite(qk[idx]):
                 break
             g = _decode(out[k], int(idx) // w, int(idx) % w, grid, planner.angle_smoothing_px)
-            if keep_out is not None and (polygon_raster(grid, g.rectangle(RECT_WIDTH_M)) & keep_out).any():
+            block = _blocked(g, grid, blocks)
+            if block is not None:
+                first_block = first_block or block
                 continue
             picked = (int(idx), g)
             break
         if picked is None:
-            rejected.append({"targets": list(s), "constraint": "keep_out", "action": "removed",
-                             "detail": f"the best {n_try} grasps all overlap a keep-out zone"})
+            rejected.append({"targets": list(s), "constraint": first_block or "keep_out", "action": "removed",
+                             "detail": f"the best {n_try} grasps all overlap a keep-out zone or an obstacle"})
             continue
         idx, g = picked
-        if keep_out is not None and idx != int(order[0]):
-            rejected.append({"targets": list(s), "constraint": "keep_out", "action": "moved",
-                             "detail": "best grasp overlaps a keep-out zone; next best used"})
+        if first_block is not None:
+            rejected.append({"targets": list(s), "constraint": first_block, "action": "moved",
+                             "detail": f"best grasp overlaps {_BLOCK_WORDS[first_block]}; next best used"})
         r, c = idx // w, idx % w
         grasps.append(PlannedGrasp(g, float(q[k, r, c]), float(u[k, r, c]), float(b[k, r, c]), tuple(s), (r, c)))
     return grasps, rejected
+
+
+_BLOCK_WORDS = {"keep_out": "a keep-out zone", "obstacle": "an obstacle the observation shows"}
+
+
+def _blocked(g: Grasp, grid: OrthoGrid, blocks: list[tuple[str, np.ndarray]]) -> str | None:
+    """The first of ``blocks`` ((name, (H, W) raster) pairs) that grasp ``g``'s rectangle overlaps, or None."""
+    if not blocks:
+        return None
+    rect = polygon_raster(grid, g.rectangle(RECT_WIDTH_M)).astype(bool)
+    return next((name for name, r in blocks if (rect & (r > 0)).any()), None)
 
 
 def _best_pixels(qk: np.ndarray, n: int) -> np.ndarray:

@@ -45,6 +45,8 @@ class PlannerSpec:
     sigma_b: float = SIGMA_B  # for "unet" with f3: the balance tolerance of Q (planner.inference.Objective) [cos beta]
     balance: str = "network"  # for "unet" with f3: what b is, "network" (its B map) or "hang" (planner.balance)
     precision: str = "auto"  # for "unet": the network's number format (planner.runtime.PRECISIONS)
+    clear_obstacles: bool = False  # for "unet": no grasp whose claws' rectangle covers an obstacle the observation
+    #                                shows (planner.constraints.Constraints.clear_obstacles)
 
     @property
     def name(self) -> str:
@@ -59,6 +61,8 @@ class PlannerSpec:
             how += f"-sb{self.sigma_b:g}"
         if self.precision != "auto":
             how += f"-{self.precision}"
+        if self.clear_obstacles:
+            how += "-clear"
         if self.views > 1:
             how += f"-views{self.views}" + (f"k{self.view_spread_k:g}" if self.view_spread_k else "")
         if self.ranker:
@@ -185,12 +189,14 @@ def oracle_planner(trial_preset: str = "fast", max_trials: int = 40) -> PlanFn:
 def unet_planner(model: str, objective: str, subsets: SubsetPolicy = SubsetPolicy(), views: int = 1,
                  view_spread_k: float = 0.0, ranker: str | None = None, rerank_k: int = 4,
                  ranker_u_weight: float = U_WEIGHT, sigma_b: float = SIGMA_B, balance: str = "network",
-                 precision: str = "auto") -> PlanFn:
+                 precision: str = "auto", clear_obstacles: bool = False) -> PlanFn:
     """The network's best grasp among the subsets ``subsets`` keeps (default: every subset), its maps
     averaged over ``views`` dihedral test-time views, re-ranked by ``ranker`` when given; f3 with the
-    balance tolerance ``sigma_b`` and the ``balance`` source; the network in ``precision``."""
+    balance tolerance ``sigma_b`` and the ``balance`` source; the network in ``precision``; with
+    ``clear_obstacles``, no grasp on an obstacle the observation shows."""
     plan_all = _unet_plan_all(model, objective, subsets, views, view_spread_k, ranker, rerank_k, keep=1,
-                              ranker_u_weight=ranker_u_weight, sigma_b=sigma_b, balance=balance, precision=precision)
+                              ranker_u_weight=ranker_u_weight, sigma_b=sigma_b, balance=balance, precision=precision,
+                              clear_obstacles=clear_obstacles)
 
     def plan_fn(obs, pile):
         result = plan_all(obs, pile)
@@ -203,11 +209,13 @@ def unet_planner(model: str, objective: str, subsets: SubsetPolicy = SubsetPolic
 def _unet_plan_all(model: str, objective: str, subsets: SubsetPolicy, views: int, view_spread_k: float,
                    ranker: str | None, rerank_k: int, keep: int | None = None,
                    ranker_u_weight: float = U_WEIGHT, sigma_b: float = SIGMA_B,
-                   balance: str = "network", precision: str = "auto") -> Callable[[object, object], object]:
+                   balance: str = "network", precision: str = "auto", clear_obstacles: bool = False
+                   ) -> Callable[[object, object], object]:
     """``(obs, pile) -> Plan`` of every subset, best first (re-ranked by ``ranker`` when given), its
     best ``keep`` only when given (all of them go to the ranker)."""
     import torch
 
+    from planner.constraints import Constraints
     from planner.inference import Objective, load_planner
     from planner.ranker import load_ranker, plan_reranked
 
@@ -217,8 +225,8 @@ def _unet_plan_all(model: str, objective: str, subsets: SubsetPolicy, views: int
     rk = load_ranker(ranker) if ranker else None
 
     def plan_all(obs, pile):
-        return plan_reranked(obs, net, obj, rk, top_k=keep, rerank_k=rerank_k, u_weight=ranker_u_weight, pile=pile,
-                             subsets=subsets)
+        return plan_reranked(obs, net, obj, rk, Constraints(clear_obstacles=clear_obstacles), top_k=keep,
+                             rerank_k=rerank_k, u_weight=ranker_u_weight, pile=pile, subsets=subsets)
     return plan_all
 
 
@@ -256,9 +264,10 @@ def verified_unet_planner(model: str, objective: str, k: int, copies: int = 0, t
                           subsets: SubsetPolicy = SubsetPolicy(), views: int = 1,
                           view_spread_k: float = 0.0, ranker: str | None = None, rerank_k: int = 4,
                           ranker_u_weight: float = U_WEIGHT, sigma_b: float = SIGMA_B,
-                          balance: str = "network", precision: str = "auto") -> PlanFn:
+                          balance: str = "network", precision: str = "auto", clear_obstacles: bool = False) -> PlanFn:
     plan_all = _unet_plan_all(model, objective, subsets, views, view_spread_k, ranker, rerank_k,
-                              ranker_u_weight=ranker_u_weight, sigma_b=sigma_b, balance=balance, precision=precision)
+                              ranker_u_weight=ranker_u_weight, sigma_b=sigma_b, balance=balance, precision=precision,
+                              clear_obstacles=clear_obstacles)
     return verified_planner(plan_all, objective, k, copies, trial_preset, sigma_b=sigma_b,
                             balance=balance)  # the plan's best k, in its order
 
@@ -286,7 +295,7 @@ def build_planner(spec: PlannerSpec, trial_preset: str = "fast", oracle_max_tria
                 raise ValueError(f"balance must be one of {BALANCE_SOURCES}, got {spec.balance!r}")
             views = dict(views=spec.views, view_spread_k=spec.view_spread_k, ranker=spec.ranker,
                          rerank_k=spec.rerank_k, ranker_u_weight=spec.ranker_u_weight, sigma_b=spec.sigma_b,
-                         balance=spec.balance, precision=spec.precision)
+                         balance=spec.balance, precision=spec.precision, clear_obstacles=spec.clear_obstacles)
             _CACHE[spec] = (verified_unet_planner(spec.model, spec.objective, spec.verify_k, spec.verify_copies,
                                                   trial_preset, spec.subset_policy(), **views) if spec.verify_k
                             else unet_planner(spec.model, spec.objective, spec.subset_policy(), **views))

@@ -454,3 +454,37 @@ def test_a_wider_pile_is_rendered_at_the_networks_pitch(tmp_path):
     assert obs.depth.shape == (64, 64) and obs.extent_m == 10.0 and spec is not None
     p = plan(obs, _planner(cfg))
     assert p.best is not None and p.best.targets == (0,)
+
+
+def _with_obstacle_at(obs, grasp, grid, code=1000):
+    """``obs`` with a 2 x 2 px obstacle (instance ``code``) put where ``grasp``'s rectangle lies."""
+    from planner.constraints import polygon_raster
+
+    rect = np.argwhere(polygon_raster(grid, grasp.rectangle()))
+    r, c = rect[len(rect) // 2]
+    inst = obs.instance.copy()
+    inst[r:r + 2, c:c + 2] = code
+    return SimpleNamespace(**{**vars(obs), "instance": inst})
+
+
+def test_clear_obstacles_moves_a_grasp_off_an_obstacle_the_observation_shows():
+    from planner.constraints import polygon_raster
+
+    obs, grid = observation(3), OrthoGrid(32, 5.0)
+    pl = _fixed_planner(_peak_output([(16, 16, 0.9)]))
+    best = plan(obs, pl).best
+    blocked = _with_obstacle_at(obs, best.grasp, grid)
+    assert plan(blocked, pl).best == best  # the switch off: as before
+    p = plan(blocked, pl, constraints=Constraints(clear_obstacles=True))
+    obstacle = blocked.instance >= 1000
+    assert p.grasps and all(not (polygon_raster(grid, g.grasp.rectangle()).astype(bool) & obstacle).any()
+                            for g in p.grasps)
+    assert any(r["constraint"] == "obstacle" and r["action"] == "moved" for r in p.rejected)
+    # an observation without obstacles plans exactly as without the switch
+    clean = SimpleNamespace(**{**vars(obs), "instance": np.where(obs.instance >= 1000, 0, obs.instance)})
+    assert plan(clean, pl, constraints=Constraints(clear_obstacles=True)).grasps == plan(clean, pl).grasps
+
+
+def test_clear_obstacles_is_a_switch():
+    with pytest.raises(ValueError, match="clear_obstacles is a switch"):
+        Constraints(clear_obstacles="yes")
