@@ -27,6 +27,8 @@ class TrialOptions:
     ranker: str | None = None  # ranker checkpoint; None = the shipped one
     rerank_k: int = 4  # grasps re-scored per objective (the best by f1 and by f3) [-]
     ranker_u_weight: float = U_WEIGHT  # U's share of the blend's logit with the ranker's p [-]
+    clear_obstacles: bool = True  # no grasp whose claws' rectangle covers an obstacle the re-render shows
+    #                               (planner.constraints.Constraints.clear_obstacles); False: the operator's choice
     allow_float: bool = False  # accept RTK float endpoints (the operator's explicit choice)
     max_pile_age_s: float = DEFAULT_MAX_PILE_AGE_S  # refuse plans on pile data older than this [s]
     crane_base_tm: tuple[float, float, float] | None = None  # SWEREF 99 TM E, N [m], ellipsoidal h [m]
@@ -60,6 +62,8 @@ class TrialOptions:
         if isinstance(self.rerank_k, bool) or not isinstance(self.rerank_k, int) or self.rerank_k < 1:
             raise ValueError(f"rerank_k must be a whole number >= 1, got {self.rerank_k!r}")
         check_u_weight(self.ranker_u_weight)
+        if not isinstance(self.clear_obstacles, bool):
+            raise ValueError(f"clear_obstacles is a switch: must be True or False, got {self.clear_obstacles!r}")
         if not 0 <= self.min_reach_m < self.max_reach_m:
             raise ValueError("need 0 <= min_reach_m < max_reach_m")
         if isinstance(self.verify_k, bool) or not isinstance(self.verify_k, int) or self.verify_k < 0:

@@ -367,6 +367,7 @@ def recorded_options(stored: dict, precision: str | None = None) -> TrialOptions
     stored.setdefault("verify_k", 0)  # a 1.0 record sent the network's best grasp, unverified
     stored.setdefault("rerank", False)  # records before the ranker planned with U alone
     stored.setdefault("f3_balance", "network")  # records before the hang model scored f3 on the B map
+    stored.setdefault("clear_obstacles", False)  # records before it planned over the obstacles the render showed
     return TrialOptions(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in stored.items()})
 
 

@@ -38,7 +38,7 @@ class Constraints:
     wood_density_kg_m3: float = 900.0  # fresh conifer roundwood, ~800-1000 [kg/m^3]
     assumed_diameter_m: float = 0.16  # log diameter used when the pile is unknown [m]
     keep_out_zones: tuple[tuple[tuple[float, float], ...], ...] = ()  # polygons, (x, y) vertices [m]
-    clear_obstacles: bool = False  # skip grasps whose claws' rectangle covers an obstacle the observation shows
+    clear_obstacles: bool = True  # skip grasps whose claws' rectangle covers an obstacle the observation shows
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.min_reach_m <= self.max_reach_m:

@@ -213,7 +213,8 @@ def run_evaluation(specs: list[PlannerSpec], cfg: EvalConfig, out_dir: str | Pat
     todo: list[tuple[tuple, list[PlannerSpec]]] = []
     for t in tasks:
         have = _read_records(rec_dir / f"{t[3]}.json")
-        ok = {r["planner"]: r for r in have if r.get("model_sha256", "") == fingerprints.get(r["planner"])}
+        want = {s.name: fingerprints[s.name] + _pile_tag(s, t) for s in specs}
+        ok = {r["planner"]: r for r in have if r.get("model_sha256", "") == want.get(r["planner"])}
         missing = [s for s in specs if s.name not in ok]
         kept[t[3]] = [r for r in have if r["planner"] not in {s.name for s in missing}]
         if missing:
@@ -224,8 +225,9 @@ def run_evaluation(specs: list[PlannerSpec], cfg: EvalConfig, out_dir: str | Pat
 
     def finish(task, recs):
         nonlocal done
+        tags = {s.name: _pile_tag(s, task) for s in specs}
         for r in recs:
-            r["model_sha256"] = fingerprints[r["planner"]]
+            r["model_sha256"] = fingerprints[r["planner"]] + tags[r["planner"]]
         merged = {r["planner"]: r for r in kept[task[3]] + recs}
         order = [s.name for s in specs] + sorted(set(merged) - set(fingerprints))
         atomic_write_bytes(rec_dir / f"{task[3]}.json",
@@ -262,6 +264,13 @@ def _precision_tag(spec: PlannerSpec) -> str:
     return f"+{runs}" + (f"-{sha256_file(calibration_path(spec.model))[:16]}" if runs in INT8_PRECISIONS else "")
 
 
+def _pile_tag(spec: PlannerSpec, task: tuple[int, bool, int, int]) -> str:
+    """The part of a record's fingerprint its pile decides: a U-Net planning clear of obstacles (the
+    default) on a pile with obstacles; on a pile without any the switch changes nothing, and the records made
+    before it are kept."""
+    return "+clear" if spec.kind == "unet" and spec.clear_obstacles and task[1] else ""
+
+
 def _fingerprint(spec: PlannerSpec) -> str:
     """What a record must match to be reused: the checkpoint's sha256 for a U-Net, '' otherwise."""
     if spec.kind != "unet" or not spec.model:
@@ -277,8 +286,6 @@ def _fingerprint(spec: PlannerSpec) -> str:
 
             sha += f"+hang-{HangModel().tag}"
         sha += _precision_tag(spec)
-        if spec.clear_obstacles:  # ... and one planned clear of the obstacles the observation shows
-            sha += "+clear"
         if spec.views > 1:  # a record planned with other test-time views is made again, whatever its label
             sha += f"+views{spec.views}k{spec.view_spread_k:g}"
         if spec.ranker:  # ... and with another ranker or another number re-scored

@@ -45,8 +45,8 @@ class PlannerSpec:
     sigma_b: float = SIGMA_B  # for "unet" with f3: the balance tolerance of Q (planner.inference.Objective) [cos beta]
     balance: str = "network"  # for "unet" with f3: what b is, "network" (its B map) or "hang" (planner.balance)
     precision: str = "auto"  # for "unet": the network's number format (planner.runtime.PRECISIONS)
-    clear_obstacles: bool = False  # for "unet": no grasp whose claws' rectangle covers an obstacle the observation
-    #                                shows (planner.constraints.Constraints.clear_obstacles)
+    clear_obstacles: bool = True  # for "unet": no grasp whose claws' rectangle covers an obstacle the observation
+    #                               shows (planner.constraints.Constraints.clear_obstacles; False: rows "-noclear")
 
     @property
     def name(self) -> str:
@@ -61,8 +61,8 @@ class PlannerSpec:
             how += f"-sb{self.sigma_b:g}"
         if self.precision != "auto":
             how += f"-{self.precision}"
-        if self.clear_obstacles:
-            how += "-clear"
+        if not self.clear_obstacles:
+            how += "-noclear"
         if self.views > 1:
             how += f"-views{self.views}" + (f"k{self.view_spread_k:g}" if self.view_spread_k else "")
         if self.ranker:
@@ -189,7 +189,7 @@ def oracle_planner(trial_preset: str = "fast", max_trials: int = 40) -> PlanFn:
 def unet_planner(model: str, objective: str, subsets: SubsetPolicy = SubsetPolicy(), views: int = 1,
                  view_spread_k: float = 0.0, ranker: str | None = None, rerank_k: int = 4,
                  ranker_u_weight: float = U_WEIGHT, sigma_b: float = SIGMA_B, balance: str = "network",
-                 precision: str = "auto", clear_obstacles: bool = False) -> PlanFn:
+                 precision: str = "auto", clear_obstacles: bool = True) -> PlanFn:
     """The network's best grasp among the subsets ``subsets`` keeps (default: every subset), its maps
     averaged over ``views`` dihedral test-time views, re-ranked by ``ranker`` when given; f3 with the
     balance tolerance ``sigma_b`` and the ``balance`` source; the network in ``precision``; with
@@ -209,7 +209,7 @@ def unet_planner(model: str, objective: str, subsets: SubsetPolicy = SubsetPolic
 def _unet_plan_all(model: str, objective: str, subsets: SubsetPolicy, views: int, view_spread_k: float,
                    ranker: str | None, rerank_k: int, keep: int | None = None,
                    ranker_u_weight: float = U_WEIGHT, sigma_b: float = SIGMA_B,
-                   balance: str = "network", precision: str = "auto", clear_obstacles: bool = False
+                   balance: str = "network", precision: str = "auto", clear_obstacles: bool = True
                    ) -> Callable[[object, object], object]:
     """``(obs, pile) -> Plan`` of every subset, best first (re-ranked by ``ranker`` when given), its
     best ``keep`` only when given (all of them go to the ranker)."""
@@ -264,7 +264,7 @@ def verified_unet_planner(model: str, objective: str, k: int, copies: int = 0, t
                           subsets: SubsetPolicy = SubsetPolicy(), views: int = 1,
                           view_spread_k: float = 0.0, ranker: str | None = None, rerank_k: int = 4,
                           ranker_u_weight: float = U_WEIGHT, sigma_b: float = SIGMA_B,
-                          balance: str = "network", precision: str = "auto", clear_obstacles: bool = False) -> PlanFn:
+                          balance: str = "network", precision: str = "auto", clear_obstacles: bool = True) -> PlanFn:
     plan_all = _unet_plan_all(model, objective, subsets, views, view_spread_k, ranker, rerank_k,
                               ranker_u_weight=ranker_u_weight, sigma_b=sigma_b, balance=balance, precision=precision,
                               clear_obstacles=clear_obstacles)

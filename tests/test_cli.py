@@ -284,6 +284,21 @@ def test_plan_f3_balance_flags_reach_the_objective(capsys, pile_dir, monkeypatch
     fails(cli(capsys, "plan", pile_dir, "--f3-sigma-b", "-1"), 2, "--f3-sigma-b -1: f3's balance tolerance")
 
 
+def test_plan_clears_obstacles_unless_told_to_grasp_over_them(capsys, pile_dir, monkeypatch):
+    import planner.ranker as ranker
+
+    seen, real = [], ranker.plan_reranked
+
+    def spy(obs, planner, objective, ranker_, constraints, *a, **k):
+        seen.append(constraints.clear_obstacles)
+        return real(obs, planner, objective, ranker_, constraints, *a, **k)
+
+    monkeypatch.setattr(ranker, "plan_reranked", spy)
+    cli(capsys, "plan", pile_dir, "--no-ranker")
+    cli(capsys, "plan", pile_dir, "--no-ranker", "--grasp-over-obstacles")
+    assert seen == [True, False]
+
+
 def test_plan_precision_int8_is_opt_in_and_refused_where_it_cannot_run(capsys, pile_dir, monkeypatch):
     import planner.runtime as runtime
 

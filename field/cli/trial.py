@@ -112,6 +112,8 @@ def trial_command(
     send_rank: int = SEND_RANK,
     ranker: Path = RANKER,
     no_ranker: bool = NO_RANKER,
+    over_obstacles: bool = option("--grasp-over-obstacles", "Allow grasps whose claws come down on a rock or stump "
+                                  "the reconstruction shows (by default the planner moves them off it).", default=False),
     foxglove: int = FOXGLOVE,
     insecure_link: bool = INSECURE_LINK,
     as_json: bool = JSON,
@@ -151,7 +153,7 @@ def trial_command(
     opts = trial_options(objective, model, allow_float, max_pile_age, base_tm, max_reach, capacity, views, view_spread,
                           f3_balance=f3_balance, f3_sigma_b=f3_sigma_b, precision=precision,
                           **verify_fields(verify, no_verify, verify_copies, verify_budget, verify_workers, send_rank),
-                          **ranker_fields(ranker, no_ranker))
+                          clear_obstacles=not over_obstacles, **ranker_fields(ranker, no_ranker))
     warning = gnss_crs_warning(gnss)
     if warning:
         o.warn(warning)

@@ -326,6 +326,9 @@ def plan_command(
     f3_sigma_b: float = F3_SIGMA_B,
     f3_balance: Literal["network", "hang"] = f3_balance_option(PRODUCT_F3_BALANCE),
     precision: Literal["auto", "bf16", "fp32", "int8", "int8-bf16-top"] = PRECISION,
+    over_obstacles: bool = option("--grasp-over-obstacles", "Allow grasps whose claws come down on a rock or stump "
+                                  "the pile shows (by default each such grasp moves to its subset's next best pixel).",
+                                  default=False),
 ) -> None:
     """Plan the best multi-log grasp on a pile: every target subset scored with Q = f(U, tau, B).
 
@@ -346,6 +349,7 @@ def plan_command(
     """
     from rich.console import Console
 
+    from planner.constraints import Constraints
     from planner.inference import load_planner
     from planner.ranker import plan_reranked
 
@@ -363,7 +367,8 @@ def plan_command(
     o.progress(f"planning on {pile}: {obs.n_logs} logs, up to {max_subsets} target subsets x {views} view(s)")
     with Console(stderr=True).status("planning"):
         keep = top if vcfg is None else max(top, vcfg.k)
-        result = plan_reranked(obs, planner, obj, rk, top_k=keep, rerank_k=rerank_k, u_weight=ranker_u_weight,
+        result = plan_reranked(obs, planner, obj, rk, Constraints(clear_obstacles=not over_obstacles), top_k=keep,
+                               rerank_k=rerank_k, u_weight=ranker_u_weight,
                                subsets=SubsetPolicy(max_subsets=max_subsets), pile=spec)
     verification = None
     if vcfg is not None:

@@ -60,12 +60,14 @@ def test_the_trial_flags_reach_the_options(capsys, work, monkeypatch):
         raise KeyboardInterrupt
 
     monkeypatch.setattr(trial_record, "run_trial_record", stop)
-    for extra in ([], ["--f3-balance", "hang"], ["--f3-balance", "network", "--f3-sigma-b", "0.2", "--precision", "fp32"]):
+    for extra in ([], ["--f3-balance", "hang"], ["--f3-balance", "network", "--f3-sigma-b", "0.2", "--precision", "fp32",
+                                                 "--grasp-over-obstacles"]):
         cli(capsys, "trial", "--scan", SCAN, "--gnss", GNSS, "--link", "twin://", "--record",
             work / f"t{len(seen)}", "--yes", *extra)
     assert [(o.f3_balance, o.objective_spec().sigma_b) for o in seen] == [
         (PRODUCT_F3_BALANCE, f3_sigma_b(PRODUCT_F3_BALANCE)), ("hang", HANG_SIGMA_B), ("network", 0.2)]
     assert [o.precision for o in seen] == ["auto", "auto", "fp32"]
+    assert [o.clear_obstacles for o in seen] == [True, True, False]
     fails(cli(capsys, "trial", "--scan", SCAN, "--gnss", GNSS, "--link", "twin://", "--record", work / "t9",
               "--f3-sigma-b", "0"), 2, "--f3-sigma-b 0")
 
@@ -85,3 +87,18 @@ def test_the_trial_plans_in_the_precision_its_options_name(tmp_path):
         _load_trial_planner(TrialOptions(precision="int8" if int8_kernels_available() else "bf16", rerank=False,
                                          model=str(bare) if int8_kernels_available() else str(tmp_path / "none")))
     assert info.value.kind == "input"
+
+
+def test_the_trial_plans_clear_of_obstacles_unless_the_operator_allows_them():
+    """The default clears the claws of the obstacles the re-render shows; a record from before it replays
+    as it planned then, over them."""
+    from types import SimpleNamespace
+
+    from field.trial import _constraints_for
+
+    assert _constraints_for(SimpleNamespace(), TrialOptions()).clear_obstacles
+    assert not _constraints_for(SimpleNamespace(), TrialOptions(clear_obstacles=False)).clear_obstacles
+    assert recorded_options({"objective": "f3"}).clear_obstacles is False
+    assert recorded_options({"objective": "f3", "clear_obstacles": True}).clear_obstacles is True
+    with pytest.raises(ValueError, match="clear_obstacles is a switch"):
+        TrialOptions(clear_obstacles=1)

@@ -407,3 +407,28 @@ def test_field_rows_count_the_field_trials_not_the_exact_ones():
     assert t["unet-f1"]["total"]["success_rate"] == 1.0 and t["unet-f1"]["total"]["avg_logs_success"] == 2.0
     field = t["unet-f1 (field)"]["total"]
     assert field["success_rate"] == 0.5 and field["avg_logs_success"] == 1.0 and field["failures"] == {"collision": 1}
+
+
+def test_planning_clear_of_obstacles_remakes_only_the_records_of_piles_with_obstacles(tmp_path):
+    from dataclasses import replace
+
+    import torch
+
+    from planner.checkpoint import save_checkpoint
+    from planner.evaluate import _pile_tag
+    from planner.model import UNetConfig, build_unet
+
+    cfg = EvalConfig(logs=(2,), obstacles=(True, False), per_cell=1)
+    net_cfg = replace(UNetConfig.tiny(), size_px=cfg.size_px)
+    ckpt = tmp_path / "m.safetensors"
+    torch.manual_seed(0)
+    save_checkpoint(ckpt, build_unet(net_cfg), net_cfg, {})
+    clear, noclear = (PlannerSpec("unet", model=str(ckpt), objective="f1", clear_obstacles=c) for c in (True, False))
+    assert (clear.name, noclear.name) == ("unet-f1", "unet-f1-noclear")
+    with_obst, without = sorted(cfg.tasks(), key=lambda t: not t[1])
+    assert (_pile_tag(clear, with_obst), _pile_tag(clear, without), _pile_tag(noclear, with_obst)) == ("+clear", "", "")
+    run_evaluation([clear, noclear], cfg, tmp_path, workers=1)
+    sha = {t[1]: {r["planner"]: r["model_sha256"] for r in json.loads((tmp_path / "records" / f"{t[3]}.json").read_text())}
+           for t in (with_obst, without)}
+    assert sha[True]["unet-f1"] == sha[False]["unet-f1"] + "+clear" == sha[True]["unet-f1-noclear"] + "+clear"
+    assert sha[False]["unet-f1"] == sha[False]["unet-f1-noclear"]

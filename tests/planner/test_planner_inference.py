@@ -472,17 +472,18 @@ def test_clear_obstacles_moves_a_grasp_off_an_obstacle_the_observation_shows():
 
     obs, grid = observation(3), OrthoGrid(32, 5.0)
     pl = _fixed_planner(_peak_output([(16, 16, 0.9)]))
-    best = plan(obs, pl).best
+    over = Constraints(clear_obstacles=False)
+    best = plan(obs, pl, constraints=over).best
     blocked = _with_obstacle_at(obs, best.grasp, grid)
-    assert plan(blocked, pl).best == best  # the switch off: as before
-    p = plan(blocked, pl, constraints=Constraints(clear_obstacles=True))
+    assert plan(blocked, pl, constraints=over).best == best  # the switch off: over the obstacle, as before
+    p = plan(blocked, pl)  # on by default
     obstacle = blocked.instance >= 1000
     assert p.grasps and all(not (polygon_raster(grid, g.grasp.rectangle()).astype(bool) & obstacle).any()
                             for g in p.grasps)
     assert any(r["constraint"] == "obstacle" and r["action"] == "moved" for r in p.rejected)
     # an observation without obstacles plans exactly as without the switch
     clean = SimpleNamespace(**{**vars(obs), "instance": np.where(obs.instance >= 1000, 0, obs.instance)})
-    assert plan(clean, pl, constraints=Constraints(clear_obstacles=True)).grasps == plan(clean, pl).grasps
+    assert plan(clean, pl).grasps == plan(clean, pl, constraints=over).grasps
 
 
 def test_clear_obstacles_is_a_switch():
