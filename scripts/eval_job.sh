@@ -44,7 +44,7 @@ loop() {  # runs in the worktree
 start() {
   if running; then echo "$NAME: already running"; return; fi
   mkdir -p "$RUNS"
-  [ -d "$WT" ] || git -C "$ROOT" worktree add --detach "$WT" HEAD >/dev/null
+  [ -d "$WT" ] || git -C "$ROOT" worktree add --quiet --detach "$WT" HEAD
   mkdir -p "$WT/$OUT/records"
   if [ -d "$ROOT/$OUT/records" ]; then  # what an earlier session's job finished and committed
     cp -n "$ROOT/$OUT"/records/*.json "$WT/$OUT/records/" 2>/dev/null || true

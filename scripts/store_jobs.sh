@@ -38,7 +38,7 @@ start() {
   for job in "${JOBS[@]}"; do
     IFS='|' read -r name wt out args <<<"$job"
     if running "$out"; then echo "$name: already running"; continue; fi
-    [ -d "$wt" ] || git -C "$ROOT" worktree add --detach "$wt" HEAD >/dev/null
+    [ -d "$wt" ] || git -C "$ROOT" worktree add --quiet --detach "$wt" HEAD
     # shellcheck disable=SC2086  # args is a word list
     (cd "$wt" && nohup nice -n 10 "$PY" -m field.cli $args --out "$out" --workers 1 \
       >>"$RUNS/store-$name.log" 2>&1 &)
