@@ -16,7 +16,7 @@ from dataclasses import dataclass, fields
 ESTIMATORS = ("rules22", "joint")
 #: raised whenever a change to the joint estimator makes different piles from the same scan (recorded in the
 #: report as ``estimator_revision`` and in bench keys)
-JOINT_REVISION = 18
+JOINT_REVISION = 20
 
 
 @dataclass(frozen=True)
@@ -151,14 +151,24 @@ class JointConfig:
     #                           top was its top radius (10-17 cm) into it: true logs lying on true stumps
     #                           "interpenetrated" them by 10-13 cm, and six held-out refusals were that
     #                           (docs/reconstruction.md, "Joint revision 13") [-]
-    radius_states: bool = False  # each log's radius a state of the pile estimate (joint_radius), a Gaussian of
-    #                             its own scan radius sigma (joint_scan_sigma.scan_sigma's radius_m; a log not
-    #                             fitted to the scan: sigma_radius_prior_m), thinned with its top kept, so a log
-    #                             fitted a few cm too thick in a packed pile is thinned within its uncertainty
-    #                             instead of pressed into its neighbour and refused (the largest class of joint-18
-    #                             refusals on the final set: docs/reconstruction.md, "The final set read scan by
-    #                             scan"). On in the tried revision 19, which did not beat revision 18 on new seeds
-    #                             (half the scans it rescued came out wrong): off, revisions 13-18's fixed radii [-]
+    radius_states: bool = True  # each log's radius a state of the pile estimate (joint_radius), a Gaussian of
+    #                            its own scan radius sigma (joint_scan_sigma.scan_sigma's radius_m; a log not
+    #                            fitted to the scan: sigma_radius_prior_m), thinned with its top kept, so a log
+    #                            fitted a few cm too thick in a packed pile is thinned within its uncertainty
+    #                            instead of pressed into its neighbour and refused (the largest class of joint-18
+    #                            refusals on the final set: docs/reconstruction.md, "The final set read scan by
+    #                            scan"). With radius_rescue (on) only where revision 18's fixed radii are
+    #                            refused. Off: revisions 13-18's fixed radii [-]
+    radius_rescue: bool = True  # the radius states are the second explanation of a pile, not the first: the pile
+    #                             is settled with its fitted radii (revision 18) and only when that is refused
+    #                             (SeparationError: "its fit or its GNSS end points are wrong") with each radius a
+    #                             state; the rescue stands only if the pile it makes is one the report would not
+    #                             warn about - every end surer than weak_sigma_m and no survey point called wrong
+    #                             (outlier_flag_prob), where the pile check leaves it (joint_rescue). A pile that
+    #                             clears only thinned AND doubts its survey has both of the refusal's causes in
+    #                             play: it is refused as before. On the tuning rescues it refused 4 of 5 with a
+    #                             log 30-150 cm off and kept 7 of 10 within 4 cm (docs/reconstruction.md, "Joint
+    #                             revision 20"). Off: radius states everywhere, as the tried revision 19 [-]
     radius_min_share: float = 0.75  # ... and never thinned below this share of its fitted radius: past it a
     #                                 contact moves or refuses the log as before. On the fresh held-out scans
     #                                 the logs thinned and placed right needed at most 19 % off; the one that
@@ -337,7 +347,7 @@ class JointConfig:
                      "p_on_outside", "p_below_outside", "p_over_inside", "p_over_outside"):
             if not getattr(self, name) < 1:
                 raise ValueError(f"JointConfig.{name} is a probability: must be in (0, 1), got {getattr(self, name)}")
-        for name in ("laid_length_sigma", "laid_survey_direction", "view_test"):
+        for name in ("laid_length_sigma", "laid_survey_direction", "view_test", "radius_states", "radius_rescue"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"JointConfig.{name} is a switch: must be True or False, got "
                                  f"{getattr(self, name)!r}")

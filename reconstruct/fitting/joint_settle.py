@@ -51,6 +51,7 @@ from reconstruct.fitting.joint_contact import Bodies, Segment, Term
 from reconstruct.fitting.joint_obstacles import (N_STATES, moved_obstacles, obstacle_notes, obstacle_sigmas,
                                                  offset_depths)
 from reconstruct.fitting.joint_radius import changed_radius, radius_notes, radius_segment, resized_log
+from reconstruct.fitting.joint_rescue import settle_or_rescue
 from reconstruct.fitting.separation import SEPARATION_MARGIN_M, best_roll
 from synth.scene.pile import LogSpec, PileSpec, quat_from_x_axis
 
@@ -521,51 +522,59 @@ class JointSettler:
         self.points, self.band_m = points, band_m
         self.sigmas: dict[str, Any] = {}
 
-    def evidence(self, log: LogSpec, lf, own: np.ndarray | None = None, near: np.ndarray | None = None
-                 ) -> LogEvidence:
+    def evidence(self, log: LogSpec, lf, own: np.ndarray | None = None, near: np.ndarray | None = None,
+                 cfg: JointConfig | None = None) -> LogEvidence:
         """``log``'s evidence (``lf``: its fit report; ``own``: the scan points on its surface and no other's;
         ``near``: with radius states, the scan points no other log's surface claims, for its radius sigma's
-        misfit: :func:`reconstruct.fitting.joint_scan_sigma.radius_misfit`)."""
+        misfit: :func:`reconstruct.fitting.joint_scan_sigma.radius_misfit`; ``cfg``: default the settler's)."""
         from reconstruct.fitting.ends import axis_sigma_m
         from reconstruct.fitting.joint_scan_sigma import scan_sigma
 
+        cfg = cfg or self.cfg
         ends_k = self.survey_ends.get(lf.log_id, (None, None))
         if lf.fit == "scan" and own is not None:
-            sig = self.sigmas[lf.log_id] = scan_sigma(own, log, self.band_m, self.cfg, near)
+            sig = self.sigmas[lf.log_id] = scan_sigma(own, log, self.band_m, cfg, near)
             across, up, radius = sig.across_m, sig.up_m, sig.radius_m
         else:
             radius = None  # not fitted to the scan: sigma_radius_prior_m
             across = up = max(axis_sigma_m(lf.fit, self.lateral.get(lf.log_id, 0.0), ends_k),
-                              self.cfg.settle_scan_sigma_m)
-        pulls = [survey_pull(log, pt.position_m, math.hypot(pt.sigma_h_m, self.cfg.pose_sigma_m),
-                             math.hypot(pt.sigma_v_m, self.cfg.pose_sigma_m))
+                              cfg.settle_scan_sigma_m)
+        pulls = [survey_pull(log, pt.position_m, math.hypot(pt.sigma_h_m, cfg.pose_sigma_m),
+                             math.hypot(pt.sigma_v_m, cfg.pose_sigma_m))
                  for pt, e in zip(ends_k, lf.ends or (None, None))
                  if pt is not None and not (e or {}).get("contradicted")]
-        along = along_priors(log, lf.ends, self.cfg) if self.cfg.along_ends else None
+        along = along_priors(log, lf.ends, cfg) if cfg.along_ends else None
         return LogEvidence(across, up, tuple(pulls), along, radius)
 
-    def own_points(self, pile: PileSpec) -> tuple[list[np.ndarray | None], list[np.ndarray | None]]:
+    def own_points(self, pile: PileSpec, cfg: JointConfig | None = None
+                   ) -> tuple[list[np.ndarray | None], list[np.ndarray | None]]:
         """Per log, the scan points on its surface that no other log's explains, and (with ``radius_states``)
         those and the points on no log's surface, for its radius sigma's misfit (None: no points given,
-        ``per_log_sigma`` off, or radius states off)."""
+        ``per_log_sigma`` off, or radius states off; ``cfg``: default the settler's)."""
         from reconstruct.fitting.geometry import _owners
 
+        cfg = cfg or self.cfg
         none: list[np.ndarray | None] = [None] * len(pile.logs)
-        if self.points is None or not self.cfg.per_log_sigma:
+        if self.points is None or not cfg.per_log_sigma:
             return none, none
         P = np.asarray(self.points, dtype=float)
         P = P[np.all(np.isfinite(P), axis=1)]
         owner = _owners(P, pile.logs, self.band_m)
         own: list[np.ndarray | None] = [P[owner == k] for k in range(len(pile.logs))]
-        if not self.cfg.radius_states:
+        if not cfg.radius_states:
             return own, none
         return own, [P[(owner == k) | (owner < 0)] for k in range(len(pile.logs))]
 
     def __call__(self, pile: PileSpec, fits: Sequence) -> Cleared:
-        own, near = self.own_points(pile)
-        evidence = [self.evidence(log, lf, pts, nr) for log, lf, pts, nr in zip(pile.logs, fits, own, near)]
-        sigmas = obstacle_sigmas(pile, self.points, self.cfg) if self.cfg.obstacle_states else None
-        cleared, free = settle_pile(pile, evidence, self.cfg, self.tolerance_m, self.roll_steps, sigmas)
+        """The pile settled (:func:`settle_pile`), with the radii as states only to rescue a refusal
+        (``radius_rescue``: :func:`reconstruct.fitting.joint_rescue.settle_or_rescue`)."""
+        return settle_or_rescue(lambda cfg: self.settle(pile, fits, cfg), fits, self.survey_ends, self.cfg)
+
+    def settle(self, pile: PileSpec, fits: Sequence, cfg: JointConfig) -> Cleared:
+        own, near = self.own_points(pile, cfg)
+        evidence = [self.evidence(log, lf, pts, nr, cfg) for log, lf, pts, nr in zip(pile.logs, fits, own, near)]
+        sigmas = obstacle_sigmas(pile, self.points, cfg) if cfg.obstacle_states else None
+        cleared, free = settle_pile(pile, evidence, cfg, self.tolerance_m, self.roll_steps, sigmas)
         for k, lf in enumerate(fits):
             for j, e in enumerate(lf.ends or []):
                 pos = np.asarray(e["position_m"], dtype=float)

@@ -78,12 +78,13 @@ def test_a_log_fitted_too_thick_against_its_neighbour_is_thinned_within_its_sigm
         settle_pile(pile, _evidence(pile, LOOSE_M), OFF, TOL, 12)
 
 
-def test_the_radius_states_thin_it_where_they_are_on_and_the_default_keeps_revision_18s_radii():
+def test_the_radius_states_thin_it_where_they_are_on_and_the_default_has_them_on_as_a_rescue():
     pile = _pile()
     out, _ = settle_pile(pile, _evidence(pile, LOOSE_M), ON, TOL, 12)
     assert 0.01 < (pile.logs[0].diameter_m - out.pile.logs[0].diameter_m) / 2 < LOOSE_M
     assert any(n.startswith("log 0 thinned") for n in out.notes)
-    assert JointConfig().radius_states is False  # the tried revision 19 turned them on; it did not ship
+    # on from revision 20, as the rescue of a refused pile only (joint_rescue; test_joint_rescue)
+    assert JointConfig().radius_states is True and JointConfig().radius_rescue is True
 
 
 def test_a_pinned_log_whose_radius_its_scan_holds_tightly_is_refused_as_before():
