@@ -447,8 +447,8 @@ def _select(out, chosen, grid, objective, constraints, planner, b_maps: np.ndarr
     n, h, w = q.shape
     flat = q.reshape(n, h * w)
     reach = constraints.reach_ok(grid)
-    blocks = [(name, r) for name, r in (("keep_out", constraints.keep_out_raster(grid)), ("obstacle", obstacles))
-              if r is not None]
+    blocks = [(name, r, np.column_stack(grid.pixel_to_pile(*np.nonzero(r))))
+              for name, r in (("keep_out", constraints.keep_out_raster(grid)), ("obstacle", obstacles)) if r is not None]
     best_any = np.argmax(flat, axis=1)
     if reach is not None:
         flat = np.where(reach.ravel(), flat, -np.inf)
@@ -465,9 +465,8 @@ def _select(out, chosen, grid, objective, constraints, planner, b_maps: np.ndarr
             if best[k] != best_any[k]:
                 rejected.append({"targets": list(s), "constraint": "reach", "action": "moved",
                                  "detail": "best grasp out of reach; best in reach used"})
-        order = best[k : k + 1] if n_try == 1 else _best_pixels(qk, n_try)
         picked, first_block = None, None
-        for idx in order:
+        for idx in _candidate_pixels(qk, int(best[k]), n_try):
             if not np.isfinite(qk[idx]):
                 break
             g = _decode(out[k], int(idx) // w, int(idx) % w, grid, planner.angle_smoothing_px)
@@ -493,12 +492,27 @@ def _select(out, chosen, grid, objective, constraints, planner, b_maps: np.ndarr
 _BLOCK_WORDS = {"keep_out": "a keep-out zone", "obstacle": "an obstacle the observation shows"}
 
 
-def _blocked(g: Grasp, grid: OrthoGrid, blocks: list[tuple[str, np.ndarray]]) -> str | None:
-    """The first of ``blocks`` ((name, (H, W) raster) pairs) that grasp ``g``'s rectangle overlaps, or None."""
-    if not blocks:
-        return None
-    rect = polygon_raster(grid, g.rectangle(RECT_WIDTH_M)).astype(bool)
-    return next((name for name, r in blocks if (rect & (r > 0)).any()), None)
+def _blocked(g: Grasp, grid: OrthoGrid, blocks: list[tuple[str, np.ndarray, np.ndarray]]) -> str | None:
+    """The first of ``blocks`` ((name, (H, W) raster, (N, 2) pile-frame centres of its set pixels)) that grasp
+    ``g``'s rectangle overlaps, or None. The rectangle is rasterised only for a block with a pixel centre
+    within its circumradius and two pixels of its centre: no pixel farther away can be one it touches."""
+    reach_m = math.hypot(g.width_m / 2, RECT_WIDTH_M / 2) + 2 * grid.pixel_m
+    rect = None
+    for name, r, xy in blocks:
+        if not len(xy) or np.min(np.hypot(xy[:, 0] - g.x_m, xy[:, 1] - g.y_m)) > reach_m:
+            continue
+        rect = polygon_raster(grid, g.rectangle(RECT_WIDTH_M)).astype(bool) if rect is None else rect
+        if (rect & (r > 0)).any():
+            return name
+    return None
+
+
+def _candidate_pixels(qk: np.ndarray, first: int, n: int):
+    """The pixels a subset's grasp is tried at, best first: ``first`` (its arg-max), then, only if asked
+    for more, the rest of its ``n`` best (:func:`_best_pixels`)."""
+    yield first
+    if n > 1:
+        yield from (int(i) for i in _best_pixels(qk, n)[1:])
 
 
 def _best_pixels(qk: np.ndarray, n: int) -> np.ndarray:
