@@ -29,6 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
+from experiments.ranking import _by_pile
+
 #: edges of the span bins [m] (the twin's grapple opens 0.30-1.55 m)
 SPAN_EDGES_M = (0.0, 0.6, 0.8, 1.0, 1.15, 1.3, 1.45, 2.0)
 #: the frontier's grid: the blend's U weight [-] and the offset of its logit [-]
@@ -56,10 +58,8 @@ def f3_choice(records: list[dict], score: np.ndarray) -> dict:
     from planner.inference import Objective
 
     f3 = Objective("f3")
-    piles: dict[int, list[tuple[dict, float]]] = {}
-    for r, s in zip(records, score):
-        piles.setdefault(int(r["seed"]), []).append((r, float(s)))
-    chosen = [max(xs, key=lambda t: float(f3.quality(t[1], t[0]["tau"], t[0]["b"])))[0] for xs in piles.values()]
+    scored = [dict(r, score=float(s)) for r, s in zip(records, score)]
+    chosen = [max(rs, key=lambda r: float(f3.quality(r["score"], r["tau"], r["b"]))) for rs in _by_pile(scored).values()]
     won = [r for r in chosen if r["success"]]
     return {"piles": len(chosen), "successes": len(won),
             "logs_per_success": float(np.mean([r["tau"] for r in won])) if won else float("nan")}
@@ -67,9 +67,7 @@ def f3_choice(records: list[dict], score: np.ndarray) -> dict:
 
 def oracle(records: list[dict]) -> dict:
     """On each pile, the successful tried grasp with the most targets (none where every one failed)."""
-    piles: dict[int, list[dict]] = {}
-    for r in records:
-        piles.setdefault(int(r["seed"]), []).append(r)
+    piles = _by_pile(records)
     best = [max((r for r in rs if r["success"]), key=lambda r: r["tau"]) for rs in piles.values()
             if any(r["success"] for r in rs)]
     return {"piles": len(piles), "successes": len(best),

@@ -328,15 +328,14 @@ def _constraints_for(pile, options: TrialOptions):
     from planner.constraints import Constraints
     from synth.geometry.geodesy import sweref_tm_to_pile
 
+    common = dict(lift_capacity_kg=options.lift_capacity_kg, wood_density_kg_m3=options.wood_density_kg_m3,
+                  clear_obstacles=options.clear_obstacles)
     if options.crane_base_tm is None:
-        return Constraints(lift_capacity_kg=options.lift_capacity_kg, wood_density_kg_m3=options.wood_density_kg_m3,
-                           clear_obstacles=options.clear_obstacles)
+        return Constraints(**common)
     e, n, h = options.crane_base_tm
     base_pile = np.asarray(sweref_tm_to_pile(pile.georef, e, n, h), dtype=float).reshape(3)
     return Constraints(crane_base_xy_m=(float(base_pile[0]), float(base_pile[1])),
-                       min_reach_m=options.min_reach_m, max_reach_m=options.max_reach_m,
-                       lift_capacity_kg=options.lift_capacity_kg, wood_density_kg_m3=options.wood_density_kg_m3,
-                       clear_obstacles=options.clear_obstacles)
+                       min_reach_m=options.min_reach_m, max_reach_m=options.max_reach_m, **common)
 
 
 def _plan_subsets(obs, planner, ranker, pile, constraints, options: TrialOptions, say):

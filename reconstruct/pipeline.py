@@ -279,7 +279,8 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
     logs_pile = [s.moved(T_corr) for s in logs_pile]
     in_patch = np.all(np.abs(pts[:, :2]) < frame.extent / 2, axis=1)
     views = (scan_views(scan_dir, T_corr @ frame.T_pile_site @ T_site_scan)  # the pairs' cameras, as pts
-             if cfg.estimator == "joint" and pair_pose_source in ("given", "calibration") else None)
+             if cfg.estimator == "joint" and cfg.joint.view_test and pair_pose_source in ("given", "calibration")
+             else None)
     fit, fusion = _fit(pts[in_patch], matching, survey_ends, logs_pile, first_pass, frame, placed, cfg, say,
                        notes=f"reconstructed from {scan_dir} and {gnss_path}", georef=frame.georef(placed.pose),
                        views=views)
