@@ -10,6 +10,10 @@ paired difference over all piles with its 95 % interval (:func:`experiments.meas
 
     .venv/bin/python -m experiments.obstacle_clearance --per-cell 40 --seed-base 980000000 \\
         --ranker planner/weights/ranker.safetensors --out runs/obstacle-clearance
+
+``--compare claws`` pairs, both clear of obstacles, the footprint of the opening alone (the keep-out zones'
+rectangle) against the claws' own (:attr:`planner.constraints.Constraints.claw_plate_m` and ``claw_width_m``
+from the twin's grapple): the claws come down outside the opening, on plates 0.05 m thick and 0.22 m wide.
 """
 
 from __future__ import annotations
@@ -21,9 +25,29 @@ from pathlib import Path
 import numpy as np
 
 from experiments.measure import paired
+from synth.geometry.grasp import RECT_WIDTH_M
 
 OBJECTIVES = ("f1", "f3")
-ROWS = ("as_is", "clear")  # the product's planner without and with clear_obstacles
+#: the two rows each comparison pairs, by ``--compare``: "switch", the product's planner without and with
+#: clear_obstacles; "claws", with it, the obstacle footprint the opening alone against the claws' own footprint
+#: (Constraints.claw_plate_m and claw_width_m from the twin's grapple, GrappleConfig)
+COMPARISONS = {"switch": ("as_is", "clear"), "claws": ("clear", "claws")}
+ROWS = COMPARISONS["switch"]
+
+
+def row_constraints(row: str):
+    """The planner's constraints of a row name."""
+    from planner.constraints import Constraints
+    from synth.physics.grapple import GrappleConfig
+
+    if row == "as_is":
+        return Constraints(clear_obstacles=False)
+    if row == "clear":
+        return Constraints(clear_obstacles=True, claw_plate_m=0.0, claw_width_m=RECT_WIDTH_M)
+    if row == "claws":
+        g = GrappleConfig()
+        return Constraints(clear_obstacles=True, claw_plate_m=g.claw_thickness_m, claw_width_m=g.claw_width_m)
+    raise ValueError(f"unknown row {row!r}; one of as_is, clear, claws")
 
 
 def _choice(fn, obs, pile) -> dict | None:
@@ -31,7 +55,7 @@ def _choice(fn, obs, pile) -> dict | None:
     return None if c is None else {"grasp": c[0].to_dict(), "targets": [int(t) for t in c[1]]}
 
 
-def pile_record(task, planners: dict, eval_cfg) -> dict:
+def pile_record(task, planners: dict, eval_cfg, rows: tuple[str, str] = ROWS) -> dict:
     """Both rows' choice per objective on pile ``task`` and, where they differ, both tried exactly."""
     from planner.evaluate import eval_scene
     from synth.geometry.grasp import Grasp
@@ -42,62 +66,64 @@ def pile_record(task, planners: dict, eval_cfg) -> dict:
     n_logs, _, k, seed = task
     rec = {"seed": seed, "n_logs": n_logs, "k": k}
     for obj in OBJECTIVES:
-        a, b = (_choice(planners[(obj, row)], obs, pile) for row in ROWS)
-        entry = {"as_is": a, "clear": b, "changed": a != b}
+        a, b = (_choice(planners[(obj, row)], obs, pile) for row in rows)
+        entry = {rows[0]: a, rows[1]: b, "changed": a != b}
         if a != b:
-            for row, c in (("as_is", a), ("clear", b)):
+            for row, c in zip(rows, (a, b)):
                 entry[f"{row}_outcome"] = ("no_grasp" if c is None else
                                            run_trial(pile, Grasp(**c["grasp"]), c["targets"], trial_cfg).outcome.value)
         rec[obj] = entry
     return rec
 
 
-def run(out_dir: str | Path, per_cell: int, seed_base: int, model: str, ranker: str | None) -> list[dict]:
+def run(out_dir: str | Path, per_cell: int, seed_base: int, model: str, ranker: str | None,
+        rows: tuple[str, str] = ROWS) -> list[dict]:
     """Every pile's record (resumed from ``out_dir/records``), one process."""
     from planner.evaluate import EvalConfig
     from planner.planners import unet_planner
     from synth.common.files import atomic_write_text
 
     cfg = EvalConfig(obstacles=(True,), per_cell=per_cell, seed_base=seed_base)
-    planners = {(obj, row): unet_planner(model, obj, ranker=ranker, clear_obstacles=row == "clear")
-                for obj in OBJECTIVES for row in ROWS}
+    planners = {(obj, row): unet_planner(model, obj, ranker=ranker, constraints=row_constraints(row))
+                for obj in OBJECTIVES for row in rows}
     folder = Path(out_dir, "records")
     folder.mkdir(parents=True, exist_ok=True)
     records = []
     for i, task in enumerate(cfg.tasks()):
         path = folder / f"{task[3]}.json"
         if not path.is_file():
-            atomic_write_text(path, json.dumps(pile_record(task, planners, cfg)))
+            atomic_write_text(path, json.dumps(pile_record(task, planners, cfg, rows)))
             print(f"{i + 1}/{len(cfg.tasks())} piles", flush=True)
         records.append(json.loads(path.read_text()))
     return records
 
 
-def summarise(records: list[dict]) -> dict:
-    """Per objective: piles, changed choices, their successes without / with the switch, the paired difference
-    over all piles [pp] with its 95 % interval, and the targets of the changed choices that succeeded."""
+def summarise(records: list[dict], rows: tuple[str, str] = ROWS) -> dict:
+    """Per objective: piles, changed choices, their successes under each row, the paired difference (second
+    row minus first) over all piles [pp] with its 95 % interval, and the targets of the changed choices that
+    succeeded."""
     out = {}
     for obj in OBJECTIVES:
         entries = [r[obj] for r in records]
         changed = [e for e in entries if e["changed"]]
-        a = [int(e.get("as_is_outcome") == "success") for e in entries]  # unchanged: 0 and 0, a tie
-        b = [int(e.get("clear_outcome") == "success") for e in entries]
+        a, b = ([int(e.get(f"{row}_outcome") == "success") for e in entries] for row in rows)  # unchanged: a tie
         d, lo, hi = paired(a, b) if entries else (float("nan"),) * 3
-        logs = {row: [len(e[row]["targets"]) for e in changed if e.get(f"{row}_outcome") == "success"] for row in ROWS}
-        out[obj] = {"piles": len(entries), "changed": len(changed), "as_is_successes": sum(a), "clear_successes": sum(b),
-                    "difference_pp": d, "ci95_pp": (lo, hi),
+        logs = {row: [len(e[row]["targets"]) for e in changed if e.get(f"{row}_outcome") == "success"] for row in rows}
+        out[obj] = {"piles": len(entries), "changed": len(changed), f"{rows[0]}_successes": sum(a),
+                    f"{rows[1]}_successes": sum(b), "difference_pp": d, "ci95_pp": (lo, hi),
                     "logs_per_success_changed": {row: float(np.mean(v)) if v else float("nan") for row, v in logs.items()}}
     return out
 
 
-def markdown(summary: dict) -> str:
-    lines = ["| objective | piles | choices changed | successes among them: as is / clear | paired difference [pp] "
-             "(95 % CI) | logs per success among them: as is / clear |", "|---|---|---|---|---|---|"]
+def markdown(summary: dict, rows: tuple[str, str] = ROWS) -> str:
+    names = " / ".join(r.replace("_", " ") for r in rows)
+    lines = [f"| objective | piles | choices changed | successes among them: {names} | paired difference [pp] "
+             f"(95 % CI) | logs per success among them: {names} |", "|---|---|---|---|---|---|"]
     for obj, s in summary.items():
         lp = s["logs_per_success_changed"]
-        lines.append(f"| {obj} | {s['piles']} | {s['changed']} | {s['as_is_successes']} / {s['clear_successes']} | "
-                     f"{s['difference_pp']:+.1f} ({s['ci95_pp'][0]:+.1f}..{s['ci95_pp'][1]:+.1f}) | "
-                     f"{lp['as_is']:.2f} / {lp['clear']:.2f} |")
+        lines.append(f"| {obj} | {s['piles']} | {s['changed']} | {s[rows[0] + '_successes']} / "
+                     f"{s[rows[1] + '_successes']} | {s['difference_pp']:+.1f} ({s['ci95_pp'][0]:+.1f}.."
+                     f"{s['ci95_pp'][1]:+.1f}) | {lp[rows[0]]:.2f} / {lp[rows[1]]:.2f} |")
     return "\n".join(lines)
 
 
@@ -110,17 +136,20 @@ def main(argv=None) -> None:
     ap.add_argument("--seed-base", type=int, default=980_000_000, help="the piles' first seed")
     ap.add_argument("--model", default=str(DEFAULT_MODEL))
     ap.add_argument("--ranker", default=None, help="the ranker the product re-ranks with")
+    ap.add_argument("--compare", choices=sorted(COMPARISONS), default="switch",
+                    help="switch: without and with clear_obstacles; claws: the opening's footprint against the claws'")
     a = ap.parse_args(argv)
     if a.per_cell < 1:
         ap.error(f"--per-cell must be >= 1, got {a.per_cell}")
     for flag, path in (("--model", a.model), ("--ranker", a.ranker)):
         if path is not None and not Path(path).is_file():
             ap.error(f"{flag}: no file {path}")
-    summary = summarise(run(a.out, a.per_cell, a.seed_base, a.model, a.ranker))
+    rows = COMPARISONS[a.compare]
+    summary = summarise(run(a.out, a.per_cell, a.seed_base, a.model, a.ranker, rows), rows)
     from synth.common.files import atomic_write_text
 
     atomic_write_text(Path(a.out, "summary.json"), json.dumps(summary, indent=1))
-    print(markdown(summary))
+    print(markdown(summary, rows))
 
 
 if __name__ == "__main__":

@@ -16,7 +16,10 @@
   stump that shows in that rectangle stops them (in the twin: COLLISION). A grasp whose rectangle covers
   a pixel the observation shows as an obstacle (its instance codes from ``OBSTACLE_CODE_BASE`` on: the
   render of the twin's pile or of a reconstructed one) is skipped like one in a keep-out zone. What lies
-  hidden under a log cannot be seen, and is not checked.
+  hidden under a log cannot be seen, and is not checked. The claws themselves come down outside the
+  opening: with ``claw_plate_m`` > 0 the footprint tested against obstacles reaches that far beyond each end
+  of the opening and is ``claw_width_m`` wide across the closing axis (the twin's grapple:
+  :attr:`synth.physics.grapple.GrappleConfig.claw_thickness_m` 0.05 m, ``claw_width_m`` 0.22 m).
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from synth.geometry.frames import OrthoGrid
+from synth.geometry.grasp import RECT_WIDTH_M
 
 
 @dataclass(frozen=True)
@@ -39,6 +43,9 @@ class Constraints:
     assumed_diameter_m: float = 0.16  # log diameter used when the pile is unknown [m]
     keep_out_zones: tuple[tuple[tuple[float, float], ...], ...] = ()  # polygons, (x, y) vertices [m]
     clear_obstacles: bool = True  # skip grasps whose claws' rectangle covers an obstacle the observation shows
+    claw_plate_m: float = 0.0  # how far the obstacle footprint reaches beyond each end of the opening [m]
+    #                            (the claws' plate thickness; 0: the opening alone, the keep-out zones' rectangle)
+    claw_width_m: float = RECT_WIDTH_M  # the obstacle footprint's extent across the closing axis [m]
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.min_reach_m <= self.max_reach_m:
@@ -51,6 +58,10 @@ class Constraints:
             raise ValueError("crane_base_xy_m must be (x, y) in metres")
         if not isinstance(self.clear_obstacles, bool):
             raise ValueError(f"clear_obstacles is a switch: must be True or False, got {self.clear_obstacles!r}")
+        if not (math.isfinite(self.claw_plate_m) and 0.0 <= self.claw_plate_m <= 0.5):
+            raise ValueError(f"claw_plate_m must be in [0, 0.5] m, got {self.claw_plate_m}")
+        if not (math.isfinite(self.claw_width_m) and 0.0 < self.claw_width_m <= 1.0):
+            raise ValueError(f"claw_width_m must be in (0, 1] m, got {self.claw_width_m}")
         for z in self.keep_out_zones:
             if len(z) < 3 or any(len(p) != 2 for p in z):
                 raise ValueError(f"a keep-out zone needs >= 3 (x, y) vertices, got {z!r}")

@@ -447,7 +447,8 @@ def _select(out, chosen, grid, objective, constraints, planner, b_maps: np.ndarr
     n, h, w = q.shape
     flat = q.reshape(n, h * w)
     reach = constraints.reach_ok(grid)
-    blocks = [(name, r, np.column_stack(grid.pixel_to_pile(*np.nonzero(r))))
+    footprints = {"keep_out": (0.0, RECT_WIDTH_M), "obstacle": (constraints.claw_plate_m, constraints.claw_width_m)}
+    blocks = [(name, r, np.column_stack(grid.pixel_to_pile(*np.nonzero(r))), footprints[name])
               for name, r in (("keep_out", constraints.keep_out_raster(grid)), ("obstacle", obstacles)) if r is not None]
     best_any = np.argmax(flat, axis=1)
     if reach is not None:
@@ -492,17 +493,20 @@ def _select(out, chosen, grid, objective, constraints, planner, b_maps: np.ndarr
 _BLOCK_WORDS = {"keep_out": "a keep-out zone", "obstacle": "an obstacle the observation shows"}
 
 
-def _blocked(g: Grasp, grid: OrthoGrid, blocks: list[tuple[str, np.ndarray, np.ndarray]]) -> str | None:
-    """The first of ``blocks`` ((name, (H, W) raster, (N, 2) pile-frame centres of its set pixels)) that grasp
-    ``g``'s rectangle overlaps, or None. The rectangle is rasterised only for a block with a pixel centre
-    within its circumradius and two pixels of its centre: no pixel farther away can be one it touches."""
-    reach_m = math.hypot(g.width_m / 2, RECT_WIDTH_M / 2) + 2 * grid.pixel_m
-    rect = None
-    for name, r, xy in blocks:
+def _blocked(g: Grasp, grid: OrthoGrid, blocks: list[tuple[str, np.ndarray, np.ndarray, tuple[float, float]]]
+             ) -> str | None:
+    """The first of ``blocks`` ((name, (H, W) raster, (N, 2) pile-frame centres of its set pixels, footprint)) that
+    grasp ``g``'s footprint overlaps, or None. A footprint (plate, across) [m] is the rectangle of the opening plus
+    ``plate`` beyond each end by ``across``. It is rasterised only for a block with a pixel centre within its
+    circumradius and two pixels of its centre: no pixel farther away can be one it touches."""
+    rects: dict[tuple[float, float], np.ndarray] = {}
+    for name, r, xy, (plate_m, across_m) in blocks:
+        reach_m = math.hypot(g.width_m / 2 + plate_m, across_m / 2) + 2 * grid.pixel_m
         if not len(xy) or np.min(np.hypot(xy[:, 0] - g.x_m, xy[:, 1] - g.y_m)) > reach_m:
             continue
-        rect = polygon_raster(grid, g.rectangle(RECT_WIDTH_M)).astype(bool) if rect is None else rect
-        if (rect & (r > 0)).any():
+        if (plate_m, across_m) not in rects:
+            rects[(plate_m, across_m)] = polygon_raster(grid, g.footprint(plate_m, across_m)).astype(bool)
+        if (rects[(plate_m, across_m)] & (r > 0)).any():
             return name
     return None
 

@@ -189,14 +189,15 @@ def oracle_planner(trial_preset: str = "fast", max_trials: int = 40) -> PlanFn:
 def unet_planner(model: str, objective: str, subsets: SubsetPolicy = SubsetPolicy(), views: int = 1,
                  view_spread_k: float = 0.0, ranker: str | None = None, rerank_k: int = 4,
                  ranker_u_weight: float = U_WEIGHT, sigma_b: float = SIGMA_B, balance: str = "network",
-                 precision: str = "auto", clear_obstacles: bool = True) -> PlanFn:
+                 precision: str = "auto", clear_obstacles: bool = True, constraints=None) -> PlanFn:
     """The network's best grasp among the subsets ``subsets`` keeps (default: every subset), its maps
     averaged over ``views`` dihedral test-time views, re-ranked by ``ranker`` when given; f3 with the
     balance tolerance ``sigma_b`` and the ``balance`` source; the network in ``precision``; with
-    ``clear_obstacles``, no grasp on an obstacle the observation shows."""
+    ``clear_obstacles``, no grasp on an obstacle the observation shows. ``constraints`` (a
+    :class:`planner.constraints.Constraints`), when given, replaces ``Constraints(clear_obstacles=...)``."""
     plan_all = _unet_plan_all(model, objective, subsets, views, view_spread_k, ranker, rerank_k, keep=1,
                               ranker_u_weight=ranker_u_weight, sigma_b=sigma_b, balance=balance, precision=precision,
-                              clear_obstacles=clear_obstacles)
+                              clear_obstacles=clear_obstacles, constraints=constraints)
 
     def plan_fn(obs, pile):
         result = plan_all(obs, pile)
@@ -209,8 +210,8 @@ def unet_planner(model: str, objective: str, subsets: SubsetPolicy = SubsetPolic
 def _unet_plan_all(model: str, objective: str, subsets: SubsetPolicy, views: int, view_spread_k: float,
                    ranker: str | None, rerank_k: int, keep: int | None = None,
                    ranker_u_weight: float = U_WEIGHT, sigma_b: float = SIGMA_B,
-                   balance: str = "network", precision: str = "auto", clear_obstacles: bool = True
-                   ) -> Callable[[object, object], object]:
+                   balance: str = "network", precision: str = "auto", clear_obstacles: bool = True,
+                   constraints=None) -> Callable[[object, object], object]:
     """``(obs, pile) -> Plan`` of every subset, best first (re-ranked by ``ranker`` when given), its
     best ``keep`` only when given (all of them go to the ranker)."""
     import torch
@@ -223,9 +224,10 @@ def _unet_plan_all(model: str, objective: str, subsets: SubsetPolicy, views: int
     net = load_planner(model, precision=precision, views=views, view_spread_k=view_spread_k)
     obj = Objective(kind=objective, sigma_b=sigma_b, balance=balance)
     rk = load_ranker(ranker) if ranker else None
+    constraints = Constraints(clear_obstacles=clear_obstacles) if constraints is None else constraints
 
     def plan_all(obs, pile):
-        return plan_reranked(obs, net, obj, rk, Constraints(clear_obstacles=clear_obstacles), top_k=keep,
+        return plan_reranked(obs, net, obj, rk, constraints, top_k=keep,
                              rerank_k=rerank_k, u_weight=ranker_u_weight, pile=pile, subsets=subsets)
     return plan_all
 

@@ -46,10 +46,15 @@ class Grasp:
     def rectangle(self, rect_width_m: float = RECT_WIDTH_M) -> np.ndarray:
         """Corners (4, 2) [m] of the grasp rectangle: ``width_m`` along the closing axis,
         ``rect_width_m`` across it, centred on (x, y)."""
+        return self.footprint(0.0, rect_width_m)
+
+    def footprint(self, beyond_m: float, across_m: float) -> np.ndarray:
+        """Corners (4, 2) [m] of the opening extended by ``beyond_m`` past each end along the closing axis
+        (where the claws come down), ``across_m`` wide across it, centred on (x, y)."""
         a = self.closing_axis()
         b = np.array([-a[1], a[0]])
         c = np.array([self.x_m, self.y_m])
-        hw, hr = self.width_m / 2, rect_width_m / 2
+        hw, hr = self.width_m / 2 + beyond_m, across_m / 2
         return np.array([c - a * hw - b * hr, c + a * hw - b * hr, c + a * hw + b * hr, c - a * hw + b * hr])
 
     def to_dict(self) -> dict:

@@ -50,3 +50,26 @@ def test_a_missing_ranker_is_a_one_line_error(tmp_path, capsys):
     with pytest.raises(SystemExit):
         oc.main(["--out", str(tmp_path), "--ranker", str(tmp_path / "none.safetensors")])
     assert "--ranker: no file" in capsys.readouterr().err
+
+
+def test_the_rows_are_the_products_constraints_and_the_claws_of_the_twins_grapple():
+    from planner.constraints import Constraints
+    from synth.physics.grapple import GrappleConfig
+
+    assert oc.row_constraints("clear") == Constraints()
+    assert oc.row_constraints("as_is") == Constraints(clear_obstacles=False)
+    claws = oc.row_constraints("claws")
+    assert (claws.claw_plate_m, claws.claw_width_m) == (GrappleConfig().claw_thickness_m, GrappleConfig().claw_width_m)
+    with pytest.raises(ValueError, match="unknown row"):
+        oc.row_constraints("elsewhere")
+
+
+def test_the_claws_comparison_names_its_rows():
+    c = {"grasp": G1.to_dict(), "targets": [0, 1, 2]}
+    recs = [{obj: {"clear": c, "claws": c, "changed": True, "clear_outcome": "collision", "claws_outcome": "success"}
+             for obj in oc.OBJECTIVES}]
+    rows = oc.COMPARISONS["claws"]
+    s = oc.summarise(recs, rows)
+    assert (s["f3"]["clear_successes"], s["f3"]["claws_successes"]) == (0, 1)
+    assert s["f3"]["logs_per_success_changed"]["claws"] == 3.0
+    assert "| f3 | 1 | 1 | 0 / 1 |" in oc.markdown(s, rows) and "clear / claws" in oc.markdown(s, rows)

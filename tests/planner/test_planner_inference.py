@@ -489,3 +489,38 @@ def test_clear_obstacles_moves_a_grasp_off_an_obstacle_the_observation_shows():
 def test_clear_obstacles_is_a_switch():
     with pytest.raises(ValueError, match="clear_obstacles is a switch"):
         Constraints(clear_obstacles="yes")
+
+
+def _with_obstacle_near(obs, grasp, grid, along_m, across_m, code=1000):
+    """``obs`` with a 1 px obstacle at ``along_m`` along ``grasp``'s closing axis and ``across_m`` across it."""
+    a = grasp.closing_axis()
+    x = grasp.x_m + a[0] * along_m - a[1] * across_m
+    y = grasp.y_m + a[1] * along_m + a[0] * across_m
+    r, c = (int(round(float(v))) for v in grid.pile_to_pixel(x, y))
+    inst = obs.instance.copy()
+    inst[r, c] = code
+    return SimpleNamespace(**{**vars(obs), "instance": inst})
+
+
+@pytest.mark.parametrize("where", ["beyond the opening's end", "beside the rectangle"])
+def test_the_claws_footprint_blocks_an_obstacle_the_opening_alone_misses(where):
+    from planner.constraints import polygon_raster
+
+    obs, grid = observation(3), OrthoGrid(32, 5.0)  # 0.16 m pixels
+    pl = _fixed_planner(_peak_output([(16, 16, 0.9)]))
+    best = plan(obs, pl).best
+    g = best.grasp
+    along, across = ((g.width_m / 2 + 0.25, 0.0) if where == "beyond the opening's end" else (0.0, 0.35))
+    near = _with_obstacle_near(obs, g, grid, along, across)
+    assert not (polygon_raster(grid, g.rectangle()).astype(bool) & (near.instance >= 1000)).any()
+    assert plan(near, pl).best == best  # the opening's rectangle misses it
+    claws = Constraints(claw_plate_m=0.4, claw_width_m=0.9)
+    p = plan(near, pl, constraints=claws)
+    assert p.best != best and any(r["constraint"] == "obstacle" and r["action"] == "moved" for r in p.rejected)
+    assert plan(near, pl, constraints=Constraints(claw_plate_m=0.4, claw_width_m=0.9, clear_obstacles=False)).best == best
+
+
+def test_the_claws_footprint_is_checked():
+    for bad in ({"claw_plate_m": -0.01}, {"claw_plate_m": float("nan")}, {"claw_width_m": 0.0}, {"claw_width_m": 2.0}):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            Constraints(**bad)
