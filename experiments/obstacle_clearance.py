@@ -44,7 +44,7 @@ def row_constraints(row: str):
         return Constraints(clear_obstacles=False)
     if row == "clear":
         return Constraints(clear_obstacles=True, claw_plate_m=0.0, claw_width_m=RECT_WIDTH_M)
-    if row == "claws":
+    if row == "claws":  # the product's default since docs/results/README.md, "obstacle-footprint"
         g = GrappleConfig()
         return Constraints(clear_obstacles=True, claw_plate_m=g.claw_thickness_m, claw_width_m=g.claw_width_m)
     raise ValueError(f"unknown row {row!r}; one of as_is, clear, claws")

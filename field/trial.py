@@ -329,7 +329,8 @@ def _constraints_for(pile, options: TrialOptions):
     from synth.geometry.geodesy import sweref_tm_to_pile
 
     common = dict(lift_capacity_kg=options.lift_capacity_kg, wood_density_kg_m3=options.wood_density_kg_m3,
-                  clear_obstacles=options.clear_obstacles)
+                  clear_obstacles=options.clear_obstacles, claw_plate_m=options.claw_plate_m,
+                  claw_width_m=options.claw_width_m)
     if options.crane_base_tm is None:
         return Constraints(**common)
     e, n, h = options.crane_base_tm

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 from field.link.messages import DEFAULT_MAX_PILE_AGE_S
+from planner.constraints import Constraints
 from planner.inference import PRODUCT_F3_BALANCE, Objective, f3_sigma_b
 from planner.ranker import U_WEIGHT, check_u_weight
 from planner.runtime import PRECISIONS
@@ -27,8 +28,10 @@ class TrialOptions:
     ranker: str | None = None  # ranker checkpoint; None = the shipped one
     rerank_k: int = 4  # grasps re-scored per objective (the best by f1 and by f3) [-]
     ranker_u_weight: float = U_WEIGHT  # U's share of the blend's logit with the ranker's p [-]
-    clear_obstacles: bool = True  # no grasp whose claws' rectangle covers an obstacle the re-render shows
+    clear_obstacles: bool = True  # no grasp whose claws' footprint covers an obstacle the re-render shows
     #                               (planner.constraints.Constraints.clear_obstacles); False: the operator's choice
+    claw_plate_m: float = Constraints.claw_plate_m  # the footprint beyond each end of the opening [m] (the grapple's)
+    claw_width_m: float = Constraints.claw_width_m  # the footprint across the closing axis [m] (the grapple's)
     allow_float: bool = False  # accept RTK float endpoints (the operator's explicit choice)
     max_pile_age_s: float = DEFAULT_MAX_PILE_AGE_S  # refuse plans on pile data older than this [s]
     crane_base_tm: tuple[float, float, float] | None = None  # SWEREF 99 TM E, N [m], ellipsoidal h [m]
@@ -64,6 +67,7 @@ class TrialOptions:
         check_u_weight(self.ranker_u_weight)
         if not isinstance(self.clear_obstacles, bool):
             raise ValueError(f"clear_obstacles is a switch: must be True or False, got {self.clear_obstacles!r}")
+        Constraints(claw_plate_m=self.claw_plate_m, claw_width_m=self.claw_width_m)  # a ValueError naming the field
         if not 0 <= self.min_reach_m < self.max_reach_m:
             raise ValueError("need 0 <= min_reach_m < max_reach_m")
         if isinstance(self.verify_k, bool) or not isinstance(self.verify_k, int) or self.verify_k < 0:

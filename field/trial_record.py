@@ -368,6 +368,10 @@ def recorded_options(stored: dict, precision: str | None = None) -> TrialOptions
     stored.setdefault("rerank", False)  # records before the ranker planned with U alone
     stored.setdefault("f3_balance", "network")  # records before the hang model scored f3 on the B map
     stored.setdefault("clear_obstacles", False)  # records before it planned over the obstacles the render showed
+    if "claw_plate_m" not in stored:  # records before the claws' footprint tested the opening's rectangle
+        from synth.geometry.grasp import RECT_WIDTH_M
+
+        stored.update(claw_plate_m=0.0, claw_width_m=RECT_WIDTH_M)
     return TrialOptions(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in stored.items()})
 
 

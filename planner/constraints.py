@@ -17,9 +17,11 @@
   a pixel the observation shows as an obstacle (its instance codes from ``OBSTACLE_CODE_BASE`` on: the
   render of the twin's pile or of a reconstructed one) is skipped like one in a keep-out zone. What lies
   hidden under a log cannot be seen, and is not checked. The claws themselves come down outside the
-  opening: with ``claw_plate_m`` > 0 the footprint tested against obstacles reaches that far beyond each end
-  of the opening and is ``claw_width_m`` wide across the closing axis (the twin's grapple:
-  :attr:`synth.physics.grapple.GrappleConfig.claw_thickness_m` 0.05 m, ``claw_width_m`` 0.22 m).
+  opening, so the footprint tested against obstacles is the claws': it reaches ``claw_plate_m`` beyond each
+  end of the opening and is ``claw_width_m`` wide across the closing axis, by default the grapple's own
+  (:class:`synth.physics.grapple.GrappleConfig`: plates 0.05 m thick, 0.22 m wide; ``claw_plate_m`` 0 and
+  ``claw_width_m`` 0.20 m is the opening's rectangle, what was tested before; docs/results/README.md,
+  "obstacle-footprint").
 """
 
 from __future__ import annotations
@@ -30,7 +32,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from synth.geometry.frames import OrthoGrid
-from synth.geometry.grasp import RECT_WIDTH_M
+from synth.physics.grapple import GrappleConfig
+
+_GRAPPLE = GrappleConfig()  # the grapple the twin simulates, sized after the field's (its docstring)
 
 
 @dataclass(frozen=True)
@@ -43,9 +47,9 @@ class Constraints:
     assumed_diameter_m: float = 0.16  # log diameter used when the pile is unknown [m]
     keep_out_zones: tuple[tuple[tuple[float, float], ...], ...] = ()  # polygons, (x, y) vertices [m]
     clear_obstacles: bool = True  # skip grasps whose claws' rectangle covers an obstacle the observation shows
-    claw_plate_m: float = 0.0  # how far the obstacle footprint reaches beyond each end of the opening [m]
-    #                            (the claws' plate thickness; 0: the opening alone, the keep-out zones' rectangle)
-    claw_width_m: float = RECT_WIDTH_M  # the obstacle footprint's extent across the closing axis [m]
+    claw_plate_m: float = _GRAPPLE.claw_thickness_m  # how far the obstacle footprint reaches beyond each end of
+    #                                                  the opening [m]: the claws' plates (0: the opening alone)
+    claw_width_m: float = _GRAPPLE.claw_width_m  # the obstacle footprint's extent across the closing axis [m]
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.min_reach_m <= self.max_reach_m:

@@ -266,9 +266,16 @@ def _precision_tag(spec: PlannerSpec) -> str:
 
 def _pile_tag(spec: PlannerSpec, task: tuple[int, bool, int, int]) -> str:
     """The part of a record's fingerprint its pile decides: a U-Net planning clear of obstacles (the
-    default) on a pile with obstacles; on a pile without any the switch changes nothing, and the records made
-    before it are kept."""
-    return "+clear" if spec.kind == "unet" and spec.clear_obstacles and task[1] else ""
+    default) on a pile with obstacles, with the footprint it tests against them (``+clear``: the opening's
+    rectangle; ``+claws``: the grapple's claws, planner.constraints.Constraints); on a pile without any the
+    switch changes nothing, and the records made before it are kept."""
+    if not (spec.kind == "unet" and spec.clear_obstacles and task[1]):
+        return ""
+    from planner.constraints import Constraints
+    from synth.geometry.grasp import RECT_WIDTH_M
+
+    c = Constraints()
+    return "+clear" if (c.claw_plate_m, c.claw_width_m) == (0.0, RECT_WIDTH_M) else "+claws"
 
 
 def _fingerprint(spec: PlannerSpec) -> str:

@@ -5,7 +5,7 @@ from types import SimpleNamespace
 import pytest
 
 import experiments.obstacle_clearance as oc
-from synth.geometry.grasp import Grasp
+from synth.geometry.grasp import RECT_WIDTH_M, Grasp
 
 G1, G2 = Grasp(0.0, 0.0, 0.0, 0.8), Grasp(0.5, 0.0, 0.0, 0.8)
 
@@ -56,8 +56,10 @@ def test_the_rows_are_the_products_constraints_and_the_claws_of_the_twins_grappl
     from planner.constraints import Constraints
     from synth.physics.grapple import GrappleConfig
 
-    assert oc.row_constraints("clear") == Constraints()
+    assert oc.row_constraints("claws") == Constraints()  # the product's default
     assert oc.row_constraints("as_is") == Constraints(clear_obstacles=False)
+    clear = oc.row_constraints("clear")
+    assert (clear.claw_plate_m, clear.claw_width_m) == (0.0, RECT_WIDTH_M)
     claws = oc.row_constraints("claws")
     assert (claws.claw_plate_m, claws.claw_width_m) == (GrappleConfig().claw_thickness_m, GrappleConfig().claw_width_m)
     with pytest.raises(ValueError, match="unknown row"):

@@ -102,3 +102,21 @@ def test_the_trial_plans_clear_of_obstacles_unless_the_operator_allows_them():
     assert recorded_options({"objective": "f3", "clear_obstacles": True}).clear_obstacles is True
     with pytest.raises(ValueError, match="clear_obstacles is a switch"):
         TrialOptions(clear_obstacles=1)
+
+
+def test_the_trial_tests_the_claws_footprint_and_an_older_record_the_openings():
+    from types import SimpleNamespace
+
+    from field.trial import _constraints_for
+    from planner.constraints import Constraints
+    from synth.geometry.grasp import RECT_WIDTH_M
+
+    c = _constraints_for(SimpleNamespace(), TrialOptions())
+    assert (c.claw_plate_m, c.claw_width_m) == (Constraints().claw_plate_m, Constraints().claw_width_m) != (0.0, RECT_WIDTH_M)
+    c = _constraints_for(SimpleNamespace(), TrialOptions(claw_plate_m=0.1, claw_width_m=0.3))
+    assert (c.claw_plate_m, c.claw_width_m) == (0.1, 0.3)
+    old = recorded_options({"objective": "f3", "clear_obstacles": True})
+    assert (old.claw_plate_m, old.claw_width_m) == (0.0, RECT_WIDTH_M)
+    assert recorded_options({"objective": "f3", "claw_plate_m": 0.05, "claw_width_m": 0.22}).claw_plate_m == 0.05
+    with pytest.raises(ValueError, match="claw_plate_m"):
+        TrialOptions(claw_plate_m=-1.0)

@@ -426,9 +426,23 @@ def test_planning_clear_of_obstacles_remakes_only_the_records_of_piles_with_obst
     clear, noclear = (PlannerSpec("unet", model=str(ckpt), objective="f1", clear_obstacles=c) for c in (True, False))
     assert (clear.name, noclear.name) == ("unet-f1", "unet-f1-noclear")
     with_obst, without = sorted(cfg.tasks(), key=lambda t: not t[1])
-    assert (_pile_tag(clear, with_obst), _pile_tag(clear, without), _pile_tag(noclear, with_obst)) == ("+clear", "", "")
+    assert (_pile_tag(clear, with_obst), _pile_tag(clear, without), _pile_tag(noclear, with_obst)) == ("+claws", "", "")
     run_evaluation([clear, noclear], cfg, tmp_path, workers=1)
     sha = {t[1]: {r["planner"]: r["model_sha256"] for r in json.loads((tmp_path / "records" / f"{t[3]}.json").read_text())}
            for t in (with_obst, without)}
-    assert sha[True]["unet-f1"] == sha[False]["unet-f1"] + "+clear" == sha[True]["unet-f1-noclear"] + "+clear"
+    assert sha[True]["unet-f1"] == sha[False]["unet-f1"] + "+claws" == sha[True]["unet-f1-noclear"] + "+claws"
     assert sha[False]["unet-f1"] == sha[False]["unet-f1-noclear"]
+
+
+def test_records_of_the_openings_footprint_are_not_the_claws(monkeypatch):
+    """A record planned clear of obstacles with the opening's rectangle ("+clear") is made again once the claws'
+    footprint is the default ("+claws"), and would be reused were the opening's the default again."""
+    import planner.constraints
+    from planner.evaluate import _pile_tag
+    from synth.geometry.grasp import RECT_WIDTH_M
+
+    spec, task = PlannerSpec("unet", model="m.safetensors", objective="f3"), (3, True, 0, 1)
+    assert _pile_tag(spec, task) == "+claws"
+    opening = planner.constraints.Constraints(claw_plate_m=0.0, claw_width_m=RECT_WIDTH_M)
+    monkeypatch.setattr(planner.constraints, "Constraints", lambda: opening)
+    assert _pile_tag(spec, task) == "+clear"

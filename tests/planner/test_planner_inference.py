@@ -506,18 +506,28 @@ def _with_obstacle_near(obs, grasp, grid, along_m, across_m, code=1000):
 def test_the_claws_footprint_blocks_an_obstacle_the_opening_alone_misses(where):
     from planner.constraints import polygon_raster
 
+    from synth.geometry.grasp import RECT_WIDTH_M
+
     obs, grid = observation(3), OrthoGrid(32, 5.0)  # 0.16 m pixels
     pl = _fixed_planner(_peak_output([(16, 16, 0.9)]))
-    best = plan(obs, pl).best
+    opening = Constraints(claw_plate_m=0.0, claw_width_m=RECT_WIDTH_M)
+    best = plan(obs, pl, constraints=opening).best
     g = best.grasp
     along, across = ((g.width_m / 2 + 0.25, 0.0) if where == "beyond the opening's end" else (0.0, 0.35))
     near = _with_obstacle_near(obs, g, grid, along, across)
     assert not (polygon_raster(grid, g.rectangle()).astype(bool) & (near.instance >= 1000)).any()
-    assert plan(near, pl).best == best  # the opening's rectangle misses it
+    assert plan(near, pl, constraints=opening).best == best  # the opening's rectangle misses it
     claws = Constraints(claw_plate_m=0.4, claw_width_m=0.9)
     p = plan(near, pl, constraints=claws)
     assert p.best != best and any(r["constraint"] == "obstacle" and r["action"] == "moved" for r in p.rejected)
     assert plan(near, pl, constraints=Constraints(claw_plate_m=0.4, claw_width_m=0.9, clear_obstacles=False)).best == best
+
+
+def test_the_claws_footprint_is_the_grapples_by_default():
+    from synth.physics.grapple import GrappleConfig
+
+    c = Constraints()
+    assert (c.claw_plate_m, c.claw_width_m) == (GrappleConfig().claw_thickness_m, GrappleConfig().claw_width_m)
 
 
 def test_the_claws_footprint_is_checked():
