@@ -3,8 +3,9 @@
 On the records of a ``loggrasp eval`` folder (each pile regenerated from its seed, as the evaluation made it),
 two measures of every chosen grasp:
 
-* **clearance** [m]: the distance from the claws' swept rectangle (the opening x
-  :data:`planner.inference.RECT_WIDTH_M`, what ``Constraints.clear_obstacles`` tests) to the nearest obstacle
+* **clearance** [m]: the distance from the opening's rectangle (the opening x
+  :data:`planner.inference.RECT_WIDTH_M`, what ``Constraints.clear_obstacles`` tested before the claws' own
+  footprint became the default, docs/results/README.md "obstacle-footprint") to the nearest obstacle
   pixel of the observation, for the exact and the field execution (the grasp moved by the crane's positioning
   error). If failures gathered within a few centimetres of a visible obstacle, a margin of the positioning
   error around the rectangle would be the principled next step; this measures whether they do;

@@ -496,9 +496,9 @@ _BLOCK_WORDS = {"keep_out": "a keep-out zone", "obstacle": "an obstacle the obse
 def _blocked(g: Grasp, grid: OrthoGrid, blocks: list[tuple[str, np.ndarray, np.ndarray, tuple[float, float]]]
              ) -> str | None:
     """The first of ``blocks`` ((name, (H, W) raster, (N, 2) pile-frame centres of its set pixels, footprint)) that
-    grasp ``g``'s footprint overlaps, or None. A footprint (plate, across) [m] is the rectangle of the opening plus
-    ``plate`` beyond each end by ``across``. It is rasterised only for a block with a pixel centre within its
-    circumradius and two pixels of its centre: no pixel farther away can be one it touches."""
+    grasp ``g``'s footprint overlaps, or None. A footprint (plate, across) [m] is the opening extended by ``plate``
+    past each end, ``across`` wide (:meth:`Grasp.footprint`). It is rasterised only for a block with a pixel centre
+    within its circumradius and two pixels of its centre: no pixel farther away can be one it touches."""
     rects: dict[tuple[float, float], np.ndarray] = {}
     for name, r, xy, (plate_m, across_m) in blocks:
         reach_m = math.hypot(g.width_m / 2 + plate_m, across_m / 2) + 2 * grid.pixel_m
