@@ -336,7 +336,7 @@ def add_pile_samples(writer: "ShardWriter", job: "DatasetJob", pile, pile_id: st
             writer.add(Sample(pile_id=pile_id, render=r, subset=tuple(sub.targets), intensity=obs.intensity[r],
                               depth=obs.depth, target_mask=mask, maps=maps, grasps=arr,
                               negative=not len(arr), n_logs=pile.n_logs, n_candidates=sub.n_candidates,
-                              trials=trials, capped=sub.capped))
+                              trials=trials, capped=sub.capped, instance=obs.instance))
 
 
 def build_chunk(out_dir: str, job_dict: dict, chunk: int, worker: str | None = None,

@@ -51,8 +51,9 @@ CHUNK_DIR = "chunks"
 CACHE_DIR = ".cache"
 #: what the materialised shards hold beyond the chunk (a cached shard of another revision is made
 #: anew): 2 = each subset's admissible candidate count (``Sample.n_candidates``); 3 = every trial of
-#: each subset and whether they hit the cap (``Sample.trials``, ``Sample.capped``: outcome labels)
-MATERIALIZE_REVISION = 3
+#: each subset and whether they hit the cap (``Sample.trials``, ``Sample.capped``: outcome labels);
+#: 4 = the pile's instance map (``Sample.instance``: the ranker's other-log and obstacle channels)
+MATERIALIZE_REVISION = 4
 _CHUNK_RE = re.compile(r"^chunk_(\d{5,})\.json\.gz$")
 
 

@@ -27,6 +27,9 @@ Shard arrays (``npz``, compressed; P piles, Q renders, K subsets, N samples, G g
                                        value, cos beta (synth.data.outcomes); subset k's are
                                        trials[trial_start[k]:trial_start[k+1]], its meta says "capped"
     trial_start  (K + 1,)     int64    (with trials)
+    instance     (P, H, W)    int16    (optional) which body each pixel sees: 0 ground, i + 1 log i, 1000 + j
+                                       obstacle j (synth.render.ortho); the other logs' and the obstacles'
+                                       masks the grasp ranker sees
     samples      (N, 3)       int32    (pile index, intensity index, subset index)
     meta         (bytes,)     uint8    JSON: format, version, worker, chunk, piles, renders, subsets
 """
@@ -96,6 +99,7 @@ class Sample:
     n_candidates: int | None = None  # admissible geometric candidates of the subset; None = not recorded [-]
     trials: np.ndarray | None = None  # (t, 6) every trial run on the subset (synth.data.outcomes.TRIAL_COLUMNS); None = not recorded
     capped: bool | None = None  # the subset's trials hit the cap with candidates left; None = not recorded
+    instance: np.ndarray | None = None  # (H, W) int16 instance codes of the pile (synth.render.ortho); None = not recorded
 
     @property
     def tau(self) -> int:
@@ -135,6 +139,8 @@ class Sample:
             if t.ndim != 2 or t.shape[1] != 6 or not np.all(np.isfinite(t[:, :5])) or np.any((t[:, 4] < 0) | (t[:, 4] > 1)):
                 raise ValueError(f"sample {self.pile_id}/{self.subset}: trials must be (n, 6) rows with finite grasps "
                                  "and a success value in [0, 1]")
+        if self.instance is not None and np.shape(self.instance) != (h, w):
+            raise ValueError(f"sample {self.pile_id}/{self.subset}: instance must be ({h}, {w}), got {np.shape(self.instance)}")
 
 
 @dataclass(frozen=True)
@@ -196,6 +202,7 @@ class ShardWriter:
         self._piles: dict[str, int] = {}
         self._pile_meta: list[dict] = []
         self._depth: list[np.ndarray] = []
+        self._instance: list[np.ndarray | None] = []
         self._renders: dict[tuple[str, int], int] = {}
         self._intensity: list[np.ndarray] = []
         self._subsets: dict[tuple[str, tuple[int, ...]], int] = {}
@@ -225,7 +232,10 @@ class ShardWriter:
         if pid not in self._piles:
             self._piles[pid] = len(self._depth)
             self._depth.append(np.asarray(sample.depth, dtype=np.float32))
+            self._instance.append(None if sample.instance is None else np.asarray(sample.instance, dtype=np.int16))
             self._pile_meta.append({"pile_id": pid, "n_logs": int(sample.n_logs)})
+            if (self._instance[-1] is None) != (self._instance[0] is None):
+                raise ValueError(f"pile {pid}: a shard's piles must all carry their instance map or none")
         p = self._piles[pid]
         rkey = (pid, int(sample.render))
         if rkey not in self._renders:
@@ -274,6 +284,8 @@ class ShardWriter:
         if self._trials and self._trials[0] is not None:
             extra["trial_start"] = np.concatenate([[0], np.cumsum([len(t) for t in self._trials])]).astype(np.int64)
             extra["trials"] = np.concatenate(self._trials).reshape(-1, 6)
+        if self._instance[0] is not None:
+            extra["instance"] = np.stack(self._instance)
         np.savez_compressed(
             buf, depth=np.stack(self._depth), intensity=np.stack(self._intensity),
             target_mask=np.stack(self._mask), maps=np.stack(self._maps),
@@ -307,7 +319,7 @@ def load_shard(path: str | Path) -> list[Sample]:
         with np.load(path) as z:
             meta = json.loads(bytes(z["meta"]).decode())
             arrays = {k: z[k] for k in ("depth", "intensity", "target_mask", "maps", "grasps", "grasp_start", "samples",
-                                        "trials", "trial_start") if k in z.files}
+                                        "trials", "trial_start", "instance") if k in z.files}
     except FileNotFoundError as exc:
         raise DatasetFormatError(f"shard {path} does not exist; re-run the data-set job to regenerate it") from exc
     except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile, UnicodeDecodeError) as exc:
@@ -337,6 +349,7 @@ def load_shard(path: str | Path) -> list[Sample]:
                 n_candidates=None if sm.get("n_candidates") is None else int(sm["n_candidates"]),
                 trials=None if tstart is None else arrays["trials"][tstart[k]:tstart[k + 1]],
                 capped=None if sm.get("capped") is None else bool(sm["capped"]),
+                instance=arrays["instance"][p] if "instance" in arrays else None,
             ))
     except (KeyError, IndexError, TypeError, ValueError) as exc:
         raise DatasetFormatError(f"shard {path} is inconsistent ({exc}); delete it and re-run the job") from exc

@@ -116,6 +116,7 @@ def test_full_disk_leaves_no_shard(tmp_path, monkeypatch):
     {"grasps": np.array([[np.nan, 0, 0, 0.5, 1.0]])},
     {"maps": np.zeros((4, 32, 32), np.float32)},
     {"intensity": np.full((32, 32), 2.0, np.float32)},
+    {"instance": np.zeros((16, 32), np.int16)},
 ])
 def test_malformed_samples_are_refused(tmp_path, change):
     s = _samples()[0]
@@ -178,6 +179,35 @@ def test_job_writes_consistent_samples(tmp_path):
     assert np.shares_memory(a.depth, b.depth) and np.shares_memory(a.maps, b.maps)
     assert not np.array_equal(a.intensity, b.intensity)
     assert (tmp_path / "piles" / "pile_00000.json").exists()
+    # every sample carries its pile's instance map, and the target mask is made from it
+    for x in samples:
+        assert x.instance is not None and x.instance.dtype == np.int16
+        np.testing.assert_array_equal(x.target_mask, np.isin(x.instance, [t + 1 for t in x.subset]))
+
+
+def test_instance_maps_round_trip_once_per_pile(tmp_path):
+    inst = np.zeros((32, 32), np.int16)
+    inst[:4], inst[4:8], inst[20:24, 20:24] = 1, 2, 1000
+    w = ShardWriter(tmp_path, "w0", 0)
+    for s in _samples():
+        s.instance = inst
+        w.add(s)
+    w.close()
+    got = load_shard(tmp_path / "shard_w0_00000.npz")
+    assert len(got) == 6 and all(np.array_equal(x.instance, inst) for x in got)
+    assert np.shares_memory(got[0].instance, got[-1].instance)  # stored once for the pile
+    assert all(x.instance is None for x in _samples())
+    _write(tmp_path / "old")  # a shard written without them reads back without them
+    assert all(x.instance is None for x in iter_samples(tmp_path / "old"))
+
+
+def test_a_shard_refuses_piles_with_and_without_instance_maps(tmp_path):
+    w = ShardWriter(tmp_path, "w0", 0)
+    first = _samples("pile_00000")[0]
+    first.instance = np.zeros((32, 32), np.int16)
+    w.add(first)
+    with pytest.raises(ValueError, match="instance map"):
+        w.add(_samples("pile_00001")[0])
 
 
 def test_job_with_real_trials_in_process(tmp_path):
