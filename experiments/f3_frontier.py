@@ -100,7 +100,8 @@ def spans(records: list[dict], seed_base: int) -> list[float]:
         inten, depth, inst, extent_m, cam_h = observation_arrays(obs)
         grasps = [Grasp(**{k: records[i]["grasp"][k] for k in ("x_m", "y_m", "phi_rad", "width_m")}) for i in idx]
         masks = np.stack([np.isin(inst, [t + 1 for t in records[i]["targets"]]) for i in idx])
-        crops = grasp_crops(inten, normalise_depth(depth, cam_h), masks, OrthoGrid(depth.shape[0], extent_m), grasps, cfg)
+        crops = grasp_crops(inten, normalise_depth(depth, cam_h), masks, OrthoGrid(depth.shape[0], extent_m), grasps, cfg,
+                            inst)
         for i, crop in zip(idx, crops):
             out[i] = target_span_m(crop[2], cfg.pixel_m, cfg.claw_width_m)
     return [out[i] for i in range(len(records))]

@@ -8,13 +8,21 @@ columns, with the claws drawn where they will come down, and predicts the probab
 lifts exactly its targets when the crane stands off by the field's positioning error (its training
 label: the robust labels' success fraction, :func:`synth.data.outcomes.trial_success`).
 
-Crop channels (``CROP_CHANNELS``), ``crop_px`` square at the observation's pixel pitch:
+Crop channels (``RankerConfig.crop_channels``, from ``CROP_CHANNELS``), ``crop_px`` square at the
+observation's pixel pitch:
 
 * ``I``: intensity of the render, in [0, 1];
 * ``H``: height [m] relative to the highest target pixel in the crop (the top the claws meet);
 * ``M_T``: the target mask, {0, 1};
 * ``claws``: 1 on the two claw plates' footprints (``claw_width_m`` along the log, ``claw_plate_m``
-  across, just outside the opening ``width_m``), 0 elsewhere.
+  across, just outside the opening ``width_m``), 0 elsewhere;
+* ``M_L``: the logs that are not targets, {0, 1} (from the instance map): a log the claws would take
+  along, or one lying on a target;
+* ``M_O``: the obstacles (stumps, rocks), {0, 1} (from the instance map): a target lying against one
+  is held by it (measured: such f3 choices succeed 62 %, the others 87 %, docs/results/README.md).
+
+Checkpoints made before the instance channels (no ``crop_channels`` stored) read as
+``LEGACY_CROP_CHANNELS``.
 
 The head also sees the opening width [m] and the number of targets / 7. Re-ranking (:func:`rerank`)
 takes the union of the best ``k`` grasps by f1 and by f3 of a :class:`planner.inference.Plan`, scores
@@ -39,7 +47,10 @@ from synth.geometry.frames import OrthoGrid
 from synth.geometry.grasp import Grasp
 
 RANKER_FORMAT_NAME = "loggrasp.planner.ranker"
-CROP_CHANNELS = ("I", "H", "M_T", "claws")
+CROP_CHANNELS = ("I", "H", "M_T", "claws", "M_L", "M_O")  # every channel a crop can have, in this order
+LEGACY_CROP_CHANNELS = CROP_CHANNELS[:4]  # a checkpoint that stores no crop_channels (before the instance channels)
+INSTANCE_CHANNELS = ("M_L", "M_O")  # the channels made from the instance map
+OBSTACLE_BASE = 1000  # instance codes from this on are obstacles (synth.render.ortho)
 MAX_TARGETS = 7  # the number of targets is fed to the head divided by this [-]
 # rerank's default weight of U's logit in the blend with the ranker's p [-]: chosen on the first 48 of the
 # 96 held-out piles of docs/results/ranking-v3model-rev4 (weights 0-1 in steps of 0.05-0.25; within-pile AUC
@@ -58,8 +69,13 @@ class RankerConfig:
     claw_plate_m: float = 0.05  # claw plate thickness across the logs [m] (the twin's grapple)
     channels: int = 32  # channels of the first convolution (doubled once) [-]
     hidden: int = 128  # units of the fully connected layer [-]
+    crop_channels: tuple[str, ...] = CROP_CHANNELS  # the crop's channels, a sub-sequence of CROP_CHANNELS [-]
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "crop_channels", tuple(self.crop_channels))
+        if not self.crop_channels or tuple(c for c in CROP_CHANNELS if c in self.crop_channels) != self.crop_channels:
+            raise ValueError(f"crop_channels must be a non-empty sub-sequence of {list(CROP_CHANNELS)} in that order, "
+                             f"got {list(self.crop_channels)}")
         if not 16 <= self.crop_px <= 128 or self.crop_px % 8:
             raise ValueError(f"crop_px must be a multiple of 8 in [16, 128], got {self.crop_px}")
         for k in ("pixel_m", "claw_width_m", "claw_plate_m"):
@@ -71,38 +87,57 @@ class RankerConfig:
     def to_dict(self) -> dict:
         return asdict(self)
 
+    @property
+    def needs_instance(self) -> bool:
+        """True when a crop has a channel made from the instance map."""
+        return any(c in INSTANCE_CHANNELS for c in self.crop_channels)
+
     @classmethod
     def from_dict(cls, d: dict) -> "RankerConfig":
-        return cls(**d)
+        return cls(**{"crop_channels": LEGACY_CROP_CHANNELS, **d})
 
 
 def grasp_crops(intensity: np.ndarray, height_m: np.ndarray, masks: Sequence[np.ndarray] | np.ndarray,
-                grid: OrthoGrid, grasps: Sequence[Grasp], config: RankerConfig = RankerConfig()) -> np.ndarray:
-    """The ranker's input crops (N, 4, S, S) float32 for ``grasps``, each with its own target mask.
+                grid: OrthoGrid, grasps: Sequence[Grasp], config: RankerConfig = RankerConfig(),
+                instance: np.ndarray | None = None) -> np.ndarray:
+    """The ranker's input crops (N, C, S, S) float32 for ``grasps``, each with its own target mask; C =
+    ``len(config.crop_channels)``.
 
     ``height_m`` is the height image (:func:`planner.data.normalise_depth`); ``masks`` one target mask
-    per grasp (or one for all). Crop row 0 is on the left of the closing axis; column 0 at its
-    negative end; pixels outside the image repeat its border."""
+    per grasp (or one for all); ``instance`` the instance map (0 ground, i + 1 log i, from 1000
+    obstacles), needed when ``config`` has ``M_L`` or ``M_O`` (``ValueError`` without it). Crop row 0 is
+    on the left of the closing axis; column 0 at its negative end; pixels outside the image repeat its
+    border."""
     from scipy.ndimage import map_coordinates
 
+    if config.needs_instance and instance is None:
+        raise ValueError(f"the crop channels {list(config.crop_channels)} need the instance map")
     s = config.crop_px
     c = (np.arange(s) - (s - 1) / 2) * config.pixel_m
     u, v = np.meshgrid(c, -c)  # u along the closing axis (columns), v to its left (rows, up)
     masks = np.asarray(masks)
-    out = np.empty((len(grasps), len(CROP_CHANNELS), s, s), dtype=np.float32)
+    want = config.crop_channels
+    logs = obstacles = None
+    if instance is not None:
+        inst = np.asarray(instance)
+        logs, obstacles = (inst > 0) & (inst < OBSTACLE_BASE), inst >= OBSTACLE_BASE
+    out = np.empty((len(grasps), len(want), s, s), dtype=np.float32)
     for n, g in enumerate(grasps):
         a = np.array([math.cos(g.phi_rad), math.sin(g.phi_rad)])
         x = g.x_m + u * a[0] - v * a[1]
         y = g.y_m + u * a[1] + v * a[0]
         rc = np.stack(grid.pile_to_pixel(x, y))
         mask = masks if masks.ndim == 2 else masks[n]
-        out[n, 0] = map_coordinates(intensity, rc, order=1, mode="nearest")
-        h = map_coordinates(height_m, rc, order=1, mode="nearest")
-        m = map_coordinates(mask.astype(np.float32), rc, order=1, mode="nearest") > 0.5
+        sample = lambda img: map_coordinates(np.asarray(img, np.float32), rc, order=1, mode="nearest")  # noqa: E731
+        h = sample(height_m)
+        m = sample(mask) > 0.5
         top = float(h[m].max()) if m.any() else float(h[s // 2, s // 2])
-        out[n, 1] = h - top
-        out[n, 2] = m
-        out[n, 3] = claw_footprint(u, v, g.width_m, config)
+        layers = {"I": lambda: sample(intensity), "H": lambda: h - top, "M_T": lambda: m,
+                  "claws": lambda: claw_footprint(u, v, g.width_m, config),
+                  "M_L": lambda: (sample(logs & ~mask.astype(bool)) > 0.5),
+                  "M_O": lambda: (sample(obstacles) > 0.5)}
+        for i, name in enumerate(want):
+            out[n, i] = layers[name]()
     return out
 
 
@@ -129,7 +164,7 @@ def build_ranker(config: RankerConfig = RankerConfig()):
         def __init__(self) -> None:
             super().__init__()
             self.features = nn.Sequential(
-                nn.Conv2d(len(CROP_CHANNELS), k, 5, padding=2), nn.ReLU(), nn.MaxPool2d(2),
+                nn.Conv2d(len(config.crop_channels), k, 5, padding=2), nn.ReLU(), nn.MaxPool2d(2),
                 nn.Conv2d(k, 2 * k, 3, padding=1), nn.ReLU(), nn.MaxPool2d(2),
                 nn.Conv2d(2 * k, 2 * k, 3, padding=1), nn.ReLU(), nn.MaxPool2d(2))
             self.head = nn.Sequential(nn.Linear(flat + 2, config.hidden), nn.ReLU(), nn.Linear(config.hidden, 1))
@@ -174,7 +209,7 @@ class Ranker:
     meta: dict
 
     def probabilities(self, crops: np.ndarray, scalars: np.ndarray) -> np.ndarray:
-        """Success probabilities of crops (N, 4, S, S) with their scalars (N, 2)."""
+        """Success probabilities of crops (N, C, S, S) with their scalars (N, 2)."""
         import torch
 
         if not len(crops):
@@ -196,7 +231,7 @@ class Ranker:
                                   f"observation has {100 * grid.pixel_m:.2f} cm; render at the ranker's pitch or "
                                   "plan without it (--no-ranker)")
         masks = np.stack([np.isin(inst, [i + 1 for i in t]) for t in targets]) if len(targets) else np.zeros((0,) + inst.shape)
-        crops = grasp_crops(inten, normalise_depth(depth, cam_h), masks, grid, grasps, self.config)
+        crops = grasp_crops(inten, normalise_depth(depth, cam_h), masks, grid, grasps, self.config, inst)
         return self.probabilities(crops, grasp_scalars(grasps, [len(t) for t in targets]))
 
 

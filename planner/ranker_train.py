@@ -70,7 +70,7 @@ class RankerTrainConfig:
 
 @dataclass
 class Examples:
-    crops: np.ndarray  # (N, 4, S, S) float16
+    crops: np.ndarray  # (N, C, S, S) float16 (C: RankerConfig.crop_channels)
     scalars: np.ndarray  # (N, 2) float32
     labels: np.ndarray  # (N,) float32 success value in [0, 1]
     piles: np.ndarray  # (N,) str pile id
@@ -96,20 +96,34 @@ def load_examples(data: list[str | Path], ranker: RankerConfig, cfg: RankerTrain
     cam_h = float(grid_d.get("camera_height_m", 5.0))
     if abs(grid.pixel_m / ranker.pixel_m - 1.0) > 0.005:
         raise DataError(f"the data's pixels are {100 * grid.pixel_m:.2f} cm, the ranker's {100 * ranker.pixel_m:.2f} cm")
-    parts: dict[str, list] = {k: [] for k in ("crops", "scalars", "labels", "piles", "render", "repeat")}
-    for i, (k, shard) in enumerate(sources):
+    def examples_of(k: int, shard):  # each usable sample of a shard with its grasps and labels
         for s in load_samples(shard):
             if s.trials is None:
                 raise DataError(f"{shard} keeps no trials (materialised before outcome labels); materialise the "
                                 "store again with this version")
             if s.render >= cfg.renders or not len(s.trials):
                 continue
-            inten, depth, mask, _ = sample_arrays(s)
+            if ranker.needs_instance and s.instance is None:
+                raise DataError(f"{shard} keeps no instance maps (materialised before them), which the crop channels "
+                                f"{', '.join(ranker.crop_channels)} need; materialise the store again with this version "
+                                "(delete its .cache) or train with --crop-channels I,H,M_T,claws")
             reps = moved.get(k, {}).get((str(s.pile_id), tuple(s.subset)), [])
             grasps = [Grasp(float(t[0]), float(t[1]), float(t[2]), float(t[3])) for t in s.trials]
-            grasps += [Grasp(*map(float, r[:4])) for r in reps]
-            parts["crops"].append(grasp_crops(inten, normalise_depth(depth, cam_h), mask, grid, grasps, ranker)
-                                  .astype(np.float16))
+            yield s, grasps + [Grasp(*map(float, r[:4])) for r in reps], reps
+
+    # counted first, so the crops (the bulk: 2 bytes x channels x crop_px^2 an example) are made in place
+    total = sum(len(g) for k, shard in sources for _, g, _ in examples_of(k, shard))
+    if not total:
+        raise DataError(f"no stored trials in {', '.join(map(str, data))}; give grasp stores with trials")
+    crops = np.empty((total, len(ranker.crop_channels), ranker.crop_px, ranker.crop_px), np.float16)
+    parts: dict[str, list] = {k: [] for k in ("scalars", "labels", "piles", "render", "repeat")}
+    n = 0
+    for i, (k, shard) in enumerate(sources):
+        for s, grasps, reps in examples_of(k, shard):
+            inten, depth, mask, _ = sample_arrays(s)
+            crops[n:n + len(grasps)] = grasp_crops(inten, normalise_depth(depth, cam_h), mask, grid, grasps, ranker,
+                                                   s.instance)
+            n += len(grasps)
             parts["scalars"].append(grasp_scalars(grasps, [len(s.subset)] * len(grasps)))
             parts["labels"].append(np.concatenate([np.asarray(s.trials[:, 4], dtype=np.float32),
                                                    np.array([r[4] == "success" for r in reps], np.float32)]))
@@ -118,13 +132,10 @@ def load_examples(data: list[str | Path], ranker: RankerConfig, cfg: RankerTrain
             parts["repeat"] += [False] * len(s.trials) + [True] * len(reps)
         if progress:
             progress(i + 1, len(sources))
-    if not parts["labels"]:
-        raise DataError(f"no stored trials in {', '.join(map(str, data))}; give grasp stores with trials")
     piles = np.asarray(parts["piles"])
     val = np.array([is_validation_pile(p.split("/", 1)[1], cfg.split_seed, cfg.val_fraction) for p in piles])
-    return Examples(np.concatenate(parts["crops"]), np.concatenate(parts["scalars"]),
-                    np.concatenate(parts["labels"]), piles, np.asarray(parts["render"]), val,
-                    np.asarray(parts["repeat"], dtype=bool))
+    return Examples(crops, np.concatenate(parts["scalars"]), np.concatenate(parts["labels"]), piles,
+                    np.asarray(parts["render"]), val, np.asarray(parts["repeat"], dtype=bool))
 
 
 def stored_repeats(data_dir: str | Path) -> dict[tuple[str, tuple[int, ...]], list[list]]:

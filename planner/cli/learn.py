@@ -11,7 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from planner.onpolicy import RoundConfig
-from planner.ranker import RankerConfig
+from planner.ranker import CROP_CHANNELS, RankerConfig
 from planner.ranker_train import RankerTrainConfig
 from synth.cli import JSON, WORKERS
 from synth.common.cli import CliError, Output, check_input, check_output_dir, check_output_file, option, progress_bar
@@ -79,6 +79,9 @@ def train_ranker_command(
     lr: float = option("--lr", "AdamW learning rate (cosine-decayed).", field=(RankerTrainConfig, "lr"), min=0.0),
     renders: int = option("--renders", "Renders of each pile used.", field=(RankerTrainConfig, "renders"), min=1),
     crop_px: int = option("--crop-px", "Crop side.", field=(RankerConfig, "crop_px"), min=16, max=128),
+    crop_channels: str = option("--crop-channels", "The crop's channels, comma-separated, a sub-sequence of "
+                                "I,H,M_T,claws,M_L,M_O (M_L other logs, M_O obstacles; the default all).",
+                                default=",".join(CROP_CHANNELS), metavar="LIST"),
     seed: int = option("--seed", "Initialisation and batch order.", field=(RankerTrainConfig, "seed")),
     threads: int = option("--threads", "Torch CPU threads.", field=(RankerTrainConfig, "num_threads"), min=1),
     no_repeats: bool = option("--no-repeats", "Leave out the robust labels' repeats (default: each repeat is an "
@@ -104,7 +107,11 @@ def train_ranker_command(
     cfg = RankerTrainConfig(epochs=epochs, batch_size=batch_size, lr=lr, renders=renders, seed=seed,
                             num_threads=threads, balance_data=not no_balance, repeats=not no_repeats,
                             pairwise_weight=pairwise_weight)
-    log = train_ranker(list(data), out, cfg, RankerConfig(crop_px=crop_px), progress=o.progress)
+    try:
+        rcfg = RankerConfig(crop_px=crop_px, crop_channels=tuple(c.strip() for c in crop_channels.split(",")))
+    except ValueError as exc:
+        raise CliError(f"--crop-channels: {exc}") from exc
+    log = train_ranker(list(data), out, cfg, rcfg, progress=o.progress)
     f = log["final"]
     o.say(f"ranker: {out}; validation: within-pile AUC {f['val_auc']:.3f} on {f['val_auc_piles']} piles, "
           f"BCE {f['val_bce']:.4f}, Brier {f['val_brier']:.4f}")

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from planner.errors import CheckpointError, DataError, TrainingError
-from planner.ranker import (RankerConfig, build_ranker, claw_footprint, grasp_crops, grasp_scalars, load_ranker,
+from planner.ranker import (LEGACY_CROP_CHANNELS, RankerConfig, build_ranker, claw_footprint, grasp_crops, grasp_scalars, load_ranker,
                             rerank, save_ranker, Ranker)
 from planner.ranker_train import (Examples, RankerTrainConfig, _pile_runs, fit, load_examples, pairwise_loss,
                                   within_pile_auc)
@@ -16,7 +16,7 @@ from synth.geometry.frames import OrthoGrid
 from synth.geometry.grasp import Grasp
 
 GRID = OrthoGrid(128, 5.0)
-CFG = RankerConfig()
+CFG = RankerConfig(crop_channels=LEGACY_CROP_CHANNELS)  # crops of images without an instance map
 
 
 def _point_image(x_m: float, y_m: float) -> np.ndarray:
@@ -63,6 +63,49 @@ def test_height_is_measured_from_the_targets_top():
     assert crop[1].max() == pytest.approx(0.3, abs=1e-5)
 
 
+def test_other_logs_and_obstacles_have_channels_of_their_own():
+    """M_L marks the logs that are not this grasp's targets, M_O the obstacles (instance codes from 1000)."""
+    inst = np.zeros((128, 128), np.int16)
+    inst[60:68, :] = 1  # log 0: the target
+    inst[50:58, :] = 2  # log 1: beside it
+    inst[70:76, 60:68] = 1003  # a rock against the target
+    g = Grasp(*GRID.pixel_to_pile(63.5, 64), math.pi / 2, 0.6)
+    cfg = RankerConfig()
+    assert cfg.crop_channels == ("I", "H", "M_T", "claws", "M_L", "M_O") and cfg.needs_instance
+    crop = grasp_crops(np.zeros((128, 128), np.float32), np.zeros((128, 128), np.float32), inst == 1, GRID, [g], cfg,
+                       inst)[0]
+    m_t, m_l, m_o = crop[2], crop[4], crop[5]
+    assert m_t.sum() > 0 and m_l.sum() > 0 and m_o.sum() > 0
+    assert not (m_t * m_l).any() and not (m_t * m_o).any() and not (m_l * m_o).any()
+    # at the image's pitch: the rock's 6 x 8 px, log 1's 8 px across the crop's whole side
+    assert m_o.sum() == pytest.approx(6 * 8, abs=8) and m_l.sum() == pytest.approx(8 * CFG.crop_px, abs=2 * CFG.crop_px)
+    # the target's own pixels are not "other logs": with log 1 the target too, M_L empties
+    both = grasp_crops(np.zeros((128, 128), np.float32), np.zeros((128, 128), np.float32), np.isin(inst, [1, 2]), GRID,
+                       [g], cfg, inst)[0]
+    assert both[4].sum() == 0 and both[5].sum() == m_o.sum()
+
+
+def test_instance_channels_need_the_instance_map():
+    with pytest.raises(ValueError, match="instance map"):
+        grasp_crops(np.zeros((128, 128), np.float32), np.zeros((128, 128), np.float32), np.ones((128, 128), bool), GRID,
+                    [Grasp(0, 0, 0, 0.5)], RankerConfig())
+
+
+@pytest.mark.parametrize("channels", [(), ("H", "I"), ("I", "rocks"), ("M_O", "M_O")])
+def test_crop_channels_must_be_a_sub_sequence_of_the_known_ones(channels):
+    with pytest.raises(ValueError, match="crop_channels"):
+        RankerConfig(crop_channels=channels)
+
+
+def test_a_checkpoint_without_crop_channels_reads_as_the_four_channel_ranker():
+    d = RankerConfig().to_dict()
+    del d["crop_channels"]
+    old = RankerConfig.from_dict(d)
+    assert old.crop_channels == LEGACY_CROP_CHANNELS and not old.needs_instance
+    assert RankerConfig.from_dict(RankerConfig().to_dict()) == RankerConfig()
+    assert build_ranker(old).features[0].in_channels == 4 and build_ranker(RankerConfig()).features[0].in_channels == 6
+
+
 def test_within_pile_auc_pools_pairs_and_counts_ties_half():
     scores = np.array([0.9, 0.1, 0.5, 0.5, 0.7, 0.2])
     labels = np.array([1.0, 0.0, 1.0, 0.0, 1.0, 1.0])
@@ -90,7 +133,7 @@ def _rule_examples(n: int, seed: int = 0) -> Examples:
 def test_fit_learns_what_the_crops_show():
     """Trained on crops labelled by where the target mask lies, the ranker orders held-out piles' crops."""
     ex = _rule_examples(1200)
-    _, history = fit(ex, RankerTrainConfig(epochs=4, batch_size=32, lr=3e-3), RankerConfig(crop_px=16, channels=8))
+    _, history = fit(ex, RankerTrainConfig(epochs=4, batch_size=32, lr=3e-3), RankerConfig(crop_px=16, channels=8, crop_channels=LEGACY_CROP_CHANNELS))
     assert history[-1]["val_auc"] > 0.95 and history[-1]["val_auc_piles"] == 8
 
 
@@ -143,7 +186,7 @@ def test_runs_of_one_pile_keep_every_example_and_mix_the_piles():
 def test_fit_with_the_pairwise_term_learns_what_the_crops_show():
     ex = _rule_examples(1200)
     _, history = fit(ex, RankerTrainConfig(epochs=4, batch_size=32, lr=3e-3, pairwise_weight=1.0),
-                     RankerConfig(crop_px=16, channels=8))
+                     RankerConfig(crop_px=16, channels=8, crop_channels=LEGACY_CROP_CHANNELS))
     assert history[-1]["val_auc"] > 0.95
 
 
@@ -162,7 +205,7 @@ def test_fit_needs_both_sides_of_the_split():
     ex = _rule_examples(40)
     ex.val[:] = False
     with pytest.raises(TrainingError, match="validation"):
-        fit(ex, RankerTrainConfig(epochs=1), RankerConfig(crop_px=16, channels=8))
+        fit(ex, RankerTrainConfig(epochs=1), RankerConfig(crop_px=16, channels=8, crop_channels=LEGACY_CROP_CHANNELS))
 
 
 def _width_ranker(threshold_m: float = 0.7) -> Ranker:
@@ -194,7 +237,7 @@ def test_a_checkpoint_round_trips_and_a_foreign_file_is_refused(tmp_path):
     rk = _width_ranker()
     path = save_ranker(tmp_path / "r.safetensors", rk.model, rk.config, {"note": 1})
     back = load_ranker(path)
-    crops = np.zeros((3, 4, 16, 16), np.float32)
+    crops = np.zeros((3, len(rk.config.crop_channels), 16, 16), np.float32)
     scal = grasp_scalars([Grasp(0, 0, 0, w) for w in (0.5, 0.7, 0.9)], [1, 2, 3])
     assert np.allclose(back.probabilities(crops, scal), rk.probabilities(crops, scal))
     assert back.meta == {"note": 1} and back.config == rk.config

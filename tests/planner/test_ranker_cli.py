@@ -11,7 +11,7 @@ import pytest
 from tests.cli_helpers import cli, fails
 
 
-def _trial_dataset(out, n_piles: int = 12):
+def _trial_dataset(out, n_piles: int = 12, instance: bool = True):
     """128 px bar piles whose subsets each hold a centred grasp that worked and one 1.2 m along the logs'
     ends that did not (a synthetic store's shards: trials with success values)."""
     from synth.data.shards import Manifest, Sample, ShardWriter, write_manifest
@@ -28,7 +28,8 @@ def _trial_dataset(out, n_piles: int = 12):
                                [g.x_m + 1.2, g.y_m, g.phi_rad, g.width_m, 0.0, math.nan]])
             w.add(Sample(pile_id=f"pile_{p:03d}", render=0, subset=subset, intensity=inten, depth=depth,
                          target_mask=np.isin(inst, [i + 1 for i in subset]), maps=np.zeros((5, 128, 128), np.float32),
-                         grasps=trials[:1, :5], negative=False, n_logs=3, trials=trials, capped=False))
+                         grasps=trials[:1, :5], negative=False, n_logs=3, trials=trials, capped=False,
+                         instance=inst.astype(np.int16) if instance else None))
     write_manifest(out, Manifest(params={"test": True}, grid={"size_px": 128, "extent_m": 5.0, "camera_height_m": 5.0},
                                  shards=[w.close()], summary={}))
     return out
@@ -61,6 +62,21 @@ def test_train_ranker_bad_input(capsys, tmp_path, trials_dir):
     make_dataset(tmp_path / "old", n_piles=2, size=128, shards=1)
     fails(cli(capsys, "train-ranker", "--data", tmp_path / "old", "--out", tmp_path / "r.safetensors"), 2,
           "keeps no trials")
+    fails(cli(capsys, "train-ranker", "--data", trials_dir, "--out", tmp_path / "r.safetensors", "--crop-channels",
+              "I,H,rocks"), 2, "--crop-channels")
+    fails(cli(capsys, "train-ranker", "--data", trials_dir, "--out", tmp_path / "r.safetensors", "--crop-channels",
+              "H,I"), 2, "--crop-channels")
+
+
+def test_train_ranker_without_instance_maps_needs_the_legacy_channels(capsys, tmp_path):
+    from planner.ranker import LEGACY_CROP_CHANNELS, load_ranker
+
+    old = _trial_dataset(tmp_path / "old", n_piles=6, instance=False)
+    fails(cli(capsys, "train-ranker", "--data", old, "--out", tmp_path / "r.safetensors"), 2, "keeps no instance maps")
+    r = cli(capsys, "train-ranker", "--data", old, "--out", tmp_path / "r.safetensors", "--epochs", "1",
+            "--crop-channels", ",".join(LEGACY_CROP_CHANNELS))
+    assert r.code == 0, r.err
+    assert load_ranker(tmp_path / "r.safetensors").config.crop_channels == LEGACY_CROP_CHANNELS
 
 
 @pytest.fixture(scope="module")
