@@ -19,7 +19,8 @@ import numpy as np
 
 from experiments.measure import paired
 
-PileKey = tuple[int, int, bool, int]  # (seed, logs, obstacles, k): a record's pile
+PileKey = tuple[int, int, bool]  # (seed, logs, obstacles): a record's pile (the seed makes it; its index k in
+# the cell depends on --seed-base, so runs from another --seed-base pair on the piles they share)
 
 
 @functools.lru_cache(maxsize=8)
@@ -30,7 +31,7 @@ def _records(folder: Path) -> tuple[dict, ...]:
 
 def read_row(folder: Path, planner: str) -> dict[PileKey, dict]:
     """The records of ``planner`` in an eval folder, by pile. ``ValueError`` when it has none."""
-    rows = {(int(r["seed"]), int(r["n_logs"]), bool(r["obstacles"]), int(r["k"])): r
+    rows = {(int(r["seed"]), int(r["n_logs"]), bool(r["obstacles"])): r
             for r in _records(Path(folder)) if r["planner"] == planner}
     if not rows:
         raise ValueError(f"no records of planner {planner!r} in {folder}/records (see its results.md for the names)")
@@ -42,7 +43,7 @@ def compare(rows: dict[str, dict[PileKey, dict]]) -> list[dict]:
     difference from the first row [pp] with its 95 % interval."""
     common = sorted(set.intersection(*(set(r) for r in rows.values())))
     if not common:
-        raise ValueError("the rows share no pile: were they run with the same --seed-base and --per-cell?")
+        raise ValueError("the rows share no pile: were they run on the same seeds (--seed-base, --per-cell)?")
     ok = {name: np.array([r[k]["outcome"] == "success" for k in common], dtype=float) for name, r in rows.items()}
     first = next(iter(ok.values()))
     out = []

@@ -47,3 +47,12 @@ def test_a_missing_row_or_no_common_pile_is_one_clear_error(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main([f"{tmp_path / 'a'}:unet-f1", f"{tmp_path / 'b'}:unet-f1"])
     assert "share no pile" in capsys.readouterr().err
+
+
+def test_runs_from_another_seed_base_pair_on_the_seeds_they_share(tmp_path):
+    """A pile is its seed: a run started 20 piles into each cell (--seed-base + 20) numbers the same piles
+    k 0, 1, ... where the full run numbered them 20, 21, ..."""
+    _write(tmp_path / "full", [{**_rec("unet-f1", 970_000_020 + i, i % 2 == 0), "k": 20 + i} for i in range(4)])
+    _write(tmp_path / "late", [{**_rec("unet-f1", 970_000_020 + i, True), "k": i} for i in range(4)])
+    table = compare({"a": read_row(tmp_path / "full", "unet-f1"), "b": read_row(tmp_path / "late", "unet-f1")})
+    assert [t["piles"] for t in table] == [4, 4] and table[1]["diff_pp"] == pytest.approx(50.0)
