@@ -108,8 +108,6 @@ def grasp_crops(intensity: np.ndarray, height_m: np.ndarray, masks: Sequence[np.
     obstacles), needed when ``config`` has ``M_L`` or ``M_O`` (``ValueError`` without it). Crop row 0 is
     on the left of the closing axis; column 0 at its negative end; pixels outside the image repeat its
     border."""
-    from scipy.ndimage import map_coordinates
-
     if config.needs_instance and instance is None:
         raise ValueError(f"the crop channels {list(config.crop_channels)} need the instance map")
     s = config.crop_px
@@ -124,21 +122,30 @@ def grasp_crops(intensity: np.ndarray, height_m: np.ndarray, masks: Sequence[np.
     out = np.empty((len(grasps), len(want), s, s), dtype=np.float32)
     for n, g in enumerate(grasps):
         a = np.array([math.cos(g.phi_rad), math.sin(g.phi_rad)])
-        x = g.x_m + u * a[0] - v * a[1]
-        y = g.y_m + u * a[1] + v * a[0]
-        rc = np.stack(grid.pile_to_pixel(x, y))
-        mask = masks if masks.ndim == 2 else masks[n]
-        sample = lambda img: map_coordinates(np.asarray(img, np.float32), rc, order=1, mode="nearest")  # noqa: E731
-        h = sample(height_m)
-        m = sample(mask) > 0.5
-        top = float(h[m].max()) if m.any() else float(h[s // 2, s // 2])
-        layers = {"I": lambda: sample(intensity), "H": lambda: h - top, "M_T": lambda: m,
-                  "claws": lambda: claw_footprint(u, v, g.width_m, config),
-                  "M_L": lambda: (sample(logs & ~mask.astype(bool)) > 0.5),
-                  "M_O": lambda: (sample(obstacles) > 0.5)}
-        for i, name in enumerate(want):
-            out[n, i] = layers[name]()
+        rc = np.stack(grid.pile_to_pixel(g.x_m + u * a[0] - v * a[1], g.y_m + u * a[1] + v * a[0]))
+        mask = np.asarray(masks if masks.ndim == 2 else masks[n], dtype=bool)
+        for i, layer in enumerate(_crop_layers(rc, intensity, height_m, mask, logs, obstacles, want)):
+            out[n, i] = layer
+        if "claws" in want:
+            out[n, want.index("claws")] = claw_footprint(u, v, g.width_m, config)
     return out
+
+
+def _crop_layers(rc: np.ndarray, intensity, height_m, mask, logs, obstacles, want: tuple[str, ...]):
+    """The image channels of one crop sampled at pixel coordinates ``rc`` (2, S, S), in ``want``'s order
+    (``claws`` left as zeros: it depends on the grasp, not the images)."""
+    from scipy.ndimage import map_coordinates
+
+    def sample(img) -> np.ndarray:
+        return map_coordinates(np.asarray(img, np.float32), rc, order=1, mode="nearest")
+
+    h = sample(height_m)
+    m = sample(mask) > 0.5
+    top = float(h[m].max()) if m.any() else float(h[h.shape[0] // 2, h.shape[1] // 2])
+    made = {"H": lambda: h - top, "M_T": lambda: m, "I": lambda: sample(intensity),
+            "claws": lambda: np.zeros_like(h),
+            "M_L": lambda: sample(logs & ~mask) > 0.5, "M_O": lambda: sample(obstacles) > 0.5}
+    return [made[name]() for name in want]
 
 
 def claw_footprint(u: np.ndarray, v: np.ndarray, width_m: float, config: RankerConfig) -> np.ndarray:
