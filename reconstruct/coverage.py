@@ -8,6 +8,12 @@ area for at least :attr:`CoverageConfig.seen_log_min_length_m` is in the scan, a
 it. Such an end is placed from its survey point and, like every point, judged by the fit against the log's
 seen part (its direction and where the scan puts the log); a correct RTK fixed point then never stops the
 reconstruction for lying where the cameras did not look. The report lists these ends (:class:`OutsideEnd`).
+
+What the scan could show of a log is also what its seen part is measured against: the matching takes a scan
+log seen over less than ``FuseConfig.piece_share`` of its survey points' distance for a piece of a log hidden
+under others, and sets its axis from the survey alone
+(:func:`reconstruct.fitting.matching.a_piece_of_a_surveyed_log`); the share is of the part of the survey axis
+over the scanned area (:attr:`Coverage.over_scan_share`), since a log is not hidden beyond the scan's edge.
 """
 
 from __future__ import annotations
@@ -68,6 +74,7 @@ class Coverage:
 
     distances_m: dict[str, list[float | None]]  # each end's horizontal distance to the nearest scan point [m]
     outside: tuple[OutsideEnd, ...]  # the ends beyond the limit whose logs are seen
+    over_scan_share: dict[str, float]  # each two-point log's survey axis: the share of it over the scanned area [-]
 
 
 def _position(e: Any) -> np.ndarray:
@@ -103,15 +110,20 @@ def check_coverage(points_xy: np.ndarray, endpoints: dict[str, tuple[Any, Any]],
     cfg = cfg or CoverageConfig()
     tree = cKDTree(points_xy)
     distances: dict[str, list[float | None]] = {}
+    shares: dict[str, float] = {}
     outside, worst = [], []
     for log_id, ends in endpoints.items():
         distances[log_id] = [None if e is None else float(tree.query(_position(e)[:2])[0]) for e in ends]
+        seen = 0.0
+        if all(e is not None for e in ends):
+            a, b = _position(ends[0])[:2], _position(ends[1])[:2]
+            seen = seen_length_m(tree, a, b, cfg)
+            length = float(np.linalg.norm(b - a))
+            shares[log_id] = min(1.0, seen / length) if length > 0 else 1.0
         far = [(d, end, e) for d, end, e in zip(distances[log_id], "ab", ends)
                if d is not None and d > _limit_m(e, limit_m)]
         if not far:
             continue
-        seen = (seen_length_m(tree, _position(ends[0])[:2], _position(ends[1])[:2], cfg)
-                if all(e is not None for e in ends) else 0.0)
         if seen >= cfg.seen_log_min_length_m:
             outside += [OutsideEnd(log_id, end, d, seen) for d, end, _ in far]
         else:
@@ -126,4 +138,4 @@ def check_coverage(points_xy: np.ndarray, endpoints: dict[str, tuple[Any, Any]],
             "surveyed axis over it). Check the log id and the scan pose, or scan the whole pile"
             + covering_plan_hint(endpoints)
         )
-    return Coverage(distances, tuple(outside))
+    return Coverage(distances, tuple(outside), shares)

@@ -232,6 +232,7 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
     clock.reset()
     say("finding the logs in the scan and matching them to the survey")
     matching = _match_logs(pts_site, survey_site, placed.fuse_cfg, cfg)
+    matching.over_scan_share.update(coverage.over_scan_share)
     clock.lap("matching_s")
     frame = _pile_frame(pts_site, matching.priors(survey_site, matching.scan_logs, placed.fuse_cfg), cfg)
     pts = apply_T(frame.T_pile_site, pts_site)
@@ -370,6 +371,7 @@ class _Matching:
     dropped: dict[str, str] = field(default_factory=dict)  # surveyed logs left out (joint estimator): why
     outliers: dict[str, set[int]] = field(default_factory=dict)  # points (0: a, 1: b) that set no prior axis
     ambiguous: list[str] = field(default_factory=list)  # logs another pile explains as well (joint estimator)
+    over_scan_share: dict[str, float] = field(default_factory=dict)  # each log's survey axis over the scan [-]
 
     def priors(self, survey_ends: dict, logs_found: list, fuse_cfg: FuseConfig) -> dict:
         """Each log's prior axis ``(a, b, lateral sigma)``: from its match in ``logs_found`` and its
@@ -378,12 +380,13 @@ class _Matching:
         for k, m in self.matches.items():
             found = None if m.scan_index is None else logs_found[m.scan_index]
             ends = survey_ends[k]
-            if found is None or not a_piece_of_a_surveyed_log(ends, found, fuse_cfg):
+            share = self.over_scan_share.get(k, 1.0)
+            if found is None or not a_piece_of_a_surveyed_log(ends, found, fuse_cfg, share):
                 # a point the matching did not believe sets no prior axis; but not when the scan log is a piece
                 # of the log by both its points: the log is then seen in part on them (``in_part``), and an axis
                 # without one of them runs along the piece, not the log (docs/reconstruction.md, joint revision 11)
                 ends = tuple(None if n in self.outliers.get(k, ()) else e for n, e in enumerate(ends))
-            out[k] = prior_axis(ends, found, m.reversed, fuse_cfg)
+            out[k] = prior_axis(ends, found, m.reversed, fuse_cfg, share)
         for k, j in self.new_ids.items():
             out[k] = (logs_found[j].start_m.copy(), logs_found[j].end_m.copy(), fuse_cfg.axis_sigma_m)
         return out
@@ -484,7 +487,8 @@ def _fit(pts: np.ndarray, matching: _Matching, survey_ends: dict, logs_pile: lis
                                         cfg.fit.roll_steps, points=pts, band_m=cfg.fit.inlier_band_m)
                            if joint else None),
                    in_part={k for k, m in matching.matches.items() if m.scan_index is not None
-                            and a_piece_of_a_surveyed_log(survey_ends[k], logs_pile[m.scan_index], placed.fuse_cfg)})
+                            and a_piece_of_a_surveyed_log(survey_ends[k], logs_pile[m.scan_index], placed.fuse_cfg,
+                                                          matching.over_scan_share.get(k, 1.0))})
     for lf in fit.logs:  # ends where the pile check left their log, tested against the survey again
         if lf.ends:
             check_args = (lf.ends, (np.asarray(lf.butt_m), np.asarray(lf.top_m)), survey_ends.get(lf.log_id, (None, None)))

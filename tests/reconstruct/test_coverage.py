@@ -77,3 +77,32 @@ def test_the_config_is_checked():
         with pytest.raises(ValueError, match="CoverageConfig"):
             CoverageConfig(**bad)
     assert ReconstructConfig().coverage == CoverageConfig()
+
+
+def test_each_log_knows_the_share_of_its_axis_over_the_scan():
+    ends = {"log0": (fixed(-1.5, 0.0), fixed(1.5, 0.0)), "log1": (fixed(0.5, 0.5), fixed(3.6, 0.5)),
+            "log2": (None, fixed(0.0, -0.5))}
+    shares = check_coverage(PATCH, ends, 1.0).over_scan_share
+    assert shares["log0"] == pytest.approx(1.0)
+    assert shares["log1"] == pytest.approx(1.5 / 3.1, abs=0.04)
+    assert "log2" not in shares  # one surveyed end: no axis
+
+
+def test_a_log_running_out_of_the_scan_is_not_a_piece_of_a_hidden_log():
+    """A scan log seen over 1.0 m of a 2.4 m survey axis, its far point 30 cm off the ridge's line: a piece of a
+    log hidden under others when the whole axis lies over the scan (its survey points set its axis), but not when
+    only 1.2 m of it does (the rest lies beyond the scan's edge: the ridge is what the scan could show, and it sets
+    the axis, against which the far point is then judged)."""
+    from reconstruct.fitting.fuse_config import FuseConfig
+    from reconstruct.fitting.matching import a_piece_of_a_surveyed_log, prior_axis
+    from reconstruct.fitting.scan_logs import ScanLog
+
+    ridge = ScanLog(np.array([0.0, 0.0, 0.1]), np.array([1.0, 0.0, 0.1]), 0.08, 1.0, 10.0)
+    ends = (fixed(0.0, 0.0, 0.1), fixed(2.4, 0.3, 0.1))
+    cfg = FuseConfig()
+    assert a_piece_of_a_surveyed_log(ends, ridge, cfg)
+    assert not a_piece_of_a_surveyed_log(ends, ridge, cfg, over_scan_share=0.5)
+    a, b, _ = prior_axis(ends, ridge, False, cfg, over_scan_share=0.5)
+    assert abs(b[1]) < 1e-9  # on the ridge's line, not through the far point
+    with pytest.raises(ValueError, match="over_scan_share"):
+        a_piece_of_a_surveyed_log(ends, ridge, cfg, over_scan_share=1.5)
