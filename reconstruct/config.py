@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from reconstruct.coverage import CoverageConfig
 from reconstruct.errors import RegistrationError
 from reconstruct.fitting.fit import FitConfig
 from reconstruct.fitting.joint_config import ESTIMATORS, JointConfig
@@ -41,7 +42,9 @@ class ReconstructConfig:
     sfm: SfmConfig = field(default_factory=SfmConfig)
     coarse: CoarseConfig = field(default_factory=CoarseConfig)
     allow_float: bool = False  # accept RTK float end points
-    max_endpoint_distance_m: float = 1.0  # an end point this far from every scan point is an error [m]
+    max_endpoint_distance_m: float = 1.0  # an end point this far from every scan point is outside the scanned
+    #                                       area: an error unless its log is seen (coverage) [m]
+    coverage: CoverageConfig = field(default_factory=CoverageConfig)  # ends outside the scan on logs it sees
     refine: bool = True  # refine the scan pose against the GNSS end points
     refine_dof: str = "4dof"  # "4dof": yaw + translation (gravity from the camera's IMU kept),
     #                           "6dof": full rotation (roll about a parallel pile is weakly seen)

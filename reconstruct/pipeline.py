@@ -61,7 +61,7 @@ import numpy as np
 
 from reconstruct.config import ReconstructConfig, logs_direction, patch_extent
 from reconstruct.errors import FitError, ReconstructError, RegistrationError, ScanError
-from reconstruct.scan.plan import covering_plan_hint
+from reconstruct.coverage import check_coverage
 from reconstruct.fitting.ends import axis_sigma_m
 from reconstruct.fitting.fit import PileFit, fit_log, fit_pile, log_spec_from_fit
 from reconstruct.fitting.joint_config import JOINT_REVISION
@@ -132,39 +132,6 @@ def _new_log_ids(indices: list[int], survey: dict) -> dict[str, int]:
             n += 1
         out[f"scan{n}"] = j
         n += 1
-    return out
-
-
-def _check_coverage(points_xy: np.ndarray, endpoints: dict[str, tuple[Any, Any]],
-                    limit_m: float) -> dict[str, list[float | None]]:
-    """Horizontal distance from every end point (a :class:`~reconstruct.fitting.fuse.SurveyEnd`, a point, or
-    None: not surveyed) to the nearest scan point; an error beyond ``limit_m`` (or four times an
-    imprecise point's accuracy)."""
-    from scipy.spatial import cKDTree
-
-    tree = cKDTree(points_xy)
-    out: dict[str, list[float | None]] = {}
-    worst = []
-    for log_id, ends in endpoints.items():
-        out[log_id] = []
-        for end, e in zip("ab", ends):
-            if e is None:
-                out[log_id].append(None)
-                continue
-            p = e.position_m if isinstance(e, SurveyEnd) else np.asarray(e, dtype=float)
-            lim = max(limit_m, 4 * math.sqrt(2) * e.sigma_h_m) if isinstance(e, SurveyEnd) else limit_m
-            dist = float(tree.query(p[:2])[0])
-            out[log_id].append(dist)
-            if dist > lim:
-                worst.append((dist, log_id, end, p))
-    if worst:
-        worst.sort(reverse=True)
-        dist, log_id, end, p = worst[0]
-        raise RegistrationError(
-            f"GNSS point of log {log_id!r} end {end!r} (site E {p[0]:.2f} m, N {p[1]:.2f} m) is {dist:.2f} m "
-            f"from the nearest scan point (limit {limit_m} m); {len(worst)} end point(s) lie outside the "
-            "scanned area. Check the log id and the scan pose, or scan the whole pile" + covering_plan_hint(endpoints)
-        )
     return out
 
 
@@ -261,10 +228,11 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
         clock.lap("georegistration_s")
     T_site_scan = placed.pose.matrix()
     pts_site = apply_T(T_site_scan, cloud.points)
-    coverage = _check_coverage(pts_site[:, :2], survey_site, cfg.max_endpoint_distance_m)
+    coverage = check_coverage(pts_site[:, :2], survey_site, cfg.max_endpoint_distance_m, cfg.coverage)
     clock.reset()
     say("finding the logs in the scan and matching them to the survey")
     matching = _match_logs(pts_site, survey_site, placed.fuse_cfg, cfg)
+    matching.over_scan_share.update(coverage.over_scan_share)
     clock.lap("matching_s")
     frame = _pile_frame(pts_site, matching.priors(survey_site, matching.scan_logs, placed.fuse_cfg), cfg)
     pts = apply_T(frame.T_pile_site, pts_site)
@@ -297,8 +265,9 @@ def reconstruct(scan_dir: str | Path, gnss_path: str | Path, out_dir: str | Path
         "pair_poses_source": pair_pose_source, "sfm": sfm_report, "coarse_registration": placed.coarse_report,
         "T_site_scan_given": T_site_scan.tolist(), "T_site_scan_refined": T_site_scan_refined.tolist(),
         "T_site_pile": frame.T_site_pile.tolist(), "extent_m": frame.extent,
-        "registration": reg_report, "endpoint_scan_distance_m": coverage,
-        "survey_warnings": list(survey.warnings),
+        "registration": reg_report, "endpoint_scan_distance_m": coverage.distances_m,
+        "ends_outside_scan": [o.to_dict() for o in coverage.outside],
+        "survey_warnings": list(survey.warnings) + [o.line() for o in coverage.outside],
         "logs": [lf.to_dict() for lf in fit.logs],
         "fusion": fusion, "weak_ends": weak_ends(fit.logs, placed.fuse_cfg),
         "contradicted_points": contradicted_points(fit.logs) + dropped_point_lines(matching.dropped, survey_site),
@@ -402,6 +371,7 @@ class _Matching:
     dropped: dict[str, str] = field(default_factory=dict)  # surveyed logs left out (joint estimator): why
     outliers: dict[str, set[int]] = field(default_factory=dict)  # points (0: a, 1: b) that set no prior axis
     ambiguous: list[str] = field(default_factory=list)  # logs another pile explains as well (joint estimator)
+    over_scan_share: dict[str, float] = field(default_factory=dict)  # each log's survey axis over the scan [-]
 
     def priors(self, survey_ends: dict, logs_found: list, fuse_cfg: FuseConfig) -> dict:
         """Each log's prior axis ``(a, b, lateral sigma)``: from its match in ``logs_found`` and its
@@ -410,12 +380,13 @@ class _Matching:
         for k, m in self.matches.items():
             found = None if m.scan_index is None else logs_found[m.scan_index]
             ends = survey_ends[k]
-            if found is None or not a_piece_of_a_surveyed_log(ends, found, fuse_cfg):
+            share = self.over_scan_share.get(k, 1.0)
+            if found is None or not a_piece_of_a_surveyed_log(ends, found, fuse_cfg, share):
                 # a point the matching did not believe sets no prior axis; but not when the scan log is a piece
                 # of the log by both its points: the log is then seen in part on them (``in_part``), and an axis
                 # without one of them runs along the piece, not the log (docs/reconstruction.md, joint revision 11)
                 ends = tuple(None if n in self.outliers.get(k, ()) else e for n, e in enumerate(ends))
-            out[k] = prior_axis(ends, found, m.reversed, fuse_cfg)
+            out[k] = prior_axis(ends, found, m.reversed, fuse_cfg, share)
         for k, j in self.new_ids.items():
             out[k] = (logs_found[j].start_m.copy(), logs_found[j].end_m.copy(), fuse_cfg.axis_sigma_m)
         return out
@@ -516,7 +487,8 @@ def _fit(pts: np.ndarray, matching: _Matching, survey_ends: dict, logs_pile: lis
                                         cfg.fit.roll_steps, points=pts, band_m=cfg.fit.inlier_band_m)
                            if joint else None),
                    in_part={k for k, m in matching.matches.items() if m.scan_index is not None
-                            and a_piece_of_a_surveyed_log(survey_ends[k], logs_pile[m.scan_index], placed.fuse_cfg)})
+                            and a_piece_of_a_surveyed_log(survey_ends[k], logs_pile[m.scan_index], placed.fuse_cfg,
+                                                          matching.over_scan_share.get(k, 1.0))})
     for lf in fit.logs:  # ends where the pile check left their log, tested against the survey again
         if lf.ends:
             check_args = (lf.ends, (np.asarray(lf.butt_m), np.asarray(lf.top_m)), survey_ends.get(lf.log_id, (None, None)))

@@ -345,17 +345,18 @@ def absorb_pieces(matches: Mapping[str, Match], unmatched: Sequence[int], scan_l
 
 # -- priors for the fit ---------------------------------------------------------------------------
 def prior_axis(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog | None, reversed_: bool,
-               cfg: FuseConfig | None = None) -> tuple[np.ndarray, np.ndarray, float]:
+               cfg: FuseConfig | None = None, over_scan_share: float = 1.0) -> tuple[np.ndarray, np.ndarray, float]:
     """Where to fit a log: (end a, end b, lateral 1-sigma [m]). On the scan log's axis when matched:
     each end where its survey point projects, or the ridge's end when the point is missing or less
-    certain than the ridge's extent; from the survey points alone when unmatched."""
+    certain than the ridge's extent; from the survey points alone when unmatched or a piece of the log
+    (:func:`a_piece_of_a_surveyed_log`, ``over_scan_share`` as there)."""
     cfg = cfg or FuseConfig()
     if log is None:
         a, b = ends
         if a is None or b is None:
             raise ValueError("an unmatched surveyed log needs both ends")
         return a.position_m.copy(), b.position_m.copy(), max(a.sigma_3d_m, b.sigma_3d_m)
-    if a_piece_of_a_surveyed_log(ends, log, cfg):
+    if a_piece_of_a_surveyed_log(ends, log, cfg, over_scan_share):
         a, b = ends
         return a.position_m.copy(), b.position_m.copy(), max(a.sigma_3d_m, b.sigma_3d_m)
     p0, p1 = (log.end_m, log.start_m) if reversed_ else (log.start_m, log.end_m)
@@ -375,7 +376,8 @@ def prior_axis(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog | N
     return out[0], out[1], math.hypot(cfg.axis_sigma_m, cfg.pose_sigma_m / POSE_SIGMA_DIVISOR)
 
 
-def a_piece_of_a_surveyed_log(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, cfg: FuseConfig) -> bool:
+def a_piece_of_a_surveyed_log(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, cfg: FuseConfig,
+                              over_scan_share: float = 1.0) -> bool:
     """Whether the scan log a surveyed log matched is a piece of it, too short to set its axis (the log is
     then seen only in part: :func:`reconstruct.fitting.fit.fit_pile` ``in_part``): both survey points
     precise (to ``weak_sigma_m``), the ridge seen over less than ``piece_share`` of the distance between
@@ -384,10 +386,14 @@ def a_piece_of_a_surveyed_log(ends: tuple[SurveyEnd | None, SurveyEnd | None], l
     200-scan bench, taking every piece as the log seen in part cost 1-4 cm on 20 logs). Two RTK-fixed
     points 2.7 m apart set the line to ~0.5 deg; a 35 cm ridge, its axis known to 2 cm at each end, to
     ~6 deg, off by 20-40 cm at the far end (a log under others, a piece of it seen by its butt, is fitted
-    degrees off and decimetres off its other, fixed, point)."""
+    degrees off and decimetres off its other, fixed, point). The share is of the part of that distance the
+    scan could show: ``over_scan_share`` of the survey axis lies over the scanned area
+    (:class:`reconstruct.coverage.Coverage`); a log that runs out of the scan is not hidden beyond it."""
     a, b = ends
     if a is None or b is None or max(a.sigma_h_m, b.sigma_h_m) > cfg.weak_sigma_m:
         return False
-    if log.seen_m >= cfg.piece_share * float(np.linalg.norm(b.position_m - a.position_m)):
+    if not 0.0 <= over_scan_share <= 1.0:
+        raise ValueError(f"over_scan_share must be in [0, 1], got {over_scan_share}")
+    if log.seen_m >= cfg.piece_share * over_scan_share * float(np.linalg.norm(b.position_m - a.position_m)):
         return False
     return max(_off_line_m(log, a.position_m), _off_line_m(log, b.position_m)) > cfg.piece_off_m

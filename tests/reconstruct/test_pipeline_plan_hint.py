@@ -9,7 +9,7 @@ import pytest
 
 from reconstruct.errors import RegistrationError
 from reconstruct.fitting.fuse import SurveyEnd
-from reconstruct.pipeline import _check_coverage
+from reconstruct.coverage import check_coverage
 from reconstruct.scan.plan import ScanPlan, ScanPlanConfig, covering_plan_hint
 
 
@@ -18,12 +18,12 @@ def fixed(x, y, z=100.2) -> SurveyEnd:
 
 
 def test_a_point_outside_the_scan_names_the_plan_that_covers_it():
-    """Scan points over a 4 x 2.5 m patch; a log end 1.5 m past it along y: the refusal stands and names a
-    grid bigger than 2x2 whose footprint covers every surveyed end by the margin."""
+    """Scan points over a 4 x 2.5 m patch; a log 1.35-1.5 m past it along y, the scan seeing none of it: the
+    refusal stands and names a grid bigger than 2x2 whose footprint covers every surveyed end by the margin."""
     g = np.mgrid[-2:2:0.05, -1.25:1.25:0.05].reshape(2, -1).T
-    ends = {"log0": (fixed(-1.5, 0.0), fixed(1.5, 0.0)), "log1": (fixed(-1.4, 0.5), fixed(1.4, 2.75))}
+    ends = {"log0": (fixed(-1.5, 0.0), fixed(1.5, 0.0)), "log1": (fixed(-1.4, 2.6), fixed(1.4, 2.75))}
     with pytest.raises(RegistrationError) as exc:
-        _check_coverage(g, ends, 1.0)
+        check_coverage(g, ends, 1.0)
     msg = str(exc.value)
     assert "'log1' end 'b'" in msg and "\n" not in msg
     m = re.search(r": (\d)x(\d) pairs .* centred at site E, N \((-?[\d.]+), (-?[\d.]+)\) m, "
