@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from reconstruct.coverage import CoverageConfig
+from reconstruct.fitting.coverage import CoverageConfig
 from reconstruct.errors import RegistrationError
 from reconstruct.fitting.fit import FitConfig
 from reconstruct.fitting.joint_config import ESTIMATORS, JointConfig

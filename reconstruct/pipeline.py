@@ -61,7 +61,7 @@ import numpy as np
 
 from reconstruct.config import ReconstructConfig, logs_direction, patch_extent
 from reconstruct.errors import FitError, ReconstructError, RegistrationError, ScanError
-from reconstruct.coverage import check_coverage
+from reconstruct.fitting.coverage import check_coverage
 from reconstruct.fitting.ends import axis_sigma_m
 from reconstruct.fitting.fit import PileFit, fit_log, fit_pile, log_spec_from_fit
 from reconstruct.fitting.joint_config import JOINT_REVISION

@@ -388,7 +388,7 @@ def a_piece_of_a_surveyed_log(ends: tuple[SurveyEnd | None, SurveyEnd | None], l
     ~6 deg, off by 20-40 cm at the far end (a log under others, a piece of it seen by its butt, is fitted
     degrees off and decimetres off its other, fixed, point). The share is of the part of that distance the
     scan could show: ``over_scan_share`` of the survey axis lies over the scanned area
-    (:class:`reconstruct.coverage.Coverage`); a log that runs out of the scan is not hidden beyond it."""
+    (:class:`reconstruct.fitting.coverage.Coverage`); a log that runs out of the scan is not hidden beyond it."""
     a, b = ends
     if a is None or b is None or max(a.sigma_h_m, b.sigma_h_m) > cfg.weak_sigma_m:
         return False

@@ -14,7 +14,7 @@ import pytest
 
 from reconstruct.compare import compare_piles
 from reconstruct.config import ReconstructConfig
-from reconstruct.coverage import CoverageConfig
+from reconstruct.fitting.coverage import CoverageConfig
 from reconstruct.errors import RegistrationError
 from reconstruct.pipeline import reconstruct
 from reconstruct.scan.stereo import ScanCloud

@@ -9,7 +9,7 @@ import pytest
 
 from reconstruct.errors import RegistrationError
 from reconstruct.fitting.fuse import SurveyEnd
-from reconstruct.coverage import check_coverage
+from reconstruct.fitting.coverage import check_coverage
 from reconstruct.scan.plan import ScanPlan, ScanPlanConfig, covering_plan_hint
 
 

@@ -1,4 +1,4 @@
-"""reconstruct.coverage: an end point outside the scanned area is admitted when its log is seen (the axis
+"""reconstruct.fitting.coverage: an end point outside the scanned area is admitted when its log is seen (the axis
 between its two surveyed points runs at least ``seen_log_min_length_m`` over the scan), and refused when
 the scan sees none of its log (a wrong log id, a point of another pile, a wrong scan pose)."""
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from reconstruct.config import ReconstructConfig
-from reconstruct.coverage import CoverageConfig, check_coverage, seen_length_m
+from reconstruct.fitting.coverage import CoverageConfig, check_coverage, seen_length_m
 from reconstruct.errors import RegistrationError
 from reconstruct.fitting.fuse import SurveyEnd
 
