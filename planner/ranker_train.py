@@ -96,6 +96,7 @@ def load_examples(data: list[str | Path], ranker: RankerConfig, cfg: RankerTrain
     cam_h = float(grid_d.get("camera_height_m", 5.0))
     if abs(grid.pixel_m / ranker.pixel_m - 1.0) > 0.005:
         raise DataError(f"the data's pixels are {100 * grid.pixel_m:.2f} cm, the ranker's {100 * ranker.pixel_m:.2f} cm")
+
     def examples_of(k: int, shard):  # each usable sample of a shard with its grasps and labels
         for s in load_samples(shard):
             if s.trials is None:
