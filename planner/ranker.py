@@ -50,7 +50,6 @@ RANKER_FORMAT_NAME = "loggrasp.planner.ranker"
 CROP_CHANNELS = ("I", "H", "M_T", "claws", "M_L", "M_O")  # every channel a crop can have, in this order
 LEGACY_CROP_CHANNELS = CROP_CHANNELS[:4]  # a checkpoint that stores no crop_channels (before the instance channels)
 INSTANCE_CHANNELS = ("M_L", "M_O")  # the channels made from the instance map
-OBSTACLE_BASE = 1000  # instance codes from this on are obstacles (synth.render.ortho)
 MAX_TARGETS = 7  # the number of targets is fed to the head divided by this [-]
 # rerank's default weight of U's logit in the blend with the ranker's p [-]: chosen on the first 48 of the
 # 96 held-out piles of docs/results/ranking-v3model-rev4 (weights 0-1 in steps of 0.05-0.25; within-pile AUC
@@ -108,32 +107,32 @@ def grasp_crops(intensity: np.ndarray, height_m: np.ndarray, masks: Sequence[np.
     obstacles), needed when ``config`` has ``M_L`` or ``M_O`` (``ValueError`` without it). Crop row 0 is
     on the left of the closing axis; column 0 at its negative end; pixels outside the image repeat its
     border."""
+    from planner.inference import OBSTACLE_CODE_BASE
+
     if config.needs_instance and instance is None:
         raise ValueError(f"the crop channels {list(config.crop_channels)} need the instance map")
     s = config.crop_px
     c = (np.arange(s) - (s - 1) / 2) * config.pixel_m
     u, v = np.meshgrid(c, -c)  # u along the closing axis (columns), v to its left (rows, up)
     masks = np.asarray(masks)
-    want = config.crop_channels
     logs = obstacles = None
     if instance is not None:
         inst = np.asarray(instance)
-        logs, obstacles = (inst > 0) & (inst < OBSTACLE_BASE), inst >= OBSTACLE_BASE
-    out = np.empty((len(grasps), len(want), s, s), dtype=np.float32)
+        logs, obstacles = (inst > 0) & (inst < OBSTACLE_CODE_BASE), inst >= OBSTACLE_CODE_BASE
+    out = np.empty((len(grasps), len(config.crop_channels), s, s), dtype=np.float32)
     for n, g in enumerate(grasps):
         a = np.array([math.cos(g.phi_rad), math.sin(g.phi_rad)])
         rc = np.stack(grid.pile_to_pixel(g.x_m + u * a[0] - v * a[1], g.y_m + u * a[1] + v * a[0]))
         mask = np.asarray(masks if masks.ndim == 2 else masks[n], dtype=bool)
-        for i, layer in enumerate(_crop_layers(rc, intensity, height_m, mask, logs, obstacles, want)):
-            out[n, i] = layer
-        if "claws" in want:
-            out[n, want.index("claws")] = claw_footprint(u, v, g.width_m, config)
+        claws = claw_footprint(u, v, g.width_m, config)
+        out[n] = _crop_layers(rc, intensity, height_m, mask, logs, obstacles, claws, config.crop_channels)
     return out
 
 
-def _crop_layers(rc: np.ndarray, intensity, height_m, mask, logs, obstacles, want: tuple[str, ...]):
-    """The image channels of one crop sampled at pixel coordinates ``rc`` (2, S, S), in ``want``'s order
-    (``claws`` left as zeros: it depends on the grasp, not the images)."""
+def _crop_layers(rc: np.ndarray, intensity, height_m, mask, logs, obstacles, claws: np.ndarray,
+                 want: tuple[str, ...]) -> list[np.ndarray]:
+    """One crop's channels in ``want``'s order: the images sampled at pixel coordinates ``rc`` (2, S, S),
+    and ``claws``, the grasp's claw footprint in the crop."""
     from scipy.ndimage import map_coordinates
 
     def sample(img) -> np.ndarray:
@@ -142,8 +141,7 @@ def _crop_layers(rc: np.ndarray, intensity, height_m, mask, logs, obstacles, wan
     h = sample(height_m)
     m = sample(mask) > 0.5
     top = float(h[m].max()) if m.any() else float(h[h.shape[0] // 2, h.shape[1] // 2])
-    made = {"H": lambda: h - top, "M_T": lambda: m, "I": lambda: sample(intensity),
-            "claws": lambda: np.zeros_like(h),
+    made = {"H": lambda: h - top, "M_T": lambda: m, "I": lambda: sample(intensity), "claws": lambda: claws,
             "M_L": lambda: sample(logs & ~mask) > 0.5, "M_O": lambda: sample(obstacles) > 0.5}
     return [made[name]() for name in want]
 

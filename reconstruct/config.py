@@ -8,8 +8,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from reconstruct.fitting.coverage import CoverageConfig
 from reconstruct.errors import RegistrationError
+from reconstruct.fitting.coverage import CoverageConfig
 from reconstruct.fitting.fit import FitConfig
 from reconstruct.fitting.joint_config import ESTIMATORS, JointConfig
 from reconstruct.fitting.fuse import FuseConfig
