@@ -14,6 +14,7 @@ same grasp) and turned by 180 degrees (phi + pi is the same grasp).
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import time
@@ -24,7 +25,7 @@ from typing import Callable
 import numpy as np
 
 from planner.errors import DataError, TrainingError
-from planner.ranker import RankerConfig, build_ranker, grasp_crops, grasp_scalars, save_ranker
+from planner.ranker import RankerConfig, build_ranker, grasp_crops, grasp_scalars, load_ranker, save_ranker
 from synth.geometry.frames import OrthoGrid
 from synth.geometry.grasp import Grasp
 
@@ -247,8 +248,9 @@ def validate(model, ex: Examples, batch: int) -> dict:
 
 
 def fit(ex: Examples, cfg: RankerTrainConfig, ranker: RankerConfig = RankerConfig(),
-        say: Callable[[str], None] = lambda s: None) -> tuple[object, list[dict]]:
-    """A ranker trained on ``ex``'s training piles, validated each epoch: (model, history).
+        say: Callable[[str], None] = lambda s: None, init_state: dict | None = None) -> tuple[object, list[dict]]:
+    """A ranker trained on ``ex``'s training piles, validated each epoch: (model, history); from
+    ``init_state`` (a state dict of the same ranker) when given, else from a random initialisation.
     :class:`TrainingError` when a side of the split is empty."""
     import torch
 
@@ -260,6 +262,8 @@ def fit(ex: Examples, cfg: RankerTrainConfig, ranker: RankerConfig = RankerConfi
         raise TrainingError(f"{len(train_idx)} training and {int(ex.val.sum())} validation examples: both sides of "
                             "the by-pile split need piles; give more data")
     model = build_ranker(ranker)
+    if init_state is not None:
+        model.load_state_dict(init_state, strict=True)
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     steps = cfg.epochs * math.ceil(len(train_idx) / cfg.batch_size)
     sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: 0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * s / steps)))
@@ -294,21 +298,44 @@ def fit(ex: Examples, cfg: RankerTrainConfig, ranker: RankerConfig = RankerConfi
 
 
 def train_ranker(data: list[str | Path], out: str | Path, cfg: RankerTrainConfig = RankerTrainConfig(),
-                 ranker: RankerConfig = RankerConfig(), progress: Callable[[str], None] | None = None) -> dict:
+                 ranker: RankerConfig | None = None, progress: Callable[[str], None] | None = None,
+                 init: str | Path | None = None) -> dict:
     """Train a ranker on the data sets' trials; writes ``out`` (the checkpoint) and ``out`` + ``.json``
-    (the run's log); returns the log."""
+    (the run's log); returns the log. ``init``: a ranker checkpoint to fine-tune (an on-policy round's
+    update of the last ranker) instead of starting from random weights; its crop is kept, and a
+    ``ranker`` configuration that differs from it is a :class:`TrainingError`. ``ranker`` None: the
+    default configuration (or the checkpoint's)."""
     from synth.common.files import atomic_write_bytes
 
     say = progress or (lambda s: None)
+    start, ranker = _start_from(init, ranker)
     t0 = time.perf_counter()
     ex = load_examples(data, ranker, cfg, lambda i, n: say(f"crops: shard {i}/{n}") if i % 25 == 0 or i == n else None)
     say(f"{int((~ex.val).sum())} training examples, {int(ex.val.sum())} validation ({len(np.unique(ex.piles))} "
         f"piles), {time.perf_counter() - t0:.0f} s")
-    model, history = fit(ex, cfg, ranker, say)
+    model, history = fit(ex, cfg, ranker, say, None if start is None else start.model.state_dict())
     log = {"data": [str(d) for d in data], "train_config": asdict(cfg), "ranker_config": ranker.to_dict(),
+           "init": None if init is None else {"path": str(init), "sha256": _sha256(init)},
            "examples": {"train": int((~ex.val).sum()), "val": int(ex.val.sum()),
                         "train_positive_mean": float(ex.labels[~ex.val].mean())},
            "history": history, "final": history[-1]}
-    save_ranker(out, model, ranker, {k: log[k] for k in ("data", "train_config", "examples", "final")})
+    save_ranker(out, model, ranker, {k: log[k] for k in ("data", "train_config", "init", "examples", "final")})
     atomic_write_bytes(Path(str(out) + ".json"), json.dumps(log, indent=1).encode())
     return log
+
+
+def _start_from(init: str | Path | None, ranker: RankerConfig | None):
+    """(the checkpoint to fine-tune or None, the ranker configuration to train)."""
+    if init is None:
+        return None, ranker or RankerConfig()
+    start = load_ranker(init)
+    if ranker is not None and ranker != start.config:
+        diff = {k: (v, getattr(ranker, k)) for k, v in start.config.to_dict().items() if getattr(ranker, k) != v}
+        raise TrainingError(f"{init}: the checkpoint to fine-tune has another crop or network than asked for "
+                            f"({', '.join(f'{k} {a} there, {b} asked' for k, (a, b) in diff.items())}); "
+                            "leave those options out to keep the checkpoint's")
+    return start, start.config
+
+
+def _sha256(path: str | Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()

@@ -80,8 +80,8 @@ def train_ranker_command(
     renders: int = option("--renders", "Renders of each pile used.", field=(RankerTrainConfig, "renders"), min=1),
     crop_px: int = option("--crop-px", "Crop side.", field=(RankerConfig, "crop_px"), min=16, max=128),
     crop_channels: str = option("--crop-channels", "The crop's channels, comma-separated, a sub-sequence of "
-                                "I,H,M_T,claws,M_L,M_O (M_L other logs, M_O obstacles; the default all).",
-                                default=",".join(CROP_CHANNELS), metavar="LIST"),
+                                "I,H,M_T,claws,M_L,M_O (M_L other logs, M_O obstacles; default all, or with "
+                                "--init-from the checkpoint's).", default=None, metavar="LIST"),
     seed: int = option("--seed", "Initialisation and batch order.", field=(RankerTrainConfig, "seed")),
     threads: int = option("--threads", "Torch CPU threads.", field=(RankerTrainConfig, "num_threads"), min=1),
     no_repeats: bool = option("--no-repeats", "Leave out the robust labels' repeats (default: each repeat is an "
@@ -91,6 +91,9 @@ def train_ranker_command(
     pairwise_weight: float = option("--pairwise-weight", "Weight of the within-pile pairwise (RankNet) term beside "
                                     "the BCE; batches then hold whole piles (0: BCE alone).",
                                     field=(RankerTrainConfig, "pairwise_weight"), min=0.0),
+    init: Path = option("--init-from", "A ranker checkpoint to fine-tune (e.g. on a new on-policy round) instead of "
+                        "starting from random weights; its crop and network are kept.", default=None,
+                        metavar="FILE"),
     as_json: bool = JSON,
 ) -> None:
     """Train the grasp ranker that re-scores the network's best grasps (plan/eval --ranker).
@@ -107,12 +110,22 @@ def train_ranker_command(
     cfg = RankerTrainConfig(epochs=epochs, batch_size=batch_size, lr=lr, renders=renders, seed=seed,
                             num_threads=threads, balance_data=not no_balance, repeats=not no_repeats,
                             pairwise_weight=pairwise_weight)
-    try:
-        rcfg = RankerConfig(crop_px=crop_px, crop_channels=tuple(c.strip() for c in crop_channels.split(",")))
-    except ValueError as exc:
-        raise CliError(f"--crop-channels: {exc}") from exc
-    log = train_ranker(list(data), out, cfg, rcfg, progress=o.progress)
+    if init is not None:
+        check_input(init, "--init-from", "file")
+    rcfg = _ranker_config(crop_px, crop_channels, init)
+    log = train_ranker(list(data), out, cfg, rcfg, progress=o.progress, init=init)
     f = log["final"]
     o.say(f"ranker: {out}; validation: within-pile AUC {f['val_auc']:.3f} on {f['val_auc_piles']} piles, "
           f"BCE {f['val_bce']:.4f}, Brier {f['val_brier']:.4f}")
     o.result("loggrasp.train_ranker", {"out": str(out), "final": f, "examples": log["examples"]})
+
+
+def _ranker_config(crop_px: int, crop_channels: str | None, init: Path | None) -> RankerConfig | None:
+    """The crop asked for; None (keep the checkpoint's) with --init-from and no crop option off its default."""
+    channels = CROP_CHANNELS if crop_channels is None else tuple(c.strip() for c in crop_channels.split(","))
+    if init is not None and crop_channels is None and crop_px == RankerConfig.crop_px:
+        return None
+    try:
+        return RankerConfig(crop_px=crop_px, crop_channels=channels)
+    except ValueError as exc:
+        raise CliError(f"--crop-channels: {exc}") from exc

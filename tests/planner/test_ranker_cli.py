@@ -79,6 +79,44 @@ def test_train_ranker_without_instance_maps_needs_the_legacy_channels(capsys, tm
     assert load_ranker(tmp_path / "r.safetensors").config.crop_channels == LEGACY_CROP_CHANNELS
 
 
+
+def test_train_ranker_init_fine_tunes_the_checkpoint_it_is_given(capsys, tmp_path, trials_dir):
+    """With a vanishing learning rate a fine-tune returns its --init-from weights: training starts from them (a
+    random start with another seed differs by about 0.1)."""
+    import hashlib
+
+    from planner.checkpoint import load_tensors
+    from planner.ranker import LEGACY_CROP_CHANNELS, RANKER_FORMAT_NAME, load_ranker
+
+    first = tmp_path / "first.safetensors"
+    assert cli(capsys, "train-ranker", "--data", trials_dir, "--out", first, "--epochs", "1", "--batch-size", "8",
+               "--crop-channels", ",".join(LEGACY_CROP_CHANNELS)).code == 0
+    tuned = tmp_path / "tuned.safetensors"
+    r = cli(capsys, "train-ranker", "--data", trials_dir, "--out", tuned, "--epochs", "1", "--batch-size", "8",
+            "--lr", "1e-12", "--init-from", first, "--seed", "3")
+    assert r.code == 0, r.err
+    a, _ = load_tensors(first, RANKER_FORMAT_NAME)
+    b, _ = load_tensors(tuned, RANKER_FORMAT_NAME)
+    assert a.keys() == b.keys() and all(np.allclose(a[k], b[k], rtol=0, atol=1e-9) for k in a)
+    rk = load_ranker(tuned)
+    assert rk.config.crop_channels == LEGACY_CROP_CHANNELS  # the checkpoint's crop, not the default's
+    assert rk.meta["init"] == {"path": str(first), "sha256": hashlib.sha256(first.read_bytes()).hexdigest()}
+
+
+def test_train_ranker_init_bad_input(capsys, tmp_path, trials_dir, tiny_model):
+    from planner.ranker import LEGACY_CROP_CHANNELS
+
+    out = tmp_path / "r.safetensors"
+    train = ("train-ranker", "--data", trials_dir, "--out", out)
+    fails(cli(capsys, *train, "--init-from", tmp_path / "none.safetensors"), 2, "--init-from", "does not exist")
+    fails(cli(capsys, *train, "--init-from", tiny_model), 2, str(tiny_model))
+    first = tmp_path / "first.safetensors"
+    assert cli(capsys, "train-ranker", "--data", trials_dir, "--out", first, "--epochs", "1", "--batch-size", "8",
+               "--crop-channels", ",".join(LEGACY_CROP_CHANNELS)).code == 0
+    line = fails(cli(capsys, *train, "--init-from", first, "--crop-channels", "I,H,M_T,claws,M_L,M_O"), 2,
+                 "crop_channels", "leave those options out")
+    assert not out.exists(), line
+
 @pytest.fixture(scope="module")
 def tiny_model(tmp_path_factory):
     import torch
