@@ -37,10 +37,11 @@ from planner.runtime import INT8_PRECISIONS, masks_per_pass, resolve_precision
 from planner.subsets import SubsetPolicy, choose_subsets
 from synth.geometry.frames import OrthoGrid, wrap_phi
 from synth.geometry.grasp import MAX_WIDTH_M, MIN_WIDTH_M, RECT_WIDTH_M, Grasp
+from synth.physics.world import OBSTACLE_BASE
 
 PLAN_FORMAT_NAME = "loggrasp.plan"  # plan.json, ``loggrasp plan --json``
 PLAN_FORMAT_VERSION = "1.0"
-OBSTACLE_CODE_BASE = 1000  # instance codes >= this are obstacles (synth.render.ortho)
+OBSTACLE_CODE_BASE = OBSTACLE_BASE  # instance codes >= this are obstacles (synth.render.ortho)
 SIGMA_B = 0.25  # the paper's f3 balance tolerance [cos beta]
 HANG_SIGMA_B = 0.05  # f3's tolerance on the hang model's b [cos beta]: chosen on seeds 950,000,000+
 #                      (docs/results/aft4/tune-950), held out on 970,000,000+ (docs/model.md)

@@ -16,8 +16,9 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from synth.geometry.grasp import RECT_WIDTH_M
+from planner.inference import OBSTACLE_CODE_BASE
 from synth.common.files import atomic_write_bytes
+from synth.geometry.grasp import RECT_WIDTH_M
 
 TARGET_FILL = "#f0a030"
 LOG_EDGE = "#55a0ff"
@@ -161,7 +162,7 @@ def _draw_scene(ax, obs, frame: MapFrame, targets: Sequence[int], grasps: Sequen
                    linewidths=1.6 if i in tset else 1.0, transform=tr)
         rows, cols = np.nonzero(m)
         pts.append(frame(np.column_stack([X[rows, cols], Y[rows, cols]])))
-    obst = inst >= 1000
+    obst = inst >= OBSTACLE_CODE_BASE
     if obst.any():
         ax.contour(X, Y, obst.astype(float), levels=[0.5], colors=[OBSTACLE], linewidths=1.0, linestyles="--",
                    transform=tr)
@@ -273,8 +274,8 @@ def draw_plan(obs, plan, path: str | Path, *, pile: Any = None, objective: Any =
                            f"({len(best_targets)} of {n_logs}) — {where}" if grasps else
                            f"No grasp found ({n_logs} logs) — {where}"), fontsize=10.5, loc="left")
     # right: legend, ranked table, the score explained
-    shown = {int(c) - 1 for c in np.unique(np.asarray(obs.instance)) if 0 < c < 1000}
-    obstacles = bool((np.asarray(obs.instance) >= 1000).any())
+    shown = {int(c) - 1 for c in np.unique(np.asarray(obs.instance)) if 0 < c < OBSTACLE_CODE_BASE}
+    obstacles = bool((np.asarray(obs.instance) >= OBSTACLE_CODE_BASE).any())
     fig.legend(handles=_legend_handles(bool(best_targets), len(grasps) > 1, obstacles, bool(shown - set(best_targets))),
                loc="upper left", bbox_to_anchor=(0.61, 0.91), fontsize=8, frameon=True, title="legend",
                title_fontsize=8.5)
