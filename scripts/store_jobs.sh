@@ -2,8 +2,9 @@
 # The committed stores' rebuild (issue 35) and the on-policy rounds (issue 36) as long background jobs
 # that outlive a session:
 #
-#   scripts/store_jobs.sh start   # a detached worktree per job at HEAD (kept if it exists), each job
-#                                 # resumed there at nice 10 with one worker; logs in $RUNS
+#   scripts/store_jobs.sh start [NAME]  # a detached worktree per job at HEAD (kept if it exists), each job
+#                                 # (or only NAME) resumed there at nice 10 with $STORE_WORKERS workers
+#                                 # (default 1: a finished store's share goes to the others); logs in $RUNS
 #   scripts/store_jobs.sh sync    # the chunks finished so far copied into this checkout with the store
 #                                 # record they belong to (a snapshot taken first), checked by the
 #                                 # datastore tests; then commit them and the "Progress:" line of
@@ -12,12 +13,14 @@
 #
 # A round is a grasp store too (planner.onpolicy), synced the same way. The worktrees' commit only needs
 # the same trial revision as the store (and, for a round, the same model): a job refuses other
-# parameters, another revision or another model itself. Environment: WT_ROOT (default /work), RUNS (default /work/runs).
+# parameters, another revision or another model itself; the number of workers is not a parameter, so a job may be
+# resumed with more. Environment: WT_ROOT (default /work), RUNS (default /work/runs), STORE_WORKERS (default 1).
 set -euo pipefail
 
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
 WT_ROOT="${WT_ROOT:-/work}"
 RUNS="${RUNS:-/work/runs}"
+WORKERS="${STORE_WORKERS:-1}"
 PY="$ROOT/.venv/bin/python"
 
 # name | worktree | the store's folder | the loggrasp command (docs/dataset.md gives each store's command and
@@ -37,10 +40,11 @@ start() {
   mkdir -p "$RUNS"
   for job in "${JOBS[@]}"; do
     IFS='|' read -r name wt out args <<<"$job"
+    [ -n "${1:-}" ] && [ "$1" != "$name" ] && continue
     if running "$out"; then echo "$name: already running"; continue; fi
     [ -d "$wt" ] || git -C "$ROOT" worktree add --quiet --detach "$wt" HEAD
     # shellcheck disable=SC2086  # args is a word list
-    (cd "$wt" && nohup nice -n 10 "$PY" -m field.cli $args --out "$out" --workers 1 \
+    (cd "$wt" && nohup nice -n 10 "$PY" -m field.cli $args --out "$out" --workers "$WORKERS" \
       >>"$RUNS/store-$name.log" 2>&1 &)
     echo "$name: started in $wt (log $RUNS/store-$name.log)"
   done
@@ -79,8 +83,8 @@ status() {
 }
 
 case "${1:-}" in
-  start) start ;;
+  start) start "${2:-}" ;;
   sync) sync_stores ;;
   status) status ;;
-  *) echo "usage: $0 start|sync|status" >&2; exit 2 ;;
+  *) echo "usage: $0 start [NAME]|sync|status" >&2; exit 2 ;;
 esac
