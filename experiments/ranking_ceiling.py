@@ -8,6 +8,9 @@ the grasp's geometry. Near 0.5 the outcome is a lottery and no ranker can order 
 outcome is a property of the grasp and a ranker's shortfall is the ranker's.
 
     .venv/bin/python -m experiments.ranking_ceiling data/rounds/r0 data/rounds/r1 data/rounds/r2
+
+``--rescored FILE`` measures a scorer the same way instead: the records ``experiments.ranking rescore --out``
+writes, ``--key`` (the ranker's ``p``, or the network's ``u``) against each tried grasp's outcome.
 """
 
 from __future__ import annotations
@@ -45,6 +48,16 @@ def round_grasps(store_dir: str | Path) -> dict[str, np.ndarray]:
     return {"share": np.array(share), "exact": np.array(exact), "pile": np.array(pile), "outcome": np.array(outcome)}
 
 
+def rescored_grasps(path: str | Path, key: str = "p") -> dict[str, np.ndarray]:
+    """The records of ``experiments.ranking rescore --out`` in :func:`round_grasps`' form, ``key`` as the score."""
+    records = json.loads(Path(path).read_text())
+    if not records or key not in records[0]:
+        raise ValueError(f"{path}: no records with a {key!r} score (experiments.ranking rescore --out writes them)")
+    return {"share": np.array([r[key] for r in records], float),
+            "exact": np.array([float(r["outcome"] == "success") for r in records]),
+            "pile": np.array([str(r["seed"]) for r in records]), "outcome": np.array([r["outcome"] for r in records])}
+
+
 def ceiling(grasps: dict[str, np.ndarray]) -> dict:
     """The within-pile AUC of the repeats' share against the exact outcome, overall and per exact failure kind
     (successes against the failures of that kind)."""
@@ -60,18 +73,24 @@ def ceiling(grasps: dict[str, np.ndarray]) -> dict:
 
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("rounds", nargs="+", type=Path, help="on-policy round stores (loggrasp round --out)")
+    ap.add_argument("rounds", nargs="*", type=Path, help="on-policy round stores (loggrasp round --out)")
+    ap.add_argument("--rescored", type=Path, action="append", default=[],
+                    help="rescored records (experiments.ranking rescore --out) to measure by --key instead")
+    ap.add_argument("--key", default="p", help="the rescored records' score: p (the ranker) or u (the network)")
     ap.add_argument("--json", action="store_true", help="print the result as JSON")
     a = ap.parse_args(argv)
-    parts = {str(r): round_grasps(r) for r in a.rounds}
-    result = {k: ceiling(g) for k, g in parts.items()}
-    if len(parts) > 1:
-        keys = next(iter(parts.values()))
-        result["all"] = ceiling({k: np.concatenate([g[k] for g in parts.values()]) for k in keys})
+    if not a.rounds and not a.rescored:
+        ap.error("give round stores or --rescored FILE")
+    rounds = {str(r): round_grasps(r) for r in a.rounds}
+    result = {k: ceiling(g) for k, g in rounds.items()}
+    if len(rounds) > 1:  # the rounds' piles are distinct; rescored files are not pooled (the same piles twice)
+        keys = next(iter(rounds.values()))
+        result["all rounds"] = ceiling({k: np.concatenate([g[k] for g in rounds.values()]) for k in keys})
+    result.update({f"{r} ({a.key})": ceiling(rescored_grasps(r, a.key)) for r in a.rescored})
     if a.json:
         print(json.dumps(result, indent=1))
         return
-    print("| rounds | grasps | exact success | within-pile AUC of the repeats' share (pairs, piles) "
+    print("| grasps of | grasps | exact success | within-pile AUC of the score (pairs, piles) "
           "| by exact failure |")
     print("|---|---|---|---|---|")
     for k, m in result.items():

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from experiments.ranking_ceiling import ceiling, round_grasps
+from experiments.ranking_ceiling import ceiling, rescored_grasps, round_grasps
 
 
 def _grasps(share, outcome, pile):
@@ -38,3 +38,19 @@ def test_round_grasps_reads_a_committed_round_and_refuses_a_data_store():
     assert np.array_equal(g["exact"] == 1.0, g["outcome"] == "success")
     with pytest.raises(ValueError, match="not an on-policy round"):
         round_grasps("data/paper-v4")
+
+
+def test_rescored_records_are_measured_by_their_score(tmp_path):
+    import json
+
+    recs = [{"seed": 1, "outcome": "success", "p": 0.9, "u": 0.2},
+            {"seed": 1, "outcome": "not_closed", "p": 0.3, "u": 0.8},
+            {"seed": 2, "outcome": "success", "p": 0.6, "u": 0.5},
+            {"seed": 2, "outcome": "collision", "p": 0.7, "u": 0.1}]
+    f = tmp_path / "rescored.json"
+    f.write_text(json.dumps(recs))
+    assert ceiling(rescored_grasps(f, "p"))["auc"] == 0.5  # pile 1 right, pile 2 wrong
+    m = ceiling(rescored_grasps(f, "u"))
+    assert m["by_failure"]["not_closed"]["auc"] == 0.0 and m["by_failure"]["collision"]["auc"] == 1.0
+    with pytest.raises(ValueError, match="'b' score"):
+        rescored_grasps(f, "b")
