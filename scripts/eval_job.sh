@@ -3,9 +3,9 @@
 # outlives a session, in the pattern of scripts/store_jobs.sh:
 #
 #   scripts/eval_job.sh start    # a detached worktree at HEAD (kept if it exists); the job resumed there at
-#                                # nice 10, one worker; log in $RUNS/eval-product-1200.log
+#                                # nice 10, one worker; log in $RUNS/$NAME.log
 #   scripts/eval_job.sh sync     # the finished pile records (and the tables of the last finished step)
-#                                # copied into docs/results/eval-product-1200 of this checkout; then commit
+#                                # copied into docs/results/$NAME of this checkout; then commit
 #   scripts/eval_job.sh status   # piles with a record per step, and whether the job runs
 #   scripts/eval_job.sh stop     # ends the job (a later start resumes: one record file per pile)
 #
@@ -14,6 +14,8 @@
 # network re-ranked by the shipped ranker, f1 and f3, each with its field row), then the same rows
 # verified in the twin (K = 8). Each record is fingerprinted with the model, the ranker, the calibration
 # and the verifier, so a worktree at another commit with other weights re-runs what differs.
+# NAME is the product's evaluation as it ships now: a new folder (and worktree) when a shipped weight changes,
+# the old folder kept as that product's record (docs/results/README.md: eval-product-1200 is ranker-r3's).
 # Environment: WT_ROOT (default /work), RUNS (default /work/runs).
 set -euo pipefail
 
@@ -21,8 +23,8 @@ ROOT="$(cd "$(dirname "$0")/.." && pwd)"
 WT_ROOT="${WT_ROOT:-/work}"
 RUNS="${RUNS:-/work/runs}"
 PY="$ROOT/.venv/bin/python"
-WT="$WT_ROOT/wt-eval-product"
-NAME="eval-product-1200"
+WT="$WT_ROOT/wt-eval-product-r6"
+NAME="eval-product-r6-1200"
 OUT="docs/results/$NAME"
 ARGS=(--objectives f1,f3 --baselines '' --ranker planner/weights/ranker.safetensors --ranked-only
       --field-error 0.03,2 --seed-base 970000000 --workers 1 --out "$OUT")
