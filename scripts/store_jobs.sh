@@ -7,7 +7,7 @@
 #                                 # (default 1: a finished store's share goes to the others); logs in $RUNS
 #   scripts/store_jobs.sh sync    # the chunks finished so far copied into this checkout with the store
 #                                 # record they belong to (a snapshot taken first), checked by the
-#                                 # datastore tests; then commit them and the "Progress:" line of
+#                                 # datastore tests; then commit them and the Progress table of
 #                                 # docs/dataset.md
 #   scripts/store_jobs.sh status  # piles done per store, and whether its job runs
 #
