@@ -78,7 +78,11 @@ def _match_cost(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, c
             t = float((q[:2] - p0[:2]) @ u)
             sh = math.hypot(e.sigma_h_m, math.hypot(cfg.pose_sigma_m, cfg.axis_sigma_m))
             sv = math.sqrt(e.sigma_v_m ** 2 + cfg.pose_sigma_m ** 2 + cfg.radius_sigma_m ** 2)
-            s_across = sh if offset_m is None else math.hypot(e.sigma_h_m, cfg.axis_sigma_m)
+            # with the offset fitted, across the ridge a point is as sure as itself and the ridge's axis there (the
+            # axis extended past the ridge less sure by extrapolation_sigma_per_m)
+            past = max(0.0, -t, t - L)
+            s_across = sh if offset_m is None else math.hypot(
+                e.sigma_h_m, math.hypot(cfg.axis_sigma_m, cfg.extrapolation_sigma_per_m * past))
             lat = float((q[:2] - p0[:2]) @ n) / s_across
             z_axis = p0[2] + (p1[2] - p0[2]) * np.clip(t / L, 0.0, 1.0)
             vert = (float(q[2]) - float(z_axis)) / sv

@@ -1,0 +1,97 @@
+"""rules22's matching with RTK fixed points (docs/reconstruction.md, "Correct fixed points called ambiguous"):
+a scrap of ridge too short to stand as a log calls no precise point wrong, and two matchings are compared
+with one offset of the whole scan for the pose's error (reconstruct.fitting.scan_offset)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from reconstruct.fitting.fuse import FuseConfig, match_survey
+from reconstruct.fitting.matching import AmbiguousSurveyError
+from reconstruct.fitting.scan_offset import fit_offset
+
+from tests.reconstruct.fitting.fusion_helpers import scan_log, slanted_scan_log, survey_end
+
+
+def _fixed_log(y: float, half: float = 1.2):
+    return survey_end(-half, y, fix="rtk_fixed"), survey_end(half, y, fix="rtk_fixed")
+
+
+def test_a_scrap_across_a_fixed_log_calls_none_of_its_points_wrong():
+    """Twin scans 5500018, 5500102, 5500420, 5500603, 5500654 (all-fixed survey): a log under its neighbours,
+    the scan showing of it only a 10-35 cm scrap across each end. Each scrap explained one fixed point and
+    called the other (2.4 m away) wrong, the two scraps equally well: an AmbiguousSurveyError. A scrap shorter
+    than a log the scan alone would make (min_new_log_m) is no evidence against a precise point: the log is
+    hidden, placed from its points."""
+    survey = {"log0": _fixed_log(-0.17), "log1": _fixed_log(0.0), "log2": _fixed_log(0.17)}
+    scan_logs = [scan_log(-1.2, 1.2, -0.17), scan_log(-1.2, 1.2, 0.17),
+                 slanted_scan_log((-1.22, -0.15, 0.08), (-1.22, 0.15, 0.08), seen=0.25),
+                 slanted_scan_log((1.21, -0.15, 0.08), (1.21, 0.15, 0.08), seen=0.25)]
+    matches, unmatched = match_survey(survey, scan_logs)
+    assert matches["log0"].scan_index == 0 and matches["log2"].scan_index == 1
+    assert matches["log1"].scan_index is None and sorted(unmatched) == [2, 3]
+    # a point as imprecise as a float one may still be called wrong on the scrap (what it was before)
+    floaty = {"log1": (survey_end(-1.2, 0.0, fix="rtk_fixed"), survey_end(3.0, 0.0))}
+    matches, _ = match_survey(floaty, scan_logs[2:3])
+    assert matches["log1"].scan_index == 0
+
+
+def test_a_scrap_long_enough_to_be_a_log_may_still_call_a_fixed_point_wrong():
+    """The rule is for scraps: a ridge the scan alone would make a log of (seen over min_new_log_m) keeps a
+    surveyed log with one point beyond its gate (a wrong point is named, as before)."""
+    ridge = scan_log(-1.2, 1.2, 0.0)
+    survey = {"log0": (survey_end(-1.2, 0.0, fix="rtk_fixed"), survey_end(1.2, 0.6, fix="rtk_fixed"))}
+    matches, _ = match_survey(survey, [ridge])
+    assert matches["log0"].scan_index == 0
+    short = scan_log(-1.2, -1.2 + 0.5, 0.0)  # the same, seen over 0.5 m only
+    matches, _ = match_survey(survey, [short])
+    assert matches["log0"].scan_index is None
+
+
+def _with_anchors(survey: dict, logs: list, offset_y: float) -> tuple[dict, list]:
+    """Two more logs of the scan, each alone on its ridge (well apart from the rest), showing the scan's offset."""
+    for k, y in (("far0", -1.0), ("far1", -1.6)):
+        survey[k] = _fixed_log(y)
+        logs.append(scan_log(-1.2, 1.2, y + offset_y))
+    return survey, logs
+
+
+def test_one_scan_offset_tells_a_log_from_its_hidden_neighbour():
+    """Twin scan 5500420 (all-fixed survey): the scan's ridges lie 7 cm to one side of every log's fixed
+    points; log 3 is hidden, and log 2's ridge is 9 cm from log 3's points on the other side. With the pose's
+    4 cm at every point the two ("log 2 on it, log 3 hidden" and the reverse) were within chi2 4 (an
+    AmbiguousSurveyError); with one offset for the whole scan the reverse leaves log 3 16 cm off the offset
+    the other logs show: no ambiguity, log 2 on its ridge."""
+    survey = {"log1": _fixed_log(0.17), "log2": _fixed_log(0.34), "log3": _fixed_log(0.50)}
+    survey, logs = _with_anchors(survey, [scan_log(-1.2, 1.2, 0.24), scan_log(-1.2, 1.2, 0.41)], 0.07)
+    matches, _ = match_survey(survey, logs)
+    assert matches["log2"].scan_index == 1 and matches["log3"].scan_index is None
+    with pytest.raises(AmbiguousSurveyError, match="log 'log2'"):
+        match_survey(survey, logs, replace(FuseConfig(), one_scan_offset=False))
+
+
+def test_one_scan_offset_takes_the_matching_it_makes_clearly_better():
+    """Twin scans 5500075 / 5500597: with the pose's 4 cm at every point the cheapest matching put a log on its
+    neighbour's ridge (its points 8 cm from it, the right log's 9 cm on the other side), against the offset
+    every other log shows. With one offset for the whole scan the other matching is better by far more than
+    the margin: it is taken (not an ambiguity, not the per-point choice)."""
+    survey = {"log1": _fixed_log(-0.18), "log2": _fixed_log(0.0), "log3": _fixed_log(0.17)}
+    survey, logs = _with_anchors(survey, [scan_log(-1.2, 1.2, -0.18 + 0.08), scan_log(-1.2, 1.2, 0.09)], 0.08)
+    per_point = replace(FuseConfig(), one_scan_offset=False)
+    with pytest.raises(AmbiguousSurveyError):
+        match_survey(survey, logs, per_point)
+    matches, _ = match_survey(survey, logs)
+    assert matches["log2"].scan_index == 1 and matches["log3"].scan_index is None
+
+
+def test_the_offset_is_fitted_across_the_logs_and_held_by_its_prior_along_them():
+    survey = {f"log{i}": _fixed_log(i * 0.17) for i in range(3)}
+    logs = [scan_log(-1.2, 1.2, i * 0.17 + 0.07) for i in range(3)]
+    ids = list(survey)
+    o = fit_offset(survey, ids, logs, [0, 1, 2], FuseConfig())
+    assert abs(o[1] - (-0.07)) < 0.005 and abs(o[0]) < 1e-9  # survey minus scan, across; nothing along
+    o_none = fit_offset(survey, ids, logs, [None, None, None], FuseConfig())
+    assert np.allclose(o_none, 0.0)
