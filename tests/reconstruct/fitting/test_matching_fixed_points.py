@@ -4,14 +4,15 @@ with one offset of the whole scan for the pose's error (reconstruct.fitting.scan
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from reconstruct.fitting.fuse import FuseConfig, match_survey
-from reconstruct.fitting.matching import AmbiguousSurveyError
-from reconstruct.fitting.scan_offset import fit_offset
+from reconstruct.fitting.matching import AmbiguousSurveyError, _match_cost
+from reconstruct.fitting.scan_offset import fit_offset, matching_chi2
 
 from tests.reconstruct.fitting.fusion_helpers import scan_log, slanted_scan_log, survey_end
 
@@ -95,3 +96,32 @@ def test_the_offset_is_fitted_across_the_logs_and_held_by_its_prior_along_them()
     assert abs(o[1] - (-0.07)) < 0.005 and abs(o[0]) < 1e-9  # survey minus scan, across; nothing along
     o_none = fit_offset(survey, ids, logs, [None, None, None], FuseConfig())
     assert np.allclose(o_none, 0.0)
+
+
+def test_a_point_far_past_a_piece_is_judged_with_the_axis_extended_that_far():
+    """Spent scan 5500557 (all-fixed survey): a log seen as a 0.55 m piece at its end b, its point a 2.4 m on,
+    about 10 cm off the piece's line extended there. With the offset fitted and the points judged by their own
+    1-2 cm, a was beyond the gate, the piece cost as much as both points wrong and "hidden" was as good (an
+    AmbiguousSurveyError); the piece's axis extended 1.85 m is itself unsure across by
+    extrapolation_sigma_per_m a metre: a is within the gate, and b (on the piece) is judged as before."""
+    piece = slanted_scan_log((1.2, 0.0, 0.08), (0.65, 0.0227, 0.08))
+    cost, _, wrong = _match_cost(_fixed_log(0.0), piece, FuseConfig(), np.zeros(2))
+    assert wrong == 0 and 4.0 < cost < 9.0  # a: ~10 cm over hypot(1, 2, 3.7) cm
+    on_piece = (survey_end(0.65, 0.0227 + 0.12, fix="rtk_fixed"), survey_end(1.2, 0.0, fix="rtk_fixed"))
+    cost, _, _ = _match_cost(on_piece, piece, FuseConfig(), np.zeros(2))
+    # 12 cm off the piece where the scan shows it: beyond the gate of its 1-2 cm and the axis's 2 cm, a precise
+    # point the piece (too short to stand as a log) cannot call wrong
+    assert cost == math.inf
+
+
+def test_the_pose_prior_holds_a_lone_logs_offset_short_of_its_points():
+    """One log, its two fixed points 7 cm across its ridge: the offset is the weighted mean of the points'
+    7 cm and the pose's prior 0 (4 cm), each by its precision: about 6 cm, and its prior's chi^2 is counted."""
+    survey = {"log0": _fixed_log(0.0)}
+    logs = [scan_log(-1.2, 1.2, 0.07)]
+    cfg = FuseConfig()
+    o = fit_offset(survey, ["log0"], logs, [0], cfg)
+    w = 2 / (survey["log0"][0].sigma_h_m ** 2 + cfg.axis_sigma_m ** 2)
+    assert abs(o[1] - (-0.07) * w / (w + cfg.pose_sigma_m ** -2)) < 1e-9 and abs(o[1]) < 0.065
+    total = matching_chi2(survey, ["log0"], logs, [0], np.array([32.0]), cfg, _match_cost, 17.0)
+    assert total >= float(o @ o) / cfg.pose_sigma_m ** 2 > 2.0
