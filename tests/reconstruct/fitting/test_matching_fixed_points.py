@@ -125,3 +125,14 @@ def test_the_pose_prior_holds_a_lone_logs_offset_short_of_its_points():
     assert abs(o[1] - (-0.07) * w / (w + cfg.pose_sigma_m ** -2)) < 1e-9 and abs(o[1]) < 0.065
     total = matching_chi2(survey, ["log0"], logs, [0], np.array([32.0]), cfg, _match_cost, 17.0)
     assert total >= float(o @ o) / cfg.pose_sigma_m ** 2 > 2.0
+
+
+def test_a_log_the_offset_leaves_off_its_ridge_costs_its_points_called_wrong():
+    """Four logs on their ridges, one 15 cm beside its own (within the per-point gate of 4 x 4.6 cm, beyond the
+    gate of its own 2.3 cm once the scan's offset, 0 here, is taken out): that log costs what calling both its
+    points wrong costs (gate^2 + 1 each), not an infinite chi^2 that would make every comparison void."""
+    survey = {f"log{i}": _fixed_log(i * 0.5) for i in range(4)}
+    logs = [scan_log(-1.2, 1.2, i * 0.5 + (0.15 if i == 3 else 0.0)) for i in range(4)]
+    cfg = FuseConfig()
+    total = matching_chi2(survey, list(survey), logs, [0, 1, 2, 3], np.full(4, 32.0), cfg, _match_cost, 17.0)
+    assert math.isfinite(total) and total >= 34.0
