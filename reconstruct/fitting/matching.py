@@ -145,17 +145,16 @@ def match_survey(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]]
             alt, alt_pick = _assign(c2, none_cost)
             delta = alt - best
             if cfg.one_scan_offset:
-                delta = _one_offset_delta(survey, ids, scan_logs, pick, alt_pick, none_cost, cfg)
+                # as good only if as good both ways the pose's error is priced: at every point (the widths the
+                # matching is found with) and as one offset of the whole scan; the offset clears ties the loose
+                # widths make, and never picks another matching (fitted to a few logs, one offset can make a
+                # matching shifted by a log look best)
+                delta = max(delta, _one_offset_delta(survey, ids, scan_logs, pick, alt_pick, none_cost, cfg))
             alternatives[k] = f"{'nothing' if alt_pick[i] is None else f'scan log {alt_pick[i]}'} (chi2 {delta:+.1f})"
             if alt_pick[i] is None and _on_its_survey_line(scan_logs[pick[i]], survey[k], cfg):
                 continue  # "hidden" would count the log twice: the scan shows it on its own fixed points' line
             if alt_pick[i] is None and _hidden_is_the_surer(survey, ids, pick, alt_pick, i):
                 continue
-            if (cfg.one_scan_offset and delta < -cfg.ambiguity_chi2
-                    and piles.gross_errors(alt_pick) <= piles.gross_errors(pick)):
-                # with the scan's one offset the other matching is the better by more than the margin: it is taken
-                switched = (alt, alt_pick)
-                break
             if not piles.as_good(pick, alt_pick, delta):
                 continue
             if alt_pick[i] is not None and piles.unexplained(alt_pick) != piles.unexplained(pick):
