@@ -13,9 +13,8 @@ AXIS_SOURCES = ("fit", "gnss")
 
 #: Revision of the fitting: raised whenever a change here makes different piles from the same scan, so
 #: that kept reconstructions (``experiments.real_test``) are made again. What each revision changed and
-#: why: docs/reconstruction.md, "Fitting revisions 1-22" (23: the obstacle stage, "One obstacle per body"; 24:
-#: rules22's matching of RTK fixed points, "Correct fixed points called ambiguous").
-FIT_REVISION = 24
+#: why: docs/reconstruction.md, "Fitting revisions 1-22" (23: the obstacle stage, "One obstacle per body").
+FIT_REVISION = 23
 
 
 @dataclass(frozen=True)

@@ -112,7 +112,7 @@ def _match_cost(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, c
             # ridge crossing the surveyed log near one end is no evidence against its other point (else
             # a scrap at right angles to a log of two fixed points takes it)
             total = math.inf
-        if precise_out and log.seen_m < cfg.min_new_log_m:
+        if cfg.scrap_keeps_precise_points and precise_out and log.seen_m < cfg.min_new_log_m:
             # a precise point called wrong on a scrap of ridge the scan alone would not make a log of: the scrap
             # is no evidence against the point (the log, its points right, is hidden or on another scan log)
             total = math.inf
