@@ -35,6 +35,11 @@ class FuseConfig:
     gate_sigma: float = 4.0  # a point this many sigma from a scan log's axis is not on it [-]
     ridge_overrun_m: float = 0.10  # a ridge may run this far past its log's end [m]
     ambiguity_chi2: float = 4.0  # another matching within this summed chi^2 of the best is as good [-]
+    one_scan_offset: bool = False  # an alternative matching is as good only if also so with one offset of the
+    #                                whole scan for the pose's error (reconstruct.fitting.scan_offset); off: as
+    #                                revision 23 (docs/reconstruction.md, "Correct fixed points called ambiguous") [-]
+    scrap_keeps_precise_points: bool = False  # a scan log seen under min_new_log_m cannot call a precise
+    #                                           point wrong; off: as revision 23 [-]
     end_bin_m: float = 0.02  # bins of the walk along a fitted log [m]
     seen_gap_m: float = 0.08  # an end whose top stops this close to where the scan sees below it is seen (the
     #                           gap is the end face's shadow) [m]

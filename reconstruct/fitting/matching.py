@@ -20,6 +20,7 @@ import numpy as np
 from reconstruct.errors import FitError
 from reconstruct.fitting.fuse_config import FuseConfig
 from reconstruct.fitting.scan_logs import ScanLog
+from reconstruct.fitting.scan_offset import matching_chi2
 from reconstruct.fitting.survey_points import SURVEY_REACH_SIGMAS, SurveyEnd
 
 # a point beyond the gate costs this much more than the gate's chi^2 (so a log with no point on a scan log
@@ -55,10 +56,12 @@ class Match:
 
 
 def _match_cost(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, cfg: FuseConfig,
-                ) -> tuple[float, bool, int]:
+                offset_m: np.ndarray | None = None) -> tuple[float, bool, int]:
     """Summed squared normalised distances of a surveyed log's points from a scan log (+inf when every
     point is beyond the gate), whether its end ``a`` lies at the scan log's end, and how many of its
-    points lie beyond the gate (gross errors, if this is its log)."""
+    points lie beyond the gate (gross errors, if this is its log). With ``offset_m`` (the scan's horizontal
+    offset, :mod:`reconstruct.fitting.scan_offset`) the points are taken less that offset and their distance
+    across the scan log is priced without the pose's sigma, which the offset stands for."""
     p0, p1 = log.start_m, log.end_m
     d = p1[:2] - p0[:2]
     L = max(float(np.linalg.norm(d)), 1e-6)
@@ -66,16 +69,21 @@ def _match_cost(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, c
     n = np.array([-u[1], u[0]])
     best = (math.inf, False, 0)
     for rev in (False, True):
-        total, outliers, far = 0.0, 0, 0
+        total, outliers, far, precise_out = 0.0, 0, 0, 0
         for k, e in enumerate(ends):
             if e is None:
                 continue
             at_start = (k == 0) != rev
-            q = e.position_m
+            q = e.position_m if offset_m is None else e.position_m - np.append(offset_m, 0.0)
             t = float((q[:2] - p0[:2]) @ u)
             sh = math.hypot(e.sigma_h_m, math.hypot(cfg.pose_sigma_m, cfg.axis_sigma_m))
             sv = math.sqrt(e.sigma_v_m ** 2 + cfg.pose_sigma_m ** 2 + cfg.radius_sigma_m ** 2)
-            lat = float((q[:2] - p0[:2]) @ n) / sh
+            # with the offset fitted, across the ridge a point is as sure as itself and the ridge's axis there (the
+            # axis extended past the ridge less sure by extrapolation_sigma_per_m)
+            past = max(0.0, -t, t - L)
+            s_across = sh if offset_m is None else math.hypot(
+                e.sigma_h_m, math.hypot(cfg.axis_sigma_m, cfg.extrapolation_sigma_per_m * past))
+            lat = float((q[:2] - p0[:2]) @ n) / s_across
             z_axis = p0[2] + (p1[2] - p0[2]) * np.clip(t / L, 0.0, 1.0)
             vert = (float(q[2]) - float(z_axis)) / sv
             # a log end is at or beyond the visible ridge: a point well inside it counts against (the ridge
@@ -93,6 +101,7 @@ def _match_cost(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, c
                 # gate, so a log with no point on a scan log is better matched to none)
                 c2 = cfg.gate_sigma ** 2 + OUTLIER_EXTRA_CHI2
                 outliers += 1
+                precise_out += e.sigma_h_m <= cfg.weak_sigma_m
             elif not -cfg.end_search_m <= t <= L + cfg.end_search_m:
                 far += 1  # on the scan log's line, but beyond any walk from it
             total += c2
@@ -102,6 +111,10 @@ def _match_cost(ends: tuple[SurveyEnd | None, SurveyEnd | None], log: ScanLog, c
             # a point called wrong, and the other only on the line far past the scan log: a scrap of
             # ridge crossing the surveyed log near one end is no evidence against its other point (else
             # a scrap at right angles to a log of two fixed points takes it)
+            total = math.inf
+        if cfg.scrap_keeps_precise_points and precise_out and log.seen_m < cfg.min_new_log_m:
+            # a precise point called wrong on a scrap of ridge the scan alone would not make a log of: the scrap
+            # is no evidence against the point (the log, its points right, is hidden or on another scan log)
             total = math.inf
         if total < best[0]:
             best = (total, rev, outliers)
@@ -131,6 +144,12 @@ def match_survey(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]]
             c2[i, pick[i]] = math.inf
             alt, alt_pick = _assign(c2, none_cost)
             delta = alt - best
+            if cfg.one_scan_offset:
+                # as good only if as good both ways the pose's error is priced: at every point (the widths the
+                # matching is found with) and as one offset of the whole scan; the offset clears ties the loose
+                # widths make, and never picks another matching (fitted to a few logs, one offset can make a
+                # matching shifted by a log look best)
+                delta = max(delta, _one_offset_delta(survey, ids, scan_logs, pick, alt_pick, none_cost, cfg))
             alternatives[k] = f"{'nothing' if alt_pick[i] is None else f'scan log {alt_pick[i]}'} (chi2 {delta:+.1f})"
             if alt_pick[i] is None and _on_its_survey_line(scan_logs[pick[i]], survey[k], cfg):
                 continue  # "hidden" would count the log twice: the scan shows it on its own fixed points' line
@@ -155,6 +174,16 @@ def match_survey(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]]
                for i, (k, j) in enumerate(zip(ids, pick))}
     taken = {j for j in pick if j is not None}
     return matches, [j for j in range(len(scan_logs)) if j not in taken]
+
+
+def _one_offset_delta(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]], ids: list[str],
+                      scan_logs: Sequence[ScanLog], pick: list[int | None], alt: list[int | None],
+                      none_cost: np.ndarray, cfg: FuseConfig) -> float:
+    """How much worse ``alt`` explains the survey than ``pick``, each with its own offset of the whole scan
+    (:func:`reconstruct.fitting.scan_offset.matching_chi2`) [chi^2]."""
+    wrong = cfg.gate_sigma ** 2 + OUTLIER_EXTRA_CHI2
+    return (matching_chi2(survey, ids, scan_logs, alt, none_cost, cfg, _match_cost, wrong)
+            - matching_chi2(survey, ids, scan_logs, pick, none_cost, cfg, _match_cost, wrong))
 
 
 def _hidden_is_the_surer(survey: Mapping[str, tuple[SurveyEnd | None, SurveyEnd | None]], ids: list[str],
