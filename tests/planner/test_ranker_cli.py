@@ -80,7 +80,20 @@ def test_train_ranker_without_instance_maps_needs_the_legacy_channels(capsys, tm
 
 
 
-def test_train_ranker_init_fine_tunes_the_checkpoint_it_is_given(capsys, tmp_path, trials_dir):
+@pytest.fixture(scope="module")
+def legacy_ranker(tmp_path_factory, trials_dir):
+    """A four-channel ranker trained one epoch (not the default crop, so that --init-from must keep it)."""
+    from planner.ranker import LEGACY_CROP_CHANNELS
+    from tests.cli_helpers import run_captured
+
+    first = tmp_path_factory.mktemp("legacy") / "first.safetensors"
+    r = run_captured("train-ranker", "--data", trials_dir, "--out", first, "--epochs", "1", "--batch-size", "8",
+                     "--crop-channels", ",".join(LEGACY_CROP_CHANNELS))
+    assert r.code == 0, r.err
+    return first
+
+
+def test_train_ranker_init_fine_tunes_the_checkpoint_it_is_given(capsys, tmp_path, trials_dir, legacy_ranker):
     """With a vanishing learning rate a fine-tune returns its --init-from weights: training starts from them (a
     random start with another seed differs by about 0.1)."""
     import hashlib
@@ -88,9 +101,7 @@ def test_train_ranker_init_fine_tunes_the_checkpoint_it_is_given(capsys, tmp_pat
     from planner.checkpoint import load_tensors
     from planner.ranker import LEGACY_CROP_CHANNELS, RANKER_FORMAT_NAME, load_ranker
 
-    first = tmp_path / "first.safetensors"
-    assert cli(capsys, "train-ranker", "--data", trials_dir, "--out", first, "--epochs", "1", "--batch-size", "8",
-               "--crop-channels", ",".join(LEGACY_CROP_CHANNELS)).code == 0
+    first = legacy_ranker
     tuned = tmp_path / "tuned.safetensors"
     r = cli(capsys, "train-ranker", "--data", trials_dir, "--out", tuned, "--epochs", "1", "--batch-size", "8",
             "--lr", "1e-12", "--init-from", first, "--seed", "3")
@@ -103,17 +114,12 @@ def test_train_ranker_init_fine_tunes_the_checkpoint_it_is_given(capsys, tmp_pat
     assert rk.meta["init"] == {"path": str(first), "sha256": hashlib.sha256(first.read_bytes()).hexdigest()}
 
 
-def test_train_ranker_init_bad_input(capsys, tmp_path, trials_dir, tiny_model):
-    from planner.ranker import LEGACY_CROP_CHANNELS
-
+def test_train_ranker_init_bad_input(capsys, tmp_path, trials_dir, tiny_model, legacy_ranker):
     out = tmp_path / "r.safetensors"
     train = ("train-ranker", "--data", trials_dir, "--out", out)
     fails(cli(capsys, *train, "--init-from", tmp_path / "none.safetensors"), 2, "--init-from", "does not exist")
     fails(cli(capsys, *train, "--init-from", tiny_model), 2, str(tiny_model))
-    first = tmp_path / "first.safetensors"
-    assert cli(capsys, "train-ranker", "--data", trials_dir, "--out", first, "--epochs", "1", "--batch-size", "8",
-               "--crop-channels", ",".join(LEGACY_CROP_CHANNELS)).code == 0
-    line = fails(cli(capsys, *train, "--init-from", first, "--crop-channels", "I,H,M_T,claws,M_L,M_O"), 2,
+    line = fails(cli(capsys, *train, "--init-from", legacy_ranker, "--crop-channels", "I,H,M_T,claws,M_L,M_O"), 2,
                  "crop_channels", "leave those options out")
     assert not out.exists(), line
 
