@@ -28,7 +28,6 @@ PY="$ROOT/.venv/bin/python"
 JOBS=(
   "paper-v4|$WT_ROOT/wt-store-v4b|data/paper-v4|synth dataset --store --piles 604 --logs 4 --obstacles-fraction 0.33 --seed 0"
   "mixed-v4|$WT_ROOT/wt-mixed-v4|data/mixed-v4|synth dataset --store --piles 300 --logs 2-7 --max-subsets 15 --obstacles-fraction 0.5 --seed 1"
-  "round-r2|$WT_ROOT/wt-round2|data/rounds/r2|round --round 2 --piles 240"
   "round-r3|$WT_ROOT/wt-round3|data/rounds/r3|round --round 3 --piles 480"
 )
 
