@@ -14,7 +14,6 @@ same grasp) and turned by 180 degrees (phi + pi is the same grasp).
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import time
@@ -305,7 +304,7 @@ def train_ranker(data: list[str | Path], out: str | Path, cfg: RankerTrainConfig
     update of the last ranker) instead of starting from random weights; its crop is kept, and a
     ``ranker`` configuration that differs from it is a :class:`TrainingError`. ``ranker`` None: the
     default configuration (or the checkpoint's)."""
-    from synth.common.files import atomic_write_bytes
+    from synth.common.files import atomic_write_bytes, sha256_file
 
     say = progress or (lambda s: None)
     start, ranker = _start_from(init, ranker)
@@ -315,7 +314,7 @@ def train_ranker(data: list[str | Path], out: str | Path, cfg: RankerTrainConfig
         f"piles), {time.perf_counter() - t0:.0f} s")
     model, history = fit(ex, cfg, ranker, say, None if start is None else start.model.state_dict())
     log = {"data": [str(d) for d in data], "train_config": asdict(cfg), "ranker_config": ranker.to_dict(),
-           "init": None if init is None else {"path": str(init), "sha256": _sha256(init)},
+           "init": None if init is None else {"path": str(init), "sha256": sha256_file(init)},
            "examples": {"train": int((~ex.val).sum()), "val": int(ex.val.sum()),
                         "train_positive_mean": float(ex.labels[~ex.val].mean())},
            "history": history, "final": history[-1]}
@@ -335,7 +334,3 @@ def _start_from(init: str | Path | None, ranker: RankerConfig | None):
                             f"({', '.join(f'{k} {a} there, {b} asked' for k, (a, b) in diff.items())}); "
                             "leave those options out to keep the checkpoint's")
     return start, start.config
-
-
-def _sha256(path: str | Path) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
