@@ -4,8 +4,9 @@ Each grasp of an on-policy round (:mod:`planner.onpolicy`) was tried exactly and
 moved by the crane's positioning error. The repeats' success share is what a scorer would know that
 judged each grasp's robustness perfectly but never saw the exact trial; its within-pile AUC against
 the exact outcome (the label the evaluation judges) is what a ranker reaches that learnt each grasp's
-robustness from its geometry perfectly (it could only go further by predicting the exact trial itself). Near 0.5 the outcome is a lottery and no ranker can order it; near 1 the
-outcome is a property of the grasp and a ranker's shortfall is the ranker's.
+robustness from its geometry perfectly (it could only go further by predicting the exact trial
+itself). Near 0.5 the outcome is a lottery and no ranker can order it; near 1 the outcome is a
+property of the grasp and a ranker's shortfall is the ranker's.
 
     .venv/bin/python -m experiments.ranking_ceiling data/rounds/r0 data/rounds/r1 data/rounds/r2
 
