@@ -3,7 +3,7 @@
 # that outlive a session:
 #
 #   scripts/store_jobs.sh start [NAME]  # a detached worktree per job at HEAD (kept if it exists), each job
-#                                 # (or only NAME) resumed there at nice 10 with $STORE_WORKERS workers
+#                                 # (or only NAME) resumed there at nice 5 (ahead of the evaluation job's 10) with $STORE_WORKERS workers
 #                                 # (default 1: a finished store's share goes to the others); logs in $RUNS
 #   scripts/store_jobs.sh sync    # the chunks finished so far copied into this checkout with the store
 #                                 # record they belong to (a snapshot taken first), checked by the
@@ -44,7 +44,7 @@ start() {
     if running "$out"; then echo "$name: already running"; continue; fi
     [ -d "$wt" ] || git -C "$ROOT" worktree add --quiet --detach "$wt" HEAD
     # shellcheck disable=SC2086  # args is a word list
-    (cd "$wt" && nohup nice -n 10 "$PY" -m field.cli $args --out "$out" --workers "$WORKERS" \
+    (cd "$wt" && nohup nice -n 5 "$PY" -m field.cli $args --out "$out" --workers "$WORKERS" \
       >>"$RUNS/store-$name.log" 2>&1 &)
     echo "$name: started in $wt (log $RUNS/store-$name.log)"
   done
