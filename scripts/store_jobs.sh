@@ -3,8 +3,9 @@
 # that outlive a session:
 #
 #   scripts/store_jobs.sh start [NAME]  # a detached worktree per job at HEAD (kept if it exists), each job
-#                                 # (or only NAME) resumed there at nice 5 (ahead of the evaluation job's 10) with $STORE_WORKERS workers
-#                                 # (default 1: a finished store's share goes to the others); logs in $RUNS
+#                                 # (or only NAME) resumed there at nice 5 (ahead of the evaluation job's
+#                                 # 10) with $STORE_WORKERS workers (default 1: a finished store's share
+#                                 # goes to the others); logs in $RUNS
 #   scripts/store_jobs.sh sync    # the chunks finished so far copied into this checkout with the store
 #                                 # record they belong to (a snapshot taken first), checked by the
 #                                 # datastore tests; then commit them and the Progress table of
