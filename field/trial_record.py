@@ -410,8 +410,10 @@ def replay_record(record_dir: str | Path, work_dir: str | Path, progress=None) -
     for what in ("model", "ranker"):
         used = rec.get(what) or {}
         if used.get("sha256") and (not Path(used["path"]).exists() or sha256_of(Path(used["path"])) != used["sha256"]):
-            raise RecordError(f"the {what} {used['path']} differs from the one the trial used (sha256 in record.json) "
-                              "or is gone: a replay needs that checkpoint")
+            raise RecordError(f"the {what} {used['path']} differs from the one the trial used (sha256 "
+                              f"{used['sha256'][:12]}... in record.json) or is gone: a replay needs that checkpoint at "
+                              f"that path (a shipped one that has since been replaced is in the history: git log -- "
+                              f"{used['path']})")
     inputs = Path(record_dir) / "inputs"
     strip = lambda p: {k: p.get(k) for k in ("grasps", "subsets_evaluated")}  # noqa: E731 - elapsed_s differs
 
