@@ -45,6 +45,7 @@ import numpy as np
 from planner.errors import CheckpointError
 from synth.geometry.frames import OrthoGrid
 from synth.geometry.grasp import Grasp
+from synth.physics.world import OBSTACLE_BASE
 
 RANKER_FORMAT_NAME = "loggrasp.planner.ranker"
 CROP_CHANNELS = ("I", "H", "M_T", "claws", "M_L", "M_O")  # every channel a crop can have, in this order
@@ -107,8 +108,6 @@ def grasp_crops(intensity: np.ndarray, height_m: np.ndarray, masks: Sequence[np.
     obstacles), needed when ``config`` has ``M_L`` or ``M_O`` (``ValueError`` without it). Crop row 0 is
     on the left of the closing axis; column 0 at its negative end; pixels outside the image repeat its
     border."""
-    from planner.inference import OBSTACLE_CODE_BASE
-
     if config.needs_instance and instance is None:
         raise ValueError(f"the crop channels {list(config.crop_channels)} need the instance map")
     s = config.crop_px
@@ -118,7 +117,7 @@ def grasp_crops(intensity: np.ndarray, height_m: np.ndarray, masks: Sequence[np.
     logs = obstacles = None
     if instance is not None:
         inst = np.asarray(instance)
-        logs, obstacles = (inst > 0) & (inst < OBSTACLE_CODE_BASE), inst >= OBSTACLE_CODE_BASE
+        logs, obstacles = (inst > 0) & (inst < OBSTACLE_BASE), inst >= OBSTACLE_BASE
     out = np.empty((len(grasps), len(config.crop_channels), s, s), dtype=np.float32)
     for n, g in enumerate(grasps):
         a = np.array([math.cos(g.phi_rad), math.sin(g.phi_rad)])
